@@ -1,0 +1,31 @@
+"""Shared test helpers: scenes built directly (no config), small sizes."""
+
+import numpy as np
+import pytest
+
+from warpscatter.scene import Scene
+from warpscatter.scene.camera import Camera
+from warpscatter.scene.lights import DirectionalLight
+from warpscatter.scene.medium import Medium
+
+
+def quad(p0, p1, p2, p3):
+    """Two triangles of the quad p0-p1-p2-p3 (float32 vertices, int32 triangles)."""
+    v = np.array([p0, p1, p2, p3], dtype=np.float32)
+    return v, np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int32)
+
+
+def make_scene(vertices, triangles, camera=None, light=None, medium=None, albedo=(0.5, 0.5, 0.5)):
+    camera = camera or Camera(position=[0, 1, 0], look_at=[0, 1, -1], up=[0, 1, 0], fov_y=60, width=48, height=32,
+                              near=0.1, far=50)
+    light = light or DirectionalLight(direction=[0.3, -1.0, 0.2], irradiance=[1.0, 0.8, 0.6])
+    medium = medium or Medium(sigma_t=0.1, albedo=0.9)
+    t = np.asarray(triangles, np.int32)
+    return Scene(vertices=np.asarray(vertices, np.float32), triangles=t, tri_material=np.zeros(len(t), np.int32),
+                 albedo=np.array([albedo], np.float32), opacity=np.ones(1, np.float32), camera=camera, light=light,
+                 medium=medium)
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(42)

@@ -1,0 +1,376 @@
+"""Benchmark suites: ``warpscatter bench [SUITE]``.
+
+Every suite times library stages the way a render runs them: a warm-up run first (kernel compile
+is measured apart, as the ``compile`` figure of the first load in the process), then the median of
+``repeats`` runs per stage. Rows carry the error against the exact reference where one applies
+(relative L1 = sum|a - b| / sum|b| and RMSE over all pixels and channels) and the speed-up over the
+brute-force ray marcher measured in the SAME run.
+
+Output: a terminal table (:meth:`BenchReport.table`), ``bench-<suite>.json`` and, when matplotlib
+is installed (the ``plot`` extra), ``bench-<suite>.png``.
+
+Suites (:data:`SUITES`):
+
+* ``raster``    — depth map of a >= 1M-triangle mesh: the Warp rasterizer against BVH ray casting
+  (``wp.Mesh``) and Embree (embreex, the ``peers`` extra) when installed.
+* ``reference`` — the ray marcher at 1920x1080, 128 steps, with shadow-map and exact visibility.
+* ``parallel``  — speed-up of split CPU launches (1 thread against all) for the rasterizer and the marcher.
+
+``quick=True`` shrinks every size (for smoke tests and CI); figures for notes come from full runs.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import warp as wp
+
+from .wpinit import default_device, init
+
+SUITES: dict[str, str] = {
+    "raster": "1024^2 depth map of a >=1M-triangle mesh: Warp rasterizer vs wp.Mesh ray casting vs Embree",
+    "reference": "ray marching at 1920x1080, 128 steps: shadow-map vs exact (ray-cast) visibility",
+    "parallel": "speed-up of split CPU launches (1 thread vs all cores): rasterizer and ray marcher",
+}
+
+ProgressFn = Callable[[str, float], None]
+
+
+# ---- measurement helpers ---------------------------------------------------------------------------
+
+
+def measure(fn: Callable[[], object], repeats: int, warmup: int) -> dict:
+    """Run ``fn`` warmup times untimed, then ``repeats`` times; return median/min/all times (seconds)."""
+    for _ in range(warmup):
+        fn()
+        wp.synchronize()
+    times = []
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        fn()
+        wp.synchronize()
+        times.append(time.perf_counter() - t0)
+    return {"median_s": statistics.median(times), "min_s": min(times), "times_s": times}
+
+
+def errors(image: np.ndarray, reference: np.ndarray) -> dict:
+    """Relative L1 and RMSE of ``image`` against ``reference`` (same shape)."""
+    a = np.asarray(image, np.float64)
+    b = np.asarray(reference, np.float64)
+    denom = np.abs(b).sum()
+    return {"rel_l1": float(np.abs(a - b).sum() / denom) if denom > 0 else float("nan"),
+            "rmse": float(np.sqrt(np.mean((a - b) ** 2)))}
+
+
+@contextmanager
+def thread_limit(n: int | None):
+    """Temporarily set WARPSCATTER_THREADS (None: leave as is)."""
+    old = os.environ.get("WARPSCATTER_THREADS")
+    if n is not None:
+        os.environ["WARPSCATTER_THREADS"] = str(n)
+    try:
+        yield
+    finally:
+        if n is not None:
+            if old is None:
+                os.environ.pop("WARPSCATTER_THREADS", None)
+            else:
+                os.environ["WARPSCATTER_THREADS"] = old
+
+
+@dataclass
+class BenchReport:
+    """Rows of one suite run plus the machine description."""
+
+    suite: str
+    rows: list[dict] = field(default_factory=list)
+    meta: dict = field(default_factory=dict)
+    files: list[Path] = field(default_factory=list)
+
+    def add(self, **row) -> dict:
+        self.rows.append(row)
+        return row
+
+    def table(self) -> str:
+        """Fixed-width text table: one line per row, stage medians in ms."""
+        cols = ["name", "params", "median_ms", "stages_ms", "speedup", "rel_l1", "rmse", "extra"]
+        lines = []
+        for r in self.rows:
+            stages = r.get("stages_ms") or {}
+            lines.append([
+                r.get("name", ""),
+                " ".join(f"{k}={v}" for k, v in (r.get("params") or {}).items()),
+                f"{r['median_ms']:.1f}" if r.get("median_ms") is not None else "",
+                " ".join(f"{k}={v:.1f}" for k, v in stages.items()),
+                f"{r['speedup']:.2f}x" if r.get("speedup") is not None else "",
+                f"{r['rel_l1']:.4f}" if r.get("rel_l1") is not None else "",
+                f"{r['rmse']:.3g}" if r.get("rmse") is not None else "",
+                " ".join(f"{k}={v}" for k, v in (r.get("extra") or {}).items()),
+            ])
+        widths = [max(len(c), *(len(x[i]) for x in lines)) if lines else len(c) for i, c in enumerate(cols)]
+        out = [f"suite {self.suite}: " + ", ".join(f"{k}={v}" for k, v in self.meta.items() if k != "suite")]
+        out.append("  ".join(c.ljust(w) for c, w in zip(cols, widths)))
+        out.append("  ".join("-" * w for w in widths))
+        out += ["  ".join(x.ljust(w) for x, w in zip(line, widths)) for line in lines]
+        return "\n".join(out)
+
+    def write(self, out_dir: Path) -> list[Path]:
+        """Write JSON (and a PNG chart when matplotlib is available) into ``out_dir``."""
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        path = out_dir / f"bench-{self.suite}.json"
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps({"suite": self.suite, "meta": self.meta, "rows": self.rows}, indent=2))
+        os.replace(tmp, path)
+        self.files = [path]
+        chart = self._chart(out_dir / f"bench-{self.suite}.png")
+        if chart is not None:
+            self.files.append(chart)
+        return self.files
+
+    def _chart(self, path: Path) -> Path | None:
+        try:
+            import matplotlib
+
+            matplotlib.use("Agg")
+            import matplotlib.pyplot as plt
+        except ImportError:
+            return None
+        rows = [r for r in self.rows if r.get("median_ms") is not None]
+        if not rows:
+            return None
+        labels = [f"{r['name']}\n" + " ".join(f"{k}={v}" for k, v in (r.get("params") or {}).items()) for r in rows]
+        fig, ax = plt.subplots(figsize=(max(6, 1.2 * len(rows)), 4))
+        ax.bar(range(len(rows)), [r["median_ms"] for r in rows], color="#4477aa")
+        ax.set_xticks(range(len(rows)), labels, fontsize=7)
+        ax.set_ylabel("median time (ms)")
+        ax.set_yscale("log")
+        ax.set_title(f"warpscatter bench {self.suite} ({self.meta.get('threads')} threads)")
+        fig.tight_layout()
+        tmp = path.with_name(".tmp-" + path.name)
+        fig.savefig(tmp, dpi=110)
+        plt.close(fig)
+        os.replace(tmp, path)
+        return path
+
+
+def machine_meta() -> dict:
+    from .parallel import thread_count
+
+    return {"warp": wp.__version__, "python": platform.python_version(), "cpu": platform.processor() or
+            platform.machine(), "threads": thread_count(), "device": default_device()}
+
+
+# ---- scenes ----------------------------------------------------------------------------------------
+
+
+def bench_scene_config(name: str, width: int, height: int, **render):
+    """A validated config for one of the bench scenes (procedural only, so the bench runs from any install)."""
+    from .config import Config
+
+    scenes = {
+        "colonnade": {
+            "scene": {"meshes": [
+                {"procedural": "ground_plane", "params": {"size": 60.0}},
+                {"procedural": "colonnade", "params": {"pillars": 8}},
+            ]},
+            "camera": {"position": [9.0, 2.2, 10.0], "look_at": [0.0, 2.5, -2.0], "fov_y": 55,
+                       "near": 0.1, "far": 60.0},
+            "light": {"type": "directional", "direction": [-0.55, -0.45, -0.7], "irradiance": [3.0, 2.8, 2.4]},
+            "medium": {"sigma_t": 0.06, "albedo": 0.9, "phase": {"type": "henyey_greenstein", "g": 0.5}},
+        },
+    }
+    data = dict(scenes[name])
+    data["camera"] = {**data["camera"], "width": width, "height": height}
+    data["render"] = render
+    return Config.from_dict(data)
+
+
+# ---- suites ----------------------------------------------------------------------------------------
+
+
+def _dense_mesh(min_triangles: int):
+    """A height-field terrain with at least ``min_triangles`` triangles (from the procedural generators)."""
+    from .scene.procedural import terrain
+
+    res = int(np.ceil(np.sqrt(min_triangles / 2.0))) + 1
+    mesh = terrain(size=40.0, resolution=res, amplitude=3.0, seed=1)
+    return mesh.vertices, mesh.triangles
+
+
+def suite_raster(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
+    from . import raster, raycast
+    from .scene.camera import Camera
+
+    size = 256 if quick else 1024
+    verts, tris = _dense_mesh(100_000 if quick else 1_000_000)
+    cam = Camera(position=[0.0, 25.0, 30.0], look_at=[0.0, 0.0, 0.0], up=[0, 1, 0], fov_y=55, width=size,
+                 height=size, near=0.5, far=200.0)
+    vp = cam.view_projection()
+    t0 = time.perf_counter()
+    wp.load_module(raster, device=default_device())
+    wp.load_module(raycast, device=default_device())
+    compile_s = time.perf_counter() - t0
+    params = {"size": f"{size}x{size}", "triangles": len(tris)}
+    if progress:
+        progress("raster", 0.0)
+    m = measure(lambda: raster.rasterize(verts, tris, vp, size, size), repeats, warmup)
+    r_raster = report.add(name="raster", params=params, median_ms=1e3 * m["median_s"],
+                          extra={"compile_s": round(compile_s, 2)})
+    if progress:
+        progress("raycast (wp.Mesh)", 0.3)
+    t0 = time.perf_counter()
+    mesh = raycast.build_mesh(verts, tris)
+    build_s = time.perf_counter() - t0
+    m2 = measure(lambda: raycast.raycast_depth(mesh, vp, size, size), repeats, warmup)
+    report.add(name="raycast wp.Mesh", params=params, median_ms=1e3 * m2["median_s"],
+               extra={"bvh_build_ms": round(1e3 * build_s, 1)})
+    r_raster["speedup"] = m2["median_s"] / m["median_s"]  # raster vs BVH ray casting
+    try:
+        import embreex  # noqa: F401
+    except ImportError:
+        report.meta["embree"] = "not installed (pip install warpscatter[peers])"
+    else:
+        if progress:
+            progress("raycast (Embree)", 0.7)
+        t_embree, build_e = _embree_primary(verts, tris, cam, repeats, warmup)
+        report.add(name="raycast Embree", params=params, median_ms=1e3 * t_embree,
+                   extra={"bvh_build_ms": round(1e3 * build_e, 1), "threads": 1})
+        r_raster["extra"]["vs_embree"] = f"{t_embree / m['median_s']:.2f}x"
+    if progress:
+        progress("raster", 1.0)
+
+
+def _embree_primary(verts, tris, cam, repeats, warmup) -> tuple[float, float]:
+    """Median time of one primary ray per pixel with Embree (embreex), and its BVH build time."""
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
+
+    t0 = time.perf_counter()
+    scene = rtcore_scene.EmbreeScene()
+    TriangleMesh(scene, verts.astype(np.float32)[tris])
+    dirs = cam.ray_directions().reshape(-1, 3).astype(np.float32)
+    origins = np.broadcast_to(cam.position.astype(np.float32), dirs.shape).copy()
+    scene.run(origins[:1], dirs[:1])  # forces the BVH build
+    build = time.perf_counter() - t0
+    m = measure(lambda: scene.run(origins, dirs, output=1), repeats, warmup)
+    return m["median_s"], build
+
+
+def _render_timed(cfg, repeats, warmup, device=None):
+    """Render a config's stages ``warmup + repeats`` times; per-stage medians (ms), images, compile time."""
+    from .pipeline import StageTimer, compile_kernels, render_images
+    from .scene import build_scene
+
+    t0 = time.perf_counter()
+    compile_kernels(device)
+    compile_s = time.perf_counter() - t0
+    scene = build_scene(cfg)
+    runs, images = [], None
+    for k in range(warmup + max(1, repeats)):
+        timer = StageTimer()
+        images, _ = render_images(scene, cfg.render, timer=timer, device=device)
+        if k >= warmup:
+            runs.append(timer.timings)
+    stages = {name: 1e3 * statistics.median(r[name] for r in runs) for name in runs[0] if name != "compile"}
+    return stages, images, compile_s, scene
+
+
+def suite_reference(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
+    w, h, steps = (480, 270, 32) if quick else (1920, 1080, 128)
+    rows = {}
+    for k, vis in enumerate(("exact", "shadow_map")):
+        if progress:
+            progress(f"raymarch {vis}", k / 2)
+        cfg = bench_scene_config("colonnade", w, h, scattering={"method": "raymarch", "visibility": vis,
+                                                                "steps": steps, "shadow_map": {"resolution": 1024}},
+                                 surfaces={"enabled": False})
+        # exact visibility casts w*h*steps shadow rays: one timed run, no warm-up beyond the compile
+        reps, warm = (1, 0) if vis == "exact" else (repeats, warmup)
+        stages, images, compile_s, scene = _render_timed(cfg, reps, warm)
+        total = sum(stages.values())
+        rows[vis] = (report.add(name=f"raymarch {vis}", params={"size": f"{w}x{h}", "steps": steps,
+                                                                "scene": "colonnade"},
+                                median_ms=total, stages_ms=stages,
+                                extra={"compile_s": round(compile_s, 2), "repeats": reps,
+                                       "Mrays_per_s": round(w * h * steps / total / 1e3, 1)}), images)
+    ref = rows["exact"][1]["scattering"]
+    for vis, (row, images) in rows.items():
+        row["speedup"] = rows["exact"][0]["median_ms"] / row["median_ms"]
+        if vis != "exact":
+            row.update(errors(images["scattering"], ref))
+    if progress:
+        progress("reference", 1.0)
+
+
+def suite_parallel(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
+    from . import raster
+    from .parallel import thread_count
+    from .scene.camera import Camera
+
+    n = thread_count()
+    size = 256 if quick else 1024
+    verts, tris = _dense_mesh(50_000 if quick else 500_000)
+    cam = Camera(position=[0.0, 25.0, 30.0], look_at=[0.0, 0.0, 0.0], up=[0, 1, 0], fov_y=55, width=size,
+                 height=size, near=0.5, far=200.0)
+    w, h, steps = (240, 135, 32) if quick else (960, 540, 64)
+    cfg = bench_scene_config("colonnade", w, h, scattering={"method": "raymarch", "visibility": "shadow_map",
+                                                            "steps": steps}, surfaces={"enabled": False})
+    for k, threads in enumerate((1, n)):
+        if progress:
+            progress(f"{threads} thread(s)", k / 2)
+        with thread_limit(threads):
+            m = measure(lambda: raster.rasterize(verts, tris, cam.view_projection(), size, size), repeats, warmup)
+            report.add(name="raster", params={"threads": threads, "triangles": len(tris), "size": size},
+                       median_ms=1e3 * m["median_s"])
+            stages, _, _, _ = _render_timed(cfg, repeats, warmup)
+            report.add(name="raymarch shadow_map", params={"threads": threads, "size": f"{w}x{h}", "steps": steps},
+                       median_ms=stages["scattering"])
+    by = {(r["name"], r["params"]["threads"]): r for r in report.rows}
+    for name in ("raster", "raymarch shadow_map"):
+        by[(name, n)]["speedup"] = by[(name, 1)]["median_ms"] / by[(name, n)]["median_ms"]
+        by[(name, 1)]["speedup"] = 1.0
+    if progress:
+        progress("parallel", 1.0)
+
+
+_SUITE_FNS = {"raster": suite_raster, "reference": suite_reference, "parallel": suite_parallel}
+
+
+def run(suite: str = "reference", *, repeats: int = 5, warmup: int = 1, out_dir: Path | None = None,
+        quick: bool = False, progress: ProgressFn | None = None) -> BenchReport:
+    """Run one suite (or ``"all"``) and write its JSON/PNG into ``out_dir`` (default ``bench-out``).
+
+    Raises:
+        ValueError: unknown suite name, or repeats < 1 / warmup < 0.
+    """
+    names = list(SUITES) if suite == "all" else [suite]
+    for s in names:
+        if s not in SUITES:
+            raise ValueError(f"unknown bench suite {s!r} (choose from {', '.join(SUITES)}, all)")
+    if repeats < 1 or warmup < 0:
+        raise ValueError("repeats must be >= 1 and warmup >= 0")
+    init()
+    out_dir = Path(out_dir) if out_dir is not None else Path("bench-out")
+    reports = []
+    for s in names:
+        report = BenchReport(suite=s, meta={**machine_meta(), "repeats": repeats, "warmup": warmup, "quick": quick})
+        _SUITE_FNS[s](report, repeats, warmup, quick, progress)
+        report.write(out_dir)
+        reports.append(report)
+    if len(reports) == 1:
+        return reports[0]
+    merged = BenchReport(suite="all", meta=reports[0].meta)
+    for r in reports:
+        merged.rows += [{**row, "name": f"{r.suite}: {row['name']}"} for row in r.rows]
+        merged.files += r.files
+    return merged

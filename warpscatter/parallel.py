@@ -1,0 +1,93 @@
+"""Splitting CPU launches across cores.
+
+Warp runs one CPU launch on one core in a sequential loop. :func:`launch_rows` cuts a launch along
+its outer dimension into contiguous chunks and runs them from a small thread pool (Warp releases
+the GIL during a CPU launch). Kernels written for it take the chunk's start as their LAST input,
+an ``int`` named ``offset`` by convention, and index ``i = wp.tid() + offset`` (1-D) or
+``j, i = wp.tid(); j += offset`` (2-D, rows outer).
+
+CPU atomics are not atomic across concurrent launches: every chunk must own its outputs (rows,
+tiles, or private buffers merged afterwards). On a CUDA device the launch is made once, whole.
+
+The thread count is ``WARPSCATTER_THREADS`` or the number of usable cores.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import warp as wp
+
+from .wpinit import default_device
+
+_pool: ThreadPoolExecutor | None = None
+_pool_size = 0
+
+
+def thread_count() -> int:
+    """Number of worker threads used for split CPU launches (>= 1)."""
+    env = os.environ.get("WARPSCATTER_THREADS")
+    if env:
+        return max(1, int(env))
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - non-Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _executor(n: int) -> ThreadPoolExecutor:
+    global _pool, _pool_size
+    if _pool is None or _pool_size != n:
+        if _pool is not None:
+            _pool.shutdown(wait=True)
+        _pool = ThreadPoolExecutor(max_workers=n, thread_name_prefix="warpscatter")
+        _pool_size = n
+    return _pool
+
+
+def chunks(n: int, parts: int, min_chunk: int = 1) -> list[tuple[int, int]]:
+    """Split ``range(n)`` into at most ``parts`` contiguous ``(start, stop)`` pieces of >= min_chunk."""
+    parts = max(1, min(parts, n // max(1, min_chunk) or 1))
+    bounds = [round(k * n / parts) for k in range(parts + 1)]
+    return [(bounds[k], bounds[k + 1]) for k in range(parts) if bounds[k + 1] > bounds[k]]
+
+
+def run_parallel(fn, pieces: list, threads: int | None = None) -> list:
+    """Call ``fn(piece)`` for every piece on the thread pool; return the results in order."""
+    n = threads or thread_count()
+    if n <= 1 or len(pieces) <= 1:
+        return [fn(p) for p in pieces]
+    return list(_executor(n).map(fn, pieces))
+
+
+def launch_rows(kernel, dim, inputs: list, device: str | None = None, threads: int | None = None,
+                min_chunk: int = 1) -> None:
+    """Launch ``kernel`` over ``dim`` split along its first dimension across CPU threads.
+
+    Args:
+        kernel: a ``@wp.kernel`` whose last input is the ``offset`` of the chunk along dim[0].
+        dim: launch dimension (int or tuple); dim[0] is split.
+        inputs: kernel inputs WITHOUT the trailing offset.
+        device: Warp device; CUDA devices get one whole launch.
+        threads: worker count (default :func:`thread_count`).
+        min_chunk: smallest chunk along dim[0] worth a separate launch.
+    """
+    device = default_device(device)
+    dims = (dim,) if isinstance(dim, int) else tuple(dim)
+    n0 = dims[0]
+    if n0 == 0 or any(d == 0 for d in dims):
+        return
+    nthreads = threads or thread_count()
+    if not wp.get_device(device).is_cpu or nthreads <= 1 or n0 < 2 * min_chunk:
+        wp.launch(kernel, dim=dims, inputs=[*inputs, 0], device=device)
+        return
+    wp.load_module(kernel.module, device=device)
+    # A few more chunks than threads evens out unequal row costs.
+    pieces = chunks(n0, nthreads * 4, min_chunk)
+
+    def _one(piece):
+        start, stop = piece
+        wp.launch(kernel, dim=(stop - start, *dims[1:]), inputs=[*inputs, start], device=device)
+
+    run_parallel(_one, pieces, nthreads)

@@ -1,0 +1,172 @@
+"""Config → scene → raster → technique stages → composition → files, with per-stage timings.
+
+:func:`render` is what ``warpscatter render`` runs. Each stage is a library function taking arrays
+and parameters (never the config); this module is the only place that reads the config and hands
+each stage what it needs. Stage names appear in the CLI's timing table, in ``bench`` and in logs:
+
+``scene`` (load/generate meshes) · ``compile`` (Warp kernel modules; apart from the work itself) ·
+``upload`` (device arrays) · ``bvh`` (``wp.Mesh``, exact visibility only) · ``gbuffer`` (camera) ·
+``shadow_map`` (light) · ``scattering`` (the selected method) · ``shading`` (surfaces + composition) ·
+``write`` (EXR/PNG files).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import warp as wp
+
+from .wpinit import default_device, init
+
+#: Scattering methods the pipeline can run (config ``render.scattering.method``).
+METHODS = ("raymarch",)
+
+ProgressFn = Callable[[str, float], None]
+
+
+@dataclass
+class RenderResult:
+    """What a render produced: images (name → float32 array), written files, stage timings (s), stats."""
+
+    images: dict[str, np.ndarray]
+    files: list[Path] = field(default_factory=list)
+    timings: "OrderedDict[str, float]" = field(default_factory=OrderedDict)
+    stats: dict = field(default_factory=dict)
+
+
+class StageTimer:
+    """Times named stages in order and reports progress to an optional callback."""
+
+    def __init__(self, progress: ProgressFn | None = None):
+        self.timings: OrderedDict[str, float] = OrderedDict()
+        self.progress = progress
+
+    def __call__(self, name: str):
+        timer = self
+
+        class _Scope:
+            def __enter__(self):
+                if timer.progress:
+                    timer.progress(name, 0.0)
+                self.t0 = time.perf_counter()
+                return self
+
+            def __exit__(self, *exc):
+                wp.synchronize()
+                timer.timings[name] = timer.timings.get(name, 0.0) + time.perf_counter() - self.t0
+                if timer.progress and exc[0] is None:
+                    timer.progress(name, 1.0)
+                return False
+
+        return _Scope()
+
+
+def kernel_modules() -> list:
+    """The warpscatter modules holding kernels a render launches (compiled in the ``compile`` stage)."""
+    from . import gbuffer, raster, shading
+    from .scattering import raymarch
+
+    return [raster, gbuffer, raymarch, shading]
+
+
+def compile_kernels(device=None) -> None:
+    """Compile (or load from Warp's cache) every kernel module a render uses."""
+    device = default_device(device)
+    for m in kernel_modules():
+        wp.load_module(m, device=device)
+
+
+def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=None) -> tuple[dict, dict]:
+    """Run the render stages for a built scene.
+
+    Args:
+        scene: a :class:`~warpscatter.scene.Scene`.
+        render_cfg: the validated ``render`` section (method, visibility, steps, shadow map, shadows, surfaces).
+        timer: a :class:`StageTimer` (created if None).
+        device: Warp device.
+
+    Returns:
+        (images, stats): images as in :func:`warpscatter.shading.shade_and_compose`; stats with sizes.
+    """
+    from .gbuffer import gbuffer_raster, gbuffer_raycast
+    from .scattering.raymarch import raymarch
+    from .scene import DeviceGeometry
+    from .shading import shade_and_compose
+    from .shadows.shadow_map import render_shadow_map
+
+    device = default_device(device)
+    timer = timer or StageTimer()
+    sc = render_cfg.scattering
+    if sc.method not in METHODS:
+        raise ValueError(f"render.scattering.method: unknown method {sc.method!r} (choose from {', '.join(METHODS)})")
+    exact = sc.method == "raymarch" and sc.visibility == "exact"
+    shadows_on = render_cfg.surfaces.enabled and render_cfg.shadows.method != "none"
+    need_shadow_map = shadows_on or not exact
+
+    with timer("compile"):
+        compile_kernels(device)
+    with timer("upload"):
+        geometry = DeviceGeometry(scene, device)
+    if exact:
+        with timer("bvh"):
+            _ = geometry.mesh
+    with timer("gbuffer"):
+        gbuf = gbuffer_raycast(scene, geometry, device) if exact else gbuffer_raster(scene, geometry, device)
+    shadow_map = None
+    if need_shadow_map:
+        with timer("shadow_map"):
+            shadow_map = render_shadow_map(scene, sc.shadow_map.resolution, device=device)
+    with timer("scattering"):
+        l_scat = raymarch(scene, gbuf, steps=sc.steps, visibility=sc.visibility, geometry=geometry,
+                          shadow_map=shadow_map, seed=sc.seed, shadow_bias_texels=sc.shadow_map.bias, device=device)
+    with timer("shading"):
+        images = shade_and_compose(scene, gbuf, l_scat, shadow_map=shadow_map if shadows_on else None,
+                                   filter_px=render_cfg.shadows.filter_px, shadow_bias_texels=sc.shadow_map.bias,
+                                   surfaces=render_cfg.surfaces.enabled, device=device)
+    stats = {
+        "triangles": scene.triangle_count,
+        "resolution": [scene.camera.width, scene.camera.height],
+        "method": sc.method,
+        "visibility": sc.visibility if sc.method == "raymarch" else None,
+        "steps": sc.steps,
+        "shadow_map": list(shadow_map.shape[::-1]) if shadow_map is not None else None,
+    }
+    for name, img in images.items():
+        if not np.all(np.isfinite(img)):
+            raise FloatingPointError(f"{name} image has non-finite pixels (a bug: please report it)")
+    return images, stats
+
+
+def render(config, out_dir: Path | None = None, progress: ProgressFn | None = None, device=None,
+           write: bool = True) -> RenderResult:
+    """Render a validated :class:`~warpscatter.config.Config` and write its images.
+
+    Args:
+        config: the validated config.
+        out_dir: output folder (default ``config.output.dir``).
+        progress: optional ``progress(stage, fraction)`` callback.
+        device: Warp device (default: ``WARPSCATTER_DEVICE`` or cpu).
+        write: False skips the ``write`` stage (images are still returned).
+
+    Returns:
+        :class:`RenderResult` with images, written files, per-stage timings and stats.
+    """
+    from .imageio import write_outputs
+    from .scene import build_scene
+
+    init()
+    timer = StageTimer(progress)
+    with timer("scene"):
+        scene = build_scene(config)
+    images, stats = render_images(scene, config.render, timer=timer, device=device)
+    files: list[Path] = []
+    if write:
+        out = Path(out_dir) if out_dir is not None else Path(config.output.dir)
+        with timer("write"):
+            files = write_outputs(out, config.output.name, images, config.output.aovs, config.output.exposure)
+    return RenderResult(images=images, files=files, timings=timer.timings, stats=stats)
