@@ -1,0 +1,288 @@
+"""The click application (warpscatter.cli.main) with fake pipeline/bench modules: no Warp compile."""
+
+import io
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from warpscatter import __version__
+from warpscatter.cli.main import ProgressDisplay, main, timing_table
+from warpscatter.imageio import write_outputs
+
+CONFIG = {
+    "scene": {"meshes": [{"path": "meshes/box.obj"}]},
+    "camera": {"position": [0, 1, 5], "look_at": [0, 1, 0], "width": 4, "height": 3},
+    "light": {"type": "directional", "direction": [0, -1, 0]},
+    "output": {"dir": "out", "name": "shot", "aovs": ["color", "depth"]},
+}
+
+
+@pytest.fixture
+def config_file(tmp_path):
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "box.obj").write_text("")
+    path = tmp_path / "scene.yaml"
+    path.write_text(yaml.safe_dump(CONFIG))
+    return path
+
+
+@pytest.fixture
+def fake_pipeline(monkeypatch):
+    """Replace warpscatter.pipeline by a module whose render() writes tiny images with the real writer."""
+    calls = []
+    module = types.ModuleType("warpscatter.pipeline")
+
+    def render(config, out_dir=None, progress=None):
+        calls.append({"config": config, "out_dir": out_dir})
+        for stage in ("scene", "raymarch", "write"):
+            progress(stage, 0.0)
+            progress(stage, 0.5)
+            progress(stage, 1.0)
+        if config.output.name == "explode":
+            raise RuntimeError("kernel exploded")
+        h, w = config.camera.height, config.camera.width
+        images = {"color": np.full((h, w, 3), 0.25, np.float32), "depth": np.ones((h, w), np.float32)}
+        out = Path(out_dir) if out_dir is not None else config.output.dir
+        files = write_outputs(out, config.output.name, images, config.output.aovs, config.output.exposure)
+        timings = {"scene": 0.0125, "raymarch": 1.5, "write": 0.0004}
+        return types.SimpleNamespace(files=files, timings=timings, stats={"steps": config.render.scattering.steps})
+
+    module.render = render
+    monkeypatch.setitem(sys.modules, "warpscatter.pipeline", module)
+    return calls
+
+
+@pytest.fixture
+def fake_bench(monkeypatch, tmp_path):
+    calls = []
+    module = types.ModuleType("warpscatter.bench")
+    module.SUITES = {"raster": "depth maps", "reference": "the ray marcher"}
+
+    def run(suite="reference", *, repeats=5, warmup=1, out_dir=None, quick=False, progress=None):
+        calls.append({"suite": suite, "repeats": repeats, "warmup": warmup, "out_dir": out_dir, "quick": quick})
+        progress(suite, 1.0)
+        return types.SimpleNamespace(table=lambda: f"TABLE {suite} x{repeats}", files=[Path("bench-x.json")])
+
+    module.run = run
+    monkeypatch.setitem(sys.modules, "warpscatter.bench", module)
+    return calls
+
+
+def invoke(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+# ---- render ----------------------------------------------------------------------------------------
+
+
+def test_render_writes_outputs_and_reports(config_file, tmp_path, fake_pipeline):
+    result = invoke("render", config_file, "-o", tmp_path / "o")
+    assert result.exit_code == 0, result.output
+    out = (tmp_path / "o").resolve()
+    assert sorted(p.name for p in out.iterdir()) == ["shot.depth.exr", "shot.exr", "shot.png"]
+    assert fake_pipeline[0]["out_dir"] == out and fake_pipeline[0]["config"].output.dir == out
+    assert "raymarch" in result.stdout and "1.500 s" in result.stdout and "total" in result.stdout
+    assert "steps: 128" in result.stdout
+    assert str(out / "shot.exr") in result.stdout
+    # stderr is not a terminal here: one plain line per stage
+    assert [line.split("] ")[1] for line in result.stderr.splitlines()] == ["scene", "raymarch", "write"]
+
+
+def test_render_default_output_dir_is_relative_to_config(config_file, tmp_path, fake_pipeline, monkeypatch):
+    monkeypatch.chdir(tmp_path / "meshes")
+    result = invoke("render", config_file)
+    assert result.exit_code == 0, result.output
+    assert fake_pipeline[0]["out_dir"] is None
+    assert (tmp_path / "out" / "shot.exr").is_file()
+
+
+def test_render_output_dir_relative_to_cwd(config_file, tmp_path, fake_pipeline, monkeypatch):
+    monkeypatch.chdir(tmp_path / "meshes")
+    assert invoke("render", config_file, "-o", "here").exit_code == 0
+    assert (tmp_path / "meshes" / "here" / "shot.exr").is_file()
+
+
+def test_render_set_and_method_apply(config_file, tmp_path, fake_pipeline):
+    result = invoke(
+        "render",
+        config_file,
+        "-o",
+        tmp_path / "o",
+        "--set",
+        "camera.fov_y=40",
+        "--set",
+        "camera.width=6",
+        "--set",
+        "render.scattering.steps=7",
+        "--method",
+        "raymarch",
+    )
+    assert result.exit_code == 0, result.output
+    cfg = fake_pipeline[0]["config"]
+    assert cfg.camera.fov_y == 40 and cfg.camera.width == 6 and cfg.render.scattering.steps == 7
+    assert cfg.render.scattering.method == "raymarch"
+    assert "steps: 7" in result.stdout
+
+
+def test_render_quiet_prints_only_files(config_file, tmp_path, fake_pipeline):
+    result = invoke("render", config_file, "-o", tmp_path / "o", "--quiet")
+    assert result.exit_code == 0
+    assert result.stderr == ""
+    assert result.stdout.split() == [
+        str((tmp_path / "o" / n).resolve()) for n in ("shot.exr", "shot.png", "shot.depth.exr")
+    ]
+
+
+@pytest.mark.parametrize(
+    ("edit", "extra_args", "key"),
+    [
+        ({"camera": {**CONFIG["camera"], "colour": 1}}, [], "camera.colour: unknown key"),
+        ({"camera": {**CONFIG["camera"], "width": "wide"}}, [], "camera.width: expected an integer"),
+        ({"medium": {"sigma_t": -1}}, [], "medium.sigma_t: must be >= 0"),
+        ({"scene": {"meshes": [{"path": "meshes/missing.obj"}]}}, [], "scene.meshes.0.path: file not found"),
+        ({"camera": {**CONFIG["camera"], "near": 10, "far": 1}}, [], "camera: near (10.0) must be < far (1.0)"),
+        ({}, ["--set", "camera.fov_y"], "--set camera.fov_y: expected KEY=VALUE"),
+        ({}, ["--set", "scene.meshes.0.material.opacity=2"], "scene.meshes.0.material.opacity: must be <= 1"),
+        ({}, ["--method", "fourier"], "render.scattering.method: must be one of 'raymarch' (got 'fourier')"),
+    ],
+)
+def test_render_rejects_bad_config_and_writes_nothing(config_file, tmp_path, fake_pipeline, edit, extra_args, key):
+    config_file.write_text(yaml.safe_dump({**CONFIG, **edit}))
+    result = invoke("render", config_file, "-o", tmp_path / "o", *extra_args)
+    assert result.exit_code == 2
+    assert result.stderr.startswith(f"error: {config_file}:\n")
+    assert key in result.stderr
+    assert fake_pipeline == []
+    assert not (tmp_path / "o").exists()
+    assert result.stdout == ""
+
+
+def test_render_missing_config_file(tmp_path, fake_pipeline):
+    result = invoke("render", tmp_path / "nope.yaml")
+    assert result.exit_code == 2 and "config file not found" in result.stderr
+
+
+def test_render_output_dir_is_a_file(config_file, tmp_path, fake_pipeline):
+    (tmp_path / "f").write_text("")
+    result = invoke("render", config_file, "-o", tmp_path / "f")
+    assert result.exit_code == 2 and "not a directory" in result.stderr and fake_pipeline == []
+
+
+def test_render_pipeline_failure_exit_1(config_file, tmp_path, fake_pipeline):
+    result = invoke("render", config_file, "-o", tmp_path / "o", "--set", "output.name=explode")
+    assert result.exit_code == 1
+    assert "error: RuntimeError: kernel exploded" in result.stderr
+    assert "Traceback" not in result.stderr
+    debug = invoke("render", config_file, "-o", tmp_path / "o", "--set", "output.name=explode", "--debug")
+    assert debug.exit_code == 1 and "Traceback" in debug.stderr and "kernel exploded" in debug.stderr
+    assert "Traceback" in invoke("--debug", "render", config_file, "--set", "output.name=explode").stderr
+
+
+# ---- validate --------------------------------------------------------------------------------------
+
+
+def test_validate_summary(config_file):
+    result = invoke("validate", config_file, "--set", "camera.fov_y=30")
+    assert result.exit_code == 0, result.output
+    assert result.stdout.startswith(f"ok: {config_file}")
+    assert "1 mesh(es)" in result.stdout and "4x3, fov_y 30 deg" in result.stdout
+    assert "directional, direction [0, -1, 0]" in result.stdout and "method:  raymarch" in result.stdout
+
+
+def test_validate_dump_is_resolved_yaml(config_file, tmp_path):
+    result = invoke("validate", config_file, "--dump")
+    assert result.exit_code == 0
+    data = yaml.safe_load(result.stdout)
+    assert data["scene"]["meshes"][0]["path"] == str(tmp_path / "meshes" / "box.obj")
+    assert data["output"]["dir"] == str(tmp_path / "out") and data["camera"]["far"] == 100.0
+
+
+def test_validate_reports_every_problem(config_file):
+    result = invoke("validate", config_file, "--set", "medium.sigma_t=-1", "--set", "light.direction=[0,0,0]")
+    assert result.exit_code == 2
+    assert "medium.sigma_t: must be >= 0" in result.stderr and "light.direction: must be non-zero" in result.stderr
+
+
+def test_version():
+    result = invoke("--version")
+    assert result.exit_code == 0 and result.stdout.strip() == f"warpscatter {__version__}"
+
+
+# ---- bench -----------------------------------------------------------------------------------------
+
+
+def test_bench_list(fake_bench):
+    result = invoke("bench", "--list")
+    assert result.exit_code == 0
+    assert result.stdout.splitlines() == ["raster     depth maps", "reference  the ray marcher"]
+    assert fake_bench == []
+
+
+def test_bench_runs_suite(fake_bench, tmp_path):
+    result = invoke("bench", "raster", "--repeats", 3, "--warmup", 0, "-o", tmp_path / "b", "--quick")
+    assert result.exit_code == 0, result.output
+    assert fake_bench == [
+        {"suite": "raster", "repeats": 3, "warmup": 0, "out_dir": (tmp_path / "b").resolve(), "quick": True}
+    ]
+    assert "TABLE raster x3" in result.stdout and "bench-x.json" in result.stdout
+
+
+def test_bench_default_suite_from_run_signature(fake_bench):
+    assert invoke("bench").exit_code == 0
+    assert fake_bench[0]["suite"] == "reference" and fake_bench[0]["out_dir"] is None
+    assert invoke("bench", "all").exit_code == 0 and fake_bench[1]["suite"] == "all"
+
+
+def test_bench_unknown_suite(fake_bench):
+    result = invoke("bench", "warp9")
+    assert result.exit_code == 2
+    assert "unknown suite 'warp9' (choose from: raster, reference, all)" in result.stderr
+    assert fake_bench == []
+    assert invoke("bench", "raster", "--repeats", 0).exit_code == 2  # click range check
+
+
+# ---- helpers ---------------------------------------------------------------------------------------
+
+
+class _Tty(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_progress_on_a_terminal_redraws_one_line():
+    stream = _Tty()
+    show = ProgressDisplay(stream=stream)
+    show("raymarch", 0.0)
+    show("raymarch", 0.5)  # within 0.1 s of the last draw: skipped
+    show("raymarch", 1.0)
+    show.close()
+    text = stream.getvalue()
+    assert "\n" not in text
+    assert text.count("\r\x1b[K") == 3  # two draws (start, 100 %) and the final clear
+    assert "[------------------------]   0.0%" in text and "[########################] 100.0%" in text
+
+
+def test_progress_plain_lines_and_disabled():
+    stream = io.StringIO()
+    show = ProgressDisplay(stream=stream)
+    for stage, f in [("scene", 0.0), ("scene", 1.0), ("raster", 0.3), ("raster", float("nan"))]:
+        show(stage, f)
+    assert [line.split("] ")[1] for line in stream.getvalue().splitlines()] == ["scene", "raster"]
+    quiet = io.StringIO()
+    ProgressDisplay(enabled=False, stream=quiet)("scene", 0.5)
+    assert quiet.getvalue() == ""
+
+
+def test_timing_table():
+    table = timing_table({"scene": 0.25, "raymarch": 0.75})
+    lines = table.splitlines()
+    assert lines[0].split() == ["stage", "time", "share"]
+    assert lines[2].split() == ["scene", "250.0", "ms", "25.0%"]
+    assert lines[3].split() == ["raymarch", "750.0", "ms", "75.0%"]
+    assert lines[-1].split() == ["total", "1.000", "s", "100.0%"]
+    assert timing_table({}) == "(no timings)"
