@@ -435,10 +435,14 @@ class MediumConfig(_Model):
 
 
 class ShadowMapConfig(_Model):
-    """Shadow map: ``resolution`` (square side, or [width, height], each >= 16) and depth ``bias`` >= 0."""
+    """Shadow map: ``resolution`` (square side, or [width, height], each >= 16) and depth ``bias`` >= 0.
+
+    ``bias`` is in texel sizes: a point counts as lit when its light-space depth is at most the stored
+    caster depth plus ``bias`` times the world size of one texel.
+    """
 
     resolution: Union[int, tuple[int, int]] = 1024
-    bias: Annotated[Float, Field(ge=0.0)] = 0.0
+    bias: Annotated[Float, Field(ge=0.0)] = 1.0
 
     @field_validator("resolution", mode="before")
     @classmethod

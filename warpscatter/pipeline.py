@@ -23,8 +23,7 @@ import warp as wp
 
 from .wpinit import default_device, init
 
-#: Scattering methods the pipeline can run (config ``render.scattering.method``).
-METHODS = ("raymarch",)
+from .config import SCATTERING_METHODS as METHODS  # the methods the pipeline runs (render.scattering.method)
 
 ProgressFn = Callable[[str, float], None]
 

@@ -1,0 +1,549 @@
+"""Non-linear epipolar rectification of a directional light's shadow map (Peters 2017 Sec. 5.1.1, App. A).
+
+Prefiltered single scattering (Klehm 2014) needs a shadow map in which every camera view ray lies in
+ONE row, runs along the columns from the camera outward, and has ONE constant depth. Peters 2017
+builds it from spherical coordinates in light view space:
+
+* light view space: origin at the camera position, z axis = the direction the light TRAVELS
+  (CONVENTIONS.md), x/y any orthonormal completion (``to_light`` holds the three axes as rows);
+* r = sqrt(x^2 + y^2), the distance of the light ray from the camera  -> COLUMN, u = r / r_max;
+* phi = atan2(y, x), the azimuth, i.e. the epipolar slice              -> ROW, v in [0, 1];
+* theta = atan2(r, z), the inclination of the direction from the camera; the stored DEPTH is the
+  flipped inclination pi - theta, normalised over the guard-banded theta bounds:
+  depth = (theta_hi - theta) / (theta_hi - theta_lo) in [0, 1], growing with shadow-map depth.
+
+A view ray x_t = position + t d keeps phi and theta (hence row and depth) and has r = t sin(theta):
+it runs along its row from u = 0 outward with a constant world step per column,
+Delta = (r_max / cols) / sin(theta) (Klehm 2014 Sec. 3.2 with k(omega) = sin(theta)).
+
+Bounds (Peters 2017 App. A) come from the four far-plane corners q_j in light view space (the near
+plane is ignored, r_min = 0): r_max = max_j |q_j,xy|; phi from the pair of corners enclosing the
+largest angle, or the full circle when the light direction or its flip lies inside the view
+frustum; theta from the corners, the critical points on the far-plane edges and 0 / pi when the
+light / flipped light direction lies inside the frustum. The theta interval is stretched by the
+guard band (10 % of its length, half on each side) to avoid light leaking.
+
+Texture conventions: texel (row j, column i) has its centre at (u, v) = ((i + 0.5) / cols,
+(j + 0.5) / rows). A map is a float32 array of shape (rows, cols).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from ..parallel import launch_rows
+from ..scene.camera import normalize
+from ..wpinit import default_device, module_options
+
+module_options()
+
+TWO_PI = 2.0 * math.pi
+_INSIDE_TOL = 1e-9  # relative tolerance of the inclusive "direction inside the frustum" test
+
+
+@wp.struct
+class NonlinearRectParams:
+    """A non-linear rectification as kernels see it (see :class:`NonlinearRectification`)."""
+
+    origin: wp.vec3  # camera position (world), origin of light view space
+    to_light: wp.mat33  # world -> light view rotation; rows = light-view x, y, z (z = light travel dir)
+    r_max: float  # distance from the light axis through the camera covered by u = 1 (world units)
+    phi_mid: float  # azimuth of v = 0.5 (radians)
+    phi_span: float  # azimuth range covered by v in [0, 1] (radians; 2 pi for the full circle)
+    theta_hi: float  # guarded upper inclination bound = rectified depth 0 (radians)
+    theta_len: float  # guarded inclination range = rectified depth 1 - depth 0 (radians)
+    rows: int  # epipolar slices
+    cols: int  # texels along a view ray
+    full_circle: int  # 1 when phi covers the full circle (rows wrap around)
+
+
+# ---- kernel-side coordinate transforms ------------------------------------------------------------
+
+
+@wp.func
+def world_to_rectified(rect: NonlinearRectParams, x: wp.vec3) -> wp.vec3:
+    """Rectified (u, v, depth) of world point x (Peters 2017 Sec. 5.1.1): u = r / r_max (column),
+    v = normalised azimuth (row), depth = normalised flipped inclination (pi - theta)."""
+    q = rect.to_light * (x - rect.origin)
+    r = wp.sqrt(q[0] * q[0] + q[1] * q[1])
+    d = wp.atan2(q[1], q[0]) - rect.phi_mid
+    d = d - 2.0 * wp.pi * wp.floor((d + wp.pi) / (2.0 * wp.pi))  # wrap into [-pi, pi)
+    theta = wp.atan2(r, q[2])
+    return wp.vec3(r / rect.r_max, 0.5 + d / rect.phi_span, (rect.theta_hi - theta) / rect.theta_len)
+
+
+@wp.func
+def rectified_to_world(rect: NonlinearRectParams, c: wp.vec3) -> wp.vec3:
+    """World point of rectified (u, v, depth); defined for inclinations strictly inside (0, pi)."""
+    r = c[0] * rect.r_max
+    phi = rect.phi_mid + (c[1] - 0.5) * rect.phi_span
+    theta = rect.theta_hi - c[2] * rect.theta_len
+    q = wp.vec3(r * wp.cos(phi), r * wp.sin(phi), r * wp.cos(theta) / wp.max(wp.sin(theta), 1.0e-12))
+    return rect.origin + wp.transpose(rect.to_light) * q
+
+
+@wp.func
+def rectified_ray_depth(rect: NonlinearRectParams, direction: wp.vec3) -> float:
+    """Constant rectified depth of the camera view ray with (unit or not) world direction ``direction``."""
+    q = rect.to_light * direction
+    theta = wp.atan2(wp.sqrt(q[0] * q[0] + q[1] * q[1]), q[2])
+    return (rect.theta_hi - theta) / rect.theta_len
+
+
+@wp.func
+def light_ray_point(rect: NonlinearRectParams, u: float, v: float) -> wp.vec3:
+    """World point of the light ray through rectified (u, v) closest to the camera (light-view z = 0)."""
+    r = u * rect.r_max
+    phi = rect.phi_mid + (v - 0.5) * rect.phi_span
+    return rect.origin + wp.transpose(rect.to_light) * wp.vec3(r * wp.cos(phi), r * wp.sin(phi), 0.0)
+
+
+# ---- resampling kernel ----------------------------------------------------------------------------------
+
+
+@wp.kernel
+def resample_kernel(
+    rect: NonlinearRectParams,
+    shadow_depth: wp.array2d(dtype=wp.float32),  # (H, W) stored light-space depth, row 0 = NDC y = +1
+    world_to_clip: wp.mat44,  # orthographic light world -> clip (w = 1)
+    depth_row: wp.vec4,  # stored depth of world point p = dot(depth_row, (p, 1))
+    depth_per_unit: float,  # d(stored depth) / d(distance along the light direction) > 0
+    empty_depth: float,  # stored values >= this are empty texels (no caster)
+    out: wp.array2d(dtype=wp.float32),  # (rows, cols) rectified blocker depth in [0, 1]
+    offset: int,
+):
+    j, i = wp.tid()
+    j += offset
+    u = (float(i) + 0.5) / float(rect.cols)
+    v = (float(j) + 0.5) / float(rect.rows)
+    # the texel is a light ray; its point closest to the camera finds the shadow-map texel
+    p0 = light_ray_point(rect, u, v)
+    p0h = wp.vec4(p0[0], p0[1], p0[2], 1.0)
+    c = world_to_clip * p0h
+    sx = (0.5 * c[0] + 0.5) * float(shadow_depth.shape[1])
+    sy = (0.5 - 0.5 * c[1]) * float(shadow_depth.shape[0])
+    result = float(1.0)  # no caster: the blocker lies at the far end
+    if sx >= 0.0 and sy >= 0.0 and sx < float(shadow_depth.shape[1]) and sy < float(shadow_depth.shape[0]):
+        stored = shadow_depth[int(sy), int(sx)]
+        if wp.isfinite(stored) and stored < empty_depth:
+            # blocker on this light ray: light-view z (distance along the light from p0)
+            z_b = (stored - wp.dot(depth_row, p0h)) / depth_per_unit
+            theta_b = wp.atan2(u * rect.r_max, z_b)
+            # blockers outside the bounds are clamped (Klehm 2014 Sec. 4.1): in front of the frustum -> 0,
+            # behind it -> 1; both cast the same shadows into the visible frustum.
+            result = wp.clamp((rect.theta_hi - theta_b) / rect.theta_len, 0.0, 1.0)
+    out[j, i] = result
+
+
+# ---- host side: bounds ----------------------------------------------------------------------------------
+
+
+def _light_basis(light_direction) -> np.ndarray:
+    """Rotation whose rows are light-view x, y, z; z = the light travel direction (right-handed)."""
+    try:
+        ez = normalize(light_direction)
+    except ValueError as exc:
+        raise ValueError(f"light_direction must be a finite non-zero 3-vector: {exc}") from None
+    helper = np.eye(3)[int(np.argmin(np.abs(ez)))]
+    ex = helper - helper.dot(ez) * ez
+    ex /= np.linalg.norm(ex)
+    ey = np.cross(ez, ex)
+    return np.stack([ex, ey, ez])
+
+
+def direction_in_frustum(camera, direction) -> bool:
+    """True when the (infinite) view frustum of ``camera`` contains the ray from its position along ``direction``."""
+    right, up, fwd = camera.basis
+    d = np.asarray(direction, float)
+    cz = d @ fwd
+    if cz <= 0.0:
+        return False
+    t = math.tan(math.radians(camera.fov_y) / 2.0)
+    tol = 1.0 + _INSIDE_TOL
+    return abs(d @ right) <= cz * t * camera.aspect * tol and abs(d @ up) <= cz * t * tol
+
+
+def _inclination(q: np.ndarray) -> np.ndarray:
+    """theta = arccos(z / |q|) of light-view points, computed as atan2(r, z)."""
+    return np.arctan2(np.hypot(q[..., 0], q[..., 1]), q[..., 2])
+
+
+def _edge_critical_inclinations(quad: np.ndarray) -> list[float]:
+    """Inclinations at the critical points on the far-plane edges (Peters 2017 App. A)."""
+    out = []
+    for a in range(4):
+        qj, qk = quad[a], quad[(a + 1) % 4]
+        b = qk - qj
+        den = b[2] * qj.dot(b) - qj[2] * b.dot(b)
+        if abs(den) <= 1e-300:
+            continue
+        t = (qj[2] * qj.dot(b) - b[2] * qj.dot(qj)) / den
+        if 0.0 <= t <= 1.0:
+            out.append(float(_inclination(qj + t * b)))
+    return out
+
+
+def _azimuth_bounds(xy: np.ndarray) -> tuple[float, float]:
+    """(phi_min in [0, 2 pi), span) of the cone spanned by 2D vectors xy: the pair enclosing the largest angle."""
+    best, pair = -1.0, (0, 1)
+    for a in range(len(xy)):
+        for b in range(a + 1, len(xy)):
+            cross = xy[a, 0] * xy[b, 1] - xy[a, 1] * xy[b, 0]
+            ang = math.atan2(abs(cross), float(xy[a] @ xy[b]))
+            if ang > best:
+                best, pair = ang, (a, b)
+    a, b = pair
+    if xy[a, 0] * xy[b, 1] - xy[a, 1] * xy[b, 0] < 0.0:
+        a, b = b, a  # counter-clockwise from a to b
+    return math.atan2(xy[a, 1], xy[a, 0]) % TWO_PI, best
+
+
+@dataclass(frozen=True)
+class NonlinearRectification:
+    """Non-linear rectification of a directional light for one camera (Peters 2017 Sec. 5.1.1, App. A).
+
+    Attributes:
+        position: camera position (world), the origin of light view space.
+        to_light: (3, 3) world -> light-view rotation, rows = x, y, z axes; z = light travel direction.
+        far_corners: (4, 3) far-plane corners in light view space, in cyclic order.
+        r_max: largest distance of the frustum from the light axis through the camera (world units).
+        phi_min, phi_span: azimuth range [phi_min, phi_min + phi_span] mapped to v in [0, 1] (radians).
+        full_circle: True when phi covers the full circle (light or flipped light direction inside the view).
+        light_in_view / flipped_light_in_view: the light direction / its flip lies inside the view frustum.
+        theta_min, theta_max: tight inclination bounds of the frustum (radians).
+        guard_band: relative stretch of the theta interval (0.1 = 10 %, half on each side).
+        rows, cols: resolution of the rectified map (epipolar slices x texels along a view ray).
+    """
+
+    position: np.ndarray
+    to_light: np.ndarray
+    far_corners: np.ndarray
+    r_max: float
+    phi_min: float
+    phi_span: float
+    full_circle: bool
+    light_in_view: bool
+    flipped_light_in_view: bool
+    theta_min: float
+    theta_max: float
+    guard_band: float
+    rows: int
+    cols: int
+
+    @classmethod
+    def from_camera(cls, camera, light_direction, guard_band: float = 0.1, rows: int = 1024,
+                    cols: int = 1024) -> "NonlinearRectification":
+        """Tight bounds of the rectified coordinates for ``camera`` and a directional light (Peters 2017 App. A).
+
+        Args:
+            camera: a :class:`~warpscatter.scene.camera.Camera`.
+            light_direction: direction the light travels (any length > 0).
+            guard_band: relative stretch of the theta interval (Peters 2017 uses 0.1), >= 0.
+            rows: epipolar slices of the rectified map (>= 2).
+            cols: texels along each view ray (>= 2).
+
+        Raises:
+            ValueError: on a zero/non-finite light direction, a negative guard band or a map below 2x2.
+        """
+        if not (np.isfinite(guard_band) and guard_band >= 0.0):
+            raise ValueError(f"guard_band must be finite and >= 0, got {guard_band}")
+        for name, val in (("rows", rows), ("cols", cols)):
+            if int(val) != val or val < 2:
+                raise ValueError(f"{name} must be an integer >= 2, got {val}")
+        to_light = _light_basis(light_direction)
+        ez = to_light[2]
+        position = np.asarray(camera.position, float)
+        far = camera.frustum_corners()[4:][[0, 1, 3, 2]]  # cyclic order around the far plane
+        quad = (far - position) @ to_light.T
+
+        # ---- r: distance to the light axis through the camera (r_min = 0, near plane ignored) ----
+        r_max = float(np.max(np.hypot(quad[:, 0], quad[:, 1])))
+        r_max = max(r_max, 1e-12 * float(np.max(np.linalg.norm(quad, axis=1))))
+
+        # ---- phi: full circle when the (flipped) light direction lies inside the frustum ----
+        light_in = direction_in_frustum(camera, ez)
+        flipped_in = direction_in_frustum(camera, -ez)
+        if light_in or flipped_in:
+            phi_min, phi_span = 0.0, TWO_PI
+        else:
+            phi_min, phi_span = _azimuth_bounds(quad[:, :2])
+            phi_span = max(phi_span, 1e-9)
+
+        # ---- theta: corners, edge critical points, and the interior when the axis is inside ----
+        thetas = list(_inclination(quad)) + _edge_critical_inclinations(quad)
+        if light_in:
+            thetas.append(0.0)
+        if flipped_in:
+            thetas.append(math.pi)
+        return cls(position=position, to_light=to_light, far_corners=quad, r_max=r_max, phi_min=float(phi_min),
+                   phi_span=float(phi_span), full_circle=bool(light_in or flipped_in), light_in_view=bool(light_in),
+                   flipped_light_in_view=bool(flipped_in), theta_min=float(min(thetas)),
+                   theta_max=float(max(thetas)), guard_band=float(guard_band), rows=int(rows), cols=int(cols))
+
+    # ---- derived bounds ------------------------------------------------------------------------------
+    @property
+    def light_direction(self) -> np.ndarray:
+        """Unit direction the light travels (light-view z axis)."""
+        return self.to_light[2]
+
+    @property
+    def phi_mid(self) -> float:
+        return self.phi_min + 0.5 * self.phi_span
+
+    @property
+    def theta_lo(self) -> float:
+        """Guarded lower inclination bound (rectified depth 1)."""
+        return self.theta_min - 0.5 * self.guard_band * (self.theta_max - self.theta_min)
+
+    @property
+    def theta_hi(self) -> float:
+        """Guarded upper inclination bound (rectified depth 0)."""
+        return self.theta_max + 0.5 * self.guard_band * (self.theta_max - self.theta_min)
+
+    @property
+    def theta_len(self) -> float:
+        return max(self.theta_hi - self.theta_lo, 1e-9)
+
+    @property
+    def delta_perp(self) -> float:
+        """World width of one column for a ray perpendicular to the light (Klehm 2014 Delta-perp)."""
+        return self.r_max / self.cols
+
+    def params(self) -> NonlinearRectParams:
+        """Kernel-side parameters (:class:`NonlinearRectParams`)."""
+        p = NonlinearRectParams()
+        p.origin = wp.vec3(*self.position)
+        p.to_light = wp.mat33(*self.to_light.ravel())
+        p.r_max = float(self.r_max)
+        p.phi_mid = float(self.phi_mid)
+        p.phi_span = float(self.phi_span)
+        p.theta_hi = float(self.theta_hi)
+        p.theta_len = float(self.theta_len)
+        p.rows = int(self.rows)
+        p.cols = int(self.cols)
+        p.full_circle = 1 if self.full_circle else 0
+        return p
+
+    # ---- host coordinate transforms (float64) --------------------------------------------------------
+    def world_to_rectified(self, points) -> np.ndarray:
+        """Rectified (u, v, depth) of world points, shape (..., 3) -> (..., 3) float64 (see the module doc)."""
+        p = np.asarray(points, dtype=np.float64)
+        if p.shape[-1] != 3:
+            raise ValueError(f"points must have shape (..., 3), got {p.shape}")
+        q = (p - self.position) @ self.to_light.T
+        d = np.mod(np.arctan2(q[..., 1], q[..., 0]) - self.phi_mid + math.pi, TWO_PI) - math.pi
+        u = np.hypot(q[..., 0], q[..., 1]) / self.r_max
+        depth = (self.theta_hi - _inclination(q)) / self.theta_len
+        return np.stack([u, 0.5 + d / self.phi_span, depth], axis=-1)
+
+    def rectified_to_world(self, coords) -> np.ndarray:
+        """World points of rectified (u, v, depth), shape (..., 3); inclinations must lie inside (0, pi)."""
+        c = np.asarray(coords, dtype=np.float64)
+        if c.shape[-1] != 3:
+            raise ValueError(f"coords must have shape (..., 3), got {c.shape}")
+        r = c[..., 0] * self.r_max
+        phi = self.phi_mid + (c[..., 1] - 0.5) * self.phi_span
+        theta = self.theta_hi - c[..., 2] * self.theta_len
+        z = r * np.cos(theta) / np.maximum(np.sin(theta), 1e-300)
+        q = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
+        return self.position + q @ self.to_light
+
+    def row_azimuths(self) -> np.ndarray:
+        """Azimuth phi (radians) of every row centre, shape (rows,)."""
+        return self.phi_mid + ((np.arange(self.rows) + 0.5) / self.rows - 0.5) * self.phi_span
+
+    def slice_inclination_range(self, phi) -> tuple[np.ndarray, np.ndarray]:
+        """Inclination interval [theta_lo, theta_hi] of the frustum's view rays inside the epipolar slice(s) phi.
+
+        The slice half-plane meets the frustum in a 2D cone whose boundary rays cross the far-plane
+        edges, or run along the light axis (theta = 0 / pi) when the (flipped) light lies inside the view.
+        Slices that miss the frustum (only possible outside [phi_min, phi_min + phi_span]) get the global
+        tight bounds.
+
+        Args:
+            phi: azimuths (radians), any shape.
+
+        Returns:
+            (theta_lo, theta_hi) arrays of phi's shape (radians, unguarded).
+        """
+        phi = np.asarray(phi, dtype=np.float64)
+        e = np.stack([np.cos(phi), np.sin(phi)], axis=-1)
+        lo = np.full(phi.shape, np.inf)
+        hi = np.full(phi.shape, -np.inf)
+        for a in range(4):
+            qa, qb = self.far_corners[a], self.far_corners[(a + 1) % 4]
+            da = qa[0] * e[..., 1] - qa[1] * e[..., 0]  # cross(qa_xy, e)
+            dd = (qb[0] - qa[0]) * e[..., 1] - (qb[1] - qa[1]) * e[..., 0]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                s = np.where(np.abs(dd) > 1e-300, -da / dd, np.nan)
+            ok = (s >= -1e-9) & (s <= 1.0 + 1e-9)
+            s = np.clip(np.nan_to_num(s), 0.0, 1.0)
+            pts = qa + s[..., None] * (qb - qa)
+            ok &= (pts[..., 0] * e[..., 0] + pts[..., 1] * e[..., 1]) >= 0.0  # same half-plane, not opposite
+            th = _inclination(pts)
+            lo = np.where(ok, np.minimum(lo, th), lo)
+            hi = np.where(ok, np.maximum(hi, th), hi)
+        if self.light_in_view:
+            lo = np.zeros_like(lo)
+        if self.flipped_light_in_view:
+            hi = np.full_like(hi, math.pi)
+        empty = ~(lo <= hi)
+        lo = np.where(empty, self.theta_min, lo)
+        hi = np.where(empty, self.theta_max, hi)
+        return lo, hi
+
+
+# ---- host side: reference rays (Klehm 2014 Sec. 3.2) ---------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ReferenceRays:
+    """Per-row reference view rays and their world step per rectified texel (Klehm 2014 Sec. 3.2).
+
+    Attributes:
+        phi: (rows,) azimuth of each row centre (radians).
+        theta_lo, theta_hi: (rows,) inclination range of the frustum's rays in the slice (radians).
+        theta_ref: (rows,) inclination of the reference ray (radians).
+        k_ref: (rows,) k(omega_ref) = cos of its angle to the light-perpendicular = sin(theta_ref).
+        delta_ref: (rows,) world distance per column along the reference ray, delta_perp / k_ref.
+        direction: (rows, 3) unit world direction of the reference ray.
+        optimal: (rows,) bool, True where k_ref = sqrt(k_min k_max) was used (else the bisectrix).
+    """
+
+    phi: np.ndarray
+    theta_lo: np.ndarray
+    theta_hi: np.ndarray
+    theta_ref: np.ndarray
+    k_ref: np.ndarray
+    delta_ref: np.ndarray
+    direction: np.ndarray
+    optimal: np.ndarray
+
+    def optical_steps(self, sigma_t: float) -> np.ndarray:
+        """Per-row optical thickness of one texel along the reference ray, sigma_t * delta_ref (float32)."""
+        if not (np.isfinite(sigma_t) and sigma_t >= 0.0):
+            raise ValueError(f"sigma_t must be finite and >= 0, got {sigma_t}")
+        return (sigma_t * self.delta_ref).astype(np.float32)
+
+
+def reference_ray(rect: NonlinearRectification, method: str = "optimal") -> ReferenceRays:
+    """Reference ray per epipolar slice and its world step per rectified texel (Klehm 2014 Sec. 3.2).
+
+    In a slice, a view ray with inclination theta crosses one column over Delta = Delta_perp / k,
+    k = sin(theta) (its cosine to the light-perpendicular omega_l-perp). omega_min is the ray of the
+    slice closest to omega_l-perp (largest k), omega_max the one farthest from it (smallest k).
+
+    Args:
+        rect: the rectification.
+        method: ``"optimal"`` — k_ref = sqrt(k(omega_min) k(omega_max)), which minimises the worst
+            ratio of Delta errors, where defined (omega_max is not the light axis); the bisectrix of
+            omega_min and omega_max otherwise. ``"bisectrix"`` — the bisectrix everywhere (Klehm's
+            default). ``"mean"`` — the arithmetic mean of the global theta bounds (Peters 2017 Sec. 5.1.1).
+
+    Returns:
+        :class:`ReferenceRays` with (rows,) arrays.
+
+    Raises:
+        ValueError: on an unknown method.
+    """
+    if method not in ("optimal", "bisectrix", "mean"):
+        raise ValueError(f"method must be 'optimal', 'bisectrix' or 'mean', got {method!r}")
+    phi = rect.row_azimuths()
+    lo, hi = rect.slice_inclination_range(phi)
+    half_pi = 0.5 * math.pi
+    theta_kmax = np.clip(half_pi, lo, hi)  # omega_min: closest to the light-perpendicular
+    theta_kmin = np.where(np.abs(lo - half_pi) >= np.abs(hi - half_pi), lo, hi)  # omega_max: farthest
+    k_big, k_small = np.sin(theta_kmax), np.sin(theta_kmin)
+    bisectrix = 0.5 * (theta_kmax + theta_kmin)
+    if method == "mean":
+        theta_ref = np.full(phi.shape, 0.5 * (rect.theta_min + rect.theta_max))
+        optimal = np.zeros(phi.shape, bool)
+    elif method == "bisectrix":
+        theta_ref = bisectrix
+        optimal = np.zeros(phi.shape, bool)
+    else:
+        optimal = k_small > 1e-12  # undefined iff omega_max is the light axis (k = 0)
+        k_opt = np.sqrt(np.clip(k_big * k_small, 0.0, 1.0))
+        # the ray with sin(theta) = k_opt between omega_min and omega_max
+        theta_opt = np.where(theta_kmin <= half_pi, np.arcsin(k_opt), math.pi - np.arcsin(k_opt))
+        theta_ref = np.where(optimal, theta_opt, bisectrix)
+    k_ref = np.maximum(np.sin(theta_ref), 1e-6)
+    st, ct = np.sin(theta_ref), np.cos(theta_ref)
+    local = np.stack([st * np.cos(phi), st * np.sin(phi), ct], axis=-1)
+    return ReferenceRays(phi=phi, theta_lo=lo, theta_hi=hi, theta_ref=theta_ref, k_ref=k_ref,
+                         delta_ref=rect.delta_perp / k_ref, direction=local @ rect.to_light, optimal=optimal)
+
+
+# ---- host side: resampling ------------------------------------------------------------------------------
+
+
+def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_clip, *, depth: str = "ndc",
+                        world_to_view=None, device=None) -> wp.array:
+    """Resample an orthographic light shadow map into the rectified blocker-depth map (Peters 2017 Sec. 5.1.1).
+
+    Each rectified texel (row j, column i) is a light ray; its point closest to the camera is projected
+    into the shadow map (nearest texel), the stored caster is placed on the same light ray and its
+    inclination converted to the rectified depth. Casters in front of the frustum clamp to 0, behind it
+    to 1 (Klehm 2014 Sec. 4.1); empty texels and light rays outside the shadow map give 1 (no blocker).
+
+    Args:
+        rect: the rectification (its rows x cols is the output size).
+        shadow_depth: (H, W) float32 numpy or Warp array of light-space depth, row 0 = NDC y = +1.
+        world_to_clip: (4, 4) OpenGL-style orthographic world -> clip matrix of the shadow map
+            (``projection @ view``), NDC z in [-1, 1], depth growing along the light direction.
+        depth: what the texels store: ``"ndc"`` NDC z in [-1, 1] (>= 1 empty), ``"window"`` (NDC z + 1) / 2
+            in [0, 1] (>= 1 empty), or ``"linear"`` the distance along the light from the light view's
+            origin, -z of ``world_to_view`` (:class:`~warpscatter.shadows.shadow_map.ShadowMap`'s
+            convention). Non-finite values (e.g. +inf) are empty in all three.
+        world_to_view: (4, 4) light view matrix, required for ``depth="linear"``.
+        device: Warp device.
+
+    Returns:
+        (rows, cols) float32 Warp array of rectified blocker depth in [0, 1].
+
+    Raises:
+        ValueError: on a matrix that is not an orthographic projection along the light direction, a bad
+            ``depth`` kind or a shadow map that is not 2D.
+    """
+    device = default_device(device)
+    m = np.asarray(world_to_clip, dtype=np.float64)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        raise ValueError(f"world_to_clip must be a finite 4x4 matrix, got shape {m.shape}")
+    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
+        raise ValueError("world_to_clip must be orthographic (last row 0 0 0 1) for a directional light")
+    light = rect.light_direction
+    xy_drift = np.abs(m[:2, :3] @ light) / np.maximum(np.linalg.norm(m[:2, :3], axis=1), 1e-300)
+    if np.any(xy_drift > 1e-5):
+        raise ValueError("world_to_clip must project along the light direction (light rays map to one texel)")
+    if depth == "ndc":
+        row, empty = m[2], 1.0
+    elif depth == "window":
+        row, empty = 0.5 * m[2] + np.array([0.0, 0.0, 0.0, 0.5]), 1.0
+    elif depth == "linear":
+        if world_to_view is None:
+            raise ValueError("world_to_view is required for depth='linear'")
+        v = np.asarray(world_to_view, dtype=np.float64)
+        if v.shape != (4, 4):
+            raise ValueError(f"world_to_view must be a 4x4 matrix, got shape {v.shape}")
+        row, empty = -v[2], np.inf
+    else:
+        raise ValueError(f"depth must be 'ndc', 'window' or 'linear', got {depth!r}")
+    per_unit = float(row[:3] @ light)
+    if not per_unit > 0.0:
+        raise ValueError("shadow-map depth must grow along the light direction (check world_to_clip / world_to_view)")
+    if isinstance(shadow_depth, wp.array):
+        sm = shadow_depth if shadow_depth.device == wp.get_device(device) else shadow_depth.to(device)
+    else:
+        sm = wp.array(np.ascontiguousarray(shadow_depth, dtype=np.float32), dtype=wp.float32, device=device)
+    if sm.ndim != 2:
+        raise ValueError(f"shadow_depth must be a 2D array, got {sm.ndim} dimensions")
+    out = wp.empty((rect.rows, rect.cols), dtype=wp.float32, device=device)
+    launch_rows(resample_kernel, (rect.rows, rect.cols),
+                [rect.params(), sm, wp.mat44(*m.astype(np.float32).ravel()), wp.vec4(*row.astype(np.float32)),
+                 per_unit, float(empty), out],
+                device=device)
+    return out
