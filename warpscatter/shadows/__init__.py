@@ -1,0 +1,7 @@
+"""Shadow techniques: shadow maps, PCF, moment shadow maps (Peters et al. 2017) and their building blocks.
+
+``from warpscatter.shadows import moments`` gives the moment math (``@wp.func`` building blocks that user kernels
+may call, and thin numpy host wrappers).
+"""
+
+from . import moments  # noqa: F401
