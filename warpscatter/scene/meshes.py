@@ -1,0 +1,300 @@
+"""Triangle meshes: the validated container every stage consumes, file loading through trimesh, and transforms.
+
+A :class:`TriangleMesh` is plain numpy: ``vertices`` (N, 3) float32 in scene units and ``triangles`` (T, 3)
+int32 indices, checked on construction (finite coordinates, indices in range, at least one triangle).
+Rasterizers and BVH builders take these arrays as they are; nothing here launches a kernel.
+
+:func:`load_mesh` reads OBJ, PLY, STL, GLB/glTF and OFF with trimesh. Files holding a scene (GLB/glTF node
+graphs, OBJ files with several objects) are flattened with their node transforms applied; quads and polygons
+arrive triangulated. Files that cannot be read, or hold no triangles (empty, points or lines only), raise
+:class:`MeshLoadError` naming the file and the reason.
+
+Transforms follow CONVENTIONS.md: scale first, then the rotations about X, Y and Z (in that order, about the
+mesh origin, angles in degrees), then the translation, i.e. ``M = T @ Rz @ Ry @ Rx @ S`` acting on column
+vectors ``[x, y, z, 1]``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+SUPPORTED_EXTENSIONS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
+
+
+class MeshLoadError(ValueError):
+    """A mesh file could not be read or holds no triangles; the message names the file and the reason."""
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Container
+# ---------------------------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class TriangleMesh:
+    """An indexed triangle mesh in scene units (+Y up).
+
+    Attributes:
+        vertices: (N, 3) float32 vertex positions.
+        triangles: (T, 3) int32 vertex indices; counter-clockwise seen from the side the face normal points to
+            (normal = (v1 - v0) x (v2 - v0)).
+
+    Raises:
+        ValueError: on wrong shapes, non-finite coordinates, out-of-range indices or an empty triangle list.
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+
+    def __post_init__(self):
+        v = np.asarray(self.vertices)
+        t = np.asarray(self.triangles)
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise ValueError(f"vertices must have shape (N, 3), got {v.shape}")
+        if t.ndim != 2 or t.shape[1] != 3:
+            raise ValueError(f"triangles must have shape (T, 3), got {t.shape}")
+        if t.shape[0] < 1:
+            raise ValueError("triangles must hold at least one triangle")
+        if not np.issubdtype(t.dtype, np.integer):
+            if not np.issubdtype(t.dtype, np.floating) or not np.all(t == np.round(t)):
+                raise ValueError(f"triangles must hold integer indices, got dtype {t.dtype}")
+        v = np.ascontiguousarray(v, dtype=np.float32)
+        if not np.all(np.isfinite(v)):
+            bad = int(np.argwhere(~np.isfinite(v).all(axis=1))[0, 0])
+            raise ValueError(f"vertices must be finite (vertex {bad} is {v[bad].tolist()})")
+        lo, hi = int(t.min()), int(t.max())
+        if lo < 0 or hi >= v.shape[0]:
+            raise ValueError(f"triangles index vertices in [{lo}, {hi}] but there are {v.shape[0]} vertices")
+        self.vertices = v
+        self.triangles = np.ascontiguousarray(t, dtype=np.int32)
+
+    @property
+    def num_vertices(self) -> int:
+        """Number of vertices N."""
+        return int(self.vertices.shape[0])
+
+    @property
+    def num_triangles(self) -> int:
+        """Number of triangles T."""
+        return int(self.triangles.shape[0])
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned bounds of the referenced vertices.
+
+        Returns:
+            (min, max): two float64 (3,) arrays in scene units.
+        """
+        used = self.vertices[np.unique(self.triangles)].astype(np.float64)
+        return used.min(axis=0), used.max(axis=0)
+
+    def triangle_vertices(self) -> np.ndarray:
+        """(T, 3, 3) float32 corner positions of every triangle."""
+        return self.vertices[self.triangles]
+
+    def face_normals(self) -> np.ndarray:
+        """(T, 3) float32 unit normals (v1 - v0) x (v2 - v0); degenerate triangles get (0, 0, 0)."""
+        tv = self.triangle_vertices().astype(np.float64)
+        n = np.cross(tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0])
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.where(length > 0.0, n / np.maximum(length, 1e-300), 0.0).astype(np.float32)
+
+    def to_trimesh(self):
+        """The same mesh as a ``trimesh.Trimesh`` (no vertex merging or other processing)."""
+        import trimesh
+
+        return trimesh.Trimesh(vertices=self.vertices, faces=self.triangles, process=False)
+
+    @staticmethod
+    def concatenate(meshes: Sequence[TriangleMesh]) -> tuple[TriangleMesh, np.ndarray]:
+        """Join meshes into one, keeping their triangle order.
+
+        Args:
+            meshes: at least one :class:`TriangleMesh`.
+
+        Returns:
+            (mesh, part): the joined mesh and a (T,) int32 array giving, for every triangle, the index of the input
+            mesh it came from (used to look up per-entry materials).
+
+        Raises:
+            ValueError: when ``meshes`` is empty or holds something other than TriangleMesh.
+        """
+        meshes = list(meshes)
+        if not meshes:
+            raise ValueError("meshes must hold at least one TriangleMesh")
+        for k, m in enumerate(meshes):
+            if not isinstance(m, TriangleMesh):
+                raise ValueError(f"meshes[{k}] is a {type(m).__name__}, not a TriangleMesh")
+        offsets = np.cumsum([0] + [m.num_vertices for m in meshes[:-1]])
+        vertices = np.concatenate([m.vertices for m in meshes], axis=0)
+        triangles = np.concatenate(
+            [m.triangles.astype(np.int64) + o for m, o in zip(meshes, offsets, strict=True)], axis=0
+        )
+        if vertices.shape[0] > np.iinfo(np.int32).max:
+            raise ValueError(f"meshes hold {vertices.shape[0]} vertices in total, more than int32 indices allow")
+        part = np.concatenate([np.full(m.num_triangles, k, dtype=np.int32) for k, m in enumerate(meshes)])
+        return TriangleMesh(vertices, triangles.astype(np.int32)), part
+
+
+def concatenate(meshes: Sequence[TriangleMesh]) -> tuple[TriangleMesh, np.ndarray]:
+    """Module-level alias of :meth:`TriangleMesh.concatenate`."""
+    return TriangleMesh.concatenate(meshes)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Loading
+# ---------------------------------------------------------------------------------------------------------------------
+
+
+def load_mesh(path: str | os.PathLike) -> TriangleMesh:
+    """Load a triangle mesh from OBJ, PLY, STL, GLB/glTF or OFF.
+
+    Scenes (GLB/glTF node graphs, multi-object OBJ) are flattened with every node transform applied; quads and
+    polygons are triangulated by trimesh's readers. Point clouds and line/curve geometry inside a file are ignored;
+    a file with no triangles at all is an error. Vertex positions are kept as stored (no merging); glTF files are
+    +Y up in metres, which matches the scene convention, other formats are taken as they are.
+
+    Args:
+        path: file path; the format is taken from the extension.
+
+    Returns:
+        The flattened mesh, all triangles of all objects in file order.
+
+    Raises:
+        MeshLoadError: (a ValueError) when the file is missing, has an unsupported extension, cannot be parsed,
+            or holds no triangles; the message names the file and the reason.
+    """
+    import trimesh
+
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
+    if not os.path.isfile(path):
+        raise MeshLoadError(f"mesh file {path!r}: no such file")
+    if ext not in SUPPORTED_EXTENSIONS:
+        raise MeshLoadError(
+            f"mesh file {path!r}: unsupported extension {ext!r} (supported: {', '.join(SUPPORTED_EXTENSIONS)})"
+        )
+    if os.path.getsize(path) == 0:
+        raise MeshLoadError(f"mesh file {path!r}: the file is empty")
+    try:
+        scene = trimesh.load_scene(path, process=False)
+        geometries = scene.dump()
+    except Exception as exc:  # trimesh raises many types (IndexError, KeyError, struct.error, ...) on bad files
+        raise MeshLoadError(
+            f"mesh file {path!r}: cannot be parsed as {ext[1:].upper()} ({type(exc).__name__}: {exc})"
+        ) from exc
+
+    parts, skipped = [], []
+    for g in geometries:
+        faces = getattr(g, "faces", None)
+        if isinstance(g, trimesh.Trimesh) and faces is not None and len(faces) > 0:
+            parts.append((np.asarray(g.vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)))
+        else:
+            skipped.append(type(g).__name__)
+    if not parts:
+        what = f"only {', '.join(sorted(set(skipped)))} geometry" if skipped else "no geometry"
+        raise MeshLoadError(f"mesh file {path!r}: contains no triangles ({what})")
+    meshes = []
+    for k, (v, f) in enumerate(parts):
+        try:
+            meshes.append(TriangleMesh(v, f))
+        except ValueError as exc:
+            raise MeshLoadError(f"mesh file {path!r}: object {k} is invalid ({exc})") from exc
+    return TriangleMesh.concatenate(meshes)[0]
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Transforms
+# ---------------------------------------------------------------------------------------------------------------------
+
+
+def _vec3(name: str, value, default: float) -> np.ndarray:
+    """A finite length-3 float64 vector from a scalar (broadcast) or a 3-sequence; None gives ``default``."""
+    if value is None:
+        return np.full(3, default, dtype=np.float64)
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a number or 3 numbers, got {value!r}") from exc
+    if a.ndim == 0:
+        a = np.full(3, float(a))
+    if a.shape != (3,):
+        raise ValueError(f"{name} must be a number or 3 numbers, got {value!r}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be finite, got {a.tolist()}")
+    return a
+
+
+def rotation_matrix(axis: str, angle_deg: float) -> np.ndarray:
+    """Right-handed 3x3 rotation about ``axis`` ('x', 'y' or 'z') by ``angle_deg`` degrees (counter-clockwise
+    looking down the axis towards the origin)."""
+    a = np.radians(float(angle_deg))
+    c, s = np.cos(a), np.sin(a)
+    if axis == "x":
+        return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    if axis == "y":
+        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    if axis == "z":
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    raise ValueError(f"axis must be 'x', 'y' or 'z', got {axis!r}")
+
+
+def transform_matrix(translate=None, rotate_deg=None, scale=None) -> np.ndarray:
+    """The 4x4 matrix of a mesh-entry transform (CONVENTIONS.md).
+
+    Scale first, then rotate about X, then Y, then Z (about the mesh origin), then translate:
+    ``M = T @ Rz @ Ry @ Rx @ S`` applied to column vectors ``[x, y, z, 1]``.
+
+    Args:
+        translate: [tx, ty, tz] in scene units (default zeros).
+        rotate_deg: [rx, ry, rz] in degrees, right-handed (default zeros).
+        scale: a positive number or three positive numbers [sx, sy, sz] (default 1).
+
+    Returns:
+        (4, 4) float64 matrix.
+
+    Raises:
+        ValueError: naming ``translate``, ``rotate_deg`` or ``scale`` when a value is malformed, non-finite, or a
+            scale is not > 0.
+    """
+    t = _vec3("translate", translate, 0.0)
+    r = _vec3("rotate_deg", rotate_deg, 0.0)
+    s = _vec3("scale", scale, 1.0)
+    if np.any(s <= 0.0):
+        raise ValueError(f"scale must be > 0, got {s.tolist()}")
+    m = np.eye(4)
+    m[:3, :3] = rotation_matrix("z", r[2]) @ rotation_matrix("y", r[1]) @ rotation_matrix("x", r[0]) @ np.diag(s)
+    m[:3, 3] = t
+    return m
+
+
+def apply_transform(mesh: TriangleMesh, matrix) -> TriangleMesh:
+    """Return a new mesh with ``matrix`` applied to its vertices (points, w = 1).
+
+    A matrix with negative determinant (a mirror) also reverses the winding so that normals keep facing the same
+    side of the surface.
+
+    Args:
+        mesh: the mesh to transform (not modified).
+        matrix: (4, 4) affine matrix (last row 0, 0, 0, 1).
+
+    Returns:
+        The transformed mesh (float32 vertices computed in float64).
+
+    Raises:
+        ValueError: when ``matrix`` is not a finite affine 4x4 matrix or is singular.
+    """
+    m = np.asarray(matrix, dtype=np.float64)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        raise ValueError(f"matrix must be a finite 4x4 array, got shape {m.shape}")
+    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0]):
+        raise ValueError(f"matrix must be affine (last row 0, 0, 0, 1), got last row {m[3].tolist()}")
+    det = np.linalg.det(m[:3, :3])
+    if abs(det) < 1e-300:
+        raise ValueError("matrix is singular (zero determinant)")
+    v = mesh.vertices.astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+    tris = mesh.triangles if det > 0 else mesh.triangles[:, ::-1]
+    return TriangleMesh(v, tris.copy())

@@ -1,0 +1,606 @@
+"""Procedural scenes: deterministic triangle-mesh generators named in configs (``procedural: colonnade``).
+
+Every generator takes keyword parameters only, with typed defaults, and returns a :class:`TriangleMesh` in scene
+units (about metres), +Y up, standing on (or, for ``terrain``, straddling) the plane y = 0 and centred on the
+Y axis. Unknown or invalid parameters raise ValueError naming the parameter. Generators that draw random numbers
+take a ``seed`` and give identical meshes for identical parameters.
+
+Closed solids (boxes, cylinders) are wound counter-clockwise seen from outside (outward normals); open sheets
+(ground, terrain) face +Y; leaf quads are two-sided cards with arbitrary orientation; the room of
+``room_window`` faces inwards, towards a camera placed inside it.
+
+| generator | what it builds | default triangles |
+| --- | --- | --- |
+| ground_plane | square in y = 0 | 2 |
+| colonnade | two rows of cylindrical pillars under an architrave and a slab roof | 1060 |
+| fence | slatted fence: posts, vertical slats with gaps, horizontal rails | 828 |
+| canopy | a tree: trunk cylinder and thousands of small leaf quads clustered in a crown ellipsoid | 8048 |
+| room_window | closed box room with a (paned) window opening in its -Z wall | 58 |
+| terrain | height-field grid of smooth sinusoid noise | 32768 |
+
+For a >= 1M-triangle benchmark mesh use ``terrain(resolution=710)`` (2 * 710^2 = 1,008,200 triangles) or
+``canopy(leaves=500000)`` (1,000,048 triangles, a much harder occluder set).
+
+The building blocks ``box``, ``box_quads``, ``cylinder`` and ``quads_to_triangles`` are public for asset scripts.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from .meshes import TriangleMesh, concatenate
+
+GENERATORS: dict[str, Callable[..., TriangleMesh]] = {}
+_ORIGINALS: dict[str, Callable[..., TriangleMesh]] = {}
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Parameter checks (each raises ValueError naming the parameter)
+# ---------------------------------------------------------------------------------------------------------------------
+
+
+def _int(name: str, value, lo: int, hi: int) -> int:
+    """An integer in [lo, hi]; integral floats are accepted (YAML ``8.0``), bools are not."""
+    ok = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+    if not ok and isinstance(value, (float, np.floating)) and math.isfinite(value) and float(value).is_integer():
+        ok = True
+    if not ok:
+        raise ValueError(f"parameter {name!r} must be an integer, got {value!r}")
+    v = int(value)
+    if not lo <= v <= hi:
+        raise ValueError(f"parameter {name!r} must be in [{lo}, {hi}], got {v}")
+    return v
+
+
+def _float(name: str, value, lo: float | None = None, hi: float | None = None, open_lo: bool = True) -> float:
+    """A finite real number; ``lo`` is exclusive unless ``open_lo`` is False, ``hi`` is inclusive."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"parameter {name!r} must be a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"parameter {name!r} must be finite, got {v}")
+    if lo is not None and (v <= lo if open_lo else v < lo):
+        raise ValueError(f"parameter {name!r} must be {'>' if open_lo else '>='} {lo}, got {v}")
+    if hi is not None and v > hi:
+        raise ValueError(f"parameter {name!r} must be <= {hi}, got {v}")
+    return v
+
+
+def _bool(name: str, value) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"parameter {name!r} must be true or false, got {value!r}")
+    return bool(value)
+
+
+def _floats(name: str, value, n: int, lo: float | None = 0.0) -> tuple[float, ...]:
+    """``n`` finite numbers (each > lo when lo is given) from a list or tuple."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != n:
+        raise ValueError(f"parameter {name!r} must be a list of {n} numbers, got {value!r}")
+    return tuple(_float(f"{name}[{k}]", v, lo) for k, v in enumerate(value))
+
+
+def _ints(name: str, value, n: int, lo: int, hi: int) -> tuple[int, ...]:
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != n:
+        raise ValueError(f"parameter {name!r} must be a list of {n} integers, got {value!r}")
+    return tuple(_int(f"{name}[{k}]", v, lo, hi) for k, v in enumerate(value))
+
+
+def _seed(value) -> int:
+    return _int("seed", value, 0, 2**63 - 1)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Building blocks
+# ---------------------------------------------------------------------------------------------------------------------
+
+
+def quads_to_triangles(quads) -> np.ndarray:
+    """Split (Q, 4) counter-clockwise quads (a, b, c, d) into (2Q, 3) triangles (a, b, c), (a, c, d), keeping the
+    winding; triangle 2q and 2q + 1 come from quad q."""
+    q = np.asarray(quads, dtype=np.int64).reshape(-1, 4)
+    return np.stack([q[:, [0, 1, 2]], q[:, [0, 2, 3]]], axis=1).reshape(-1, 3)
+
+
+# Corner k of a box is (x, y, z) = (hi if bit 0 else lo, hi if bit 1 else lo, hi if bit 2 else lo).
+# Faces in the order -X, +X, -Y, +Y, -Z, +Z, counter-clockwise seen from outside.
+_BOX_QUADS = np.array(
+    [[0, 4, 6, 2], [1, 3, 7, 5], [0, 1, 5, 4], [2, 6, 7, 3], [0, 2, 3, 1], [4, 5, 7, 6]], dtype=np.int64
+)
+
+
+def box_quads(lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """Corners and outward quads of an axis-aligned box.
+
+    Args:
+        lo: (3,) minimum corner, scene units.
+        hi: (3,) maximum corner, each component > the one in ``lo``.
+
+    Returns:
+        (vertices (8, 3) float64, quads (6, 4) int64), quads counter-clockwise seen from outside.
+
+    Raises:
+        ValueError: when the box has zero or negative extent.
+    """
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    if lo.shape != (3,) or hi.shape != (3,) or not np.all(hi > lo):
+        raise ValueError(f"box needs lo < hi componentwise, got lo={lo.tolist()} hi={hi.tolist()}")
+    bits = (np.arange(8)[:, None] >> np.arange(3)[None, :]) & 1
+    return np.where(bits == 1, hi, lo), _BOX_QUADS.copy()
+
+
+def box(lo, hi) -> TriangleMesh:
+    """Closed axis-aligned box from ``lo`` to ``hi`` (scene units): 8 vertices, 12 outward triangles."""
+    v, q = box_quads(lo, hi)
+    return TriangleMesh(v, quads_to_triangles(q))
+
+
+def cylinder(radius: float, y0: float, y1: float, segments: int, center_xz=(0.0, 0.0), caps: bool = True):
+    """Vertical cylinder (axis parallel to +Y) approximated by a prism with ``segments`` sides.
+
+    Args:
+        radius: ring radius (vertices lie on it), scene units.
+        y0: bottom height; y1: top height (> y0).
+        segments: number of sides (>= 3).
+        center_xz: (x, z) of the axis.
+        caps: close the ends with triangle fans around a centre vertex.
+
+    Returns:
+        TriangleMesh with 2 * segments side triangles (+ 2 * segments cap triangles), outward winding.
+    """
+    if not (radius > 0.0 and y1 > y0 and segments >= 3):
+        raise ValueError(f"cylinder needs radius > 0, y1 > y0, segments >= 3; got {radius}, {y0}, {y1}, {segments}")
+    s = int(segments)
+    theta = 2.0 * np.pi * np.arange(s) / s
+    ring = np.stack([center_xz[0] + radius * np.cos(theta), np.zeros(s), center_xz[1] + radius * np.sin(theta)], 1)
+    bottom, top = ring + [0.0, y0, 0.0], ring + [0.0, y1, 0.0]
+    k = np.arange(s)
+    k1 = (k + 1) % s
+    quads = np.stack([k, s + k, s + k1, k1], axis=1)  # bottom_k, top_k, top_k+1, bottom_k+1: outward
+    tris = [quads_to_triangles(quads)]
+    verts = [bottom, top]
+    if caps:
+        verts.append(np.array([[center_xz[0], y0, center_xz[1]], [center_xz[0], y1, center_xz[1]]]))
+        cb, ct = 2 * s, 2 * s + 1
+        tris.append(np.stack([np.full(s, cb), k, k1], axis=1))  # faces -Y
+        tris.append(np.stack([np.full(s, ct), s + k1, s + k], axis=1))  # faces +Y
+    return TriangleMesh(np.concatenate(verts), np.concatenate(tris))
+
+
+def _height_grid(size: float, n: int, heights: np.ndarray | None = None) -> TriangleMesh:
+    """(n+1) x (n+1) vertex grid over [-size/2, size/2]^2 in x-z with 2 n^2 triangles facing +Y.
+
+    Vertex (i, j) (i along x, j along z) has index j * (n + 1) + i and height ``heights[j, i]`` (0 when None).
+    """
+    c = np.linspace(-0.5 * size, 0.5 * size, n + 1)
+    x, z = np.meshgrid(c, c, indexing="xy")  # [j, i]
+    y = np.zeros_like(x) if heights is None else heights
+    verts = np.stack([x, y, z], axis=-1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="xy")
+    a = (j * (n + 1) + i).ravel()
+    # a, a + z, a + x + z, a + x is counter-clockwise seen from +Y.
+    quads = np.stack([a, a + n + 1, a + n + 2, a + 1], axis=1)
+    return TriangleMesh(verts, quads_to_triangles(quads))
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Registry
+# ---------------------------------------------------------------------------------------------------------------------
+
+
+def _generator(fn: Callable[..., TriangleMesh]) -> Callable[..., TriangleMesh]:
+    """Register ``fn`` in GENERATORS behind a wrapper that rejects positional and unknown parameters."""
+    names = list(inspect.signature(fn).parameters)
+
+    @functools.wraps(fn)
+    def wrapper(*args, **params) -> TriangleMesh:
+        if args:
+            raise ValueError(f"{fn.__name__} takes keyword parameters only, got {len(args)} positional")
+        unknown = sorted(set(params) - set(names))
+        if unknown:
+            raise ValueError(f"{fn.__name__}: unknown parameter {unknown[0]!r} (parameters: {', '.join(names)})")
+        return fn(**params)
+
+    GENERATORS[fn.__name__] = wrapper
+    _ORIGINALS[fn.__name__] = fn
+    return wrapper
+
+
+def generator_names() -> list[str]:
+    """Names of all registered generators, in registration order."""
+    return list(GENERATORS)
+
+
+def _lookup(name: str) -> Callable[..., TriangleMesh]:
+    if name not in GENERATORS:
+        raise ValueError(f"unknown procedural generator {name!r} (available: {', '.join(GENERATORS)})")
+    return _ORIGINALS[name]
+
+
+def describe(name: str) -> str:
+    """One-line description ``name(param: type = default, ...): first docstring line`` of a generator.
+
+    Raises:
+        ValueError: for an unknown generator name.
+    """
+    fn = _lookup(name)
+    parts = []
+    for p in inspect.signature(fn).parameters.values():
+        ann = p.annotation if isinstance(p.annotation, str) else getattr(p.annotation, "__name__", str(p.annotation))
+        parts.append(f"{p.name}: {ann} = {p.default!r}")
+    doc = (inspect.getdoc(fn) or "").strip().splitlines()
+    return f"{name}({', '.join(parts)}): {doc[0] if doc else ''}"
+
+
+def generate(name: str, params: dict | None = None) -> TriangleMesh:
+    """Build the mesh of generator ``name`` with keyword ``params`` (a config entry's ``procedural``/``params``).
+
+    Raises:
+        ValueError: for an unknown generator, an unknown parameter or an invalid value (naming it).
+    """
+    _lookup(name)
+    params = {} if params is None else params
+    if not isinstance(params, dict):
+        raise ValueError(f"params of {name!r} must be a mapping, got {type(params).__name__}")
+    return GENERATORS[name](**params)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Generators
+# ---------------------------------------------------------------------------------------------------------------------
+
+
+@_generator
+def ground_plane(*, size: float = 40.0, subdivisions: int = 1) -> TriangleMesh:
+    """Square ground in the plane y = 0, centred at the origin, facing +Y.
+
+    Args:
+        size: edge length in scene units (> 0).
+        subdivisions: cells per edge (1..4096); 2 * subdivisions^2 triangles.
+    """
+    size = _float("size", size, 0.0)
+    n = _int("subdivisions", subdivisions, 1, 4096)
+    return _height_grid(size, n)
+
+
+@_generator
+def colonnade(
+    *,
+    pillars: int = 8,
+    spacing: float = 2.0,
+    radius: float = 0.3,
+    height: float = 5.0,
+    segments: int = 16,
+    roof: bool = True,
+    row_gap: float = 4.0,
+    roof_thickness: float = 0.4,
+) -> TriangleMesh:
+    """Two rows of cylindrical pillars along X under an architrave and a slab roof (crepuscular-rays scene).
+
+    Pillar axes stand at x = (i - (pillars - 1) / 2) * spacing and z = +-row_gap / 2, from y = 0 to ``height``.
+    With ``roof`` each row carries an architrave beam (y in [height, height + roof_thickness]) and a slab
+    (y in [height + roof_thickness, height + 2 roof_thickness]) spans both rows, overhanging them by 1.5 radius.
+    Light coming in low from the side (+-Z) streams between the pillars into the covered hall.
+
+    Args:
+        pillars: pillars per row (1..10000).
+        spacing: axis-to-axis distance along X (> 2 radius), scene units.
+        radius: pillar radius (> 0).
+        height: pillar height (> 0).
+        segments: sides per pillar (3..1024).
+        roof: add the architraves and the roof slab (36 triangles).
+        row_gap: distance between the two rows' axes (> 2 radius).
+        roof_thickness: thickness of architrave and slab (> 0).
+
+    Returns:
+        2 * pillars * 4 * segments (+ 36 with roof) triangles, closed solids with outward normals.
+    """
+    n = _int("pillars", pillars, 1, 10000)
+    radius = _float("radius", radius, 0.0)
+    spacing = _float("spacing", spacing, 2.0 * radius)
+    height = _float("height", height, 0.0)
+    s = _int("segments", segments, 3, 1024)
+    roof = _bool("roof", roof)
+    row_gap = _float("row_gap", row_gap, 2.0 * radius)
+    t = _float("roof_thickness", roof_thickness, 0.0)
+
+    xs = (np.arange(n) - 0.5 * (n - 1)) * spacing
+    parts = [cylinder(radius, 0.0, height, s, (x, z)) for z in (-0.5 * row_gap, 0.5 * row_gap) for x in xs]
+    if roof:
+        x0, x1 = xs[0] - 0.5 * spacing, xs[-1] + 0.5 * spacing
+        for z in (-0.5 * row_gap, 0.5 * row_gap):
+            parts.append(box([x0, height, z - 1.3 * radius], [x1, height + t, z + 1.3 * radius]))
+        zr = 0.5 * row_gap + 1.5 * radius
+        parts.append(box([x0, height + t, -zr], [x1, height + 2.0 * t, zr]))
+    return concatenate(parts)[0]
+
+
+@_generator
+def fence(
+    *,
+    posts: int = 12,
+    slats: int = 5,
+    gap: float = 0.08,
+    height: float = 1.8,
+    post_spacing: float = 1.5,
+    post_width: float = 0.12,
+    slat_thickness: float = 0.03,
+    rails: int = 2,
+) -> TriangleMesh:
+    """Slatted fence along X in the plane z = 0: square posts, vertical slats separated by gaps, and rails.
+
+    Post p stands at x = (p - (posts - 1) / 2) * post_spacing, from y = 0 to ``height``. Each of the posts - 1
+    bays holds ``slats`` boards (y in [0.06, 0.94] * height) with ``gap`` of clear space between boards and
+    next to the posts; ``rails`` horizontal bars run behind the slats (+Z side) across the whole fence.
+
+    Args:
+        posts: number of posts (2..10000).
+        slats: boards per bay (0..1000).
+        gap: clear width between boards (> 0), scene units; the board width follows from the bay width.
+        height: post height (> 0).
+        post_spacing: post axis distance (> post_width).
+        post_width: square post cross-section (> 0).
+        slat_thickness: board thickness along Z (> 0).
+        rails: horizontal rails (0..100), 0.08 high and 0.04 deep, evenly spread over the height.
+
+    Returns:
+        12 * (posts + (posts - 1) * slats + rails) triangles (closed boxes, outward normals).
+    """
+    n = _int("posts", posts, 2, 10000)
+    m = _int("slats", slats, 0, 1000)
+    gap = _float("gap", gap, 0.0)
+    height = _float("height", height, 0.0)
+    post_width = _float("post_width", post_width, 0.0)
+    post_spacing = _float("post_spacing", post_spacing, post_width)
+    thick = _float("slat_thickness", slat_thickness, 0.0)
+    rails = _int("rails", rails, 0, 100)
+
+    clear = post_spacing - post_width
+    board = (clear - (m + 1) * gap) / m if m > 0 else 0.0
+    if m > 0 and board <= 0.0:
+        raise ValueError(
+            f"parameter 'gap' = {gap} leaves no room for {m} slats in a bay {clear:.4g} wide "
+            f"(need gap < {clear / (m + 1):.4g})"
+        )
+    rail_h = 0.08
+    if rails > 0 and height / (rails + 1) <= rail_h:
+        raise ValueError(f"parameter 'rails' = {rails} does not fit in height {height}")
+    xs = (np.arange(n) - 0.5 * (n - 1)) * post_spacing
+    hw = 0.5 * post_width
+    parts = [box([x - hw, 0.0, -hw], [x + hw, height, hw]) for x in xs]
+    for x in xs[:-1]:
+        for k in range(m):
+            bx = x + hw + gap + k * (board + gap)
+            parts.append(box([bx, 0.06 * height, -0.5 * thick], [bx + board, 0.94 * height, 0.5 * thick]))
+    for r in range(rails):
+        yc = height * (r + 1) / (rails + 1)
+        parts.append(
+            box([xs[0] + hw, yc - 0.5 * rail_h, 0.5 * thick], [xs[-1] - hw, yc + 0.5 * rail_h, 0.5 * thick + 0.04])
+        )
+    return concatenate(parts)[0]
+
+
+@_generator
+def canopy(
+    *,
+    leaves: int = 4000,
+    radius: float = 3.0,
+    trunk_height: float = 3.0,
+    seed: int = 0,
+    leaf_size: float = 0.25,
+    crown_ratio: float = 0.7,
+    clusters: int = 40,
+    cluster_radius: float = 0.8,
+    trunk_radius: float = 0.2,
+    trunk_segments: int = 12,
+) -> TriangleMesh:
+    """A tree: trunk cylinder plus many small randomly oriented square leaf cards clumped in a crown ellipsoid.
+
+    The crown is an ellipsoid with horizontal semi-axes ``radius`` and vertical semi-axis crown_ratio * radius,
+    its bottom at y = trunk_height. Leaves are grouped in ``clusters`` spherical clumps of ``cluster_radius``
+    whose centres are uniform in the crown (0 clusters: leaves uniform in the whole crown); the gaps between
+    clumps let light shafts through. Each leaf is a square of side ``leaf_size`` with a uniformly random
+    orientation, two triangles; the trunk (``trunk_segments`` sides) runs from y = 0 to the crown centre.
+
+    Args:
+        leaves: number of leaf cards (0..10,000,000).
+        radius: horizontal crown semi-axis (> 0), scene units.
+        trunk_height: height of the crown bottom (> 0).
+        seed: random seed (>= 0); equal seeds give equal meshes.
+        leaf_size: leaf edge length (> 0).
+        crown_ratio: vertical / horizontal crown semi-axis (> 0).
+        clusters: number of leaf clumps (0..100000).
+        cluster_radius: clump radius (> 0).
+        trunk_radius: trunk radius (> 0).
+        trunk_segments: trunk sides (3..1024).
+
+    Returns:
+        4 * trunk_segments + 2 * leaves triangles: the trunk first, then leaf k as triangles
+        4 * trunk_segments + 2k and + 2k + 1 (vertices 4k.. after the trunk's).
+    """
+    nl = _int("leaves", leaves, 0, 10_000_000)
+    radius = _float("radius", radius, 0.0)
+    trunk_height = _float("trunk_height", trunk_height, 0.0)
+    rng = np.random.default_rng(_seed(seed))
+    leaf_size = _float("leaf_size", leaf_size, 0.0)
+    crown_ratio = _float("crown_ratio", crown_ratio, 0.0)
+    nc = _int("clusters", clusters, 0, 100_000)
+    cluster_radius = _float("cluster_radius", cluster_radius, 0.0)
+    trunk_radius = _float("trunk_radius", trunk_radius, 0.0)
+    ts = _int("trunk_segments", trunk_segments, 3, 1024)
+
+    semi = np.array([radius, crown_ratio * radius, radius])
+    centre = np.array([0.0, trunk_height + semi[1], 0.0])
+    trunk = cylinder(trunk_radius, 0.0, centre[1], ts)
+    if nl == 0:
+        return trunk
+
+    def in_ball(count: int) -> np.ndarray:
+        d = rng.normal(size=(count, 3))
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        return d * rng.random((count, 1)) ** (1.0 / 3.0)
+
+    if nc == 0:
+        pos = centre + in_ball(nl) * semi
+    else:
+        shrunk = np.maximum(semi - cluster_radius, 0.25 * semi)
+        centres = centre + in_ball(nc) * shrunk
+        pos = centres[rng.integers(0, nc, size=nl)] + in_ball(nl) * cluster_radius
+    # Uniformly random orientation: normal uniform on the sphere, tangent uniform around it.
+    normal = rng.normal(size=(nl, 3))
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    helper = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u0 = np.cross(normal, helper)
+    u0 /= np.linalg.norm(u0, axis=1, keepdims=True)
+    v0 = np.cross(normal, u0)
+    phi = rng.random((nl, 1)) * 2.0 * np.pi
+    u = np.cos(phi) * u0 + np.sin(phi) * v0
+    v = np.cross(normal, u)
+    h = 0.5 * leaf_size
+    corners = np.stack([pos - h * u - h * v, pos + h * u - h * v, pos + h * u + h * v, pos - h * u + h * v], axis=1)
+    quads = np.arange(4 * nl).reshape(nl, 4)
+    leaves_mesh = TriangleMesh(corners.reshape(-1, 3), quads_to_triangles(quads))
+    return concatenate([trunk, leaves_mesh])[0]
+
+
+@_generator
+def room_window(
+    *,
+    size: tuple = (8.0, 4.0, 8.0),
+    window: tuple = (2.0, 1.6),
+    window_center: tuple = (0.0, 2.2),
+    panes: tuple = (1, 1),
+    mullion: float = 0.08,
+) -> TriangleMesh:
+    """Closed box room, faces pointing inwards, with a rectangular window opening in its -Z wall.
+
+    The room spans x in [-W/2, W/2], y in [0, H], z in [-D/2, D/2] for size = (W, H, D). The opening
+    (width, height) = ``window`` is centred at (x, y) = ``window_center`` in the wall z = -D/2 and divided into
+    panes[0] x panes[1] openings by zero-thickness mullion strips ``mullion`` wide. All six walls are built on one
+    lattice of grid lines (room edges, window and mullion edges), so every edge is shared by exactly two triangles
+    except the edges around the openings: no cracks, no T-junctions. Normals face the inside of the room.
+
+    Args:
+        size: (W, H, D) room extent, each > 0, scene units.
+        window: (width, height) of the opening, each > 0, strictly inside the wall.
+        window_center: (x, y) of the opening's centre on the -Z wall.
+        panes: (columns, rows) of panes (1..64 each).
+        mullion: width of the strips between panes (> 0; unused with one pane).
+
+    Returns:
+        2 * (2 nx ny + 2 ny nz + 2 nx nz - columns * rows) triangles, where nx, ny, nz count the lattice cells
+        along each axis (nz = 1; with one pane nx = ny = 3: 58 triangles).
+    """
+    W, H, D = _floats("size", size, 3)
+    ww, wh = _floats("window", window, 2)
+    cx, cy = _floats("window_center", window_center, 2, lo=None)
+    pc, pr = _ints("panes", panes, 2, 1, 64)
+    mul = _float("mullion", mullion, 0.0)
+    if not (abs(cx) + 0.5 * ww < 0.5 * W and cy - 0.5 * wh > 0.0 and cy + 0.5 * wh < H):
+        raise ValueError(
+            f"parameter 'window' {ww} x {wh} centred at window_center ({cx}, {cy}) must lie strictly inside the "
+            f"-Z wall x in ({-0.5 * W}, {0.5 * W}), y in (0, {H})"
+        )
+    pane_w = (ww - (pc - 1) * mul) / pc
+    pane_h = (wh - (pr - 1) * mul) / pr
+    if pane_w <= 0.0 or pane_h <= 0.0:
+        raise ValueError(f"parameter 'mullion' = {mul} leaves no opening for {pc} x {pr} panes in the window")
+
+    def lines(lo_edge: float, hi_edge: float, start: float, pane: float, count: int) -> np.ndarray:
+        inner = []
+        for k in range(count):
+            a = start + k * (pane + mul)
+            inner += [a, a + pane]
+        return np.array([lo_edge, *inner, hi_edge])
+
+    xl = lines(-0.5 * W, 0.5 * W, cx - 0.5 * ww, pane_w, pc)
+    yl = lines(0.0, H, cy - 0.5 * wh, pane_h, pr)
+    zl = np.array([-0.5 * D, 0.5 * D])
+    nx, ny = len(xl), len(yl)
+
+    def vid(i, j, k):
+        return i + nx * (j + ny * k)
+
+    quads, normals = [], []
+
+    def wall(axis: int, fixed: int, inward: float, skip=lambda a, b: False):
+        """Quads of the wall where lattice index along ``axis`` is ``fixed``; inward normal sign along ``axis``."""
+        other = [a for a in range(3) if a != axis]
+        counts = [nx, ny, 2]
+        for a in range(counts[other[0]] - 1):
+            for b in range(counts[other[1]] - 1):
+                if skip(a, b):
+                    continue
+                corner = []
+                for da, db in ((0, 0), (1, 0), (1, 1), (0, 1)):
+                    idx = [0, 0, 0]
+                    idx[axis], idx[other[0]], idx[other[1]] = fixed, a + da, b + db
+                    corner.append(vid(*idx))
+                quads.append(corner)
+                n = np.zeros(3)
+                n[axis] = inward
+                normals.append(n)
+
+    def is_pane(i, j):
+        # Cells between xl[1 + 2p] and xl[2 + 2p] (and likewise in y) are openings.
+        return 1 <= i <= 2 * pc - 1 and i % 2 == 1 and 1 <= j <= 2 * pr - 1 and j % 2 == 1
+
+    wall(2, 0, +1.0, skip=is_pane)  # -Z wall with the window, faces +Z
+    wall(2, 1, -1.0)  # +Z wall
+    wall(0, 0, +1.0)  # -X wall
+    wall(0, nx - 1, -1.0)  # +X wall
+    wall(1, 0, +1.0)  # floor
+    wall(1, ny - 1, -1.0)  # ceiling
+
+    gx, gy, gz = np.meshgrid(xl, yl, zl, indexing="ij")
+    lattice = np.zeros((nx * ny * 2, 3))
+    ii, jj, kk = np.meshgrid(np.arange(nx), np.arange(ny), np.arange(2), indexing="ij")
+    lattice[vid(ii, jj, kk).ravel()] = np.stack([gx, gy, gz], axis=-1).reshape(-1, 3)
+    quads = np.array(quads, dtype=np.int64)
+    # Orient every quad so that (b - a) x (c - a) points along its inward normal.
+    p = lattice[quads]
+    facing = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), np.array(normals))
+    quads[facing < 0] = quads[facing < 0][:, ::-1]
+    used, remap = np.unique(quads, return_inverse=True)
+    return TriangleMesh(lattice[used], quads_to_triangles(remap.reshape(-1, 4)))
+
+
+@_generator
+def terrain(*, size: float = 40.0, resolution: int = 128, amplitude: float = 2.0, seed: int = 0) -> TriangleMesh:
+    """Rolling height-field terrain: a square grid displaced by a sum of random sinusoids (smooth noise).
+
+    Heights are h(x, z) = sum_k a_k sin(2 pi (d_k . (x, z)) / lambda_k + phase_k) over 8 waves with random
+    directions d_k and phases, wavelengths from ``size`` / 0.8 down to ``size`` / 12 and amplitudes proportional
+    to the wavelength, rescaled so that max |h| = ``amplitude`` over the grid (mean about 0, heights in
+    [-amplitude, amplitude]). The grid covers [-size/2, size/2]^2 with resolution^2 cells and faces +Y.
+
+    Args:
+        size: edge length (> 0), scene units.
+        resolution: cells per edge (1..4096); 2 * resolution^2 triangles (710 gives 1,008,200).
+        amplitude: largest |height| (>= 0).
+        seed: random seed (>= 0).
+    """
+    size = _float("size", size, 0.0)
+    n = _int("resolution", resolution, 1, 4096)
+    amplitude = _float("amplitude", amplitude, 0.0, open_lo=False)
+    rng = np.random.default_rng(_seed(seed))
+    waves = 8
+    wavelength = size / np.geomspace(0.8, 12.0, waves)
+    angle = rng.random(waves) * 2.0 * np.pi
+    phase = rng.random(waves) * 2.0 * np.pi
+    weight = wavelength / wavelength[0] * (0.6 + 0.8 * rng.random(waves))
+    c = np.linspace(-0.5 * size, 0.5 * size, n + 1)
+    h = np.zeros((n + 1, n + 1))  # [j (z), i (x)]
+    for k in range(waves):
+        kx, kz = 2.0 * np.pi * np.cos(angle[k]) / wavelength[k], 2.0 * np.pi * np.sin(angle[k]) / wavelength[k]
+        # sin(kx x + kz z + p) = sin(kx x) cos(kz z + p) + cos(kx x) sin(kz z + p): outer products, O(n^2).
+        h += weight[k] * (
+            np.outer(np.cos(kz * c + phase[k]), np.sin(kx * c)) + np.outer(np.sin(kz * c + phase[k]), np.cos(kx * c))
+        )
+    peak = np.abs(h).max()
+    h = h * (amplitude / peak) if peak > 0.0 else h
+    return _height_grid(size, n, h)
