@@ -1,0 +1,224 @@
+"""BVH ray casting with ``wp.Mesh``: kernel helpers for other modules, and the depth references.
+
+``ray_hit``, ``ray_hit_distance`` and ``occluded`` are ``@wp.func`` building blocks for kernels that
+trace rays against a mesh (exact-visibility scattering, shadow rays). On the host,
+:func:`raycast_depth` casts one ray per pixel centre through any 4x4 world -> clip matrix and
+returns NDC depth and triangle ids in the format of :func:`warpscatter.raster.rasterize`: it is the
+reference the rasterizer is tested and benchmarked against. :func:`raycast_camera` casts the
+CONVENTIONS camera rays and returns the hit distance along each unit ray.
+
+Pixel centres follow the rasterizer: pixel (i, j), row j from the top, sits at
+x_ndc = 2 (i + 0.5) / width - 1, y_ndc = 1 - 2 (j + 0.5) / height.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from . import parallel
+from .raster import RasterResult, as_points, as_triangles, check_matrix, check_size, pixel_center_ndc
+from .scene.camera import Camera, CameraParams, far_plane_distance, pixel_ray_direction
+from .wpinit import default_device, module_options
+
+module_options()
+
+
+# ---- building blocks (public @wp.func API) ---------------------------------------------------------
+
+
+@wp.func
+def ray_hit(mesh_id: wp.uint64, origin: wp.vec3, direction: wp.vec3, t_max: float) -> tuple[float, int]:
+    """Closest hit of a ray with a mesh: (t, face) with t in [0, t_max] in multiples of |direction|.
+
+    Returns (+inf, -1) when nothing is hit. Both sides of every triangle are hit. A ray starting on a
+    surface may hit it again at t ~ 0: offset the origin for secondary rays.
+    """
+    q = wp.mesh_query_ray(mesh_id, origin, direction, t_max)
+    if q.result:
+        return q.t, q.face
+    return wp.inf, -1
+
+
+@wp.func
+def ray_hit_distance(mesh_id: wp.uint64, origin: wp.vec3, direction: wp.vec3, t_max: float) -> float:
+    """Distance t (multiples of |direction|) of the closest hit in [0, t_max]; +inf when there is none."""
+    t, face = ray_hit(mesh_id, origin, direction, t_max)
+    return t
+
+
+@wp.func
+def occluded(mesh_id: wp.uint64, origin: wp.vec3, direction: wp.vec3, t_max: float) -> bool:
+    """True when any triangle lies on the ray within [0, t_max] (shadow rays; any-hit traversal)."""
+    return wp.mesh_query_ray_anyhit(mesh_id, origin, direction, t_max)
+
+
+@wp.func
+def unproject_ndc(inv_view_proj: wp.mat44d, x: wp.float64, y: wp.float64, z: wp.float64) -> tuple[wp.vec3d, wp.float64]:
+    """World point of NDC (x, y, z) and the homogeneous w of the unprojection (1 / clip w of the point)."""
+    p = inv_view_proj * wp.vec4d(x, y, z, wp.float64(1.0))
+    return wp.vec3d(p[0], p[1], p[2]) / p[3], p[3]
+
+
+# ---- kernels ---------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def raycast_depth_kernel(
+    mesh_id: wp.uint64,
+    inv_view_proj: wp.mat44d,
+    width: int,
+    height: int,
+    ndc_depth: wp.array3d(dtype=wp.float32),
+    tri_id: wp.array3d(dtype=wp.int32),
+    offset: int,
+):
+    """One ray per pixel centre from the near plane (z_ndc = -1) to the far plane (z_ndc = +1)."""
+    j, i = wp.tid()
+    j += offset
+    c = pixel_center_ndc(i, j, width, height)
+    x = wp.float64(c[0])
+    y = wp.float64(c[1])
+    p_near, h_near = unproject_ndc(inv_view_proj, x, y, wp.float64(-1.0))
+    p_far, h_far = unproject_ndc(inv_view_proj, x, y, wp.float64(1.0))
+    origin = wp.vec3(p_near)
+    direction = wp.vec3(p_far - p_near)
+    t, face = ray_hit(mesh_id, origin, direction, 1.0)
+    if face < 0:
+        ndc_depth[0, j, i] = wp.inf
+        tri_id[0, j, i] = -1
+        return
+    # Clip coordinates are affine along the world segment: clip(t) = (1-t) c_near + t c_far with
+    # c_near = (x, y, -1, 1) / h_near and c_far = (x, y, 1, 1) / h_far.
+    s = wp.float64(t)
+    one = wp.float64(1.0)
+    zc = -(one - s) / h_near + s / h_far
+    wc = (one - s) / h_near + s / h_far
+    ndc_depth[0, j, i] = float(wp.clamp(zc / wc, wp.float64(-1.0), wp.float64(1.0)))
+    tri_id[0, j, i] = face
+
+
+@wp.kernel
+def raycast_camera_kernel(
+    mesh_id: wp.uint64,
+    cam: CameraParams,
+    distance: wp.array2d(dtype=wp.float32),
+    tri_id: wp.array2d(dtype=wp.int32),
+    offset: int,
+):
+    """CONVENTIONS camera rays: hit distance along the unit ray within the far plane (+inf: none)."""
+    j, i = wp.tid()
+    j += offset
+    d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
+    t, face = ray_hit(mesh_id, cam.position, d, far_plane_distance(cam, d))
+    distance[j, i] = t
+    tri_id[j, i] = face
+
+
+# ---- host side -------------------------------------------------------------------------------------
+
+
+def build_mesh(vertices, triangles, device: str | None = None) -> wp.Mesh:
+    """BVH mesh for ray queries.
+
+    Args:
+        vertices: (N, 3) world positions (numpy, converted to float32) or ``wp.array(dtype=wp.vec3)``.
+        triangles: (T, 3) integer vertex indices.
+        device: Warp device.
+
+    Returns:
+        ``wp.Mesh``; it holds references to its point and index arrays (``mesh.points``,
+        ``mesh.indices``), so they live as long as the mesh. Triangle ids of queries index ``triangles``.
+
+    Raises:
+        ValueError: wrong shapes, non-finite vertices, out-of-range indices, or no triangles.
+    """
+    device = default_device(device)
+    points = as_points(vertices, device)
+    tris = as_triangles(triangles, points.shape[0], device)
+    if tris.shape[0] == 0:
+        raise ValueError("triangles: a mesh needs at least one triangle")
+    return wp.Mesh(points=points, indices=tris.flatten())
+
+
+def _check_mesh(mesh) -> wp.Mesh:
+    if not isinstance(mesh, wp.Mesh):
+        raise ValueError(f"mesh must be a wp.Mesh (see build_mesh), got {type(mesh).__name__}")
+    return mesh
+
+
+def raycast_depth(
+    mesh: wp.Mesh, view_proj, width: int, height: int, device: str | None = None, threads: int | None = None
+) -> RasterResult:
+    """Ray-cast NDC depth and triangle ids per pixel centre, in the format of ``rasterize`` (one layer).
+
+    Each pixel's ray runs from the near plane (z_ndc = -1) to the far plane (z_ndc = +1) of
+    ``view_proj``, unprojected with its inverse, so it works for perspective and orthographic
+    matrices alike and sees exactly what the rasterizer keeps (no clamping).
+
+    Args:
+        mesh: ``wp.Mesh`` from :func:`build_mesh`.
+        view_proj: 4x4 world -> clip matrix (must be invertible).
+        width: image width in pixels.
+        height: image height in pixels (row 0 at the top).
+        device: Warp device; the mesh's device when None.
+        threads: CPU worker threads.
+
+    Returns:
+        :class:`warpscatter.raster.RasterResult` with shapes (1, height, width); ``keys`` is None.
+
+    Raises:
+        ValueError: bad mesh, matrix (non-finite or singular) or size.
+    """
+    mesh = _check_mesh(mesh)
+    device = default_device(device or str(mesh.device))
+    m = check_matrix(view_proj, "view_proj")
+    width, height = check_size(width, height)
+    if abs(np.linalg.det(m)) < 1e-300 or not np.all(np.isfinite(inv := np.linalg.inv(m))):
+        raise ValueError("view_proj must be invertible")
+    ndc_depth = wp.empty((1, height, width), dtype=wp.float32, device=device)
+    tri_id = wp.empty((1, height, width), dtype=wp.int32, device=device)
+    parallel.launch_rows(
+        raycast_depth_kernel, (height, width), [mesh.id, wp.mat44d(*inv.ravel()), width, height, ndc_depth, tri_id],
+        device, threads=threads, min_chunk=8,
+    )  # fmt: skip
+    return RasterResult(
+        ndc_depth=ndc_depth.numpy(), tri_id=tri_id.numpy(), keys=None, device_ndc_depth=ndc_depth,
+        device_tri_id=tri_id, view_proj=m,
+    )  # fmt: skip
+
+
+def raycast_camera(
+    mesh: wp.Mesh, camera: Camera, device: str | None = None, threads: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Hit distance along every CONVENTIONS camera ray (``Camera.ray_directions``) and the hit triangle.
+
+    Rays start at the camera position (t = 0, not the near plane) and end at the far plane
+    (t_max = far / dot(direction, forward)).
+
+    Args:
+        mesh: ``wp.Mesh`` from :func:`build_mesh`.
+        camera: the camera (its width x height pixels).
+        device: Warp device; the mesh's device when None.
+        threads: CPU worker threads.
+
+    Returns:
+        ``(distance, tri_id)``: (height, width) float32 scene units (+inf where no surface lies
+        within the far plane) and int32 triangle index (-1 there); row 0 at the top.
+    """
+    mesh = _check_mesh(mesh)
+    if not isinstance(camera, Camera):
+        raise ValueError(f"camera must be a Camera, got {type(camera).__name__}")
+    device = default_device(device or str(mesh.device))
+    h, w = int(camera.height), int(camera.width)
+    distance = wp.empty((h, w), dtype=wp.float32, device=device)
+    tri_id = wp.empty((h, w), dtype=wp.int32, device=device)
+    parallel.launch_rows(
+        raycast_camera_kernel,
+        (h, w),
+        [mesh.id, camera.params(), distance, tri_id],
+        device,
+        threads=threads,
+        min_chunk=8,
+    )
+    return distance.numpy(), tri_id.numpy()
