@@ -295,12 +295,12 @@ def test_render_section(tmp_path):
         tmp_path,
         {
             "render": {
-                "scattering": {"method": "fourier", "steps": 0, "visibility": "bvh", "shadow_map": {"resolution": 8}},
+                "scattering": {"method": "moonlight", "steps": 0, "visibility": "bvh", "shadow_map": {"resolution": 8}},
                 "shadows": {"method": "msm4", "filter_px": 0},
             }
         },
     )
-    assert "render.scattering.method: must be one of 'raymarch' (got 'fourier')" in msg
+    assert "render.scattering.method: must be one of 'raymarch' or 'fourier' (got 'moonlight')" in msg
     assert "render.scattering.steps: must be >= 1" in msg
     assert "render.scattering.visibility: must be one of 'exact' or 'shadow_map'" in msg
     assert "render.scattering.shadow_map.resolution: each side must lie in [16," in msg

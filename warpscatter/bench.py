@@ -40,6 +40,8 @@ SUITES: dict[str, str] = {
     "raster": "1024^2 depth map of a >=1M-triangle mesh: Warp rasterizer vs wp.Mesh ray casting vs Embree",
     "reference": "ray marching at 1920x1080, 128 steps: shadow-map vs exact (ray-cast) visibility",
     "parallel": "speed-up of split CPU launches (1 thread vs all cores): rasterizer and ray marcher",
+    "prefiltered": "fourier method (Klehm 2014): stage times vs map size, output size, basis count; error vs exact; "
+                   "scene-complexity sweep",
 }
 
 ProgressFn = Callable[[str, float], None]
@@ -173,20 +175,50 @@ def machine_meta() -> dict:
 # ---- scenes ----------------------------------------------------------------------------------------
 
 
-def bench_scene_config(name: str, width: int, height: int, **render):
-    """A validated config for one of the bench scenes (procedural only, so the bench runs from any install)."""
+def bench_scene_config(name: str, width: int, height: int, leaves: int = 4000, **render):
+    """A validated config for a bench scene (procedural only, so the bench runs from any install).
+
+    Args:
+        name: ``colonnade``, ``canopy`` or ``window`` (the scenes of ``configs/``).
+        width, height: image size in pixels.
+        leaves: leaf quads of the canopy scene (its complexity knob).
+        **render: the config's ``render`` section.
+    """
     from .config import Config
 
-    scenes = {
+    scenes = {  # mirror configs/colonnade.yaml, canopy.yaml, window.yaml
         "colonnade": {
             "scene": {"meshes": [
-                {"procedural": "ground_plane", "params": {"size": 60.0}},
-                {"procedural": "colonnade", "params": {"pillars": 8}},
+                {"procedural": "ground_plane", "params": {"size": 80.0}},
+                {"procedural": "colonnade", "params": {"pillars": 12, "spacing": 2.0, "radius": 0.3, "height": 5.0,
+                                                       "segments": 24, "row_gap": 5.0}},
             ]},
-            "camera": {"position": [9.0, 2.2, 10.0], "look_at": [0.0, 2.5, -2.0], "fov_y": 55,
-                       "near": 0.1, "far": 60.0},
-            "light": {"type": "directional", "direction": [-0.55, -0.45, -0.7], "irradiance": [3.0, 2.8, 2.4]},
-            "medium": {"sigma_t": 0.06, "albedo": 0.9, "phase": {"type": "henyey_greenstein", "g": 0.5}},
+            "camera": {"position": [-12.0, 1.7, -7.0], "look_at": [0.0, 2.5, 2.0], "fov_y": 55, "near": 0.1,
+                       "far": 120.0},
+            "light": {"type": "directional", "direction": [-0.5, -0.35, -1.0], "irradiance": [3.2, 2.9, 2.4]},
+            "medium": {"sigma_t": 0.08, "albedo": 1.0, "phase": {"type": "henyey_greenstein", "g": 0.6}},
+        },
+        "canopy": {
+            "scene": {"meshes": [
+                {"procedural": "ground_plane", "params": {"size": 80.0}},
+                {"procedural": "canopy", "params": {"leaves": leaves, "radius": 3.0, "trunk_height": 3.0, "seed": 0,
+                                                    "leaf_size": 0.25}},
+            ]},
+            "camera": {"position": [2.0, 1.6, -10.0], "look_at": [0.0, 3.8, 0.0], "fov_y": 50, "near": 0.1,
+                       "far": 100.0},
+            "light": {"type": "directional", "direction": [0.3, -0.6, -1.0], "irradiance": [3.0, 2.8, 2.3]},
+            "medium": {"sigma_t": 0.1, "albedo": 1.0, "phase": {"type": "henyey_greenstein", "g": 0.6}},
+        },
+        "window": {
+            "scene": {"meshes": [
+                {"procedural": "room_window", "params": {"size": [8.0, 4.0, 8.0], "window": [2.0, 1.8],
+                                                         "window_center": [0.0, 2.3], "panes": [2, 2],
+                                                         "mullion": 0.1}},
+            ]},
+            "camera": {"position": [2.8, 1.6, 3.4], "look_at": [-0.4, 1.4, -1.5], "fov_y": 60, "near": 0.05,
+                       "far": 30.0},
+            "light": {"type": "directional", "direction": [0.35, -0.6, 1.0], "irradiance": [4.0, 3.7, 3.1]},
+            "medium": {"sigma_t": 0.15, "albedo": 1.0, "phase": {"type": "henyey_greenstein", "g": 0.5}},
         },
     }
     data = dict(scenes[name])
@@ -343,7 +375,97 @@ def suite_parallel(report: BenchReport, repeats: int, warmup: int, quick: bool, 
         progress("parallel", 1.0)
 
 
-_SUITE_FNS = {"raster": suite_raster, "reference": suite_reference, "parallel": suite_parallel}
+def _scattering_rows(report, name, cfg_kw, params, repeats, warmup, reference=None, extra=None):
+    """Time one render configuration's scattering stages; add a row with errors against ``reference``."""
+    cfg = bench_scene_config(**cfg_kw)
+    stages, images, compile_s, scene = _render_timed(cfg, repeats, warmup)
+    technique = {k: v for k, v in stages.items() if k not in ("upload", "bvh", "gbuffer", "shadow_map", "shading")}
+    row = report.add(name=name, params=params, median_ms=sum(technique.values()), stages_ms=technique,
+                     extra={"compile_s": round(compile_s, 2), **(extra or {})})
+    if reference is not None:
+        row.update(errors(images["scattering"], reference))
+    return row, images
+
+
+def suite_prefiltered(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
+    """Klehm 2014 Table 2 style sweeps for the ``fourier`` method, plus the speed/error bar of issue #3."""
+    full = (480, 270) if quick else (1920, 1080)
+    smap = 256 if quick else 1024
+    no_surf = {"enabled": False}
+
+    def fourier(m=32, res=smap, **f):
+        return {"method": "fourier", "shadow_map": {"resolution": res}, "fourier": {"coefficients": m, **f}}
+
+    def march(steps, vis="shadow_map", res=smap):
+        return {"method": "raymarch", "visibility": vis, "steps": steps, "shadow_map": {"resolution": res}}
+
+    # ---- the bar: colonnade at full HD, 1024^2 map ----
+    if progress:
+        progress("exact reference", 0.0)
+    w, h = full
+    ref_row, ref_img = _scattering_rows(report, "raymarch exact (reference)", dict(
+        name="colonnade", width=w, height=h, scattering=march(128, "exact"), surfaces=no_surf),
+        {"scene": "colonnade", "size": f"{w}x{h}", "steps": 128}, 1, 0)
+    reference = ref_img["scattering"]
+    rows = {}
+    for label, sc in (("raymarch shadow_map 128", march(128)), ("raymarch shadow_map 32", march(32)),
+                      ("fourier M=32", fourier())):
+        if progress:
+            progress(label, 0.1)
+        rows[label], _ = _scattering_rows(report, label, dict(name="colonnade", width=w, height=h, scattering=sc,
+                                                              surfaces=no_surf),
+                                          {"scene": "colonnade", "size": f"{w}x{h}", "map": smap}, repeats, warmup,
+                                          reference)
+    base = rows["raymarch shadow_map 128"]["median_ms"]
+    for r in (*rows.values(), ref_row):
+        r["speedup"] = base / r["median_ms"]  # against the 128-step shadow-map marcher of this run
+    report.meta["bar"] = {
+        "fourier_speedup_vs_raymarch128": round(rows["fourier M=32"]["speedup"], 2),
+        "fourier_rel_l1": round(rows["fourier M=32"]["rel_l1"], 4),
+        "raymarch32_rel_l1": round(rows["raymarch shadow_map 32"]["rel_l1"], 4),
+    }
+
+    # ---- sweeps (Klehm 2014 Table 2): map size, output size, basis count ----
+    maps = [(256, 256), (512, 512)] if quick else [(512, 512), (1024, 1024), (2048, 2048), (4096, 1024)]
+    outs = [(240, 135), (480, 270)] if quick else [(480, 270), (960, 540), (1920, 1080), (3840, 2160)]
+    counts = [4, 32] if quick else [4, 8, 16, 32, 64, 128]
+    for k, (mw, mh) in enumerate(maps):
+        if progress:
+            progress(f"map {mw}x{mh}", 0.3 + 0.1 * k / len(maps))
+        _scattering_rows(report, "fourier map sweep", dict(name="colonnade", width=w, height=h,
+                                                           scattering=fourier(res=[mw, mh]), surfaces=no_surf),
+                         {"map": f"{mw}x{mh}", "size": f"{w}x{h}", "M": 32}, repeats, warmup,
+                         extra={"filtered_basis_MB": round(mw * mh * 32 * 4 / 2**20, 1)})
+    for k, (ow, oh) in enumerate(outs):
+        if progress:
+            progress(f"output {ow}x{oh}", 0.4 + 0.1 * k / len(outs))
+        _scattering_rows(report, "fourier output sweep", dict(name="colonnade", width=ow, height=oh,
+                                                              scattering=fourier(), surfaces=no_surf),
+                         {"size": f"{ow}x{oh}", "map": smap, "M": 32}, repeats, warmup)
+    for k, m in enumerate(counts):
+        if progress:
+            progress(f"M={m}", 0.5 + 0.1 * k / len(counts))
+        _scattering_rows(report, "fourier basis sweep", dict(name="colonnade", width=w, height=h,
+                                                             scattering=fourier(m), surfaces=no_surf),
+                         {"M": m, "size": f"{w}x{h}", "map": smap}, repeats, warmup,
+                         extra={"bytes_per_texel": 4 * m, "bytes_per_texel_8bit": m})
+
+    # ---- scene complexity: canopy leaves x1 .. x100; the fourier evaluation stays flat ----
+    cw, ch = (240, 135) if quick else (480, 270)
+    steps = 16 if quick else 32
+    leaf_counts = [1000, 10000] if quick else [1000, 10000, 100000]
+    for k, leaves in enumerate(leaf_counts):
+        if progress:
+            progress(f"canopy {leaves} leaves", 0.7 + 0.3 * k / len(leaf_counts))
+        common = dict(name="canopy", width=cw, height=ch, leaves=leaves, surfaces=no_surf)
+        params = {"leaves": leaves, "triangles": 2 * leaves, "size": f"{cw}x{ch}"}
+        _scattering_rows(report, "complexity fourier", dict(common, scattering=fourier()), params, repeats, warmup)
+        _scattering_rows(report, f"complexity raymarch exact {steps}", dict(common, scattering=march(steps, "exact")),
+                         params, 1, 0)
+
+
+_SUITE_FNS = {"raster": suite_raster, "reference": suite_reference, "parallel": suite_parallel,
+              "prefiltered": suite_prefiltered}
 
 
 def run(suite: str = "reference", *, repeats: int = 5, warmup: int = 1, out_dir: Path | None = None,

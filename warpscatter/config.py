@@ -59,6 +59,7 @@ __all__ = [
     "SceneConfig",
     "ShadowMapConfig",
     "ShadowsConfig",
+    "FourierConfig",
     "SpotLightConfig",
     "SurfacesConfig",
     "Transform",
@@ -67,7 +68,7 @@ __all__ = [
 ]
 
 #: Scattering methods implemented so far (``render.scattering.method``).
-SCATTERING_METHODS = ("raymarch",)
+SCATTERING_METHODS = ("raymarch", "fourier")
 #: Image outputs a render can write (``output.aovs``); ``color`` is always written.
 AOV_NAMES = ("color", "scattering", "surface", "depth")
 #: Mesh file suffixes accepted in ``scene.meshes.N.path`` (loaded with trimesh).
@@ -461,6 +462,24 @@ class ShadowMapConfig(_Model):
         return (r, r) if isinstance(r, int) else tuple(r)
 
 
+class FourierConfig(_Model):
+    """Parameters of the ``fourier`` method (Klehm 2014); see :class:`warpscatter.scattering.prefiltered.FourierSettings`."""
+
+    coefficients: Annotated[Int, Field(ge=4, le=128)] = 32
+    weighting: Literal["transmittance", "average"] = "transmittance"
+    reference_ray: Literal["optimal", "bisectrix", "mean"] = "optimal"
+    storage_bits: Literal[0, 8] = 0
+    guard_band: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.1
+    epipole_block: Annotated[Int, Field(ge=0)] = 32
+
+    @field_validator("coefficients")
+    @classmethod
+    def _even(cls, v: int) -> int:
+        if v % 2:
+            raise ValueError(f"must be even (cos/sin pairs), got {v}")
+        return v
+
+
 class ScatteringConfig(_Model):
     """Single-scattering technique and its parameters."""
 
@@ -469,6 +488,7 @@ class ScatteringConfig(_Model):
     steps: Annotated[Int, Field(ge=1)] = 128
     seed: Int = 0
     shadow_map: ShadowMapConfig = Field(default_factory=dict)
+    fourier: FourierConfig = Field(default_factory=dict)
 
 
 class SurfacesConfig(_Model):
@@ -543,6 +563,14 @@ class Config(_Model):
 
     _config_dir: Path = PrivateAttr(default_factory=Path.cwd)
     _source: Path | None = PrivateAttr(default=None)
+
+    @model_validator(mode="after")
+    def _method_fits_light(self) -> Config:
+        method = self.render.scattering.method
+        if method == "fourier" and self.light.type != "directional":
+            raise ValueError(f"render.scattering.method {method!r} needs a directional light (light.type is "
+                             f"{self.light.type!r})")
+        return self
 
     @model_validator(mode="after")
     def _remember_dir(self, info: ValidationInfo) -> Config:

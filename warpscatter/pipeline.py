@@ -68,9 +68,9 @@ class StageTimer:
 def kernel_modules() -> list:
     """The warpscatter modules holding kernels a render launches (compiled in the ``compile`` stage)."""
     from . import gbuffer, raster, shading
-    from .scattering import raymarch
+    from .scattering import prefilter, prefiltered, raymarch, rectify
 
-    return [raster, gbuffer, raymarch, shading]
+    return [raster, gbuffer, raymarch, rectify, prefilter, prefiltered, shading]
 
 
 def compile_kernels(device=None) -> None:
@@ -93,6 +93,7 @@ def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=
         (images, stats): images as in :func:`warpscatter.shading.shade_and_compose`; stats with sizes.
     """
     from .gbuffer import gbuffer_raster, gbuffer_raycast
+    from .scattering.prefiltered import FourierSettings, render_fourier
     from .scattering.raymarch import raymarch
     from .scene import DeviceGeometry
     from .shading import shade_and_compose
@@ -103,7 +104,7 @@ def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=
     sc = render_cfg.scattering
     if sc.method not in METHODS:
         raise ValueError(f"render.scattering.method: unknown method {sc.method!r} (choose from {', '.join(METHODS)})")
-    exact = sc.method == "raymarch" and sc.visibility == "exact"
+    exact = sc.method == "raymarch" and sc.visibility == "exact"  # the reference: ray-cast everything
     shadows_on = render_cfg.surfaces.enabled and render_cfg.shadows.method != "none"
     need_shadow_map = shadows_on or not exact
 
@@ -120,9 +121,19 @@ def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=
     if need_shadow_map:
         with timer("shadow_map"):
             shadow_map = render_shadow_map(scene, sc.shadow_map.resolution, device=device)
-    with timer("scattering"):
-        l_scat = raymarch(scene, gbuf, steps=sc.steps, visibility=sc.visibility, geometry=geometry,
-                          shadow_map=shadow_map, seed=sc.seed, shadow_bias_texels=sc.shadow_map.bias, device=device)
+    info = {}
+    if sc.method == "raymarch":
+        with timer("scattering"):
+            l_scat = raymarch(scene, gbuf, steps=sc.steps, visibility=sc.visibility, geometry=geometry,
+                              shadow_map=shadow_map, seed=sc.seed, shadow_bias_texels=sc.shadow_map.bias,
+                              device=device)
+    else:
+        f = sc.fourier
+        settings = FourierSettings(coefficients=f.coefficients, weighting=f.weighting, reference_ray=f.reference_ray,
+                                   bits=f.storage_bits, guard_band=f.guard_band, epipole_block=f.epipole_block,
+                                   epipole_steps=sc.steps)
+        l_scat, info = render_fourier(scene, gbuf, shadow_map, map_size=sc.shadow_map.size, settings=settings,
+                                      seed=sc.seed, shadow_bias_texels=sc.shadow_map.bias, timer=timer, device=device)
     with timer("shading"):
         images = shade_and_compose(scene, gbuf, l_scat, shadow_map=shadow_map if shadows_on else None,
                                    filter_px=render_cfg.shadows.filter_px, shadow_bias_texels=sc.shadow_map.bias,
@@ -133,6 +144,7 @@ def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=
         "method": sc.method,
         "visibility": sc.visibility if sc.method == "raymarch" else None,
         "steps": sc.steps,
+        **info,
         "shadow_map": list(shadow_map.shape[::-1]) if shadow_map is not None else None,
     }
     for name, img in images.items():

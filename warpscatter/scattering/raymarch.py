@@ -81,6 +81,25 @@ def inscatter_sample(light: LightParams, light_tex: wp.array2d(dtype=wp.vec3), m
     return e * (med.sigma_s * phase_eval(med.phase_id, med.g, wp.dot(omega, -d)) * v)
 
 
+@wp.func
+def march_ray(cam: CameraParams, i: int, j: int, s: float, light: LightParams, light_tex: wp.array2d(dtype=wp.vec3),
+              med: MediumParams, steps: int, seed: int, vis_mode: int, mesh: wp.uint64, eps: float,
+              sm: ShadowMapParams, sm_depth: wp.array2d(dtype=wp.float32), sm_bias: float) -> wp.vec3:
+    """L_scat of pixel (i, j) whose ray ends at distance s: stratified jittered steps (see the module doc)."""
+    d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
+    rng = wp.rand_init(seed, j * cam.width + i)
+    dt = s / float(steps)
+    acc = wp.vec3(0.0, 0.0, 0.0)
+    for k in range(steps):
+        t0 = float(k) * dt
+        t = t0 + wp.randf(rng) * dt
+        x = cam.position + d * t
+        c = inscatter_sample(light, light_tex, med, x, d, vis_mode, mesh, eps, sm, sm_depth, sm_bias)
+        if c[0] + c[1] + c[2] > 0.0:
+            acc += c * transmittance_integral(med.sigma_t, t0, t0 + dt)
+    return acc
+
+
 @wp.kernel
 def raymarch_kernel(
     cam: CameraParams,
@@ -96,28 +115,21 @@ def raymarch_kernel(
     sm: ShadowMapParams,
     sm_depth: wp.array2d(dtype=wp.float32),
     sm_bias: float,
+    x0: int,  # pixel region origin (column, row); the launch covers the region's rows x columns
+    y0: int,
     out: wp.array2d(dtype=wp.vec3),
     offset: int,
 ):
     j, i = wp.tid()
-    j += offset
-    d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
-    s = distance[j, i]
-    rng = wp.rand_init(seed, j * cam.width + i)
-    dt = s / float(steps)
-    acc = wp.vec3(0.0, 0.0, 0.0)
-    for k in range(steps):
-        t0 = float(k) * dt
-        t = t0 + wp.randf(rng) * dt
-        x = cam.position + d * t
-        c = inscatter_sample(light, light_tex, med, x, d, vis_mode, mesh, eps, sm, sm_depth, sm_bias)
-        if c[0] + c[1] + c[2] > 0.0:
-            acc += c * transmittance_integral(med.sigma_t, t0, t0 + dt)
-    out[j, i] = acc
+    j += offset + y0
+    i += x0
+    out[j, i] = march_ray(cam, i, j, distance[j, i], light, light_tex, med, steps, seed, vis_mode, mesh, eps, sm,
+                          sm_depth, sm_bias)
 
 
 def raymarch(scene, gbuffer, *, steps: int = 128, visibility: str = "exact", geometry=None, shadow_map=None,
-             seed: int = 0, shadow_bias_texels: float = 1.0, device=None) -> wp.array:
+             seed: int = 0, shadow_bias_texels: float = 1.0, region=None, out: wp.array | None = None,
+             device=None) -> wp.array:
     """Ray-march single scattering for every camera pixel.
 
     Args:
@@ -129,6 +141,8 @@ def raymarch(scene, gbuffer, *, steps: int = 128, visibility: str = "exact", geo
         shadow_map: :class:`~warpscatter.shadows.shadow_map.ShadowMap` for shadow-map visibility.
         seed: jitter seed (same seed, same image).
         shadow_bias_texels: shadow-map depth bias in texel sizes (world units = bias * texel size).
+        region: optional pixel rectangle (x0, y0, width, height) to march; other pixels of ``out`` are kept.
+        out: optional (H, W) vec3 array to write into (allocated when None).
         device: Warp device.
 
     Returns:
@@ -153,11 +167,15 @@ def raymarch(scene, gbuffer, *, steps: int = 128, visibility: str = "exact", geo
         mesh_id, vis_mode = wp.uint64(0), VISIBILITY_SHADOW_MAP
         sm_params, sm_depth = shadow_map.params(), shadow_map.device_depth(device)
         bias = shadow_bias_texels * shadow_map.texel_world
-    out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
-    launch_rows(raymarch_kernel, (cam.height, cam.width),
+    if out is None:
+        out = wp.zeros((cam.height, cam.width), dtype=wp.vec3, device=device)
+    x0, y0, w, h = region if region is not None else (0, 0, cam.width, cam.height)
+    if not (0 <= x0 and 0 <= y0 and w >= 0 and h >= 0 and x0 + w <= cam.width and y0 + h <= cam.height):
+        raise ValueError(f"region {region} must lie inside the {cam.width}x{cam.height} image")
+    launch_rows(raymarch_kernel, (h, w),
                 [cam.params(), gbuffer.distance, light_params(scene.light), light_texture_array(scene.light, device),
                  medium_params(scene.medium), int(steps), int(seed), vis_mode, mesh_id, eps, sm_params, sm_depth,
-                 float(bias), out], device=device)
+                 float(bias), int(x0), int(y0), out], device=device)
     return out
 
 
