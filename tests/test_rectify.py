@@ -321,6 +321,32 @@ def test_reference_ray_step_and_optimum():
         reference_ray(rect, "median")
 
 
+def test_pixel_reference_ray_is_the_median_pixel_ray_of_each_slice():
+    cam = Camera(position=[1, 2, 3], look_at=[0, 2.5, -4], up=[0, 1, 0], fov_y=55, width=64, height=36, near=0.1,
+                 far=50)
+    for light in ([0.2, -0.3, 1.0], [1.0, -0.4, 0.1]):  # epipole in view / light from the side
+        rect = NonlinearRectification.from_camera(cam, light, rows=24, cols=64)
+        ref = reference_ray(rect, "pixels", camera=cam, pixel_stride=1)
+        bis = reference_ray(rect, "bisectrix")
+        # brute force: the pixel rays of every slice, their k = sin(theta), the median's theta
+        d = cam.ray_directions().reshape(-1, 3)
+        c = rect.world_to_rectified(cam.position + d)
+        rows = np.clip((c[:, 1] * rect.rows).astype(int), 0, rect.rows - 1)
+        theta = rect.theta_hi - c[:, 2] * rect.theta_len
+        seen = 0
+        for j in range(rect.rows):
+            sel = np.sort(np.sin(theta[rows == j]))
+            if len(sel) == 0:
+                assert ref.theta_ref[j] == bis.theta_ref[j]
+                continue
+            seen += 1
+            assert math.sin(ref.theta_ref[j]) == pytest.approx(sel[(len(sel) - 1) // 2], abs=1e-9)
+            assert ref.theta_lo[j] - 1e-9 <= ref.theta_ref[j] <= ref.theta_hi[j] + 1e-9
+        assert seen >= 4
+    with pytest.raises(ValueError, match="camera"):
+        reference_ray(rect, "pixels")
+
+
 # ---- resampling --------------------------------------------------------------------------------------------
 
 
