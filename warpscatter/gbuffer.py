@@ -21,6 +21,7 @@ import numpy as np
 import warp as wp
 
 from .parallel import launch_rows
+from .raster import ndc_to_view_depth, rasterize
 from .scene.camera import CameraParams, far_plane_distance, pixel_ray_direction
 from .wpinit import default_device, module_options
 
@@ -52,11 +53,33 @@ def facing_normal(v0: wp.vec3, v1: wp.vec3, v2: wp.vec3, d: wp.vec3) -> wp.vec3:
     return n
 
 
+@wp.func
+def hit_record(origin: wp.vec3, d: wp.vec3, t_far: float, tri: int, t_fallback: float,
+               vertices: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp.int32),
+               tri_material: wp.array(dtype=wp.int32)):
+    """(distance, camera-facing unit normal, material) of the ray origin + t d hitting triangle ``tri``.
+
+    The distance is the exact ray-plane intersection with the triangle; grazing rays (|n . d| < 1e-4)
+    keep ``t_fallback``. ``tri < 0`` (no hit) gives the far-plane distance, a zero normal and material -1.
+    """
+    if tri < 0:
+        return t_far, wp.vec3(0.0, 0.0, 0.0), -1
+    v0 = vertices[triangles[tri, 0]]
+    n = facing_normal(v0, vertices[triangles[tri, 1]], vertices[triangles[tri, 2]], d)
+    denom = wp.dot(n, d)
+    t = t_fallback
+    if denom < -1.0e-4:
+        t = wp.dot(n, v0 - origin) / denom
+    return wp.clamp(t, 0.0, t_far), n, tri_material[tri]
+
+
 @wp.kernel
 def gbuffer_from_raster_kernel(
     cam: CameraParams,
     tri_id: wp.array2d(dtype=wp.int32),
     ndc_depth: wp.array2d(dtype=wp.float32),
+    p22: float,  # projection entries for the grazing-ray fallback (see raster.ndc_to_view_depth)
+    p23: float,
     vertices: wp.array(dtype=wp.vec3),
     triangles: wp.array2d(dtype=wp.int32),
     tri_material: wp.array(dtype=wp.int32),
@@ -68,29 +91,13 @@ def gbuffer_from_raster_kernel(
     j, i = wp.tid()
     j += offset
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
-    t_far = far_plane_distance(cam, d)
-    tri = tri_id[j, i]
-    if tri < 0:
-        distance[j, i] = t_far
-        normal[j, i] = wp.vec3(0.0, 0.0, 0.0)
-        material[j, i] = -1
-        return
-    v0 = vertices[triangles[tri, 0]]
-    v1 = vertices[triangles[tri, 1]]
-    v2 = vertices[triangles[tri, 2]]
-    n = facing_normal(v0, v1, v2, d)
-    denom = wp.dot(n, d)
-    t = float(0.0)
-    if denom < -1.0e-4:
-        t = wp.dot(n, v0 - cam.position) / denom
-    else:
-        # grazing: fall back on the rasterized depth (perspective NDC z -> view depth -> ray distance)
-        z = ndc_depth[j, i]
-        view_depth = 2.0 * cam.near * cam.far / (cam.far + cam.near - z * (cam.far - cam.near))
-        t = view_depth / wp.dot(d, cam.forward)
-    distance[j, i] = wp.clamp(t, 0.0, t_far)
+    # rasterized depth -> view depth -> distance along the ray; only used for grazing rays
+    t_raster = ndc_to_view_depth(ndc_depth[j, i], p22, p23, -1.0, 0.0) / wp.dot(d, cam.forward)
+    t, n, m = hit_record(cam.position, d, far_plane_distance(cam, d), tri_id[j, i], t_raster, vertices, triangles,
+                         tri_material)
+    distance[j, i] = t
     normal[j, i] = n
-    material[j, i] = tri_material[tri]
+    material[j, i] = m
 
 
 @wp.kernel
@@ -110,18 +117,13 @@ def gbuffer_raycast_kernel(
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     t_far = far_plane_distance(cam, d)
     q = wp.mesh_query_ray(mesh, cam.position, d, t_far)
+    tri = int(-1)
     if q.result:
         tri = q.face
-        v0 = vertices[triangles[tri, 0]]
-        v1 = vertices[triangles[tri, 1]]
-        v2 = vertices[triangles[tri, 2]]
-        distance[j, i] = q.t
-        normal[j, i] = facing_normal(v0, v1, v2, d)
-        material[j, i] = tri_material[tri]
-    else:
-        distance[j, i] = t_far
-        normal[j, i] = wp.vec3(0.0, 0.0, 0.0)
-        material[j, i] = -1
+    t, n, m = hit_record(cam.position, d, t_far, tri, q.t, vertices, triangles, tri_material)
+    distance[j, i] = t
+    normal[j, i] = n
+    material[j, i] = m
 
 
 def _alloc(h, w, device):
@@ -136,17 +138,16 @@ def gbuffer_raster(scene, geometry, device=None) -> GBuffer:
         scene: the :class:`~warpscatter.scene.Scene`.
         geometry: :class:`~warpscatter.scene.DeviceGeometry` (vertices, triangles, materials on device).
     """
-    from .raster import rasterize
 
     device = default_device(device)
     cam = scene.camera
-    r = rasterize(scene.vertices, scene.triangles, cam.view_projection(), cam.width, cam.height, device=device)
-    tri = wp.array(r.tri_id[0], dtype=wp.int32, device=device)
-    ndc = wp.array(r.ndc_depth[0], dtype=wp.float32, device=device)
+    proj = cam.projection()
+    r = rasterize(scene.vertices, scene.triangles, proj @ cam.view(), cam.width, cam.height, device=device)
     distance, normal, material = _alloc(cam.height, cam.width, device)
     launch_rows(gbuffer_from_raster_kernel, (cam.height, cam.width),
-                [cam.params(), tri, ndc, geometry.vertices, geometry.triangles, geometry.tri_material,
-                 distance, normal, material], device=device)
+                [cam.params(), r.device_tri_id[0], r.device_ndc_depth[0], float(proj[2, 2]), float(proj[2, 3]),
+                 geometry.vertices, geometry.triangles, geometry.tri_material, distance, normal, material],
+                device=device)
     return GBuffer(distance, normal, material)
 
 
