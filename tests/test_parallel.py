@@ -48,3 +48,15 @@ def test_thread_count_env(monkeypatch):
     assert parallel.thread_count() == 3
     monkeypatch.delenv("WARPSCATTER_THREADS")
     assert parallel.thread_count() >= 1
+
+
+def test_launch_rows_reports_progress():
+    seen = []
+    out = wp.zeros((200, 3), dtype=wp.float32, device="cpu")
+    parallel.launch_rows(_rows_kernel, out.shape, [out], threads=2, progress=seen.append)
+    assert len(seen) >= 32 and seen == sorted(seen) and seen[-1] == 1.0  # one call per chunk, in order
+    j, i = np.mgrid[0:200, 0:3]
+    np.testing.assert_array_equal(out.numpy(), j * 1000 + i)
+    seen.clear()
+    parallel.launch_rows(_rows_kernel, out.shape, [out], threads=1, progress=seen.append)
+    assert seen[-1] == 1.0

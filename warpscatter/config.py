@@ -467,10 +467,15 @@ class FourierConfig(_Model):
 
     coefficients: Annotated[Int, Field(ge=4, le=128)] = 32
     weighting: Literal["transmittance", "average"] = "transmittance"
-    reference_ray: Literal["optimal", "bisectrix", "mean"] = "optimal"
+    reference_ray: Literal["pixels", "optimal", "bisectrix", "mean"] = "pixels"
     storage_bits: Literal[0, 8] = 0
     guard_band: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.1
     epipole_block: Annotated[Int, Field(ge=0)] = 32
+    rectification: Literal["auto", "projective", "nonlinear"] = "auto"
+    epipole_margin: Annotated[Float, Field(ge=0.0)] = 1.0
+    regions: Annotated[Int, Field(ge=1, le=16)] = 8
+    projective_weights: Literal["exact", "cross_ratio"] = "exact"
+    splits: Annotated[Int, Field(ge=1, le=16)] = 1
 
     @field_validator("coefficients")
     @classmethod
@@ -498,10 +503,25 @@ class SurfacesConfig(_Model):
 
 
 class ShadowsConfig(_Model):
-    """Surface shadow filtering: ``pcf`` with a ``filter_px``-texel kernel, or ``none``."""
+    """Surface shadows: ``pcf``, moment shadow maps ``msm`` (filtered hard shadows, translucent occluders),
+    moment soft shadows ``msm_soft``, their brute-force reference ``pcss``, or ``none`` (Peters 2017 Sec. 2-4).
 
-    method: Literal["pcf", "none"] = "pcf"
-    filter_px: Annotated[Int, Field(ge=1)] = 3
+    ``filter_px`` is the PCF box or the MSM Gaussian width in texels; ``storage`` the MSM bits per texel
+    (64: Theta_4* in 16-bit fixed point, 128: float32; ``msm_soft`` always uses 128); ``supersampling`` the
+    depth samples per texel and axis of the moment map; ``coloured`` one map per RGB channel for tinted
+    translucency; ``light_angle_deg`` (directional, full angle) or ``light_size`` (spot, scene units) the
+    area light of the soft methods; ``max_kernel_px`` their widest region side (n_t = max_kernel_px^2).
+    """
+
+    method: Literal["pcf", "msm", "msm_soft", "pcss", "none"] = "pcf"
+    filter_px: Annotated[Int, Field(ge=1, le=64)] = 3
+    storage: Literal[64, 128] = 64
+    supersampling: Annotated[Int, Field(ge=1, le=8)] = 2
+    coloured: Bool = False
+    max_translucent_layers: Annotated[Int, Field(ge=1, le=64)] = 16
+    light_angle_deg: Annotated[Float, Field(gt=0.0, lt=180.0)] = 1.0
+    light_size: Annotated[Float, Field(gt=0.0)] = 0.5
+    max_kernel_px: Annotated[Int, Field(ge=4, le=256)] = 28
 
 
 class RenderConfig(_Model):

@@ -53,16 +53,23 @@ def chunks(n: int, parts: int, min_chunk: int = 1) -> list[tuple[int, int]]:
     return [(bounds[k], bounds[k + 1]) for k in range(parts) if bounds[k + 1] > bounds[k]]
 
 
-def run_parallel(fn, pieces: list, threads: int | None = None) -> list:
-    """Call ``fn(piece)`` for every piece on the thread pool; return the results in order."""
+def run_parallel(fn, pieces: list, threads: int | None = None, progress=None) -> list:
+    """Call ``fn(piece)`` for every piece on the thread pool; return the results in order.
+
+    ``progress(fraction)``, if given, is called from the calling thread as pieces complete.
+    """
     n = threads or thread_count()
-    if n <= 1 or len(pieces) <= 1:
-        return [fn(p) for p in pieces]
-    return list(_executor(n).map(fn, pieces))
+    results = map(fn, pieces) if n <= 1 or len(pieces) <= 1 else _executor(n).map(fn, pieces)
+    out = []
+    for r in results:
+        out.append(r)
+        if progress is not None:
+            progress(len(out) / len(pieces))
+    return out
 
 
 def launch_rows(kernel, dim, inputs: list, device: str | None = None, threads: int | None = None,
-                min_chunk: int = 1) -> None:
+                min_chunk: int = 1, progress=None) -> None:
     """Launch ``kernel`` over ``dim`` split along its first dimension across CPU threads.
 
     Args:
@@ -72,6 +79,8 @@ def launch_rows(kernel, dim, inputs: list, device: str | None = None, threads: i
         device: Warp device; CUDA devices get one whole launch.
         threads: worker count (default :func:`thread_count`).
         min_chunk: smallest chunk along dim[0] worth a separate launch.
+        progress: optional ``progress(fraction)`` called as chunks complete (long launches are then cut
+            into at least 32 chunks so the fraction moves smoothly).
     """
     device = default_device(device)
     dims = (dim,) if isinstance(dim, int) else tuple(dim)
@@ -79,15 +88,17 @@ def launch_rows(kernel, dim, inputs: list, device: str | None = None, threads: i
     if n0 == 0 or any(d == 0 for d in dims):
         return
     nthreads = threads or thread_count()
-    if not wp.get_device(device).is_cpu or nthreads <= 1 or n0 < 2 * min_chunk:
+    if not wp.get_device(device).is_cpu or (progress is None and (nthreads <= 1 or n0 < 2 * min_chunk)):
         wp.launch(kernel, dim=dims, inputs=[*inputs, 0], device=device)
+        if progress is not None:
+            progress(1.0)
         return
     wp.load_module(kernel.module, device=device)
     # A few more chunks than threads evens out unequal row costs.
-    pieces = chunks(n0, nthreads * 4, min_chunk)
+    pieces = chunks(n0, max(nthreads * 4, 32 if progress is not None else 1), min_chunk)
 
     def _one(piece):
         start, stop = piece
         wp.launch(kernel, dim=(stop - start, *dims[1:]), inputs=[*inputs, start], device=device)
 
-    run_parallel(_one, pieces, nthreads)
+    run_parallel(_one, pieces, nthreads, progress)

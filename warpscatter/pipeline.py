@@ -55,6 +55,11 @@ class StageTimer:
                 self.t0 = time.perf_counter()
                 return self
 
+            def report(self, fraction: float) -> None:
+                """Progress inside the stage (0..1)."""
+                if timer.progress:
+                    timer.progress(name, fraction)
+
             def __exit__(self, *exc):
                 wp.synchronize()
                 timer.timings[name] = timer.timings.get(name, 0.0) + time.perf_counter() - self.t0
@@ -68,9 +73,10 @@ class StageTimer:
 def kernel_modules() -> list:
     """The warpscatter modules holding kernels a render launches (compiled in the ``compile`` stage)."""
     from . import gbuffer, raster, shading
+    from .shadows import msm, soft
     from .scattering import prefilter, prefiltered, raymarch, rectify
 
-    return [raster, gbuffer, raymarch, rectify, prefilter, prefiltered, shading]
+    return [raster, gbuffer, raymarch, rectify, prefilter, prefiltered, msm, soft, shading]
 
 
 def compile_kernels(device=None) -> None:
@@ -96,7 +102,7 @@ def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=
     from .scattering.prefiltered import FourierSettings, render_fourier
     from .scattering.raymarch import raymarch
     from .scene import DeviceGeometry
-    from .shading import shade_and_compose
+    from .shading import ShadowSettings, prepare_shadows, shade_and_compose
     from .shadows.shadow_map import render_shadow_map
 
     device = default_device(device)
@@ -123,21 +129,32 @@ def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=
             shadow_map = render_shadow_map(scene, sc.shadow_map.resolution, device=device)
     info = {}
     if sc.method == "raymarch":
-        with timer("scattering"):
+        with timer("scattering") as stage:
             l_scat = raymarch(scene, gbuf, steps=sc.steps, visibility=sc.visibility, geometry=geometry,
                               shadow_map=shadow_map, seed=sc.seed, shadow_bias_texels=sc.shadow_map.bias,
-                              device=device)
+                              progress=stage.report, device=device)
     else:
         f = sc.fourier
         settings = FourierSettings(coefficients=f.coefficients, weighting=f.weighting, reference_ray=f.reference_ray,
                                    bits=f.storage_bits, guard_band=f.guard_band, epipole_block=f.epipole_block,
-                                   epipole_steps=sc.steps)
+                                   epipole_steps=sc.steps, rectification=f.rectification,
+                                   epipole_margin=f.epipole_margin, regions=f.regions,
+                                   projective_weights=f.projective_weights, splits=f.splits)
         l_scat, info = render_fourier(scene, gbuf, shadow_map, map_size=sc.shadow_map.size, settings=settings,
                                       seed=sc.seed, shadow_bias_texels=sc.shadow_map.bias, timer=timer, device=device)
+    shadows = None
+    if shadows_on:
+        sh = render_cfg.shadows
+        settings = ShadowSettings(method=sh.method, filter_px=sh.filter_px, bias_texels=sc.shadow_map.bias,
+                                  storage=sh.storage, supersampling=sh.supersampling, coloured=sh.coloured,
+                                  max_translucent_layers=sh.max_translucent_layers,
+                                  light_angle_deg=sh.light_angle_deg, light_size=sh.light_size,
+                                  max_kernel_px=sh.max_kernel_px)
+        shadows = prepare_shadows(scene, shadow_map, settings, timer=timer, device=device)
+        info.update(shadows.info)
     with timer("shading"):
-        images = shade_and_compose(scene, gbuf, l_scat, shadow_map=shadow_map if shadows_on else None,
-                                   filter_px=render_cfg.shadows.filter_px, shadow_bias_texels=sc.shadow_map.bias,
-                                   surfaces=render_cfg.surfaces.enabled, device=device)
+        images = shade_and_compose(scene, gbuf, l_scat, shadows=shadows, surfaces=render_cfg.surfaces.enabled,
+                                   device=device)
     stats = {
         "triangles": scene.triangle_count,
         "resolution": [scene.camera.width, scene.camera.height],

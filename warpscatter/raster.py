@@ -25,7 +25,12 @@ beyond the far plane (z_ndc > 1) are discarded. With ``clamp_depth=True`` (shado
 beyond the far plane are kept at depth +1 and, for affine (orthographic) matrices whose w is a
 positive constant, nothing is clipped at the near plane: geometry in front of it is kept at depth
 -1. A perspective matrix keeps its near clipping even with ``clamp_depth`` (points behind the centre
-of projection have no meaningful projection).
+of projection have no meaningful projection) unless the caller passes ``clip_near=False``: then only
+the guard band clips, and since |x| <= g w and |y| <= g w imply w >= 0 (w = 0 only at the centre of
+projection itself, where the triangle is dropped), everything behind the centre of projection is
+still cut away while geometry in front of the near plane is kept (at depth -1 with ``clamp_depth``).
+Klehm 2014's projective rectification (Sec. 4.2, projecting along x with the camera as centre of
+projection) needs exactly this: casters between the light and the camera frustum stay in the map.
 
 Parallelism: one CPU launch runs on one core, so the triangles are split into contiguous chunks,
 one per thread, each rasterizing into a private key buffer; the buffers are merged with a minimum
@@ -623,7 +628,8 @@ def project_vertices(
 class _Setup:
     """Everything a rasterization pass needs, prepared once per call."""
 
-    def __init__(self, vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads):
+    def __init__(self, vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads,
+                 clip_near=None):
         self.device = default_device(device)
         self.view_proj = check_matrix(view_proj, "view_proj")
         self.width, self.height = check_size(width, height)
@@ -631,7 +637,10 @@ class _Setup:
         self.tris = as_triangles(triangles, points.shape[0], self.device)
         self.clamp_depth = int(bool(clamp_depth))
         self.cull_backfaces = int(bool(cull_backfaces))
-        self.clip_near = 0 if (clamp_depth and is_affine(self.view_proj)) else 1
+        if clip_near is None:
+            self.clip_near = 0 if (clamp_depth and is_affine(self.view_proj)) else 1
+        else:
+            self.clip_near = int(bool(clip_near))
         # Guard band in NDC: |x_ndc| <= gx keeps screen x within +-GUARD_BAND_PIXELS.
         self.guard_x = float(2.0 * GUARD_BAND_PIXELS / self.width - 1.0)
         self.guard_y = float(2.0 * GUARD_BAND_PIXELS / self.height - 1.0)
@@ -701,6 +710,7 @@ def rasterize(
     layers: int = 1,
     clamp_depth: bool = False,
     cull_backfaces: bool = False,
+    clip_near: bool | None = None,
     device: str | None = None,
     threads: int | None = None,
 ) -> RasterResult:
@@ -719,6 +729,9 @@ def rasterize(
             instead of clipping it (shadow maps). Perspective matrices keep near clipping.
         cull_backfaces: skip triangles whose projection is clockwise in NDC (front = counter-clockwise,
             the OpenGL default). Off by default: both sides are drawn.
+        clip_near: None (default) clips at the near plane z >= -w unless ``clamp_depth`` is set and the
+            matrix is affine; False never clips there (only the guard band, which keeps w > 0, so a
+            perspective matrix still drops everything behind its centre of projection); True always clips.
         device: Warp device (default :func:`warpscatter.wpinit.default_device`).
         threads: CPU worker threads (default :func:`warpscatter.parallel.thread_count`).
 
@@ -732,7 +745,7 @@ def rasterize(
     """
     if isinstance(layers, bool) or not isinstance(layers, (int, np.integer)) or layers < 1:
         raise ValueError(f"layers must be an integer >= 1, got {layers!r}")
-    s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads)
+    s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads, clip_near)
     h, w = s.height, s.width
     keys = wp.full((int(layers), h, w), EMPTY_KEY, dtype=wp.int64, device=s.device)
     ndc_depth = wp.empty((int(layers), h, w), dtype=wp.float32, device=s.device)
@@ -758,6 +771,7 @@ def coverage_count(
     *,
     clamp_depth: bool = False,
     cull_backfaces: bool = False,
+    clip_near: bool | None = None,
     device: str | None = None,
     threads: int | None = None,
 ) -> np.ndarray:
@@ -769,7 +783,7 @@ def coverage_count(
     Returns:
         (height, width) int32 fragment counts, row 0 at the top.
     """
-    s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads)
+    s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads, clip_near)
     pieces = s.pieces()
     buffers = [wp.zeros((s.height, s.width), dtype=wp.int32, device=s.device) for _ in range(max(1, len(pieces)))]
     wp.load_module(rasterize_kernel.module, device=s.device)

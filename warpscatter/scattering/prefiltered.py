@@ -2,18 +2,48 @@
 
 Stages (names as they appear in timings):
 
-1. ``rectify``   — bounds of the non-linear epipolar rectification for this camera and light
-   (Peters 2017 App. A) and resampling of the light's shadow map into it (Peters 2017 Sec. 5.1.1);
+1. ``rectify``   — the rectification for this camera and light, chosen per frame (``rectification``):
+   * ``projective`` (Klehm 2014 Sec. 4.2): one 4x4 matrix per light-frustum region, the scene is
+     rasterized STRAIGHT into the rectified map with depth clamping (:mod:`.rectify_projective`);
+   * ``nonlinear`` (Peters 2017 Sec. 5.1.1, App. A): bounds in spherical light coordinates and
+     resampling of the light's shadow map into them (:mod:`.rectify`);
+   * ``auto``: projective unless the light's epipole (or anti-epipole) lies in the image or within
+     ``epipole_margin`` half image heights of its border — Klehm's criterion for (close to) degenerate
+     cases, :func:`~.rectify_projective.choose_rectification`; the reason is logged on the ``warpscatter``
+     logger and returned in the info dict;
 2. ``prefilter`` — Fourier basis of the rectified depth fused into per-row prefix sums, plain
-   (Klehm Listing 1) or transmittance-weighted with the per-slice reference ray (Listing 2/3);
-3. ``evaluate``  — per pixel: the G-buffer hit -> rectified (u, v, z_r) -> bilinear fetch of the
-   filtered-basis vector -> dot with a(z_r) + 0.5, clamped -> times sigma_s f E (1 - e^{-sigma_t s}) / sigma_t
-   (Klehm Listing 4); the cost per pixel is constant whatever the scene;
-4. ``epipole``   — when the light (or its flip) projects into the view, the rectification's slices all
-   meet there and precision is low (Klehm 2014 Sec. 5, Fig. 8): a block of pixels around each such
-   epipole is ray-marched with shadow-map visibility instead.
+   (Klehm Listing 1) or transmittance-weighted with the per-slice reference ray (Listing 2/3); the
+   projective map's columns are uneven, so its weights are per texel (Eq. 12: exact column lengths, or
+   the paper's constant growth factor d with ``projective_weights: cross_ratio``); rows may be split
+   into ``splits`` regions filtered independently (Sec. 3.3);
+3. ``evaluate``  — per pixel: the G-buffer hit -> rectified (u, v, z_r) (one @wp.func dispatching on the
+   rectification kind) -> bilinear fetch of the filtered-basis vector (one look-up per split region in
+   front of the hit plus the hit's own) -> dot with a(z_r) + 0.5, clamped -> times
+   sigma_s f E (1 - e^{-sigma_t s}) / sigma_t (Klehm Listing 4); the cost per pixel is constant whatever the scene;
+4. ``epipole``   — when the light (or its flip) projects into the view, the non-linear rectification's
+   slices all meet there and precision is low (Klehm 2014 Sec. 5, Fig. 8): a block of pixels around each
+   such epipole is ray-marched with shadow-map visibility instead.
 
-Directional lights only (the rectification is built for parallel light rays).
+Directional lights only (both rectifications are built for parallel light rays).
+
+Parameters (:class:`FourierSettings`, config ``render.scattering.fourier``):
+
+==================  =========  =============  ==========================================================
+name                type       default        meaning
+==================  =========  =============  ==========================================================
+coefficients        int        32             M Fourier coefficients (even, 4..128)
+weighting           str        transmittance  ``transmittance`` (Sec. 3.2) or ``average`` (Eq. 2)
+reference_ray       str        pixels         per-slice reference ray: pixels (median pixel ray), optimal, bisectrix, mean
+bits                int        0              0 float32 storage, 8 emulates RGBA8 (App. A)
+guard_band          float      0.1            relative stretch of the depth bounds
+epipole_block       int        32             ray-marched block around an epipole in view (0: off)
+epipole_steps       int        64             ray-march steps inside that block
+rectification       str        auto           ``auto``, ``projective`` or ``nonlinear``
+epipole_margin      float      1.0            ``auto`` threshold, half image heights outside the image
+regions             int        8              light-frustum regions of the projective map (Sec. 4.2)
+projective_weights  str        exact          ``exact`` column lengths or ``cross_ratio`` (Eq. 12's d)
+splits              int        1              prefilter regions per row (Sec. 3.3; 1 = off)
+==================  =========  =============  ==========================================================
 """
 
 from __future__ import annotations
@@ -29,58 +59,157 @@ from ..scene.camera import CameraParams, pixel_ray_direction
 from ..scene.lights import DirectionalLight, LightParams, light_params
 from ..scene.medium import phase_eval, transmittance_integral
 from ..wpinit import default_device, module_options
-from .prefilter import prefilter_depth, prefiltered_visibility
+from . import rectify, rectify_projective
+from .prefilter import MAX_SPLITS, FilteredBasis, prefilter_weighted, prefiltered_visibility_split
 from .raymarch import MediumParams, medium_params, raymarch
-from .rectify import NonlinearRectification, NonlinearRectParams, reference_ray, resample_shadow_map, world_to_rectified
+from .rectify import NonlinearRectification, NonlinearRectParams, reference_ray, resample_shadow_map
+from .rectify_projective import (
+    EPIPOLE_MARGIN,
+    MAX_REGIONS,
+    ProjectiveRectification,
+    ProjectiveRectParams,
+    choose_rectification,
+    column_lengths,
+    cross_ratio_factors,
+    rasterize_rectified,
+    reference_rays,
+)
 
 module_options()
+
+RECT_NONLINEAR = 0
+RECT_PROJECTIVE = 1
 
 
 @dataclass(frozen=True)
 class FourierSettings:
-    """Parameters of the ``fourier`` method.
+    """Parameters of the ``fourier`` method (see the module doc's table).
 
     Attributes:
         coefficients: M, number of Fourier coefficients (even, 4..128).
         weighting: ``"transmittance"`` (Klehm Sec. 3.2, Listing 2) or ``"average"`` (Listing 1, Eq. 2).
         reference_ray: per-slice reference ray for the weights: ``"optimal"`` (k_ref = sqrt(k_min k_max)
-            where defined, else bisectrix), ``"bisectrix"`` or ``"mean"``.
+            where defined, else bisectrix), ``"bisectrix"``, ``"mean"`` or ``"pixels"`` (median of the slice's
+            pixel rays).
         bits: 0 stores float32 filtered bases; 8 emulates the paper's 8-bit normalised storage (App. A).
-        guard_band: relative stretch of the inclination bounds (Peters 2017 uses 0.1).
+        guard_band: relative stretch of the depth bounds (Peters 2017 uses 0.1).
         epipole_block: side in pixels of the ray-marched block around an epipole in view (0 disables).
         epipole_steps: ray-march steps inside that block.
+        rectification: ``"auto"``, ``"projective"`` (Klehm 2014 Sec. 4.2) or ``"nonlinear"`` (Peters 2017).
+        epipole_margin: ``auto`` picks projective when every epipole in front of the camera lies at least this
+            many half image heights outside the image (:func:`~.rectify_projective.choose_rectification`).
+        regions: light-frustum regions of the projective rectification along x (Klehm 2014 Sec. 4.2, 1 = one
+            matrix); counters its x^2 texel growth.
+        projective_weights: per-texel weights of the projective map: ``"exact"`` column lengths or
+            ``"cross_ratio"``, Klehm 2014 Eq. 12's constant growth factor d from the first three texel centres.
+        splits: regions per row filtered independently (Klehm 2014 Sec. 3.3; 1 = off); exact up to rounding.
     """
 
     coefficients: int = 32
     weighting: str = "transmittance"
-    reference_ray: str = "optimal"
+    reference_ray: str = "pixels"
     bits: int = 0
     guard_band: float = 0.1
     epipole_block: int = 32
     epipole_steps: int = 64
+    rectification: str = "auto"
+    epipole_margin: float = EPIPOLE_MARGIN
+    regions: int = 8
+    projective_weights: str = "exact"
+    splits: int = 1
+
+    def validate(self) -> "FourierSettings":
+        """Raise ValueError naming the first bad field; return self."""
+        if self.weighting not in ("transmittance", "average"):
+            raise ValueError(f"weighting must be 'transmittance' or 'average', got {self.weighting!r}")
+        if self.reference_ray not in ("optimal", "bisectrix", "mean", "pixels"):
+            raise ValueError("reference_ray must be 'optimal', 'bisectrix', 'mean' or 'pixels', "
+                             f"got {self.reference_ray!r}")
+        if self.rectification not in ("auto", "projective", "nonlinear"):
+            raise ValueError(f"rectification must be 'auto', 'projective' or 'nonlinear', got {self.rectification!r}")
+        if self.projective_weights not in ("exact", "cross_ratio"):
+            raise ValueError(f"projective_weights must be 'exact' or 'cross_ratio', got {self.projective_weights!r}")
+        if isinstance(self.regions, bool) or int(self.regions) != self.regions or not 1 <= self.regions <= MAX_REGIONS:
+            raise ValueError(f"regions must be an integer in [1, {MAX_REGIONS}], got {self.regions}")
+        if isinstance(self.splits, bool) or int(self.splits) != self.splits or not 1 <= self.splits <= MAX_SPLITS:
+            raise ValueError(f"splits must be an integer in [1, {MAX_SPLITS}], got {self.splits}")
+        if not (np.isfinite(self.epipole_margin) and self.epipole_margin >= 0.0):
+            raise ValueError(f"epipole_margin must be finite and >= 0, got {self.epipole_margin}")
+        return self
+
+
+# ---- one evaluation for both rectifications ----------------------------------------------------------------
+
+
+@wp.struct
+class RectificationParams:
+    """Either rectification as kernels see it; ``kind`` selects RECT_NONLINEAR or RECT_PROJECTIVE."""
+
+    kind: int
+    nonlinear: NonlinearRectParams
+    projective: ProjectiveRectParams
+
+
+@wp.func
+def rectified_coords(rect: RectificationParams, x: wp.vec3) -> wp.vec3:
+    """Rectified (u, v, depth) of world point x: u along the view ray from the camera, v = row, depth in [0, 1]
+    growing along the light (the common convention of :mod:`.rectify` and :mod:`.rectify_projective`)."""
+    if rect.kind == RECT_PROJECTIVE:
+        return rectify_projective.world_to_rectified(rect.projective, x)
+    return rectify.world_to_rectified(rect.nonlinear, x)
+
+
+@wp.func
+def rectification_wraps(rect: RectificationParams) -> int:
+    """1 when the rows wrap around (non-linear rectification over the full azimuth circle)."""
+    if rect.kind == RECT_NONLINEAR:
+        return rect.nonlinear.full_circle
+    return 0
+
+
+def rectification_params(rect) -> RectificationParams:
+    """Kernel-side :class:`RectificationParams` of a NonlinearRectification or ProjectiveRectification."""
+    p = RectificationParams()
+    if isinstance(rect, ProjectiveRectification):
+        p.kind = RECT_PROJECTIVE
+        p.projective = rect.params()
+        p.nonlinear = NonlinearRectParams()
+    elif isinstance(rect, NonlinearRectification):
+        p.kind = RECT_NONLINEAR
+        p.nonlinear = rect.params()
+        p.projective = ProjectiveRectParams()
+    else:
+        raise ValueError(f"rect must be a NonlinearRectification or ProjectiveRectification, got {type(rect).__name__}")
+    return p
 
 
 @wp.kernel
 def evaluate_fourier_kernel(
     cam: CameraParams,
     distance: wp.array2d(dtype=wp.float32),
-    rect: NonlinearRectParams,
+    rect: RectificationParams,
     filtered_basis: wp.array3d(dtype=wp.float32),
+    weight_sums: wp.array2d(dtype=wp.float32),
+    region_weights: wp.array2d(dtype=wp.float32),
+    splits: int,
     light: LightParams,
     med: MediumParams,
     out: wp.array2d(dtype=wp.vec3),
     offset: int,
 ):
-    # Klehm 2014 Listing 4: one filtered-basis fetch and one dot product per pixel
+    # Klehm 2014 Listing 4: one filtered-basis fetch (per split region) and one dot product per pixel
     j, i = wp.tid()
     j += offset
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     s = distance[j, i]
-    x = cam.position + d * s
-    c = world_to_rectified(rect, x)
-    f = prefiltered_visibility(filtered_basis, c[0], c[1], c[2], rect.full_circle)
+    c = rectified_coords(rect, cam.position + d * s)
+    f = prefiltered_visibility_split(filtered_basis, weight_sums, region_weights, splits, c[0], c[1], c[2],
+                                     rectification_wraps(rect))
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
     out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
+
+
+# ---- host side ------------------------------------------------------------------------------------------------
 
 
 def epipole_pixels(camera, light_direction) -> list[tuple[float, float, str]]:
@@ -117,6 +246,57 @@ def epipole_regions(camera, light_direction, block: int) -> list[tuple[int, int,
     return regions
 
 
+def row_weights(rect, settings: FourierSettings, sigma_t: float,
+                camera=None) -> tuple[np.ndarray, np.ndarray | None, dict]:
+    """Per-row optical steps and per-column lengths of the prefilter weights (Klehm 2014 Sec. 3.2, Eq. 11-12).
+
+    Non-linear rectification: uniform columns, tau_j = sigma_t Delta_ref of the row's reference ray. Projective:
+    column lengths l_i = dX_i / dX_0 (exact, or Eq. 12's Delta d^i per region) and tau_j = sigma_t times the
+    reference ray's world length of column 0 (dX_0 sqrt(1 + s^2 + zeta_ref^2)). ``camera`` is needed by the
+    ``"pixels"`` reference ray.
+
+    Returns:
+        (optical_step (rows,) float32, column_length (cols,) float64 or None, info dict).
+    """
+    transmittance = settings.weighting == "transmittance"
+    if isinstance(rect, NonlinearRectification):
+        tau = reference_ray(rect, settings.reference_ray, camera).optical_steps(sigma_t) if transmittance else None
+        return tau, None, {}
+    lengths = column_lengths(rect, "exact" if settings.projective_weights == "exact" else "cross_ratio")
+    info = {"projective_weights": settings.projective_weights}
+    if settings.projective_weights == "cross_ratio":
+        info["cross_ratio_d"] = [round(float(d), 6) for d in cross_ratio_factors(rect)[0]]
+    tau = np.zeros(rect.rows, np.float32)
+    if transmittance:
+        scale = reference_rays(rect, settings.reference_ray, camera).length_scale
+        tau = (sigma_t * lengths[0] * scale).astype(np.float32)
+    return tau, lengths / lengths[0], info
+
+
+def build_rectification(scene, settings: FourierSettings, rows: int, cols: int):
+    """Choose and build the rectification for ``scene``'s camera and directional light.
+
+    Returns:
+        (rect, choice): a :class:`~.rectify.NonlinearRectification` or
+        :class:`~.rectify_projective.ProjectiveRectification`, and the
+        :class:`~.rectify_projective.RectificationChoice` (kind and reason).
+    """
+    cam, light_dir = scene.camera, scene.light.direction
+    choice = choose_rectification(cam, light_dir, settings.rectification, settings.epipole_margin)
+    if choice.kind == "projective":
+        try:
+            rect = ProjectiveRectification.from_camera(cam, light_dir, guard_band=settings.guard_band, rows=rows,
+                                                       cols=cols, regions=settings.regions)
+            return rect, choice
+        except ValueError as exc:  # numerically degenerate although the epipole is (barely) outside the image
+            choice = rectify_projective.RectificationChoice(
+                kind="nonlinear", reason=f"{choice.reason}; projective construction failed ({exc}): non-linear used",
+                epipole_distance=choice.epipole_distance)
+            rectify_projective.logger.warning("fourier rectification: %s", choice.reason)
+    rect = NonlinearRectification.from_camera(cam, light_dir, guard_band=settings.guard_band, rows=rows, cols=cols)
+    return rect, choice
+
+
 def render_fourier(scene, gbuffer, shadow_map, *, map_size: tuple[int, int], settings: FourierSettings = None,
                    seed: int = 0, shadow_bias_texels: float = 1.0, timer=None, device=None):
     """Prefiltered single scattering with a Fourier basis (the ``fourier`` method; see the module doc).
@@ -124,7 +304,8 @@ def render_fourier(scene, gbuffer, shadow_map, *, map_size: tuple[int, int], set
     Args:
         scene: the :class:`~warpscatter.scene.Scene` (directional light).
         gbuffer: the camera :class:`~warpscatter.gbuffer.GBuffer` (rasterized).
-        shadow_map: the light's :class:`~warpscatter.shadows.shadow_map.ShadowMap` (orthographic).
+        shadow_map: the light's :class:`~warpscatter.shadows.shadow_map.ShadowMap` (orthographic); resampled
+            by the non-linear rectification and ray-marched in the epipole blocks.
         map_size: (cols, rows) of the rectified map: texels along each view ray x epipolar slices.
         settings: :class:`FourierSettings`.
         seed: jitter seed of the epipole block's ray marching.
@@ -133,32 +314,36 @@ def render_fourier(scene, gbuffer, shadow_map, *, map_size: tuple[int, int], set
         device: Warp device.
 
     Returns:
-        (L_scat, info): (H, W) vec3 wp.array and a dict describing the rectification and epipole blocks.
+        (L_scat, info): (H, W) vec3 wp.array and a dict describing the rectification (kind and the reason it
+        was chosen), the filtered textures and the epipole blocks.
+
+    Raises:
+        ValueError: for a non-directional light or bad settings.
     """
     device = default_device(device)
-    settings = settings or FourierSettings()
+    settings = (settings or FourierSettings()).validate()
     if not isinstance(scene.light, DirectionalLight):
         raise ValueError("the fourier method needs a directional light (render.scattering.method)")
-    if settings.weighting not in ("transmittance", "average"):
-        raise ValueError(f"weighting must be 'transmittance' or 'average', got {settings.weighting!r}")
     stage = timer or (lambda name: nullcontext())
     cam = scene.camera
     cols, rows = map_size
     with stage("rectify"):
-        rect = NonlinearRectification.from_camera(cam, scene.light.direction, guard_band=settings.guard_band,
-                                                  rows=rows, cols=cols)
-        rectified = resample_shadow_map(rect, shadow_map.depth, shadow_map.view_projection, depth="linear",
-                                        world_to_view=shadow_map.view, device=device)
+        rect, choice = build_rectification(scene, settings, rows, cols)
+        if isinstance(rect, ProjectiveRectification):
+            rectified = rasterize_rectified(rect, scene.vertices, scene.triangles, device=device)
+        else:
+            rectified = resample_shadow_map(rect, shadow_map.depth, shadow_map.view_projection, depth="linear",
+                                            world_to_view=shadow_map.view, device=device)
     with stage("prefilter"):
-        tau = None
-        if settings.weighting == "transmittance":
-            tau = reference_ray(rect, settings.reference_ray).optical_steps(scene.medium.sigma_t)
-        fb = prefilter_depth(rectified, settings.coefficients, tau, bits=settings.bits, device=device)
+        tau, lengths, weight_info = row_weights(rect, settings, scene.medium.sigma_t, cam)
+        fb: FilteredBasis = prefilter_weighted(rectified, settings.coefficients, tau, lengths, splits=settings.splits,
+                                               bits=settings.bits, device=device)
     with stage("evaluate"):
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         launch_rows(evaluate_fourier_kernel, (cam.height, cam.width),
-                    [cam.params(), gbuffer.distance, rect.params(), fb, light_params(scene.light),
-                     medium_params(scene.medium), out], device=device)
+                    [cam.params(), gbuffer.distance, rectification_params(rect), fb.basis, fb.weight_sums,
+                     fb.region_weights, fb.splits, light_params(scene.light), medium_params(scene.medium), out],
+                    device=device)
     regions = epipole_regions(cam, scene.light.direction, settings.epipole_block)
     if regions:
         with stage("epipole"):
@@ -167,11 +352,17 @@ def render_fourier(scene, gbuffer, shadow_map, *, map_size: tuple[int, int], set
                          seed=seed, shadow_bias_texels=shadow_bias_texels, region=(x0, y0, w, h), out=out,
                          device=device)
     info = {
-        "rectification": "nonlinear",
+        "rectification": choice.kind,
+        "rectification_reason": choice.reason,
+        "epipole_distance": round(choice.epipole_distance, 4) if np.isfinite(choice.epipole_distance) else None,
         "rectified_map": [cols, rows],
-        "full_circle": rect.full_circle,
         "coefficients": settings.coefficients,
+        "splits": fb.splits,
         "filtered_basis_bytes": int(rows * cols * settings.coefficients * (1 if settings.bits == 8 else 4)),
         "epipole_blocks": [list(r[:4]) + [r[4]] for r in regions],
     }
+    if isinstance(rect, ProjectiveRectification):
+        info.update({"regions": rect.regions, "near_far": [round(rect.near, 6), round(rect.far, 6)], **weight_info})
+    else:
+        info["full_circle"] = rect.full_circle
     return out, info

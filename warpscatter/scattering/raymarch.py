@@ -129,7 +129,7 @@ def raymarch_kernel(
 
 def raymarch(scene, gbuffer, *, steps: int = 128, visibility: str = "exact", geometry=None, shadow_map=None,
              seed: int = 0, shadow_bias_texels: float = 1.0, region=None, out: wp.array | None = None,
-             device=None) -> wp.array:
+             progress=None, device=None) -> wp.array:
     """Ray-march single scattering for every camera pixel.
 
     Args:
@@ -143,6 +143,7 @@ def raymarch(scene, gbuffer, *, steps: int = 128, visibility: str = "exact", geo
         shadow_bias_texels: shadow-map depth bias in texel sizes (world units = bias * texel size).
         region: optional pixel rectangle (x0, y0, width, height) to march; other pixels of ``out`` are kept.
         out: optional (H, W) vec3 array to write into (allocated when None).
+        progress: optional ``progress(fraction)`` callback (rows done / rows).
         device: Warp device.
 
     Returns:
@@ -175,7 +176,7 @@ def raymarch(scene, gbuffer, *, steps: int = 128, visibility: str = "exact", geo
     launch_rows(raymarch_kernel, (h, w),
                 [cam.params(), gbuffer.distance, light_params(scene.light), light_texture_array(scene.light, device),
                  medium_params(scene.medium), int(steps), int(seed), vis_mode, mesh_id, eps, sm_params, sm_depth,
-                 float(bias), int(x0), int(y0), out], device=device)
+                 float(bias), int(x0), int(y0), out], device=device, progress=progress)
     return out
 
 

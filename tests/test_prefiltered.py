@@ -1,0 +1,229 @@
+"""Tests of the ``fourier`` render method (warpscatter.scattering.prefiltered) and the prefilter it drives."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from warpscatter.config import load_config
+from warpscatter.pipeline import render_images
+from warpscatter.scattering import prefilter as pf
+from warpscatter.scattering import rectify_projective as rp
+from warpscatter.scattering.prefiltered import FourierSettings, row_weights
+from warpscatter.scattering.rectify import NonlinearRectification
+from warpscatter.scattering.rectify_projective import ProjectiveRectification
+from warpscatter.scene import build_scene
+from warpscatter.scene.camera import Camera
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+# =================================================================================================================
+# ==== Projective rectification (Klehm 2014 Sec. 4.2), Eq. 12 per-texel weights, split regions (Sec. 3.3) ====
+# =================================================================================================================
+
+
+def _np_basis(z: np.ndarray, m: int) -> np.ndarray:
+    """B_k(z) of Klehm 2014 Eq. 8, 0-based k, shape z.shape + (m,)."""
+    c = np.pi * (2 * (np.arange(m) // 2) + 1)
+    ang = c * np.asarray(z, np.float64)[..., None]
+    return np.where(np.arange(m) % 2 == 0, np.sin(ang), np.cos(ang))
+
+
+def _np_weights(tau: float, lengths: np.ndarray) -> np.ndarray:
+    """Global texel weights of a row in float64: Eq. 12's T_i (1 - exp(-tau l_i)) / tau, or l_i when tau = 0."""
+    if tau == 0.0:
+        return lengths.copy()
+    before = np.concatenate([[0.0], np.cumsum(lengths)[:-1]])
+    return np.exp(-tau * before) * -np.expm1(-tau * lengths) / tau
+
+
+def _np_filter(depth: np.ndarray, m: int, tau: np.ndarray, lengths: np.ndarray, splits: int):
+    """Region-wise normalised prefix means and global running weight sums (float64 reference)."""
+    rows, cols = depth.shape
+    b = _np_basis(depth, m)
+    out = np.empty_like(b)
+    sums = np.empty((rows, cols))
+    starts = (np.arange(splits + 1) * cols) // splits
+    for j in range(rows):
+        w = _np_weights(float(tau[j]), lengths)
+        for k in range(splits):
+            sl = slice(starts[k], starts[k + 1])
+            local = _np_weights(float(tau[j]), lengths[sl])  # = w[sl] / T(start): same means, no underflow
+            out[j, sl] = np.cumsum(local[:, None] * b[j, sl], axis=0) / np.cumsum(local)[:, None]
+            sums[j, sl] = np.cumsum(w[sl])
+    return out, sums
+
+
+def _depth_map(rng, rows: int, cols: int) -> np.ndarray:
+    """Smooth depth with steps and empty (1.0) runs, like a rectified shadow map."""
+    x = np.linspace(0.0, 1.0, cols)
+    d = 0.5 + 0.3 * np.sin(6.0 * x[None, :] + rng.uniform(0, 6, (rows, 1)))
+    d += 0.2 * (rng.uniform(0, 1, (rows, cols)) < 0.05)
+    d[:, rng.integers(0, cols, cols // 10)] = 1.0
+    return np.clip(d, 0.0, 1.0).astype(np.float32)
+
+
+def test_eq12_geometric_weights_literal():
+    """The weights the filter uses, T_i (1 - exp(-tau l_i)), are Klehm 2014 Eq. 12 for l_i = d^i (0-based i):
+    w'_i = exp(-Delta sigma sum_{j=1}^{i} d^(j-1)) (1 - exp(-Delta sigma d^i))."""
+    tau, d = 0.013, 1.0041
+    i = np.arange(400)
+    literal = np.array([np.exp(-tau * sum(d ** (jj - 1) for jj in range(1, n + 1))) * (1.0 - np.exp(-tau * d**n))
+                        for n in i])
+    np.testing.assert_allclose(_np_weights(tau, d**i) * tau, literal, rtol=1e-12)
+
+
+@pytest.mark.parametrize("splits", [1, 3])
+def test_per_texel_weights_match_float64(splits):
+    """The fused filter with Eq. 12 weights (geometric or arbitrary column lengths) equals the float64 normalised
+    prefix means; region weight sums times region transmittances give the global weight sums."""
+    rng = np.random.default_rng(splits)
+    rows, cols, m = 10, 240, 16
+    depth = _depth_map(rng, rows, cols)
+    tau = np.array([0.0, 1e-5, 1e-3, 0.004, 0.01, 0.02, 0.05, 0.3, 2.0, 30.0], np.float32)
+    worst = np.zeros(2)
+    for lengths in (1.0041 ** np.arange(cols), rng.uniform(0.2, 5.0, cols), np.full(cols, 2.5)):  # last: uniform path
+        fb = pf.prefilter_weighted(depth, m, tau, lengths, splits=splits)
+        ref, ref_sums = _np_filter(depth, m, tau.astype(np.float64), lengths, splits)
+        assert np.isfinite(ref).all()
+        worst[0] = max(worst[0], np.abs(fb.basis.numpy() - ref).max())
+        if splits > 1:
+            starts = (np.arange(splits) * cols) // splits
+            region = np.repeat(fb.region_weights.numpy(), np.diff(np.append(starts, cols)), axis=1)
+            got = region * fb.weight_sums.numpy()  # R_k W_loc(i): global weight sum of the region up to i
+            ok = ref_sums > 1e-30  # regions beyond optical depth ~70 underflow to 0 in float32
+            worst[1] = max(worst[1], (np.abs(got - ref_sums)[ok] / ref_sums[ok]).max())
+    assert worst[0] < 2e-5  # measured 2.4e-6 (splits 1) and 2.6e-6 (splits 3)
+    assert worst[1] < 2e-5  # measured 1.9e-6 (splits 3)
+
+
+@pytest.mark.parametrize("wrap", [0, 1])
+def test_split_evaluation_equals_unsplit(wrap):
+    """Rows filtered in 3 or 5 independent regions and evaluated with one look-up per region in front of the hit
+    give the unsplit visible fraction up to float rounding (Klehm 2014 Sec. 3.3)."""
+    rng = np.random.default_rng(7 + wrap)
+    rows, cols, m = 24, 300, 32
+    depth = _depth_map(rng, rows, cols)
+    tau = rng.uniform(0.0, 0.03, rows).astype(np.float32)
+    lengths = rng.uniform(0.5, 2.0, cols)
+    n = 4000
+    coords = np.stack([rng.uniform(-0.05, 1.05, n), rng.uniform(0.0, 1.0, n), rng.uniform(0.05, 0.95, n)], axis=-1)
+    coords[:200, 0] = (np.arange(200) % cols + rng.choice([0.0, 1.0, 0.5, 0.999], 200)) / cols  # column edges
+    one = pf.evaluate_visibility(pf.prefilter_weighted(depth, m, tau, lengths), coords, wrap_rows=bool(wrap))
+    plain = pf.evaluate_visibility(pf.prefilter_weighted(depth, m, tau, lengths).basis, coords, wrap_rows=bool(wrap))
+    assert np.array_equal(one, plain)  # a FilteredBasis with splits = 1 is the plain path
+    for splits in (3, 5):
+        split = pf.evaluate_visibility(pf.prefilter_weighted(depth, m, tau, lengths, splits=splits), coords,
+                                       wrap_rows=bool(wrap))
+        assert np.abs(split - one).max() < 5e-6  # measured 4.8e-7 (3 regions), 6.6e-7 (5); wrapped rows 3.6e-7, 4.2e-7
+    assert one.std() > 0.1  # the queries see real visibility structure (measured 0.38, 0.37)
+
+
+def test_prefilter_weighted_rejects_bad_input():
+    depth = np.zeros((4, 12), np.float32)
+    with pytest.raises(ValueError, match="column_length"):
+        pf.prefilter_weighted(depth, 8, 0.1, np.ones(11))
+    with pytest.raises(ValueError, match="column_length"):
+        pf.prefilter_weighted(depth, 8, 0.1, np.r_[np.ones(11), 0.0])
+    with pytest.raises(ValueError, match="splits"):
+        pf.prefilter_weighted(depth, 8, splits=0)
+    with pytest.raises(ValueError, match="splits"):
+        pf.prefilter_weighted(depth, 8, splits=pf.MAX_SPLITS + 1)
+    with pytest.raises(ValueError, match="optical_step"):
+        pf.prefilter_weighted(depth, 8, -1.0)
+    with pytest.raises(ValueError, match="projective_weights"):
+        FourierSettings(projective_weights="linear").validate()
+    with pytest.raises(ValueError, match="regions"):
+        FourierSettings(regions=0).validate()
+
+
+def test_row_weights_give_world_optical_thickness():
+    """tau_j l_i is sigma_t times the world length of texel i along row j's reference ray (Klehm 2014 Sec. 3.2,
+    Eq. 12), for both rectifications and every reference-ray choice."""
+    cam = Camera(position=[4.0, 1.7, -13.0], look_at=[0.0, 2.6, 0.0], up=[0, 1, 0], fov_y=50, width=64, height=36,
+                 near=0.1, far=100.0)
+    light, sigma = np.array([0.6, -0.5, 0.2]), 0.08
+    proj = ProjectiveRectification.from_camera(cam, light, rows=32, cols=256, regions=4)
+    nonlin = NonlinearRectification.from_camera(cam, light, rows=32, cols=256)
+    for method in ("optimal", "bisectrix", "mean", "pixels"):
+        settings = FourierSettings(reference_ray=method)
+        tau, lengths, _ = row_weights(nonlin, settings, sigma, cam)
+        assert lengths is None and tau.shape == (32,) and np.all(tau > 0.0)
+        tau, lengths, info = row_weights(proj, settings, sigma, cam)
+        assert info["projective_weights"] == "exact" and lengths[0] == 1.0
+        ref = rp.reference_rays(proj, method, cam)
+        x = proj.column_to_x(np.arange(257, dtype=np.float64))
+        world = np.diff(x)[None, :] * ref.length_scale[:, None]  # world length of every texel along the ray
+        np.testing.assert_allclose(tau[:, None] * lengths[None, :], sigma * world, rtol=1e-6)
+        _, _, info = row_weights(proj, FourierSettings(reference_ray=method, projective_weights="cross_ratio"), sigma,
+                                 cam)
+        assert len(info["cross_ratio_d"]) == 4 and min(info["cross_ratio_d"]) > 1.0
+    tau, lengths, _ = row_weights(proj, FourierSettings(weighting="average"), sigma, cam)
+    assert np.all(tau == 0.0) and np.all(lengths > 0.0)  # average visibility still weights by texel length
+
+
+# ---- scene level: the colonnade with a side light ---------------------------------------------------------------
+
+SIDE_LIGHT = "[0.6,-0.5,0.2]"
+SMALL = ["camera.width=160", "camera.height=90", "render.scattering.shadow_map.resolution=512"]
+
+
+def _render(*overrides):
+    cfg = load_config(ROOT / "configs" / "quickstart.yaml", [*SMALL, *overrides])
+    scene = build_scene(cfg)
+    images, stats = render_images(scene, cfg.render)
+    return images, stats, scene
+
+
+def _unshadowed(images, scene) -> np.ndarray:
+    """L_scat with V = 1 everywhere (CONVENTIONS.md), from the rendered depth AOV."""
+    cam, med = scene.camera, scene.medium
+    d = cam.ray_directions()
+    cos = -(d @ scene.light.direction)
+    g = med.g
+    f = (1.0 - g * g) / (4.0 * np.pi * (1.0 + g * g - 2.0 * g * cos) ** 1.5)
+    s = images["depth"]
+    integral = (1.0 - np.exp(-med.sigma_t * s)) / med.sigma_t
+    return np.asarray(scene.light.irradiance)[None, None, :] * (med.sigma_s * f * integral)[..., None]
+
+
+def test_projective_fourier_matches_the_shadow_map_marcher(caplog):
+    """fourier with the projective rectification (auto-chosen for a side light) against the shadow-map ray
+    marcher and against the non-linear rectification, on the quickstart colonnade at 160x90 with 512^2 maps."""
+    ref, _, scene = _render("render.scattering.method=raymarch", "render.scattering.visibility=shadow_map",
+                            "render.scattering.steps=256", f"light.direction={SIDE_LIGHT}")
+    with caplog.at_level(logging.INFO, logger="warpscatter"):
+        proj, stats, _ = _render("render.scattering.method=fourier", f"light.direction={SIDE_LIGHT}")
+    assert stats["rectification"] == "projective" and "auto: projective" in stats["rectification_reason"]
+    assert stats["regions"] == 8 and stats["epipole_blocks"] == []
+    assert any("auto: projective" in r.getMessage() for r in caplog.records)
+    nonlin, stats_nl, _ = _render("render.scattering.method=fourier", f"light.direction={SIDE_LIGHT}",
+                                  "render.scattering.fourier.rectification=nonlinear")
+    assert stats_nl["rectification"] == "nonlinear" and "requested" in stats_nl["rectification_reason"]
+    eq12, _, _ = _render("render.scattering.method=fourier", f"light.direction={SIDE_LIGHT}",
+                         "render.scattering.fourier.projective_weights=cross_ratio")
+    r, p, n, q = ref["scattering"], proj["scattering"], nonlin["scattering"], eq12["scattering"]
+    shadow = np.abs(_unshadowed(ref, scene) - r).sum()  # what the shadows take away
+    assert shadow / r.sum() > 0.015  # the shafts are visible: measured 0.029
+    rel = lambda a, b: float(np.abs(a - b).sum() / np.abs(b).sum())  # noqa: E731
+    assert rel(p, r) < 0.008  # measured 0.0050 (relative L1)
+    assert np.abs(p - r).sum() / shadow < 0.28  # measured 0.17 of the shadowed energy (non-linear: 0.18)
+    assert rel(n, r) < 0.008  # measured 0.0051
+    assert rel(p, n) < 0.006  # measured 0.0037
+    assert rel(q, r) < 0.009  # Eq. 12's constant growth factor with 8 regions: measured 0.0059
+    assert np.isfinite(p).all() and p.min() >= 0.0
+
+
+def test_nonlinear_splits_equal_unsplit_in_a_render():
+    """splits = 3 (Sec. 3.3) renders the same image as splits = 1 up to float rounding (light in view)."""
+    one, stats, _ = _render("render.scattering.method=fourier", "render.scattering.fourier.epipole_block=0")
+    three, stats3, _ = _render("render.scattering.method=fourier", "render.scattering.fourier.epipole_block=0",
+                               "render.scattering.fourier.splits=3")
+    assert stats["rectification"] == stats3["rectification"] == "nonlinear" and stats["full_circle"]
+    assert "inside the image" in stats["rectification_reason"] and stats3["splits"] == 3
+    a, b = one["scattering"], three["scattering"]
+    assert np.abs(a - b).max() / a.max() < 5e-6  # measured 2.8e-7

@@ -1,0 +1,680 @@
+"""Moment shadow maps for surfaces (Peters et al. 2017, Sec. 2-3, Appendices D.1-D.3): filtered hard shadows and
+translucent occluders.
+
+Stages (each a host function that allocates and launches; names appear in timings):
+
+1. ``generate`` (:func:`generate_moment_shadow_map`, D.1): the light view of an existing
+   :class:`~warpscatter.shadows.shadow_map.ShadowMap` (its view and projection, so both maps share texel footprints)
+   is rasterized at ``s x s`` times the resolution, each sample's depth becomes a SIGNED depth z in [-1, 1] (Sec. 2.3:
+   -1 at the map's near plane, +1 at its far plane, linear in light-space depth for orthographic and perspective maps
+   alike; texels without a caster hold z = +1, the "cleared" far plane of Sec. 3.2), and the moments b(z) =
+   (z, z^2, z^3, z^4) of the ``s^2`` samples of a texel are averaged (the custom resolve of D.1). Storage (Sec. 2.3,
+   2.4): ``bits=64`` keeps Theta_4*(b) (Eq. 3) in four emulated 16-bit unorm channels, ``bits=128`` keeps the canonical
+   moments in float32 (``store_moments4`` of :mod:`.moments`, applied once to the average: Theta_4* is affine).
+2. Translucent occluders (Sec. 3.2, D.3), in the same resolve kernel: materials with opacity alpha < 1 are rasterized
+   separately with depth peeling (as many layers as the deepest sample has translucent fragments, found by a coverage
+   count, so the order is exact per sample; the supersampled view is peeled in row bands of bounded memory, which
+   gives bitwise the same result). Per sample, starting from the opaque moments b(z_opaque), the
+   translucent fragments in front of the opaque depth are blended back to front with the over operator,
+   ``b <- alpha b(z_t) + (1 - alpha) b``, which yields the moments of Z = sum_j prod_{k<j}(1 - alpha_k) alpha_j
+   delta_{z_j}. Fragments with alpha below 1% are discarded (the alpha test of Sec. 3.3). In 64-bit mode every blend
+   result is rounded to 16 bits, emulating a blended 16-bit render target and its accumulated rounding (Sec. 3.3).
+   Blending is done per sample before the resolve: the supersampled equivalent of the paper's 1x blending, which keeps
+   translucent edges antialiased and makes the depth test against the opaque surface exact per sample.
+3. ``filter`` (:func:`filter_moment_shadow_map`, D.2): two-pass separable Gaussian, ``filter_px`` taps wide (see
+   :func:`gaussian_weights`), each pass clamping at the map border and rounding to 16 bits again in 64-bit mode.
+4. Lookup (:func:`msm_visibility`, :func:`msm_visibility_rgb`, D.2): bilinear sample at the receiver's texel
+   coordinates, revert the quantization transform, bias with the storage mode's alpha_b and b*, Algorithm 1's lower
+   bound at the depth-biased fragment depth, over-darkening (divide by 0.98, clamp), visibility = 1 - intensity.
+
+Coloured translucency (Sec. 3.3, "one moment shadow map per colour channel"): with ``coloured=True`` the map holds
+three channels (R, G, B). A translucent material of opacity alpha and albedo a has, per channel, the transmittance
+
+    T_c = (1 - alpha) ** s_c,   s_c = (1 - a_c) / (1 - mean(a))   (s_c = 1 when all a_c are equal),
+    alpha_c = 1 - T_c,
+
+i.e. the surface's optical depth -ln(1 - alpha) is shared among the channels in proportion to the fraction 1 - a_c
+each one absorbs, normalised so that a grey material gives 1 - alpha in every channel (the monochrome map) and the
+geometric mean of T_c is always 1 - alpha. alpha = 1 stays opaque in every channel; a channel with a_c = 1 of a
+coloured material passes unattenuated. See :func:`channel_opacities`.
+
+Texel (i, j) has j from the TOP, as every image here; lookups outside the map's footprint are lit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import warp as wp
+
+from ..parallel import launch_rows
+from ..raster import MAX_RESOLUTION, coverage_count, linearize_depth, ndc_to_view_depth, rasterize
+from ..wpinit import default_device, module_options
+from . import moments as mm
+from .shadow_map import ShadowMap, ShadowMapParams, shadow_coords
+
+module_options()
+
+#: Alpha test of Sec. 3.3: translucent fragments with an opacity below 1% are discarded.
+ALPHA_TEST = wp.constant(0.01)
+#: Opacities at or above this are opaque (rendered into the opaque depth pass).
+OPAQUE_ALPHA = 1.0
+#: Bits per texel -> 4-moment storage mode of :mod:`.moments`.
+STORAGE_OF_BITS = {64: int(mm.STORAGE4_UNORM16), 128: int(mm.STORAGE4_FLOAT32)}
+#: Largest supported supersampling factor per axis.
+MAX_SUPERSAMPLING = 8
+#: Memory budget of the depth-peeled translucent layers: the supersampled view is peeled in row bands this size.
+TRANSLUCENT_BAND_BYTES = 256 * 2**20
+_PEEL_BYTES = 24  # bytes per peeled sample and layer (int64 key, float32 depth, int32 triangle, merge buffers)
+
+
+@wp.struct
+class MomentShadowParams:
+    """A moment shadow map's geometry and lookup settings as kernels see them."""
+
+    sm: ShadowMapParams  # transforms and size of the map (shared with the plain shadow map)
+    depth_scale: float  # signed depth z = depth_scale * d + depth_offset, d = linear light-space depth
+    depth_offset: float
+    near: float  # linear depth of the near plane (z = -1), scene units
+    texel_x: float  # world size of a texel along map x (orthographic), or at unit depth (perspective)
+    texel_y: float  # same along map y
+    storage: int  # mm.STORAGE4_UNORM16 (64 bits) or mm.STORAGE4_FLOAT32 (128 bits)
+    depth_bias: float  # depth bias in scene units, subtracted from the fragment depth
+    normal_offset: float  # receiver offset along its normal, in texels at the receiver's depth
+    overdarkening: float  # shadow intensity divisor (0.98, Sec. 2.6; <= 0 disables)
+    channels: int  # 1 (monochrome) or 3 (coloured translucency, R G B)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Building blocks
+# ---------------------------------------------------------------------------------------------------------------------
+
+
+@wp.func
+def signed_depth(p: MomentShadowParams, d: float) -> float:
+    """Signed depth in [-1, 1] of linear light-space depth d (-1 at the near plane, +1 at the far plane)."""
+    # Peters 2017, Sec. 2.3
+    z = p.depth_scale * d + p.depth_offset
+    if wp.isnan(z):
+        return 1.0
+    return wp.clamp(z, -1.0, 1.0)
+
+
+@wp.func
+def signed_depth_from_ndc(z_ndc: float, proj: wp.vec4, depth_scale: float, depth_offset: float) -> float:
+    """Signed depth of a rasterized NDC depth (``proj`` = P[2,2], P[2,3], P[3,2], P[3,3]); empty (+inf) -> +1."""
+    # Peters 2017, D.1 "convert the read depth to a linear depth z in [-1, 1]"; Sec. 3.2: cleared to the far plane
+    if not wp.isfinite(z_ndc):
+        return 1.0
+    d = ndc_to_view_depth(z_ndc, proj[0], proj[1], proj[2], proj[3])
+    z = depth_scale * d + depth_offset
+    if wp.isnan(z):
+        return 1.0
+    return wp.clamp(z, -1.0, 1.0)
+
+
+@wp.func
+def encode_texel(b: wp.vec4, storage: int) -> wp.vec4:
+    """Canonical moments -> texel space before rounding: Theta_4*(b) (64 bits) or b itself (128 bits)."""
+    # Peters 2017, Eq. (3) / Sec. 2.3
+    if storage == mm.STORAGE4_UNORM16:
+        return mm.quantization_transform4(b)
+    return b
+
+
+@wp.func
+def round_texel(t: wp.vec4, storage: int) -> wp.vec4:
+    """Write a texel-space value to the storage format: 16-bit unorm rounding (64 bits) or unchanged (128 bits)."""
+    # Peters 2017, Sec. 2.4
+    if storage == mm.STORAGE4_UNORM16:
+        bits = mm.UNORM_BITS_STORAGE4_UNORM16
+        return wp.vec4(mm.unorm_round(t[0], bits), mm.unorm_round(t[1], bits), mm.unorm_round(t[2], bits),
+                       mm.unorm_round(t[3], bits))
+    return t
+
+
+@wp.func
+def blend_over(dst: wp.vec4, src: wp.vec4, alpha: float) -> wp.vec4:
+    """Over operator on texel values: alpha src + (1 - alpha) dst (back-to-front translucent blending)."""
+    # Peters 2017, Sec. 3.2 / D.3
+    return alpha * src + (1.0 - alpha) * dst
+
+
+@wp.func
+def fetch_texel(texels: wp.array3d(dtype=wp.vec4), c: int, i: int, j: int) -> wp.vec4:
+    """Texel (i, j) of channel c with clamp-to-edge addressing."""
+    ii = wp.clamp(i, 0, texels.shape[2] - 1)
+    jj = wp.clamp(j, 0, texels.shape[1] - 1)
+    return texels[c, jj, ii]
+
+
+@wp.func
+def sample_bilinear4(texels: wp.array3d(dtype=wp.vec4), c: int, u: float, v: float) -> wp.vec4:
+    """Bilinear sample of channel c at texture coordinates (u, v) in [0, 1] (v down), clamp-to-edge."""
+    fx = u * float(texels.shape[2]) - 0.5
+    fy = v * float(texels.shape[1]) - 0.5
+    x0 = wp.floor(fx)
+    y0 = wp.floor(fy)
+    ax = fx - x0
+    ay = fy - y0
+    i0 = int(x0)
+    j0 = int(y0)
+    top = (1.0 - ax) * fetch_texel(texels, c, i0, j0) + ax * fetch_texel(texels, c, i0 + 1, j0)
+    bottom = (1.0 - ax) * fetch_texel(texels, c, i0, j0 + 1) + ax * fetch_texel(texels, c, i0 + 1, j0 + 1)
+    return (1.0 - ay) * top + ay * bottom
+
+
+@wp.func
+def texel_size_at(p: MomentShadowParams, d: float) -> wp.vec2:
+    """World size (x, y) of one texel at linear light-space depth d."""
+    if p.sm.perspective != 0:
+        return wp.vec2(p.texel_x * d, p.texel_y * d)
+    return wp.vec2(p.texel_x, p.texel_y)
+
+
+@wp.func
+def receiver_coords(p: MomentShadowParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
+    """(u, v, d) of the receiver x moved ``normal_offset`` texels along its normal n (u, v in [0, 1], v down;
+    d linear light-space depth). Non-finite input gives (-1, -1, 0): outside the map, hence lit."""
+    c0 = shadow_coords(p.sm, x)
+    t = texel_size_at(p, wp.max(c0[2], 0.0))
+    c = shadow_coords(p.sm, x + n * (p.normal_offset * wp.max(t[0], t[1])))
+    if not (wp.isfinite(c[0]) and wp.isfinite(c[1]) and wp.isfinite(c[2])):
+        return wp.vec3(-1.0, -1.0, 0.0)
+    return c
+
+
+@wp.func
+def inside_map(c: wp.vec3) -> bool:
+    """True when texture coordinates (u, v) lie in [0, 1)^2."""
+    return c[0] >= 0.0 and c[0] < 1.0 and c[1] >= 0.0 and c[1] < 1.0
+
+
+@wp.func
+def moment_shadow_intensity(p: MomentShadowParams, texel: wp.vec4, z_f: float) -> float:
+    """Filtered texel -> over-darkened 4-moment shadow intensity at fragment depth z_f (already depth-biased)."""
+    # Peters 2017, D.2: revert Theta_4*, bias (Sec. 2.5), Algorithm 1 lower bound (Eq. 1), divide by 0.98 and clamp
+    b = mm.load_biased_moments4(texel, p.storage)
+    return mm.scale_shadow_intensity(mm.msm4_shadow_intensity(b, z_f), p.overdarkening)
+
+
+@wp.func
+def msm_visibility_rgb(p: MomentShadowParams, texels: wp.array3d(dtype=wp.vec4), x: wp.vec3, n: wp.vec3) -> wp.vec3:
+    """Filtered hard-shadow visibility in [0, 1]^3 of world point x with normal n (R, G, B; equal for 1 channel).
+
+    ``texels`` is :attr:`MomentShadowMap.texels` (C, H, W); points outside the map or with non-finite coordinates
+    are lit.
+    """
+    # Peters 2017, D.2
+    c = receiver_coords(p, x, n)
+    if not inside_map(c):
+        return wp.vec3(1.0, 1.0, 1.0)
+    z_f = signed_depth(p, c[2]) - p.depth_bias * p.depth_scale
+    v0 = 1.0 - moment_shadow_intensity(p, sample_bilinear4(texels, 0, c[0], c[1]), z_f)
+    if p.channels < 3:
+        return wp.vec3(v0, v0, v0)
+    v1 = 1.0 - moment_shadow_intensity(p, sample_bilinear4(texels, 1, c[0], c[1]), z_f)
+    v2 = 1.0 - moment_shadow_intensity(p, sample_bilinear4(texels, 2, c[0], c[1]), z_f)
+    return wp.vec3(v0, v1, v2)
+
+
+@wp.func
+def msm_visibility(p: MomentShadowParams, texels: wp.array3d(dtype=wp.vec4), x: wp.vec3, n: wp.vec3) -> float:
+    """Scalar filtered hard-shadow visibility in [0, 1] (the mean over channels of :func:`msm_visibility_rgb`)."""
+    v = msm_visibility_rgb(p, texels, x, n)
+    return (v[0] + v[1] + v[2]) / 3.0
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Kernels (the last input of each is the row offset used by parallel.launch_rows)
+# ---------------------------------------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def _generate_kernel(
+    opaque_ndc: wp.array3d(dtype=wp.float32),  # (1, sH, sW) NDC depth of opaque casters, +inf where empty
+    trans_ndc: wp.array3d(dtype=wp.float32),  # (k, band sample rows, sW) translucent layers, nearest first
+    trans_tri: wp.array3d(dtype=wp.int32),  # (k, band sample rows, sW) translucent triangle index, -1 empty
+    n_layers: int,  # k (0: no translucent fragments in the band; the arrays are then 1x1x1 dummies)
+    row0: int,  # first map row of the band
+    trans_alpha: wp.array2d(dtype=wp.float32),  # (T_t, C) opacity per translucent triangle and channel
+    s: int,  # supersampling factor per axis
+    proj: wp.vec4,  # P[2,2], P[2,3], P[3,2], P[3,3] of the light projection
+    depth_scale: float,
+    depth_offset: float,
+    storage: int,
+    texels: wp.array3d(dtype=wp.vec4),  # out: (C, H, W)
+    offset: int,
+):
+    j, i = wp.tid()
+    j += offset + row0
+    y0 = row0 * s  # first sample row of the band arrays
+    for c in range(texels.shape[0]):
+        acc = wp.vec4(0.0, 0.0, 0.0, 0.0)  # sum of per-sample canonical moments
+        for sj in range(s):
+            y = j * s + sj
+            for si in range(s):
+                xs = i * s + si
+                # ---- opaque moments (D.1) ----
+                z_o = signed_depth_from_ndc(opaque_ndc[0, y, xs], proj, depth_scale, depth_offset)
+                b = mm.moments4_from_depth(z_o)
+                # ---- translucent layers, back to front, over operator (Sec. 3.2) ----
+                blended = bool(False)
+                q = wp.vec4(0.0, 0.0, 0.0, 0.0)  # the render target's stored value once blending starts
+                for k in range(n_layers):
+                    layer = n_layers - 1 - k
+                    t = trans_tri[layer, y - y0, xs]
+                    if t >= 0:
+                        z_t = signed_depth_from_ndc(trans_ndc[layer, y - y0, xs], proj, depth_scale, depth_offset)
+                        alpha = trans_alpha[t, c]
+                        if z_t < z_o and alpha >= ALPHA_TEST:  # depth test against the opaque surface; alpha test
+                            if not blended:
+                                q = mm.store_moments4(b, storage)
+                                blended = True
+                            q = round_texel(blend_over(q, encode_texel(mm.moments4_from_depth(z_t), storage), alpha),
+                                            storage)
+                if blended:
+                    b = mm.load_moments4(q, storage)
+                acc += b
+        # the resolve: average, then one quantization transform and rounding (Theta_4* is affine)
+        texels[c, j, i] = mm.store_moments4(acc / float(s * s), storage)
+
+
+@wp.kernel
+def _gauss_rows_kernel(src: wp.array3d(dtype=wp.vec4), weights: wp.array(dtype=wp.float32), radius: int,
+                       storage: int, dst: wp.array3d(dtype=wp.vec4), offset: int):
+    j, i = wp.tid()
+    j += offset
+    for c in range(src.shape[0]):
+        acc = wp.vec4(0.0, 0.0, 0.0, 0.0)
+        for k in range(-radius, radius + 1):
+            acc += weights[k + radius] * fetch_texel(src, c, i + k, j)
+        dst[c, j, i] = round_texel(acc, storage)
+
+
+@wp.kernel
+def _gauss_columns_kernel(src: wp.array3d(dtype=wp.vec4), weights: wp.array(dtype=wp.float32), radius: int,
+                          storage: int, dst: wp.array3d(dtype=wp.vec4), offset: int):
+    j, i = wp.tid()
+    j += offset
+    for c in range(src.shape[0]):
+        acc = wp.vec4(0.0, 0.0, 0.0, 0.0)
+        for k in range(-radius, radius + 1):
+            acc += weights[k + radius] * fetch_texel(src, c, i, j + k)
+        dst[c, j, i] = round_texel(acc, storage)
+
+
+@wp.kernel
+def _visibility_points_kernel(p: MomentShadowParams, texels: wp.array3d(dtype=wp.vec4),
+                              points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
+                              out: wp.array(dtype=wp.vec3), offset: int):
+    k = wp.tid() + offset
+    out[k] = msm_visibility_rgb(p, texels, points[k], normals[k])
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Host functions
+# ---------------------------------------------------------------------------------------------------------------------
+
+_MIN_ROWS = 8
+
+
+@dataclass
+class MapGeometry:
+    """Depth range and texel size of a light view, derived from a :class:`ShadowMap`'s projection.
+
+    Attributes:
+        near, far: linear light-space depths of signed depth -1 and +1 (scene units).
+        texel_x, texel_y: world size of a texel along map x and y (orthographic), or at unit depth (perspective).
+    """
+
+    near: float
+    far: float
+    texel_x: float
+    texel_y: float
+
+    @property
+    def depth_scale(self) -> float:
+        return 2.0 / (self.far - self.near)
+
+    @property
+    def depth_offset(self) -> float:
+        return -(self.far + self.near) / (self.far - self.near)
+
+
+def map_geometry(shadow_map: ShadowMap) -> MapGeometry:
+    """Near/far depths and texel sizes of ``shadow_map``'s light view."""
+    p = np.asarray(shadow_map.projection, np.float64)
+    near, far = (float(x) for x in linearize_depth(np.array([-1.0, 1.0]), p))
+    if not (np.isfinite(near) and np.isfinite(far) and far > near):
+        raise ValueError(f"shadow_map: its projection gives no valid depth range (near {near}, far {far})")
+    h, w = shadow_map.shape
+    return MapGeometry(near=near, far=far, texel_x=2.0 / (p[0, 0] * w), texel_y=2.0 / (p[1, 1] * h))
+
+
+def moment_params(shadow_map: ShadowMap, *, storage: int = int(mm.STORAGE4_FLOAT32), channels: int = 1,
+                  depth_bias: float = 0.0, normal_offset_texels: float = 1.0,
+                  overdarkening: float = float(mm.OVERDARKENING_DIVISOR)) -> MomentShadowParams:
+    """Kernel parameters for lookups in a map with ``shadow_map``'s geometry.
+
+    Args:
+        shadow_map: the light's :class:`ShadowMap` (transforms and resolution).
+        storage: ``mm.STORAGE4_UNORM16`` or ``mm.STORAGE4_FLOAT32``.
+        channels: 1 or 3.
+        depth_bias: scene units (>= 0) subtracted from the receiver's light-space depth.
+        normal_offset_texels: receivers move this many texels (at their depth) along their normal (>= 0).
+        overdarkening: shadow intensity divisor in (0, 1] (Sec. 2.6); 0 disables over-darkening.
+
+    Raises:
+        ValueError: negative or non-finite bias/offset, overdarkening outside [0, 1], unknown storage or channels.
+    """
+    _check_nonneg(depth_bias, "depth_bias")
+    _check_nonneg(normal_offset_texels, "normal_offset_texels")
+    if not (np.isfinite(overdarkening) and 0.0 <= overdarkening <= 1.0):
+        raise ValueError(f"overdarkening: must lie in [0, 1] (0 disables it), got {overdarkening!r}")
+    if int(storage) not in STORAGE_OF_BITS.values():
+        raise ValueError(f"storage: expected STORAGE4_UNORM16 or STORAGE4_FLOAT32, got {storage!r}")
+    if channels not in (1, 3):
+        raise ValueError(f"channels: expected 1 or 3, got {channels!r}")
+    g = map_geometry(shadow_map)
+    p = MomentShadowParams()
+    p.sm = shadow_map.params()
+    p.depth_scale = float(g.depth_scale)
+    p.depth_offset = float(g.depth_offset)
+    p.near = float(g.near)
+    p.texel_x = float(g.texel_x)
+    p.texel_y = float(g.texel_y)
+    p.storage = int(storage)
+    p.depth_bias = float(depth_bias)
+    p.normal_offset = float(normal_offset_texels)
+    p.overdarkening = float(overdarkening)
+    p.channels = int(channels)
+    return p
+
+
+@dataclass
+class MomentShadowMap:
+    """A 4-moment shadow map (Peters 2017) on a device.
+
+    Attributes:
+        texels: (C, H, W) ``wp.vec4`` stored texel values (Theta_4* in 16-bit steps for 64 bits, canonical moments
+            for 128 bits); C = 1, or 3 for coloured translucency (R, G, B).
+        bits: 64 or 128.
+        shadow_map: the plain :class:`ShadowMap` whose transforms (and resolution) this map shares.
+        geometry: its :class:`MapGeometry`.
+        supersampling: samples per texel per axis used in generation.
+        translucent_layers: depth-peeled translucent layers blended in (0 without translucent casters).
+        filter_px: Gaussian width applied (1: unfiltered).
+    """
+
+    texels: wp.array
+    bits: int
+    shadow_map: ShadowMap
+    geometry: MapGeometry
+    supersampling: int
+    translucent_layers: int = 0
+    filter_px: int = 1
+
+    @property
+    def storage(self) -> int:
+        return STORAGE_OF_BITS[self.bits]
+
+    @property
+    def channels(self) -> int:
+        return int(self.texels.shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return int(self.texels.shape[1]), int(self.texels.shape[2])
+
+    @property
+    def nbytes(self) -> int:
+        """Memory of the texels in the emulated format (8 or 16 bytes per texel and channel)."""
+        return self.channels * self.shape[0] * self.shape[1] * self.bits // 8
+
+    def numpy(self) -> np.ndarray:
+        """Texel values as a (C, H, W, 4) float32 array."""
+        return self.texels.numpy().reshape(self.channels, *self.shape, 4)
+
+    def params(self, *, depth_bias: float = 0.0, normal_offset_texels: float = 1.0,
+               overdarkening: float = float(mm.OVERDARKENING_DIVISOR)) -> MomentShadowParams:
+        """Kernel parameters for :func:`msm_visibility_rgb` (arguments as in :func:`moment_params`)."""
+        return moment_params(self.shadow_map, storage=self.storage, channels=self.channels, depth_bias=depth_bias,
+                             normal_offset_texels=normal_offset_texels, overdarkening=overdarkening)
+
+
+def _check_nonneg(x, name: str) -> None:
+    if not (np.isscalar(x) and np.isfinite(x) and x >= 0.0):
+        raise ValueError(f"{name}: must be a finite number >= 0, got {x!r}")
+
+
+def _check_int(x, name: str, lo: int, hi: int | None = None) -> int:
+    if isinstance(x, bool) or not isinstance(x, (int, np.integer)) or x < lo or (hi is not None and x > hi):
+        bound = f">= {lo}" if hi is None else f"in [{lo}, {hi}]"
+        raise ValueError(f"{name}: expected an integer {bound}, got {x!r}")
+    return int(x)
+
+
+def channel_opacities(opacity, albedo, coloured: bool = False) -> np.ndarray:
+    """Per-material, per-channel opacities alpha_c for the over operator (module docstring).
+
+    Args:
+        opacity: (K,) material opacities in [0, 1].
+        albedo: (K, 3) material albedos in [0, 1] (used when ``coloured``).
+        coloured: False: one channel, alpha_c = alpha. True: R, G, B with T_c = (1 - alpha) ** s_c,
+            s_c = (1 - a_c) / (1 - mean(a)) (1 for grey albedos), alpha_c = 1 - T_c.
+
+    Returns:
+        (K, C) float32, C = 1 or 3; opaque materials (alpha = 1) give 1 in every channel.
+
+    Raises:
+        ValueError: shapes, or values outside [0, 1] / non-finite.
+    """
+    a = np.asarray(opacity, np.float64).reshape(-1)
+    if not np.all(np.isfinite(a)) or np.any(a < 0.0) or np.any(a > 1.0):
+        raise ValueError(f"opacity: material opacities must lie in [0, 1], got {a.tolist()}")
+    if not coloured:
+        return a[:, None].astype(np.float32)
+    rgb = np.asarray(albedo, np.float64)
+    if rgb.shape != (a.size, 3) or not np.all(np.isfinite(rgb)) or np.any(rgb < 0.0) or np.any(rgb > 1.0):
+        raise ValueError(f"albedo: expected ({a.size}, 3) values in [0, 1] for coloured translucency, got {rgb!r}")
+    absorbed = 1.0 - rgb
+    mean = absorbed.mean(axis=1, keepdims=True)
+    grey = np.ptp(rgb, axis=1, keepdims=True) < 1e-6
+    share = np.where(grey | (mean < 1e-6), 1.0, absorbed / np.maximum(mean, 1e-6))
+    with np.errstate(divide="ignore"):
+        transmittance = np.where(a[:, None] >= 1.0, 0.0, (1.0 - a[:, None]) ** share)
+    return (1.0 - transmittance).astype(np.float32)
+
+
+def gaussian_weights(filter_px: int) -> np.ndarray:
+    """Normalised taps of the separable Gaussian: 2 (filter_px // 2) + 1 taps, sigma = filter_px / 4 texels.
+
+    The kernel spans +-2 sigma; filter_px = 1 is the identity, 5 the paper's 5-tap filter (D.2).
+    """
+    filter_px = _check_int(filter_px, "filter_px", 1)
+    r = filter_px // 2
+    k = np.arange(-r, r + 1, dtype=np.float64)
+    w = np.exp(-0.5 * (k / (filter_px / 4.0)) ** 2)
+    return (w / w.sum()).astype(np.float32)
+
+
+def _row_band_matrix(height: int, y0: int, y1: int) -> np.ndarray:
+    """Clip-space crop mapping sample rows [y0, y1) of a ``height``-row image onto a full (y1 - y0)-row image."""
+    a = height / float(y1 - y0)
+    m = np.eye(4)
+    m[1, 1], m[1, 3] = a, 1.0 - a * (1.0 - 2.0 * y0 / height)
+    return m
+
+
+def _projection_row(projection) -> wp.vec4:
+    p = np.asarray(projection, np.float64)
+    return wp.vec4(float(p[2, 2]), float(p[2, 3]), float(p[3, 2]), float(p[3, 3]))
+
+
+def generate_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: int = 2, bits: int = 64,
+                               coloured: bool = False, max_translucent_layers: int = 16,
+                               device=None) -> MomentShadowMap:
+    """Moment shadow map of ``scene``'s casters in ``shadow_map``'s light view (D.1, D.3), unfiltered.
+
+    Args:
+        scene: the :class:`~warpscatter.scene.Scene` (``opacity``/``albedo`` per material, ``tri_material``).
+        shadow_map: the plain map from :func:`~warpscatter.shadows.shadow_map.render_shadow_map`; its view,
+            projection and resolution define the moment map.
+        supersampling: s >= 1: the light view is rasterized at s x s times the resolution and the moments of each
+            s x s block are averaged.
+        bits: 64 (Theta_4* in 4 x 16-bit unorm, Sec. 2.4) or 128 (canonical float32 moments, Sec. 2.3).
+        coloured: one map per colour channel (module docstring); otherwise one monochrome map.
+        max_translucent_layers: most translucent fragments blended per sample (depth peeling passes); exact while
+            no sample of the supersampled view lies behind more translucent fragments; beyond, the farthest are
+            dropped. The peeled layers are processed in row bands of at most TRANSLUCENT_BAND_BYTES.
+        device: Warp device.
+
+    Returns:
+        :class:`MomentShadowMap`.
+
+    Raises:
+        ValueError: unknown ``bits``, bad supersampling or layer count, opacities outside [0, 1].
+    """
+    device = default_device(device)
+    if bits not in STORAGE_OF_BITS:
+        raise ValueError(f"bits: expected 64 or 128, got {bits!r}")
+    s = _check_int(supersampling, "supersampling", 1, MAX_SUPERSAMPLING)
+    max_layers = _check_int(max_translucent_layers, "max_translucent_layers", 1)
+    storage = STORAGE_OF_BITS[bits]
+    h, w = shadow_map.shape
+    if s * max(h, w) > MAX_RESOLUTION:
+        raise ValueError(f"supersampling: {s} x {max(h, w)} texels exceeds the rasterizer's {MAX_RESOLUTION}")
+    geom = map_geometry(shadow_map)
+    alpha = channel_opacities(scene.opacity, scene.albedo, coloured)  # (K, C)
+    channels = alpha.shape[1]
+    tri_mat = np.asarray(scene.tri_material, np.int64)
+    if tri_mat.shape != (scene.triangle_count,) or (tri_mat.size and (tri_mat.min() < 0 or
+                                                                       tri_mat.max() >= alpha.shape[0])):
+        raise ValueError("scene.tri_material: expected one valid material index per triangle")
+    tri_alpha = alpha[tri_mat]  # (T, C)
+    opaque = np.asarray(scene.opacity, np.float64)[tri_mat] >= OPAQUE_ALPHA
+    translucent = ~opaque & (tri_alpha.max(axis=1, initial=0.0) >= float(ALPHA_TEST))
+    view_proj = shadow_map.view_projection
+    sw, sh = s * w, s * h
+    clamp = not shadow_map.perspective
+    # ---- opaque depth (supersampled) ----
+    if np.any(opaque):
+        opaque_ndc = rasterize(scene.vertices, scene.triangles[opaque], view_proj, sw, sh, clamp_depth=clamp,
+                               device=device).device_ndc_depth
+    else:
+        opaque_ndc = wp.full((1, sh, sw), np.inf, dtype=wp.float32, device=device)
+    # ---- translucent layers (depth peeling, nearest first), in row bands of bounded memory ----
+    texels = wp.empty((channels, h, w), dtype=wp.vec4, device=device)
+    dummy_ndc = wp.full((1, 1, 1), np.inf, dtype=wp.float32, device=device)
+    dummy_tri = wp.full((1, 1, 1), -1, dtype=wp.int32, device=device)
+    tail = [s, _projection_row(shadow_map.projection), float(geom.depth_scale), float(geom.depth_offset), int(storage),
+            texels]
+    if not np.any(translucent):
+        launch_rows(_generate_kernel, (h, w),
+                    [opaque_ndc, dummy_ndc, dummy_tri, 0, 0, wp.zeros((1, channels), dtype=wp.float32, device=device),
+                     *tail], device=device, min_chunk=_MIN_ROWS)  # fmt: skip
+        return MomentShadowMap(texels=texels, bits=bits, shadow_map=shadow_map, geometry=geom, supersampling=s)
+    tris = scene.triangles[translucent]
+    trans_alpha = wp.array(np.ascontiguousarray(tri_alpha[translucent]), dtype=wp.float32, device=device)
+    counts = coverage_count(scene.vertices, tris, view_proj, sw, sh, clamp_depth=clamp, device=device)
+    layers = min(int(counts.max()), max_layers)
+    band = max(1, min(h, TRANSLUCENT_BAND_BYTES // (_PEEL_BYTES * max(layers, 1) * sw * s)))  # map rows per band
+    for r0 in range(0, h, band):
+        r1 = min(h, r0 + band)
+        k = min(int(counts[r0 * s : r1 * s].max()), max_layers)
+        trans_ndc, trans_tri = dummy_ndc, dummy_tri
+        if k > 0:
+            crop = view_proj if (r0, r1) == (0, h) else _row_band_matrix(sh, r0 * s, r1 * s) @ view_proj
+            r = rasterize(scene.vertices, tris, crop, sw, (r1 - r0) * s, layers=k, clamp_depth=clamp, device=device)
+            trans_ndc, trans_tri = r.device_ndc_depth, r.device_tri_id
+        launch_rows(_generate_kernel, (r1 - r0, w), [opaque_ndc, trans_ndc, trans_tri, k, r0, trans_alpha, *tail],
+                    device=device, min_chunk=_MIN_ROWS)
+    return MomentShadowMap(texels=texels, bits=bits, shadow_map=shadow_map, geometry=geom, supersampling=s,
+                           translucent_layers=layers)
+
+
+def filter_moment_shadow_map(msm: MomentShadowMap, filter_px: int, device=None) -> MomentShadowMap:
+    """Two-pass separable Gaussian blur of the texels (D.2); returns a new :class:`MomentShadowMap`.
+
+    Args:
+        msm: the map to filter (unchanged).
+        filter_px: kernel width in texels (:func:`gaussian_weights`); 1 returns ``msm`` itself.
+        device: Warp device.
+    """
+    device = default_device(device)
+    weights = gaussian_weights(filter_px)
+    radius = len(weights) // 2
+    if radius == 0:
+        return msm
+    wts = wp.array(weights, dtype=wp.float32, device=device)
+    tmp = wp.empty_like(msm.texels)
+    out = wp.empty_like(msm.texels)
+    h, w = msm.shape
+    launch_rows(_gauss_rows_kernel, (h, w), [msm.texels, wts, radius, msm.storage, tmp], device=device,
+                min_chunk=_MIN_ROWS)
+    launch_rows(_gauss_columns_kernel, (h, w), [tmp, wts, radius, msm.storage, out], device=device,
+                min_chunk=_MIN_ROWS)
+    return replace(msm, texels=out, filter_px=int(filter_px))
+
+
+def render_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: int = 2, bits: int = 64,
+                             filter_px: int = 5, coloured: bool = False, max_translucent_layers: int = 16,
+                             timer=None, device=None) -> MomentShadowMap:
+    """Generate (stage ``msm_generate``) and filter (stage ``msm_filter``) a moment shadow map for hard shadows.
+
+    Arguments as in :func:`generate_moment_shadow_map` and :func:`filter_moment_shadow_map`; ``timer`` is an
+    optional :class:`~warpscatter.pipeline.StageTimer`-like callable returning a context manager per stage name.
+    """
+    from contextlib import nullcontext
+
+    def stage(name):
+        return timer(name) if timer is not None else nullcontext()
+
+    with stage("msm_generate"):
+        msm = generate_moment_shadow_map(scene, shadow_map, supersampling=supersampling, bits=bits,
+                                         coloured=coloured, max_translucent_layers=max_translucent_layers,
+                                         device=device)
+    with stage("msm_filter"):
+        return filter_moment_shadow_map(msm, filter_px, device=device)
+
+
+def point_arrays(points, normals, device):
+    """(shape, points, normals) as flat ``wp.vec3`` arrays; normals default to zero, broadcast to points."""
+    p = np.asarray(points, np.float32)
+    if p.ndim < 1 or p.shape[-1] != 3:
+        raise ValueError(f"points: expected an array of shape (..., 3), got {p.shape}")
+    shape = p.shape[:-1]
+    n = np.zeros_like(p) if normals is None else np.asarray(normals, np.float32)
+    try:
+        n = np.broadcast_to(n, p.shape)
+    except ValueError:
+        raise ValueError(f"normals: shape {np.shape(normals)} does not broadcast to points {p.shape}") from None
+    return (shape, wp.array(np.ascontiguousarray(p.reshape(-1, 3)), dtype=wp.vec3, device=device),
+            wp.array(np.ascontiguousarray(n.reshape(-1, 3)), dtype=wp.vec3, device=device))
+
+
+def msm_visibility_at(msm: MomentShadowMap, points, normals=None, *, depth_bias: float = 0.0,
+                      normal_offset_texels: float = 0.0, overdarkening: float = float(mm.OVERDARKENING_DIVISOR),
+                      device=None) -> np.ndarray:
+    """Host wrapper of :func:`msm_visibility_rgb` at world points (tests, bench).
+
+    Args:
+        msm: the (filtered) map.
+        points: (..., 3) world positions.
+        normals: (..., 3) receiver normals for the normal offset (default: none).
+        depth_bias, normal_offset_texels, overdarkening: see :func:`moment_params`.
+        device: Warp device.
+
+    Returns:
+        (..., C) float32 visibilities in [0, 1] (C = msm.channels).
+    """
+    device = default_device(device)
+    shape, pts, nrm = point_arrays(points, normals, device)
+    params = msm.params(depth_bias=depth_bias, normal_offset_texels=normal_offset_texels,
+                        overdarkening=overdarkening)
+    out = wp.zeros(pts.shape[0], dtype=wp.vec3, device=device)
+    launch_rows(_visibility_points_kernel, pts.shape[0], [params, msm.texels, pts, nrm, out], device=device,
+                min_chunk=1024)
+    return out.numpy()[:, : msm.channels].reshape(*shape, msm.channels)
