@@ -300,7 +300,7 @@ def test_render_section(tmp_path):
             }
         },
     )
-    assert "render.scattering.method: must be one of 'raymarch' or 'fourier' (got 'moonlight')" in msg
+    assert "render.scattering.method: must be one of 'raymarch', 'fourier', 'moments4', 'moments6' or 'epipolar' (got 'moonlight')" in msg
     assert "render.scattering.steps: must be >= 1" in msg
     assert "render.scattering.visibility: must be one of 'exact' or 'shadow_map'" in msg
     assert "render.scattering.shadow_map.resolution: each side must lie in [16," in msg

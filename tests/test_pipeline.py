@@ -151,3 +151,12 @@ def test_translucent_occluder_through_the_pipeline(storage):
     assert opaque[umbra].max() < 1e-3 * opaque[lit].min()
     ratio = half[umbra] / np.median(half[lit])
     assert np.abs(ratio - 0.5).max() < 0.03  # measured 0.0102 (both storages): the moment bias costs 1 %
+
+
+def test_light_grazing_a_flat_scene_renders():
+    """A directional light exactly parallel to a ground-only scene: the fitted shadow map stays finite."""
+    cfg = load_config(ROOT / "configs" / "quickstart.yaml", ["camera.width=32", "camera.height=18",
+                                                             "light.direction=[1,0,0]", "render.scattering.steps=4"])
+    cfg.scene.meshes = cfg.scene.meshes[:1]  # the ground plane only
+    images, _ = render_images(build_scene(cfg), cfg.render)
+    assert all(np.isfinite(img).all() for img in images.values())

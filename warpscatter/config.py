@@ -24,7 +24,7 @@ import re
 import types
 import typing
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Literal, Optional, Union
 
 import yaml
 from pydantic import (
@@ -60,6 +60,9 @@ __all__ = [
     "ShadowMapConfig",
     "ShadowsConfig",
     "FourierConfig",
+    "EpipolarConfig",
+    "MomentsConfig",
+    "PrefilteredConfig",
     "SpotLightConfig",
     "SurfacesConfig",
     "Transform",
@@ -68,7 +71,7 @@ __all__ = [
 ]
 
 #: Scattering methods implemented so far (``render.scattering.method``).
-SCATTERING_METHODS = ("raymarch", "fourier")
+SCATTERING_METHODS = ("raymarch", "fourier", "moments4", "moments6", "epipolar")
 #: Image outputs a render can write (``output.aovs``); ``color`` is always written.
 AOV_NAMES = ("color", "scattering", "surface", "depth")
 #: Mesh file suffixes accepted in ``scene.meshes.N.path`` (loaded with trimesh).
@@ -462,13 +465,12 @@ class ShadowMapConfig(_Model):
         return (r, r) if isinstance(r, int) else tuple(r)
 
 
-class FourierConfig(_Model):
-    """Parameters of the ``fourier`` method (Klehm 2014); see :class:`warpscatter.scattering.prefiltered.FourierSettings`."""
+class PrefilteredConfig(_Model):
+    """What the prefiltered methods (``fourier``, ``moments4``, ``moments6``) share: rectification, weights and the
+    epipole fallback; see :class:`warpscatter.scattering.prefiltered.PrefilteredSettings`."""
 
-    coefficients: Annotated[Int, Field(ge=4, le=128)] = 32
     weighting: Literal["transmittance", "average"] = "transmittance"
     reference_ray: Literal["pixels", "optimal", "bisectrix", "mean"] = "pixels"
-    storage_bits: Literal[0, 8] = 0
     guard_band: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.1
     epipole_block: Annotated[Int, Field(ge=0)] = 32
     rectification: Literal["auto", "projective", "nonlinear"] = "auto"
@@ -477,12 +479,56 @@ class FourierConfig(_Model):
     projective_weights: Literal["exact", "cross_ratio"] = "exact"
     splits: Annotated[Int, Field(ge=1, le=16)] = 1
 
+
+class FourierConfig(_Model):
+    """The ``fourier`` method's representation (Klehm 2014): M coefficients, float32 or 8-bit storage."""
+
+    coefficients: Annotated[Int, Field(ge=4, le=128)] = 32
+    storage_bits: Literal[0, 8] = 0
+
     @field_validator("coefficients")
     @classmethod
     def _even(cls, v: int) -> int:
         if v % 2:
             raise ValueError(f"must be even (cos/sin pairs), got {v}")
         return v
+
+
+class MomentsConfig(_Model):
+    """The ``moments4``/``moments6`` methods' representation (Peters 2017 Sec. 5.3-5.4).
+
+    ``storage_bits``: 64 or 128 for four moments; 64 (60 used), 96 or 192 for six (null: 64).
+    ``overestimation``: ``adaptive`` (Sec. 5.3.1) or a fixed weight in [0, 1] between the lower and upper bound.
+    """
+
+    storage_bits: Optional[Literal[64, 96, 128, 192]] = None
+    overestimation: Union[Literal["adaptive"], Annotated[Float, Field(ge=0.0, le=1.0)]] = "adaptive"
+
+
+class EpipolarConfig(_Model):
+    """The ``epipolar`` method (Engelhardt & Dachsbacher 2010); see
+    :class:`warpscatter.scattering.epipolar.EpipolarSettings` for every key's meaning."""
+
+    lines: Annotated[Int, Field(ge=8, le=16384)] = 1024
+    initial_samples: Annotated[Int, Field(ge=2, le=1024)] = 16
+    samples_per_line: Optional[Annotated[Int, Field(ge=2)]] = None
+    depth_threshold: Annotated[Float, Field(gt=0.0)] = 0.05
+    kernel: Literal["gaussian", "shepard", "threshold"] = "gaussian"
+    taps: Annotated[Int, Field(ge=3, le=5)] = 3
+    distance_falloff: Annotated[Float, Field(ge=0.0)] = 0.5
+    depth_sigma: Annotated[Float, Field(gt=0.0)] = 0.1
+    min_weight: Annotated[Float, Field(gt=0.0, le=1.0)] = 0.05
+    outer_lines: Annotated[Int, Field(ge=0, le=64)] = 2
+    prefilter_light_texture: Bool = False
+    fallback_stride: Annotated[Int, Field(ge=1, le=256)] = 4
+    max_epipole_distance: Annotated[Float, Field(gt=0.0)] = 1000.0
+
+    @model_validator(mode="after")
+    def _samples(self) -> EpipolarConfig:
+        if self.samples_per_line is not None and self.samples_per_line < self.initial_samples:
+            raise ValueError(f"samples_per_line ({self.samples_per_line}) must be >= initial_samples "
+                             f"({self.initial_samples})")
+        return self
 
 
 class ScatteringConfig(_Model):
@@ -493,7 +539,21 @@ class ScatteringConfig(_Model):
     steps: Annotated[Int, Field(ge=1)] = 128
     seed: Int = 0
     shadow_map: ShadowMapConfig = Field(default_factory=dict)
+    prefiltered: PrefilteredConfig = Field(default_factory=dict)
     fourier: FourierConfig = Field(default_factory=dict)
+    moments: MomentsConfig = Field(default_factory=dict)
+    epipolar: EpipolarConfig = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _moment_storage(self) -> ScatteringConfig:
+        bits = self.moments.storage_bits
+        allowed = {"moments4": (64, 128), "moments6": (64, 96, 192)}.get(self.method)
+        if allowed and bits is not None and bits not in allowed:
+            raise ValueError(f"moments.storage_bits {bits} is not a {self.method} mode (choose from "
+                             f"{', '.join(map(str, allowed))})")
+        if allowed and self.prefiltered.splits != 1:
+            raise ValueError("prefiltered.splits > 1 is implemented for the fourier method only")
+        return self
 
 
 class SurfacesConfig(_Model):
@@ -587,7 +647,7 @@ class Config(_Model):
     @model_validator(mode="after")
     def _method_fits_light(self) -> Config:
         method = self.render.scattering.method
-        if method == "fourier" and self.light.type != "directional":
+        if method in ("fourier", "moments4", "moments6") and self.light.type != "directional":
             raise ValueError(f"render.scattering.method {method!r} needs a directional light (light.type is "
                              f"{self.light.type!r})")
         return self

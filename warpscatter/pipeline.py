@@ -74,9 +74,9 @@ def kernel_modules() -> list:
     """The warpscatter modules holding kernels a render launches (compiled in the ``compile`` stage)."""
     from . import gbuffer, raster, shading
     from .shadows import msm, soft
-    from .scattering import prefilter, prefiltered, raymarch, rectify
+    from .scattering import epipolar, prefilter, prefiltered, raymarch, rectify
 
-    return [raster, gbuffer, raymarch, rectify, prefilter, prefiltered, msm, soft, shading]
+    return [raster, gbuffer, raymarch, rectify, prefilter, prefiltered, epipolar, msm, soft, shading]
 
 
 def compile_kernels(device=None) -> None:
@@ -99,7 +99,8 @@ def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=
         (images, stats): images as in :func:`warpscatter.shading.shade_and_compose`; stats with sizes.
     """
     from .gbuffer import gbuffer_raster, gbuffer_raycast
-    from .scattering.prefiltered import FourierSettings, render_fourier
+    from .scattering.epipolar import EpipolarSettings, render_epipolar
+    from .scattering.prefiltered import PrefilteredSettings, render_prefiltered
     from .scattering.raymarch import raymarch
     from .scene import DeviceGeometry
     from .shading import ShadowSettings, prepare_shadows, shade_and_compose
@@ -111,14 +112,15 @@ def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=
     if sc.method not in METHODS:
         raise ValueError(f"render.scattering.method: unknown method {sc.method!r} (choose from {', '.join(METHODS)})")
     exact = sc.method == "raymarch" and sc.visibility == "exact"  # the reference: ray-cast everything
+    marches_exact = sc.method in ("raymarch", "epipolar") and sc.visibility == "exact"
     shadows_on = render_cfg.surfaces.enabled and render_cfg.shadows.method != "none"
-    need_shadow_map = shadows_on or not exact
+    need_shadow_map = shadows_on or not marches_exact
 
     with timer("compile"):
         compile_kernels(device)
     with timer("upload"):
         geometry = DeviceGeometry(scene, device)
-    if exact:
+    if marches_exact:
         with timer("bvh"):
             _ = geometry.mesh
     with timer("gbuffer"):
@@ -133,15 +135,22 @@ def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=
             l_scat = raymarch(scene, gbuf, steps=sc.steps, visibility=sc.visibility, geometry=geometry,
                               shadow_map=shadow_map, seed=sc.seed, shadow_bias_texels=sc.shadow_map.bias,
                               progress=stage.report, device=device)
+    elif sc.method == "epipolar":
+        l_scat, info = render_epipolar(scene, gbuf, settings=EpipolarSettings(**sc.epipolar.model_dump()),
+                                       steps=sc.steps, visibility=sc.visibility, geometry=geometry,
+                                       shadow_map=shadow_map, seed=sc.seed, shadow_bias_texels=sc.shadow_map.bias,
+                                       timer=timer, device=device)
     else:
-        f = sc.fourier
-        settings = FourierSettings(coefficients=f.coefficients, weighting=f.weighting, reference_ray=f.reference_ray,
-                                   bits=f.storage_bits, guard_band=f.guard_band, epipole_block=f.epipole_block,
-                                   epipole_steps=sc.steps, rectification=f.rectification,
-                                   epipole_margin=f.epipole_margin, regions=f.regions,
-                                   projective_weights=f.projective_weights, splits=f.splits)
-        l_scat, info = render_fourier(scene, gbuf, shadow_map, map_size=sc.shadow_map.size, settings=settings,
-                                      seed=sc.seed, shadow_bias_texels=sc.shadow_map.bias, timer=timer, device=device)
+        p, f, mo = sc.prefiltered, sc.fourier, sc.moments
+        settings = PrefilteredSettings(basis=sc.method, coefficients=f.coefficients, bits=f.storage_bits,
+                                       moment_storage_bits=mo.storage_bits, overestimation=mo.overestimation,
+                                       weighting=p.weighting, reference_ray=p.reference_ray,
+                                       guard_band=p.guard_band, epipole_block=p.epipole_block, epipole_steps=sc.steps,
+                                       rectification=p.rectification, epipole_margin=p.epipole_margin,
+                                       regions=p.regions, projective_weights=p.projective_weights, splits=p.splits)
+        l_scat, info = render_prefiltered(scene, gbuf, shadow_map, map_size=sc.shadow_map.size, settings=settings,
+                                          seed=sc.seed, shadow_bias_texels=sc.shadow_map.bias, timer=timer,
+                                          device=device)
     shadows = None
     if shadows_on:
         sh = render_cfg.shadows
@@ -159,7 +168,7 @@ def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=
         "triangles": scene.triangle_count,
         "resolution": [scene.camera.width, scene.camera.height],
         "method": sc.method,
-        "visibility": sc.visibility if sc.method == "raymarch" else None,
+        "visibility": sc.visibility if sc.method in ("raymarch", "epipolar") else None,
         "steps": sc.steps,
         **info,
         "shadow_map": list(shadow_map.shape[::-1]) if shadow_map is not None else None,

@@ -57,6 +57,7 @@ import warp as wp
 
 from ..parallel import launch_rows
 from ..scene.medium import transmittance_integral
+from ..shadows import moments as mm
 from ..wpinit import default_device, module_options
 from .rectify import NonlinearRectification, NonlinearRectParams, world_to_rectified
 
@@ -471,6 +472,99 @@ def prefilter_depth_kernel(
                 sn = sn_next
 
 
+# ---- moments as the basis (Peters 2017 Sec. 5.3-5.4) ---------------------------------------------------
+
+
+@wp.func
+def stored_moments(depth01: float, num_moments: int, storage: int) -> mm.vec6:
+    """Texel of a rectified MOMENT map: the moments of signed depth z = 2 depth01 - 1 as the storage mode holds
+    them (Theta* and fixed point for the quantized modes; Peters 2017 Sec. 5.3, 5.4.3). 4 moments use slots 0-3."""
+    z = 2.0 * depth01 - 1.0
+    if num_moments == 4:
+        t = mm.store_moments4(mm.moments4_from_depth(z), storage)
+        return mm.vec6(t[0], t[1], t[2], t[3], 0.0, 0.0)
+    return mm.store_moments6(mm.moments6_from_depth(z), storage)
+
+
+@wp.func
+def requantize_moments(t: mm.vec6, num_moments: int, storage: int) -> mm.vec6:
+    """A filtered texel written back in the storage format: the quantization transforms are affine, so the
+    weighted mean of stored texels only needs rounding to the mode's fixed point again (float modes: unchanged)."""
+    bits = int(0)
+    if num_moments == 4 and storage == mm.STORAGE4_UNORM16:
+        bits = mm.UNORM_BITS_STORAGE4_UNORM16
+    if num_moments == 6 and storage == mm.STORAGE6_UNORM16:
+        bits = mm.UNORM_BITS_STORAGE6_UNORM16
+    if num_moments == 6 and storage == mm.STORAGE6_UNORM10:
+        bits = mm.UNORM_BITS_STORAGE6_UNORM10
+    if bits == 0:
+        return t
+    return mm.vec6(mm.unorm_round(t[0], bits), mm.unorm_round(t[1], bits), mm.unorm_round(t[2], bits),
+                   mm.unorm_round(t[3], bits), mm.unorm_round(t[4], bits), mm.unorm_round(t[5], bits))
+
+
+@wp.kernel
+def prefilter_moments_kernel(
+    depth: wp.array2d(dtype=wp.float32),  # (rows, cols) rectified depth in [0, 1]
+    optical_step: wp.array(dtype=wp.float32),  # (rows,) tau_j per unit column length (0 = average)
+    column_length: wp.array(dtype=wp.float32),  # (cols,) relative column lengths, or (1,): uniform columns
+    num_moments: int,  # 4 or 6
+    storage: int,  # moments.STORAGE4_* / STORAGE6_*
+    out: wp.array3d(dtype=wp.float32),  # (rows, cols, num_moments) normalised filtered stored moments
+    offset: int,
+):
+    # Peters 2017 Sec. 5.1.1 and D.5: transmittance-weighted prefix sums of the stored moments, with the
+    # same per-texel weights as the Fourier filter (Klehm 2014 Eq. 11-12); one thread per row.
+    j = wp.tid() + offset
+    cols = depth.shape[1]
+    tau = optical_step[j]
+    uniform = column_length.shape[0] == 1
+    w_first, step = texel_weight(1.0, column_length[0], tau * column_length[0])
+    state = mm.vec6()
+    transmittance = float(1.0)
+    sum_w = float(0.0)
+    for i in range(cols):
+        w = float(0.0)
+        if uniform:
+            w = transmittance * w_first
+            transmittance = transmittance * step
+        else:
+            length = column_length[i]
+            w, transmittance = texel_weight(transmittance, length, tau * length)
+        sum_w += w
+        if sum_w > 0.0:
+            state = state + (w / sum_w) * (stored_moments(depth[j, i], num_moments, storage) - state)
+        q = requantize_moments(state, num_moments, storage)
+        for k in range(num_moments):
+            out[j, i, k] = q[k]
+
+
+@wp.func
+def moments_visibility(filtered: wp.array3d(dtype=wp.float32), u: float, v: float, z_r: float, wrap_rows: int,
+                       storage: int, beta: float) -> float:
+    """Visible fraction of the view ray ending at rectified (u, v) with depth z_r from prefiltered moments.
+
+    Bilinear fetch of the filtered stored moments, back to canonical moments and biased for the storage mode,
+    then Algorithm 1 (4 moments) or Sec. 5.4 (6 moments) at z_f = 2 z_r - 1 with the overestimation weight
+    ``beta`` between the sharp lower (0) and upper (1) visibility bounds (Peters 2017 Sec. 5.3.1).
+    """
+    j0, j1, ay, i0, i1, ax = texel_footprint(filtered.shape[0], filtered.shape[1], u, v, wrap_rows)
+    num = filtered.shape[2]
+    w00 = (1.0 - ax) * (1.0 - ay)
+    w01 = ax * (1.0 - ay)
+    w10 = (1.0 - ax) * ay
+    w11 = ax * ay
+    t = mm.vec6()
+    for k in range(num):
+        t[k] = (w00 * filtered[j0, i0, k] + w01 * filtered[j0, i1, k] + w10 * filtered[j1, i0, k]
+                + w11 * filtered[j1, i1, k])
+    z_f = 2.0 * z_r - 1.0
+    if num == 4:
+        b = mm.load_biased_moments4(wp.vec4(t[0], t[1], t[2], t[3]), storage)
+        return 1.0 - mm.msm4_interpolated_shadow_intensity(b, z_f, beta)
+    return mm.msm6_visibility(mm.load_biased_moments6(t, storage), z_f, beta)
+
+
 @wp.kernel
 def evaluate_coords_kernel(
     filtered_basis: wp.array3d(dtype=wp.float32),
@@ -697,6 +791,46 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
                  levels, out, sums, int(splits > 1)], device=device)
     return FilteredBasis(basis=out, weight_sums=sums, region_weights=wp.array(region, dtype=wp.float32,
                                                                               device=device), splits=splits)
+
+
+#: Storage modes of prefiltered moment maps: bits per texel -> moments.STORAGE*_ constant, per moment count.
+MOMENT_STORAGE = {4: {64: int(mm.STORAGE4_UNORM16), 128: int(mm.STORAGE4_FLOAT32)},
+                  6: {64: int(mm.STORAGE6_UNORM10), 96: int(mm.STORAGE6_UNORM16), 192: int(mm.STORAGE6_FLOAT32)}}
+
+
+def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, column_length=None, *,
+                      storage_bits: int | None = None, device=None) -> wp.array:
+    """Transmittance-weighted prefix sums of moments of the rectified depth (Peters 2017 Sec. 5.1.1, 5.3-5.4, D.5).
+
+    Args:
+        rectified_depth: (rows, cols) float32 depth in [0, 1].
+        num_moments: 4 or 6.
+        optical_step, column_length: per-row optical steps and per-column lengths as in :func:`prefilter_weighted`.
+        storage_bits: bits per texel, 64 or 128 (4 moments) / 64 (60 used), 96 or 192 (6 moments); None: the
+            smallest (64) mode. Quantized modes store Theta* of the moments in fixed point (emulated).
+        device: Warp device.
+
+    Returns:
+        (rows, cols, num_moments) float32 array of normalised filtered texels in the storage format.
+    """
+    device = default_device(device)
+    if num_moments not in MOMENT_STORAGE:
+        raise ValueError(f"num_moments must be 4 or 6, got {num_moments}")
+    bits = 64 if storage_bits is None else storage_bits
+    if bits not in MOMENT_STORAGE[num_moments]:
+        raise ValueError(f"storage_bits for {num_moments} moments must be one of "
+                         f"{sorted(MOMENT_STORAGE[num_moments])}, got {storage_bits}")
+    depth = _as_array(rectified_depth, wp.float32, 2, "rectified_depth", device)
+    rows, cols = depth.shape
+    tau = _optical_steps(optical_step, rows, device)
+    lengths = _column_lengths(column_length, cols)
+    uniform = bool(np.all(lengths == lengths[0]))
+    out = wp.empty((rows, cols, num_moments), dtype=wp.float32, device=device)
+    launch_rows(prefilter_moments_kernel, rows,
+                [depth, tau, wp.array((lengths[:1] if uniform else lengths).astype(np.float32), dtype=wp.float32,
+                                      device=device), int(num_moments), MOMENT_STORAGE[num_moments][bits], out],
+                device=device)
+    return out
 
 
 def prefilter_depth(rectified_depth, num_coefficients: int, optical_step=None, *, bits: int = 0,

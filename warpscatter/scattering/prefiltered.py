@@ -1,4 +1,8 @@
-"""The ``fourier`` render method: prefiltered single scattering on a rectified shadow map (Klehm 2014).
+"""Prefiltered single scattering on a rectified shadow map: the ``fourier`` (Klehm 2014), ``moments4`` and
+``moments6`` (Peters 2017 Sec. 5) render methods. They share the rectification, the transmittance-weighted
+per-row prefix sums, the per-pixel look-up and the epipole fallback; only the per-texel visibility
+representation differs: M Fourier coefficients (Klehm Eq. 8) or 4 / 6 moments of the signed rectified depth
+with Algorithm 1 and adaptive overestimation at evaluation (Peters Sec. 5.3-5.4).
 
 Stages (names as they appear in timings):
 
@@ -26,12 +30,16 @@ Stages (names as they appear in timings):
 
 Directional lights only (both rectifications are built for parallel light rays).
 
-Parameters (:class:`FourierSettings`, config ``render.scattering.fourier``):
+Parameters (:class:`PrefilteredSettings`; config ``render.scattering.prefiltered`` for the shared ones,
+``render.scattering.fourier`` and ``render.scattering.moments`` for the representation):
 
 ==================  =========  =============  ==========================================================
 name                type       default        meaning
 ==================  =========  =============  ==========================================================
+basis               str        fourier        ``fourier``, ``moments4`` or ``moments6`` (the render method)
 coefficients        int        32             M Fourier coefficients (even, 4..128)
+moment_storage_bits int        64             moments4: 64 (Theta4*, 16-bit) or 128; moments6: 64 (10-bit), 96, 192
+overestimation      str|float  adaptive       moments: beta between lower (0) and upper (1) visibility bounds
 weighting           str        transmittance  ``transmittance`` (Sec. 3.2) or ``average`` (Eq. 2)
 reference_ray       str        pixels         per-slice reference ray: pixels (median pixel ray), optimal, bisectrix, mean
 bits                int        0              0 float32 storage, 8 emulates RGBA8 (App. A)
@@ -60,7 +68,16 @@ from ..scene.lights import DirectionalLight, LightParams, light_params
 from ..scene.medium import phase_eval, transmittance_integral
 from ..wpinit import default_device, module_options
 from . import rectify, rectify_projective
-from .prefilter import MAX_SPLITS, FilteredBasis, prefilter_weighted, prefiltered_visibility_split
+from ..shadows import moments as mm
+from .prefilter import (
+    MAX_SPLITS,
+    MOMENT_STORAGE,
+    FilteredBasis,
+    moments_visibility,
+    prefilter_moments,
+    prefilter_weighted,
+    prefiltered_visibility_split,
+)
 from .raymarch import MediumParams, medium_params, raymarch
 from .rectify import NonlinearRectification, NonlinearRectParams, reference_ray, resample_shadow_map
 from .rectify_projective import (
@@ -81,12 +98,21 @@ RECT_NONLINEAR = 0
 RECT_PROJECTIVE = 1
 
 
+#: The visibility representations of prefiltered single scattering (render methods).
+BASES = ("fourier", "moments4", "moments6")
+
+
 @dataclass(frozen=True)
-class FourierSettings:
-    """Parameters of the ``fourier`` method (see the module doc's table).
+class PrefilteredSettings:
+    """Parameters of the prefiltered methods ``fourier``, ``moments4`` and ``moments6`` (see the module doc's table).
 
     Attributes:
+        basis: ``"fourier"`` (Klehm 2014), ``"moments4"`` or ``"moments6"`` (Peters 2017 Sec. 5.3-5.4).
         coefficients: M, number of Fourier coefficients (even, 4..128).
+        moment_storage_bits: bits per texel of the moment maps: 64 or 128 (4 moments), 64 (60 used), 96 or 192
+            (6 moments); None: 64.
+        overestimation: the weight beta between the sharp lower (0) and upper (1) visibility bounds of the
+            moment methods: ``"adaptive"`` (beta = (1 + omega_l . omega_p) / 2, Peters 2017 Sec. 5.3.1) or a number.
         weighting: ``"transmittance"`` (Klehm Sec. 3.2, Listing 2) or ``"average"`` (Listing 1, Eq. 2).
         reference_ray: per-slice reference ray for the weights: ``"optimal"`` (k_ref = sqrt(k_min k_max)
             where defined, else bisectrix), ``"bisectrix"``, ``"mean"`` or ``"pixels"`` (median of the slice's
@@ -105,7 +131,10 @@ class FourierSettings:
         splits: regions per row filtered independently (Klehm 2014 Sec. 3.3; 1 = off); exact up to rounding.
     """
 
+    basis: str = "fourier"
     coefficients: int = 32
+    moment_storage_bits: int | None = None
+    overestimation: str | float = "adaptive"
     weighting: str = "transmittance"
     reference_ray: str = "pixels"
     bits: int = 0
@@ -118,8 +147,20 @@ class FourierSettings:
     projective_weights: str = "exact"
     splits: int = 1
 
-    def validate(self) -> "FourierSettings":
+    def validate(self) -> "PrefilteredSettings":
         """Raise ValueError naming the first bad field; return self."""
+        if self.basis not in BASES:
+            raise ValueError(f"basis must be one of {', '.join(BASES)}, got {self.basis!r}")
+        if self.basis != "fourier":
+            m = self.num_moments
+            if self.moment_storage_bits is not None and self.moment_storage_bits not in MOMENT_STORAGE[m]:
+                raise ValueError(f"moment_storage_bits for {m} moments must be one of {sorted(MOMENT_STORAGE[m])}, "
+                                 f"got {self.moment_storage_bits}")
+            if self.splits != 1:
+                raise ValueError("splits > 1 is implemented for the fourier basis only")
+            if self.overestimation != "adaptive" and not (isinstance(self.overestimation, (int, float))
+                                                          and 0.0 <= self.overestimation <= 1.0):
+                raise ValueError(f"overestimation must be 'adaptive' or a number in [0, 1], got {self.overestimation!r}")
         if self.weighting not in ("transmittance", "average"):
             raise ValueError(f"weighting must be 'transmittance' or 'average', got {self.weighting!r}")
         if self.reference_ray not in ("optimal", "bisectrix", "mean", "pixels"):
@@ -136,6 +177,18 @@ class FourierSettings:
         if not (np.isfinite(self.epipole_margin) and self.epipole_margin >= 0.0):
             raise ValueError(f"epipole_margin must be finite and >= 0, got {self.epipole_margin}")
         return self
+
+    @property
+    def num_moments(self) -> int:
+        """4 or 6 for the moment bases (0 for fourier)."""
+        return {"moments4": 4, "moments6": 6}.get(self.basis, 0)
+
+    @property
+    def storage_bits(self) -> int:
+        """Bits per texel of the filtered map the evaluation reads."""
+        if self.basis == "fourier":
+            return self.coefficients * (8 if self.bits == 8 else 32)
+        return 64 if self.moment_storage_bits is None else int(self.moment_storage_bits)
 
 
 # ---- one evaluation for both rectifications ----------------------------------------------------------------
@@ -183,28 +236,42 @@ def rectification_params(rect) -> RectificationParams:
     return p
 
 
+BASIS_FOURIER = 0
+BASIS_MOMENTS = 1
+
+
 @wp.kernel
-def evaluate_fourier_kernel(
+def evaluate_prefiltered_kernel(
     cam: CameraParams,
     distance: wp.array2d(dtype=wp.float32),
     rect: RectificationParams,
-    filtered_basis: wp.array3d(dtype=wp.float32),
-    weight_sums: wp.array2d(dtype=wp.float32),
+    basis: int,  # BASIS_FOURIER or BASIS_MOMENTS
+    filtered: wp.array3d(dtype=wp.float32),  # filtered Fourier basis or stored moments, (rows, cols, M)
+    weight_sums: wp.array2d(dtype=wp.float32),  # Fourier split regions (see prefiltered_visibility_split)
     region_weights: wp.array2d(dtype=wp.float32),
     splits: int,
+    moment_storage: int,  # moments.STORAGE*_ of the moment map
+    beta: float,  # moment overestimation weight in [0, 1], or < 0: adaptive (Peters 2017 Sec. 5.3.1)
     light: LightParams,
     med: MediumParams,
     out: wp.array2d(dtype=wp.vec3),
     offset: int,
 ):
-    # Klehm 2014 Listing 4: one filtered-basis fetch (per split region) and one dot product per pixel
+    # Klehm 2014 Listing 4 / Peters 2017 D.5: one filtered look-up and one reconstruction per pixel
     j, i = wp.tid()
     j += offset
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     s = distance[j, i]
     c = rectified_coords(rect, cam.position + d * s)
-    f = prefiltered_visibility_split(filtered_basis, weight_sums, region_weights, splits, c[0], c[1], c[2],
-                                     rectification_wraps(rect))
+    wrap = rectification_wraps(rect)
+    f = float(0.0)
+    if basis == BASIS_FOURIER:
+        f = prefiltered_visibility_split(filtered, weight_sums, region_weights, splits, c[0], c[1], c[2], wrap)
+    else:
+        b = beta
+        if b < 0.0:
+            b = mm.adaptive_overestimation_weight(light.direction, d)
+        f = moments_visibility(filtered, c[0], c[1], c[2], wrap, moment_storage, b)
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
     out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
 
@@ -246,7 +313,7 @@ def epipole_regions(camera, light_direction, block: int) -> list[tuple[int, int,
     return regions
 
 
-def row_weights(rect, settings: FourierSettings, sigma_t: float,
+def row_weights(rect, settings: PrefilteredSettings, sigma_t: float,
                 camera=None) -> tuple[np.ndarray, np.ndarray | None, dict]:
     """Per-row optical steps and per-column lengths of the prefilter weights (Klehm 2014 Sec. 3.2, Eq. 11-12).
 
@@ -273,7 +340,7 @@ def row_weights(rect, settings: FourierSettings, sigma_t: float,
     return tau, lengths / lengths[0], info
 
 
-def build_rectification(scene, settings: FourierSettings, rows: int, cols: int):
+def build_rectification(scene, settings: PrefilteredSettings, rows: int, cols: int):
     """Choose and build the rectification for ``scene``'s camera and directional light.
 
     Returns:
@@ -297,9 +364,10 @@ def build_rectification(scene, settings: FourierSettings, rows: int, cols: int):
     return rect, choice
 
 
-def render_fourier(scene, gbuffer, shadow_map, *, map_size: tuple[int, int], settings: FourierSettings = None,
-                   seed: int = 0, shadow_bias_texels: float = 1.0, timer=None, device=None):
-    """Prefiltered single scattering with a Fourier basis (the ``fourier`` method; see the module doc).
+def render_prefiltered(scene, gbuffer, shadow_map, *, map_size: tuple[int, int],
+                       settings: PrefilteredSettings = None, seed: int = 0, shadow_bias_texels: float = 1.0, timer=None,
+                       device=None):
+    """Prefiltered single scattering: the ``fourier``, ``moments4`` and ``moments6`` methods (see the module doc).
 
     Args:
         scene: the :class:`~warpscatter.scene.Scene` (directional light).
@@ -307,7 +375,7 @@ def render_fourier(scene, gbuffer, shadow_map, *, map_size: tuple[int, int], set
         shadow_map: the light's :class:`~warpscatter.shadows.shadow_map.ShadowMap` (orthographic); resampled
             by the non-linear rectification and ray-marched in the epipole blocks.
         map_size: (cols, rows) of the rectified map: texels along each view ray x epipolar slices.
-        settings: :class:`FourierSettings`.
+        settings: :class:`PrefilteredSettings` (``basis`` selects the method).
         seed: jitter seed of the epipole block's ray marching.
         shadow_bias_texels: shadow-map bias of the epipole block's ray marching.
         timer: optional callable ``timer(stage_name)`` returning a context manager (e.g. a pipeline StageTimer).
@@ -321,9 +389,9 @@ def render_fourier(scene, gbuffer, shadow_map, *, map_size: tuple[int, int], set
         ValueError: for a non-directional light or bad settings.
     """
     device = default_device(device)
-    settings = (settings or FourierSettings()).validate()
+    settings = (settings or PrefilteredSettings()).validate()
     if not isinstance(scene.light, DirectionalLight):
-        raise ValueError("the fourier method needs a directional light (render.scattering.method)")
+        raise ValueError(f"the {settings.basis} method needs a directional light (render.scattering.method)")
     stage = timer or (lambda name: nullcontext())
     cam = scene.camera
     cols, rows = map_size
@@ -336,14 +404,23 @@ def render_fourier(scene, gbuffer, shadow_map, *, map_size: tuple[int, int], set
                                             world_to_view=shadow_map.view, device=device)
     with stage("prefilter"):
         tau, lengths, weight_info = row_weights(rect, settings, scene.medium.sigma_t, cam)
-        fb: FilteredBasis = prefilter_weighted(rectified, settings.coefficients, tau, lengths, splits=settings.splits,
-                                               bits=settings.bits, device=device)
+        if settings.basis == "fourier":
+            fb: FilteredBasis = prefilter_weighted(rectified, settings.coefficients, tau, lengths,
+                                                   splits=settings.splits, bits=settings.bits, device=device)
+            basis, storage = BASIS_FOURIER, 0
+        else:
+            moments = prefilter_moments(rectified, settings.num_moments, tau, lengths,
+                                        storage_bits=settings.storage_bits, device=device)
+            fb = FilteredBasis(basis=moments, weight_sums=wp.zeros((1, 1), dtype=wp.float32, device=device),
+                               region_weights=wp.zeros((1, 1), dtype=wp.float32, device=device), splits=1)
+            basis, storage = BASIS_MOMENTS, MOMENT_STORAGE[settings.num_moments][settings.storage_bits]
     with stage("evaluate"):
+        beta = -1.0 if settings.overestimation == "adaptive" else float(settings.overestimation)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
-        launch_rows(evaluate_fourier_kernel, (cam.height, cam.width),
-                    [cam.params(), gbuffer.distance, rectification_params(rect), fb.basis, fb.weight_sums,
-                     fb.region_weights, fb.splits, light_params(scene.light), medium_params(scene.medium), out],
-                    device=device)
+        launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
+                    [cam.params(), gbuffer.distance, rectification_params(rect), basis, fb.basis, fb.weight_sums,
+                     fb.region_weights, fb.splits, storage, beta, light_params(scene.light),
+                     medium_params(scene.medium), out], device=device)
     regions = epipole_regions(cam, scene.light.direction, settings.epipole_block)
     if regions:
         with stage("epipole"):
@@ -356,9 +433,11 @@ def render_fourier(scene, gbuffer, shadow_map, *, map_size: tuple[int, int], set
         "rectification_reason": choice.reason,
         "epipole_distance": round(choice.epipole_distance, 4) if np.isfinite(choice.epipole_distance) else None,
         "rectified_map": [cols, rows],
-        "coefficients": settings.coefficients,
-        "splits": fb.splits,
-        "filtered_basis_bytes": int(rows * cols * settings.coefficients * (1 if settings.bits == 8 else 4)),
+        "basis": settings.basis,
+        **({"coefficients": settings.coefficients, "splits": fb.splits} if settings.basis == "fourier" else
+           {"overestimation": settings.overestimation}),
+        "bits_per_texel": settings.storage_bits,
+        "filtered_map_bytes": int(rows * cols * settings.storage_bits // 8),
         "epipole_blocks": [list(r[:4]) + [r[4]] for r in regions],
     }
     if isinstance(rect, ProjectiveRectification):

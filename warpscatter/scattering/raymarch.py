@@ -152,22 +152,9 @@ def raymarch(scene, gbuffer, *, steps: int = 128, visibility: str = "exact", geo
     device = default_device(device)
     if steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
-    if visibility not in ("exact", "shadow_map"):
-        raise ValueError(f"visibility must be 'exact' or 'shadow_map', got {visibility!r}")
     cam = scene.camera
-    lo, hi = scene.bounds()
-    eps = 1e-5 * float(max(1.0, abs(lo).max(), abs(hi).max()))
-    if visibility == "exact":
-        if geometry is None:
-            raise ValueError("exact visibility needs the scene's DeviceGeometry")
-        mesh_id, vis_mode = geometry.mesh.id, VISIBILITY_EXACT
-        sm_params, sm_depth, bias = _dummy_shadow(device)
-    else:
-        if shadow_map is None:
-            raise ValueError("shadow_map visibility needs a rendered ShadowMap")
-        mesh_id, vis_mode = wp.uint64(0), VISIBILITY_SHADOW_MAP
-        sm_params, sm_depth = shadow_map.params(), shadow_map.device_depth(device)
-        bias = shadow_bias_texels * shadow_map.texel_world
+    vis_mode, mesh_id, eps, sm_params, sm_depth, bias = visibility_inputs(scene, visibility, geometry, shadow_map,
+                                                                          shadow_bias_texels, device)
     if out is None:
         out = wp.zeros((cam.height, cam.width), dtype=wp.vec3, device=device)
     x0, y0, w, h = region if region is not None else (0, 0, cam.width, cam.height)
@@ -180,7 +167,23 @@ def raymarch(scene, gbuffer, *, steps: int = 128, visibility: str = "exact", geo
     return out
 
 
-def _dummy_shadow(device):
-    p = ShadowMapParams()
-    p.width = p.height = 1
-    return p, wp.zeros((1, 1), dtype=wp.float32, device=device), 0.0
+def visibility_inputs(scene, visibility: str, geometry, shadow_map, shadow_bias_texels: float, device):
+    """Kernel inputs of a visibility mode: (vis_mode, mesh id, eps, shadow-map params, depth, bias in world units).
+
+    ``exact`` needs ``geometry`` (its BVH is built on first use); ``shadow_map`` needs ``shadow_map``. ``eps`` is
+    the shadow-ray start offset, 1e-5 of the scene's extent. Shared by every method that marches rays.
+    """
+    if visibility not in ("exact", "shadow_map"):
+        raise ValueError(f"visibility must be 'exact' or 'shadow_map', got {visibility!r}")
+    lo, hi = scene.bounds()
+    eps = 1e-5 * float(max(1.0, abs(lo).max(), abs(hi).max()))
+    if visibility == "exact":
+        if geometry is None:
+            raise ValueError("geometry: exact visibility needs the scene's DeviceGeometry")
+        p = ShadowMapParams()
+        p.width = p.height = 1
+        return VISIBILITY_EXACT, geometry.mesh.id, eps, p, wp.zeros((1, 1), dtype=wp.float32, device=device), 0.0
+    if shadow_map is None:
+        raise ValueError("shadow_map: shadow_map visibility needs a rendered ShadowMap")
+    return (VISIBILITY_SHADOW_MAP, wp.uint64(0), eps, shadow_map.params(), shadow_map.device_depth(device),
+            float(shadow_bias_texels * shadow_map.texel_world))

@@ -113,6 +113,12 @@ def fit_directional(camera, direction, scene_bounds, resolution) -> tuple[np.nda
     y0, y1 = max(fy0, sy0), min(fy1, sy1)
     if not (x1 > x0 and y1 > y0):  # frustum sees no geometry: any valid box will do
         x0, x1, y0, y1 = sx0, sx1, sy0, sy1
+    # a flat scene seen edge-on by the light has no extent along one axis: give the box a minimal size
+    pad = 1e-3 * radius
+    if x1 - x0 < pad:
+        x0, x1 = 0.5 * (x0 + x1) - pad, 0.5 * (x0 + x1) + pad
+    if y1 - y0 < pad:
+        y0, y1 = 0.5 * (y0 + y1) - pad, 0.5 * (y0 + y1) + pad
     w, h = resolution
     # one texel of margin so lookups at the footprint's edge still find the border texels
     mx, my = (x1 - x0) / w, (y1 - y0) / h
