@@ -42,6 +42,10 @@ SUITES: dict[str, str] = {
     "parallel": "speed-up of split CPU launches (1 thread vs all cores): rasterizer and ray marcher",
     "prefiltered": "fourier method (Klehm 2014): stage times vs map size, output size, basis count; error vs exact; "
                    "scene-complexity sweep",
+    "moments": "fourier, moments4, moments6 (Peters 2017) and the marcher on colonnade, canopy, window: time, bits "
+               "per texel, error vs exact; moment soft shadows vs PCSS",
+    "epipolar": "epipolar sampling (Engelhardt 2010) on the colonnade under a textured spot: fraction ray-marched, "
+                "stage times, errors for 256-1024 lines and 8-32 initial samples",
 }
 
 ProgressFn = Callable[[str, float], None]
@@ -175,11 +179,30 @@ def machine_meta() -> dict:
 # ---- scenes ----------------------------------------------------------------------------------------
 
 
+def bench_light_texture() -> Path:
+    """The bundled light cookie (source checkout), else a generated 128^2 window-pane texture in a temp folder."""
+    bundled = Path(__file__).resolve().parent.parent / "assets" / "light_cookie.png"
+    if bundled.is_file():
+        return bundled
+    import tempfile
+
+    from .imageio import write_png
+
+    path = Path(tempfile.gettempdir()) / "warpscatter-bench-cookie.png"
+    if not path.is_file():
+        y, x = np.mgrid[0:128, 0:128] / 128.0
+        panes = ((np.abs((x * 4) % 1 - 0.5) < 0.42) & (np.abs((y * 4) % 1 - 0.5) < 0.42)).astype(np.float32)
+        tint = np.stack([0.6 + 0.4 * x, 0.7 + 0.3 * y, 1.0 - 0.5 * x], -1).astype(np.float32)
+        write_png(path, panes[..., None] * tint)
+    return path
+
+
 def bench_scene_config(name: str, width: int, height: int, leaves: int = 4000, **render):
     """A validated config for a bench scene (procedural only, so the bench runs from any install).
 
     Args:
-        name: ``colonnade``, ``canopy`` or ``window`` (the scenes of ``configs/``).
+        name: ``colonnade``, ``canopy`` or ``window`` (the scenes of ``configs/``), or ``colonnade_spot`` (the
+            colonnade under a textured spot light).
         width, height: image size in pixels.
         leaves: leaf quads of the canopy scene (its complexity knob).
         **render: the config's ``render`` section.
@@ -221,6 +244,9 @@ def bench_scene_config(name: str, width: int, height: int, leaves: int = 4000, *
             "medium": {"sigma_t": 0.15, "albedo": 1.0, "phase": {"type": "henyey_greenstein", "g": 0.5}},
         },
     }
+    scenes["colonnade_spot"] = {**scenes["colonnade"], "light": {
+        "type": "spot", "position": [-2.0, 9.0, -14.0], "direction": [2.0, -6.5, 14.0], "cone_deg": 30.0,
+        "intensity": [900.0, 850.0, 800.0], "texture": str(bench_light_texture())}}
     data = dict(scenes[name])
     data["camera"] = {**data["camera"], "width": width, "height": height}
     data["render"] = render
@@ -464,8 +490,117 @@ def suite_prefiltered(report: BenchReport, repeats: int, warmup: int, quick: boo
                          params, 1, 0)
 
 
+def suite_moments(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
+    """Peters 2017 Fig. 15-16/19 style: the prefiltered methods and the marcher on three scenes; soft shadows."""
+    w, h = (240, 135) if quick else (960, 540)
+    smap = 256 if quick else 1024
+    no_surf = {"enabled": False}
+    methods = [("raymarch shadow_map 128", {"method": "raymarch", "visibility": "shadow_map", "steps": 128}),
+               ("fourier M=32", {"method": "fourier"}), ("fourier M=32 8-bit", {"method": "fourier",
+                                                                             "fourier": {"storage_bits": 8}})]
+    methods += [(f"{m} {b}-bit", {"method": m, "moments": {"storage_bits": b}})
+                for m, bits in (("moments4", (64, 128)), ("moments6", (64, 96, 192))) for b in bits]
+    for k, scene in enumerate(("colonnade", "canopy", "window")):
+        if progress:
+            progress(f"{scene}: exact reference", k / 4)
+        _, ref = _scattering_rows(report, f"{scene}: raymarch exact (reference)", dict(
+            name=scene, width=w, height=h, scattering={"method": "raymarch", "visibility": "exact", "steps": 128},
+            surfaces=no_surf), {"size": f"{w}x{h}", "steps": 128}, 1, 0)
+        rows = {}
+        for label, sc in methods:
+            if progress:
+                progress(f"{scene}: {label}", k / 4)
+            sc = {**sc, "shadow_map": {"resolution": smap}}
+            rows[label], img = _scattering_rows(report, f"{scene}: {label}", dict(
+                name=scene, width=w, height=h, scattering=sc, surfaces=no_surf), {"size": f"{w}x{h}", "map": smap},
+                repeats, warmup, ref["scattering"])
+            bits = 32 * (8 if "8-bit" in label else 32) if label.startswith("fourier") else (
+                int(label.split()[1].split("-")[0]) if label.startswith("moments") else None)
+            if bits:
+                rows[label]["extra"]["bits_per_texel"] = bits
+        base = rows["raymarch shadow_map 128"]["median_ms"]
+        for r in rows.values():
+            r["speedup"] = base / r["median_ms"]
+    # ---- soft shadows on surfaces: moment soft shadows against the PCSS brute force ----
+    if progress:
+        progress("soft shadows", 0.8)
+    from .config import Config
+    from .pipeline import StageTimer, render_images
+    from .scene import build_scene
+
+    images = {}
+    for method in ("pcss", "msm_soft"):
+        cfg = bench_scene_config("colonnade", w, h, scattering={"method": "raymarch", "visibility": "shadow_map",
+                                                                "steps": 1, "shadow_map": {"resolution": smap}},
+                                 shadows={"method": method, "light_angle_deg": 2.0})
+        cfg = Config.from_dict({**cfg.model_dump(mode="json"), "medium": {"sigma_t": 0.0}})
+        scene = build_scene(cfg)
+        runs = []
+        for k in range(warmup + repeats):
+            timer = StageTimer()
+            img, stats = render_images(scene, cfg.render, timer=timer)
+            if k >= warmup:
+                runs.append(timer.timings)
+        stages = {n: 1e3 * statistics.median(r[n] for r in runs) for n in runs[0]
+                  if n in ("msm_generate", "msm_sat", "shading")}
+        images[method] = img["surface"]
+        report.add(name=f"soft shadows {method}", params={"size": f"{w}x{h}", "map": smap, "light_angle_deg": 2.0},
+                   median_ms=sum(stages.values()), stages_ms=stages,
+                   extra={k: v for k, v in stats.items() if k in ("sat_bytes",)})
+    report.rows[-1].update(errors(images["msm_soft"], images["pcss"]))
+    report.rows[-1]["speedup"] = report.rows[-2]["median_ms"] / report.rows[-1]["median_ms"]
+
+
+def suite_epipolar(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
+    """Engelhardt & Dachsbacher 2010: fraction ray-marched, stage times and errors for line / sample counts."""
+    w, h = (320, 180) if quick else (1920, 1080)
+    steps = 32 if quick else 128
+    smap = 256 if quick else 1024
+    no_surf = {"enabled": False}
+    scene = "colonnade_spot"
+    common = dict(name=scene, width=w, height=h, surfaces=no_surf)
+    march = {"method": "raymarch", "visibility": "shadow_map", "steps": steps, "shadow_map": {"resolution": smap}}
+    if progress:
+        progress("exact reference", 0.0)
+    _, exact = _scattering_rows(report, "raymarch exact (reference)",
+                                dict(common, scattering={**march, "visibility": "exact"}),
+                                {"scene": scene, "size": f"{w}x{h}", "steps": steps}, 1, 0)
+    if progress:
+        progress("per-pixel ray marching", 0.1)
+    per_pixel, pp = _scattering_rows(report, "raymarch shadow_map (per pixel)", dict(common, scattering=march),
+                                     {"scene": scene, "size": f"{w}x{h}", "steps": steps}, repeats, warmup,
+                                     exact["scattering"])
+    per_pixel["speedup"] = 1.0
+    line_counts = [256, 1024] if quick else [256, 512, 1024]
+    sample_counts = [8, 16] if quick else [8, 16, 32]
+    cases = [(n, s) for n in line_counts for s in sample_counts]
+    for k, (n_lines, n_init) in enumerate(cases):
+        if progress:
+            progress(f"{n_lines} lines, {n_init} samples", 0.2 + 0.8 * k / len(cases))
+        sc = {**march, "method": "epipolar", "epipolar": {"lines": n_lines, "initial_samples": n_init}}
+        cfg = bench_scene_config(**dict(common, scattering=sc))
+        stages, images, compile_s, scene_obj = _render_timed(cfg, repeats, warmup)
+        from .pipeline import render_images as _ri
+
+        _, stats = _ri(scene_obj, cfg.render)
+        technique = {k2: v for k2, v in stages.items() if k2 in ("lines", "discontinuities", "raymarch", "interpolate")}
+        row = report.add(name="epipolar", params={"lines": n_lines, "initial": n_init, "size": f"{w}x{h}",
+                                                   "steps": steps},
+                         median_ms=sum(technique.values()), stages_ms=technique,
+                         extra={"raymarched_pct": round(100 * stats["epipolar_raymarched_fraction"], 2),
+                                "rel_l1_vs_per_pixel": round(errors(images["scattering"], pp["scattering"])["rel_l1"],
+                                                             4)})
+        row.update(errors(images["scattering"], exact["scattering"]))
+        row["speedup"] = per_pixel["median_ms"] / row["median_ms"]
+    best = [r for r in report.rows if r["name"] == "epipolar" and r["params"]["lines"] == 1024
+            and r["params"]["initial"] == 16]
+    if best:
+        report.meta["bar"] = {"speedup_vs_per_pixel": round(best[0]["speedup"], 2),
+                              "rel_l1_vs_per_pixel": best[0]["extra"]["rel_l1_vs_per_pixel"]}
+
+
 _SUITE_FNS = {"raster": suite_raster, "reference": suite_reference, "parallel": suite_parallel,
-              "prefiltered": suite_prefiltered}
+              "prefiltered": suite_prefiltered, "moments": suite_moments, "epipolar": suite_epipolar}
 
 
 def run(suite: str = "reference", *, repeats: int = 5, warmup: int = 1, out_dir: Path | None = None,
