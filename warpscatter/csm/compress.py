@@ -1,0 +1,714 @@
+"""Lossless compression of depth-map sequences into segment lists (Ritschel 2007, Sec. 3.1, Eq. 1), and CSM files.
+
+Per texel, over the sequence i = 0 .. N-1 of maps, the stored depth z(i) may be any value with
+z_lo(i) <= z(i) < z_hi(i) (dual depth layers, Fig. 3): a point on the first surface is still lit and a point
+on the upper surface still shadowed. The compressor picks a piecewise-constant z(i): starting at i0 it extends
+a segment to the largest i_end with
+
+    max {z_lo(i0), ..., z_lo(i_end)}  <  min {z_hi(i0), ..., z_hi(i_end)}                         (Eq. 1)
+
+and stores (z_avg, i_end) with z_avg the midpoint of that max and min (Fig. 4). Greedy extension gives the
+fewest segments any piecewise-constant separator can have. Special cases, all keeping the lossless property
+z_lo <= z_avg < z_hi:
+
+- z_hi = +inf (texel without upper surface under ``far="infinite"``, or an empty texel, where z_lo = +inf
+  too) bounds nothing: the segment stays open and, if its min z_hi is +inf, stores z_avg = +inf.
+- z_lo = z_hi (coincident surfaces, the paper's "pixels which start a new segment (z1 = z2)") can only form
+  a one-map segment, stored as z_avg = z_lo: such texels need the query's depth bias.
+- The float32 midpoint is rounded so that z_avg < min z_hi always holds (it falls back to max z_lo).
+
+Output: per texel a segment list; all lists concatenated texel by texel (``seg_depth`` float32,
+``seg_end`` int32, ascending i_end within a list, the last = N - 1), and the lookup texture ``seg_start``
+(M^2 + 1 int32): texel t owns segments [seg_start[t], seg_start[t + 1]).
+
+Streaming: :class:`StreamingCompressor` takes the maps in batches of sequence indices and keeps, per texel,
+only the open segment's running [max z_lo, min z_hi] interval; closed segments leave each batch compacted.
+Working memory is O(M^2 x batch), the rest is the output itself. :func:`build_csm` renders and compresses a
+:class:`~warpscatter.csm.depthmaps.LatLongMapSet` that way, :func:`build_cube_csm` the 6N face-major depth
+cube maps of a fixed local light (:class:`~warpscatter.csm.depthmaps.CubeMapSet`, Sec. 3.3).
+:func:`save_csm` / :func:`load_csm` store a :class:`CoherentShadowMap` as one ``.npz`` with a format version;
+bad files raise :class:`CSMFileError`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import zipfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from .. import parallel
+from ..wpinit import default_device, module_options
+from .depthmaps import DEPTH_LAYERS, FAR_MODES, CubeMapSet, LatLongMapSet, latlong_frames
+from .enumeration import ENUMERATIONS, enumerate_grid, sequence_index
+
+module_options()
+
+#: Version of the ``.npz`` layout written by :func:`save_csm`; :func:`load_csm` accepts only this one.
+FORMAT_VERSION = 1
+#: CSM kinds: orthographic lat-long maps (distant and semi-local lights), depth cube maps (fixed local lights).
+KIND_LATLONG = "latlong"
+KIND_CUBE = "cube"
+KINDS = (KIND_LATLONG, KIND_CUBE)
+
+
+class CSMFileError(ValueError):
+    """A CSM file cannot be read or does not hold a consistent CSM; the message names the file and the reason."""
+
+
+# ---- building blocks (public @wp.func API) ---------------------------------------------------------
+
+
+@wp.func
+def segment_open(lo: float, hi: float) -> bool:
+    """Ritschel 2007 Eq. 1: the running interval [max z_lo, min z_hi) still admits a depth (or is unbounded)."""
+    return lo < hi or hi == wp.inf
+
+
+@wp.func
+def segment_depth(lo: float, hi: float) -> float:
+    """z_avg of a closed segment (Ritschel 2007 Fig. 4): the midpoint of max z_lo and min z_hi, kept in
+    [lo, hi) in float32; lo when lo = hi (one-map segment of coincident surfaces); +inf when hi = +inf."""
+    if hi == wp.inf:
+        return wp.inf
+    z = float(wp.float64(0.5) * (wp.float64(lo) + wp.float64(hi)))
+    if not (z < hi):
+        z = lo
+    return z
+
+
+# ---- kernels ---------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def compress_batch_kernel(
+    z_lo: wp.array2d(dtype=wp.float32),
+    z_hi: wp.array2d(dtype=wp.float32),
+    first: int,
+    last_map: int,
+    state_lo: wp.array(dtype=wp.float32),
+    state_hi: wp.array(dtype=wp.float32),
+    out_depth: wp.array2d(dtype=wp.float32),
+    out_end: wp.array2d(dtype=wp.int32),
+    out_count: wp.array(dtype=wp.int32),
+    offset: int,
+):
+    """Texel t: push maps first .. first + rows - 1 (rows of z_lo / z_hi) through the open segment; write every
+    segment that closes (and the last one when the batch ends at ``last_map``) to out_*[t, :out_count[t]]."""
+    t = wp.tid() + offset
+    lo = state_lo[t]
+    hi = state_hi[t]
+    n = int(0)
+    rows = z_lo.shape[0]
+    for k in range(rows):
+        a = z_lo[k, t]
+        b = z_hi[k, t]
+        i = first + k
+        if i == 0:
+            lo = a
+            hi = b
+        else:
+            nlo = wp.max(lo, a)
+            nhi = wp.min(hi, b)
+            if segment_open(nlo, nhi):
+                lo = nlo
+                hi = nhi
+            else:
+                out_depth[t, n] = segment_depth(lo, hi)
+                out_end[t, n] = i - 1
+                n += 1
+                lo = a
+                hi = b
+    if first + rows - 1 == last_map:
+        out_depth[t, n] = segment_depth(lo, hi)
+        out_end[t, n] = last_map
+        n += 1
+    state_lo[t] = lo
+    state_hi[t] = hi
+    out_count[t] = n
+
+
+# ---- host side: streaming compression --------------------------------------------------------------
+
+
+@dataclass
+class CompressionStats:
+    """What a compression produced and cost.
+
+    Attributes:
+        num_maps: N.
+        num_texels: M^2.
+        num_segments: total segments S.
+        compressed_bytes: 8 S + 4 (M^2 + 1) (float32 depth + int32 end per segment, int32 lookup texture).
+        uncompressed_bytes: 4 N M^2 (one float32 depth per texel and map, as a plain shadow map stores).
+        peak_working_bytes: largest sum of per-batch device arrays and per-texel state held at once (output
+            excluded); depends on M^2 and the batch size only, not on N.
+        seconds_render: time spent rendering depth maps (0 when maps were given).
+        seconds_compress: time spent compressing and assembling.
+    """
+
+    num_maps: int
+    num_texels: int
+    num_segments: int
+    compressed_bytes: int
+    uncompressed_bytes: int
+    peak_working_bytes: int
+    seconds_render: float = 0.0
+    seconds_compress: float = 0.0
+
+    @property
+    def ratio(self) -> float:
+        """uncompressed_bytes / compressed_bytes."""
+        return self.uncompressed_bytes / max(1, self.compressed_bytes)
+
+    @property
+    def segments_per_texel(self) -> float:
+        return self.num_segments / max(1, self.num_texels)
+
+
+@dataclass
+class SegmentLists:
+    """Compressed depth functions of all texels (the output of Sec. 3.1).
+
+    Attributes:
+        seg_start: (M^2 + 1,) int32 lookup texture; texel t owns segments [seg_start[t], seg_start[t + 1]).
+        seg_depth: (S,) float32 z_avg per segment.
+        seg_end: (S,) int32 last sequence index i_end covered by each segment (inclusive).
+        num_maps: N.
+    """
+
+    seg_start: np.ndarray
+    seg_depth: np.ndarray
+    seg_end: np.ndarray
+    num_maps: int
+
+    def decode(self, texel: int, sequence: int) -> float:
+        """Host reference of the query's binary search (Sec. 3.2): z stored for ``texel`` in map ``sequence``."""
+        s0, s1 = int(self.seg_start[texel]), int(self.seg_start[texel + 1])
+        j = s0 + int(np.searchsorted(self.seg_end[s0:s1], sequence, side="left"))
+        return float(self.seg_depth[j])
+
+    def decode_all(self) -> np.ndarray:
+        """Every stored depth, (N, M^2) float32 (small sets only: tests and inspection)."""
+        counts = np.diff(self.seg_start.astype(np.int64))
+        texel = np.repeat(np.arange(counts.size), counts)
+        first_map = np.empty(self.seg_end.size, dtype=np.int64)  # first map index each segment covers
+        first_map[1:] = self.seg_end[:-1].astype(np.int64) + 1
+        first_map[self.seg_start[:-1][counts > 0]] = 0
+        length = self.seg_end.astype(np.int64) + 1 - first_map
+        seg = np.repeat(np.arange(self.seg_end.size), length)
+        maps = np.arange(seg.size) - np.repeat(np.cumsum(length) - length, length) + first_map[seg]
+        out = np.empty((self.num_maps, counts.size), dtype=np.float32)
+        out[maps, texel[seg]] = self.seg_depth[seg]
+        return out
+
+
+class StreamingCompressor:
+    """Compress a sequence of N depth maps pushed in batches (in sequence order) into :class:`SegmentLists`.
+
+    Example::
+
+        comp = StreamingCompressor(num_texels=M * M, num_maps=N, max_batch=64)
+        for start in range(0, N, 64):
+            comp.push(z_lo[start:start + 64], z_hi[start:start + 64])   # (B, M*M) or (B, M, M)
+        lists = comp.finish()
+
+    Args:
+        num_texels: texels per map (M^2).
+        num_maps: total number of maps N that will be pushed.
+        max_batch: largest batch that :meth:`push` will receive.
+        device: Warp device.
+        threads: CPU threads for the per-texel kernel.
+    """
+
+    def __init__(self, num_texels: int, num_maps: int, max_batch: int, device: str | None = None,
+                 threads: int | None = None):
+        for name, v in (("num_texels", num_texels), ("num_maps", num_maps), ("max_batch", max_batch)):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+        if num_maps > 2**31 - 1:
+            raise ValueError(f"num_maps must be < 2^31, got {num_maps}")
+        self.device = default_device(device)
+        self.threads = threads
+        self.num_texels = int(num_texels)
+        self.num_maps = int(num_maps)
+        self.max_batch = int(max_batch)
+        self.pushed = 0
+        t = self.num_texels
+        self._state_lo = wp.zeros(t, dtype=wp.float32, device=self.device)
+        self._state_hi = wp.zeros(t, dtype=wp.float32, device=self.device)
+        self._out_depth = wp.empty((t, self.max_batch + 1), dtype=wp.float32, device=self.device)
+        self._out_end = wp.empty((t, self.max_batch + 1), dtype=wp.int32, device=self.device)
+        self._out_count = wp.zeros(t, dtype=wp.int32, device=self.device)
+        self._counts = np.zeros(t, dtype=np.int64)  # segments per texel so far
+        self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (texel, depth, end) per batch
+        #: bytes of the per-texel state and emission buffers (held for the whole run)
+        self.working_bytes = sum(a.capacity for a in (self._state_lo, self._state_hi, self._out_depth,
+                                                      self._out_end, self._out_count)) + self._counts.nbytes
+        self.peak_working_bytes = self.working_bytes
+        self.seconds = 0.0
+
+    def _as_rows(self, z, name: str) -> wp.array:
+        if isinstance(z, wp.array):
+            if z.dtype != wp.float32 or z.ndim != 2 or z.shape[1] != self.num_texels:
+                raise ValueError(f"{name} as a wp.array must be float32 with shape (B, {self.num_texels})")
+            if str(z.device) != str(wp.get_device(self.device)) or not z.is_contiguous:
+                z = wp.clone(z, device=self.device)
+            return z
+        a = np.asarray(z, dtype=np.float32)
+        if a.ndim >= 2 and int(np.prod(a.shape[1:])) == self.num_texels:
+            a = a.reshape(a.shape[0], self.num_texels)
+        else:
+            raise ValueError(f"{name} must have shape (B, {self.num_texels}) or (B, M, M), got {a.shape}")
+        if np.isnan(a).any():
+            raise ValueError(f"{name} contains NaN")
+        return wp.array(np.ascontiguousarray(a), dtype=wp.float32, device=self.device)
+
+    def push(self, z_lo, z_hi) -> None:
+        """Compress the next batch of maps.
+
+        Args:
+            z_lo: (B, M^2) or (B, M, M) lower depths z1 of the next B maps in sequence order (numpy or
+                ``wp.array2d(float32)``), +inf where empty.
+            z_hi: same shape, upper depths (z2 / z3 / far value), z_hi >= z_lo, +inf = unbounded.
+
+        Raises:
+            ValueError: wrong shapes, NaN, z_hi < z_lo (numpy input), a batch larger than ``max_batch`` or
+                more maps than ``num_maps`` in total.
+        """
+        t0 = time.perf_counter()
+        lo = self._as_rows(z_lo, "z_lo")
+        hi = self._as_rows(z_hi, "z_hi")
+        if lo.shape != hi.shape:
+            raise ValueError(f"z_lo and z_hi must have the same shape, got {lo.shape} and {hi.shape}")
+        if not isinstance(z_lo, wp.array) and not isinstance(z_hi, wp.array):
+            if np.any(hi.numpy() < lo.numpy()):
+                raise ValueError("z_hi must be >= z_lo everywhere")
+        b = lo.shape[0]
+        if b > self.max_batch:
+            raise ValueError(f"batch of {b} maps exceeds max_batch = {self.max_batch}")
+        if self.pushed + b > self.num_maps:
+            raise ValueError(f"pushing {b} maps would exceed num_maps = {self.num_maps} ({self.pushed} pushed)")
+        if b == 0:
+            return
+        self.peak_working_bytes = max(self.peak_working_bytes, self.working_bytes + lo.capacity + hi.capacity)
+        parallel.launch_rows(
+            compress_batch_kernel, self.num_texels,
+            [lo, hi, self.pushed, self.num_maps - 1, self._state_lo, self._state_hi, self._out_depth,
+             self._out_end, self._out_count],
+            self.device, threads=self.threads, min_chunk=256,
+        )  # fmt: skip
+        self.pushed += b
+        counts = self._out_count.numpy()
+        total = int(counts.sum())
+        if total:
+            mask = np.arange(self.max_batch + 1)[None, :] < counts[:, None]
+            depth = self._out_depth.numpy()[mask]  # texel-major, time order within a texel
+            end = self._out_end.numpy()[mask]
+            texel = np.repeat(np.arange(self.num_texels, dtype=np.int32), counts)
+            self._chunks.append((texel, depth, end))
+            self._counts += counts
+        self.seconds += time.perf_counter() - t0
+
+    @property
+    def done(self) -> bool:
+        """True once all ``num_maps`` maps were pushed."""
+        return self.pushed == self.num_maps
+
+    def finish(self) -> SegmentLists:
+        """Assemble the per-batch chunks into per-texel segment lists (counting sort, O(output)).
+
+        Raises:
+            ValueError: fewer than ``num_maps`` maps were pushed.
+        """
+        if not self.done:
+            raise ValueError(f"finish() after {self.pushed} of {self.num_maps} maps")
+        t0 = time.perf_counter()
+        total = int(self._counts.sum())
+        if total > 2**31 - 1:
+            raise ValueError(f"{total} segments exceed the int32 lookup texture")
+        start = np.zeros(self.num_texels + 1, dtype=np.int64)
+        np.cumsum(self._counts, out=start[1:])
+        seg_depth = np.empty(total, dtype=np.float32)
+        seg_end = np.empty(total, dtype=np.int32)
+        cursor = start[:-1].copy()
+        while self._chunks:
+            texel, depth, end = self._chunks.pop(0)
+            # rank of each segment within its texel's group in this chunk (groups are contiguous)
+            group_first = np.flatnonzero(np.r_[True, texel[1:] != texel[:-1]])
+            group_len = np.diff(np.r_[group_first, texel.size])
+            rank = np.arange(texel.size) - np.repeat(group_first, group_len)
+            pos = cursor[texel] + rank
+            seg_depth[pos] = depth
+            seg_end[pos] = end
+            cursor[texel[group_first]] += group_len
+        self.seconds += time.perf_counter() - t0
+        return SegmentLists(seg_start=start.astype(np.int32), seg_depth=seg_depth, seg_end=seg_end,
+                            num_maps=self.num_maps)  # fmt: skip
+
+    def stats(self, lists: SegmentLists) -> CompressionStats:
+        """Sizes and costs of a finished compression."""
+        s = int(lists.seg_depth.size)
+        return CompressionStats(
+            num_maps=self.num_maps, num_texels=self.num_texels, num_segments=s,
+            compressed_bytes=8 * s + 4 * (self.num_texels + 1), uncompressed_bytes=4 * self.num_maps * self.num_texels,
+            peak_working_bytes=int(self.peak_working_bytes), seconds_compress=self.seconds,
+        )  # fmt: skip
+
+
+def compress_depth_maps(z_lo, z_hi, batch_maps: int = 64, device: str | None = None) -> SegmentLists:
+    """Compress a whole in-memory depth-map sequence (convenience over :class:`StreamingCompressor`).
+
+    Args:
+        z_lo: (N, M, M) or (N, M^2) lower depths in sequence order, +inf where empty.
+        z_hi: same shape, upper depths, z_hi >= z_lo (+inf = unbounded).
+        batch_maps: maps per batch (>= 1); the result does not depend on it.
+        device: Warp device.
+
+    Returns:
+        :class:`SegmentLists`.
+    """
+    lo = np.asarray(z_lo, dtype=np.float32)
+    hi = np.asarray(z_hi, dtype=np.float32)
+    if lo.shape != hi.shape or lo.ndim not in (2, 3) or lo.shape[0] < 1:
+        raise ValueError(f"z_lo and z_hi must have equal shapes (N, M, M) or (N, M^2), got {lo.shape}, {hi.shape}")
+    n = lo.shape[0]
+    texels = int(np.prod(lo.shape[1:]))
+    if isinstance(batch_maps, bool) or not isinstance(batch_maps, (int, np.integer)) or batch_maps < 1:
+        raise ValueError(f"batch_maps must be an integer >= 1, got {batch_maps!r}")
+    comp = StreamingCompressor(texels, n, min(int(batch_maps), n), device)
+    for s in range(0, n, comp.max_batch):
+        comp.push(lo[s: s + comp.max_batch], hi[s: s + comp.max_batch])
+    return comp.finish()
+
+
+# ---- host side: the CSM object, building, files ----------------------------------------------------
+
+
+@dataclass
+class CoherentShadowMap:
+    """A compressed depth-map set of one object.
+
+    ``kind == "latlong"``: N1 x N2 orthographic lat-long maps (distant and semi-local lights, Sec. 4.1, 4.3).
+    ``kind == "cube"``: depth cube maps at the n1 x n2 sample points of a fixed local light, 6N maps
+    concatenated face by face (Sec. 3.3, 4.2).
+
+    Attributes:
+        kind: ``"latlong"`` or ``"cube"``.
+        n1, n2: grid of the maps' locations (lat-long azimuth x polar, or light samples).
+        resolution: map size M.
+        center: (3,) float64 bounding-sphere centre (object space).
+        radius: bounding-sphere radius R; lat-long maps span [-R, R]^2 and depths [0, 2R] inside the sphere.
+        enumeration, depth_layers, far: how the maps were ordered and which depths bound the stored value.
+        map_index: (n2, n1) int32 sequence index of each grid cell (cube: of each light sample).
+        lists: the compressed :class:`SegmentLists`.
+        stats: :class:`CompressionStats` of the build (None when loaded from a file).
+        light_samples: cube only: (n1 n2, 3) float64 sample positions, entry b n1 + a for cell (a, b).
+        near: cube only: near-plane distance of the faces.
+    """
+
+    n1: int
+    n2: int
+    resolution: int
+    center: np.ndarray
+    radius: float
+    enumeration: str
+    depth_layers: str
+    far: str
+    map_index: np.ndarray
+    lists: SegmentLists
+    stats: CompressionStats | None = None
+    kind: str = KIND_LATLONG
+    light_samples: np.ndarray | None = None
+    near: float | None = None
+    _device_cache: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def num_cells(self) -> int:
+        """Cells of the location grid, n1 n2."""
+        return self.n1 * self.n2
+
+    @property
+    def num_maps(self) -> int:
+        """N = n1 n2 (lat-long) or 6 n1 n2 (cube)."""
+        return self.num_cells * (6 if self.kind == KIND_CUBE else 1)
+
+    @property
+    def num_segments(self) -> int:
+        return int(self.lists.seg_depth.size)
+
+    @property
+    def frames(self) -> np.ndarray:
+        """Lat-long: (n1 n2, 3, 3) float64 rows (right, up, dir) per grid cell b * n1 + a."""
+        return latlong_frames(self.n1, self.n2)
+
+    def params(self) -> dict:
+        """The scalar parameters (what :func:`save_csm` writes as JSON)."""
+        out = {
+            "kind": self.kind, "n1": self.n1, "n2": self.n2, "resolution": self.resolution,
+            "center": [float(x) for x in self.center], "radius": float(self.radius),
+            "enumeration": self.enumeration, "depth_layers": self.depth_layers, "far": self.far,
+            "num_segments": self.num_segments,
+        }  # fmt: skip
+        if self.kind == KIND_CUBE:
+            out["near"] = float(self.near)
+        return out
+
+
+def build_csm(
+    vertices,
+    triangles,
+    *,
+    n1: int,
+    n2: int,
+    resolution: int,
+    enumeration: str = "hilbert",
+    depth_layers: str = "z1z2",
+    far: str = "sphere",
+    batch_maps: int = 64,
+    center=None,
+    radius: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    device: str | None = None,
+    threads: int | None = None,
+) -> CoherentShadowMap:
+    """Render the lat-long depth-map set of a mesh batch by batch and compress it as it streams.
+
+    Args:
+        vertices: (V, 3) object-space positions.
+        triangles: (T, 3) vertex indices.
+        n1: azimuth cells; n2: polar cells (N = n1 n2 maps).
+        resolution: map size M.
+        enumeration: ``"scanline"``, ``"zigzag"`` or ``"hilbert"`` (sequence order, Sec. 4.4).
+        depth_layers: ``"z1z2"`` or ``"z1z3"`` (closed two-manifolds).
+        far: ``"sphere"`` (spherical far plane) or ``"infinite"``.
+        batch_maps: maps rendered and compressed per batch (memory O(M^2 batch_maps)).
+        center, radius: bounding sphere (default: fitted to the vertices).
+        progress: called as ``progress(maps_done, N)`` after each batch.
+        device: Warp device.
+        threads: CPU worker threads.
+
+    Returns:
+        :class:`CoherentShadowMap` with its :class:`CompressionStats`.
+    """
+    batch_maps = _check_batch(batch_maps, progress)
+    device = default_device(device)
+    maps = LatLongMapSet.create(vertices, triangles, n1=n1, n2=n2, resolution=resolution, enumeration=enumeration,
+                                depth_layers=depth_layers, far=far, center=center, radius=radius)  # fmt: skip
+    lists, stats = _stream(maps, batch_maps, progress, device, threads)
+    return CoherentShadowMap(
+        n1=maps.n1, n2=maps.n2, resolution=maps.resolution, center=maps.center, radius=maps.radius,
+        enumeration=enumeration, depth_layers=depth_layers, far=far, map_index=maps.map_index, lists=lists,
+        stats=stats,
+    )  # fmt: skip
+
+
+def _check_batch(batch_maps, progress) -> int:
+    if isinstance(batch_maps, bool) or not isinstance(batch_maps, (int, np.integer)) or batch_maps < 1:
+        raise ValueError(f"batch_maps must be an integer >= 1, got {batch_maps!r}")
+    if progress is not None and not callable(progress):
+        raise ValueError("progress must be callable as progress(done, total)")
+    return int(batch_maps)
+
+
+def _stream(maps, batch_maps: int, progress, device: str, threads) -> tuple[SegmentLists, CompressionStats]:
+    """Render ``maps`` (a LatLongMapSet or CubeMapSet) batch by batch in sequence order and compress."""
+    n = maps.num_maps
+    batch = min(int(batch_maps), n)
+    comp = StreamingCompressor(maps.num_texels, n, batch, device, threads)
+    render_s = 0.0
+    for s in range(0, n, batch):
+        e = min(s + batch, n)
+        t0 = time.perf_counter()
+        if isinstance(maps, LatLongMapSet):
+            z_lo, z_hi = maps.render_device(s, e, device, threads)
+            working = maps.last_working_bytes
+        else:
+            z_lo, z_hi = maps.render(s, e, device)
+            working = z_lo.nbytes + z_hi.nbytes + 12 * maps.num_texels * DEPTH_LAYERS[maps.depth_layers]
+        render_s += time.perf_counter() - t0
+        comp.peak_working_bytes = max(comp.peak_working_bytes, comp.working_bytes + working)
+        comp.push(z_lo, z_hi)
+        del z_lo, z_hi
+        if progress is not None:
+            progress(e, n)
+    lists = comp.finish()
+    stats = comp.stats(lists)
+    stats.seconds_render = render_s
+    return lists, stats
+
+
+def build_cube_csm(
+    vertices,
+    triangles,
+    samples,
+    *,
+    resolution: int,
+    enumeration: str = "hilbert",
+    depth_layers: str = "z1z2",
+    far: str = "sphere",
+    near: float | None = None,
+    batch_maps: int = 64,
+    progress: Callable[[int, int], None] | None = None,
+    device: str | None = None,
+) -> CoherentShadowMap:
+    """Compress the depth cube maps of a fixed local light (Sec. 3.3, 4.2), streaming in batches.
+
+    Args:
+        vertices: (V, 3) object positions; triangles: (T, 3) vertex indices.
+        samples: (n2, n1, 3) light sample grid or (n, 3) row (see
+            :func:`~warpscatter.csm.depthmaps.segment_light_samples`,
+            :func:`~warpscatter.csm.depthmaps.parallelogram_light_samples`).
+        resolution: cube face size M.
+        enumeration: order of the samples (the 6N maps run face by face, Fig. 5).
+        depth_layers, far: as for :func:`build_csm`.
+        near: near-plane distance (default 1e-3 R).
+        batch_maps, progress, device: as for :func:`build_csm`.
+
+    Returns:
+        :class:`CoherentShadowMap` of kind ``"cube"``.
+    """
+    batch_maps = _check_batch(batch_maps, progress)
+    device = default_device(device)
+    maps = CubeMapSet.create(vertices, triangles, samples, resolution=resolution, enumeration=enumeration,
+                             depth_layers=depth_layers, far=far, near=near)  # fmt: skip
+    lists, stats = _stream(maps, batch_maps, progress, device, None)
+    return CoherentShadowMap(
+        n1=maps.n1, n2=maps.n2, resolution=maps.resolution, center=maps.center, radius=maps.radius,
+        enumeration=enumeration, depth_layers=depth_layers, far=far, map_index=maps.map_index, lists=lists,
+        stats=stats, kind=KIND_CUBE, light_samples=maps.samples, near=maps.near,
+    )  # fmt: skip
+
+
+_ARRAYS = ("format_version", "params", "map_index", "seg_start", "seg_depth", "seg_end")
+
+
+def save_csm(csm: CoherentShadowMap, path: str | os.PathLike) -> None:
+    """Write a CSM as one ``.npz``: the format version, the parameters (JSON) and the arrays.
+
+    The file is written to a temporary name and renamed, so a crash never leaves a half-written CSM.
+    """
+    path = os.fspath(path)
+    tmp = path + ".tmp.npz"
+    extra = {}
+    if csm.kind == KIND_CUBE:
+        extra["light_samples"] = np.asarray(csm.light_samples, dtype=np.float64)
+    np.savez(
+        tmp, format_version=np.array(FORMAT_VERSION, dtype=np.int64),
+        params=np.array(json.dumps(csm.params())), map_index=csm.map_index.astype(np.int32),
+        seg_start=csm.lists.seg_start.astype(np.int32), seg_depth=csm.lists.seg_depth.astype(np.float32),
+        seg_end=csm.lists.seg_end.astype(np.int32), **extra,
+    )  # fmt: skip
+    os.replace(tmp, path)
+
+
+def _fail(path: str, reason: str) -> CSMFileError:
+    return CSMFileError(f"{path}: {reason}")
+
+
+def _load_params(path: str, data) -> dict:
+    try:
+        version = int(np.asarray(data["format_version"]).reshape(()))
+    except (TypeError, ValueError) as exc:
+        raise _fail(path, "format_version is not an integer") from exc
+    if version != FORMAT_VERSION:
+        raise _fail(path, f"format version {version} is not supported (this build reads version {FORMAT_VERSION})")
+    try:
+        params = json.loads(str(np.asarray(data["params"]).reshape(())))
+    except (TypeError, ValueError) as exc:
+        raise _fail(path, "params is not valid JSON") from exc
+    if not isinstance(params, dict) or params.get("kind") not in KINDS:
+        raise _fail(path, f"unknown CSM kind {params.get('kind') if isinstance(params, dict) else params!r}")
+    try:
+        out = {
+            "kind": params["kind"], "near": float(params["near"]) if params["kind"] == KIND_CUBE else None,
+            "n1": int(params["n1"]), "n2": int(params["n2"]), "resolution": int(params["resolution"]),
+            "center": np.asarray(params["center"], dtype=np.float64), "radius": float(params["radius"]),
+            "enumeration": str(params["enumeration"]), "depth_layers": str(params["depth_layers"]),
+            "far": str(params["far"]), "num_segments": int(params["num_segments"]),
+        }  # fmt: skip
+    except (KeyError, TypeError, ValueError) as exc:
+        raise _fail(path, f"params lack or mistype a field ({exc})") from exc
+    if min(out["n1"], out["n2"], out["resolution"]) < 1 or out["center"].shape != (3,):
+        raise _fail(path, "params hold impossible sizes")
+    if out["near"] is not None and not (np.isfinite(out["near"]) and out["near"] > 0):
+        raise _fail(path, "params hold a near plane that is not > 0")
+    if not (np.all(np.isfinite(out["center"])) and np.isfinite(out["radius"]) and out["radius"] > 0):
+        raise _fail(path, "params hold a non-finite centre or a radius <= 0")
+    for key, allowed in (("enumeration", ENUMERATIONS), ("depth_layers", tuple(DEPTH_LAYERS)), ("far", FAR_MODES)):
+        if out[key] not in allowed:
+            raise _fail(path, f"params {key} = {out[key]!r} is not one of {allowed}")
+    return out
+
+
+def load_csm(path: str | os.PathLike) -> CoherentShadowMap:
+    """Read a CSM written by :func:`save_csm`, checking it completely.
+
+    Raises:
+        CSMFileError: missing or unreadable file, wrong format version, missing arrays, wrong dtypes or
+            sizes, a lookup texture that does not partition the segments, segment ends that are not
+            ascending per texel or do not end at N - 1, or an enumeration table that is not a bijection.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise _fail(path, "no such file")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = [k for k in _ARRAYS if k not in data.files]
+            if missing:
+                raise _fail(path, f"missing arrays {missing}")
+            p = _load_params(path, data)
+            names = _ARRAYS[2:] + (("light_samples",) if p["kind"] == KIND_CUBE else ())
+            if "light_samples" in names and "light_samples" not in data.files:
+                raise _fail(path, "missing arrays ['light_samples'] of a cube CSM")
+            arrays = {k: np.asarray(data[k]) for k in names}
+    except CSMFileError:
+        raise
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as exc:
+        raise _fail(path, f"not a readable .npz file ({exc})") from exc
+    n1, n2, m = p["n1"], p["n2"], p["resolution"]
+    cube = p["kind"] == KIND_CUBE
+    n, texels, s = n1 * n2 * (6 if cube else 1), m * m, p["num_segments"]
+    expect = {"map_index": ((n2, n1), np.integer), "seg_start": ((texels + 1,), np.integer),
+              "seg_depth": ((s,), np.floating), "seg_end": ((s,), np.integer)}  # fmt: skip
+    if cube:
+        expect["light_samples"] = ((n1 * n2, 3), np.floating)
+    for key, (shape, kind) in expect.items():
+        a = arrays[key]
+        if a.shape != shape or not np.issubdtype(a.dtype, kind):
+            raise _fail(path, f"{key} has shape {a.shape} and dtype {a.dtype}, expected {shape} of {kind.__name__}")
+    start, end = arrays["seg_start"].astype(np.int64), arrays["seg_end"].astype(np.int64)
+    counts = np.diff(start)
+    if start[0] != 0 or start[-1] != s or np.any(counts < 1):
+        raise _fail(path, "seg_start does not partition the segments (every texel needs >= 1 segment)")
+    last = start[1:] - 1
+    if np.any(end[last] != n - 1):
+        raise _fail(path, f"a texel's last segment does not end at map {n - 1}")
+    first_of_texel = np.zeros(s, dtype=bool)
+    first_of_texel[start[:-1]] = True
+    step_ok = np.diff(end) > 0
+    if np.any(~step_ok & ~first_of_texel[1:]) or end.min() < 0:
+        raise _fail(path, "segment ends are not strictly ascending within a texel")
+    if np.isnan(arrays["seg_depth"]).any():
+        raise _fail(path, "seg_depth contains NaN")
+    if cube and not np.all(np.isfinite(arrays["light_samples"])):
+        raise _fail(path, "light_samples contain non-finite positions")
+    try:
+        order = enumerate_grid(n1, n2, p["enumeration"])
+        index = sequence_index(order, n1, n2)
+    except ValueError as exc:
+        raise _fail(path, str(exc)) from exc
+    if not np.array_equal(index, arrays["map_index"]):
+        raise _fail(path, f"map_index does not match the {p['enumeration']} enumeration of {n1} x {n2}")
+    lists = SegmentLists(seg_start=start.astype(np.int32), seg_depth=arrays["seg_depth"].astype(np.float32),
+                         seg_end=end.astype(np.int32), num_maps=n)  # fmt: skip
+    return CoherentShadowMap(
+        n1=n1, n2=n2, resolution=m, center=p["center"], radius=p["radius"], enumeration=p["enumeration"],
+        depth_layers=p["depth_layers"], far=p["far"], map_index=index, lists=lists, kind=p["kind"],
+        light_samples=arrays["light_samples"].astype(np.float64) if cube else None, near=p["near"],
+    )  # fmt: skip

@@ -1,0 +1,721 @@
+"""Visibility queries against coherent shadow maps (Ritschel 2007, Sec. 3.2, 4.1, 4.3, 4.5, 4.6).
+
+A query asks whether the ray from a point p in direction d (towards the light) leaves the object's bounding
+sphere unblocked. It selects the map whose lat-long cell holds d (nearest cell in the (u, v) parameter domain
+of :func:`~warpscatter.csm.depthmaps.latlong_param`, the "depth map with a viewing direction most similar to
+d"), projects p with the depth-map matrix D_i, q = D_i p (texel x, y and linear depth q_z), finds by binary
+search the segment j of the texel's list with i_end(j - 1) < i <= i_end(j) (i: the map's sequence index) and
+compares: p is shadowed iff q_z - bias > z_avg(j). Points projecting outside the map are lit: nothing of the
+object lies on their ray.
+
+Filters (Sec. 4.5), all returning a visibility in [0, 1]:
+
+- nearest: the nearest map and the texel containing q.
+- generalised PCF: the 2^d = 4 nearest maps (bilinear in (u, v) over cell centres; azimuth wraps around,
+  the polar index is clamped at the poles) times the 4 nearest texels (bilinear over texel centres), 16 depth
+  comparisons weighted by the products of the bilinear weights [RSC87].
+- Russian roulette: one of those 16 comparisons, chosen with probability equal to its PCF weight (four
+  independent uniform numbers decide the four bilinear choices), so its expectation is the PCF value.
+
+Semi-local lights (Sec. 4.3): the visibility between p and a light point l is the distant query with d = l - p
+(valid while l stays outside the object's convex hull). Moving rigid objects (Sec. 4.6): an object placed by
+the 4x4 matrix T is queried with D' = D T^-1, i.e. p and d are first taken to object space
+(:func:`csm_object_space`); several objects' visibilities multiply, which also serves receiver-only objects
+(ground planes) that have no CSM of their own.
+
+Fixed local lights (Sec. 3.3, 4.2) use a ``"cube"`` CSM: depth cube maps at the light's sample points, 6N maps
+concatenated face by face. A query for a point p and light parameters x selects the nearest sample o (or the
+2^d nearest for PCF / roulette), the cube face k of p - o, and decodes map k N + i (i: the sample's sequence
+index); texels beyond a face's border are clamped to it.
+
+``bias`` is in object-space scene units.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .. import parallel
+from ..wpinit import default_device, module_options
+from .compress import KIND_CUBE, KIND_LATLONG, CoherentShadowMap
+from .depthmaps import cube_face_frames, latlong_param
+
+module_options()
+
+FILTER_NEAREST = wp.constant(0)
+FILTER_PCF = wp.constant(1)
+FILTER_ROULETTE = wp.constant(2)
+#: Filter names accepted by the host wrappers.
+FILTERS = {"nearest": 0, "pcf": 1, "roulette": 2}
+
+
+@wp.struct
+class CSMData:
+    """A coherent shadow map as kernels see it (build with :func:`csm_device_data`)."""
+
+    center: wp.vec3  # bounding-sphere centre, object space
+    radius: float  # bounding-sphere radius R: maps span [-R, R]^2, depth 0 at the map plane
+    resolution: int  # map size M
+    n1: int  # azimuth cells
+    n2: int  # polar cells
+    num_maps: int  # N = n1 n2
+    frames: wp.array(dtype=wp.mat33)  # per cell b n1 + a: rows (right, up, dir)
+    map_index: wp.array(dtype=wp.int32)  # per cell b n1 + a: sequence index i
+    seg_start: wp.array(dtype=wp.int32)  # M^2 + 1 lookup texture into the segment arrays
+    seg_depth: wp.array(dtype=wp.float32)  # z_avg per segment
+    seg_end: wp.array(dtype=wp.int32)  # i_end per segment (inclusive)
+
+
+@wp.struct
+class CubeCSMData:
+    """A depth-cube-map CSM of a fixed local light as kernels see it (build with :func:`csm_device_data`)."""
+
+    resolution: int  # cube face size M
+    n1: int  # light-sample grid, first axis
+    n2: int  # light-sample grid, second axis (1 for linear lights)
+    num_samples: int  # N = n1 n2; the CSM holds 6N maps, map k N + i = face k of sample i
+    faces: wp.array(dtype=wp.mat33)  # 6 face frames: rows (right, up, forward)
+    samples: wp.array(dtype=wp.vec3)  # per cell b n1 + a: sample position
+    map_index: wp.array(dtype=wp.int32)  # per cell b n1 + a: sample sequence index i
+    seg_start: wp.array(dtype=wp.int32)
+    seg_depth: wp.array(dtype=wp.float32)
+    seg_end: wp.array(dtype=wp.int32)
+
+
+# ---- building blocks (public @wp.func API) ---------------------------------------------------------
+
+
+@wp.func
+def segment_lookup(
+    seg_start: wp.array(dtype=wp.int32),
+    seg_depth: wp.array(dtype=wp.float32),
+    seg_end: wp.array(dtype=wp.int32),
+    texel: int,
+    sequence: int,
+) -> float:
+    """Stored depth of ``texel`` in map ``sequence``: binary search for the segment j with
+    i_end(j - 1) < i <= i_end(j) (Ritschel 2007 Sec. 3.2), O(log n) reads."""
+    lo = seg_start[texel]
+    hi = seg_start[texel + 1] - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if seg_end[mid] < sequence:
+            lo = mid + 1
+        else:
+            hi = mid
+    return seg_depth[lo]
+
+
+@wp.func
+def csm_segment_depth(csm: CSMData, texel: int, sequence: int) -> float:
+    """Stored depth of ``texel`` in map ``sequence`` of a lat-long CSM (:func:`segment_lookup`)."""
+    return segment_lookup(csm.seg_start, csm.seg_depth, csm.seg_end, texel, sequence)
+
+
+@wp.func
+def grid_bilinear(u: float, v: float, n1: int, n2: int, wrap_u: int) -> tuple[wp.vec4i, wp.vec2]:
+    """The 2^2 cells of an n1 x n2 grid around parameters (u, v) in [0, 1]^2 and the bilinear weights over
+    cell centres: cells (c00, c10, c01, c11) as b n1 + a and (fa, fb); weight of c10 = fa (1 - fb), of
+    c01 = (1 - fa) fb, of c11 = fa fb. ``wrap_u`` != 0 wraps the first axis (azimuth), else it is clamped;
+    the second axis is always clamped."""
+    s = u * float(n1) - 0.5
+    t = v * float(n2) - 0.5
+    fs = wp.floor(s)
+    ft = wp.floor(t)
+    fa = s - fs
+    fb = t - ft
+    a0 = int(fs)
+    b0 = int(ft)
+    a1 = a0 + 1
+    if wrap_u != 0:
+        if a0 < 0:
+            a0 = a0 + n1
+        if a1 >= n1:
+            a1 = a1 - n1
+    else:
+        a0 = wp.clamp(a0, 0, n1 - 1)
+        a1 = wp.clamp(a1, 0, n1 - 1)
+    b1 = wp.clamp(b0 + 1, 0, n2 - 1)
+    b0 = wp.clamp(b0, 0, n2 - 1)
+    return wp.vec4i(b0 * n1 + a0, b0 * n1 + a1, b1 * n1 + a0, b1 * n1 + a1), wp.vec2(fa, fb)
+
+
+@wp.func
+def csm_nearest_cell(csm: CSMData, d: wp.vec3) -> int:
+    """Grid cell b n1 + a of the map selected for direction ``d`` (nearest cell centre in (u, v))."""
+    uv = latlong_param(d)
+    a = wp.min(int(uv[0] * float(csm.n1)), csm.n1 - 1)
+    b = wp.min(int(uv[1] * float(csm.n2)), csm.n2 - 1)
+    return b * csm.n1 + a
+
+
+@wp.func
+def csm_bilinear_cells(csm: CSMData, d: wp.vec3) -> tuple[wp.vec4i, wp.vec2]:
+    """The 2^2 cells around direction ``d`` and the bilinear weights: cells (c00, c10, c01, c11) and
+    (fa, fb), weight of c10 = fa (1 - fb), of c01 = (1 - fa) fb, of c11 = fa fb (Sec. 4.5)."""
+    uv = latlong_param(d)
+    return grid_bilinear(uv[0], uv[1], csm.n1, csm.n2, 1)
+
+
+@wp.func
+def csm_project(csm: CSMData, cell: int, p: wp.vec3) -> wp.vec3:
+    """q = D_i p for the map of ``cell``: continuous texel coordinates (x, y) (texel x covers [x, x + 1), row y
+    from the top) and the linear depth q_z = R - <p - c, dir> (scene units from the map plane)."""
+    f = csm.frames[cell]
+    r = p - csm.center
+    half = 0.5 * float(csm.resolution)
+    x = (wp.dot(r, f[0]) / csm.radius + 1.0) * half
+    y = (1.0 - wp.dot(r, f[1]) / csm.radius) * half
+    return wp.vec3(x, y, csm.radius - wp.dot(r, f[2]))
+
+
+@wp.func
+def csm_texel_visibility(csm: CSMData, sequence: int, x: int, y: int, depth: float, bias: float) -> float:
+    """Depth test of one texel of map ``sequence``: 0 when depth - bias > z stored, else 1 (1 outside the map)."""
+    m = csm.resolution
+    if x < 0 or y < 0 or x >= m or y >= m:
+        return 1.0
+    if depth - bias > csm_segment_depth(csm, y * m + x, sequence):
+        return 0.0
+    return 1.0
+
+
+@wp.func
+def csm_map_visibility(csm: CSMData, cell: int, p: wp.vec3, bias: float) -> float:
+    """Nearest-texel visibility of ``p`` in the map of ``cell``."""
+    q = csm_project(csm, cell, p)
+    m = float(csm.resolution)
+    if not (q[0] >= 0.0 and q[0] < m and q[1] >= 0.0 and q[1] < m):
+        return 1.0  # also catches NaN
+    return csm_texel_visibility(csm, csm.map_index[cell], int(q[0]), int(q[1]), q[2], bias)
+
+
+@wp.func
+def csm_map_pcf(csm: CSMData, cell: int, p: wp.vec3, bias: float) -> float:
+    """Bilinear percentage-closer filter over the 4 texels around ``p`` in the map of ``cell``."""
+    q = csm_project(csm, cell, p)
+    m = float(csm.resolution)
+    sx = q[0] - 0.5
+    sy = q[1] - 0.5
+    if not (sx > -1.0 and sx < m and sy > -1.0 and sy < m):
+        return 1.0
+    fx0 = wp.floor(sx)
+    fy0 = wp.floor(sy)
+    fx = sx - fx0
+    fy = sy - fy0
+    x0 = int(fx0)
+    y0 = int(fy0)
+    seq = csm.map_index[cell]
+    v00 = csm_texel_visibility(csm, seq, x0, y0, q[2], bias)
+    v10 = csm_texel_visibility(csm, seq, x0 + 1, y0, q[2], bias)
+    v01 = csm_texel_visibility(csm, seq, x0, y0 + 1, q[2], bias)
+    v11 = csm_texel_visibility(csm, seq, x0 + 1, y0 + 1, q[2], bias)
+    return (1.0 - fy) * ((1.0 - fx) * v00 + fx * v10) + fy * ((1.0 - fx) * v01 + fx * v11)
+
+
+@wp.func
+def csm_visibility(csm: CSMData, p: wp.vec3, d: wp.vec3, bias: float) -> float:
+    """Binary visibility of the ray from ``p`` towards ``d`` (any length > 0): nearest map, nearest texel."""
+    return csm_map_visibility(csm, csm_nearest_cell(csm, d), p, bias)
+
+
+@wp.func
+def csm_visibility_pcf(csm: CSMData, p: wp.vec3, d: wp.vec3, bias: float) -> float:
+    """Generalised PCF (Ritschel 2007 Sec. 4.5): 4 nearest maps x 4 texels, bilinear weights, in [0, 1]."""
+    cells, w = csm_bilinear_cells(csm, d)
+    fa = w[0]
+    fb = w[1]
+    v00 = csm_map_pcf(csm, cells[0], p, bias)
+    v10 = csm_map_pcf(csm, cells[1], p, bias)
+    v01 = csm_map_pcf(csm, cells[2], p, bias)
+    v11 = csm_map_pcf(csm, cells[3], p, bias)
+    return (1.0 - fb) * ((1.0 - fa) * v00 + fa * v10) + fb * ((1.0 - fa) * v01 + fa * v11)
+
+
+@wp.func
+def csm_visibility_roulette(csm: CSMData, p: wp.vec3, d: wp.vec3, bias: float, xi: wp.vec4) -> float:
+    """Russian-roulette filter (Sec. 4.5): one of the 16 PCF comparisons, picked with its PCF weight by the
+    uniform numbers ``xi`` in [0, 1)^4 (map a, map b, texel x, texel y). E[result] = :func:`csm_visibility_pcf`."""
+    cells, w = csm_bilinear_cells(csm, d)
+    k = int(0)
+    if xi[0] < w[0]:
+        k = k + 1
+    if xi[1] < w[1]:
+        k = k + 2
+    cell = cells[k]
+    q = csm_project(csm, cell, p)
+    m = float(csm.resolution)
+    sx = q[0] - 0.5
+    sy = q[1] - 0.5
+    if not (sx > -1.0 and sx < m and sy > -1.0 and sy < m):
+        return 1.0
+    fx0 = wp.floor(sx)
+    fy0 = wp.floor(sy)
+    x = int(fx0)
+    y = int(fy0)
+    if xi[2] < sx - fx0:
+        x = x + 1
+    if xi[3] < sy - fy0:
+        y = y + 1
+    return csm_texel_visibility(csm, csm.map_index[cell], x, y, q[2], bias)
+
+
+@wp.func
+def csm_visibility_filtered(csm: CSMData, p: wp.vec3, d: wp.vec3, bias: float, filter_mode: int, xi: wp.vec4) -> float:
+    """Visibility with the filter ``filter_mode`` (FILTER_NEAREST, FILTER_PCF or FILTER_ROULETTE; ``xi`` is
+    used by the roulette only)."""
+    if filter_mode == FILTER_PCF:
+        return csm_visibility_pcf(csm, p, d, bias)
+    if filter_mode == FILTER_ROULETTE:
+        return csm_visibility_roulette(csm, p, d, bias, xi)
+    return csm_visibility(csm, p, d, bias)
+
+
+@wp.func
+def csm_visibility_to_point(csm: CSMData, p: wp.vec3, light_point: wp.vec3, bias: float) -> float:
+    """Semi-local lights (Sec. 4.3): visibility between ``p`` and a light point outside the object's convex
+    hull, the distant query with d = light_point - p (nearest map and texel)."""
+    return csm_visibility(csm, p, light_point - p, bias)
+
+
+@wp.func
+def csm_object_space(inv_transform: wp.mat44, p: wp.vec3, d: wp.vec3) -> tuple[wp.vec3, wp.vec3]:
+    """World point and direction -> object space of an object placed by T (Sec. 4.6: D' = D T^-1).
+
+    ``inv_transform`` is T^-1 (affine). The direction takes the linear part only; it needs no normalisation.
+    """
+    return wp.transform_point(inv_transform, p), wp.transform_vector(inv_transform, d)
+
+
+# ---- depth cube maps of fixed local lights (Sec. 3.3, 4.2) ----
+
+
+@wp.func
+def cube_face(w: wp.vec3) -> int:
+    """Cube face k = 0..5 (+X, -X, +Y, -Y, +Z, -Z) that direction ``w`` falls on (its major axis)."""
+    ax = wp.abs(w[0])
+    ay = wp.abs(w[1])
+    az = wp.abs(w[2])
+    if ax >= ay and ax >= az:
+        if w[0] >= 0.0:
+            return 0
+        return 1
+    if ay >= az:
+        if w[1] >= 0.0:
+            return 2
+        return 3
+    if w[2] >= 0.0:
+        return 4
+    return 5
+
+
+@wp.func
+def csm_cube_project(csm: CubeCSMData, cell: int, p: wp.vec3) -> tuple[int, wp.vec3]:
+    """Face k and q = (x, y, depth) of ``p`` in the cube map of light sample ``cell``: continuous texel
+    coordinates of the face (row y from the top) and the linear depth <p - o, forward>. A point at the
+    sample itself gets x = -1 (outside: lit)."""
+    w = p - csm.samples[cell]
+    k = cube_face(w)
+    f = csm.faces[k]
+    z = wp.dot(w, f[2])
+    if not (z > 0.0):
+        return k, wp.vec3(-1.0, -1.0, 0.0)
+    half = 0.5 * float(csm.resolution)
+    x = (wp.dot(w, f[0]) / z + 1.0) * half
+    y = (1.0 - wp.dot(w, f[1]) / z) * half
+    return k, wp.vec3(x, y, z)
+
+
+@wp.func
+def csm_cube_texel_visibility(csm: CubeCSMData, sequence: int, x: int, y: int, depth: float, bias: float) -> float:
+    """Depth test of one texel of cube-face map ``sequence`` (= k N + i); texels are clamped to the face."""
+    m = csm.resolution
+    xc = wp.clamp(x, 0, m - 1)
+    yc = wp.clamp(y, 0, m - 1)
+    if depth - bias > segment_lookup(csm.seg_start, csm.seg_depth, csm.seg_end, yc * m + xc, sequence):
+        return 0.0
+    return 1.0
+
+
+@wp.func
+def csm_cube_sample_visibility(csm: CubeCSMData, cell: int, p: wp.vec3, bias: float) -> float:
+    """Nearest-texel visibility between light sample ``cell`` and ``p`` (Ritschel 2007 Fig. 7 left)."""
+    k, q = csm_cube_project(csm, cell, p)
+    if q[0] < 0.0:
+        return 1.0
+    seq = k * csm.num_samples + csm.map_index[cell]
+    return csm_cube_texel_visibility(csm, seq, int(q[0]), int(q[1]), q[2], bias)
+
+
+@wp.func
+def csm_cube_sample_pcf(csm: CubeCSMData, cell: int, p: wp.vec3, bias: float) -> float:
+    """Bilinear PCF over the 4 texels around ``p`` in the selected face of sample ``cell``."""
+    k, q = csm_cube_project(csm, cell, p)
+    if q[0] < 0.0:
+        return 1.0
+    seq = k * csm.num_samples + csm.map_index[cell]
+    sx = q[0] - 0.5
+    sy = q[1] - 0.5
+    fx0 = wp.floor(sx)
+    fy0 = wp.floor(sy)
+    fx = sx - fx0
+    fy = sy - fy0
+    x0 = int(fx0)
+    y0 = int(fy0)
+    v00 = csm_cube_texel_visibility(csm, seq, x0, y0, q[2], bias)
+    v10 = csm_cube_texel_visibility(csm, seq, x0 + 1, y0, q[2], bias)
+    v01 = csm_cube_texel_visibility(csm, seq, x0, y0 + 1, q[2], bias)
+    v11 = csm_cube_texel_visibility(csm, seq, x0 + 1, y0 + 1, q[2], bias)
+    return (1.0 - fy) * ((1.0 - fx) * v00 + fx * v10) + fy * ((1.0 - fx) * v01 + fx * v11)
+
+
+@wp.func
+def csm_local_cell(csm: CubeCSMData, x: wp.vec2) -> int:
+    """Light sample b n1 + a nearest to light parameters ``x`` in [0, 1]^2 (D(x) discretised, Sec. 4.2)."""
+    a = wp.clamp(int(x[0] * float(csm.n1)), 0, csm.n1 - 1)
+    b = wp.clamp(int(x[1] * float(csm.n2)), 0, csm.n2 - 1)
+    return b * csm.n1 + a
+
+
+@wp.func
+def csm_local_visibility(csm: CubeCSMData, p: wp.vec3, x: wp.vec2, bias: float) -> float:
+    """Visibility between ``p`` and the light point of parameters ``x`` (nearest sample, nearest texel)."""
+    return csm_cube_sample_visibility(csm, csm_local_cell(csm, x), p, bias)
+
+
+@wp.func
+def csm_local_visibility_pcf(csm: CubeCSMData, p: wp.vec3, x: wp.vec2, bias: float) -> float:
+    """Generalised PCF for local lights (Sec. 4.5): the 2^d nearest light samples (bilinear in x, clamped at
+    the light's edges; d = 1 when n2 = 1) times 4 texels."""
+    cells, w = grid_bilinear(x[0], x[1], csm.n1, csm.n2, 0)
+    fa = w[0]
+    fb = w[1]
+    v00 = csm_cube_sample_pcf(csm, cells[0], p, bias)
+    v10 = csm_cube_sample_pcf(csm, cells[1], p, bias)
+    v01 = csm_cube_sample_pcf(csm, cells[2], p, bias)
+    v11 = csm_cube_sample_pcf(csm, cells[3], p, bias)
+    return (1.0 - fb) * ((1.0 - fa) * v00 + fa * v10) + fb * ((1.0 - fa) * v01 + fa * v11)
+
+
+@wp.func
+def csm_local_visibility_roulette(csm: CubeCSMData, p: wp.vec3, x: wp.vec2, bias: float, xi: wp.vec4) -> float:
+    """Russian-roulette filter for local lights: one of the PCF comparisons, picked with its weight."""
+    cells, w = grid_bilinear(x[0], x[1], csm.n1, csm.n2, 0)
+    j = int(0)
+    if xi[0] < w[0]:
+        j = j + 1
+    if xi[1] < w[1]:
+        j = j + 2
+    cell = cells[j]
+    k, q = csm_cube_project(csm, cell, p)
+    if q[0] < 0.0:
+        return 1.0
+    sx = q[0] - 0.5
+    sy = q[1] - 0.5
+    fx0 = wp.floor(sx)
+    fy0 = wp.floor(sy)
+    tx = int(fx0)
+    ty = int(fy0)
+    if xi[2] < sx - fx0:
+        tx = tx + 1
+    if xi[3] < sy - fy0:
+        ty = ty + 1
+    return csm_cube_texel_visibility(csm, k * csm.num_samples + csm.map_index[cell], tx, ty, q[2], bias)
+
+
+@wp.func
+def csm_local_visibility_filtered(
+    csm: CubeCSMData, p: wp.vec3, x: wp.vec2, bias: float, filter_mode: int, xi: wp.vec4
+) -> float:
+    """Local-light visibility with the filter ``filter_mode`` (FILTER_NEAREST, FILTER_PCF, FILTER_ROULETTE)."""
+    if filter_mode == FILTER_PCF:
+        return csm_local_visibility_pcf(csm, p, x, bias)
+    if filter_mode == FILTER_ROULETTE:
+        return csm_local_visibility_roulette(csm, p, x, bias, xi)
+    return csm_local_visibility(csm, p, x, bias)
+
+
+# ---- kernels ---------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def visibility_kernel(
+    csm: CSMData,
+    points: wp.array(dtype=wp.vec3),
+    directions: wp.array(dtype=wp.vec3),
+    bias: float,
+    filter_mode: int,
+    seed: int,
+    out: wp.array(dtype=wp.float32),
+    offset: int,
+):
+    """out[i] = filtered visibility of (points[i], directions[i]) against one CSM."""
+    i = wp.tid() + offset
+    xi = wp.vec4(0.0)
+    if filter_mode == FILTER_ROULETTE:
+        state = wp.rand_init(seed, i)
+        xi = wp.vec4(wp.randf(state), wp.randf(state), wp.randf(state), wp.randf(state))
+    out[i] = csm_visibility_filtered(csm, points[i], directions[i], bias, filter_mode, xi)
+
+
+@wp.kernel
+def objects_visibility_kernel(
+    objects: wp.array(dtype=CSMData),
+    inv_transforms: wp.array(dtype=wp.mat44),
+    points: wp.array(dtype=wp.vec3),
+    directions: wp.array(dtype=wp.vec3),
+    bias: float,
+    filter_mode: int,
+    seed: int,
+    out: wp.array(dtype=wp.float32),
+    offset: int,
+):
+    """out[i] = product over objects of the filtered visibility, each object queried with D' = D T^-1."""
+    i = wp.tid() + offset
+    state = wp.rand_init(seed, i)
+    v = float(1.0)
+    for k in range(objects.shape[0]):
+        po, do = csm_object_space(inv_transforms[k], points[i], directions[i])
+        xi = wp.vec4(wp.randf(state), wp.randf(state), wp.randf(state), wp.randf(state))
+        v = v * csm_visibility_filtered(objects[k], po, do, bias, filter_mode, xi)
+        if v == 0.0:
+            break
+    out[i] = v
+
+
+@wp.kernel
+def local_visibility_kernel(
+    csm: CubeCSMData,
+    points: wp.array(dtype=wp.vec3),
+    light_params: wp.array(dtype=wp.vec2),
+    bias: float,
+    filter_mode: int,
+    seed: int,
+    out: wp.array(dtype=wp.float32),
+    offset: int,
+):
+    """out[i] = filtered visibility between points[i] and the light point of parameters light_params[i]."""
+    i = wp.tid() + offset
+    xi = wp.vec4(0.0)
+    if filter_mode == FILTER_ROULETTE:
+        state = wp.rand_init(seed, i)
+        xi = wp.vec4(wp.randf(state), wp.randf(state), wp.randf(state), wp.randf(state))
+    out[i] = csm_local_visibility_filtered(csm, points[i], light_params[i], bias, filter_mode, xi)
+
+
+# ---- host side -------------------------------------------------------------------------------------
+
+
+def csm_device_data(csm: CoherentShadowMap, device: str | None = None) -> CSMData | CubeCSMData:
+    """The :class:`CSMData` (lat-long) or :class:`CubeCSMData` (cube) of a CSM on ``device`` (uploaded once,
+    then cached on the CSM object)."""
+    device = default_device(device)
+    key = str(device)
+    if key not in csm._device_cache and csm.kind == KIND_CUBE:
+        d = CubeCSMData()
+        d.resolution = int(csm.resolution)
+        d.n1, d.n2 = int(csm.n1), int(csm.n2)
+        d.num_samples = int(csm.num_cells)
+        d.faces = wp.array(cube_face_frames().astype(np.float32), dtype=wp.mat33, device=device)
+        d.samples = wp.array(np.asarray(csm.light_samples, np.float32), dtype=wp.vec3, device=device)
+        d.map_index = wp.array(csm.map_index.ravel().astype(np.int32), dtype=wp.int32, device=device)
+        d.seg_start = wp.array(csm.lists.seg_start, dtype=wp.int32, device=device)
+        d.seg_depth = wp.array(csm.lists.seg_depth, dtype=wp.float32, device=device)
+        d.seg_end = wp.array(csm.lists.seg_end, dtype=wp.int32, device=device)
+        csm._device_cache[key] = d
+    if key not in csm._device_cache:
+        d = CSMData()
+        d.center = wp.vec3(*(float(x) for x in csm.center))
+        d.radius = float(csm.radius)
+        d.resolution = int(csm.resolution)
+        d.n1, d.n2 = int(csm.n1), int(csm.n2)
+        d.num_maps = int(csm.num_maps)
+        d.frames = wp.array(csm.frames.astype(np.float32), dtype=wp.mat33, device=device)
+        d.map_index = wp.array(csm.map_index.ravel().astype(np.int32), dtype=wp.int32, device=device)
+        d.seg_start = wp.array(csm.lists.seg_start, dtype=wp.int32, device=device)
+        d.seg_depth = wp.array(csm.lists.seg_depth, dtype=wp.float32, device=device)
+        d.seg_end = wp.array(csm.lists.seg_end, dtype=wp.int32, device=device)
+        csm._device_cache[key] = d
+    return csm._device_cache[key]
+
+
+def _vec3_rows(a, name: str, n: int | None = None) -> np.ndarray:
+    try:
+        v = np.asarray(a, dtype=np.float32)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a numeric (K, 3) array") from exc
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (K, 3), got {v.shape}")
+    if n is not None and v.shape[0] != n:
+        raise ValueError(f"{name} must have {n} rows like points, got {v.shape[0]}")
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"{name} contains non-finite values")
+    return np.ascontiguousarray(v)
+
+
+def _expect_kind(csm, kind: str, name: str) -> None:
+    if not isinstance(csm, CoherentShadowMap):
+        raise ValueError(f"{name} must be a CoherentShadowMap, got {type(csm).__name__}")
+    if csm.kind != kind:
+        raise ValueError(f"{name} must be a {kind!r} CSM, got kind {csm.kind!r}")
+
+
+def _filter_mode(filter: str) -> int:
+    if filter not in FILTERS:
+        raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {filter!r}")
+    return FILTERS[filter]
+
+
+def csm_visibility_batch(
+    csm: CoherentShadowMap,
+    points,
+    directions,
+    *,
+    filter: str = "nearest",
+    bias: float = 0.0,
+    seed: int = 0,
+    device: str | None = None,
+    threads: int | None = None,
+) -> np.ndarray:
+    """Visibility of many (point, direction) pairs against one CSM.
+
+    Args:
+        csm: the coherent shadow map (object space = the space of the points).
+        points: (K, 3) query points.
+        directions: (K, 3) directions towards the light (any non-zero length).
+        filter: ``"nearest"``, ``"pcf"`` or ``"roulette"``.
+        bias: depth bias in scene units (>= 0).
+        seed: random seed of the roulette filter.
+        device: Warp device.
+        threads: CPU worker threads.
+
+    Returns:
+        (K,) float32 visibility in [0, 1] (1 = lit).
+
+    Raises:
+        ValueError: malformed points/directions, zero directions, unknown filter, negative or non-finite bias.
+    """
+    device = default_device(device)
+    mode = _filter_mode(filter)
+    p = _vec3_rows(points, "points")
+    d = _vec3_rows(directions, "directions", p.shape[0])
+    if np.any(np.all(d == 0.0, axis=1)):
+        raise ValueError("directions must be non-zero")
+    if not np.isfinite(bias) or bias < 0.0:
+        raise ValueError(f"bias must be a finite number >= 0, got {bias!r}")
+    _expect_kind(csm, KIND_LATLONG, "csm")
+    out = wp.empty(p.shape[0], dtype=wp.float32, device=device)
+    data = csm_device_data(csm, device)
+    parallel.launch_rows(
+        visibility_kernel, p.shape[0],
+        [data, wp.array(p, dtype=wp.vec3, device=device), wp.array(d, dtype=wp.vec3, device=device), float(bias),
+         mode, int(seed), out],
+        device, threads=threads, min_chunk=1024,
+    )  # fmt: skip
+    return out.numpy()
+
+
+def csm_objects_visibility_batch(
+    objects,
+    points,
+    directions,
+    *,
+    filter: str = "nearest",
+    bias: float = 0.0,
+    seed: int = 0,
+    device: str | None = None,
+    threads: int | None = None,
+) -> np.ndarray:
+    """Visibility of (point, direction) pairs against several rigid objects, each with its CSM and placement.
+
+    Args:
+        objects: sequence of ``(csm, transform)``: the object's CSM and its 4x4 object -> world matrix T
+            (None = identity). Receiver-only objects simply do not appear here.
+        points, directions, filter, bias, seed, device, threads: as in :func:`csm_visibility_batch` (world space).
+
+    Returns:
+        (K,) float32 product of the objects' visibilities.
+
+    Raises:
+        ValueError: as :func:`csm_visibility_batch`, plus an empty object list or a singular / non-affine T.
+    """
+    device = default_device(device)
+    mode = _filter_mode(filter)
+    objects = list(objects)
+    if not objects:
+        raise ValueError("objects must hold at least one (csm, transform) pair")
+    p = _vec3_rows(points, "points")
+    d = _vec3_rows(directions, "directions", p.shape[0])
+    if np.any(np.all(d == 0.0, axis=1)):
+        raise ValueError("directions must be non-zero")
+    if not np.isfinite(bias) or bias < 0.0:
+        raise ValueError(f"bias must be a finite number >= 0, got {bias!r}")
+    datas, invs = [], []
+    for k, (csm, transform) in enumerate(objects):
+        t = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
+        if t.shape != (4, 4) or not np.all(np.isfinite(t)) or not np.allclose(t[3], [0, 0, 0, 1]):
+            raise ValueError(f"objects[{k}] transform must be a finite affine 4x4 matrix")
+        if abs(np.linalg.det(t[:3, :3])) < 1e-12:
+            raise ValueError(f"objects[{k}] transform is singular")
+        _expect_kind(csm, KIND_LATLONG, f"objects[{k}] csm")
+        datas.append(csm_device_data(csm, device))
+        invs.append(np.linalg.inv(t).astype(np.float32))
+    out = wp.empty(p.shape[0], dtype=wp.float32, device=device)
+    parallel.launch_rows(
+        objects_visibility_kernel, p.shape[0],
+        [wp.array(datas, dtype=CSMData, device=device), wp.array(np.stack(invs), dtype=wp.mat44, device=device),
+         wp.array(p, dtype=wp.vec3, device=device), wp.array(d, dtype=wp.vec3, device=device), float(bias), mode,
+         int(seed), out],
+        device, threads=threads, min_chunk=1024,
+    )  # fmt: skip
+    return out.numpy()
+
+
+def csm_local_visibility_batch(
+    csm: CoherentShadowMap,
+    points,
+    light_params,
+    *,
+    filter: str = "nearest",
+    bias: float = 0.0,
+    seed: int = 0,
+    device: str | None = None,
+    threads: int | None = None,
+) -> np.ndarray:
+    """Visibility between points and light points of a fixed local light (a ``"cube"`` CSM).
+
+    Args:
+        csm: cube CSM from :func:`~warpscatter.csm.compress.build_cube_csm`.
+        points: (K, 3) query points.
+        light_params: (K, 2) light parameters x in [0, 1]^2 (second one ignored for linear lights, n2 = 1).
+        filter: ``"nearest"``, ``"pcf"`` or ``"roulette"``.
+        bias: depth bias in scene units (>= 0).
+        seed: random seed of the roulette filter.
+        device, threads: Warp device and CPU worker threads.
+
+    Returns:
+        (K,) float32 visibility in [0, 1].
+
+    Raises:
+        ValueError: a non-cube CSM, malformed inputs, light parameters outside [0, 1], unknown filter, bad bias.
+    """
+    device = default_device(device)
+    mode = _filter_mode(filter)
+    _expect_kind(csm, KIND_CUBE, "csm")
+    p = _vec3_rows(points, "points")
+    x = np.asarray(light_params, dtype=np.float32)
+    if x.shape != (p.shape[0], 2):
+        raise ValueError(f"light_params must have shape ({p.shape[0]}, 2), got {x.shape}")
+    if not np.all((x >= 0.0) & (x <= 1.0)):
+        raise ValueError("light_params must lie in [0, 1]")
+    if not np.isfinite(bias) or bias < 0.0:
+        raise ValueError(f"bias must be a finite number >= 0, got {bias!r}")
+    out = wp.empty(p.shape[0], dtype=wp.float32, device=device)
+    parallel.launch_rows(
+        local_visibility_kernel, p.shape[0],
+        [csm_device_data(csm, device), wp.array(p, dtype=wp.vec3, device=device),
+         wp.array(np.ascontiguousarray(x), dtype=wp.vec2, device=device), float(bias), mode, int(seed), out],
+        device, threads=threads, min_chunk=1024,
+    )  # fmt: skip
+    return out.numpy()
