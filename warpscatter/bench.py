@@ -245,8 +245,8 @@ def bench_scene_config(name: str, width: int, height: int, leaves: int = 4000, *
         },
     }
     scenes["colonnade_spot"] = {**scenes["colonnade"], "light": {
-        "type": "spot", "position": [-2.0, 9.0, -14.0], "direction": [2.0, -6.5, 14.0], "cone_deg": 30.0,
-        "intensity": [900.0, 850.0, 800.0], "texture": str(bench_light_texture())}}
+        "type": "spot", "position": [10.0, 25.0, 14.0], "direction": [-10.0, -22.5, -14.0], "cone_deg": 25.0,
+        "intensity": [2400.0, 2250.0, 2100.0], "texture": str(bench_light_texture())}}
     data = dict(scenes[name])
     data["camera"] = {**data["camera"], "width": width, "height": height}
     data["render"] = render
