@@ -348,3 +348,77 @@ def bench(ctx, suite, repeats: int, warmup: int, output_dir: Path, quick: bool, 
 
 if __name__ == "__main__":
     main()
+
+
+@main.command()
+@click.argument("source", type=click.Path(path_type=Path))
+@click.option("-o", "--output", "output", type=click.Path(path_type=Path), required=True,
+              help="The .npz file to write (written to a temporary name, then renamed).")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Config overrides (SOURCE = config).")
+@click.option("--maps", default="64x32", show_default=True, metavar="N1xN2",
+              help="Lat-long grid of map directions (azimuth x polar cells).")
+@click.option("--resolution", type=click.IntRange(min=8, max=4096), default=128, show_default=True,
+              help="Depth-map resolution M.")
+@click.option("--enumeration", type=click.Choice(["hilbert", "zigzag", "scanline"]), default="hilbert",
+              show_default=True, help="Order of the maps along the compressed sequence.")
+@click.option("--layers", type=click.Choice(["z1z2", "z1z3"]), default="z1z2", show_default=True,
+              help="Depths kept per texel: first and second surface, or first and third (closed meshes).")
+@click.option("--far", type=click.Choice(["sphere", "infinite"]), default="sphere", show_default=True,
+              help="Far depth of texels without a second surface: the bounding sphere, or infinity.")
+@click.option("--batch", type=click.IntRange(min=1), default=64, show_default=True,
+              help="Maps rendered and compressed per batch (memory ~ M^2 x batch).")
+@_debug_option
+@click.pass_context
+def precompute(ctx, source: Path, output: Path, overrides, maps: str, resolution: int, enumeration: str, layers: str,
+               far: str, batch: int, debug: bool):
+    """Build and save a coherent shadow map (Ritschel 2007) for SOURCE: a mesh file, or a config's scene."""
+    debug = debug or ctx.obj.get("debug", False)
+    try:
+        n1, n2 = (int(x) for x in maps.lower().split("x"))
+        if n1 < 1 or n2 < 1:
+            raise ValueError
+    except ValueError:
+        _fail(f"--maps: expected N1xN2 with positive integers, got {maps!r}", EXIT_INVALID)
+    if output.suffix != ".npz":
+        _fail(f"-o: the CSM file must end in .npz, got {output}", EXIT_INVALID)
+    if not source.is_file():
+        _fail(f"{source}: file not found", EXIT_INVALID)
+    try:
+        if source.suffix in (".yaml", ".yml"):
+            from warpscatter.scene import build_scene
+
+            scene = build_scene(load_config(source, list(overrides)))
+            vertices, triangles = scene.vertices, scene.triangles
+        else:
+            from warpscatter.scene.meshes import load_mesh
+
+            mesh = load_mesh(source)
+            vertices, triangles = mesh.vertices, mesh.triangles
+    except ConfigError as exc:
+        _fail(str(exc), EXIT_INVALID)
+    except Exception as exc:
+        _fail(f"{source}: {_error_text(exc)}", EXIT_INVALID, debug)
+    from warpscatter.csm import build_csm, save_csm
+
+    progress = ProgressDisplay(enabled=True)
+    try:
+        t0 = time.perf_counter()
+        csm = build_csm(vertices, triangles, n1=n1, n2=n2, resolution=resolution, enumeration=enumeration,
+                        depth_layers=layers, far=far, batch_maps=batch,
+                        progress=lambda done, total: progress("depth maps + compression", done / total))
+        output.parent.mkdir(parents=True, exist_ok=True)
+        save_csm(csm, output)
+    except KeyboardInterrupt:
+        progress.close()
+        _fail("interrupted", EXIT_INTERRUPTED)
+    except Exception as exc:
+        progress.close()
+        _fail(_error_text(exc), EXIT_FAILURE, debug)
+    progress.close()
+    st = csm.stats
+    click.echo(f"coherent shadow map: {len(triangles)} triangles, N = {n1}x{n2} maps of {resolution}^2, {enumeration}")
+    click.echo(f"  segments {st.num_segments} ({st.segments_per_texel:.1f} per texel), "
+               f"{st.compressed_bytes / 2**20:.1f} MiB, ratio {st.ratio:.1f}:1 against float32 maps")
+    click.echo(f"  render {st.seconds_render:.1f} s, compress {st.seconds_compress:.1f} s, "
+               f"total {time.perf_counter() - t0:.1f} s, peak working memory {st.peak_working_bytes / 2**20:.1f} MiB")
+    click.echo(f"wrote:\n  {output}")

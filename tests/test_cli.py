@@ -286,3 +286,37 @@ def test_timing_table():
     assert lines[3].split() == ["raymarch", "750.0", "ms", "75.0%"]
     assert lines[-1].split() == ["total", "1.000", "s", "100.0%"]
     assert timing_table({}) == "(no timings)"
+
+
+# ---- precompute (coherent shadow maps) ---------------------------------------------------------------------
+
+
+def test_precompute_writes_a_loadable_csm(tmp_path):
+    from warpscatter.csm import load_csm
+
+    root = Path(__file__).resolve().parent.parent
+    out = tmp_path / "gate.npz"
+    result = CliRunner().invoke(main, ["precompute", str(root / "assets" / "gate.obj"), "-o", str(out),
+                                       "--maps", "8x4", "--resolution", "32", "--enumeration", "zigzag"])
+    assert result.exit_code == 0, result.output
+    assert "ratio" in result.output and out.is_file()
+    csm = load_csm(out)
+    assert csm.num_maps == 32 and csm.resolution == 32 and csm.enumeration == "zigzag"
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--maps", "8by4"], "--maps"),
+    (["--maps", "0x4"], "--maps"),
+    (["-o", "x.csm"], "must end in .npz"),
+])
+def test_precompute_bad_arguments(tmp_path, args, message):
+    root = Path(__file__).resolve().parent.parent
+    base = ["precompute", str(root / "assets" / "gate.obj"), "-o", str(tmp_path / "a.npz")]
+    result = CliRunner().invoke(main, [*base, *args])
+    assert result.exit_code == 2 and message in result.output
+    assert not list(tmp_path.iterdir())
+
+
+def test_precompute_missing_source(tmp_path):
+    result = CliRunner().invoke(main, ["precompute", str(tmp_path / "nope.obj"), "-o", str(tmp_path / "a.npz")])
+    assert result.exit_code == 2 and "not found" in result.output

@@ -46,6 +46,8 @@ SUITES: dict[str, str] = {
                "per texel, error vs exact; moment soft shadows vs PCSS",
     "epipolar": "epipolar sampling (Engelhardt 2010) on the colonnade under a textured spot: fraction ray-marched, "
                 "stage times, errors for 256-1024 lines and 8-32 initial samples",
+    "csm": "coherent shadow maps (Ritschel 2007): compression ratio, precompute time and memory vs N and "
+           "enumeration; visibility queries/s (random, coherent) against BVH shadow rays",
 }
 
 ProgressFn = Callable[[str, float], None]
@@ -599,8 +601,98 @@ def suite_epipolar(report: BenchReport, repeats: int, warmup: int, quick: bool, 
                               "rel_l1_vs_per_pixel": best[0]["extra"]["rel_l1_vs_per_pixel"]}
 
 
+def _bumpy_sphere(count: int) -> tuple[np.ndarray, np.ndarray]:
+    """A closed, bumpy UV sphere (2 count^2 - ... triangles; count 246: about 240k) for the CSM suite."""
+    import trimesh
+
+    m = trimesh.creation.uv_sphere(radius=1.0, count=[count, count])
+    n = np.asarray(m.vertices, np.float64)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    rng = np.random.default_rng(0)
+    k, ph = rng.normal(size=(24, 3)) * 3.0, rng.uniform(0.0, 2.0 * np.pi, 24)
+    r = 1.0 + 0.5 * np.mean(np.sin(n @ k.T + ph), axis=1)
+    return (n * r[:, None]).astype(np.float32), np.asarray(m.faces, np.int32)
+
+
+def suite_csm(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
+    """Ritschel 2007 Tables 1-2: compression vs N and enumeration; queries/s against BVH shadow rays."""
+    from .csm import build_csm, csm_device_data
+    from .csm.query import visibility_kernel
+    from .parallel import launch_rows
+    from .raycast import build_mesh, shadow_ray_visibility
+
+    verts, tris = _bumpy_sphere(60 if quick else 246)
+    res = 64 if quick else 128
+    sides = [8, 16] if quick else [32, 64, 128]
+    cases = [(n, "hilbert") for n in sides] + [(sides[1], e) for e in ("zigzag", "scanline")]
+    csms = {}
+    for k, (n, enum) in enumerate(cases):
+        if progress:
+            progress(f"CSM N={n}^2 {enum}", 0.7 * k / len(cases))
+        t0 = time.perf_counter()
+        csm = build_csm(verts, tris, n1=n, n2=n, resolution=res, enumeration=enum)
+        st = csm.stats
+        csms[(n, enum)] = csm
+        report.add(name="csm precompute", params={"N": f"{n}x{n}", "M": res, "enumeration": enum,
+                                                  "triangles": len(tris)},
+                   median_ms=1e3 * (time.perf_counter() - t0),
+                   stages_ms={"render": 1e3 * st.seconds_render, "compress": 1e3 * st.seconds_compress},
+                   extra={"ratio": round(st.ratio, 1), "segments_per_texel": round(st.segments_per_texel, 1),
+                          "MB": round(st.compressed_bytes / 2**20, 1),
+                          "peak_working_MB": round(st.peak_working_bytes / 2**20, 1)})
+    # ---- queries: surface points, random (upper hemisphere) and coherent directions ----
+    csm = csms[(sides[-1], "hilbert")]
+    rng = np.random.default_rng(0)
+    count = 200_000 if quick else 2_000_000
+    tri = verts[tris]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    idx = rng.choice(len(tris), size=count, p=area / area.sum())
+    a, b = rng.random((2, count))
+    sa = np.sqrt(a)
+    bary = np.stack([1 - sa, sa * (1 - b), sa * b], 1)
+    points = np.einsum("kj,kjc->kc", bary, tri[idx]).astype(np.float32)
+    normal = np.cross(tri[idx, 1] - tri[idx, 0], tri[idx, 2] - tri[idx, 0])
+    random_dirs = rng.normal(size=(count, 3))
+    random_dirs[np.sum(random_dirs * normal, axis=1) < 0] *= -1
+    coherent = np.tile(np.array([0.3, 0.8, 0.52]) / np.linalg.norm([0.3, 0.8, 0.52]), (count, 1))
+    mesh = build_mesh(verts, tris)
+    data = csm_device_data(csm)
+    pts = wp.array(points, dtype=wp.vec3)
+    out = wp.empty(count, dtype=wp.float32)
+    eps = 1e-4 * float(csm.radius)
+    for k, (label, dirs) in enumerate((("random", random_dirs), ("coherent", coherent))):
+        if progress:
+            progress(f"queries {label}", 0.7 + 0.15 * k)
+        d = wp.array(dirs.astype(np.float32), dtype=wp.vec3)
+        rows = {}
+        for method in ("csm nearest", "csm pcf", "bvh shadow rays"):
+            if method == "bvh shadow rays":
+                def fn():
+                    return shadow_ray_visibility(mesh, pts, d, eps=eps)
+            else:
+                mode = 1 if method == "csm pcf" else 0
+
+                def fn(mode=mode):
+                    launch_rows(visibility_kernel, count, [data, pts, d, 0.0, mode, 0, out], min_chunk=1024)
+                    return out
+            m = measure(fn, repeats, warmup)
+            vis = fn().numpy().copy()
+            rows[method] = (report.add(name=f"queries {label}: {method}",
+                                       params={"queries": count, "N": f"{sides[-1]}x{sides[-1]}", "M": res},
+                                       median_ms=1e3 * m["median_s"],
+                                       extra={"Mqueries_per_s": round(count / m["median_s"] / 1e6, 2),
+                                              "mean_visibility": round(float(vis.mean()), 4)}), vis)
+        ref_ms = rows["bvh shadow rays"][0]["median_ms"]
+        for method, (row, vis) in rows.items():
+            row["speedup"] = ref_ms / row["median_ms"]
+            if method == "csm nearest":
+                row["extra"]["agreement_with_bvh"] = round(float(np.mean((vis > 0.5) == (rows["bvh shadow rays"][1]
+                                                                                            > 0.5))), 4)
+
+
 _SUITE_FNS = {"raster": suite_raster, "reference": suite_reference, "parallel": suite_parallel,
-              "prefiltered": suite_prefiltered, "moments": suite_moments, "epipolar": suite_epipolar}
+              "prefiltered": suite_prefiltered, "moments": suite_moments, "epipolar": suite_epipolar,
+              "csm": suite_csm}
 
 
 def run(suite: str = "reference", *, repeats: int = 5, warmup: int = 1, out_dir: Path | None = None,

@@ -118,6 +118,22 @@ def raycast_camera_kernel(
 # ---- host side -------------------------------------------------------------------------------------
 
 
+@wp.kernel
+def shadow_rays_kernel(
+    mesh: wp.uint64,
+    points: wp.array(dtype=wp.vec3),
+    directions: wp.array(dtype=wp.vec3),
+    eps: float,
+    out: wp.array(dtype=wp.float32),
+    offset: int,
+):
+    i = wp.tid() + offset
+    d = wp.normalize(directions[i])
+    out[i] = 1.0
+    if occluded(mesh, points[i] + d * eps, d, 1.0e30):
+        out[i] = 0.0
+
+
 def build_mesh(vertices, triangles, device: str | None = None) -> wp.Mesh:
     """BVH mesh for ray queries.
 
@@ -222,3 +238,24 @@ def raycast_camera(
         min_chunk=8,
     )
     return distance.numpy(), tri_id.numpy()
+
+
+def shadow_ray_visibility(mesh: wp.Mesh, points, directions, *, eps: float = 0.0, device: str | None = None,
+                          threads: int | None = None) -> wp.array:
+    """Visibility (1 lit, 0 blocked) of rays from ``points`` (offset by ``eps`` along them) towards ``directions``.
+
+    The BVH reference for batched visibility queries (e.g. coherent shadow maps). Inputs are (K, 3) numpy or
+    ``wp.array(vec3)`` on ``device``; returns a (K,) float32 ``wp.array``.
+    """
+    device = default_device(device)
+    mesh = _check_mesh(mesh)
+    pts = points if isinstance(points, wp.array) else wp.array(np.asarray(points, np.float32), dtype=wp.vec3,
+                                                              device=device)
+    dirs = directions if isinstance(directions, wp.array) else wp.array(np.asarray(directions, np.float32),
+                                                                       dtype=wp.vec3, device=device)
+    if pts.shape != dirs.shape:
+        raise ValueError(f"points and directions must have the same length, got {pts.shape} and {dirs.shape}")
+    out = wp.empty(pts.shape[0], dtype=wp.float32, device=device)
+    parallel.launch_rows(shadow_rays_kernel, pts.shape[0], [mesh.id, pts, dirs, float(eps), out], device,
+                         threads=threads, min_chunk=1024)
+    return out
