@@ -94,3 +94,9 @@ def test_bad_cameras_raise(kwargs, msg):
                 far=80)
     with pytest.raises(ValueError, match=msg):
         Camera(**{**base, **kwargs})
+
+
+def test_strided_ray_directions_are_a_subset(cam):
+    full = cam.ray_directions()
+    for s in (2, 3, 4):
+        np.testing.assert_array_equal(cam.ray_directions(s), full[s // 2::s, s // 2::s])

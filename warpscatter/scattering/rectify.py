@@ -495,7 +495,7 @@ def _pixel_median_inclination(rect: NonlinearRectification, camera, stride: int,
     """Per row, the inclination of the median-k pixel ray of ``camera`` in that slice (``default`` where none)."""
     if int(stride) != stride or stride < 1:
         raise ValueError(f"pixel_stride must be an integer >= 1, got {stride}")
-    d = camera.ray_directions()[stride // 2::stride, stride // 2::stride].reshape(-1, 3)
+    d = camera.ray_directions(stride).reshape(-1, 3)
     q = d @ rect.to_light.T
     theta = _inclination(q)
     v = (np.mod(np.arctan2(q[:, 1], q[:, 0]) - rect.phi_mid + math.pi, TWO_PI) - math.pi) / rect.phi_span + 0.5

@@ -493,7 +493,7 @@ def _pixel_median_slopes(rect: ProjectiveRectification, camera, stride: int, def
     """Per row, the depth slope z/x of the median-k pixel ray of ``camera`` in that slice (``default`` where none)."""
     if int(stride) != stride or stride < 1:
         raise ValueError(f"pixel_stride must be an integer >= 1, got {stride}")
-    q = camera.ray_directions()[stride // 2::stride, stride // 2::stride].reshape(-1, 3) @ rect.to_light.T
+    q = camera.ray_directions(stride).reshape(-1, 3) @ rect.to_light.T
     slope, zeta = q[:, 1] / q[:, 0], q[:, 2] / q[:, 0]
     row = np.clip(((rect.s_hi - slope) / (rect.s_hi - rect.s_lo) * rect.rows).astype(np.int64), 0, rect.rows - 1)
     k = np.sqrt(1.0 + slope**2) / np.sqrt(1.0 + slope**2 + zeta**2)
