@@ -458,10 +458,7 @@ def reference_ray(rect: NonlinearRectification, method: str = "optimal", camera=
     Raises:
         ValueError: on an unknown method.
     """
-    if method not in ("optimal", "bisectrix", "mean", "pixels"):
-        raise ValueError(f"method must be 'optimal', 'bisectrix', 'mean' or 'pixels', got {method!r}")
-    if method == "pixels" and camera is None:
-        raise ValueError("reference_ray(method='pixels') needs the camera")
+    check_reference_method(method, camera, "reference_ray")
     phi = rect.row_azimuths()
     lo, hi = rect.slice_inclination_range(phi)
     half_pi = 0.5 * math.pi
@@ -491,6 +488,29 @@ def reference_ray(rect: NonlinearRectification, method: str = "optimal", camera=
                          delta_ref=rect.delta_perp / k_ref, direction=local @ rect.to_light, optimal=optimal)
 
 
+REFERENCE_METHODS = ("optimal", "bisectrix", "mean", "pixels")
+
+
+def check_reference_method(method: str, camera, caller: str) -> None:
+    """Raise ValueError for an unknown reference-ray method, or ``"pixels"`` without a camera."""
+    if method not in REFERENCE_METHODS:
+        raise ValueError(f"method must be 'optimal', 'bisectrix', 'mean' or 'pixels', got {method!r}")
+    if method == "pixels" and camera is None:
+        raise ValueError(f"{caller}(method='pixels') needs the camera")
+
+
+def median_per_row(row: np.ndarray, key: np.ndarray, value: np.ndarray, rows: int, default: np.ndarray) -> np.ndarray:
+    """Per row r in [0, rows), ``value`` of the sample with the median ``key`` among those with row == r
+    (``default[r]`` where a row has none). Used by the pixel-weighted reference rays of both rectifications."""
+    order = np.lexsort((key, row))  # by row, then by key
+    row_sorted = row[order]
+    start = np.searchsorted(row_sorted, np.arange(rows), side="left")
+    stop = np.searchsorted(row_sorted, np.arange(rows), side="right")
+    has = stop > start
+    mid = order[(start + stop - 1) // 2]
+    return np.where(has, value[np.where(has, mid, 0)], default)
+
+
 def _pixel_median_inclination(rect: NonlinearRectification, camera, stride: int, default: np.ndarray) -> np.ndarray:
     """Per row, the inclination of the median-k pixel ray of ``camera`` in that slice (``default`` where none)."""
     if int(stride) != stride or stride < 1:
@@ -500,14 +520,7 @@ def _pixel_median_inclination(rect: NonlinearRectification, camera, stride: int,
     theta = _inclination(q)
     v = (np.mod(np.arctan2(q[:, 1], q[:, 0]) - rect.phi_mid + math.pi, TWO_PI) - math.pi) / rect.phi_span + 0.5
     row = np.clip((v * rect.rows).astype(np.int64), 0, rect.rows - 1)
-    k = np.sin(theta)
-    order = np.lexsort((k, row))  # by row, then by k
-    row_sorted = row[order]
-    start = np.searchsorted(row_sorted, np.arange(rect.rows), side="left")
-    stop = np.searchsorted(row_sorted, np.arange(rect.rows), side="right")
-    has = stop > start
-    mid = order[(start + stop - 1) // 2]
-    return np.where(has, theta[np.where(has, mid, 0)], default)
+    return median_per_row(row, np.sin(theta), theta, rect.rows, default)
 
 
 # ---- host side: resampling ------------------------------------------------------------------------------

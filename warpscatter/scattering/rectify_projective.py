@@ -65,6 +65,7 @@ from .. import raster
 from ..scene.camera import normalize
 from ..wpinit import default_device, module_options
 from .prefilter import split_columns
+from .rectify import check_reference_method, median_per_row
 
 module_options()
 
@@ -497,13 +498,7 @@ def _pixel_median_slopes(rect: ProjectiveRectification, camera, stride: int, def
     slope, zeta = q[:, 1] / q[:, 0], q[:, 2] / q[:, 0]
     row = np.clip(((rect.s_hi - slope) / (rect.s_hi - rect.s_lo) * rect.rows).astype(np.int64), 0, rect.rows - 1)
     k = np.sqrt(1.0 + slope**2) / np.sqrt(1.0 + slope**2 + zeta**2)
-    order = np.lexsort((k, row))  # by row, then by k
-    row_sorted = row[order]
-    start = np.searchsorted(row_sorted, np.arange(rect.rows), side="left")
-    stop = np.searchsorted(row_sorted, np.arange(rect.rows), side="right")
-    has = stop > start
-    mid = order[(start + stop - 1) // 2]
-    return np.where(has, zeta[np.where(has, mid, 0)], default)
+    return median_per_row(row, k, zeta, rect.rows, default)
 
 
 def reference_rays(rect: ProjectiveRectification, method: str = "optimal", camera=None,
@@ -529,10 +524,7 @@ def reference_rays(rect: ProjectiveRectification, method: str = "optimal", camer
     Raises:
         ValueError: on an unknown method.
     """
-    if method not in ("optimal", "bisectrix", "mean", "pixels"):
-        raise ValueError(f"method must be 'optimal', 'bisectrix', 'mean' or 'pixels', got {method!r}")
-    if method == "pixels" and camera is None:
-        raise ValueError("reference_rays(method='pixels') needs the camera")
+    check_reference_method(method, camera, "reference_rays")
     s = rect.row_slopes()
     lo, hi = rect.slice_depth_slope_range(s)
     h2 = 1.0 + s * s
