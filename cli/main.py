@@ -20,7 +20,7 @@ from pathlib import Path
 import click
 
 from warpscatter import __version__
-from warpscatter.config import AOV_NAMES, Config, ConfigError, load_config
+from warpscatter.config import AOV_NAMES, LIGHTING_METHODS, Config, ConfigError, load_config
 
 EXIT_FAILURE = 1
 EXIT_INVALID = 2
@@ -176,6 +176,16 @@ def _summary(config: Config) -> list[str]:
         light_text = (
             f"directional, direction {_format_value(light.direction)}, irradiance {_format_value(light.irradiance)}"
         )
+    elif light.type == "environment":
+        light_text = f"environment map {light.map}, scale {light.scale:g}"
+    elif light.type == "area":
+        emit = f"power {_format_value(light.power)}" if light.power is not None else \
+            f"radiance {_format_value(light.radiance or (1.0, 1.0, 1.0))}"
+        light_text = (f"area at {_format_value(light.position)}, edges {_format_value(light.u)} x "
+                      f"{_format_value(light.v)}, {emit}" + (", two-sided" if light.two_sided else ""))
+    elif light.type == "linear":
+        light_text = (f"linear {_format_value(light.start)} -> {_format_value(light.end)}, intensity "
+                      f"{_format_value(light.intensity)} per unit length")
     else:
         light_text = (
             f"spot at {_format_value(light.position)}, direction {_format_value(light.direction)}, "
@@ -185,6 +195,7 @@ def _summary(config: Config) -> list[str]:
     med = config.medium
     phase = med.phase.type + (f" (g {med.phase.g:g})" if med.phase.type == "henyey_greenstein" else "")
     sc = config.render.scattering
+    lt = config.render.lighting
     out = config.output
     extra = [a for a in AOV_NAMES if a in out.aovs and a != "color"]
     return [
@@ -193,7 +204,9 @@ def _summary(config: Config) -> list[str]:
         f"{_format_value(cam.look_at)}, near {cam.near:g}, far {cam.far:g}",
         f"  light:   {light_text}",
         f"  medium:  sigma_t {med.sigma_t:g}, albedo {med.albedo:g}, phase {phase}",
-        f"  method:  {sc.method} (visibility {sc.visibility}, {sc.steps} steps)",
+        f"  method:  {sc.method} (visibility {sc.visibility}, {sc.steps} steps)" if lt.method is None else
+        f"  method:  lighting {lt.method} ({lt.samples} strata x {lt.passes} passes, filter {lt.filter}"
+        f"{', CSM file ' + str(lt.csm.file) if lt.csm.file else ''})",
         f"  output:  {out.dir / out.name}.exr/.png" + (f" + {', '.join(extra)}" if extra else ""),
     ]
 
@@ -228,7 +241,8 @@ def main(ctx: click.Context, debug: bool) -> None:
     help="Write outputs here (relative to the current folder) instead of output.dir.",
 )
 @_set_option
-@click.option("--method", metavar="NAME", help="Scattering method; same as --set render.scattering.method=NAME.")
+@click.option("--method", metavar="NAME", help="Scattering method (same as --set render.scattering.method=NAME), or "
+              "a lighting method csm / raytrace (same as --set render.lighting.method=NAME).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress or tables; print only the written files.")
 @_debug_option
 @click.pass_context
@@ -239,7 +253,8 @@ def render(ctx, config_path: Path, output_dir, overrides, method, quiet: bool, d
     NAME.depth.exr) into output.dir or -o DIR, then prints the per-stage timings.
     """
     debug = debug or ctx.obj.get("debug", False)
-    overrides = list(overrides) + ([f"render.scattering.method={method}"] if method else [])
+    section = "lighting" if method in LIGHTING_METHODS else "scattering"
+    overrides = list(overrides) + ([f"render.{section}.method={method}"] if method else [])
     config = _load(config_path, overrides, debug)
     out_dir = _out_dir(output_dir)
     if out_dir is not None:
@@ -367,11 +382,18 @@ if __name__ == "__main__":
               help="Far depth of texels without a second surface: the bounding sphere, or infinity.")
 @click.option("--batch", type=click.IntRange(min=1), default=64, show_default=True,
               help="Maps rendered and compressed per batch (memory ~ M^2 x batch).")
+@click.option("--light-samples", "light_samples", default="8x8", show_default=True, metavar="N1xN2",
+              help="Config with an area / linear light: depth cube maps at N1xN2 points of the light (N1 for linear).")
 @_debug_option
 @click.pass_context
 def precompute(ctx, source: Path, output: Path, overrides, maps: str, resolution: int, enumeration: str, layers: str,
-               far: str, batch: int, debug: bool):
-    """Build and save a coherent shadow map (Ritschel 2007) for SOURCE: a mesh file, or a config's scene."""
+               far: str, batch: int, light_samples: str, debug: bool):
+    """Build and save a coherent shadow map (Ritschel 2007) for SOURCE: a mesh file, or a config's scene.
+
+    From a config, the CSM holds the scene's occluders (meshes not marked receiver_only) in world space, ready
+    for render.lighting.csm.file: depth cube maps at --light-samples points of the light for an area or linear
+    light (unless render.lighting.csm.local_lights is semi_local), else lat-long maps (--maps).
+    """
     debug = debug or ctx.obj.get("debug", False)
     try:
         n1, n2 = (int(x) for x in maps.lower().split("x"))
@@ -379,16 +401,29 @@ def precompute(ctx, source: Path, output: Path, overrides, maps: str, resolution
             raise ValueError
     except ValueError:
         _fail(f"--maps: expected N1xN2 with positive integers, got {maps!r}", EXIT_INVALID)
+    try:
+        ls1, ls2 = (int(x) for x in light_samples.lower().split("x"))
+        if ls1 < 1 or ls2 < 1:
+            raise ValueError
+    except ValueError:
+        _fail(f"--light-samples: expected N1xN2 with positive integers, got {light_samples!r}", EXIT_INVALID)
     if output.suffix != ".npz":
         _fail(f"-o: the CSM file must end in .npz, got {output}", EXIT_INVALID)
     if not source.is_file():
         _fail(f"{source}: file not found", EXIT_INVALID)
+    local_light = None
     try:
         if source.suffix in (".yaml", ".yml"):
+            from warpscatter.csm.render import scene_occluders
             from warpscatter.scene import build_scene
 
-            scene = build_scene(load_config(source, list(overrides)))
-            vertices, triangles = scene.vertices, scene.triangles
+            config = load_config(source, list(overrides))
+            scene = build_scene(config)
+            vertices, triangles = scene_occluders(scene, [m.receiver_only for m in config.scene.meshes])
+            if len(triangles) == 0:
+                _fail(f"{source}: every mesh is receiver_only: no occluder to build a CSM of", EXIT_INVALID)
+            if config.light.type in ("area", "linear") and config.render.lighting.csm.local_lights == "cube":
+                local_light = scene.light
         else:
             from warpscatter.scene.meshes import load_mesh
 
@@ -398,14 +433,19 @@ def precompute(ctx, source: Path, output: Path, overrides, maps: str, resolution
         _fail(str(exc), EXIT_INVALID)
     except Exception as exc:
         _fail(f"{source}: {_error_text(exc)}", EXIT_INVALID, debug)
-    from warpscatter.csm import build_csm, save_csm
+    from warpscatter.csm import build_csm, build_cube_csm, save_csm
 
     progress = ProgressDisplay(enabled=True)
     try:
         t0 = time.perf_counter()
-        csm = build_csm(vertices, triangles, n1=n1, n2=n2, resolution=resolution, enumeration=enumeration,
-                        depth_layers=layers, far=far, batch_maps=batch,
-                        progress=lambda done, total: progress("depth maps + compression", done / total))
+        common = {"resolution": resolution, "enumeration": enumeration, "depth_layers": layers, "far": far,
+                  "batch_maps": batch,
+                  "progress": lambda done, total: progress("depth maps + compression", done / total)}
+        if local_light is not None:
+            n1, n2 = ls1, (1 if local_light.kind == "linear" else ls2)
+            csm = build_cube_csm(vertices, triangles, local_light.sample_points(n1, n2), **common)
+        else:
+            csm = build_csm(vertices, triangles, n1=n1, n2=n2, **common)
         output.parent.mkdir(parents=True, exist_ok=True)
         save_csm(csm, output)
     except KeyboardInterrupt:
@@ -416,7 +456,8 @@ def precompute(ctx, source: Path, output: Path, overrides, maps: str, resolution
         _fail(_error_text(exc), EXIT_FAILURE, debug)
     progress.close()
     st = csm.stats
-    click.echo(f"coherent shadow map: {len(triangles)} triangles, N = {n1}x{n2} maps of {resolution}^2, {enumeration}")
+    what = f"6 x {n1}x{n2} cube maps of the {local_light.kind} light" if local_light is not None else f"{n1}x{n2} maps"
+    click.echo(f"coherent shadow map: {len(triangles)} triangles, N = {what} of {resolution}^2, {enumeration}")
     click.echo(f"  segments {st.num_segments} ({st.segments_per_texel:.1f} per texel), "
                f"{st.compressed_bytes / 2**20:.1f} MiB, ratio {st.ratio:.1f}:1 against float32 maps")
     click.echo(f"  render {st.seconds_render:.1f} s, compress {st.seconds_compress:.1f} s, "

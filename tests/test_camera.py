@@ -90,8 +90,8 @@ def test_far_distance(cam):
     ({"up": [-3, -1, -7]}, "parallel"),
 ])
 def test_bad_cameras_raise(kwargs, msg):
-    base = dict(position=[1, 2, 3], look_at=[-2, 1, -4], up=[0, 1, 0], fov_y=47, width=17, height=9, near=0.2,
-                far=80)
+    base = {"position": [1, 2, 3], "look_at": [-2, 1, -4], "up": [0, 1, 0], "fov_y": 47, "width": 17, "height": 9,
+            "near": 0.2, "far": 80}
     with pytest.raises(ValueError, match=msg):
         Camera(**{**base, **kwargs})
 

@@ -148,7 +148,8 @@ def test_render_quiet_prints_only_files(config_file, tmp_path, fake_pipeline):
         ({"camera": {**CONFIG["camera"], "near": 10, "far": 1}}, [], "camera: near (10.0) must be < far (1.0)"),
         ({}, ["--set", "camera.fov_y"], "--set camera.fov_y: expected KEY=VALUE"),
         ({}, ["--set", "scene.meshes.0.material.opacity=2"], "scene.meshes.0.material.opacity: must be <= 1"),
-        ({}, ["--method", "moonlight"], "render.scattering.method: must be one of 'raymarch', 'fourier', 'moments4', 'moments6' or 'epipolar' (got 'moonlight')"),
+        ({}, ["--method", "moonlight"], "render.scattering.method: must be one of 'raymarch', 'fourier', "
+                                        "'moments4', 'moments6' or 'epipolar' (got 'moonlight')"),
     ],
 )
 def test_render_rejects_bad_config_and_writes_nothing(config_file, tmp_path, fake_pipeline, edit, extra_args, key):

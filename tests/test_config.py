@@ -176,7 +176,8 @@ def test_light_errors_have_no_union_tag_noise(tmp_path):
     assert "light.irradiance: every component must be >= 0" in msg
     assert "directional" not in msg  # pydantic's union tag is not part of the user's key path
     msg = problems(tmp_path, {"light": {"type": "point", "direction": [0, -1, 0]}})
-    assert "light.type: unknown type 'point' (choose from 'directional', 'spot')" in msg
+    assert ("light.type: unknown type 'point' (choose from 'directional', 'spot', 'environment', 'area', 'linear')"
+            in msg)
     text = write(tmp_path).read_text().replace("type: directional", "kind: directional")
     assert "light.type: required key missing" in problems(tmp_path, text=text)
 
@@ -300,7 +301,8 @@ def test_render_section(tmp_path):
             }
         },
     )
-    assert "render.scattering.method: must be one of 'raymarch', 'fourier', 'moments4', 'moments6' or 'epipolar' (got 'moonlight')" in msg
+    assert ("render.scattering.method: must be one of 'raymarch', 'fourier', 'moments4', 'moments6' or 'epipolar' "
+            "(got 'moonlight')") in msg
     assert "render.scattering.steps: must be >= 1" in msg
     assert "render.scattering.visibility: must be one of 'exact' or 'shadow_map'" in msg
     assert "render.scattering.shadow_map.resolution: each side must lie in [16," in msg

@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from warpscatter.raster import linearize_depth, rasterize
-from warpscatter.scene.camera import look_at_basis, orthographic_matrix, view_matrix
+from warpscatter.scene.camera import Camera, CameraParams, look_at_basis, orthographic_matrix, view_matrix
+from warpscatter.shading import pixel_footprint
 from warpscatter.shadows import moments as mm
 from warpscatter.shadows import msm
 from warpscatter.shadows.shadow_map import ShadowMap, ShadowMapParams, shadow_pcf
@@ -381,3 +382,122 @@ def test_invalid_arguments_raise():
     bad = dataclasses.replace(scene, opacity=np.array([-0.1], np.float32))
     with pytest.raises(ValueError, match="opacity"):
         msm.generate_moment_shadow_map(bad, sm)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Mip-mapped sampling (D.2 "generate a full mipmap hierarchy")
+# ---------------------------------------------------------------------------------------------------------------------
+
+
+def unpack_mips(m):
+    """Levels of a packed mip chain as a list of (C, h, w, 4) float64 arrays."""
+    h, w = m.shape
+    flat = m.mips.numpy().reshape(m.channels, -1, 4).astype(np.float64)
+    out, off = [], 0
+    for level in range(m.mip_levels):
+        lw, lh = max(w >> level, 1), max(h >> level, 1)
+        out.append(flat[:, off : off + lw * lh].reshape(m.channels, lh, lw, 4))
+        off += lw * lh
+    assert off == flat.shape[1]
+    return out
+
+
+@pytest.mark.parametrize("bits", [64, 128])
+def test_mip_chain_is_the_box_average_of_the_moments(bits):
+    rng = np.random.default_rng(11)
+    v, t = random_soup(rng)
+    scene = make_scene(v, t)
+    sm = top_down_map(scene.vertices, scene.triangles, 32)
+    m = msm.build_mip_chain(msm.render_moment_shadow_map(scene, sm, supersampling=2, bits=bits, filter_px=3))
+    assert m.mip_levels == 6 and m.nbytes == (32 * 32 + sum(4**k for k in range(6))) * bits // 8
+    levels = unpack_mips(m)
+    base = m.numpy()[0].astype(np.float64)
+    np.testing.assert_array_equal(levels[0][0], base)
+    lsb = 1.0 / 65535.0 if bits == 64 else 0.0
+    for level in range(1, m.mip_levels):
+        n = 1 << level
+        box = base.reshape(32 // n, n, 32 // n, n, 4).mean(axis=(1, 3))
+        # 64 bits: every level rounds to 16 bits again (at most half a step each)
+        assert np.abs(levels[level][0] - box).max() <= 0.5 * lsb * level + 1e-6  # measured 1.6e-5 (64), 9.4e-8 (128)
+    # a level of moments is a valid moment map: positive variance wherever depths differ in the block
+    b = mm.dequantize4(levels[3][0], m.storage) if bits == 64 else levels[3][0]
+    assert np.all(b[..., 1] - b[..., 0] ** 2 > -1e-4)
+
+
+def test_trilinear_footprint_matches_pcf_over_the_footprint():
+    """At level-k texel centres with a footprint of exactly 2^k texels the trilinear look-up reads level k alone: the
+    box average of 2^k x 2^k texels. With two depths per block (ground and one occluder) Algorithm 1 is exact, so
+    the visibility equals the lit fraction of the supersampled depth samples in the block (PCF over the footprint)."""
+    scene = edge_scene()
+    res, s = 32, 2
+    sm = top_down_map(scene.vertices, scene.triangles, res)  # texel 0.125 over [-2, 2]^2
+    m = msm.build_mip_chain(msm.render_moment_shadow_map(scene, sm, supersampling=s, bits=128, filter_px=1))
+    z = sample_signed_depths(scene, sm, s)
+    bias = 0.05
+    z_f = signed(0.0) - bias * 2.0 / (FAR - NEAR)
+    lit = (z >= z_f).astype(np.float64)  # (2 res, 2 res) samples; row 0 = map row 0
+    for k in (0, 1, 2, 3):
+        n = 1 << k
+        cells = res // n
+        centres = -2.0 + (np.arange(cells) + 0.5) * 4.0 / cells
+        # map u runs along +x, v (down) along +z for this top-down view (see top_down_map)
+        xx, zz = np.meshgrid(centres, centres)
+        pts = np.stack([xx, np.zeros_like(xx), zz], axis=-1).reshape(-1, 3).astype(np.float32)
+        foot = n * sm.texel_world
+        got = msm.msm_visibility_footprint_at(m, pts, [foot, 0.0, 0.0], [0.0, 0.0, foot], depth_bias=bias,
+                                              overdarkening=0.0)[:, 0].reshape(cells, cells)
+        truth = lit.reshape(cells, s * n, cells, s * n).mean(axis=(1, 3))
+        assert np.abs(got - truth).max() < 1e-4  # measured 6.6e-7 (levels 0-3)
+        if k > 0:
+            assert np.any((truth > 0.05) & (truth < 0.95))  # the footprint really straddles the edge
+    # footprints below a texel are the bilinear look-up; without a chain the footprint look-up is bilinear too
+    pts = np.stack([np.linspace(-1.5, 1.5, 37), np.zeros(37), np.full(37, 0.3)], axis=-1)
+    bil = msm.msm_visibility_at(m, pts, depth_bias=bias)
+    np.testing.assert_allclose(msm.msm_visibility_footprint_at(m, pts, [0.01, 0, 0], [0, 0, 0.01], depth_bias=bias),
+                               bil, atol=1e-6)
+    plain = dataclasses.replace(m, mips=None, mip_levels=0)
+    np.testing.assert_allclose(msm.msm_visibility_footprint_at(plain, pts, [1.0, 0, 0], [0, 0, 1.0], depth_bias=bias),
+                               bil, atol=1e-6)
+    # degenerate footprints (zero, huge, non-finite) stay finite and in [0, 1]
+    for f in (0.0, 1e30, np.inf, np.nan):
+        vis = msm.msm_visibility_footprint_at(m, pts, [f, 0, 0], [0, 0, f], depth_bias=bias)
+        assert np.all(np.isfinite(vis)) and np.all((vis >= 0.0) & (vis <= 1.0))
+
+
+@wp.kernel
+def footprint_kernel(cam: CameraParams, i: int, j: int, x: wp.vec3, n: wp.vec3, out: wp.array(dtype=wp.vec3)):
+    dx, dy = pixel_footprint(cam, i, j, x, n)
+    out[0] = dx
+    out[1] = dy
+
+
+def footprint_at(cam, i, j, x, n):
+    out = wp.zeros(2, dtype=wp.vec3)
+    wp.launch(footprint_kernel, 1, inputs=[cam.params(), i, j, wp.vec3(*x), wp.vec3(*n), out])
+    return out.numpy()
+
+
+def test_pixel_footprint_on_a_facing_and_a_grazing_plane():
+    """The footprint of the mip-level selection: a plane facing the camera at distance D has footprint sides
+    D * 2 tan(fov/2) / height (square pixels); on a plane seen at a grazing angle the sides are where the neighbouring
+    pixels' rays meet it."""
+    cam = Camera(position=[0, 0, -10], look_at=[0, 0, 0], up=[0, 1, 0], fov_y=60, width=64, height=48, near=0.1,
+                 far=100)
+    d = cam.ray_directions()[24, 32]  # pixel (32, 24)'s ray; x is where it meets the plane through the origin
+    side = 10.0 * 2.0 * np.tan(np.radians(30.0)) / 48
+    x = np.asarray(cam.position) + d * (10.0 / d[2])
+    dx, dy = footprint_at(cam, 32, 24, x, [0.0, 0.0, -1.0])
+    for e in (dx, dy):
+        assert abs(np.linalg.norm(e) / side - 1.0) < 1e-3  # measured 1.0e-7
+    tilt = np.radians(75.0)
+    n = np.array([0.0, np.sin(tilt), -np.cos(tilt)])  # tilted 75 degrees about x: the vertical side stretches
+    x = np.asarray(cam.position) + d * (np.dot(-np.asarray(cam.position), n) / np.dot(d, n))
+    dx, dy = footprint_at(cam, 32, 24, x, n)
+    rays = cam.ray_directions()
+    for got, nb in ((dx, rays[24, 33]), (dy, rays[25, 32])):  # exact: the neighbouring rays meet the plane
+        hit = np.asarray(cam.position) + nb * (np.dot(x - cam.position, n) / np.dot(nb, n))
+        assert np.abs(got - (hit - x)).max() < 1e-4 * np.linalg.norm(hit - x)  # measured 9.7e-6
+    assert np.linalg.norm(dy) > 2.0 * side  # the grazing side really stretches (measured 3.3x)
+    # a plane containing the neighbouring pixel rays falls back to the facing footprint: finite
+    dx, dy = footprint_at(cam, 32, 24, x, [1.0, 0.0, 0.0])
+    assert np.all(np.isfinite(dx)) and np.all(np.isfinite(dy))

@@ -43,11 +43,17 @@ def test_quickstart_renders_through_the_cli(tmp_path, method):
 def test_every_bundled_config_renders(config):
     cfg = load_config(ROOT / "configs" / config, ["camera.width=48", "camera.height=27",
                                                   "render.scattering.steps=8",
-                                                  "render.scattering.shadow_map.resolution=128"])
+                                                  "render.scattering.shadow_map.resolution=128",
+                                                  "render.lighting.samples=4", "render.lighting.passes=2",
+                                                  "render.lighting.csm.maps=[16,8]",
+                                                  "render.lighting.csm.resolution=32"])
     result = render(cfg, write=False)
     for name, img in result.images.items():
         assert np.isfinite(img).all(), name
-    assert result.images["scattering"].max() > 0  # every example shows in-scattered light
+    if cfg.render.lighting.method is None:
+        assert result.images["scattering"].max() > 0  # every scattering example shows in-scattered light
+    else:
+        assert result.images["surface"].max() > 0  # Monte-Carlo direct lighting (csm): surfaces only
     assert list(result.timings)[:2] == ["scene", "compile"]
 
 

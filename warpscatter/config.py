@@ -43,12 +43,20 @@ from pydantic import (
 
 __all__ = [
     "AOV_NAMES",
+    "LIGHTING_METHODS",
     "MESH_SUFFIXES",
     "SCATTERING_METHODS",
     "CameraConfig",
     "Config",
     "ConfigError",
+    "AreaLightConfig",
+    "CSMBuildConfig",
     "DirectionalLightConfig",
+    "EnvironmentLightConfig",
+    "LafortuneBRDFConfig",
+    "LightingConfig",
+    "LinearLightConfig",
+    "PhongBRDFConfig",
     "Material",
     "MediumConfig",
     "MeshEntry",
@@ -72,6 +80,10 @@ __all__ = [
 
 #: Scattering methods implemented so far (``render.scattering.method``).
 SCATTERING_METHODS = ("raymarch", "fourier", "moments4", "moments6", "epipolar")
+#: Monte-Carlo direct-lighting methods (``render.lighting.method``): coherent shadow maps and the ray-traced reference.
+LIGHTING_METHODS = ("csm", "raytrace")
+#: Light types only the lighting methods handle.
+MC_LIGHT_TYPES = ("environment", "area", "linear")
 #: Image outputs a render can write (``output.aovs``); ``color`` is always written.
 AOV_NAMES = ("color", "scattering", "surface", "depth")
 #: Mesh file suffixes accepted in ``scene.meshes.N.path`` (loaded with trimesh).
@@ -232,11 +244,48 @@ class Transform(_Model):
         return (s, s, s) if isinstance(s, float) else tuple(s)
 
 
+class PhongBRDFConfig(_Model):
+    """Normalized Phong lobe k_s (e + 2) / (2 pi) cos^e(alpha) beside the Lambert term (lighting methods only)."""
+
+    type: Literal["phong"]
+    specular: Albedo = (0.04, 0.04, 0.04)
+    exponent: Annotated[Float, Field(ge=0.0, le=1.0e4)] = 32.0
+
+
+class LafortuneLobeConfig(_Model):
+    """One Lafortune lobe color [C_x u_x v_x + C_y u_y v_y + C_z u_z v_z]^exponent (local frame, z = normal)."""
+
+    coefficients: Vec3
+    exponent: Annotated[Float, Field(ge=0.0, le=1.0e4)]
+    color: RGB = (1.0, 1.0, 1.0)
+
+
+class LafortuneBRDFConfig(_Model):
+    """Lafortune BRDF: the Lambert term (``albedo``) plus 1 to 4 generalized cosine lobes (lighting methods only)."""
+
+    type: Literal["lafortune"]
+    lobes: Annotated[list[LafortuneLobeConfig], Field(min_length=1, max_length=4)]
+
+
+BRDFConfig = Annotated[Union[PhongBRDFConfig, LafortuneBRDFConfig], Field(discriminator="type")]
+
+
 class Material(_Model):
-    """Surface material: diffuse ``albedo`` (linear RGB in [0, 1]) and ``opacity`` in (0, 1]."""
+    """Surface material: diffuse ``albedo`` (linear RGB in [0, 1]), ``opacity`` in (0, 1] and, for the lighting
+    methods (``render.lighting``), an optional glossy ``brdf`` (phong or lafortune) beside the Lambert term."""
 
     albedo: Albedo = (0.5, 0.5, 0.5)
     opacity: Annotated[Float, Field(gt=0.0, le=1.0)] = 1.0
+    brdf: Optional[BRDFConfig] = None
+
+    def brdf_spec(self) -> dict:
+        """This material as :meth:`warpscatter.csm.brdf.MaterialTable.from_specs` reads it."""
+        spec: dict = {"albedo": self.albedo}
+        if isinstance(self.brdf, PhongBRDFConfig):
+            spec["phong"] = {"specular": self.brdf.specular, "exponent": self.brdf.exponent}
+        elif isinstance(self.brdf, LafortuneBRDFConfig):
+            spec["lafortune"] = [lobe.model_dump() for lobe in self.brdf.lobes]
+        return spec
 
 
 class MeshEntry(_Model):
@@ -247,6 +296,7 @@ class MeshEntry(_Model):
     params: dict[str, Any] = Field(default_factory=dict)
     transform: Transform = Field(default_factory=dict)
     material: Material = Field(default_factory=dict)
+    receiver_only: Bool = False  # lighting methods: left out of the occluders (receives shadows, casts none)
 
     @field_validator("path")
     @classmethod
@@ -402,7 +452,65 @@ class SpotLightConfig(_Model):
         return None if v is None else _existing_file(_resolve(v, info))
 
 
-LightConfig = Annotated[Union[DirectionalLightConfig, SpotLightConfig], Field(discriminator="type")]
+class EnvironmentLightConfig(_Model):
+    """Distant lat-long environment map (``map``: an image file, row 0 = zenith, see assets/README.md) whose texels
+    are radiance, times ``scale``; lighting methods only."""
+
+    type: Literal["environment"]
+    map: PathStr
+    scale: Annotated[Float, Field(ge=0.0)] = 1.0
+
+    @field_validator("map")
+    @classmethod
+    def _check_map(cls, v: Path, info: ValidationInfo) -> Path:
+        return _existing_file(_resolve(v, info))
+
+
+class AreaLightConfig(_Model):
+    """Parallelogram light ``position`` + s ``u`` + t ``v`` (s, t in [0, 1]) emitting constant ``radiance`` (or its
+    ``power`` in W) from the side u x v points to, or both sides (``two_sided``); lighting methods only."""
+
+    type: Literal["area"]
+    position: Vec3
+    u: NonZeroVec3
+    v: NonZeroVec3
+    radiance: Optional[RGB] = None
+    power: Optional[RGB] = None
+    two_sided: Bool = False
+
+    @model_validator(mode="after")
+    def _check(self) -> AreaLightConfig:
+        cross = (self.u[1] * self.v[2] - self.u[2] * self.v[1], self.u[2] * self.v[0] - self.u[0] * self.v[2],
+                 self.u[0] * self.v[1] - self.u[1] * self.v[0])  # fmt: skip
+        nu = math.sqrt(sum(x * x for x in self.u))
+        nv = math.sqrt(sum(x * x for x in self.v))
+        if math.sqrt(sum(x * x for x in cross)) <= 1e-9 * nu * nv:
+            raise ValueError(f"u {list(self.u)} and v {list(self.v)} are parallel (the light has no area)")
+        if self.radiance is not None and self.power is not None:
+            raise ValueError("give radiance or power, not both")
+        return self
+
+
+class LinearLightConfig(_Model):
+    """Segment light from ``start`` to ``end``, isotropic, ``intensity`` RGB per unit length (W sr^-1 unit^-1);
+    lighting methods only."""
+
+    type: Literal["linear"]
+    start: Vec3
+    end: Vec3
+    intensity: RGB = (1.0, 1.0, 1.0)
+
+    @model_validator(mode="after")
+    def _check(self) -> LinearLightConfig:
+        if self.start == self.end:
+            raise ValueError(f"start and end must differ (both {list(self.start)})")
+        return self
+
+
+LightConfig = Annotated[
+    Union[DirectionalLightConfig, SpotLightConfig, EnvironmentLightConfig, AreaLightConfig, LinearLightConfig],
+    Field(discriminator="type"),
+]
 
 
 # ---- medium --------------------------------------------------------------------------------------
@@ -473,11 +581,14 @@ class PrefilteredConfig(_Model):
     reference_ray: Literal["pixels", "optimal", "bisectrix", "mean"] = "pixels"
     guard_band: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.1
     epipole_block: Annotated[Int, Field(ge=0)] = 32
+    epipole_angle_deg: Annotated[Float, Field(ge=0.0, le=60.0)] = 8.0
     rectification: Literal["auto", "projective", "nonlinear"] = "auto"
     epipole_margin: Annotated[Float, Field(ge=0.0)] = 1.0
     regions: Annotated[Int, Field(ge=1, le=16)] = 8
     projective_weights: Literal["exact", "cross_ratio"] = "exact"
     splits: Annotated[Int, Field(ge=1, le=16)] = 1
+    resample_filter: Literal["none", "moments"] = "none"  # Peters 2017 Sec. 5.2 (non-linear rectification)
+    resample_filter_px: Optional[Annotated[Int, Field(ge=1, le=64)]] = None  # null: radial rectified texel footprint
 
 
 class FourierConfig(_Model):
@@ -538,6 +649,7 @@ class ScatteringConfig(_Model):
     visibility: Literal["exact", "shadow_map"] = "exact"
     steps: Annotated[Int, Field(ge=1)] = 128
     seed: Int = 0
+    jitter: Literal["per_pixel", "fixed"] = "per_pixel"  # raymarch / epipolar step pattern (raymarch.py module doc)
     shadow_map: ShadowMapConfig = Field(default_factory=dict)
     prefiltered: PrefilteredConfig = Field(default_factory=dict)
     fourier: FourierConfig = Field(default_factory=dict)
@@ -570,7 +682,9 @@ class ShadowsConfig(_Model):
     (64: Theta_4* in 16-bit fixed point, 128: float32; ``msm_soft`` always uses 128); ``supersampling`` the
     depth samples per texel and axis of the moment map; ``coloured`` one map per RGB channel for tinted
     translucency; ``light_angle_deg`` (directional, full angle) or ``light_size`` (spot, scene units) the
-    area light of the soft methods; ``max_kernel_px`` their widest region side (n_t = max_kernel_px^2).
+    area light of the soft methods; ``max_kernel_px`` their widest region side (n_t = max_kernel_px^2);
+    ``sampling`` the ``msm`` look-up: ``bilinear`` or ``mipmap`` (trilinear in the moment map's mip chain at the
+    level of each pixel's footprint in shadow-map texels).
     """
 
     method: Literal["pcf", "msm", "msm_soft", "pcss", "none"] = "pcf"
@@ -582,6 +696,56 @@ class ShadowsConfig(_Model):
     light_angle_deg: Annotated[Float, Field(gt=0.0, lt=180.0)] = 1.0
     light_size: Annotated[Float, Field(gt=0.0)] = 0.5
     max_kernel_px: Annotated[Int, Field(ge=4, le=256)] = 28
+    sampling: Literal["bilinear", "mipmap"] = "bilinear"  # msm look-ups: level 0, or trilinear at the pixel footprint
+
+
+class CSMBuildConfig(_Model):
+    """The coherent shadow map of the lighting methods: a ``file`` from ``warpscatter precompute`` (.npz), or built
+    on the fly from the scene's occluders with these parameters (``maps`` lat-long N1 x N2 for environment lights,
+    ``light_samples`` n1 x n2 cube-map points for area lights, n1 for linear lights)."""
+
+    file: Optional[PathStr] = None
+    maps: tuple[Annotated[Int, Field(ge=1, le=1024)], Annotated[Int, Field(ge=1, le=1024)]] = (64, 32)
+    light_samples: tuple[Annotated[Int, Field(ge=1, le=256)], Annotated[Int, Field(ge=1, le=256)]] = (8, 8)
+    resolution: Annotated[Int, Field(ge=8, le=4096)] = 128
+    enumeration: Literal["hilbert", "zigzag", "scanline"] = "hilbert"
+    layers: Literal["z1z2", "z1z3"] = "z1z2"
+    far: Literal["sphere", "infinite"] = "sphere"
+    batch: Annotated[Int, Field(ge=1, le=4096)] = 64
+    local_lights: Literal["cube", "semi_local"] = "cube"  # area / linear lights: cube maps, or lat-long (Sec. 4.3)
+
+    @field_validator("file")
+    @classmethod
+    def _check_file(cls, v: Path | None, info: ValidationInfo) -> Path | None:
+        if v is None:
+            return v
+        p = _existing_file(_resolve(v, info))
+        if p.suffix != ".npz":
+            raise ValueError(f"a CSM file from 'warpscatter precompute' ends in .npz, got {p.name}")
+        return p
+
+
+class LightingConfig(_Model):
+    """Monte-Carlo direct lighting (Ritschel 2007 Sec. 5) of environment, area and linear lights: ``csm`` (coherent
+    shadow maps) or ``raytrace`` (wp.Mesh shadow rays, the reference); null: the classic pipeline."""
+
+    method: Optional[Literal[LIGHTING_METHODS]] = None  # type: ignore[valid-type]
+    samples: Annotated[Int, Field(ge=1, le=65536)] = 16
+    passes: Annotated[Int, Field(ge=1, le=100000)] = 8
+    seed: Int = 0
+    filter: Literal["nearest", "pcf", "roulette"] = "roulette"
+    bias: Optional[Annotated[Float, Field(ge=0.0)]] = None
+    normal_offset: Optional[Annotated[Float, Field(ge=0.0)]] = None
+    write_every: Annotated[Int, Field(ge=0)] = 1
+    background: Bool = True
+    csm: CSMBuildConfig = Field(default_factory=dict)
+
+    @field_validator("samples")
+    @classmethod
+    def _square(cls, v: int) -> int:
+        if math.isqrt(v) ** 2 != v:
+            raise ValueError(f"must be a perfect square (a jittered s x s grid of strata), got {v}")
+        return v
 
 
 class RenderConfig(_Model):
@@ -590,6 +754,7 @@ class RenderConfig(_Model):
     scattering: ScatteringConfig = Field(default_factory=dict)
     surfaces: SurfacesConfig = Field(default_factory=dict)
     shadows: ShadowsConfig = Field(default_factory=dict)
+    lighting: LightingConfig = Field(default_factory=dict)
 
 
 # ---- output --------------------------------------------------------------------------------------
@@ -645,8 +810,35 @@ class Config(_Model):
     _source: Path | None = PrivateAttr(default=None)
 
     @model_validator(mode="after")
+    def _lighting_fits_light(self) -> Config:
+        lighting = self.render.lighting.method
+        problems = []
+        if lighting is None:
+            if self.light.type in MC_LIGHT_TYPES:
+                problems.append(f"light.type {self.light.type!r} needs render.lighting.method csm or raytrace "
+                                f"(Monte-Carlo direct lighting)")
+            for k, mesh in enumerate(self.scene.meshes):
+                if mesh.material.brdf is not None:
+                    problems.append(f"scene.meshes.{k}.material.brdf is used by render.lighting.method csm or "
+                                    f"raytrace only (the classic surfaces are Lambertian)")
+                if mesh.receiver_only:
+                    problems.append(f"scene.meshes.{k}.receiver_only is used by render.lighting.method csm or "
+                                    f"raytrace only")
+        elif self.light.type not in MC_LIGHT_TYPES:
+            problems.append(f"render.lighting.method {lighting!r} lights {', '.join(MC_LIGHT_TYPES)} lights "
+                            f"(light.type is {self.light.type!r}; use render.scattering for it)")
+        elif all(m.receiver_only for m in self.scene.meshes) and self.render.lighting.csm.file is None \
+                and lighting == "csm":
+            problems.append("render.lighting: every mesh is receiver_only, so there is no occluder to build a CSM of")
+        if problems:
+            raise ValueError("\n".join(problems))
+        return self
+
+    @model_validator(mode="after")
     def _method_fits_light(self) -> Config:
         method = self.render.scattering.method
+        if self.render.lighting.method is not None:
+            return self  # render.scattering is not used by the lighting methods
         if method in ("fourier", "moments4", "moments6") and self.light.type != "directional":
             raise ValueError(f"render.scattering.method {method!r} needs a directional light (light.type is "
                              f"{self.light.type!r})")

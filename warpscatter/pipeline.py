@@ -7,7 +7,9 @@ each stage what it needs. Stage names appear in the CLI's timing table, in ``ben
 ``scene`` (load/generate meshes) · ``compile`` (Warp kernel modules; apart from the work itself) ·
 ``upload`` (device arrays) · ``bvh`` (``wp.Mesh``, exact visibility only) · ``gbuffer`` (camera) ·
 ``shadow_map`` (light) · ``scattering`` (the selected method) · ``shading`` (surfaces + composition) ·
-``write`` (EXR/PNG files).
+``write`` (EXR/PNG files). With ``render.lighting.method`` set (``csm`` / ``raytrace``, Monte-Carlo direct
+lighting, :mod:`warpscatter.csm.render`): ``csm`` or ``bvh`` (occluder visibility) · ``gbuffer`` · ``lighting``
+(progressive passes, the outputs rewritten every ``write_every`` passes) · ``write``.
 """
 
 from __future__ import annotations
@@ -21,9 +23,8 @@ from typing import Callable
 import numpy as np
 import warp as wp
 
-from .wpinit import default_device, init
-
 from .config import SCATTERING_METHODS as METHODS  # the methods the pipeline runs (render.scattering.method)
+from .wpinit import default_device, init
 
 ProgressFn = Callable[[str, float], None]
 
@@ -73,8 +74,8 @@ class StageTimer:
 def kernel_modules() -> list:
     """The warpscatter modules holding kernels a render launches (compiled in the ``compile`` stage)."""
     from . import gbuffer, raster, shading
-    from .shadows import msm, soft
     from .scattering import epipolar, prefilter, prefiltered, raymarch, rectify
+    from .shadows import msm, soft
 
     return [raster, gbuffer, raymarch, rectify, prefilter, prefiltered, epipolar, msm, soft, shading]
 
@@ -109,6 +110,9 @@ def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=
     device = default_device(device)
     timer = timer or StageTimer()
     sc = render_cfg.scattering
+    if render_cfg.lighting.method is not None:
+        raise ValueError("render.lighting.method is set: Monte-Carlo lighting runs through render() or "
+                         "warpscatter.csm.render.render_lighting, not render_images")
     if sc.method not in METHODS:
         raise ValueError(f"render.scattering.method: unknown method {sc.method!r} (choose from {', '.join(METHODS)})")
     exact = sc.method == "raymarch" and sc.visibility == "exact"  # the reference: ray-cast everything
@@ -133,21 +137,25 @@ def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=
     if sc.method == "raymarch":
         with timer("scattering") as stage:
             l_scat = raymarch(scene, gbuf, steps=sc.steps, visibility=sc.visibility, geometry=geometry,
-                              shadow_map=shadow_map, seed=sc.seed, shadow_bias_texels=sc.shadow_map.bias,
+                              shadow_map=shadow_map, seed=sc.seed, jitter=sc.jitter,
+                              shadow_bias_texels=sc.shadow_map.bias,
                               progress=stage.report, device=device)
     elif sc.method == "epipolar":
         l_scat, info = render_epipolar(scene, gbuf, settings=EpipolarSettings(**sc.epipolar.model_dump()),
                                        steps=sc.steps, visibility=sc.visibility, geometry=geometry,
-                                       shadow_map=shadow_map, seed=sc.seed, shadow_bias_texels=sc.shadow_map.bias,
+                                       shadow_map=shadow_map, seed=sc.seed, jitter=sc.jitter,
+                                       shadow_bias_texels=sc.shadow_map.bias,
                                        timer=timer, device=device)
     else:
         p, f, mo = sc.prefiltered, sc.fourier, sc.moments
         settings = PrefilteredSettings(basis=sc.method, coefficients=f.coefficients, bits=f.storage_bits,
                                        moment_storage_bits=mo.storage_bits, overestimation=mo.overestimation,
                                        weighting=p.weighting, reference_ray=p.reference_ray,
-                                       guard_band=p.guard_band, epipole_block=p.epipole_block, epipole_steps=sc.steps,
+                                       guard_band=p.guard_band, epipole_block=p.epipole_block,
+                                       epipole_angle_deg=p.epipole_angle_deg, epipole_steps=sc.steps,
                                        rectification=p.rectification, epipole_margin=p.epipole_margin,
-                                       regions=p.regions, projective_weights=p.projective_weights, splits=p.splits)
+                                       regions=p.regions, projective_weights=p.projective_weights, splits=p.splits,
+                                       resample_filter=p.resample_filter, resample_filter_px=p.resample_filter_px)
         l_scat, info = render_prefiltered(scene, gbuf, shadow_map, map_size=sc.shadow_map.size, settings=settings,
                                           seed=sc.seed, shadow_bias_texels=sc.shadow_map.bias, timer=timer,
                                           device=device)
@@ -158,7 +166,7 @@ def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=
                                   storage=sh.storage, supersampling=sh.supersampling, coloured=sh.coloured,
                                   max_translucent_layers=sh.max_translucent_layers,
                                   light_angle_deg=sh.light_angle_deg, light_size=sh.light_size,
-                                  max_kernel_px=sh.max_kernel_px)
+                                  max_kernel_px=sh.max_kernel_px, sampling=sh.sampling)
         shadows = prepare_shadows(scene, shadow_map, settings, timer=timer, device=device)
         info.update(shadows.info)
     with timer("shading"):
@@ -200,10 +208,20 @@ def render(config, out_dir: Path | None = None, progress: ProgressFn | None = No
     timer = StageTimer(progress)
     with timer("scene"):
         scene = build_scene(config)
-    images, stats = render_images(scene, config.render, timer=timer, device=device)
+    out = Path(out_dir) if out_dir is not None else Path(config.output.dir)
+    if config.render.lighting.method is not None:  # Monte-Carlo direct lighting (csm / raytrace), progressive
+        from .csm.render import render_lighting
+
+        def on_pass(images, done, total):  # rewrite the outputs as the image converges
+            if write:
+                with timer("write"):
+                    write_outputs(out, config.output.name, images, config.output.aovs, config.output.exposure)
+
+        images, stats = render_lighting(config, scene, timer=timer, on_pass=on_pass, device=device)
+    else:
+        images, stats = render_images(scene, config.render, timer=timer, device=device)
     files: list[Path] = []
     if write:
-        out = Path(out_dir) if out_dir is not None else Path(config.output.dir)
         with timer("write"):
             files = write_outputs(out, config.output.name, images, config.output.aovs, config.output.exposure)
     return RenderResult(images=images, files=files, timings=timer.timings, stats=stats)

@@ -52,6 +52,8 @@ class ShadowSettings:
         light_angle_deg: directional lights' angular size (full angle, degrees) for the soft methods.
         light_size: spot lights' size (scene units) for the soft methods.
         max_kernel_px: soft methods' widest region side (texels).
+        sampling: MSM look-ups: ``bilinear`` (level 0) or ``mipmap`` (trilinear in a mip chain at the level of each
+            pixel's footprint in shadow-map texels; Peters 2017 D.2).
     """
 
     method: str = "pcf"
@@ -64,6 +66,11 @@ class ShadowSettings:
     light_angle_deg: float = 1.0
     light_size: float = 0.5
     max_kernel_px: int = 28
+    sampling: str = "bilinear"
+
+
+#: MSM look-ups of ``render.shadows.sampling``.
+SHADOW_SAMPLING = ("bilinear", "mipmap")
 
 
 @dataclass
@@ -77,6 +84,7 @@ class ShadowInputs:
     filter_px: int
     msm: msm.MomentShadowParams
     msm_texels: wp.array
+    msm_mips: wp.array  # mip chain of the moment map ((C, 1) placeholder without one)
     soft: soft.SoftShadowParams
     sat: wp.array
     info: dict
@@ -87,6 +95,8 @@ def prepare_shadows(scene, shadow_map, settings: ShadowSettings, *, timer=None, 
     device = default_device(device)
     if settings.method not in SHADOW_METHODS:
         raise ValueError(f"shadow method must be one of {', '.join(SHADOW_METHODS)}, got {settings.method!r}")
+    if settings.sampling not in SHADOW_SAMPLING:
+        raise ValueError(f"shadow sampling must be one of {', '.join(SHADOW_SAMPLING)}, got {settings.sampling!r}")
     mode = SHADOW_METHODS[settings.method] if shadow_map is not None else 0
     if shadow_map is not None:
         sm_params, sm_depth = shadow_map.params(), shadow_map.device_depth(device)
@@ -97,6 +107,7 @@ def prepare_shadows(scene, shadow_map, settings: ShadowSettings, *, timer=None, 
     inputs = ShadowInputs(mode=mode, sm=sm_params, sm_depth=sm_depth, sm_bias=float(bias),
                           filter_px=int(settings.filter_px), msm=msm.MomentShadowParams(),
                           msm_texels=wp.zeros((1, 1, 1), dtype=wp.vec4, device=device),
+                          msm_mips=wp.zeros((1, 1), dtype=wp.vec4, device=device),
                           soft=soft.SoftShadowParams(), sat=wp.zeros((1, 1, 1), dtype=wp.vec4ui, device=device),
                           info={"shadows": settings.method if mode else "none"})
     size = {"light_size": settings.light_size} if shadow_map is not None and shadow_map.perspective else {
@@ -105,10 +116,11 @@ def prepare_shadows(scene, shadow_map, settings: ShadowSettings, *, timer=None, 
         m = msm.render_moment_shadow_map(scene, shadow_map, supersampling=settings.supersampling,
                                          bits=settings.storage, filter_px=settings.filter_px,
                                          coloured=settings.coloured,
-                                         max_translucent_layers=settings.max_translucent_layers, timer=timer,
-                                         device=device)
-        inputs.msm, inputs.msm_texels = m.params(depth_bias=bias), m.texels
-        inputs.info.update(msm_bits=m.bits, msm_bytes=m.nbytes, translucent_layers=m.translucent_layers)
+                                         max_translucent_layers=settings.max_translucent_layers,
+                                         mipmap=settings.sampling == "mipmap", timer=timer, device=device)
+        inputs.msm, inputs.msm_texels, inputs.msm_mips = m.params(depth_bias=bias), m.texels, m.mip_arrays(device)
+        inputs.info.update(msm_bits=m.bits, msm_bytes=m.nbytes, translucent_layers=m.translucent_layers,
+                           msm_sampling=settings.sampling)
     elif mode == SHADOW_METHODS["msm_soft"]:
         table = soft.render_soft_shadow_map(scene, shadow_map, supersampling=settings.supersampling,
                                             max_kernel_px=settings.max_kernel_px, coloured=settings.coloured,
@@ -123,16 +135,47 @@ def prepare_shadows(scene, shadow_map, settings: ShadowSettings, *, timer=None, 
 
 
 @wp.func
+def pixel_footprint(cam: CameraParams, i: int, j: int, x: wp.vec3, n: wp.vec3):
+    """World vectors from x to where the rays of pixels (i + 1, j) and (i, j + 1) meet x's tangent plane (normal n):
+    the receiver's pixel footprint for mip-level selection. Rays (nearly) parallel to the plane or meeting it
+    behind the camera fall back to the footprint of a plane facing the camera at x's distance."""
+    o = cam.position
+    d0 = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
+    dist = wp.length(x - o)
+    num = wp.dot(x - o, n)
+    footprint = wp.vec3(0.0)
+    fy = wp.vec3(0.0)
+    for k in range(2):
+        d = pixel_ray_direction(cam, float(i) + 1.5, float(j) + 0.5)
+        if k == 1:
+            d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 1.5)
+        den = wp.dot(d, n)
+        t = float(-1.0)
+        if wp.abs(den) > 1.0e-6:
+            t = num / den
+        e = d * (dist / wp.max(wp.dot(d, d0), 1.0e-6)) - (x - o)  # fallback: camera-facing plane
+        if t > 0.0 and t < 1.0e3 * dist:
+            e = o + d * t - x
+        if k == 0:
+            footprint = e
+        else:
+            fy = e
+    return footprint, fy
+
+
+@wp.func
 def surface_visibility(mode: int, x: wp.vec3, n: wp.vec3, sm: ShadowMapParams,
                        sm_depth: wp.array2d(dtype=wp.float32), sm_bias: float, filter_px: int,
-                       mp: msm.MomentShadowParams, msm_texels: wp.array3d(dtype=wp.vec4), sp: soft.SoftShadowParams,
+                       mp: msm.MomentShadowParams, msm_texels: wp.array3d(dtype=wp.vec4),
+                       msm_mips: wp.array2d(dtype=wp.vec4), dx: wp.vec3, dy: wp.vec3, sp: soft.SoftShadowParams,
                        sat: wp.array3d(dtype=wp.vec4ui)) -> wp.vec3:
-    """RGB light visibility of surface point x (camera-facing normal n) for shadow method ``mode``."""
+    """RGB light visibility of surface point x (camera-facing normal n, pixel footprint dx, dy) for shadow method
+    ``mode``."""
     if mode == 1:
         # normal offset of one texel keeps lit surfaces out of their own shadow
         return wp.vec3(shadow_pcf(sm, sm_depth, x + n * sm.texel_world, sm_bias, filter_px))
     if mode == 2:
-        return msm.msm_visibility_rgb(mp, msm_texels, x, n)
+        return msm.msm_visibility_rgb_footprint(mp, msm_texels, msm_mips, x, n, dx, dy)
     if mode == 3:
         return soft.moment_soft_visibility_rgb(sp, sat, x, n)
     if mode == 4:
@@ -164,6 +207,7 @@ def shade_kernel(
     filter_px: int,
     mp: msm.MomentShadowParams,
     msm_texels: wp.array3d(dtype=wp.vec4),
+    msm_mips: wp.array2d(dtype=wp.vec4),
     sp: soft.SoftShadowParams,
     sat: wp.array3d(dtype=wp.vec4ui),
     scattering: wp.array2d(dtype=wp.vec3),
@@ -183,7 +227,12 @@ def shade_kernel(
         e, omega, dist = light_sample(light, light_tex, x)
         v = wp.vec3(1.0, 1.0, 1.0)
         if shadow_mode != 0 and wp.dot(n, omega) < 0.0:
-            v = surface_visibility(shadow_mode, x, n, sm, sm_depth, sm_bias, filter_px, mp, msm_texels, sp, sat)
+            dx = wp.vec3(0.0)
+            dy = wp.vec3(0.0)
+            if shadow_mode == 2 and mp.mip_levels > 0:
+                dx, dy = pixel_footprint(cam, i, j, x, n)
+            v = surface_visibility(shadow_mode, x, n, sm, sm_depth, sm_bias, filter_px, mp, msm_texels, msm_mips, dx,
+                                   dy, sp, sat)
         surf = wp.cw_mul(lambert(albedo[m], e, n, omega), v) * wp.exp(-sigma_t * s)
     surface_out[j, i] = surf
     color_out[j, i] = surf + scattering[j, i]
@@ -216,7 +265,7 @@ def shade_and_compose(scene, gbuffer, scattering: wp.array, *, shadows: ShadowIn
                     [cam.params(), gbuffer.distance, gbuffer.normal, gbuffer.material, albedo,
                      light_params(scene.light), light_texture_array(scene.light, device),
                      float(scene.medium.sigma_t), sh.mode, sh.sm, sh.sm_depth, sh.sm_bias, sh.filter_px, sh.msm,
-                     sh.msm_texels, sh.soft, sh.sat, scattering, surface, color], device=device)
+                     sh.msm_texels, sh.msm_mips, sh.soft, sh.sat, scattering, surface, color], device=device)
         color_np = color.numpy()
     else:
         color_np = scattering.numpy()

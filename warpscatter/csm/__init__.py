@@ -11,6 +11,14 @@ coherent order, compressed losslessly into per-texel segment lists and queried w
   :func:`load_csm`, :class:`CSMFileError`).
 - :mod:`.query`: public ``@wp.func`` visibility queries (nearest, generalised PCF, Russian roulette,
   semi-local lights, moving and receiver-only objects, local lights) and host wrappers for batches.
+- :mod:`.brdf`: Lambert, normalized Phong and Lafortune BRDFs with importance sampling and the Russian-roulette
+  lobe choice (Sec. 5.1), :class:`MaterialTable`.
+- :mod:`.lighting`: importance-sampled lat-long environment maps, the stratified MIS estimator
+  :func:`shade_environment` (CSM or wp.Mesh visibility), :class:`ProgressiveAccumulator` (Sec. 5).
+- :mod:`.lights`: area (parallelogram) and linear lights sampled by radiance with cube-CSM visibility,
+  :func:`shade_local_light` (Sec. 4.2, 5.1).
+- :mod:`.render`: the ``csm`` / ``raytrace`` render methods (``render.lighting``): CSM of the scene's occluders,
+  G-buffer, progressive passes.
 
 Example::
 
@@ -19,6 +27,7 @@ Example::
     vis = csm_visibility_batch(csm, points, directions, filter="pcf")
 """
 
+from .brdf import MAX_LOBES, MaterialData, MaterialTable
 from .compress import (
     FORMAT_VERSION,
     CoherentShadowMap,
@@ -29,6 +38,7 @@ from .compress import (
     build_csm,
     build_cube_csm,
     compress_depth_maps,
+    geometry_digest,
     load_csm,
     save_csm,
 )
@@ -43,6 +53,8 @@ from .depthmaps import (
     segment_light_samples,
 )
 from .enumeration import ENUMERATIONS, enumerate_grid, hilbert_order, scanline_order, sequence_index, zigzag_order
+from .lighting import EnvData, EnvironmentMap, ProgressiveAccumulator, shade_environment
+from .lights import AreaLight, LinearLight, LocalLightData, shade_local_light
 from .query import (
     FILTERS,
     CSMData,
@@ -52,18 +64,30 @@ from .query import (
     csm_objects_visibility_batch,
     csm_visibility_batch,
 )
+from .render import EnvironmentLight, LightingSettings, render_lighting
 
 __all__ = [
     "ENUMERATIONS",
     "FILTERS",
     "FORMAT_VERSION",
+    "MAX_LOBES",
+    "AreaLight",
     "CSMData",
     "CSMFileError",
     "CoherentShadowMap",
     "CompressionStats",
     "CubeCSMData",
     "CubeMapSet",
+    "EnvData",
+    "EnvironmentLight",
+    "EnvironmentMap",
     "LatLongMapSet",
+    "LightingSettings",
+    "LinearLight",
+    "LocalLightData",
+    "MaterialData",
+    "MaterialTable",
+    "ProgressiveAccumulator",
     "SegmentLists",
     "StreamingCompressor",
     "bounding_sphere",
@@ -76,14 +100,18 @@ __all__ = [
     "csm_objects_visibility_batch",
     "csm_visibility_batch",
     "enumerate_grid",
+    "geometry_digest",
     "hilbert_order",
     "latlong_frames",
     "load_csm",
     "ortho_view_proj",
     "parallelogram_light_samples",
+    "render_lighting",
     "save_csm",
     "scanline_order",
     "segment_light_samples",
+    "shade_environment",
+    "shade_local_light",
     "sequence_index",
     "zigzag_order",
 ]

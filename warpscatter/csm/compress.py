@@ -32,6 +32,7 @@ bad files raise :class:`CSMFileError`.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import time
@@ -59,6 +60,15 @@ KINDS = (KIND_LATLONG, KIND_CUBE)
 
 class CSMFileError(ValueError):
     """A CSM file cannot be read or does not hold a consistent CSM; the message names the file and the reason."""
+
+
+def geometry_digest(vertices, triangles) -> str:
+    """SHA-256 (hex) of a mesh as float32 vertices and int32 triangles: identifies the occluders a CSM was built
+    from, so a render can refuse a CSM file of another mesh or placement."""
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(np.asarray(vertices, np.float32)).tobytes())
+    h.update(np.ascontiguousarray(np.asarray(triangles, np.int32)).tobytes())
+    return h.hexdigest()
 
 
 # ---- building blocks (public @wp.func API) ---------------------------------------------------------
@@ -410,6 +420,7 @@ class CoherentShadowMap:
         stats: :class:`CompressionStats` of the build (None when loaded from a file).
         light_samples: cube only: (n1 n2, 3) float64 sample positions, entry b n1 + a for cell (a, b).
         near: cube only: near-plane distance of the faces.
+        geometry: :func:`geometry_digest` of the mesh it was built from (None in files that do not store it).
     """
 
     n1: int
@@ -426,6 +437,7 @@ class CoherentShadowMap:
     kind: str = KIND_LATLONG
     light_samples: np.ndarray | None = None
     near: float | None = None
+    geometry: str | None = None
     _device_cache: dict = field(default_factory=dict, repr=False)
 
     @property
@@ -457,6 +469,8 @@ class CoherentShadowMap:
         }  # fmt: skip
         if self.kind == KIND_CUBE:
             out["near"] = float(self.near)
+        if self.geometry is not None:
+            out["geometry"] = str(self.geometry)
         return out
 
 
@@ -504,7 +518,7 @@ def build_csm(
     return CoherentShadowMap(
         n1=maps.n1, n2=maps.n2, resolution=maps.resolution, center=maps.center, radius=maps.radius,
         enumeration=enumeration, depth_layers=depth_layers, far=far, map_index=maps.map_index, lists=lists,
-        stats=stats,
+        stats=stats, geometry=geometry_digest(vertices, triangles),
     )  # fmt: skip
 
 
@@ -582,6 +596,7 @@ def build_cube_csm(
         n1=maps.n1, n2=maps.n2, resolution=maps.resolution, center=maps.center, radius=maps.radius,
         enumeration=enumeration, depth_layers=depth_layers, far=far, map_index=maps.map_index, lists=lists,
         stats=stats, kind=KIND_CUBE, light_samples=maps.samples, near=maps.near,
+        geometry=geometry_digest(vertices, triangles),
     )  # fmt: skip
 
 
@@ -631,6 +646,7 @@ def _load_params(path: str, data) -> dict:
             "center": np.asarray(params["center"], dtype=np.float64), "radius": float(params["radius"]),
             "enumeration": str(params["enumeration"]), "depth_layers": str(params["depth_layers"]),
             "far": str(params["far"]), "num_segments": int(params["num_segments"]),
+            "geometry": str(params["geometry"]) if params.get("geometry") is not None else None,
         }  # fmt: skip
     except (KeyError, TypeError, ValueError) as exc:
         raise _fail(path, f"params lack or mistype a field ({exc})") from exc
@@ -711,4 +727,5 @@ def load_csm(path: str | os.PathLike) -> CoherentShadowMap:
         n1=n1, n2=n2, resolution=m, center=p["center"], radius=p["radius"], enumeration=p["enumeration"],
         depth_layers=p["depth_layers"], far=p["far"], map_index=index, lists=lists, kind=p["kind"],
         light_samples=arrays["light_samples"].astype(np.float64) if cube else None, near=p["near"],
+        geometry=p["geometry"],
     )  # fmt: skip

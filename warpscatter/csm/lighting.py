@@ -11,10 +11,8 @@ for surface points (a G-buffer: positions, normals, materials) lit by a distant 
   constant per texel. Importance sampling by inverse CDFs (Sec. 5.1, P_L^-1): a marginal CDF over rows weighted by
   luminance x sin(theta_j) and one conditional CDF per row. In the (u, v) = (phi / 2 pi, theta / pi) domain the
   density is constant per texel, p_uv = W H P(texel); the solid-angle density is p_uv / (2 pi^2 sin theta).
-- BRDFs (Sec. 5.1, P_f^-1): Lambert (cosine-weighted sampling) plus normalized Phong,
-  f = k_d / pi + k_s (n + 2) / (2 pi) cos^n(alpha) (alpha: angle between wi and the mirror direction of wo), its
-  lobe sampled with p = (n + 1) / (2 pi) cos^n(alpha). The diffuse / specular choice is a Russian roulette with
-  P(specular) = lum(k_s) / (lum(k_d) + lum(k_s)); the BRDF-sampling density is the mixture of both.
+- BRDFs (Sec. 5.1, P_f^-1), in :mod:`.brdf`: Lambert, normalized Phong and Lafortune lobes, importance sampled
+  with the diffuse / lobe choice by Russian roulette (:class:`~warpscatter.csm.brdf.MaterialTable`).
 - Estimator: per point S = s^2 strata of a jittered s x s grid (a per-point random pattern, Sec. 5.1 "Random
   Numbers"); each stratum draws one environment sample and one BRDF sample, combined with multiple importance
   sampling (balance heuristic [VG95]): each sample contributes f L V cos / (p_env + p_brdf).
@@ -35,6 +33,14 @@ import warp as wp
 from .. import parallel
 from ..raycast import occluded
 from ..wpinit import default_device, module_options
+from .brdf import LUMA, MaterialData, MaterialTable, material_eval, material_pdf, material_sample
+from .brdf import brdf_eval as brdf_eval  # the Lambert / Phong building blocks, re-exported from here
+from .brdf import brdf_pdf as brdf_pdf
+from .brdf import brdf_sample as brdf_sample
+from .brdf import luminance as luminance
+from .brdf import phong_lobe as phong_lobe
+from .brdf import phong_pdf as phong_pdf
+from .brdf import phong_sample as phong_sample
 from .compress import KIND_LATLONG, CoherentShadowMap
 from .depthmaps import latlong_param
 from .query import FILTERS, CSMData, csm_device_data, csm_visibility_filtered
@@ -44,10 +50,6 @@ module_options()
 VIS_NONE = wp.constant(0)
 VIS_CSM = wp.constant(1)
 VIS_MESH = wp.constant(2)
-
-#: Rec. 709 luminance weights (used for the sampling weights and the roulette).
-LUMA = (0.2126, 0.7152, 0.0722)
-
 
 @wp.struct
 class EnvData:
@@ -62,12 +64,6 @@ class EnvData:
 
 
 # ---- building blocks (public @wp.func API) ---------------------------------------------------------
-
-
-@wp.func
-def luminance(c: wp.vec3) -> float:
-    """Rec. 709 luminance of a linear RGB value."""
-    return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
 
 
 @wp.func
@@ -167,106 +163,6 @@ def env_sample(env: EnvData, xi: wp.vec2) -> tuple[wp.vec3, wp.vec3, float]:
 
 
 @wp.func
-def orthonormal_basis(n: wp.vec3) -> tuple[wp.vec3, wp.vec3]:
-    """Two unit tangents (t, b) with (t, b, n) right-handed orthonormal (Duff et al. 2017, branchless)."""
-    sign = 1.0
-    if n[2] < 0.0:
-        sign = -1.0
-    a = -1.0 / (sign + n[2])
-    b = n[0] * n[1] * a
-    t = wp.vec3(1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0])
-    bb = wp.vec3(b, sign + n[1] * n[1] * a, -n[1])
-    return t, bb
-
-
-@wp.func
-def lobe_direction(axis: wp.vec3, cos_t: float, phi: float) -> wp.vec3:
-    """Unit direction at polar angle acos(cos_t) and azimuth ``phi`` about the unit ``axis``."""
-    t, b = orthonormal_basis(axis)
-    sin_t = wp.sqrt(wp.max(1.0 - cos_t * cos_t, 0.0))
-    return wp.normalize(sin_t * wp.cos(phi) * t + sin_t * wp.sin(phi) * b + cos_t * axis)
-
-
-@wp.func
-def lambert_sample(n: wp.vec3, xi: wp.vec2) -> wp.vec3:
-    """Cosine-weighted direction about the unit normal ``n`` (pdf :func:`lambert_pdf`)."""
-    return lobe_direction(n, wp.sqrt(1.0 - xi[0]), 2.0 * wp.pi * xi[1])
-
-
-@wp.func
-def lambert_pdf(n: wp.vec3, wi: wp.vec3) -> float:
-    """Density (1/sr) of :func:`lambert_sample`: max(cos theta_i, 0) / pi."""
-    return wp.max(wp.dot(n, wi), 0.0) / wp.pi
-
-
-@wp.func
-def phong_reflect(n: wp.vec3, wo: wp.vec3) -> wp.vec3:
-    """Mirror direction of the unit outgoing direction ``wo`` about the unit normal ``n``."""
-    return 2.0 * wp.dot(n, wo) * n - wo
-
-
-@wp.func
-def phong_lobe(n: wp.vec3, wo: wp.vec3, wi: wp.vec3, exponent: float) -> float:
-    """Normalized Phong lobe (n + 2) / (2 pi) cos^n(alpha), alpha between ``wi`` and the mirror of ``wo``
-    (Lafortune and Willems 1994; integrates with cos theta to 1 at normal incidence)."""
-    c = wp.dot(phong_reflect(n, wo), wi)
-    if c <= 0.0:
-        return 0.0
-    return (exponent + 2.0) / (2.0 * wp.pi) * wp.pow(c, exponent)
-
-
-@wp.func
-def phong_sample(n: wp.vec3, wo: wp.vec3, exponent: float, xi: wp.vec2) -> wp.vec3:
-    """Direction about the mirror of ``wo`` with density :func:`phong_pdf` (may lie below the surface)."""
-    cos_a = wp.pow(1.0 - xi[0], 1.0 / (exponent + 1.0))
-    return lobe_direction(phong_reflect(n, wo), cos_a, 2.0 * wp.pi * xi[1])
-
-
-@wp.func
-def phong_pdf(n: wp.vec3, wo: wp.vec3, wi: wp.vec3, exponent: float) -> float:
-    """Density (1/sr) of :func:`phong_sample`: (n + 1) / (2 pi) cos^n(alpha) for cos(alpha) > 0."""
-    c = wp.dot(phong_reflect(n, wo), wi)
-    if c <= 0.0:
-        return 0.0
-    return (exponent + 1.0) / (2.0 * wp.pi) * wp.pow(c, exponent)
-
-
-@wp.func
-def specular_probability(kd: wp.vec3, ks: wp.vec3) -> float:
-    """Roulette probability of a specular sample (Sec. 5.1): lum(k_s) / (lum(k_d) + lum(k_s)); 0 if both vanish."""
-    a = wp.max(luminance(kd), 0.0)
-    b = wp.max(luminance(ks), 0.0)
-    if a + b <= 0.0:
-        return 0.0
-    return b / (a + b)
-
-
-@wp.func
-def brdf_eval(n: wp.vec3, wo: wp.vec3, wi: wp.vec3, kd: wp.vec3, ks: wp.vec3, exponent: float) -> wp.vec3:
-    """Lambert + normalized Phong BRDF f_r (1/sr) for unit n, wo, wi; 0 below the surface."""
-    if wp.dot(n, wi) <= 0.0:
-        return wp.vec3(0.0)
-    return kd / wp.pi + ks * phong_lobe(n, wo, wi, exponent)
-
-
-@wp.func
-def brdf_sample(n: wp.vec3, wo: wp.vec3, kd: wp.vec3, ks: wp.vec3, exponent: float, xi: wp.vec2,
-                choice: float) -> wp.vec3:
-    """Sample the BRDF (Sec. 5.1, P_f^-1): Russian roulette ``choice`` in [0, 1) picks the Phong lobe with
-    :func:`specular_probability`, else the cosine lobe. Density: :func:`brdf_pdf`."""
-    if choice < specular_probability(kd, ks):
-        return phong_sample(n, wo, exponent, xi)
-    return lambert_sample(n, xi)
-
-
-@wp.func
-def brdf_pdf(n: wp.vec3, wo: wp.vec3, wi: wp.vec3, kd: wp.vec3, ks: wp.vec3, exponent: float) -> float:
-    """Density (1/sr) of :func:`brdf_sample`: the roulette mixture of the Lambert and Phong densities."""
-    ps = specular_probability(kd, ks)
-    return (1.0 - ps) * lambert_pdf(n, wi) + ps * phong_pdf(n, wo, wi, exponent)
-
-
-@wp.func
 def stratum_sample(k: int, s: int, jitter: wp.vec2) -> wp.vec2:
     """Point of stratum ``k`` of an s x s grid over [0, 1)^2 jittered by ``jitter`` in [0, 1)^2 (stratified
     pattern, Sec. 5.1)."""
@@ -278,10 +174,11 @@ def stratum_sample(k: int, s: int, jitter: wp.vec2) -> wp.vec2:
 @wp.func
 def shadow_visibility(mode: int, csm: CSMData, filter_mode: int, bias: float, mesh_id: wp.uint64, eps: float,
                       p: wp.vec3, n: wp.vec3, d: wp.vec3, xi: wp.vec4) -> float:
-    """V(p, d) in [0, 1]: 1 for VIS_NONE, the CSM query (Sec. 3.3; ``p`` in the CSM's object space; ``xi``
-    uniform in [0, 1)^4 for the roulette filter) for VIS_CSM, a shadow ray from p + eps n for VIS_MESH."""
+    """V(p, d) in [0, 1] towards a distant direction ``d``: 1 for VIS_NONE, the CSM query of p + eps n (Sec. 3.3;
+    ``p`` in the CSM's object space; ``xi`` uniform in [0, 1)^4 for the roulette filter) for VIS_CSM, a shadow
+    ray from p + eps n for VIS_MESH (``eps``: normal offset in scene units)."""
     if mode == VIS_CSM:
-        return csm_visibility_filtered(csm, p, d, bias, filter_mode, xi)
+        return csm_visibility_filtered(csm, p + eps * n, d, bias, filter_mode, xi)
     if mode == VIS_MESH:
         if occluded(mesh_id, p + eps * n, d, 1.0e30):
             return 0.0
@@ -296,9 +193,8 @@ def shade_environment_kernel(
     points: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
     view_dirs: wp.array(dtype=wp.vec3),
-    albedo: wp.array(dtype=wp.vec3),
-    specular: wp.array(dtype=wp.vec3),
-    exponent: wp.array(dtype=wp.float32),
+    material_index: wp.array(dtype=wp.int32),
+    mat: MaterialData,
     env: EnvData,
     strata: int,
     vis_mode: int,
@@ -311,43 +207,49 @@ def shade_environment_kernel(
     out: wp.array(dtype=wp.vec3),
     offset: int,
 ):
+    """out[k] = one stratified MIS estimate (s^2 strata) of the reflected radiance of point k towards view_dirs[k]."""
     k = wp.tid() + offset
-    rng = wp.rand_init(seed, k)
+    rng = wp.rand_init(seed, k)  # a different pattern per point and per pass (seed)
     p = points[k]
     n = wp.normalize(normals[k])
     wo = wp.normalize(view_dirs[k])
-    kd = albedo[k]
-    ks = specular[k]
-    e = exponent[k]
+    m = material_index[k]
     total = wp.vec3(0.0)
     count = strata * strata
     for s in range(count):
-        # environment sample (P_L^-1), balance heuristic weight p_env / (p_env + p_brdf)
         # random numbers are drawn here: wp.randf advances a state that @wp.funcs would only copy
         j_env = wp.vec2(wp.randf(rng), wp.randf(rng))
         j_brdf = wp.vec2(wp.randf(rng), wp.randf(rng))
         choice = wp.randf(rng)
         xi_env = wp.vec4(wp.randf(rng), wp.randf(rng), wp.randf(rng), wp.randf(rng))
         xi_brdf = wp.vec4(wp.randf(rng), wp.randf(rng), wp.randf(rng), wp.randf(rng))
+        # ---- environment sample (P_L^-1), balance heuristic: f L V cos / (p_env + p_brdf) ----
         d, radiance, pe = env_sample(env, stratum_sample(s, strata, j_env))
         c = wp.dot(n, d)
         if pe > 0.0 and c > 0.0:
-            f = brdf_eval(n, wo, d, kd, ks, e)
+            f = material_eval(mat, m, n, wo, d)
             if wp.length_sq(f) > 0.0 and wp.length_sq(radiance) > 0.0:
                 v = shadow_visibility(vis_mode, csm, filter_mode, bias, mesh_id, eps, p, n, d, xi_env)
-                total += wp.cw_mul(f, radiance) * (v * c / (pe + brdf_pdf(n, wo, d, kd, ks, e)))
-        # BRDF sample (P_f^-1 with the diffuse / specular roulette)
-        wi = brdf_sample(n, wo, kd, ks, e, stratum_sample(s, strata, j_brdf), choice)
+                total += wp.cw_mul(f, radiance) * (v * c / (pe + material_pdf(mat, m, n, wo, d)))
+        # ---- BRDF sample (P_f^-1 with the diffuse / lobe roulette) ----
+        wi = material_sample(mat, m, n, wo, stratum_sample(s, strata, j_brdf), choice)
         c = wp.dot(n, wi)
         if c > 0.0:
-            pb = brdf_pdf(n, wo, wi, kd, ks, e)
+            pb = material_pdf(mat, m, n, wo, wi)
             if pb > 0.0:
-                f = brdf_eval(n, wo, wi, kd, ks, e)
+                f = material_eval(mat, m, n, wo, wi)
                 radiance = env_lookup(env, wi)
                 if wp.length_sq(f) > 0.0 and wp.length_sq(radiance) > 0.0:
                     v = shadow_visibility(vis_mode, csm, filter_mode, bias, mesh_id, eps, p, n, wi, xi_brdf)
                     total += wp.cw_mul(f, radiance) * (v * c / (pb + env_pdf(env, wi)))
     out[k] = total / float(count)
+
+
+@wp.kernel
+def env_lookup_kernel(env: EnvData, directions: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
+    """out[k] = radiance of the map along directions[k] (:func:`env_lookup`)."""
+    k = wp.tid()
+    out[k] = env_lookup(env, directions[k])
 
 
 # ---- host side -------------------------------------------------------------------------------------
@@ -422,6 +324,18 @@ class EnvironmentMap:
         """(H, W) solid angle (sr) of each texel: (2 pi / W) (cos theta_j - cos theta_{j+1})."""
         edges = np.cos(np.pi * np.arange(self.height + 1) / self.height)
         return np.repeat(((edges[:-1] - edges[1:]) * 2.0 * np.pi / self.width)[:, None], self.width, axis=1)
+
+    def lookup(self, directions, device: str | None = None) -> np.ndarray:
+        """(..., 3) float32 radiance along (..., 3) directions (any non-zero length), as :func:`env_lookup`."""
+        device = default_device(device)
+        d = np.asarray(directions, np.float32)
+        flat = np.ascontiguousarray(d.reshape(-1, 3))
+        out = wp.empty(len(flat), dtype=wp.vec3, device=device)
+        if len(flat):
+            wp.launch(env_lookup_kernel, dim=len(flat), inputs=[self.device_data(device),
+                                                                 wp.array(flat, dtype=wp.vec3, device=device), out],
+                      device=device)  # fmt: skip
+        return out.numpy().reshape(d.shape)
 
     def device_data(self, device: str | None = None) -> EnvData:
         """The :class:`EnvData` struct on ``device`` (cached per device)."""
@@ -505,7 +419,7 @@ def _rows3(a, name: str, k: int | None, default=None) -> np.ndarray:
 _dummy_cache: dict = {}
 
 
-def _dummy_csm(device: str) -> CSMData:
+def dummy_csm(device: str) -> CSMData:
     """A 1 x 1 CSM struct with valid (unused) arrays, for launches that do not query a CSM."""
     if device not in _dummy_cache:
         d = CSMData()
@@ -522,6 +436,72 @@ def _dummy_csm(device: str) -> CSMData:
     return _dummy_cache[device]
 
 
+def surface_inputs(points, normals, albedo, *, view_dirs=None, specular=None, exponent=1.0, materials=None,
+                   material_index=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, MaterialTable]:
+    """Check and normalise the per-point inputs shared by the Monte-Carlo shading functions.
+
+    Either Lambert + Phong per point (``albedo``, ``specular``, ``exponent``) or a :class:`MaterialTable` with
+    a per-point ``material_index`` (then albedo / specular / exponent must be None / defaults).
+
+    Returns:
+        (points, normals, view_dirs, material_index (K,) int32, materials).
+
+    Raises:
+        ValueError: malformed arrays, zero normals or view directions, negative exponents, indices out of range.
+    """
+    p = _rows3(points, "points", None)
+    k = p.shape[0]
+    n = _rows3(normals, "normals", k)
+    if np.any(np.all(n == 0.0, axis=1)):
+        raise ValueError("normals must be non-zero")
+    wo = n if view_dirs is None else _rows3(view_dirs, "view_dirs", k)
+    if np.any(np.all(wo == 0.0, axis=1)):
+        raise ValueError("view_dirs must be non-zero")
+    if materials is not None:
+        if not isinstance(materials, MaterialTable):
+            raise ValueError(f"materials must be a MaterialTable, got {type(materials).__name__}")
+        if albedo is not None or specular is not None:
+            raise ValueError("give either materials (with material_index) or albedo / specular, not both")
+        idx = np.zeros(k, np.int32) if material_index is None else np.asarray(material_index)
+        if idx.shape != (k,) or not np.issubdtype(idx.dtype, np.integer):
+            raise ValueError(f"material_index must be ({k},) integers")
+        if k and (idx.min() < 0 or idx.max() >= len(materials)):
+            raise ValueError(f"material_index must lie in [0, {len(materials)})")
+        return p, n, wo, np.ascontiguousarray(idx, np.int32), materials
+    kd = _rows3(albedo, "albedo", k)
+    ks = _rows3(specular, "specular", k, default=0.0)
+    e = np.asarray(exponent, dtype=np.float32)
+    if e.ndim == 0:
+        e = np.full(k, float(e), np.float32)
+    if e.shape != (k,) or not np.all(np.isfinite(e)) or np.any(e < 0.0):
+        raise ValueError(f"exponent must be a finite scalar or ({k},) array >= 0")
+    if k == 0:
+        return p, n, wo, np.zeros(0, np.int32), MaterialTable(np.zeros((1, 3), np.float32))
+    return p, n, wo, np.arange(k, dtype=np.int32), MaterialTable.phong(kd, ks, e)
+
+
+def check_strata(samples) -> int:
+    """s for ``samples`` = s^2 >= 1 strata (a jittered s x s grid).
+
+    Raises:
+        ValueError: not a positive integer or not a perfect square.
+    """
+    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
+        raise ValueError(f"samples must be a positive integer, got {samples!r}")
+    strata = math.isqrt(int(samples))
+    if strata * strata != samples:
+        raise ValueError(f"samples must be a perfect square (jittered s x s grid), got {samples}")
+    return strata
+
+
+def check_offsets(bias, ray_eps) -> None:
+    """Raises ValueError unless the depth bias and the normal offset are finite and >= 0."""
+    if not np.isfinite(bias) or bias < 0.0:
+        raise ValueError(f"bias must be a finite number >= 0, got {bias!r}")
+    if not np.isfinite(ray_eps) or ray_eps < 0.0:
+        raise ValueError(f"ray_eps must be a finite number >= 0, got {ray_eps!r}")
+
+
 def shade_environment(
     points,
     normals,
@@ -535,6 +515,8 @@ def shade_environment(
     view_dirs=None,
     specular=None,
     exponent=1.0,
+    materials: MaterialTable | None = None,
+    material_index=None,
     filter: str = "nearest",
     bias: float = 0.0,
     ray_eps: float = 1.0e-4,
@@ -546,20 +528,23 @@ def shade_environment(
     Args:
         points: (K, 3) surface positions (scene units); with ``csm`` they must be in the CSM's object space.
         normals: (K, 3) surface normals (any non-zero length).
-        albedo: (K, 3) or (3,) diffuse reflectance k_d (Lambert f = k_d / pi).
+        albedo: (K, 3) or (3,) diffuse reflectance k_d (Lambert f = k_d / pi); None with ``materials``.
         env: the environment map (distant light; L_in from its texels).
         samples: S strata per point, a perfect square s^2 >= 1; each stratum gives one environment and one BRDF
             sample (2 S directions, combined by the balance heuristic).
         csm: lat-long coherent shadow map of the occluders (visibility by ``csm_visibility_filtered``).
         mesh: ``wp.Mesh`` of the occluders for exact shadow rays (the reference). At most one of csm / mesh;
             neither: no occlusion.
-        seed: random seed of this pass (use a different one per progressive pass).
+        seed: random seed of this pass (use a different one per progressive pass: it changes every pattern).
         view_dirs: (K, 3) or (3,) unit-ish directions from the point towards the viewer (default: the normal).
         specular: (K, 3) or (3,) Phong reflectance k_s (default 0).
         exponent: (K,) or scalar Phong exponent n >= 0.
+        materials: a :class:`~warpscatter.csm.brdf.MaterialTable` (Lambert / Phong / Lafortune) instead of
+            albedo / specular / exponent, with ``material_index`` (K,) rows into it (default 0).
         filter: CSM filter ``"nearest"``, ``"pcf"`` or ``"roulette"`` (Sec. 4.5).
         bias: CSM depth bias (object-space units, >= 0).
-        ray_eps: shadow-ray origin offset along the normal (scene units, >= 0) for ``mesh``.
+        ray_eps: offset of the query point along the normal (scene units, >= 0): the shadow-ray origin for
+            ``mesh``, the CSM query point for ``csm``.
         device: Warp device.
         threads: CPU worker threads.
 
@@ -573,35 +558,15 @@ def shade_environment(
     device = default_device(device)
     if not isinstance(env, EnvironmentMap):
         raise ValueError(f"env must be an EnvironmentMap, got {type(env).__name__}")
-    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
-        raise ValueError(f"samples must be a positive integer, got {samples!r}")
-    strata = math.isqrt(int(samples))
-    if strata * strata != samples:
-        raise ValueError(f"samples must be a perfect square (jittered s x s grid), got {samples}")
-    p = _rows3(points, "points", None)
-    k = p.shape[0]
-    n = _rows3(normals, "normals", k)
-    if np.any(np.all(n == 0.0, axis=1)):
-        raise ValueError("normals must be non-zero")
-    kd = _rows3(albedo, "albedo", k)
-    ks = _rows3(specular, "specular", k, default=0.0)
-    wo = n if view_dirs is None else _rows3(view_dirs, "view_dirs", k)
-    if np.any(np.all(wo == 0.0, axis=1)):
-        raise ValueError("view_dirs must be non-zero")
-    e = np.asarray(exponent, dtype=np.float32)
-    if e.ndim == 0:
-        e = np.full(k, float(e), np.float32)
-    if e.shape != (k,) or not np.all(np.isfinite(e)) or np.any(e < 0.0):
-        raise ValueError(f"exponent must be a finite scalar or ({k},) array >= 0")
+    strata = check_strata(samples)
+    p, n, wo, idx, table = surface_inputs(points, normals, albedo, view_dirs=view_dirs, specular=specular,
+                                          exponent=exponent, materials=materials, material_index=material_index)
     if filter not in FILTERS:
         raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {filter!r}")
-    if not np.isfinite(bias) or bias < 0.0:
-        raise ValueError(f"bias must be a finite number >= 0, got {bias!r}")
-    if not np.isfinite(ray_eps) or ray_eps < 0.0:
-        raise ValueError(f"ray_eps must be a finite number >= 0, got {ray_eps!r}")
+    check_offsets(bias, ray_eps)
     if csm is not None and mesh is not None:
         raise ValueError("give at most one of csm and mesh as the visibility source")
-    mode, csm_data, mesh_id = 0, _dummy_csm(device), wp.uint64(0)
+    mode, csm_data, mesh_id = 0, dummy_csm(device), wp.uint64(0)
     if csm is not None:
         if not isinstance(csm, CoherentShadowMap) or csm.kind != KIND_LATLONG:
             raise ValueError("csm must be a lat-long CoherentShadowMap (build_csm)")
@@ -610,6 +575,7 @@ def shade_environment(
         if not isinstance(mesh, wp.Mesh):
             raise ValueError(f"mesh must be a wp.Mesh, got {type(mesh).__name__}")
         mode, mesh_id = 2, mesh.id
+    k = p.shape[0]
     out = wp.zeros(k, dtype=wp.vec3, device=device)
     if k == 0:
         return out.numpy()
@@ -619,7 +585,7 @@ def shade_environment(
 
     parallel.launch_rows(
         shade_environment_kernel, k,
-        [arr(p), arr(n), arr(wo), arr(kd), arr(ks), wp.array(e, dtype=wp.float32, device=device),
+        [arr(p), arr(n), arr(wo), wp.array(idx, dtype=wp.int32, device=device), table.device_data(device),
          env.device_data(device), strata, mode, csm_data, FILTERS[filter], float(bias), mesh_id, float(ray_eps),
          int(seed) & 0x7FFFFFFF, out],
         device, threads=threads, min_chunk=256,

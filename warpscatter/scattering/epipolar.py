@@ -13,8 +13,9 @@ lines and interpolated elsewhere. Stages (names as they appear in timings):
    that are their own source (initial samples and texels beside a discontinuity) are ray-marching samples,
    compacted into a list (the paper's stencil mask).
 3. ``raymarch``        — the ray-marching samples only, with the reference marcher's estimator
-   (:func:`march_screen_point` = :func:`~.raymarch.march_ray` at a sub-pixel position; same steps, jitter and
-   visibility: shadow map or exact), into the **radiance texture**.
+   (:func:`march_screen_point` = :func:`~.raymarch.march_ray` at a sub-pixel position; same steps restricted to
+   the lit part of the ray, same jitter pattern and visibility: shadow map or exact), into the **radiance
+   texture**.
 4. ``interpolate``     — linear interpolation along each line between the sources; then per pixel (Sec. 4.3,
    5.3): the two nearest lines from the border arclength of the ray epipole -> pixel (the 1D border lookup,
    analytic because the border points are equidistant), projection onto them, a 3-5 tap bilateral filter
@@ -50,13 +51,13 @@ import warp as wp
 from ..parallel import launch_rows
 from ..scene.camera import CameraParams, pixel_ray_direction
 from ..scene.lights import LightParams, SpotLight, light_params, light_texture_array
-from ..scene.medium import transmittance_integral
 from ..shadows.shadow_map import ShadowMapParams
 from ..wpinit import default_device, module_options
 from .epipolar_lines import EpipolarLines, epipolar_lines, light_texture_level
 from .raymarch import (
     MediumParams,
-    inscatter_sample,
+    jitter_mode,
+    march_along,
     march_ray,
     medium_params,
     visibility_inputs,
@@ -183,8 +184,13 @@ def kernel_weight(kernel: int, x: float) -> float:
     """Radial basis of the bilateral filter (Engelhardt 2010 Sec. 4.3), 1 at x = 0.
 
     Gaussian exp(-x^2), Shepard-type 1 / (1 + x^2) (the inverse square regularised at 0), threshold [x <= 1].
+    The Gaussian uses its series 1 - x^2 + x^4 / 2 below x = 1/16 (error < x^6 / 6 = 1e-8, under float32
+    resolution at 1): taps on one smooth surface, the common case of the upsampling, skip the exp.
     """
     if kernel == KERNEL_GAUSSIAN:
+        if x < 0.0625:
+            x2 = x * x
+            return 1.0 - x2 + 0.5 * x2 * x2
         return wp.exp(-x * x)
     if kernel == KERNEL_SHEPARD:
         return 1.0 / (1.0 + x * x)
@@ -194,15 +200,27 @@ def kernel_weight(kernel: int, x: float) -> float:
 
 
 @wp.func
-def depth_weight(flt: BilateralFilter, tap_depth: float, pixel_depth: float) -> float:
-    """Depth term of a tap: kernel of |tap - pixel| / (pixel depth_sigma); 0 when below ``min_weight``."""
-    x = wp.abs(tap_depth - pixel_depth) / wp.max(pixel_depth * flt.depth_sigma, 1.0e-20)
+def depth_scale(flt: BilateralFilter, pixel_depth: float) -> float:
+    """1 / (pixel depth_sigma): the factor of :func:`depth_weight_scaled`, computed once per pixel."""
+    return 1.0 / wp.max(pixel_depth * flt.depth_sigma, 1.0e-20)
+
+
+@wp.func
+def depth_weight_scaled(flt: BilateralFilter, tap_depth: float, pixel_depth: float, scale: float) -> float:
+    """:func:`depth_weight` with the pixel's :func:`depth_scale` precomputed (the per-texel form of the filter)."""
+    x = wp.abs(tap_depth - pixel_depth) * scale
     if x > flt.depth_cutoff:
         return 0.0
     wd = kernel_weight(flt.kernel, x)
     if wd < flt.min_weight:
         return 0.0
     return wd
+
+
+@wp.func
+def depth_weight(flt: BilateralFilter, tap_depth: float, pixel_depth: float) -> float:
+    """Depth term of a tap: kernel of |tap - pixel| / (pixel depth_sigma); 0 when below ``min_weight``."""
+    return depth_weight_scaled(flt, tap_depth, pixel_depth, depth_scale(flt, pixel_depth))
 
 
 @wp.func
@@ -303,29 +321,21 @@ def screen_point_in_light(cam: CameraParams, light: LightParams, p: wp.vec2) -> 
 
 @wp.func
 def march_screen_point(cam: CameraParams, x: float, y: float, s: float, light: LightParams,
-                       light_tex: wp.array2d(dtype=wp.vec3), med: MediumParams, steps: int, seed: int, vis_mode: int,
-                       mesh: wp.uint64, eps: float, sm: ShadowMapParams, sm_depth: wp.array2d(dtype=wp.float32),
-                       sm_bias: float) -> wp.vec3:
+                       light_tex: wp.array2d(dtype=wp.vec3), med: MediumParams, steps: int, seed: int, jitter: int,
+                       vis_mode: int, mesh: wp.uint64, eps: float, sm: ShadowMapParams,
+                       sm_depth: wp.array2d(dtype=wp.float32), sm_bias: float) -> wp.vec3:
     """L_scat along the camera ray through screen point (x, y) (pixels) ending at distance s.
 
-    The estimator of :func:`~warpscatter.scattering.raymarch.march_ray` (stratified jittered steps, exact
-    transmittance per stratum, :func:`inscatter_sample`) at a sub-pixel position; the jitter sequence is that of
-    the pixel containing (x, y), so a sample at a pixel centre reproduces the reference value bit for bit.
+    The reference marcher's estimator (:func:`~warpscatter.scattering.raymarch.march_along`: strata over the
+    lit part of the ray, exact transmittance per stratum, ``jitter`` pattern) at a sub-pixel position; the random
+    stream is that of the pixel containing (x, y), so a sample at a pixel centre reproduces the reference value
+    bit for bit.
     """
     d = pixel_ray_direction(cam, x, y)
     pi = wp.clamp(int(wp.floor(x)), 0, cam.width - 1)
     pj = wp.clamp(int(wp.floor(y)), 0, cam.height - 1)
-    rng = wp.rand_init(seed, pj * cam.width + pi)
-    dt = s / float(steps)
-    acc = wp.vec3(0.0, 0.0, 0.0)
-    for k in range(steps):
-        t0 = float(k) * dt
-        t = t0 + wp.randf(rng) * dt
-        c = inscatter_sample(light, light_tex, med, cam.position + d * t, d, vis_mode, mesh, eps, sm, sm_depth,
-                             sm_bias)
-        if c[0] + c[1] + c[2] > 0.0:
-            acc += c * transmittance_integral(med.sigma_t, t0, t0 + dt)
-    return acc
+    return march_along(cam.position, d, s, pj * cam.width + pi, light, light_tex, med, steps, seed, jitter, vis_mode,
+                       mesh, eps, sm, sm_depth, sm_bias)
 
 
 @wp.func
@@ -371,6 +381,7 @@ def line_filter(geo: EpipolarGeometry, flt: BilateralFilter, entry: wp.array(dty
     centre = tc * last
     step = delta / seg_len * last
     reach = wp.min(centre, last - centre)  # taps go in symmetric pairs: a pair reaching past an end is dropped
+    scale = depth_scale(flt, pixel_depth)
     for m in range(flt.taps):
         o = float(m) - 0.5 * float(flt.taps - 1)
         if wp.abs(o) * step > reach + 1.0e-4 and o != 0.0:
@@ -381,12 +392,12 @@ def line_filter(geo: EpipolarGeometry, flt: BilateralFilter, entry: wp.array(dty
         t1 = wp.min(t0 + 1, geo.samples - 1)
         f = c - float(t0)
         if f < 1.0:
-            w0 = (1.0 - f) * wdist * depth_weight(flt, line_depth[k, t0], pixel_depth)
+            w0 = (1.0 - f) * wdist * depth_weight_scaled(flt, line_depth[k, t0], pixel_depth, scale)
             if w0 > 0.0:
                 acc += radiance[k, t0] * w0
                 wsum += w0
         if f > 0.0:
-            w1 = f * wdist * depth_weight(flt, line_depth[k, t1], pixel_depth)
+            w1 = f * wdist * depth_weight_scaled(flt, line_depth[k, t1], pixel_depth, scale)
             if w1 > 0.0:
                 acc += radiance[k, t1] * w1
                 wsum += w1
@@ -587,6 +598,7 @@ def raymarch_samples_kernel(
     med: MediumParams,
     steps: int,
     seed: int,
+    jitter: int,
     vis_mode: int,
     mesh: wp.uint64,
     eps: float,
@@ -602,7 +614,7 @@ def raymarch_samples_kernel(
     x = flat - k * geo.samples
     p = coords[k, x]
     radiance[k, x] = march_screen_point(cam, p[0], p[1], line_depth[k, x], light, light_tex, med, steps, seed,
-                                        vis_mode, mesh, eps, sm, sm_depth, sm_bias)
+                                        jitter, vis_mode, mesh, eps, sm, sm_depth, sm_bias)
 
 
 @wp.kernel
@@ -711,6 +723,7 @@ def raymarch_pixels_kernel(
     med: MediumParams,
     steps: int,
     seed: int,
+    jitter: int,
     vis_mode: int,
     mesh: wp.uint64,
     eps: float,
@@ -725,8 +738,8 @@ def raymarch_pixels_kernel(
     flat = indices[n]
     j = flat // cam.width
     i = flat - j * cam.width
-    out[j, i] = march_ray(cam, i, j, distance[j, i], light, light_tex, med, steps, seed, vis_mode, mesh, eps, sm,
-                          sm_depth, sm_bias)
+    out[j, i] = march_ray(cam, i, j, distance[j, i], light, light_tex, med, steps, seed, jitter, vis_mode, mesh, eps,
+                          sm, sm_depth, sm_bias)
 
 
 @wp.func
@@ -745,6 +758,7 @@ def grid_raymarch_kernel(
     med: MediumParams,
     steps: int,
     seed: int,
+    jitter: int,
     vis_mode: int,
     mesh: wp.uint64,
     eps: float,
@@ -758,8 +772,8 @@ def grid_raymarch_kernel(
     gj += offset
     i = grid_node(gi, stride, cam.width)
     j = grid_node(gj, stride, cam.height)
-    grid[gj, gi] = march_ray(cam, i, j, distance[j, i], light, light_tex, med, steps, seed, vis_mode, mesh, eps, sm,
-                             sm_depth, sm_bias)
+    grid[gj, gi] = march_ray(cam, i, j, distance[j, i], light, light_tex, med, steps, seed, jitter, vis_mode, mesh,
+                             eps, sm, sm_depth, sm_bias)
 
 
 @wp.kernel
@@ -986,7 +1000,8 @@ def sample_texture_bytes(lines: EpipolarLines) -> int:
 
 def render_epipolar(scene, gbuffer, *, settings: EpipolarSettings | None = None, steps: int = 128,
                     visibility: str = "shadow_map", geometry=None, shadow_map=None, seed: int = 0,
-                    shadow_bias_texels: float = 1.0, timer=None, device=None) -> tuple[wp.array, dict]:
+                    jitter: str = "per_pixel", shadow_bias_texels: float = 1.0, timer=None,
+                    device=None) -> tuple[wp.array, dict]:
     """Single scattering by epipolar sampling (the ``epipolar`` method; see the module doc).
 
     Args:
@@ -998,6 +1013,8 @@ def render_epipolar(scene, gbuffer, *, settings: EpipolarSettings | None = None,
         geometry: :class:`~warpscatter.scene.DeviceGeometry` for exact visibility.
         shadow_map: the light's :class:`~warpscatter.shadows.shadow_map.ShadowMap` for shadow-map visibility.
         seed: jitter seed (the reference marcher's: a sample at a pixel centre reproduces its value).
+        jitter: the reference marcher's step pattern, ``"per_pixel"`` or ``"fixed"``
+            (:mod:`~warpscatter.scattering.raymarch`).
         shadow_bias_texels: shadow-map depth bias in texel sizes.
         timer: optional callable ``timer(stage_name)`` returning a context manager (e.g. a pipeline StageTimer);
             stages ``lines``, ``discontinuities``, ``raymarch``, ``interpolate``.
@@ -1025,7 +1042,7 @@ def render_epipolar(scene, gbuffer, *, settings: EpipolarSettings | None = None,
     cam_p, light_p, med_p = cam.params(), light_params(light), medium_params(scene.medium)
     flt = filter_params(settings, device)
     h, w = cam.height, cam.width
-    march_args = [int(steps), int(seed), vis_mode, mesh_id, eps, sm_params, sm_depth, bias]
+    march_args = [int(steps), int(seed), jitter_mode(jitter), vis_mode, mesh_id, eps, sm_params, sm_depth, bias]
     out = wp.empty((h, w), dtype=wp.vec3, device=device)
     unresolved = wp.empty(h * w, dtype=wp.int32, device=device)
     info = {"epipolar_lines": settings.lines, "epipolar_initial_samples": settings.initial_samples}
@@ -1106,7 +1123,9 @@ __all__ = [
     "classify_samples",
     "compact",
     "depth_discontinuity",
+    "depth_scale",
     "depth_weight",
+    "depth_weight_scaled",
     "EpipolarGeometry",
     "EpipolarSettings",
     "kernel_weight",

@@ -46,6 +46,11 @@ its own column:
     B_bar(i) = [sum_{k<K} R_k W_loc(end_k) B_bar_k(end_k) + R_K W_loc(i) B_bar_K(i)] / [same weights],
 
 which equals the unsplit filter up to float rounding.
+
+Two depths per texel (filtering during resampling, Peters 2017 Sec. 5.2): the prefilters also accept a
+:class:`~.rectify.SparseRectifiedDepth` (z_1, z_2, w_2). The filtered value of a texel is then the weighted
+combination (1 - w_2) B_k(z_1) + w_2 B_k(z_2) of the basis (Fourier values, or the canonical moments before
+storage); a plain depth map is the same code path with w_2 = 0 (:func:`texel_depths`).
 """
 
 from __future__ import annotations
@@ -59,7 +64,7 @@ from ..parallel import launch_rows
 from ..scene.medium import transmittance_integral
 from ..shadows import moments as mm
 from ..wpinit import default_device, module_options
-from .rectify import NonlinearRectification, NonlinearRectParams, world_to_rectified
+from .rectify import NonlinearRectification, NonlinearRectParams, SparseRectifiedDepth, world_to_rectified
 
 module_options()
 
@@ -358,6 +363,17 @@ def prefiltered_visibility_split(filtered_basis: wp.array3d(dtype=wp.float32),
     return fourier_taps_visibility(filtered_basis, rows, cols, w, n, z_r)
 
 
+@wp.func
+def texel_depths(depth: wp.array2d(dtype=wp.float32), depth2: wp.array2d(dtype=wp.float32),
+                 weight2: wp.array2d(dtype=wp.float32), two_depths: int, j: int, i: int):
+    """(z_1, z_2, w_2) of rectified texel (j, i): the sparse two-depth representation of Peters 2017 Sec. 5.2 when
+    ``two_depths`` != 0, else the single depth (z_1, z_1, 0) (``depth2``/``weight2`` are then unused dummies)."""
+    z1 = depth[j, i]
+    if two_depths == 0:
+        return z1, z1, 0.0
+    return z1, depth2[j, i], weight2[j, i]
+
+
 # ---- kernels --------------------------------------------------------------------------------------------
 
 
@@ -412,7 +428,10 @@ filter_state = wp.types.vector(length=2 * PAIRS_PER_THREAD, dtype=wp.float32)
 
 @wp.kernel
 def prefilter_depth_kernel(
-    depth: wp.array2d(dtype=wp.float32),  # (rows, cols) rectified depth in [0, 1]
+    depth: wp.array2d(dtype=wp.float32),  # (rows, cols) rectified depth z_1 in [0, 1]
+    depth2: wp.array2d(dtype=wp.float32),  # (rows, cols) second depth z_2 (two_depths != 0), else a dummy
+    weight2: wp.array2d(dtype=wp.float32),  # (rows, cols) weight w_2 of z_2 (two_depths != 0), else a dummy
+    two_depths: int,  # 1: the sparse two-depth representation of Peters 2017 Sec. 5.2
     optical_step: wp.array(dtype=wp.float32),  # (rows,) tau_j: optical thickness per unit column length (0 = average)
     column_length: wp.array(dtype=wp.float32),  # (cols,) relative column length l_i, or (1,): uniform columns
     splits: int,  # regions per row filtered independently (Klehm 2014 Sec. 3.3)
@@ -442,7 +461,7 @@ def prefilter_depth_kernel(
     transmittance = float(1.0)  # T_i from the region start (the region's normalised values ignore the rest)
     sum_w = float(0.0)
     for i in range(c0, c0 + nc):
-        z = depth[j, i]
+        z, z2, w2 = texel_depths(depth, depth2, weight2, two_depths, j, i)
         w = float(0.0)
         if uniform:
             w = transmittance * w_first
@@ -460,30 +479,51 @@ def prefilter_depth_kernel(
         cs = wp.cos(fourier_frequency(2 * m0) * z)
         step_s = wp.sin(2.0 * wp.pi * z)
         step_c = wp.cos(2.0 * wp.pi * z)
+        # the second depth's values (Peters 2017 Sec. 5.2); equal to the first's when w_2 = 0
+        sn2, cs2, step_s2, step_c2 = sn, cs, step_s, step_c
+        if w2 > 0.0:
+            sn2 = wp.sin(fourier_frequency(2 * m0) * z2)
+            cs2 = wp.cos(fourier_frequency(2 * m0) * z2)
+            step_s2 = wp.sin(2.0 * wp.pi * z2)
+            step_c2 = wp.cos(2.0 * wp.pi * z2)
         for p in range(wp.static(PAIRS_PER_THREAD)):
             if m0 + p < num_pairs:
-                state[2 * p] = state[2 * p] + alpha * (sn - state[2 * p])
-                state[2 * p + 1] = state[2 * p + 1] + alpha * (cs - state[2 * p + 1])
+                b_s = sn + w2 * (sn2 - sn)  # (1 - w_2) B(z_1) + w_2 B(z_2)
+                b_c = cs + w2 * (cs2 - cs)
+                state[2 * p] = state[2 * p] + alpha * (b_s - state[2 * p])
+                state[2 * p + 1] = state[2 * p + 1] + alpha * (b_c - state[2 * p + 1])
                 k = 2 * (m0 + p)
                 out[j, i, k] = unorm_roundtrip(state[2 * p], levels)
                 out[j, i, k + 1] = unorm_roundtrip(state[2 * p + 1], levels)
                 sn_next = sn * step_c + cs * step_s
                 cs = cs * step_c - sn * step_s
                 sn = sn_next
+                sn2_next = sn2 * step_c2 + cs2 * step_s2
+                cs2 = cs2 * step_c2 - sn2 * step_s2
+                sn2 = sn2_next
 
 
 # ---- moments as the basis (Peters 2017 Sec. 5.3-5.4) ---------------------------------------------------
 
 
 @wp.func
-def stored_moments(depth01: float, num_moments: int, storage: int) -> mm.vec6:
-    """Texel of a rectified MOMENT map: the moments of signed depth z = 2 depth01 - 1 as the storage mode holds
-    them (Theta* and fixed point for the quantized modes; Peters 2017 Sec. 5.3, 5.4.3). 4 moments use slots 0-3."""
-    z = 2.0 * depth01 - 1.0
+def stored_moments(depth01: float, depth01_2: float, weight2: float, num_moments: int, storage: int) -> mm.vec6:
+    """Texel of a rectified MOMENT map: the moments of (1 - w_2) delta_{z_1} + w_2 delta_{z_2}, z = 2 depth01 - 1,
+    as the storage mode holds them (Theta* and fixed point for the quantized modes; Peters 2017 Sec. 5.2-5.4.3:
+    "convert both values to vectors of moments via Theta_m* o b and linearly combine them"). w_2 = 0 is the
+    single depth. 4 moments use slots 0-3."""
+    z1 = 2.0 * depth01 - 1.0
+    z2 = 2.0 * depth01_2 - 1.0
     if num_moments == 4:
-        t = mm.store_moments4(mm.moments4_from_depth(z), storage)
+        b = mm.moments4_from_depth(z1)
+        if weight2 > 0.0:
+            b = b + weight2 * (mm.moments4_from_depth(z2) - b)
+        t = mm.store_moments4(b, storage)
         return mm.vec6(t[0], t[1], t[2], t[3], 0.0, 0.0)
-    return mm.store_moments6(mm.moments6_from_depth(z), storage)
+    b6 = mm.moments6_from_depth(z1)
+    if weight2 > 0.0:
+        b6 = b6 + weight2 * (mm.moments6_from_depth(z2) - b6)
+    return mm.store_moments6(b6, storage)
 
 
 @wp.func
@@ -505,7 +545,10 @@ def requantize_moments(t: mm.vec6, num_moments: int, storage: int) -> mm.vec6:
 
 @wp.kernel
 def prefilter_moments_kernel(
-    depth: wp.array2d(dtype=wp.float32),  # (rows, cols) rectified depth in [0, 1]
+    depth: wp.array2d(dtype=wp.float32),  # (rows, cols) rectified depth z_1 in [0, 1]
+    depth2: wp.array2d(dtype=wp.float32),  # (rows, cols) second depth z_2 (two_depths != 0), else a dummy
+    weight2: wp.array2d(dtype=wp.float32),  # (rows, cols) weight w_2 of z_2 (two_depths != 0), else a dummy
+    two_depths: int,  # 1: the sparse two-depth representation of Peters 2017 Sec. 5.2
     optical_step: wp.array(dtype=wp.float32),  # (rows,) tau_j per unit column length (0 = average)
     column_length: wp.array(dtype=wp.float32),  # (cols,) relative column lengths, or (1,): uniform columns
     num_moments: int,  # 4 or 6
@@ -533,7 +576,8 @@ def prefilter_moments_kernel(
             w, transmittance = texel_weight(transmittance, length, tau * length)
         sum_w += w
         if sum_w > 0.0:
-            state = state + (w / sum_w) * (stored_moments(depth[j, i], num_moments, storage) - state)
+            z1, z2, w2 = texel_depths(depth, depth2, weight2, two_depths, j, i)
+            state = state + (w / sum_w) * (stored_moments(z1, z2, w2, num_moments, storage) - state)
         q = requantize_moments(state, num_moments, storage)
         for k in range(num_moments):
             out[j, i, k] = q[k]
@@ -633,6 +677,20 @@ def _as_array(a, dtype, ndim: int, name: str, device) -> wp.array:
     if arr.ndim != ndim:
         raise ValueError(f"{name} must be a {ndim}D array, got shape {arr.shape}")
     return arr
+
+
+def _rectified_inputs(rectified_depth, device) -> list:
+    """[z1, z2, w2, two_depths] kernel inputs of a (rows, cols) depth map or a :class:`SparseRectifiedDepth`."""
+    if isinstance(rectified_depth, SparseRectifiedDepth):
+        arrs = [_as_array(a, wp.float32, 2, f"rectified_depth.{n}", device)
+                for a, n in ((rectified_depth.z1, "z1"), (rectified_depth.z2, "z2"), (rectified_depth.w2, "w2"))]
+        if not arrs[0].shape == arrs[1].shape == arrs[2].shape:
+            raise ValueError(f"rectified_depth: z1, z2 and w2 must have one shape, got "
+                             f"{arrs[0].shape}, {arrs[1].shape}, {arrs[2].shape}")
+        return [*arrs, 1]
+    depth = _as_array(rectified_depth, wp.float32, 2, "rectified_depth", device)
+    dummy = wp.zeros((1, 1), dtype=wp.float32, device=device)
+    return [depth, dummy, dummy, 0]
 
 
 def _optical_steps(optical_step, rows: int, device) -> wp.array:
@@ -749,7 +807,8 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
     ``column_length`` None (all l_i = 1) this is Listing 2 with tau_j = sigma_t Delta_ref.
 
     Args:
-        rectified_depth: (rows, cols) float32 numpy or Warp array, depth in [0, 1].
+        rectified_depth: (rows, cols) float32 numpy or Warp array, depth in [0, 1], or a
+            :class:`~.rectify.SparseRectifiedDepth` (two depths per texel: the weighted basis mix is filtered).
         num_coefficients: M, even, 4..128.
         optical_step: None or 0 for no transmittance (weights l_i: the length-weighted average visibility);
             else tau_j per row (scalar or (rows,)), the optical thickness per unit of ``column_length``.
@@ -767,8 +826,8 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
     """
     device = default_device(device)
     m = _check_coefficients(num_coefficients)
-    depth = _as_array(rectified_depth, wp.float32, 2, "rectified_depth", device)
-    rows, cols = depth.shape
+    depths = _rectified_inputs(rectified_depth, device)
+    rows, cols = depths[0].shape
     splits = _check_splits(splits, cols)
     levels = _levels(bits)
     tau = _optical_steps(optical_step, rows, device)
@@ -787,7 +846,7 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
     uniform = bool(np.all(lengths == lengths[0]))
     kernel_lengths = lengths[:1] if uniform else lengths
     launch_rows(prefilter_depth_kernel, (rows, splits * groups),
-                [depth, tau, wp.array(kernel_lengths.astype(np.float32), dtype=wp.float32, device=device), splits,
+                [*depths, tau, wp.array(kernel_lengths.astype(np.float32), dtype=wp.float32, device=device), splits,
                  levels, out, sums, int(splits > 1)], device=device)
     return FilteredBasis(basis=out, weight_sums=sums, region_weights=wp.array(region, dtype=wp.float32,
                                                                               device=device), splits=splits)
@@ -803,7 +862,8 @@ def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, colu
     """Transmittance-weighted prefix sums of moments of the rectified depth (Peters 2017 Sec. 5.1.1, 5.3-5.4, D.5).
 
     Args:
-        rectified_depth: (rows, cols) float32 depth in [0, 1].
+        rectified_depth: (rows, cols) float32 depth in [0, 1], or a :class:`~.rectify.SparseRectifiedDepth`
+            (two depths per texel: their weighted moment vectors are combined, Sec. 5.2).
         num_moments: 4 or 6.
         optical_step, column_length: per-row optical steps and per-column lengths as in :func:`prefilter_weighted`.
         storage_bits: bits per texel, 64 or 128 (4 moments) / 64 (60 used), 96 or 192 (6 moments); None: the
@@ -820,14 +880,14 @@ def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, colu
     if bits not in MOMENT_STORAGE[num_moments]:
         raise ValueError(f"storage_bits for {num_moments} moments must be one of "
                          f"{sorted(MOMENT_STORAGE[num_moments])}, got {storage_bits}")
-    depth = _as_array(rectified_depth, wp.float32, 2, "rectified_depth", device)
-    rows, cols = depth.shape
+    depths = _rectified_inputs(rectified_depth, device)
+    rows, cols = depths[0].shape
     tau = _optical_steps(optical_step, rows, device)
     lengths = _column_lengths(column_length, cols)
     uniform = bool(np.all(lengths == lengths[0]))
     out = wp.empty((rows, cols, num_moments), dtype=wp.float32, device=device)
     launch_rows(prefilter_moments_kernel, rows,
-                [depth, tau, wp.array((lengths[:1] if uniform else lengths).astype(np.float32), dtype=wp.float32,
+                [*depths, tau, wp.array((lengths[:1] if uniform else lengths).astype(np.float32), dtype=wp.float32,
                                       device=device), int(num_moments), MOMENT_STORAGE[num_moments][bits], out],
                 device=device)
     return out

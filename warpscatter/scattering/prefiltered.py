@@ -25,8 +25,12 @@ Stages (names as they appear in timings):
    front of the hit plus the hit's own) -> dot with a(z_r) + 0.5, clamped -> times
    sigma_s f E (1 - e^{-sigma_t s}) / sigma_t (Klehm Listing 4); the cost per pixel is constant whatever the scene;
 4. ``epipole``   — when the light (or its flip) projects into the view, the non-linear rectification's
-   slices all meet there and precision is low (Klehm 2014 Sec. 5, Fig. 8): a block of pixels around each
-   such epipole is ray-marched with shadow-map visibility instead.
+   slices all meet there and precision is low: light bleeds into a ring around the epipole (Klehm 2014
+   Sec. 5, Fig. 8). The pixels whose view ray lies within ``epipole_angle_deg`` of the light direction (or its
+   flip) — at least Klehm's block of ``epipole_block`` pixels — are ray-marched with shadow-map visibility
+   instead, blended linearly in the angle with the prefiltered result over a band of ``EPIPOLE_BLEND`` times
+   that radius. An angle rather than a pixel count keeps the region the same at every resolution; the stats
+   report the fraction of pixels marched (``epipole_raymarched_fraction``).
 
 Directional lights only (both rectifications are built for parallel light rays).
 
@@ -41,16 +45,22 @@ coefficients        int        32             M Fourier coefficients (even, 4..1
 moment_storage_bits int        64             moments4: 64 (Theta4*, 16-bit) or 128; moments6: 64 (10-bit), 96, 192
 overestimation      str|float  adaptive       moments: beta between lower (0) and upper (1) visibility bounds
 weighting           str        transmittance  ``transmittance`` (Sec. 3.2) or ``average`` (Eq. 2)
-reference_ray       str        pixels         per-slice reference ray: pixels (median pixel ray), optimal, bisectrix, mean
+reference_ray       str        pixels         per-slice reference ray: pixels (median pixel ray), optimal,
+                                              bisectrix, mean
 bits                int        0              0 float32 storage, 8 emulates RGBA8 (App. A)
 guard_band          float      0.1            relative stretch of the depth bounds
-epipole_block       int        32             ray-marched block around an epipole in view (0: off)
-epipole_steps       int        64             ray-march steps inside that block
+epipole_block       int        32             least ray-marched region around an epipole in view (pixels)
+epipole_angle_deg   float      8              ray-marched disc around an epipole in view (degrees; 0 and block 0: off)
+epipole_steps       int        64             ray-march steps inside that region
 rectification       str        auto           ``auto``, ``projective`` or ``nonlinear``
 epipole_margin      float      1.0            ``auto`` threshold, half image heights outside the image
 regions             int        8              light-frustum regions of the projective map (Sec. 4.2)
 projective_weights  str        exact          ``exact`` column lengths or ``cross_ratio`` (Eq. 12's d)
 splits              int        1              prefilter regions per row (Sec. 3.3; 1 = off)
+resample_filter     str        none           non-linear resampling: ``none`` (nearest depth) or ``moments``
+                                              (Peters 2017 Sec. 5.2: filtered 4-moment map + Algorithm 2)
+resample_filter_px  int|None   None           Gaussian width (shadow-map texels) of that map; None: the radial
+                                              rectified texel footprint (:func:`~.rectify.resample_footprint_texels`)
 ==================  =========  =============  ==========================================================
 """
 
@@ -64,11 +74,12 @@ import warp as wp
 
 from ..parallel import launch_rows
 from ..scene.camera import CameraParams, pixel_ray_direction
-from ..scene.lights import DirectionalLight, LightParams, light_params
+from ..scene.lights import DirectionalLight, LightParams, light_params, light_texture_array
 from ..scene.medium import phase_eval, transmittance_integral
+from ..shadows import moments as mm
+from ..shadows.shadow_map import ShadowMapParams
 from ..wpinit import default_device, module_options
 from . import rectify, rectify_projective
-from ..shadows import moments as mm
 from .prefilter import (
     MAX_SPLITS,
     MOMENT_STORAGE,
@@ -78,7 +89,7 @@ from .prefilter import (
     prefilter_weighted,
     prefiltered_visibility_split,
 )
-from .raymarch import MediumParams, medium_params, raymarch
+from .raymarch import JITTER_PER_PIXEL, VISIBILITY_SHADOW_MAP, MediumParams, march_ray, medium_params, visibility_inputs
 from .rectify import NonlinearRectification, NonlinearRectParams, reference_ray, resample_shadow_map
 from .rectify_projective import (
     EPIPOLE_MARGIN,
@@ -97,9 +108,18 @@ module_options()
 RECT_NONLINEAR = 0
 RECT_PROJECTIVE = 1
 
+#: Default angular radius (degrees) of the ray-marched disc around an epipole in view (Klehm 2014 Fig. 8).
+EPIPOLE_ANGLE_DEG = 8.0
+#: Width of the blend band beyond the ray-marched disc, relative to its radius.
+EPIPOLE_BLEND = 0.25
+
 
 #: The visibility representations of prefiltered single scattering (render methods).
 BASES = ("fourier", "moments4", "moments6")
+#: Resampling filters of the non-linear rectification (Peters 2017 Sec. 5.2).
+RESAMPLE_FILTERS = ("none", "moments")
+#: Widest Gaussian of filtering during resampling (shadow-map texels).
+MAX_RESAMPLE_FILTER_PX = 64
 
 
 @dataclass(frozen=True)
@@ -119,7 +139,11 @@ class PrefilteredSettings:
             pixel rays).
         bits: 0 stores float32 filtered bases; 8 emulates the paper's 8-bit normalised storage (App. A).
         guard_band: relative stretch of the depth bounds (Peters 2017 uses 0.1).
-        epipole_block: side in pixels of the ray-marched block around an epipole in view (0 disables).
+        epipole_block: a minimum size of the ray-marched region around an epipole in view, as the side in pixels
+            of Klehm's block (its half side, as an angle at the image centre, is the least region radius).
+        epipole_angle_deg: angular radius of the ray-marched disc around an epipole in view (degrees; pixels whose
+            view ray lies this close to the light direction or its flip). The larger of the two radii is used;
+            both 0 disables the fallback. A band of ``EPIPOLE_BLEND`` times the radius beyond it blends both.
         epipole_steps: ray-march steps inside that block.
         rectification: ``"auto"``, ``"projective"`` (Klehm 2014 Sec. 4.2) or ``"nonlinear"`` (Peters 2017).
         epipole_margin: ``auto`` picks projective when every epipole in front of the camera lies at least this
@@ -129,6 +153,12 @@ class PrefilteredSettings:
         projective_weights: per-texel weights of the projective map: ``"exact"`` column lengths or
             ``"cross_ratio"``, Klehm 2014 Eq. 12's constant growth factor d from the first three texel centres.
         splits: regions per row filtered independently (Klehm 2014 Sec. 3.3; 1 = off); exact up to rounding.
+        resample_filter: ``"none"`` resamples the nearest shadow-map depth; ``"moments"`` filters during resampling
+            (Peters 2017 Sec. 5.2): a 128-bit 4-moment map of the light view (2x2 supersampled, Gaussian filtered),
+            a bilinear moment sample per rectified texel, two depths by Algorithm 2 and their weighted basis mix.
+            Non-linear rectification only (the projective map is rasterized, not resampled).
+        resample_filter_px: width in shadow-map texels of that Gaussian (1: bilinear only); None matches the
+            radial footprint of a rectified texel, r_max / cols in texels (:func:`~.rectify.resample_footprint_texels`).
     """
 
     basis: str = "fourier"
@@ -140,15 +170,26 @@ class PrefilteredSettings:
     bits: int = 0
     guard_band: float = 0.1
     epipole_block: int = 32
+    epipole_angle_deg: float = EPIPOLE_ANGLE_DEG
     epipole_steps: int = 64
     rectification: str = "auto"
     epipole_margin: float = EPIPOLE_MARGIN
     regions: int = 8
     projective_weights: str = "exact"
     splits: int = 1
+    resample_filter: str = "none"
+    resample_filter_px: int | None = None
 
     def validate(self) -> "PrefilteredSettings":
         """Raise ValueError naming the first bad field; return self."""
+        if self.resample_filter not in RESAMPLE_FILTERS:
+            raise ValueError(f"resample_filter must be one of {', '.join(RESAMPLE_FILTERS)}, "
+                             f"got {self.resample_filter!r}")
+        if self.resample_filter_px is not None and (isinstance(self.resample_filter_px, bool) or
+                                                    int(self.resample_filter_px) != self.resample_filter_px or
+                                                    not 1 <= self.resample_filter_px <= MAX_RESAMPLE_FILTER_PX):
+            raise ValueError(f"resample_filter_px must be null or an integer in [1, {MAX_RESAMPLE_FILTER_PX}], "
+                             f"got {self.resample_filter_px}")
         if self.basis not in BASES:
             raise ValueError(f"basis must be one of {', '.join(BASES)}, got {self.basis!r}")
         if self.basis != "fourier":
@@ -160,7 +201,8 @@ class PrefilteredSettings:
                 raise ValueError("splits > 1 is implemented for the fourier basis only")
             if self.overestimation != "adaptive" and not (isinstance(self.overestimation, (int, float))
                                                           and 0.0 <= self.overestimation <= 1.0):
-                raise ValueError(f"overestimation must be 'adaptive' or a number in [0, 1], got {self.overestimation!r}")
+                raise ValueError("overestimation must be 'adaptive' or a number in [0, 1], "
+                                 f"got {self.overestimation!r}")
         if self.weighting not in ("transmittance", "average"):
             raise ValueError(f"weighting must be 'transmittance' or 'average', got {self.weighting!r}")
         if self.reference_ray not in ("optimal", "bisectrix", "mean", "pixels"):
@@ -174,6 +216,8 @@ class PrefilteredSettings:
             raise ValueError(f"regions must be an integer in [1, {MAX_REGIONS}], got {self.regions}")
         if isinstance(self.splits, bool) or int(self.splits) != self.splits or not 1 <= self.splits <= MAX_SPLITS:
             raise ValueError(f"splits must be an integer in [1, {MAX_SPLITS}], got {self.splits}")
+        if not (np.isfinite(self.epipole_angle_deg) and 0.0 <= self.epipole_angle_deg <= 60.0):
+            raise ValueError(f"epipole_angle_deg must lie in [0, 60], got {self.epipole_angle_deg}")
         if not (np.isfinite(self.epipole_margin) and self.epipole_margin >= 0.0):
             raise ValueError(f"epipole_margin must be finite and >= 0, got {self.epipole_margin}")
         return self
@@ -276,6 +320,46 @@ def evaluate_prefiltered_kernel(
     out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
 
 
+@wp.kernel
+def epipole_region_kernel(
+    cam: CameraParams,
+    distance: wp.array2d(dtype=wp.float32),
+    axis: wp.vec3,  # unit direction of the epipole from the camera (-L for the light, +L for its flip)
+    cos_inner: float,  # cos of the fully ray-marched angular radius
+    cos_outer: float,  # cos of the outer radius of the blend band (<= cos_inner)
+    light: LightParams,
+    light_tex: wp.array2d(dtype=wp.vec3),
+    med: MediumParams,
+    steps: int,
+    seed: int,
+    sm: ShadowMapParams,
+    sm_depth: wp.array2d(dtype=wp.float32),
+    sm_bias: float,
+    x0: int,  # pixel rectangle origin (column, row) of the launch
+    y0: int,
+    out: wp.array2d(dtype=wp.vec3),
+    offset: int,
+):
+    # Klehm 2014 Sec. 5, Fig. 8: ray-march where the epipolar slices converge; a linear blend in the angle over
+    # the band between the inner and outer radius hides the seam to the prefiltered result
+    j, i = wp.tid()
+    j += offset + y0
+    i += x0
+    d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
+    c = wp.dot(d, axis)
+    if c > cos_outer:
+        marched = march_ray(cam, i, j, distance[j, i], light, light_tex, med, steps, seed, JITTER_PER_PIXEL,
+                            VISIBILITY_SHADOW_MAP,
+                            wp.uint64(0), 0.0, sm, sm_depth, sm_bias)
+        w = float(1.0)
+        if c < cos_inner:
+            psi = wp.acos(wp.clamp(c, -1.0, 1.0))
+            psi_in = wp.acos(cos_inner)
+            psi_out = wp.acos(cos_outer)
+            w = (psi_out - psi) / wp.max(psi_out - psi_in, 1.0e-12)
+        out[j, i] = marched * w + out[j, i] * (1.0 - w)
+
+
 # ---- host side ------------------------------------------------------------------------------------------------
 
 
@@ -297,20 +381,101 @@ def epipole_pixels(camera, light_direction) -> list[tuple[float, float, str]]:
     return out
 
 
-def epipole_regions(camera, light_direction, block: int) -> list[tuple[int, int, int, int, str]]:
-    """Pixel rectangles (x0, y0, w, h, name) of side ``block`` centred on each epipole that touches the image."""
+@dataclass(frozen=True)
+class EpipoleRegion:
+    """A ray-marched region around an epipole in view (Klehm 2014 Sec. 5, Fig. 8).
+
+    Pixels whose view ray lies within ``inner_deg`` of ``axis`` are ray-marched; between ``inner_deg`` and
+    ``outer_deg`` the marched and prefiltered results are blended linearly in the angle. ``rect`` (x0, y0, w, h)
+    bounds those pixels in the image.
+    """
+
+    name: str  # "light" (axis -L) or "anti-light" (axis +L)
+    axis: tuple[float, float, float]  # unit direction of the epipole from the camera (world)
+    inner_deg: float
+    outer_deg: float
+    rect: tuple[int, int, int, int]
+
+
+def _pixel_angle_deg(camera, block: int) -> float:
+    """Angle (degrees) subtended by ``block / 2`` pixels at the image centre (a pixel size -> angle conversion)."""
+    t = np.tan(np.radians(camera.fov_y) / 2.0)
+    return float(np.degrees(np.arctan(t * block / camera.height)))
+
+
+def _cone_rect(camera, axis: np.ndarray, angle_deg: float, stride: int = 4) -> tuple[int, int, int, int] | None:
+    """Pixel rectangle (x0, y0, w, h) bounding the pixels whose view ray lies within ``angle_deg`` of ``axis``, or
+    None when there are none. Found on every ``stride``-th pixel with the angle widened by ``stride`` pixels and
+    the rectangle padded by ``stride``, so it is conservative for any cone wider than a few pixels."""
+    d = camera.ray_directions(stride)
+    margin = _pixel_angle_deg(camera, 2 * stride)
+    rows, cols = np.nonzero(d @ axis > np.cos(np.radians(min(angle_deg + margin, 180.0))))
+    if len(rows) == 0:
+        return None
+    x0 = max(int(cols.min()) * stride - stride, 0)
+    y0 = max(int(rows.min()) * stride - stride, 0)
+    x1 = min(int(cols.max()) * stride + 2 * stride, camera.width)
+    y1 = min(int(rows.max()) * stride + 2 * stride, camera.height)
+    return (x0, y0, x1 - x0, y1 - y0)
+
+
+def epipole_regions(camera, light_direction, angle_deg: float, block: int = 0,
+                    blend: float = EPIPOLE_BLEND) -> list[EpipoleRegion]:
+    """The ray-marched regions around each epipole whose cone touches the image.
+
+    Args:
+        camera: the :class:`~warpscatter.scene.camera.Camera`.
+        light_direction: unit direction the light travels.
+        angle_deg: angular radius (degrees) of the fully ray-marched disc around the epipole direction.
+        block: a minimum radius in pixels at the image centre, as ``block / 2`` (Klehm's block side; 0: none).
+        blend: relative width of the blend band beyond the inner radius (outer = inner * (1 + blend)).
+
+    Returns:
+        One :class:`EpipoleRegion` per epipole ("light": towards the light, "anti-light": its flip) whose region
+        meets the image; empty when both radii are 0.
+    """
+    inner = max(float(angle_deg), _pixel_angle_deg(camera, block) if block > 0 else 0.0)
+    if inner <= 0.0:
+        return []
+    outer = min(inner * (1.0 + blend), 89.0)
+    inner = min(inner, outer)
     regions = []
-    if block <= 0:
-        return regions
-    for x, y, name in epipole_pixels(camera, light_direction):
-        x0 = int(np.floor(x - block / 2))
-        y0 = int(np.floor(y - block / 2))
-        x1, y1 = x0 + block, y0 + block
-        x0, y0 = max(x0, 0), max(y0, 0)
-        x1, y1 = min(x1, camera.width), min(y1, camera.height)
-        if x1 > x0 and y1 > y0:
-            regions.append((x0, y0, x1 - x0, y1 - y0, name))
+    for sign, name in ((-1.0, "light"), (1.0, "anti-light")):
+        axis = sign * np.asarray(light_direction, float)
+        axis = axis / np.linalg.norm(axis)
+        rect = _cone_rect(camera, axis, outer)
+        if rect is not None:
+            regions.append(EpipoleRegion(name, tuple(float(a) for a in axis), inner, outer, rect))
     return regions
+
+
+def epipole_pixel_fraction(camera, regions: list[EpipoleRegion], stride: int = 4) -> float:
+    """Fraction of the image's pixels inside the regions' outer cones (ray-marched), estimated on every
+    ``stride``-th pixel."""
+    if not regions:
+        return 0.0
+    d = camera.ray_directions(stride)
+    inside = np.zeros(d.shape[:2], bool)
+    for r in regions:
+        inside |= d @ np.asarray(r.axis) > np.cos(np.radians(r.outer_deg))
+    return float(inside.mean())
+
+
+def march_epipole_regions(scene, gbuffer, shadow_map, regions: list[EpipoleRegion], out: wp.array, *, steps: int,
+                          seed: int, shadow_bias_texels: float, device=None) -> None:
+    """Ray-march the pixels of ``regions`` into ``out`` (shadow-map visibility, the reference marcher's estimator),
+    blending with the prefiltered values already in ``out`` over each region's blend band."""
+    cam = scene.camera
+    _, _, _, sm_params, sm_depth, bias = visibility_inputs(scene, "shadow_map", None, shadow_map, shadow_bias_texels,
+                                                           device)
+    light_tex = light_texture_array(scene.light, device)
+    for r in regions:
+        x0, y0, w, h = r.rect
+        launch_rows(epipole_region_kernel, (h, w),
+                    [cam.params(), gbuffer.distance, wp.vec3(*r.axis), float(np.cos(np.radians(r.inner_deg))),
+                     float(np.cos(np.radians(r.outer_deg))), light_params(scene.light), light_tex,
+                     medium_params(scene.medium), int(steps), int(seed), sm_params, sm_depth, float(bias), int(x0),
+                     int(y0), out], device=device)
 
 
 def row_weights(rect, settings: PrefilteredSettings, sigma_t: float,
@@ -364,6 +529,30 @@ def build_rectification(scene, settings: PrefilteredSettings, rows: int, cols: i
     return rect, choice
 
 
+def resample_filtered(scene, rect: NonlinearRectification, shadow_map, settings: PrefilteredSettings, stage,
+                      device) -> tuple:
+    """Filtering during resampling (Peters 2017 Sec. 5.2): stage ``resample_msm`` generates the light view's
+    128-bit 4-moment map (2x2 supersampled, :func:`~warpscatter.shadows.msm.generate_moment_shadow_map`) and
+    Gaussian-filters it (``resample_filter_px``, default the radial rectified texel footprint); stage ``rectify``
+    resamples it with Algorithm 2 (:func:`~.rectify.resample_moment_shadow_map`).
+
+    Returns:
+        (:class:`~.rectify.SparseRectifiedDepth`, the Gaussian width used in shadow-map texels).
+    """
+    from ..shadows import msm as msm_maps
+
+    filter_px = settings.resample_filter_px
+    if filter_px is None:
+        filter_px = int(np.clip(round(rectify.resample_footprint_texels(rect, shadow_map.texel_world)), 1,
+                                MAX_RESAMPLE_FILTER_PX))
+    with stage("resample_msm"):
+        moments = msm_maps.filter_moment_shadow_map(
+            msm_maps.generate_moment_shadow_map(scene, shadow_map, supersampling=2, bits=128, device=device),
+            filter_px, device=device)
+    with stage("rectify"):
+        return rectify.resample_moment_shadow_map(rect, moments, device=device), int(filter_px)
+
+
 def render_prefiltered(scene, gbuffer, shadow_map, *, map_size: tuple[int, int],
                        settings: PrefilteredSettings = None, seed: int = 0, shadow_bias_texels: float = 1.0, timer=None,
                        device=None):
@@ -397,11 +586,16 @@ def render_prefiltered(scene, gbuffer, shadow_map, *, map_size: tuple[int, int],
     cols, rows = map_size
     with stage("rectify"):
         rect, choice = build_rectification(scene, settings, rows, cols)
+        filtered_resampling = isinstance(rect, NonlinearRectification) and settings.resample_filter == "moments"
         if isinstance(rect, ProjectiveRectification):
             rectified = rasterize_rectified(rect, scene.vertices, scene.triangles, device=device)
-        else:
+        elif not filtered_resampling:
             rectified = resample_shadow_map(rect, shadow_map.depth, shadow_map.view_projection, depth="linear",
                                             world_to_view=shadow_map.view, device=device)
+    resample_info = {"resample_filter": settings.resample_filter if filtered_resampling else "none"}
+    if filtered_resampling:
+        rectified, resample_info["resample_filter_px"] = resample_filtered(scene, rect, shadow_map, settings,
+                                                                           stage, device)
     with stage("prefilter"):
         tau, lengths, weight_info = row_weights(rect, settings, scene.medium.sigma_t, cam)
         if settings.basis == "fourier":
@@ -421,13 +615,11 @@ def render_prefiltered(scene, gbuffer, shadow_map, *, map_size: tuple[int, int],
                     [cam.params(), gbuffer.distance, rectification_params(rect), basis, fb.basis, fb.weight_sums,
                      fb.region_weights, fb.splits, storage, beta, light_params(scene.light),
                      medium_params(scene.medium), out], device=device)
-    regions = epipole_regions(cam, scene.light.direction, settings.epipole_block)
+    regions = epipole_regions(cam, scene.light.direction, settings.epipole_angle_deg, settings.epipole_block)
     if regions:
         with stage("epipole"):
-            for x0, y0, w, h, _ in regions:
-                raymarch(scene, gbuffer, steps=settings.epipole_steps, visibility="shadow_map", shadow_map=shadow_map,
-                         seed=seed, shadow_bias_texels=shadow_bias_texels, region=(x0, y0, w, h), out=out,
-                         device=device)
+            march_epipole_regions(scene, gbuffer, shadow_map, regions, out, steps=settings.epipole_steps, seed=seed,
+                                  shadow_bias_texels=shadow_bias_texels, device=device)
     info = {
         "rectification": choice.kind,
         "rectification_reason": choice.reason,
@@ -437,8 +629,11 @@ def render_prefiltered(scene, gbuffer, shadow_map, *, map_size: tuple[int, int],
         **({"coefficients": settings.coefficients, "splits": fb.splits} if settings.basis == "fourier" else
            {"overestimation": settings.overestimation}),
         "bits_per_texel": settings.storage_bits,
+        **resample_info,
         "filtered_map_bytes": int(rows * cols * settings.storage_bits // 8),
-        "epipole_blocks": [list(r[:4]) + [r[4]] for r in regions],
+        "epipole_blocks": [[*r.rect, r.name] for r in regions],
+        "epipole_angle_deg": round(regions[0].inner_deg, 3) if regions else None,
+        "epipole_raymarched_fraction": round(epipole_pixel_fraction(cam, regions), 4),
     }
     if isinstance(rect, ProjectiveRectification):
         info.update({"regions": rect.regions, "near_far": [round(rect.near, 6), round(rect.far, 6)], **weight_info})

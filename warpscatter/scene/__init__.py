@@ -83,6 +83,10 @@ def camera_from_config(c) -> Camera:
 
 
 def light_from_config(c) -> DirectionalLight | SpotLight:
+    if c.type in ("environment", "area", "linear"):  # Monte-Carlo lights of render.lighting (warpscatter.csm)
+        from ..csm.render import light_from_config as mc_light_from_config
+
+        return mc_light_from_config(c)
     if c.type == "directional":
         return DirectionalLight(direction=c.direction, irradiance=c.irradiance)
     texture = None

@@ -47,9 +47,9 @@ Robustness (the paper's functions assume valid, biased moments; ours must never 
   moments are clamped to the range of moments of depths in [-1, 1] (|b_j| <= 1, even b_j >= 0), a NaN fragment
   depth becomes 0 and infinite ones are clamped to +-DEPTH_LIMIT. Valid inputs pass unchanged.
 * The LDL^T pivots of the Hankel matrix are floored at PIVOT_FLOOR. If the first pivot (the variance b_2 - b_1^2)
-  is not above PIVOT_FLOOR the distribution is taken to be the single Dirac delta at b_1 (the fallback that Sec. 5.2 uses in
-  Algorithm 2). Floored later pivots make Algorithm 1 degrade continuously into the determinate distribution with
-  fewer depths that the singular Hankel matrix describes (its weight at z_f tends to zero).
+  is not above PIVOT_FLOOR the distribution is taken to be the single Dirac delta at b_1 (the fallback that
+  Sec. 5.2 uses in Algorithm 2). Floored later pivots make Algorithm 1 degrade continuously into the determinate
+  distribution with fewer depths that the singular Hankel matrix describes (its weight at z_f tends to zero).
 * Square roots of discriminants take max(., 0); polynomial leading coefficients and divided-difference denominators
   are kept away from zero; the weight at z_f is 1 / max(Q(z_f), 1) (see ``msm4_distribution``).
 * Returned intensities are clamped to [0, 1]; a non-finite intermediate result falls back to the single-Dirac

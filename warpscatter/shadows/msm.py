@@ -23,9 +23,16 @@ Stages (each a host function that allocates and launches; names appear in timing
    translucent edges antialiased and makes the depth test against the opaque surface exact per sample.
 3. ``filter`` (:func:`filter_moment_shadow_map`, D.2): two-pass separable Gaussian, ``filter_px`` taps wide (see
    :func:`gaussian_weights`), each pass clamping at the map border and rounding to 16 bits again in 64-bit mode.
-4. Lookup (:func:`msm_visibility`, :func:`msm_visibility_rgb`, D.2): bilinear sample at the receiver's texel
+4. ``msm_mipmap`` (:func:`build_mip_chain`, D.2 "generate a full mipmap hierarchy"), optional: 2x2 box averages of
+   the filtered texels level by level. Averages of moment vectors are moment vectors of the merged distributions, and
+   Theta_4* is affine, so the 64-bit map is averaged in its stored domain (as a GPU mips a 16-bit unorm texture) and
+   rounded to 16 bits again per level; odd sizes drop the last row/column (floor), as GPU mip chains do.
+5. Lookup (:func:`msm_visibility`, :func:`msm_visibility_rgb`, D.2): bilinear sample at the receiver's texel
    coordinates, revert the quantization transform, bias with the storage mode's alpha_b and b*, Algorithm 1's lower
    bound at the depth-biased fragment depth, over-darkening (divide by 0.98, clamp), visibility = 1 - intensity.
+   With a mip chain, :func:`msm_visibility_rgb_footprint` takes a TRILINEAR sample instead: the level of detail is
+   log2 of the longer side of the receiver's pixel footprint (two world-space vectors on its tangent plane) in
+   shadow-map texels (the GPU rule), clamped to the chain; footprints below a texel use level 0 bilinearly.
 
 Coloured translucency (Sec. 3.3, "one moment shadow map per colour channel"): with ``coloured=True`` the map holds
 three channels (R, G, B). A translucent material of opacity alpha and albedo a has, per channel, the transmittance
@@ -84,6 +91,7 @@ class MomentShadowParams:
     normal_offset: float  # receiver offset along its normal, in texels at the receiver's depth
     overdarkening: float  # shadow intensity divisor (0.98, Sec. 2.6; <= 0 disables)
     channels: int  # 1 (monochrome) or 3 (coloured translucency, R G B)
+    mip_levels: int  # levels of the mip chain (incl. level 0); 0: none (bilinear lookups only)
 
 
 # ---------------------------------------------------------------------------------------------------------------------
@@ -166,6 +174,67 @@ def sample_bilinear4(texels: wp.array3d(dtype=wp.vec4), c: int, u: float, v: flo
 
 
 @wp.func
+def mip_level_offset(width: int, height: int, level: int) -> int:
+    """First texel of mip ``level`` in a packed chain (levels 0, 1, ... of sizes max(1, w >> l) x max(1, h >> l))."""
+    off = int(0)
+    for k in range(level):
+        off += wp.max(width >> k, 1) * wp.max(height >> k, 1)
+    return off
+
+
+@wp.func
+def sample_mip_bilinear4(mips: wp.array2d(dtype=wp.vec4), c: int, width: int, height: int, level: int, u: float,
+                         v: float) -> wp.vec4:
+    """Bilinear sample of channel c of mip ``level`` at texture coordinates (u, v) (v down), clamp-to-edge."""
+    w = wp.max(width >> level, 1)
+    h = wp.max(height >> level, 1)
+    off = mip_level_offset(width, height, level)
+    fx = u * float(w) - 0.5
+    fy = v * float(h) - 0.5
+    x0 = wp.floor(fx)
+    y0 = wp.floor(fy)
+    ax = fx - x0
+    ay = fy - y0
+    i0 = wp.clamp(int(x0), 0, w - 1)
+    i1 = wp.clamp(int(x0) + 1, 0, w - 1)
+    j0 = wp.clamp(int(y0), 0, h - 1)
+    j1 = wp.clamp(int(y0) + 1, 0, h - 1)
+    top = (1.0 - ax) * mips[c, off + j0 * w + i0] + ax * mips[c, off + j0 * w + i1]
+    bottom = (1.0 - ax) * mips[c, off + j1 * w + i0] + ax * mips[c, off + j1 * w + i1]
+    return (1.0 - ay) * top + ay * bottom
+
+
+@wp.func
+def sample_trilinear4(mips: wp.array2d(dtype=wp.vec4), c: int, width: int, height: int, levels: int, u: float,
+                      v: float, lod: float) -> wp.vec4:
+    """Trilinear sample: bilinear in mip levels floor(lod) and floor(lod) + 1, blended by the fraction of ``lod``
+    (clamped to [0, levels - 1])."""
+    t = wp.clamp(lod, 0.0, float(levels - 1))
+    l0 = int(wp.floor(t))
+    a = t - float(l0)
+    s0 = sample_mip_bilinear4(mips, c, width, height, l0, u, v)
+    if a <= 0.0 or l0 + 1 >= levels:
+        return s0
+    return (1.0 - a) * s0 + a * sample_mip_bilinear4(mips, c, width, height, l0 + 1, u, v)
+
+
+@wp.func
+def footprint_lod(p: MomentShadowParams, x: wp.vec3, dx: wp.vec3, dy: wp.vec3) -> float:
+    """Level of detail of the receiver footprint spanned by world vectors dx, dy at x: log2 of the longer side in
+    shadow-map texels (OpenGL's isotropic rule); -1 for non-finite input (level 0)."""
+    c = shadow_coords(p.sm, x)
+    cx = shadow_coords(p.sm, x + dx)
+    cy = shadow_coords(p.sm, x + dy)
+    size = wp.vec2(float(p.sm.width), float(p.sm.height))
+    ex = wp.cw_mul(wp.vec2(cx[0] - c[0], cx[1] - c[1]), size)
+    ey = wp.cw_mul(wp.vec2(cy[0] - c[0], cy[1] - c[1]), size)
+    rho = wp.max(wp.length(ex), wp.length(ey))
+    if not (wp.isfinite(rho) and rho > 0.0):
+        return -1.0
+    return wp.log2(rho)
+
+
+@wp.func
 def texel_size_at(p: MomentShadowParams, d: float) -> wp.vec2:
     """World size (x, y) of one texel at linear light-space depth d."""
     if p.sm.perspective != 0:
@@ -216,6 +285,31 @@ def msm_visibility_rgb(p: MomentShadowParams, texels: wp.array3d(dtype=wp.vec4),
         return wp.vec3(v0, v0, v0)
     v1 = 1.0 - moment_shadow_intensity(p, sample_bilinear4(texels, 1, c[0], c[1]), z_f)
     v2 = 1.0 - moment_shadow_intensity(p, sample_bilinear4(texels, 2, c[0], c[1]), z_f)
+    return wp.vec3(v0, v1, v2)
+
+
+@wp.func
+def msm_visibility_rgb_footprint(p: MomentShadowParams, texels: wp.array3d(dtype=wp.vec4),
+                                 mips: wp.array2d(dtype=wp.vec4), x: wp.vec3, n: wp.vec3, dx: wp.vec3,
+                                 dy: wp.vec3) -> wp.vec3:
+    """:func:`msm_visibility_rgb` with a trilinear look-up in the mip chain ``mips`` (:attr:`MomentShadowMap.mips`)
+    at the level of the receiver's pixel footprint (world vectors dx, dy on its tangent plane, e.g. the offsets to
+    the neighbouring pixels' rays); ``p.mip_levels`` = 0 falls back to the bilinear :func:`msm_visibility_rgb`."""
+    # Peters 2017, D.2: "All hardware-accelerated texture filtering is applicable, e.g. ... mipmapping"
+    if p.mip_levels <= 0:
+        return msm_visibility_rgb(p, texels, x, n)
+    c = receiver_coords(p, x, n)
+    if not inside_map(c):
+        return wp.vec3(1.0, 1.0, 1.0)
+    lod = footprint_lod(p, x, dx, dy)
+    z_f = signed_depth(p, c[2]) - p.depth_bias * p.depth_scale
+    w = p.sm.width
+    h = p.sm.height
+    v0 = 1.0 - moment_shadow_intensity(p, sample_trilinear4(mips, 0, w, h, p.mip_levels, c[0], c[1], lod), z_f)
+    if p.channels < 3:
+        return wp.vec3(v0, v0, v0)
+    v1 = 1.0 - moment_shadow_intensity(p, sample_trilinear4(mips, 1, w, h, p.mip_levels, c[0], c[1], lod), z_f)
+    v2 = 1.0 - moment_shadow_intensity(p, sample_trilinear4(mips, 2, w, h, p.mip_levels, c[0], c[1], lod), z_f)
     return wp.vec3(v0, v1, v2)
 
 
@@ -306,6 +400,45 @@ def _gauss_columns_kernel(src: wp.array3d(dtype=wp.vec4), weights: wp.array(dtyp
 
 
 @wp.kernel
+def _mip_copy_kernel(texels: wp.array3d(dtype=wp.vec4), mips: wp.array2d(dtype=wp.vec4), offset: int):
+    j, i = wp.tid()
+    j += offset
+    w = texels.shape[2]
+    for c in range(texels.shape[0]):
+        mips[c, j * w + i] = texels[c, j, i]
+
+
+@wp.kernel
+def _mip_downsample_kernel(mips: wp.array2d(dtype=wp.vec4), width: int, height: int, level: int, storage: int,
+                           offset: int):
+    # D.2 mipmap generation: level l texel (i, j) = mean of texels (2i..2i+1, 2j..2j+1) of level l - 1
+    j, i = wp.tid()
+    j += offset
+    sw = wp.max(width >> (level - 1), 1)
+    sh = wp.max(height >> (level - 1), 1)
+    src = mip_level_offset(width, height, level - 1)
+    dst = mip_level_offset(width, height, level)
+    dw = wp.max(width >> level, 1)
+    i0 = wp.min(2 * i, sw - 1)
+    i1 = wp.min(2 * i + 1, sw - 1)
+    j0 = wp.min(2 * j, sh - 1)
+    j1 = wp.min(2 * j + 1, sh - 1)
+    for c in range(mips.shape[0]):
+        acc = mips[c, src + j0 * sw + i0] + mips[c, src + j0 * sw + i1] + mips[c, src + j1 * sw + i0]
+        acc += mips[c, src + j1 * sw + i1]
+        mips[c, dst + j * dw + i] = round_texel(0.25 * acc, storage)
+
+
+@wp.kernel
+def _visibility_footprint_kernel(p: MomentShadowParams, texels: wp.array3d(dtype=wp.vec4),
+                                 mips: wp.array2d(dtype=wp.vec4), points: wp.array(dtype=wp.vec3),
+                                 normals: wp.array(dtype=wp.vec3), dx: wp.array(dtype=wp.vec3),
+                                 dy: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3), offset: int):
+    k = wp.tid() + offset
+    out[k] = msm_visibility_rgb_footprint(p, texels, mips, points[k], normals[k], dx[k], dy[k])
+
+
+@wp.kernel
 def _visibility_points_kernel(p: MomentShadowParams, texels: wp.array3d(dtype=wp.vec4),
                               points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
                               out: wp.array(dtype=wp.vec3), offset: int):
@@ -390,6 +523,7 @@ def moment_params(shadow_map: ShadowMap, *, storage: int = int(mm.STORAGE4_FLOAT
     p.normal_offset = float(normal_offset_texels)
     p.overdarkening = float(overdarkening)
     p.channels = int(channels)
+    p.mip_levels = 0
     return p
 
 
@@ -406,6 +540,9 @@ class MomentShadowMap:
         supersampling: samples per texel per axis used in generation.
         translucent_layers: depth-peeled translucent layers blended in (0 without translucent casters).
         filter_px: Gaussian width applied (1: unfiltered).
+        mips: None, or the mip chain from :func:`build_mip_chain`: (C, N) ``wp.vec4``, levels 0, 1, ... packed one
+            after another (level l: max(1, W >> l) x max(1, H >> l) texels, row-major; :func:`mip_level_offset`).
+        mip_levels: levels in ``mips`` (0 without a chain).
     """
 
     texels: wp.array
@@ -415,6 +552,8 @@ class MomentShadowMap:
     supersampling: int
     translucent_layers: int = 0
     filter_px: int = 1
+    mips: wp.array | None = None
+    mip_levels: int = 0
 
     @property
     def storage(self) -> int:
@@ -430,8 +569,10 @@ class MomentShadowMap:
 
     @property
     def nbytes(self) -> int:
-        """Memory of the texels in the emulated format (8 or 16 bytes per texel and channel)."""
-        return self.channels * self.shape[0] * self.shape[1] * self.bits // 8
+        """Memory of the texels (and of the mip chain, if any) in the emulated format (8 or 16 bytes per texel and
+        channel)."""
+        n = self.shape[0] * self.shape[1] + (int(self.mips.shape[1]) if self.mips is not None else 0)
+        return self.channels * n * self.bits // 8
 
     def numpy(self) -> np.ndarray:
         """Texel values as a (C, H, W, 4) float32 array."""
@@ -439,9 +580,18 @@ class MomentShadowMap:
 
     def params(self, *, depth_bias: float = 0.0, normal_offset_texels: float = 1.0,
                overdarkening: float = float(mm.OVERDARKENING_DIVISOR)) -> MomentShadowParams:
-        """Kernel parameters for :func:`msm_visibility_rgb` (arguments as in :func:`moment_params`)."""
-        return moment_params(self.shadow_map, storage=self.storage, channels=self.channels, depth_bias=depth_bias,
-                             normal_offset_texels=normal_offset_texels, overdarkening=overdarkening)
+        """Kernel parameters for :func:`msm_visibility_rgb` (arguments as in :func:`moment_params`); ``mip_levels``
+        is set when the map has a mip chain (trilinear look-ups in :func:`msm_visibility_rgb_footprint`)."""
+        p = moment_params(self.shadow_map, storage=self.storage, channels=self.channels, depth_bias=depth_bias,
+                          normal_offset_texels=normal_offset_texels, overdarkening=overdarkening)
+        p.mip_levels = int(self.mip_levels)
+        return p
+
+    def mip_arrays(self, device=None) -> wp.array:
+        """The mip chain, or a (C, 1) placeholder when there is none (kernels need an array either way)."""
+        if self.mips is not None:
+            return self.mips
+        return wp.zeros((self.channels, 1), dtype=wp.vec4, device=default_device(device))
 
 
 def _check_nonneg(x, name: str) -> None:
@@ -619,13 +769,41 @@ def filter_moment_shadow_map(msm: MomentShadowMap, filter_px: int, device=None) 
     return replace(msm, texels=out, filter_px=int(filter_px))
 
 
+def mip_level_count(width: int, height: int) -> int:
+    """Levels of a full mip chain of a width x height map (down to 1 x 1)."""
+    return int(max(int(width), int(height))).bit_length()
+
+
+def build_mip_chain(msm: MomentShadowMap, device=None) -> MomentShadowMap:
+    """Full mip chain of the (filtered) texels by 2x2 box averages (D.2); returns a new :class:`MomentShadowMap`.
+
+    Box averages of moments are the moments of the merged depth distributions, so every level is a valid moment map;
+    64-bit maps are averaged in the stored Theta_4* domain (affine, hence the same as averaging canonical moments) and
+    rounded to 16 bits per level, as a GPU generates the mips of a 16-bit unorm texture. Level 0 is copied into the
+    packed chain (memory: about 4/3 of the texels more).
+    """
+    device = default_device(device)
+    h, w = msm.shape
+    levels = mip_level_count(w, h)
+    total = sum(max(w >> k, 1) * max(h >> k, 1) for k in range(levels))
+    mips = wp.empty((msm.channels, total), dtype=wp.vec4, device=device)
+    launch_rows(_mip_copy_kernel, (h, w), [msm.texels, mips], device=device, min_chunk=_MIN_ROWS)
+    for level in range(1, levels):
+        # one launch per level; rows of a level are independent (launch_rows chunks own their output rows)
+        launch_rows(_mip_downsample_kernel, (max(h >> level, 1), max(w >> level, 1)), [mips, w, h, level, msm.storage],
+                    device=device, min_chunk=_MIN_ROWS)
+    return replace(msm, mips=mips, mip_levels=levels)
+
+
 def render_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: int = 2, bits: int = 64,
                              filter_px: int = 5, coloured: bool = False, max_translucent_layers: int = 16,
-                             timer=None, device=None) -> MomentShadowMap:
-    """Generate (stage ``msm_generate``) and filter (stage ``msm_filter``) a moment shadow map for hard shadows.
+                             mipmap: bool = False, timer=None, device=None) -> MomentShadowMap:
+    """Generate (stage ``msm_generate``), filter (stage ``msm_filter``) and optionally mip (stage ``msm_mipmap``) a
+    moment shadow map for hard shadows.
 
-    Arguments as in :func:`generate_moment_shadow_map` and :func:`filter_moment_shadow_map`; ``timer`` is an
-    optional :class:`~warpscatter.pipeline.StageTimer`-like callable returning a context manager per stage name.
+    Arguments as in :func:`generate_moment_shadow_map` and :func:`filter_moment_shadow_map`; ``mipmap`` builds the
+    chain of :func:`build_mip_chain`; ``timer`` is an optional :class:`~warpscatter.pipeline.StageTimer`-like
+    callable returning a context manager per stage name.
     """
     from contextlib import nullcontext
 
@@ -637,7 +815,11 @@ def render_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: int
                                          coloured=coloured, max_translucent_layers=max_translucent_layers,
                                          device=device)
     with stage("msm_filter"):
-        return filter_moment_shadow_map(msm, filter_px, device=device)
+        msm = filter_moment_shadow_map(msm, filter_px, device=device)
+    if not mipmap:
+        return msm
+    with stage("msm_mipmap"):
+        return build_mip_chain(msm, device=device)
 
 
 def point_arrays(points, normals, device):
@@ -677,4 +859,31 @@ def msm_visibility_at(msm: MomentShadowMap, points, normals=None, *, depth_bias:
     out = wp.zeros(pts.shape[0], dtype=wp.vec3, device=device)
     launch_rows(_visibility_points_kernel, pts.shape[0], [params, msm.texels, pts, nrm, out], device=device,
                 min_chunk=1024)
+    return out.numpy()[:, : msm.channels].reshape(*shape, msm.channels)
+
+
+def msm_visibility_footprint_at(msm: MomentShadowMap, points, dx, dy, normals=None, *, depth_bias: float = 0.0,
+                                normal_offset_texels: float = 0.0,
+                                overdarkening: float = float(mm.OVERDARKENING_DIVISOR), device=None) -> np.ndarray:
+    """Host wrapper of :func:`msm_visibility_rgb_footprint` (trilinear look-ups when ``msm`` has a mip chain).
+
+    Args:
+        msm: the (filtered) map, with a mip chain from :func:`build_mip_chain` (without one: bilinear).
+        points: (..., 3) world positions.
+        dx, dy: (..., 3) world vectors spanning each receiver's footprint (broadcast to points).
+        normals, depth_bias, normal_offset_texels, overdarkening: as in :func:`msm_visibility_at`.
+        device: Warp device.
+
+    Returns:
+        (..., C) float32 visibilities in [0, 1].
+    """
+    device = default_device(device)
+    shape, pts, nrm = point_arrays(points, normals, device)
+    dxa = point_arrays(points, dx, device)[2]  # broadcast like normals
+    dya = point_arrays(points, dy, device)[2]
+    params = msm.params(depth_bias=depth_bias, normal_offset_texels=normal_offset_texels,
+                        overdarkening=overdarkening)
+    out = wp.zeros(pts.shape[0], dtype=wp.vec3, device=device)
+    launch_rows(_visibility_footprint_kernel, pts.shape[0],
+                [params, msm.texels, msm.mip_arrays(device), pts, nrm, dxa, dya, out], device=device, min_chunk=1024)
     return out.numpy()[:, : msm.channels].reshape(*shape, msm.channels)

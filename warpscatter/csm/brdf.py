@@ -1,0 +1,375 @@
+"""BRDFs and their importance sampling for Monte-Carlo direct lighting (Ritschel 2007, Sec. 5.1).
+
+All directions are unit vectors pointing AWAY from the surface point: ``wo`` towards the viewer, ``wi`` towards
+the light; ``n`` is the unit (camera-facing) normal. f_r is in 1/sr; it is 0 for wi below the surface.
+
+- Lambert: f = k_d / pi, sampled cosine-weighted.
+- Normalized Phong (Lafortune and Willems 1994): f = k_d / pi + k_s (e + 2) / (2 pi) cos^e(alpha), alpha between
+  wi and the mirror direction of wo; the lobe is sampled with p = (e + 1) / (2 pi) cos^e(alpha)
+  (:func:`cos_power_sample`). Diffuse or specular is chosen by Russian roulette with
+  P(specular) = lum(k_s) / (lum(k_d) + lum(k_s)); the density is the mixture.
+- Lafortune (Lafortune et al. 1997), a sum of generalized cosine lobes in the local frame (t, b, n):
+
+      f = k_d / pi + sum_i rho_i [C_x,i u_x v_x + C_y,i u_y v_y + C_z,i u_z v_z]^(e_i)     (0 where [..] <= 0)
+
+  with u = wo and v = wi in local coordinates. Lobe i equals rho_i |w_i|^e_i cos^e_i(alpha_i), alpha_i the
+  angle between wi and the lobe axis w_i = (C_x u_x, C_y u_y, C_z u_z) (back in world space), so the Phong
+  sampler about that axis samples it exactly up to the factor |w_i|^e_i. Sec. 5.1: "preintegrate the single
+  lobes and select one of the lobes with Russian roulette, then the same sampling strategy as for Phong": the
+  roulette weight of lobe i is its preintegrated albedo lum(rho_i) |w_i|^e_i 2 pi / (e_i + 2) (the exact
+  directional albedo when the axis is the normal), the diffuse weight lum(k_d); the density is the mixture
+  (:func:`material_pdf`). Normalized Phong with (k_s, e) is the single lobe C = (-1, -1, 1) (axis = the mirror
+  direction of wo, |w| = 1), rho = k_s (e + 2) / (2 pi), exponent e; its roulette weight is lum(k_s), so the
+  two agree exactly. The tangent t is :func:`orthonormal_basis` of n (Duff et al. 2017): anisotropic lobes
+  (C_x != C_y) follow that frame, which is not tied to the mesh (use C_x = C_y on meshes).
+- :class:`MaterialTable` holds k_d and up to :data:`MAX_LOBES` lobes per material for kernels
+  (:class:`MaterialData`); Phong materials are stored as their equivalent Lafortune lobe.
+
+f is reciprocal (symmetric in u, v) by construction; energy conservation is the caller's choice of rho / C
+(normalized Phong with lum(k_d) + lum(k_s) <= 1 conserves energy).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+from ..wpinit import default_device, module_options
+
+module_options()
+
+#: Most lobes a material may have (beside the diffuse term).
+MAX_LOBES = 4
+#: Rec. 709 luminance weights (used for the sampling weights and the roulette).
+LUMA = (0.2126, 0.7152, 0.0722)
+
+
+@wp.struct
+class MaterialData:
+    """A table of materials as kernels see it (build with :class:`MaterialTable`)."""
+
+    kd: wp.array(dtype=wp.vec3)  # (M,) diffuse reflectance k_d
+    lobe_count: wp.array(dtype=wp.int32)  # (M,) lobes in use, 0 .. MAX_LOBES
+    lobes: wp.array2d(dtype=wp.vec4)  # (M, MAX_LOBES) per lobe (C_x, C_y, C_z, exponent e)
+    lobe_rho: wp.array2d(dtype=wp.vec3)  # (M, MAX_LOBES) per lobe RGB scale rho (1/sr)
+
+
+# ---- building blocks (public @wp.func API) ---------------------------------------------------------
+
+
+@wp.func
+def luminance(c: wp.vec3) -> float:
+    """Rec. 709 luminance of a linear RGB value."""
+    return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+
+
+@wp.func
+def orthonormal_basis(n: wp.vec3) -> tuple[wp.vec3, wp.vec3]:
+    """Two unit tangents (t, b) with (t, b, n) right-handed orthonormal (Duff et al. 2017, branchless)."""
+    sign = 1.0
+    if n[2] < 0.0:
+        sign = -1.0
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    t = wp.vec3(1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0])
+    bb = wp.vec3(b, sign + n[1] * n[1] * a, -n[1])
+    return t, bb
+
+
+@wp.func
+def lobe_direction(axis: wp.vec3, cos_t: float, phi: float) -> wp.vec3:
+    """Unit direction at polar angle acos(cos_t) and azimuth ``phi`` about the unit ``axis``."""
+    t, b = orthonormal_basis(axis)
+    sin_t = wp.sqrt(wp.max(1.0 - cos_t * cos_t, 0.0))
+    return wp.normalize(sin_t * wp.cos(phi) * t + sin_t * wp.sin(phi) * b + cos_t * axis)
+
+
+@wp.func
+def cos_power_sample(axis: wp.vec3, exponent: float, xi: wp.vec2) -> wp.vec3:
+    """Direction about the unit ``axis`` with density (e + 1) / (2 pi) cos^e(alpha) (the Phong lobe's sampling,
+    Sec. 5.1: cos(alpha) = (1 - xi_0)^(1 / (e + 1)), azimuth 2 pi xi_1); ``exponent`` e >= 0."""
+    cos_a = wp.pow(1.0 - xi[0], 1.0 / (exponent + 1.0))
+    return lobe_direction(axis, cos_a, 2.0 * wp.pi * xi[1])
+
+
+@wp.func
+def cos_power_pdf(axis: wp.vec3, wi: wp.vec3, exponent: float) -> float:
+    """Density (1/sr) of :func:`cos_power_sample`: (e + 1) / (2 pi) cos^e(alpha) for cos(alpha) > 0, else 0."""
+    c = wp.dot(axis, wi)
+    if c <= 0.0:
+        return 0.0
+    return (exponent + 1.0) / (2.0 * wp.pi) * wp.pow(c, exponent)
+
+
+@wp.func
+def lambert_sample(n: wp.vec3, xi: wp.vec2) -> wp.vec3:
+    """Cosine-weighted direction about the unit normal ``n`` (pdf :func:`lambert_pdf`)."""
+    return lobe_direction(n, wp.sqrt(1.0 - xi[0]), 2.0 * wp.pi * xi[1])
+
+
+@wp.func
+def lambert_pdf(n: wp.vec3, wi: wp.vec3) -> float:
+    """Density (1/sr) of :func:`lambert_sample`: max(cos theta_i, 0) / pi."""
+    return wp.max(wp.dot(n, wi), 0.0) / wp.pi
+
+
+@wp.func
+def phong_reflect(n: wp.vec3, wo: wp.vec3) -> wp.vec3:
+    """Mirror direction of the unit outgoing direction ``wo`` about the unit normal ``n``."""
+    return 2.0 * wp.dot(n, wo) * n - wo
+
+
+@wp.func
+def phong_lobe(n: wp.vec3, wo: wp.vec3, wi: wp.vec3, exponent: float) -> float:
+    """Normalized Phong lobe (n + 2) / (2 pi) cos^n(alpha), alpha between ``wi`` and the mirror of ``wo``
+    (Lafortune and Willems 1994; integrates with cos theta to 1 at normal incidence)."""
+    c = wp.dot(phong_reflect(n, wo), wi)
+    if c <= 0.0:
+        return 0.0
+    return (exponent + 2.0) / (2.0 * wp.pi) * wp.pow(c, exponent)
+
+
+@wp.func
+def phong_sample(n: wp.vec3, wo: wp.vec3, exponent: float, xi: wp.vec2) -> wp.vec3:
+    """Direction about the mirror of ``wo`` with density :func:`phong_pdf` (may lie below the surface)."""
+    return cos_power_sample(phong_reflect(n, wo), exponent, xi)
+
+
+@wp.func
+def phong_pdf(n: wp.vec3, wo: wp.vec3, wi: wp.vec3, exponent: float) -> float:
+    """Density (1/sr) of :func:`phong_sample`: (n + 1) / (2 pi) cos^n(alpha) for cos(alpha) > 0."""
+    return cos_power_pdf(phong_reflect(n, wo), wi, exponent)
+
+
+@wp.func
+def specular_probability(kd: wp.vec3, ks: wp.vec3) -> float:
+    """Roulette probability of a specular sample (Sec. 5.1): lum(k_s) / (lum(k_d) + lum(k_s)); 0 if both vanish."""
+    a = wp.max(luminance(kd), 0.0)
+    b = wp.max(luminance(ks), 0.0)
+    if a + b <= 0.0:
+        return 0.0
+    return b / (a + b)
+
+
+@wp.func
+def brdf_eval(n: wp.vec3, wo: wp.vec3, wi: wp.vec3, kd: wp.vec3, ks: wp.vec3, exponent: float) -> wp.vec3:
+    """Lambert + normalized Phong BRDF f_r (1/sr) for unit n, wo, wi; 0 below the surface."""
+    if wp.dot(n, wi) <= 0.0:
+        return wp.vec3(0.0)
+    return kd / wp.pi + ks * phong_lobe(n, wo, wi, exponent)
+
+
+@wp.func
+def brdf_sample(n: wp.vec3, wo: wp.vec3, kd: wp.vec3, ks: wp.vec3, exponent: float, xi: wp.vec2,
+                choice: float) -> wp.vec3:
+    """Sample the BRDF (Sec. 5.1, P_f^-1): Russian roulette ``choice`` in [0, 1) picks the Phong lobe with
+    :func:`specular_probability`, else the cosine lobe. Density: :func:`brdf_pdf`."""
+    if choice < specular_probability(kd, ks):
+        return phong_sample(n, wo, exponent, xi)
+    return lambert_sample(n, xi)
+
+
+@wp.func
+def brdf_pdf(n: wp.vec3, wo: wp.vec3, wi: wp.vec3, kd: wp.vec3, ks: wp.vec3, exponent: float) -> float:
+    """Density (1/sr) of :func:`brdf_sample`: the roulette mixture of the Lambert and Phong densities."""
+    ps = specular_probability(kd, ks)
+    return (1.0 - ps) * lambert_pdf(n, wi) + ps * phong_pdf(n, wo, wi, exponent)
+
+
+@wp.func
+def lafortune_axis(n: wp.vec3, t: wp.vec3, b: wp.vec3, wo: wp.vec3, c: wp.vec4) -> wp.vec3:
+    """Lobe axis w = (C_x u_x, C_y u_y, C_z u_z) of a Lafortune lobe ``c`` = (C_x, C_y, C_z, e) for outgoing
+    ``wo``, in world space (frame t, b, n); not normalised: lobe(wi) = (w . wi)^e."""
+    return (c[0] * wp.dot(wo, t)) * t + (c[1] * wp.dot(wo, b)) * b + (c[2] * wp.dot(wo, n)) * n
+
+
+@wp.func
+def lafortune_lobe(axis: wp.vec3, wi: wp.vec3, exponent: float) -> float:
+    """Value of one generalized cosine lobe, max(axis . wi, 0)^e (Lafortune et al. 1997, Eq. 4)."""
+    c = wp.dot(axis, wi)
+    if c <= 0.0:
+        return 0.0
+    return wp.pow(c, exponent)
+
+
+@wp.func
+def lafortune_lobe_weight(axis: wp.vec3, rho: wp.vec3, exponent: float) -> float:
+    """Preintegrated roulette weight of a lobe (Sec. 5.1): lum(rho) |w|^e 2 pi / (e + 2); 0 for a null axis."""
+    a = wp.length(axis)
+    if not (a > 0.0):
+        return 0.0
+    return wp.max(luminance(rho), 0.0) * wp.pow(a, exponent) * 2.0 * wp.pi / (exponent + 2.0)
+
+
+@wp.func
+def material_eval(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3, wi: wp.vec3) -> wp.vec3:
+    """f_r (1/sr) of material ``m``: k_d / pi plus its Lafortune lobes; 0 for wi below the surface."""
+    if wp.dot(n, wi) <= 0.0:
+        return wp.vec3(0.0)
+    t, b = orthonormal_basis(n)
+    f = mat.kd[m] / wp.pi
+    for i in range(mat.lobe_count[m]):
+        c = mat.lobes[m, i]
+        f += mat.lobe_rho[m, i] * lafortune_lobe(lafortune_axis(n, t, b, wo, c), wi, c[3])
+    return f
+
+
+@wp.func
+def material_pdf(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3, wi: wp.vec3) -> float:
+    """Density (1/sr) of :func:`material_sample`: sum over components of P(component) x its density."""
+    t, b = orthonormal_basis(n)
+    wd = wp.max(luminance(mat.kd[m]), 0.0)
+    total = wd
+    p = wd * lambert_pdf(n, wi)
+    for i in range(mat.lobe_count[m]):
+        c = mat.lobes[m, i]
+        axis = lafortune_axis(n, t, b, wo, c)
+        w = lafortune_lobe_weight(axis, mat.lobe_rho[m, i], c[3])
+        if w > 0.0:
+            total += w
+            p += w * cos_power_pdf(wp.normalize(axis), wi, c[3])
+    if not (total > 0.0):
+        return 0.0
+    return p / total
+
+
+@wp.func
+def material_sample(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3, xi: wp.vec2, choice: float) -> wp.vec3:
+    """Sample material ``m`` (Sec. 5.1): the Russian roulette ``choice`` in [0, 1) picks the diffuse term or a
+    lobe with the preintegrated weights, then the cosine / Phong sampler draws wi from ``xi``. A material
+    without weight (black) returns the normal, with density 0 (:func:`material_pdf`)."""
+    t, b = orthonormal_basis(n)
+    wd = wp.max(luminance(mat.kd[m]), 0.0)
+    total = wd
+    for i in range(mat.lobe_count[m]):
+        c = mat.lobes[m, i]
+        total += lafortune_lobe_weight(lafortune_axis(n, t, b, wo, c), mat.lobe_rho[m, i], c[3])
+    if not (total > 0.0):
+        return n
+    x = choice * total
+    if x < wd:
+        return lambert_sample(n, xi)
+    acc = wd
+    chosen = int(-1)
+    last = int(-1)
+    for i in range(mat.lobe_count[m]):
+        c = mat.lobes[m, i]
+        w = lafortune_lobe_weight(lafortune_axis(n, t, b, wo, c), mat.lobe_rho[m, i], c[3])
+        if w > 0.0:
+            last = i
+            acc += w
+            if chosen < 0 and x < acc:
+                chosen = i
+    if chosen < 0:
+        chosen = last  # x rounded onto the total
+    if chosen < 0:
+        return lambert_sample(n, xi)
+    c = mat.lobes[m, chosen]
+    return cos_power_sample(wp.normalize(lafortune_axis(n, t, b, wo, c)), c[3], xi)
+
+
+# ---- host side -------------------------------------------------------------------------------------
+
+
+class MaterialTable:
+    """Materials for the Monte-Carlo kernels: diffuse k_d plus up to :data:`MAX_LOBES` Lafortune lobes each.
+
+    Args:
+        kd: (M, 3) diffuse reflectance (>= 0).
+        lobes: (M, L, 4) per lobe (C_x, C_y, C_z, exponent e >= 0), L <= MAX_LOBES (may be None: no lobes).
+        lobe_rho: (M, L, 3) per lobe RGB scale rho (>= 0).
+        lobe_count: (M,) lobes in use per material (default: L for every material).
+
+    Raises:
+        ValueError: wrong shapes, non-finite or negative values, too many lobes.
+    """
+
+    def __init__(self, kd, lobes=None, lobe_rho=None, lobe_count=None):
+        kd = np.asarray(kd, np.float32)
+        if kd.ndim != 2 or kd.shape[1] != 3 or kd.shape[0] < 1:
+            raise ValueError(f"kd must have shape (M, 3), got {kd.shape}")
+        m = kd.shape[0]
+        if lobes is None:
+            lobes = np.zeros((m, 0, 4), np.float32)
+            lobe_rho = np.zeros((m, 0, 3), np.float32)
+        lobes = np.asarray(lobes, np.float32)
+        lobe_rho = np.asarray(lobe_rho, np.float32)
+        if lobes.ndim != 3 or lobes.shape[0] != m or lobes.shape[2] != 4 or lobes.shape[1] > MAX_LOBES:
+            raise ValueError(f"lobes must have shape ({m}, L <= {MAX_LOBES}, 4), got {lobes.shape}")
+        if lobe_rho.shape != lobes.shape[:2] + (3,):
+            raise ValueError(f"lobe_rho must have shape {lobes.shape[:2] + (3,)}, got {lobe_rho.shape}")
+        count = np.full(m, lobes.shape[1], np.int32) if lobe_count is None else np.asarray(lobe_count, np.int32)
+        if count.shape != (m,) or np.any(count < 0) or np.any(count > lobes.shape[1]):
+            raise ValueError(f"lobe_count must be ({m},) integers in [0, {lobes.shape[1]}]")
+        for name, a in (("kd", kd), ("lobes", lobes), ("lobe_rho", lobe_rho)):
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"{name} contains non-finite values")
+        if np.any(kd < 0.0) or np.any(lobe_rho < 0.0):
+            raise ValueError("kd and lobe_rho must be >= 0")
+        if np.any(lobes[..., 3] < 0.0):
+            raise ValueError("lobe exponents must be >= 0")
+        full = np.zeros((m, MAX_LOBES, 4), np.float32)
+        full_rho = np.zeros((m, MAX_LOBES, 3), np.float32)
+        full[:, : lobes.shape[1]] = lobes
+        full_rho[:, : lobes.shape[1]] = lobe_rho
+        self.kd, self.lobes, self.lobe_rho, self.lobe_count = kd, full, full_rho, count
+        self._device_cache: dict = {}
+
+    def __len__(self) -> int:
+        return int(self.kd.shape[0])
+
+    @classmethod
+    def phong(cls, kd, ks, exponent) -> MaterialTable:
+        """Lambert + normalized Phong materials as tables: (M, 3) k_d, (M, 3) k_s, (M,) exponents e >= 0.
+
+        The Phong lobe k_s (e + 2) / (2 pi) cos^e(alpha) is the Lafortune lobe C = (-1, -1, 1) with
+        rho = k_s (e + 2) / (2 pi); materials with k_s = 0 get no lobe.
+        """
+        kd = np.asarray(kd, np.float32)
+        ks = np.asarray(ks, np.float32)
+        e = np.broadcast_to(np.asarray(exponent, np.float32), (kd.shape[0],))
+        if ks.shape != kd.shape:
+            raise ValueError(f"ks must have shape {kd.shape} like kd, got {ks.shape}")
+        lobes = np.zeros((kd.shape[0], 1, 4), np.float32)
+        lobes[:, 0] = np.stack([-np.ones_like(e), -np.ones_like(e), np.ones_like(e), e], axis=1)
+        rho = (ks * ((e + 2.0) / (2.0 * math.pi))[:, None])[:, None, :]
+        return cls(kd, lobes, rho, (np.any(ks > 0.0, axis=1)).astype(np.int32))
+
+    @classmethod
+    def from_specs(cls, specs) -> MaterialTable:
+        """Materials from plain specs, one dict per material: ``{"albedo": rgb}`` plus optionally
+        ``{"phong": {"specular": rgb, "exponent": e}}`` or ``{"lafortune": [{"coefficients": [cx, cy, cz],
+        "exponent": e, "color": rgb}, ...]}`` (what :mod:`warpscatter.config` validates)."""
+        specs = list(specs)
+        m = len(specs)
+        kd = np.zeros((m, 3), np.float32)
+        lobes = np.zeros((m, MAX_LOBES, 4), np.float32)
+        rho = np.zeros((m, MAX_LOBES, 3), np.float32)
+        count = np.zeros(m, np.int32)
+        for k, s in enumerate(specs):
+            kd[k] = s["albedo"]
+            if s.get("phong") is not None:
+                p = s["phong"]
+                one = cls.phong(kd[k:k + 1], np.asarray(p["specular"], np.float32)[None], p["exponent"])
+                lobes[k, :1], rho[k, :1], count[k] = one.lobes[0, :1], one.lobe_rho[0, :1], one.lobe_count[0]
+            for i, lobe in enumerate(s.get("lafortune") or []):
+                if i >= MAX_LOBES:
+                    raise ValueError(f"material {k}: at most {MAX_LOBES} lobes")
+                lobes[k, i] = [*lobe["coefficients"], lobe["exponent"]]
+                rho[k, i] = lobe.get("color", (1.0, 1.0, 1.0))
+                count[k] = i + 1
+        return cls(kd, lobes, rho, count)
+
+    def device_data(self, device: str | None = None) -> MaterialData:
+        """The :class:`MaterialData` struct on ``device`` (cached per device)."""
+        device = default_device(device)
+        if device not in self._device_cache:
+            d = MaterialData()
+            d.kd = wp.array(self.kd, dtype=wp.vec3, device=device)
+            d.lobe_count = wp.array(self.lobe_count, dtype=wp.int32, device=device)
+            d.lobes = wp.array(self.lobes, dtype=wp.vec4, device=device)
+            d.lobe_rho = wp.array(self.lobe_rho, dtype=wp.vec3, device=device)
+            self._device_cache[device] = d
+        return self._device_cache[device]
