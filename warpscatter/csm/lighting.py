@@ -502,6 +502,22 @@ def check_offsets(bias, ray_eps) -> None:
         raise ValueError(f"ray_eps must be a finite number >= 0, got {ray_eps!r}")
 
 
+def check_visibility_source(filter: str, bias, ray_eps, csm, mesh) -> None:
+    """The checks every shading host function makes of its visibility inputs.
+
+    Raises:
+        ValueError: an unknown CSM filter, a negative or non-finite bias / ray_eps, both ``csm`` and ``mesh``, or
+            a ``mesh`` that is not a ``wp.Mesh``.
+    """
+    if filter not in FILTERS:
+        raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {filter!r}")
+    check_offsets(bias, ray_eps)
+    if csm is not None and mesh is not None:
+        raise ValueError("give at most one of csm and mesh as the visibility source")
+    if mesh is not None and not isinstance(mesh, wp.Mesh):
+        raise ValueError(f"mesh must be a wp.Mesh, got {type(mesh).__name__}")
+
+
 def shade_environment(
     points,
     normals,
@@ -561,19 +577,13 @@ def shade_environment(
     strata = check_strata(samples)
     p, n, wo, idx, table = surface_inputs(points, normals, albedo, view_dirs=view_dirs, specular=specular,
                                           exponent=exponent, materials=materials, material_index=material_index)
-    if filter not in FILTERS:
-        raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {filter!r}")
-    check_offsets(bias, ray_eps)
-    if csm is not None and mesh is not None:
-        raise ValueError("give at most one of csm and mesh as the visibility source")
+    check_visibility_source(filter, bias, ray_eps, csm, mesh)
     mode, csm_data, mesh_id = 0, dummy_csm(device), wp.uint64(0)
     if csm is not None:
         if not isinstance(csm, CoherentShadowMap) or csm.kind != KIND_LATLONG:
             raise ValueError("csm must be a lat-long CoherentShadowMap (build_csm)")
         mode, csm_data = 1, csm_device_data(csm, device)
     elif mesh is not None:
-        if not isinstance(mesh, wp.Mesh):
-            raise ValueError(f"mesh must be a wp.Mesh, got {type(mesh).__name__}")
         mode, mesh_id = 2, mesh.id
     k = p.shape[0]
     out = wp.zeros(k, dtype=wp.vec3, device=device)

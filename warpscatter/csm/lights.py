@@ -38,7 +38,15 @@ from ..raycast import occluded
 from ..wpinit import default_device, module_options
 from .brdf import MaterialData, MaterialTable, material_eval, material_pdf, material_sample
 from .compress import KIND_CUBE, KIND_LATLONG, CoherentShadowMap
-from .lighting import VIS_CSM, VIS_MESH, check_offsets, check_strata, dummy_csm, stratum_sample, surface_inputs
+from .lighting import (
+    VIS_CSM,
+    VIS_MESH,
+    check_strata,
+    check_visibility_source,
+    dummy_csm,
+    stratum_sample,
+    surface_inputs,
+)
 from .query import (
     FILTERS,
     CSMData,
@@ -415,11 +423,7 @@ def shade_local_light(
     strata = check_strata(samples)
     p, n, wo, idx, table = surface_inputs(points, normals, albedo, view_dirs=view_dirs, specular=specular,
                                           exponent=exponent, materials=materials, material_index=material_index)
-    if filter not in FILTERS:
-        raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {filter!r}")
-    check_offsets(bias, ray_eps)
-    if csm is not None and mesh is not None:
-        raise ValueError("give at most one of csm and mesh as the visibility source")
+    check_visibility_source(filter, bias, ray_eps, csm, mesh)
     mode, csm_data, latlong, mesh_id = 0, _dummy_cube_csm(device), dummy_csm(device), wp.uint64(0)
     if isinstance(csm, CoherentShadowMap) and csm.kind == KIND_LATLONG:
         mode, latlong = 3, csm_device_data(csm, device)
@@ -427,8 +431,6 @@ def shade_local_light(
         check_light_csm(csm, light)
         mode, csm_data = 1, csm_device_data(csm, device)
     elif mesh is not None:
-        if not isinstance(mesh, wp.Mesh):
-            raise ValueError(f"mesh must be a wp.Mesh, got {type(mesh).__name__}")
         mode, mesh_id = 2, mesh.id
     k = p.shape[0]
     out = wp.zeros(k, dtype=wp.vec3, device=device)
