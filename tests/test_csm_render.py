@@ -82,6 +82,8 @@ def test_progressive_passes_hand_out_images_and_use_new_patterns():
     (["scene.meshes.0.receiver_only=true"], "every mesh is receiver_only"),
     (["light={type: area, position: [0, 5, 0], u: [1, 0, 0], v: [2, 0, 0]}"], "are parallel"),
     (["light={type: linear, start: [0, 5, 0], end: [0, 5, 0]}"], "start and end must differ"),
+    (["render.scattering.method=fourier"], "render.scattering.method 'fourier' is not used by render.lighting"),
+    (["render.shadows.method=msm"], "render.shadows.method 'msm' is not used by render.lighting"),
 ])
 def test_bad_lighting_configs_exit_2_and_write_nothing(tmp_path, overrides, message):
     result = invoke("render", GATE, "-o", tmp_path / "o", *sets(*SMALL, *overrides))

@@ -837,8 +837,19 @@ class Config(_Model):
     @model_validator(mode="after")
     def _method_fits_light(self) -> Config:
         method = self.render.scattering.method
-        if self.render.lighting.method is not None:
-            return self  # render.scattering is not used by the lighting methods
+        lighting = self.render.lighting.method
+        if lighting is not None:  # render.scattering and render.shadows are not used by the lighting methods
+            problems = []
+            if method != "raymarch":
+                problems.append(f"render.scattering.method {method!r} is not used by render.lighting.method "
+                                f"{lighting!r} (it renders no in-scattering); remove it or set "
+                                f"render.lighting.method=null")
+            if self.render.shadows.method != "pcf":
+                problems.append(f"render.shadows.method {self.render.shadows.method!r} is not used by "
+                                f"render.lighting.method {lighting!r} (its visibility is the CSM or shadow rays)")
+            if problems:
+                raise ValueError("\n".join(problems))
+            return self
         if method in ("fourier", "moments4", "moments6") and self.light.type != "directional":
             raise ValueError(f"render.scattering.method {method!r} needs a directional light (light.type is "
                              f"{self.light.type!r})")
