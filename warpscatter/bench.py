@@ -42,8 +42,9 @@ SUITES: dict[str, str] = {
     "parallel": "speed-up of split CPU launches (1 thread vs all cores): rasterizer and ray marcher",
     "prefiltered": "fourier method (Klehm 2014): stage times vs map size, output size, basis count; error vs exact; "
                    "scene-complexity sweep",
-    "moments": "fourier, moments4, moments6 (Peters 2017) and the marcher on colonnade, canopy, window: time, bits "
-               "per texel, error vs exact; moment soft shadows vs PCSS",
+    "moments": "fourier, moments4, moments6 (Peters 2017) and the marcher on colonnade, canopy, window (colonnade "
+               "and canopy also with a receiver-only ground): time, bits per texel, error vs exact; moment soft "
+               "shadows vs PCSS",
     "epipolar": "epipolar sampling (Engelhardt 2010) on the colonnade under a textured spot: fraction ray-marched, "
                 "stage times, errors (vs per-pixel marching, exact, converged) for 256-1024 lines and 8-32 initial "
                 "samples; per_pixel and fixed step patterns",
@@ -201,7 +202,8 @@ def bench_light_texture() -> Path:
     return path
 
 
-def bench_scene_config(name: str, width: int, height: int, leaves: int = 4000, **render):
+def bench_scene_config(name: str, width: int, height: int, leaves: int = 4000, receiver_only_ground: bool = False,
+                       **render):
     """A validated config for a bench scene (procedural only, so the bench runs from any install).
 
     Args:
@@ -209,6 +211,8 @@ def bench_scene_config(name: str, width: int, height: int, leaves: int = 4000, *
             colonnade under a textured spot light).
         width, height: image size in pixels.
         leaves: leaf quads of the canopy scene (its complexity knob).
+        receiver_only_ground: mark the scene's ground plane ``receiver_only`` (it shadows nothing visible, so the
+            exact image is unchanged; the shadow-map methods no longer see its depths).
         **render: the config's ``render`` section.
     """
     from .config import Config
@@ -252,6 +256,9 @@ def bench_scene_config(name: str, width: int, height: int, leaves: int = 4000, *
         "type": "spot", "position": [10.0, 25.0, 14.0], "direction": [-10.0, -22.5, -14.0], "cone_deg": 25.0,
         "intensity": [2400.0, 2250.0, 2100.0], "texture": str(bench_light_texture())}}
     data = dict(scenes[name])
+    if receiver_only_ground:
+        data["scene"] = {"meshes": [{**m, "receiver_only": m.get("procedural") == "ground_plane"}
+                                    for m in data["scene"]["meshes"]]}
     data["camera"] = {**data["camera"], "width": width, "height": height}
     data["render"] = render
     return Config.from_dict(data)
@@ -509,7 +516,8 @@ def suite_prefiltered(report: BenchReport, repeats: int, warmup: int, quick: boo
 
 
 def suite_moments(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
-    """Peters 2017 Fig. 15-16/19 style: the prefiltered methods and the marcher on three scenes; soft shadows."""
+    """Peters 2017 Fig. 15-16/19 style: the prefiltered methods and the marcher on three scenes (colonnade and canopy
+    also with a receiver-only ground); soft shadows."""
     w, h = (240, 135) if quick else (960, 540)
     smap = 256 if quick else 1024
     no_surf = {"enabled": False}
@@ -521,22 +529,32 @@ def suite_moments(report: BenchReport, repeats: int, warmup: int, quick: bool, p
     # filtering during resampling (Peters 2017 Sec. 5.2, Fig. 17): a filtered 4-moment map and Algorithm 2
     methods += [(f"{label} filtered", {**sc, "prefiltered": {"resample_filter": "moments"}}) for label, sc in methods
                 if label in ("fourier M=32", "moments4 64-bit", "moments6 64-bit", "moments6 192-bit")]
-    for k, scene in enumerate(("colonnade", "canopy", "window")):
+    # each scene as configured, and colonnade / canopy once more with the ground plane receiver_only: the ground
+    # shadows nothing visible (the exact image is the same), but in the rectified map every ray that ends on it
+    # sees the ground's own depths just behind its fragment depth, where moment bounds are loosest
+    variants = [("colonnade", False), ("colonnade", True), ("canopy", False), ("canopy", True), ("window", False)]
+    casting_refs = {}
+    for k, (scene, ro_ground) in enumerate(variants):
+        title = f"{scene} (receiver-only ground)" if ro_ground else scene
         if progress:
-            progress(f"{scene}: exact reference", k / 4)
-        _, ref = _scattering_rows(report, f"{scene}: raymarch exact (reference)", {
-            "name": scene, "width": w, "height": h,
+            progress(f"{title}: exact reference", 0.8 * k / len(variants))
+        _, ref = _scattering_rows(report, f"{title}: raymarch exact (reference)", {
+            "name": scene, "width": w, "height": h, "receiver_only_ground": ro_ground,
             "scattering": {"method": "raymarch", "visibility": "exact", "steps": 128}, "surfaces": no_surf},
             {"size": f"{w}x{h}", "steps": 128}, 1, 0)
+        if ro_ground:  # the flag must not change the exact image (same seed): the difference is reported
+            report.rows[-1]["extra"]["vs_casting_ground_rel_l1"] = errors(ref["scattering"],
+                                                                          casting_refs[scene])["rel_l1"]
+        else:
+            casting_refs[scene] = ref["scattering"]
         rows = {}
         for label, sc in methods:
             if progress:
-                progress(f"{scene}: {label}", k / 4)
+                progress(f"{title}: {label}", 0.8 * k / len(variants))
             sc = {**sc, "shadow_map": {"resolution": smap}}
-            rows[label], img = _scattering_rows(report, f"{scene}: {label}", {
-                "name": scene, "width": w, "height": h, "scattering": sc, "surfaces": no_surf},
-                {"size": f"{w}x{h}", "map": smap},
-                repeats, warmup, ref["scattering"])
+            rows[label], img = _scattering_rows(report, f"{title}: {label}", {
+                "name": scene, "width": w, "height": h, "receiver_only_ground": ro_ground, "scattering": sc,
+                "surfaces": no_surf}, {"size": f"{w}x{h}", "map": smap}, repeats, warmup, ref["scattering"])
             bits = 32 * (8 if "8-bit" in label else 32) if label.startswith("fourier") else (
                 int(label.split()[1].split("-")[0]) if label.startswith("moments") else None)
             if bits:

@@ -296,7 +296,7 @@ class MeshEntry(_Model):
     params: dict[str, Any] = Field(default_factory=dict)
     transform: Transform = Field(default_factory=dict)
     material: Material = Field(default_factory=dict)
-    receiver_only: Bool = False  # lighting methods: left out of the occluders (receives shadows, casts none)
+    receiver_only: Bool = False  # receives shadows, casts none: left out of every shadow map, BVH and CSM
 
     @field_validator("path")
     @classmethod
@@ -821,15 +821,15 @@ class Config(_Model):
                 if mesh.material.brdf is not None:
                     problems.append(f"scene.meshes.{k}.material.brdf is used by render.lighting.method csm or "
                                     f"raytrace only (the classic surfaces are Lambertian)")
-                if mesh.receiver_only:
-                    problems.append(f"scene.meshes.{k}.receiver_only is used by render.lighting.method csm or "
-                                    f"raytrace only")
         elif self.light.type not in MC_LIGHT_TYPES:
             problems.append(f"render.lighting.method {lighting!r} lights {', '.join(MC_LIGHT_TYPES)} lights "
                             f"(light.type is {self.light.type!r}; use render.scattering for it)")
         elif all(m.receiver_only for m in self.scene.meshes) and self.render.lighting.csm.file is None \
                 and lighting == "csm":
             problems.append("render.lighting: every mesh is receiver_only, so there is no occluder to build a CSM of")
+        if lighting is None and all(m.receiver_only for m in self.scene.meshes):
+            problems.append("scene.meshes: every mesh is receiver_only, so nothing casts a shadow (drop the flag "
+                            "from the casters)")
         if problems:
             raise ValueError("\n".join(problems))
         return self

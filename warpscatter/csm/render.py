@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -143,15 +143,15 @@ def light_from_config(c):
     raise ValueError(f"light.type {c.type!r} is not a Monte-Carlo light")
 
 
-def scene_occluders(scene, receiver_only) -> tuple[np.ndarray, np.ndarray]:
-    """The occluder mesh of a scene: the triangles of every material (= mesh entry) k with
-    ``receiver_only[k]`` false, compacted to the vertices they use (float32 world positions, int32 indices)."""
-    flags = np.asarray(receiver_only, bool)
-    keep = ~flags[scene.tri_material]
-    tris = scene.triangles[keep]
-    used, inverse = np.unique(tris.ravel(), return_inverse=True)
-    return (np.ascontiguousarray(scene.vertices[used], np.float32),
-            np.ascontiguousarray(inverse.reshape(-1, 3), np.int32))  # fmt: skip
+def scene_occluders(scene, receiver_only=None) -> tuple[np.ndarray, np.ndarray]:
+    """The occluder mesh of a scene: the triangles of every material (= mesh entry) k with ``receiver_only[k]``
+    false (default: the scene's own flags, :meth:`~warpscatter.scene.Scene.caster_mask`), compacted to the vertices
+    they use (float32 world positions, int32 indices; both empty when nothing casts)."""
+    from ..scene import compact_mesh
+
+    if receiver_only is not None:
+        scene = replace(scene, receiver_only=np.asarray(receiver_only, bool))
+    return compact_mesh(scene.vertices, scene.triangles[scene.caster_mask()])
 
 
 def csm_kind_for(light, local_lights: str = "cube") -> str:

@@ -588,7 +588,8 @@ def render_prefiltered(scene, gbuffer, shadow_map, *, map_size: tuple[int, int],
         rect, choice = build_rectification(scene, settings, rows, cols)
         filtered_resampling = isinstance(rect, NonlinearRectification) and settings.resample_filter == "moments"
         if isinstance(rect, ProjectiveRectification):
-            rectified = rasterize_rectified(rect, scene.vertices, scene.triangles, device=device)
+            casters = scene.casters()
+            rectified = rasterize_rectified(rect, casters.vertices, casters.triangles, device=device)
         elif not filtered_resampling:
             rectified = resample_shadow_map(rect, shadow_map.depth, shadow_map.view_projection, depth="linear",
                                             world_to_view=shadow_map.view, device=device)

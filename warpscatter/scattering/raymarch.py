@@ -292,7 +292,8 @@ def jitter_mode(jitter: str) -> int:
 def visibility_inputs(scene, visibility: str, geometry, shadow_map, shadow_bias_texels: float, device):
     """Kernel inputs of a visibility mode: (vis_mode, mesh id, eps, shadow-map params, depth, bias in world units).
 
-    ``exact`` needs ``geometry`` (its BVH is built on first use); ``shadow_map`` needs ``shadow_map``. ``eps`` is
+    ``exact`` needs ``geometry`` (the BVH of its casters, :attr:`~warpscatter.scene.DeviceGeometry.shadow_mesh`,
+    is built on first use); ``shadow_map`` needs ``shadow_map``. ``eps`` is
     the shadow-ray start offset, 1e-5 of the scene's extent. Shared by every method that marches rays.
     """
     if visibility not in ("exact", "shadow_map"):
@@ -304,7 +305,7 @@ def visibility_inputs(scene, visibility: str, geometry, shadow_map, shadow_bias_
             raise ValueError("geometry: exact visibility needs the scene's DeviceGeometry")
         p = ShadowMapParams()
         p.width = p.height = 1
-        return VISIBILITY_EXACT, geometry.mesh.id, eps, p, wp.zeros((1, 1), dtype=wp.float32, device=device), 0.0
+        return VISIBILITY_EXACT, geometry.shadow_mesh.id, eps, p, wp.zeros((1, 1), dtype=wp.float32, device=device), 0.0
     if shadow_map is None:
         raise ValueError("shadow_map: shadow_map visibility needs a rendered ShadowMap")
     return (VISIBILITY_SHADOW_MAP, wp.uint64(0), eps, shadow_map.params(), shadow_map.device_depth(device),

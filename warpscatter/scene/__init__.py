@@ -8,7 +8,7 @@ into one vertex/triangle array with a per-triangle material index.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import warp as wp
@@ -29,6 +29,9 @@ class Scene:
         albedo: (K, 3) float32 Lambert albedo per material.
         opacity: (K,) float32 opacity per material (1 = opaque).
         camera, light, medium: see their modules.
+        receiver_only: (K,) bool per material, or None (all cast): materials that receive shadows but cast none
+            (config ``scene.meshes.N.receiver_only``). They are left out of every shadow map, moment map, rectified
+            map, exact-visibility BVH and CSM; see :meth:`casters`.
     """
 
     vertices: np.ndarray
@@ -39,15 +42,44 @@ class Scene:
     camera: Camera
     light: DirectionalLight | SpotLight
     medium: Medium
+    receiver_only: np.ndarray | None = None
 
     @property
     def triangle_count(self) -> int:
         return int(self.triangles.shape[0])
 
+    def caster_mask(self) -> np.ndarray:
+        """(T,) bool: the triangles that cast shadows (their material is not ``receiver_only``)."""
+        if self.receiver_only is None:
+            return np.ones(self.triangle_count, bool)
+        return ~np.asarray(self.receiver_only, bool)[self.tri_material]
+
+    def casters(self) -> "Scene":
+        """This scene's shadow casters: ``self`` when every material casts, else a copy holding only the casting
+        triangles, compacted to the vertices they use (materials, camera, light and medium unchanged). With no
+        caster at all the copy keeps every vertex (so :meth:`bounds` stays the scene's) and has no triangle.
+
+        Everything that computes light visibility works on it; only the camera's view (G-buffer) sees receivers.
+        """
+        keep = self.caster_mask()
+        if keep.all():
+            return self
+        verts, tris = compact_mesh(self.vertices, self.triangles[keep])
+        if not len(tris):
+            verts = self.vertices
+        return replace(self, vertices=verts, triangles=tris, tri_material=self.tri_material[keep], receiver_only=None)
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounds (min, max) of all vertices, float64."""
         v = self.vertices.astype(np.float64)
         return v.min(axis=0), v.max(axis=0)
+
+
+def compact_mesh(vertices, triangles) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, triangles) reduced to the vertices the triangles use, in first-index order (float32, int32)."""
+    used, inverse = np.unique(np.asarray(triangles).ravel(), return_inverse=True)
+    return (np.ascontiguousarray(np.asarray(vertices)[used], np.float32),
+            np.ascontiguousarray(inverse.reshape(-1, 3), np.int32))
 
 
 class DeviceGeometry:
@@ -68,6 +100,9 @@ class DeviceGeometry:
         self.tri_material = wp.array(scene.tri_material, dtype=wp.int32, device=self.device)
         self._indices = wp.array(scene.triangles.ravel(), dtype=wp.int32, device=self.device)
         self._mesh = None
+        casters = scene.casters()
+        self._casters = None if casters is scene else casters  # None: every triangle casts
+        self._shadow_mesh = None
 
     @property
     def mesh(self) -> wp.Mesh:
@@ -75,6 +110,24 @@ class DeviceGeometry:
         if self._mesh is None:
             self._mesh = wp.Mesh(points=self.vertices, indices=self._indices)
         return self._mesh
+
+    @property
+    def shadow_mesh(self) -> wp.Mesh:
+        """The BVH of the shadow casters (:meth:`Scene.casters`), for exact visibility; :attr:`mesh` when every
+        material casts. Built once, on first access.
+
+        Raises:
+            ValueError: when every material is ``receiver_only`` (nothing casts).
+        """
+        if self._casters is None:
+            return self.mesh
+        if self._shadow_mesh is None:
+            if self._casters.triangle_count == 0:
+                raise ValueError("scene: every mesh is receiver_only, so nothing casts a shadow")
+            from ..raycast import build_mesh
+
+            self._shadow_mesh = build_mesh(self._casters.vertices, self._casters.triangles, device=self.device)
+        return self._shadow_mesh
 
 
 def camera_from_config(c) -> Camera:
@@ -136,6 +189,8 @@ def build_scene(cfg) -> Scene:
         tri_material=np.concatenate(mats),
         albedo=np.asarray(albedo, dtype=np.float32).reshape(-1, 3),
         opacity=np.asarray(opacity, dtype=np.float32),
+        receiver_only=(np.array([m.receiver_only for m in cfg.scene.meshes], bool)
+                       if any(m.receiver_only for m in cfg.scene.meshes) else None),
         camera=camera_from_config(cfg.camera),
         light=light_from_config(cfg.light),
         medium=medium_from_config(cfg.medium),

@@ -696,6 +696,7 @@ def generate_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: i
     h, w = shadow_map.shape
     if s * max(h, w) > MAX_RESOLUTION:
         raise ValueError(f"supersampling: {s} x {max(h, w)} texels exceeds the rasterizer's {MAX_RESOLUTION}")
+    scene = scene.casters()  # receiver_only materials cast nothing
     geom = map_geometry(shadow_map)
     alpha = channel_opacities(scene.opacity, scene.albedo, coloured)  # (K, C)
     channels = alpha.shape[1]

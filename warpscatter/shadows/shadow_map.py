@@ -131,16 +131,18 @@ def fit_directional(camera, direction, scene_bounds, resolution) -> tuple[np.nda
 
 
 def render_shadow_map(scene, resolution, device=None) -> ShadowMap:
-    """Rasterize the scene's casters into the light's shadow map.
+    """Rasterize the scene's casters into the light's shadow map, fitted to them.
 
     Args:
-        scene: a :class:`~warpscatter.scene.Scene`.
+        scene: a :class:`~warpscatter.scene.Scene`; its ``receiver_only`` materials are left out
+            (:meth:`~warpscatter.scene.Scene.casters`).
         resolution: int or (width, height) in texels.
         device: Warp device.
     """
     from ..raster import linearize_depth, rasterize
 
     w, h = (resolution, resolution) if np.isscalar(resolution) else tuple(resolution)
+    scene = scene.casters()
     light = scene.light
     if isinstance(light, DirectionalLight):
         view, proj, texel = fit_directional(scene.camera, light.direction, scene.bounds(), (w, h))
@@ -153,9 +155,12 @@ def render_shadow_map(scene, resolution, device=None) -> ShadowMap:
         proj = perspective_matrix(2.0 * light.cone_deg, 1.0, near, reach)
         texel = 2.0 * np.tan(np.radians(light.cone_deg)) / w
         perspective = True
-    r = rasterize(scene.vertices, scene.triangles, proj @ view, w, h, clamp_depth=not perspective, device=device)
-    depth = linearize_depth(r.ndc_depth[0], proj).astype(np.float32)
-    depth[r.tri_id[0] < 0] = np.inf
+    if scene.triangle_count == 0:  # nothing casts: every texel is empty
+        depth = np.full((h, w), np.inf, np.float32)
+    else:
+        r = rasterize(scene.vertices, scene.triangles, proj @ view, w, h, clamp_depth=not perspective, device=device)
+        depth = linearize_depth(r.ndc_depth[0], proj).astype(np.float32)
+        depth[r.tri_id[0] < 0] = np.inf
     return ShadowMap(depth=depth, view=view, projection=proj, perspective=perspective, texel_world=texel)
 
 
