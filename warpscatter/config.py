@@ -589,6 +589,9 @@ class PrefilteredConfig(_Model):
     splits: Annotated[Int, Field(ge=1, le=16)] = 1
     resample_filter: Literal["none", "moments"] = "none"  # Peters 2017 Sec. 5.2 (non-linear rectification)
     resample_filter_px: Optional[Annotated[Int, Field(ge=1, le=64)]] = None  # null: radial rectified texel footprint
+    # empty the texels whose blocker shadows no pixel (warpscatter's; false: the papers'); auto: moment methods only
+    caster_culling: Union[Literal["auto"], Bool] = "auto"
+    caster_culling_bias: Annotated[Float, Field(ge=0.0, le=0.25)] = 1.0 / 64.0  # fraction of the depth range
 
 
 class FourierConfig(_Model):

@@ -155,7 +155,8 @@ def render_images(scene, render_cfg, *, timer: StageTimer | None = None, device=
                                        epipole_angle_deg=p.epipole_angle_deg, epipole_steps=sc.steps,
                                        rectification=p.rectification, epipole_margin=p.epipole_margin,
                                        regions=p.regions, projective_weights=p.projective_weights, splits=p.splits,
-                                       resample_filter=p.resample_filter, resample_filter_px=p.resample_filter_px)
+                                       resample_filter=p.resample_filter, resample_filter_px=p.resample_filter_px,
+                                       caster_culling=p.caster_culling, caster_culling_bias=p.caster_culling_bias)
         l_scat, info = render_prefiltered(scene, gbuf, shadow_map, map_size=sc.shadow_map.size, settings=settings,
                                           seed=sc.seed, shadow_bias_texels=sc.shadow_map.bias, timer=timer,
                                           device=device)

@@ -15,6 +15,11 @@ Stages (names as they appear in timings):
      ``epipole_margin`` half image heights of its border — Klehm's criterion for (close to) degenerate
      cases, :func:`~.rectify_projective.choose_rectification`; the reason is logged on the ``warpscatter``
      logger and returned in the info dict;
+   then ``caster_culling`` (by default for the moment methods; not in the papers): every texel whose
+   blocker shadows none of the pixels' look-ups is emptied (depth 1), :func:`cull_unseen_casters`. No hard
+   visibility changes (up to a depth tolerance against discretisation acne), but the depths of surfaces
+   that only receive — a ground plane under the rays that end on it — leave the representation, where they
+   sat just behind the rays' fragment depths: the worst case of moment bounds;
 2. ``prefilter`` — Fourier basis of the rectified depth fused into per-row prefix sums, plain
    (Klehm Listing 1) or transmittance-weighted with the per-slice reference ray (Listing 2/3); the
    projective map's columns are uneven, so its weights are per texel (Eq. 12: exact column lengths, or
@@ -61,6 +66,10 @@ resample_filter     str        none           non-linear resampling: ``none`` (n
                                               (Peters 2017 Sec. 5.2: filtered 4-moment map + Algorithm 2)
 resample_filter_px  int|None   None           Gaussian width (shadow-map texels) of that map; None: the radial
                                               rectified texel footprint (:func:`~.rectify.resample_footprint_texels`)
+caster_culling      str|bool   auto           empty the texels whose blocker shadows no pixel (stage
+                                              ``caster_culling``, :func:`cull_unseen_casters`; warpscatter's);
+                                              auto: moments4/moments6 only
+caster_culling_bias float      1/64           its depth tolerance (fraction of the rectified depth range)
 ==================  =========  =============  ==========================================================
 """
 
@@ -88,6 +97,7 @@ from .prefilter import (
     prefilter_moments,
     prefilter_weighted,
     prefiltered_visibility_split,
+    texel_footprint,
 )
 from .raymarch import JITTER_PER_PIXEL, VISIBILITY_SHADOW_MAP, MediumParams, march_ray, medium_params, visibility_inputs
 from .rectify import NonlinearRectification, NonlinearRectParams, reference_ray, resample_shadow_map
@@ -112,6 +122,11 @@ RECT_PROJECTIVE = 1
 EPIPOLE_ANGLE_DEG = 8.0
 #: Width of the blend band beyond the ray-marched disc, relative to its radius.
 EPIPOLE_BLEND = 0.25
+#: Default tolerance of caster culling, as a fraction of the rectified depth range: a texel is kept only for
+#: readers at least this much deeper than its blocker. Between neighbouring rows (slices) and at a ray's last
+#: prefix column, the surface a ray ends on can lie a little in FRONT of the ray in the map although it is behind
+#: it in the scene (discretisation acne); 1/64 covers that on the bench scenes (0, 1/128 and 1/32 measured).
+CASTER_CULLING_BIAS = 1.0 / 64.0
 
 
 #: The visibility representations of prefiltered single scattering (render methods).
@@ -159,6 +174,10 @@ class PrefilteredSettings:
             Non-linear rectification only (the projective map is rasterized, not resampled).
         resample_filter_px: width in shadow-map texels of that Gaussian (1: bilinear only); None matches the
             radial footprint of a rectified texel, r_max / cols in texels (:func:`~.rectify.resample_footprint_texels`).
+        caster_culling: True: empty (depth 1) every rectified texel whose blocker shadows no pixel's view ray
+            (:func:`cull_unseen_casters`; a warpscatter addition); False: the papers' maps; ``"auto"``: True for the
+            moment methods, False for ``fourier`` (:attr:`culls_casters`).
+        caster_culling_bias: its depth tolerance, a fraction of the rectified depth range in [0, 0.25].
     """
 
     basis: str = "fourier"
@@ -179,6 +198,8 @@ class PrefilteredSettings:
     splits: int = 1
     resample_filter: str = "none"
     resample_filter_px: int | None = None
+    caster_culling: str | bool = "auto"
+    caster_culling_bias: float = CASTER_CULLING_BIAS
 
     def validate(self) -> "PrefilteredSettings":
         """Raise ValueError naming the first bad field; return self."""
@@ -192,6 +213,10 @@ class PrefilteredSettings:
                              f"got {self.resample_filter_px}")
         if self.basis not in BASES:
             raise ValueError(f"basis must be one of {', '.join(BASES)}, got {self.basis!r}")
+        if self.caster_culling not in ("auto", True, False):
+            raise ValueError(f"caster_culling must be auto, true or false, got {self.caster_culling!r}")
+        if not (np.isfinite(self.caster_culling_bias) and 0.0 <= self.caster_culling_bias <= 0.25):
+            raise ValueError(f"caster_culling_bias must lie in [0, 0.25], got {self.caster_culling_bias}")
         if self.basis != "fourier":
             m = self.num_moments
             if self.moment_storage_bits is not None and self.moment_storage_bits not in MOMENT_STORAGE[m]:
@@ -221,6 +246,14 @@ class PrefilteredSettings:
         if not (np.isfinite(self.epipole_margin) and self.epipole_margin >= 0.0):
             raise ValueError(f"epipole_margin must be finite and >= 0, got {self.epipole_margin}")
         return self
+
+    @property
+    def culls_casters(self) -> bool:
+        """Whether caster culling runs: ``caster_culling``, with ``auto`` = the moment methods only (it lowers their
+        error a lot where rays end on lit surfaces and moves fourier's slightly either way; README, Methods)."""
+        if self.caster_culling == "auto":
+            return self.basis != "fourier"
+        return bool(self.caster_culling)
 
     @property
     def num_moments(self) -> int:
@@ -256,12 +289,9 @@ def rectified_coords(rect: RectificationParams, x: wp.vec3) -> wp.vec3:
     return rectify.world_to_rectified(rect.nonlinear, x)
 
 
-@wp.func
-def rectification_wraps(rect: RectificationParams) -> int:
-    """1 when the rows wrap around (non-linear rectification over the full azimuth circle)."""
-    if rect.kind == RECT_NONLINEAR:
-        return rect.nonlinear.full_circle
-    return 0
+def wrap_rows(rect) -> bool:
+    """True when the rectified rows wrap around (non-linear rectification over the full azimuth circle)."""
+    return isinstance(rect, NonlinearRectification) and bool(rect.full_circle)
 
 
 def rectification_params(rect) -> RectificationParams:
@@ -285,10 +315,27 @@ BASIS_MOMENTS = 1
 
 
 @wp.kernel
-def evaluate_prefiltered_kernel(
+def pixel_coords_kernel(
     cam: CameraParams,
     distance: wp.array2d(dtype=wp.float32),
     rect: RectificationParams,
+    out: wp.array2d(dtype=wp.vec3),
+    offset: int,
+):
+    # the rectified (u, v, z_r) of every pixel's view-ray end (its G-buffer hit): what caster culling and the
+    # evaluation look up
+    j, i = wp.tid()
+    j += offset
+    d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
+    out[j, i] = rectified_coords(rect, cam.position + d * distance[j, i])
+
+
+@wp.kernel
+def evaluate_prefiltered_kernel(
+    cam: CameraParams,
+    distance: wp.array2d(dtype=wp.float32),
+    coords: wp.array2d(dtype=wp.vec3),  # pixel_coords_kernel's output
+    wrap: int,  # 1: the rows wrap around (wrap_rows)
     basis: int,  # BASIS_FOURIER or BASIS_MOMENTS
     filtered: wp.array3d(dtype=wp.float32),  # filtered Fourier basis or stored moments, (rows, cols, M)
     weight_sums: wp.array2d(dtype=wp.float32),  # Fourier split regions (see prefiltered_visibility_split)
@@ -306,8 +353,7 @@ def evaluate_prefiltered_kernel(
     j += offset
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     s = distance[j, i]
-    c = rectified_coords(rect, cam.position + d * s)
-    wrap = rectification_wraps(rect)
+    c = coords[j, i]
     f = float(0.0)
     if basis == BASIS_FOURIER:
         f = prefiltered_visibility_split(filtered, weight_sums, region_weights, splits, c[0], c[1], c[2], wrap)
@@ -318,6 +364,113 @@ def evaluate_prefiltered_kernel(
         f = moments_visibility(filtered, c[0], c[1], c[2], wrap, moment_storage, b)
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
     out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
+
+
+def pixel_coords(rect, camera, distance: wp.array, device=None) -> wp.array:
+    """(H, W) vec3 Warp array: the rectified (u, v, z_r) of every pixel's view-ray end (distance: G-buffer)."""
+    device = default_device(device)
+    out = wp.empty((camera.height, camera.width), dtype=wp.vec3, device=device)
+    launch_rows(pixel_coords_kernel, (camera.height, camera.width),
+                [camera.params(), distance, rectification_params(rect), out], device=device)
+    return out
+
+
+# ---- caster culling: texels whose blocker shadows no pixel ------------------------------------------------
+#
+# A pixel's look-up reads rows j0, j1 and the prefix columns up to i1 (texel_footprint), and a texel there shadows
+# it only when the texel's blocker depth is below the pixel's z_r. A texel that no pixel reads with a larger z_r
+# is lit for every pixel, whatever depth it holds: emptying it (depth 1) changes no hard-visibility result but
+# takes its depth out of the filtered representation. Typical: a ground plane's own depths just behind the
+# fragment depth of the rays that end on it, where Fourier series ring and moment bounds are loosest.
+
+#: Depth bins per row of the caster-culling table (pixels are binned by z_r; a texel keeps its blocker when any
+#: pixel in its bin or above reads it, so the binning only ever keeps more).
+CULL_DEPTH_BINS = 1024
+
+
+@wp.func
+def cull_depth_bin(z: float) -> int:
+    """Bin of rectified depth z in the caster-culling table."""
+    return wp.clamp(int(wp.floor(z * float(CULL_DEPTH_BINS))), 0, CULL_DEPTH_BINS - 1)
+
+
+@wp.kernel
+def reader_table_kernel(coords: wp.array2d(dtype=wp.vec3), rows: int, cols: int, wrap: int,
+                        table: wp.array2d(dtype=wp.int32)):
+    # one launch (CPU atomics are exact within a launch): table[row, bin] = last prefix column a pixel of that depth
+    # bin reads in that row (its look-up footprint, as the evaluation's)
+    j, i = wp.tid()
+    c = coords[j, i]
+    j0, j1, ay, i0, i1, ax = texel_footprint(rows, cols, c[0], c[1], wrap)
+    b = cull_depth_bin(c[2])
+    wp.atomic_max(table, j0, b, i1)
+    wp.atomic_max(table, j1, b, i1)
+
+
+@wp.kernel
+def reader_suffix_kernel(table: wp.array2d(dtype=wp.int32), offset: int):
+    # table[row, b] = last column read by any pixel with a depth bin >= b
+    j = wp.tid() + offset
+    for k in range(CULL_DEPTH_BINS - 1):
+        b = CULL_DEPTH_BINS - 2 - k
+        table[j, b] = wp.max(table[j, b], table[j, b + 1])
+
+
+@wp.kernel
+def cull_casters_kernel(
+    table: wp.array2d(dtype=wp.int32),
+    depth: wp.array2d(dtype=wp.float32),
+    depth2: wp.array2d(dtype=wp.float32),  # the second depth of a SparseRectifiedDepth (two_depths != 0)
+    two_depths: int,
+    bias_bins: int,
+    culled: wp.array(dtype=wp.int32),  # per row: texels emptied (one row per thread: no race)
+    offset: int,
+):
+    j, i = wp.tid()
+    j += offset
+    z = depth[j, i]
+    if z < 1.0 and table[j, wp.min(cull_depth_bin(z) + bias_bins, CULL_DEPTH_BINS - 1)] < i:
+        depth[j, i] = 1.0
+        culled[j] = culled[j] + 1
+    if two_depths != 0:
+        z2 = depth2[j, i]
+        if z2 < 1.0 and table[j, wp.min(cull_depth_bin(z2) + bias_bins, CULL_DEPTH_BINS - 1)] < i:
+            depth2[j, i] = 1.0
+
+
+def cull_unseen_casters(rectified, rect, coords: wp.array, bias: float = 0.0, device=None) -> float:
+    """Empty, in place, every texel of a rectified map whose blocker shadows no pixel's look-up.
+
+    A texel is kept when some pixel's look-up (:func:`~.prefilter.texel_footprint`: its two rows, prefix columns up
+    to i1) reads it with a depth z_r of at least the texel's depth + ``bias`` (pixels are binned by z_r into
+    ``CULL_DEPTH_BINS`` bins, rounding towards keeping). With ``bias`` 0 no pixel's hard (step-function)
+    visibility changes.
+
+    Args:
+        rectified: (rows, cols) float32 Warp array of rectified depth in [0, 1] (1: no blocker), or a
+            :class:`~.rectify.SparseRectifiedDepth` (both depths are culled).
+        rect: its NonlinearRectification or ProjectiveRectification.
+        coords: (H, W) vec3 rectified coordinates of the pixels' view-ray ends (:func:`pixel_coords`).
+        bias: tolerance in rectified depth (a fraction of the depth range), >= 0.
+
+    Returns:
+        The fraction of texels emptied (of the first depth).
+    """
+    device = default_device(device)
+    if not (np.isfinite(bias) and bias >= 0.0):
+        raise ValueError(f"caster culling bias must be finite and >= 0, got {bias}")
+    bias_bins = int(np.floor(bias * CULL_DEPTH_BINS))  # floor: a partial bin still counts readers in it
+    two = isinstance(rectified, rectify.SparseRectifiedDepth)
+    depth = rectified.z1 if two else rectified
+    rows, cols = int(depth.shape[0]), int(depth.shape[1])
+    table = wp.full((rows, CULL_DEPTH_BINS), -1, dtype=wp.int32, device=device)
+    wrap = int(wrap_rows(rect))
+    wp.launch(reader_table_kernel, dim=coords.shape, inputs=[coords, rows, cols, wrap, table], device=device)
+    launch_rows(reader_suffix_kernel, rows, [table], device=device)
+    culled = wp.zeros(rows, dtype=wp.int32, device=device)
+    launch_rows(cull_casters_kernel, (rows, cols),
+                [table, depth, rectified.z2 if two else depth, int(two), int(bias_bins), culled], device=device)
+    return float(culled.numpy().sum()) / float(rows * cols)
 
 
 @wp.kernel
@@ -597,6 +750,12 @@ def render_prefiltered(scene, gbuffer, shadow_map, *, map_size: tuple[int, int],
     if filtered_resampling:
         rectified, resample_info["resample_filter_px"] = resample_filtered(scene, rect, shadow_map, settings,
                                                                            stage, device)
+    with stage("pixel_coords"):
+        coords = pixel_coords(rect, cam, gbuffer.distance, device=device)
+    culled = None
+    if settings.culls_casters:
+        with stage("caster_culling"):
+            culled = cull_unseen_casters(rectified, rect, coords, bias=settings.caster_culling_bias, device=device)
     with stage("prefilter"):
         tau, lengths, weight_info = row_weights(rect, settings, scene.medium.sigma_t, cam)
         if settings.basis == "fourier":
@@ -613,7 +772,7 @@ def render_prefiltered(scene, gbuffer, shadow_map, *, map_size: tuple[int, int],
         beta = -1.0 if settings.overestimation == "adaptive" else float(settings.overestimation)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
-                    [cam.params(), gbuffer.distance, rectification_params(rect), basis, fb.basis, fb.weight_sums,
+                    [cam.params(), gbuffer.distance, coords, int(wrap_rows(rect)), basis, fb.basis, fb.weight_sums,
                      fb.region_weights, fb.splits, storage, beta, light_params(scene.light),
                      medium_params(scene.medium), out], device=device)
     regions = epipole_regions(cam, scene.light.direction, settings.epipole_angle_deg, settings.epipole_block)
@@ -631,6 +790,7 @@ def render_prefiltered(scene, gbuffer, shadow_map, *, map_size: tuple[int, int],
            {"overestimation": settings.overestimation}),
         "bits_per_texel": settings.storage_bits,
         **resample_info,
+        "culled_texel_fraction": None if culled is None else round(culled, 4),
         "filtered_map_bytes": int(rows * cols * settings.storage_bits // 8),
         "epipole_blocks": [[*r.rect, r.name] for r in regions],
         "epipole_angle_deg": round(regions[0].inner_deg, 3) if regions else None,
