@@ -416,6 +416,12 @@ def reader_suffix_kernel(table: wp.array2d(dtype=wp.int32), offset: int):
         table[j, b] = wp.max(table[j, b], table[j, b + 1])
 
 
+@wp.func
+def unread_blocker(table: wp.array2d(dtype=wp.int32), j: int, i: int, z: float, bias_bins: int) -> bool:
+    """True when texel (j, i) holds a blocker (z < 1) that no pixel reads at least ``bias_bins`` bins deeper."""
+    return z < 1.0 and table[j, wp.min(cull_depth_bin(z) + bias_bins, CULL_DEPTH_BINS - 1)] < i
+
+
 @wp.kernel
 def cull_casters_kernel(
     table: wp.array2d(dtype=wp.int32),
@@ -428,14 +434,11 @@ def cull_casters_kernel(
 ):
     j, i = wp.tid()
     j += offset
-    z = depth[j, i]
-    if z < 1.0 and table[j, wp.min(cull_depth_bin(z) + bias_bins, CULL_DEPTH_BINS - 1)] < i:
+    if unread_blocker(table, j, i, depth[j, i], bias_bins):
         depth[j, i] = 1.0
         culled[j] = culled[j] + 1
-    if two_depths != 0:
-        z2 = depth2[j, i]
-        if z2 < 1.0 and table[j, wp.min(cull_depth_bin(z2) + bias_bins, CULL_DEPTH_BINS - 1)] < i:
-            depth2[j, i] = 1.0
+    if two_depths != 0 and unread_blocker(table, j, i, depth2[j, i], bias_bins):
+        depth2[j, i] = 1.0
 
 
 def cull_unseen_casters(rectified, rect, coords: wp.array, bias: float = 0.0, device=None) -> float:
