@@ -82,12 +82,27 @@ def _cases() -> dict[str, tuple[str, list[str]]]:
         ("moments4-optimal", [f"{sc}.method=moments4", f"{pf}.reference_ray=optimal"]),
     ):
         add(f"window/{label}", wbase[0], *wbase[1:], *extra)
+    side = "light.direction=[-0.6,-0.5,0.8]"  # both epipoles far outside the view: auto picks projective
+    for method in ("fourier", "moments4", "moments6"):
+        add(f"colonnade/side-{method}", "colonnade.yaml", side, f"{sc}.method={method}", f"{sc}.steps=32",
+            f"{sc}.shadow_map.resolution=256")
+    add("colonnade/side-fourier-cross-ratio-splits", "colonnade.yaml", side, f"{sc}.method=fourier",
+        f"{sc}.shadow_map.resolution=256", f"{pf}.projective_weights=cross_ratio", f"{pf}.splits=2",
+        f"{pf}.regions=3", f"{pf}.reference_ray=mean")
+    add("colonnade/side-moments6-culled-bias", "colonnade.yaml", side, f"{sc}.method=moments6",
+        f"{sc}.shadow_map.resolution=256", f"{pf}.caster_culling_bias=0", f"{pf}.epipole_margin=0.2")
     # ---- epipolar ----
     ep = f"{sc}.epipolar"
     for scene in ("colonnade", "spot", "window"):
         for vis in ("exact", "shadow_map"):
             add(f"{scene}/epipolar-{vis}", f"{scene}.yaml", f"{sc}.method=epipolar", f"{sc}.visibility={vis}",
                 f"{sc}.steps=32", f"{sc}.shadow_map.resolution=256", f"{ep}.lines=128")
+    add("quickstart/epipolar-fallback", "quickstart.yaml", f"{sc}.method=epipolar", "light.direction=[13,0,4]",
+        f"{sc}.steps=16", f"{ep}.fallback_stride=3")
+    add("colonnade/epipolar-anti", "colonnade.yaml", f"{sc}.method=epipolar", "light.direction=[0.5,0.35,1.0]",
+        f"{sc}.visibility=shadow_map", f"{sc}.steps=16", f"{ep}.lines=64")
+    add("colonnade/fourier-anti", "colonnade.yaml", f"{sc}.method=fourier", "light.direction=[0.5,-0.35,1.0]",
+        f"{sc}.steps=16", f"{sc}.shadow_map.resolution=256")
     for label, extra in (
         ("shepard", [f"{ep}.kernel=shepard", f"{ep}.taps=5"]),
         ("threshold", [f"{ep}.kernel=threshold", f"{ep}.depth_threshold=0.2", f"{ep}.initial_samples=8"]),
