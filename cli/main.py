@@ -18,9 +18,13 @@ import traceback
 from pathlib import Path
 
 import click
+from pydantic import ValidationError
 
-from warpscatter import __version__
-from warpscatter.config import AOV_NAMES, LIGHTING_METHODS, Config, ConfigError, load_config
+from warpscatter import __version__, methods
+from warpscatter.config import AOV_NAMES, Config, load_config
+from warpscatter.csm import settings as csm_settings
+from warpscatter.errors import ConfigError, WarpscatterError
+from warpscatter.schema import format_validation_errors
 
 EXIT_FAILURE = 1
 EXIT_INVALID = 2
@@ -148,6 +152,13 @@ def _load(config_path: Path, overrides, debug: bool) -> Config:
         _fail(f"{type(exc).__name__}: {exc}", EXIT_FAILURE, debug)
 
 
+def _fail_error(exc: BaseException, debug: bool) -> None:
+    """Exit for an exception of a command: a :class:`WarpscatterError` with its exit code, anything else 1."""
+    if isinstance(exc, WarpscatterError):
+        _fail(str(exc), exc.exit_code, debug)
+    _fail(_error_text(exc), EXIT_FAILURE, debug)
+
+
 def _error_text(exc: BaseException) -> str:
     text = str(exc)
     if isinstance(exc, (ValueError, OSError)) and text:
@@ -253,7 +264,7 @@ def render(ctx, config_path: Path, output_dir, overrides, method, quiet: bool, d
     NAME.depth.exr) into output.dir or -o DIR, then prints the per-stage timings.
     """
     debug = debug or ctx.obj.get("debug", False)
-    section = "lighting" if method in LIGHTING_METHODS else "scattering"
+    section = "lighting" if method in methods.LIGHTING else "scattering"
     overrides = list(overrides) + ([f"render.{section}.method={method}"] if method else [])
     config = _load(config_path, overrides, debug)
     out_dir = _out_dir(output_dir)
@@ -267,12 +278,9 @@ def render(ctx, config_path: Path, output_dir, overrides, method, quiet: bool, d
     except KeyboardInterrupt:
         progress.close()
         _fail("interrupted", EXIT_INTERRUPTED)
-    except ConfigError as exc:
-        progress.close()
-        _fail(str(exc), EXIT_INVALID, debug)
     except Exception as exc:
         progress.close()
-        _fail(_error_text(exc), EXIT_FAILURE, debug)
+        _fail_error(exc, debug)
     progress.close()
 
     files = [Path(f) for f in getattr(result, "files", [])]
@@ -292,10 +300,11 @@ def render(ctx, config_path: Path, output_dir, overrides, method, quiet: bool, d
 @click.argument("config_path", metavar="CONFIG", type=click.Path(dir_okay=False, path_type=Path))
 @_set_option
 @click.option("--dump", is_flag=True, help="Print the whole resolved config (defaults, absolute paths) as YAML.")
+@_debug_option
 @click.pass_context
-def validate(ctx, config_path: Path, overrides, dump: bool) -> None:
+def validate(ctx, config_path: Path, overrides, dump: bool, debug: bool) -> None:
     """Check CONFIG (and --set overrides) without rendering; print a summary or every problem."""
-    config = _load(config_path, overrides, ctx.obj.get("debug", False))
+    config = _load(config_path, overrides, debug or ctx.obj.get("debug", False))
     if dump:
         click.echo(config.model_dump_yaml(), nl=False)
         return
@@ -332,8 +341,8 @@ def bench(ctx, suite, repeats: int, warmup: int, output_dir: Path, quick: bool, 
         _fail(_error_text(exc), EXIT_FAILURE, debug)
     if list_suites:
         width = max((len(n) for n in suites), default=0)
-        for name, description in suites.items():
-            click.echo(f"{name:<{width}}  {description}")
+        for name, suite_record in suites.items():
+            click.echo(f"{name:<{width}}  {suite_record.description}")
         return
     if suite is None:
         suite = _default_suite(bench_module.run) or next(iter(suites), None)
@@ -361,8 +370,26 @@ def bench(ctx, suite, repeats: int, warmup: int, output_dir: Path, quick: bool, 
             click.echo(f"  {f}")
 
 
-if __name__ == "__main__":
-    main()
+
+def _grid(text: str | None, option: str) -> tuple[int, int] | None:
+    """``N1xN2`` as two positive integers (None stays None)."""
+    if text is None:
+        return None
+    try:
+        n1, n2 = (int(x) for x in text.lower().split("x"))
+        if n1 < 1 or n2 < 1:
+            raise ValueError
+    except ValueError:
+        _fail(f"{option}: expected N1xN2 with positive integers, got {text!r}", EXIT_INVALID)
+    return n1, n2
+
+
+_CSM = csm_settings.CSMBuildSettings.model_fields
+
+
+def _default(name: str) -> str:
+    d = _CSM[name].default
+    return "x".join(map(str, d)) if isinstance(d, tuple) else str(d)
 
 
 @main.command()
@@ -370,60 +397,56 @@ if __name__ == "__main__":
 @click.option("-o", "--output", "output", type=click.Path(path_type=Path), required=True,
               help="The .npz file to write (written to a temporary name, then renamed).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Config overrides (SOURCE = config).")
-@click.option("--maps", default="64x32", show_default=True, metavar="N1xN2",
-              help="Lat-long grid of map directions (azimuth x polar cells).")
-@click.option("--resolution", type=click.IntRange(min=8, max=4096), default=128, show_default=True,
-              help="Depth-map resolution M.")
-@click.option("--enumeration", type=click.Choice(["hilbert", "zigzag", "scanline"]), default="hilbert",
-              show_default=True, help="Order of the maps along the compressed sequence.")
-@click.option("--layers", type=click.Choice(["z1z2", "z1z3"]), default="z1z2", show_default=True,
-              help="Depths kept per texel: first and second surface, or first and third (closed meshes).")
-@click.option("--far", type=click.Choice(["sphere", "infinite"]), default="sphere", show_default=True,
-              help="Far depth of texels without a second surface: the bounding sphere, or infinity.")
-@click.option("--batch", type=click.IntRange(min=1), default=64, show_default=True,
-              help="Maps rendered and compressed per batch (memory ~ M^2 x batch).")
-@click.option("--light-samples", "light_samples", default="8x8", show_default=True, metavar="N1xN2",
-              help="Config with an area / linear light: depth cube maps at N1xN2 points of the light (N1 for linear).")
+@click.option("--maps", default=None, metavar="N1xN2",
+              help=f"Lat-long grid of map directions (azimuth x polar cells) [default: the config's "
+                   f"render.lighting.csm.maps, else {_default('maps')}].")
+@click.option("--resolution", type=click.IntRange(min=csm_settings.MIN_RESOLUTION, max=csm_settings.MAX_RESOLUTION),
+              default=None, help=f"Depth-map resolution M [default: the config's, else {_default('resolution')}].")
+@click.option("--enumeration", type=click.Choice(csm_settings.ENUMERATIONS), default=None,
+              help=f"Order of the maps along the compressed sequence [default: the config's, else "
+                   f"{_default('enumeration')}].")
+@click.option("--layers", type=click.Choice(csm_settings.DEPTH_LAYERS), default=None,
+              help=f"Depths kept per texel: first and second surface, or first and third (closed meshes) [default: "
+                   f"the config's, else {_default('layers')}].")
+@click.option("--far", type=click.Choice(csm_settings.FAR_MODES), default=None,
+              help=f"Far depth of texels without a second surface: the bounding sphere, or infinity [default: the "
+                   f"config's, else {_default('far')}].")
+@click.option("--batch", type=click.IntRange(min=1, max=csm_settings.MAX_BATCH), default=None,
+              help=f"Maps rendered and compressed per batch (memory ~ M^2 x batch) [default: the config's, else "
+                   f"{_default('batch')}].")
+@click.option("--light-samples", "light_samples", default=None, metavar="N1xN2",
+              help=f"Config with an area / linear light: depth cube maps at N1xN2 points of the light (N1 for "
+                   f"linear) [default: the config's, else {_default('light_samples')}].")
 @_debug_option
 @click.pass_context
-def precompute(ctx, source: Path, output: Path, overrides, maps: str, resolution: int, enumeration: str, layers: str,
-               far: str, batch: int, light_samples: str, debug: bool):
+def precompute(ctx, source: Path, output: Path, overrides, maps, resolution, enumeration, layers, far, batch,
+               light_samples, debug: bool):
     """Build and save a coherent shadow map (Ritschel 2007) for SOURCE: a mesh file, or a config's scene.
 
     From a config, the CSM holds the scene's occluders (meshes not marked receiver_only) in world space, ready
-    for render.lighting.csm.file: depth cube maps at --light-samples points of the light for an area or linear
-    light (unless render.lighting.csm.local_lights is semi_local), else lat-long maps (--maps).
+    for render.lighting.csm.file: depth cube maps at the light's sample points for an area or linear light
+    (unless render.lighting.csm.local_lights is semi_local), else lat-long maps. Options not given take the
+    config's render.lighting.csm values (a mesh file: their defaults).
     """
     debug = debug or ctx.obj.get("debug", False)
-    try:
-        n1, n2 = (int(x) for x in maps.lower().split("x"))
-        if n1 < 1 or n2 < 1:
-            raise ValueError
-    except ValueError:
-        _fail(f"--maps: expected N1xN2 with positive integers, got {maps!r}", EXIT_INVALID)
-    try:
-        ls1, ls2 = (int(x) for x in light_samples.lower().split("x"))
-        if ls1 < 1 or ls2 < 1:
-            raise ValueError
-    except ValueError:
-        _fail(f"--light-samples: expected N1xN2 with positive integers, got {light_samples!r}", EXIT_INVALID)
+    given = {"maps": _grid(maps, "--maps"), "light_samples": _grid(light_samples, "--light-samples"),
+             "resolution": resolution, "enumeration": enumeration, "layers": layers, "far": far, "batch": batch}
     if output.suffix != ".npz":
         _fail(f"-o: the CSM file must end in .npz, got {output}", EXIT_INVALID)
     if not source.is_file():
         _fail(f"{source}: file not found", EXIT_INVALID)
-    local_light = None
+    light, base = None, csm_settings.CSMBuildSettings()
     try:
         if source.suffix in (".yaml", ".yml"):
-            from warpscatter.csm.render import scene_occluders
+            from warpscatter.csm.occluders import scene_occluders
             from warpscatter.scene import build_scene
 
             config = load_config(source, list(overrides))
             scene = build_scene(config)
-            vertices, triangles = scene_occluders(scene, [m.receiver_only for m in config.scene.meshes])
+            vertices, triangles = scene_occluders(scene)
             if len(triangles) == 0:
                 _fail(f"{source}: every mesh is receiver_only: no occluder to build a CSM of", EXIT_INVALID)
-            if config.light.type in ("area", "linear") and config.render.lighting.csm.local_lights == "cube":
-                local_light = scene.light
+            light, base = scene.light, config.render.lighting.csm
         else:
             from warpscatter.scene.meshes import load_mesh
 
@@ -433,19 +456,21 @@ def precompute(ctx, source: Path, output: Path, overrides, maps: str, resolution
         _fail(str(exc), EXIT_INVALID)
     except Exception as exc:
         _fail(f"{source}: {_error_text(exc)}", EXIT_INVALID, debug)
-    from warpscatter.csm import build_csm, build_cube_csm, save_csm
+    try:
+        settings = csm_settings.CSMBuildSettings.model_validate(
+            {**base.model_dump(), "file": None, **{k: v for k, v in given.items() if v is not None}})
+    except ValidationError as exc:
+        problems = format_validation_errors(exc, csm_settings.CSMBuildSettings)
+        _fail("\n".join(f"--{p.replace('_', '-')}" for p in problems), EXIT_INVALID)
+    from warpscatter.csm import save_csm
+    from warpscatter.csm.compress import KIND_CUBE
+    from warpscatter.csm.occluders import prepare_csm
 
     progress = ProgressDisplay(enabled=True)
     try:
         t0 = time.perf_counter()
-        common = {"resolution": resolution, "enumeration": enumeration, "depth_layers": layers, "far": far,
-                  "batch_maps": batch,
-                  "progress": lambda done, total: progress("depth maps + compression", done / total)}
-        if local_light is not None:
-            n1, n2 = ls1, (1 if local_light.kind == "linear" else ls2)
-            csm = build_cube_csm(vertices, triangles, local_light.sample_points(n1, n2), **common)
-        else:
-            csm = build_csm(vertices, triangles, n1=n1, n2=n2, **common)
+        csm = prepare_csm(light, settings, vertices, triangles,
+                          progress=lambda f: progress("depth maps + compression", f))
         output.parent.mkdir(parents=True, exist_ok=True)
         save_csm(csm, output)
     except KeyboardInterrupt:
@@ -453,13 +478,19 @@ def precompute(ctx, source: Path, output: Path, overrides, maps: str, resolution
         _fail("interrupted", EXIT_INTERRUPTED)
     except Exception as exc:
         progress.close()
-        _fail(_error_text(exc), EXIT_FAILURE, debug)
+        _fail_error(exc, debug)
     progress.close()
     st = csm.stats
-    what = f"6 x {n1}x{n2} cube maps of the {local_light.kind} light" if local_light is not None else f"{n1}x{n2} maps"
-    click.echo(f"coherent shadow map: {len(triangles)} triangles, N = {what} of {resolution}^2, {enumeration}")
+    what = (f"6 x {csm.n1}x{csm.n2} cube maps of the {light.kind} light" if csm.kind == KIND_CUBE
+            else f"{csm.n1}x{csm.n2} maps")
+    click.echo(f"coherent shadow map: {len(triangles)} triangles, N = {what} of {csm.resolution}^2, "
+               f"{settings.enumeration}")
     click.echo(f"  segments {st.num_segments} ({st.segments_per_texel:.1f} per texel), "
                f"{st.compressed_bytes / 2**20:.1f} MiB, ratio {st.ratio:.1f}:1 against float32 maps")
     click.echo(f"  render {st.seconds_render:.1f} s, compress {st.seconds_compress:.1f} s, "
                f"total {time.perf_counter() - t0:.1f} s, peak working memory {st.peak_working_bytes / 2**20:.1f} MiB")
     click.echo(f"wrote:\n  {output}")
+
+
+if __name__ == "__main__":
+    main()

@@ -29,3 +29,25 @@ def make_scene(vertices, triangles, camera=None, light=None, medium=None, albedo
 @pytest.fixture
 def rng():
     return np.random.default_rng(42)
+
+
+def settings(method: str = "raymarch", **keys):
+    """Validated :class:`~warpscatter.scattering.settings.ScatteringSettings` of ``method`` (keys as in configs)."""
+    from warpscatter.scattering.settings import ScatteringSettings
+
+    return ScatteringSettings(method=method, **keys)
+
+
+def render_method(scene, gbuffer, method: str = "raymarch", *, geometry=None, shadow_map=None, **keys):
+    """A scattering method's (L_scat as (H, W, 3) numpy, info) through the registry's call shape."""
+    from warpscatter import methods
+    from warpscatter.pipeline import Frame
+
+    out, info = methods.get("scattering", method).load()(
+        Frame(scene, gbuffer, geometry=geometry, shadow_map=shadow_map), settings(method, **keys))
+    return out.numpy(), info
+
+
+def march(scene, gbuffer, *, geometry=None, shadow_map=None, **keys):
+    """The ``raymarch`` method's L_scat (H, W, 3) numpy (``visibility`` exact needs ``geometry``)."""
+    return render_method(scene, gbuffer, "raymarch", geometry=geometry, shadow_map=shadow_map, **keys)[0]

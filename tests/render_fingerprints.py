@@ -62,7 +62,8 @@ def _cases() -> dict[str, tuple[str, list[str]]]:
         ("fourier-bisectrix", [f"{sc}.method=fourier", f"{pf}.reference_ray=bisectrix"]),
         ("fourier-mean", [f"{sc}.method=fourier", f"{pf}.reference_ray=mean"]),
         ("fourier-resample", [f"{sc}.method=fourier", f"{pf}.resample_filter=moments"]),
-        ("fourier-resample-px", [f"{sc}.method=fourier", f"{pf}.resample_filter=moments", f"{pf}.resample_filter_px=3"]),
+        ("fourier-resample-px", [f"{sc}.method=fourier", f"{pf}.resample_filter=moments",
+                                 f"{pf}.resample_filter_px=3"]),
         ("fourier-culled", [f"{sc}.method=fourier", f"{pf}.caster_culling=true", f"{pf}.caster_culling_bias=0.03"]),
         ("fourier-noepipole", [f"{sc}.method=fourier", f"{pf}.epipole_angle_deg=0", f"{pf}.epipole_block=0"]),
         ("fourier-guard", [f"{sc}.method=fourier", f"{pf}.guard_band=0.3", f"{pf}.epipole_angle_deg=12"]),
@@ -199,18 +200,28 @@ def render_cases(only: str | None, images_dir: Path | None) -> dict:
     return out
 
 
-#: Bench row fields that are times (or derived from times): left out of the fingerprint.
+#: Fields of bench rows and render stats that are times (or derived from times): left out of the fingerprint.
 _TIME_KEYS = ("median_ms", "stages_ms", "speedup", "min_s", "times_s")
 
 
-def _timeless(v):
-    if isinstance(v, dict):
-        return {k: _timeless(x) for k, x in v.items()
-                if k not in _TIME_KEYS and not any(t in k for t in ("_ms", "_s", "per_s", "speedup", "vs_embree",
-                                                                    "seconds"))}
-    if isinstance(v, list):
-        return [_timeless(x) for x in v]
-    return v
+def _is_time_key(k: str) -> bool:
+    return k in _TIME_KEYS or k.endswith(("_ms", "_s", "per_s")) or "speedup" in k or "vs_embree" in k \
+        or "seconds" in k
+
+
+def _timeless(fields: dict) -> dict:
+    """A row's or a stats dict's fields without the times (nested dicts: the same one level down)."""
+    return {k: (_timeless(v) if isinstance(v, dict) else v) for k, v in fields.items() if not _is_time_key(k)}
+
+
+def _without_times(doc: dict) -> dict:
+    """The fingerprint document with the time fields of every render's stats and every bench row removed."""
+    out = {"renders": {name: {**e, **({"stats": _timeless(e["stats"])} if "stats" in e else {})}
+                       for name, e in doc.get("renders", {}).items()}}
+    if "bench" in doc:
+        out["bench"] = {suite: {key: _timeless(row) for key, row in rows.items()}
+                        for suite, rows in doc["bench"].items()}
+    return out
 
 
 def bench_suites() -> dict:
@@ -228,7 +239,7 @@ def bench_suites() -> dict:
         rows = {}
         for row in report.rows:
             key = f"{row.get('name')} {json.dumps(row.get('params'), sort_keys=True)}"
-            rows[key] = _jsonable(_timeless({k: v for k, v in row.items() if k not in ("name", "params")}))
+            rows[key] = _jsonable({k: v for k, v in row.items() if k not in ("name", "params")})
         out[suite] = rows
         print(f"bench {suite}: {len(rows)} rows, {time.perf_counter() - t0:.1f}s", flush=True)
     return out
@@ -272,7 +283,7 @@ def main() -> int:
         want["renders"] = {k: v for k, v in want["renders"].items() if args.only in k}
     if args.no_bench:
         want.pop("bench", None)
-    problems = _diff(_timeless(want), _timeless(json.loads(json.dumps(got))))
+    problems = _diff(_without_times(want), _without_times(json.loads(json.dumps(got))))
     (args.folder / "compare.txt").write_text("\n".join(problems) + "\n")
     n_img = sum(len(v.get("images", {})) for v in got["renders"].values())
     n_rows = sum(len(v) for v in got.get("bench", {}).values())

@@ -8,9 +8,12 @@ from warpscatter.bench import bench_scene_config, errors
 from warpscatter.config import ConfigError
 from warpscatter.gbuffer import gbuffer_raster
 from warpscatter.pipeline import render_images
+from warpscatter.scattering import caster_culling as cc
 from warpscatter.scattering import prefiltered as pre
-from warpscatter.scattering.rectify import NonlinearRectification, SparseRectifiedDepth, resample_shadow_map
+from warpscatter.scattering.rectification import build_rectification
+from warpscatter.scattering.rectify_nonlinear import NonlinearRectification, SparseRectifiedDepth, resample_shadow_map
 from warpscatter.scattering.rectify_projective import rasterize_rectified
+from warpscatter.scattering.settings import PrefilteredSettings, ScatteringSettings
 from warpscatter.scene import DeviceGeometry, build_scene
 from warpscatter.shadows.shadow_map import render_shadow_map
 
@@ -26,8 +29,7 @@ def _rectified(kind: str):
         cfg = bench_scene_config("colonnade", 96, 54)
         cfg.light.direction = [0.6, -0.5, 0.2]
     scene = build_scene(cfg)
-    settings = pre.PrefilteredSettings(rectification=kind).validate()
-    rect, choice = pre.build_rectification(scene, settings, ROWS, COLS)
+    rect, choice = build_rectification(scene, PrefilteredSettings(rectification=kind), ROWS, COLS)
     assert choice.kind == kind
     distance = gbuffer_raster(scene, DeviceGeometry(scene)).distance
     if kind == "nonlinear":
@@ -80,7 +82,7 @@ def test_culling_keeps_every_texel_a_pixel_reads_deeper(kind):
     scene, distance, rect, depth = _rectified(kind)
     before = depth.numpy().copy()
     readers = _readers(scene, distance, rect)
-    fraction = pre.cull_unseen_casters(depth, rect, pre.pixel_coords(rect, scene.camera, distance), bias=0.0)
+    fraction = cc.cull_unseen_casters(depth, rect, pre.pixel_coords(rect, scene.camera, distance), bias=0.0)
     after = depth.numpy()
     culled = (before < 1.0) & (after == 1.0)
     assert np.array_equal(after[~culled], before[~culled])  # nothing else moves
@@ -103,18 +105,18 @@ def test_culling_bias_and_two_depth_maps():
     sparse = SparseRectifiedDepth(z1=depth, z2=z2, w2=wp.full(depth.shape, 0.5, dtype=wp.float32))
     z2_before = z2.numpy().copy()
     coords = pre.pixel_coords(rect, scene.camera, distance)
-    pre.cull_unseen_casters(sparse, rect, coords, bias=bias)
+    cc.cull_unseen_casters(sparse, rect, coords, bias=bias)
     for got, was in ((sparse.z1.numpy(), before), (sparse.z2.numpy(), z2_before)):
         culled = (was < 1.0) & (got == 1.0)
         # with a bias, a texel is kept only for readers deeper than depth + bias (bins round towards keeping)
-        assert not (culled & _needed(was, readers, bias + 1.0 / pre.CULL_DEPTH_BINS)).any()
+        assert not (culled & _needed(was, readers, bias + 1.0 / cc.CULL_DEPTH_BINS)).any()
         assert culled.any()
     # the bias only ever culls more
     plain = wp.array(before)
-    pre.cull_unseen_casters(plain, rect, coords, bias=0.0)
+    cc.cull_unseen_casters(plain, rect, coords, bias=0.0)
     assert ((plain.numpy() == 1.0) <= (sparse.z1.numpy() == 1.0)).all()
     with pytest.raises(ValueError, match="bias"):
-        pre.cull_unseen_casters(plain, rect, coords, bias=-1.0)
+        cc.cull_unseen_casters(plain, rect, coords, bias=-1.0)
 
 
 def test_culling_removes_the_ground_error_of_moments6():
@@ -142,20 +144,20 @@ def test_culling_removes_the_ground_error_of_moments6():
 
 def test_caster_culling_settings_errors():
     with pytest.raises(ValueError, match="caster_culling_bias"):
-        pre.PrefilteredSettings(caster_culling_bias=0.5).validate()
+        PrefilteredSettings(caster_culling_bias=0.5)
     with pytest.raises(ConfigError, match=r"render\.scattering\.prefiltered\.caster_culling_bias"):
         bench_scene_config("canopy", 16, 9, scattering={"method": "moments6",
                                                         "prefiltered": {"caster_culling_bias": -0.1}})
 
 
 def test_auto_culls_for_the_moment_methods_only():
-    assert pre.PrefilteredSettings(basis="moments6").validate().culls_casters
-    assert pre.PrefilteredSettings(basis="moments4").validate().culls_casters
-    assert not pre.PrefilteredSettings(basis="fourier").validate().culls_casters
-    assert pre.PrefilteredSettings(basis="fourier", caster_culling=True).validate().culls_casters
-    assert not pre.PrefilteredSettings(basis="moments6", caster_culling=False).validate().culls_casters
-    with pytest.raises(ValueError, match="caster_culling must be"):
-        pre.PrefilteredSettings(caster_culling="sometimes").validate()
+    assert ScatteringSettings(method="moments6").culls_casters
+    assert ScatteringSettings(method="moments4").culls_casters
+    assert not ScatteringSettings(method="fourier").culls_casters
+    assert ScatteringSettings(method="fourier", prefiltered={"caster_culling": True}).culls_casters
+    assert not ScatteringSettings(method="moments6", prefiltered={"caster_culling": False}).culls_casters
+    with pytest.raises(ValueError, match="caster_culling"):
+        PrefilteredSettings(caster_culling="sometimes")
     for method, culls in (("fourier", False), ("moments6", True)):
         cfg = bench_scene_config("canopy", 32, 18, leaves=200, scattering={"method": method})
         stats = render_images(build_scene(cfg), cfg.render)[1]

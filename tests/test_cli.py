@@ -61,7 +61,8 @@ def fake_pipeline(monkeypatch):
 def fake_bench(monkeypatch, tmp_path):
     calls = []
     module = types.ModuleType("warpscatter.bench")
-    module.SUITES = {"raster": "depth maps", "reference": "the ray marcher"}
+    module.SUITES = {"raster": types.SimpleNamespace(description="depth maps"),
+                     "reference": types.SimpleNamespace(description="the ray marcher")}
 
     def run(suite="reference", *, repeats=5, warmup=1, out_dir=None, quick=False, progress=None):
         calls.append({"suite": suite, "repeats": repeats, "warmup": warmup, "out_dir": out_dir, "quick": quick})

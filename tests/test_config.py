@@ -99,11 +99,23 @@ def test_yaml_exponent_without_dot_is_a_float(tmp_path):
     assert c.medium.sigma_t == pytest.approx(1e-3)
 
 
-def test_to_camera_and_medium(tmp_path):
+def test_camera_and_medium_from_config(tmp_path):
+    from warpscatter.scene import camera_from_config, medium_from_config
+
     c = load_config(write(tmp_path, {"camera": {"width": 8, "height": 4}}))
-    cam = c.camera.to_camera()
+    cam = camera_from_config(c.camera)
     assert cam.ray_directions().shape == (4, 8, 3)
-    assert c.medium.to_medium().sigma_s == pytest.approx(0.1)
+    assert medium_from_config(c.medium).sigma_s == pytest.approx(0.1)
+
+
+def test_config_validation_does_not_import_warp():
+    import subprocess
+    import sys
+
+    code = ("import sys, warpscatter.config as c; c.load_config('configs/quickstart.yaml'); "
+            "sys.exit(1 if 'warp' in sys.modules else 0)")
+    root = Path(__file__).resolve().parent.parent
+    assert subprocess.run([sys.executable, "-c", code], cwd=root).returncode == 0
 
 
 # ---- error messages ------------------------------------------------------------------------------

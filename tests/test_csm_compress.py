@@ -97,10 +97,11 @@ def test_mesh_csm_is_lossless_and_streaming_equals_one_shot(depth_layers, far):
     z_lo, z_hi = maps.render(0, maps.num_maps)
     one_shot = compress_depth_maps(z_lo, z_hi, batch_maps=maps.num_maps)
     calls = []
-    streamed = build_csm(v, t, batch_maps=5, progress=lambda done, total: calls.append((done, total)), **kw)
+    streamed = build_csm(v, t, batch_maps=5, progress=calls.append, **kw)
     for name in ("seg_start", "seg_depth", "seg_end"):
         assert np.array_equal(getattr(one_shot, name), getattr(streamed.lists, name))
-    assert calls[-1] == (72, 72) and [c[0] for c in calls] == sorted({c[0] for c in calls}) and len(calls) == 15
+    assert calls[-1] == 1.0 and calls == sorted(set(calls)) and len(calls) == 15
+    assert calls == [min(5 * (k + 1), 72) / 72 for k in range(15)]  # fraction of the N = 72 maps done per batch
     decoded = streamed.lists.decode_all().reshape(z_lo.shape)
     assert admissible(z_lo, z_hi, decoded).all()
     assert streamed.stats.num_segments == one_shot.seg_depth.size < z_lo.size

@@ -8,20 +8,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 import warp as wp
-from conftest import make_scene, quad
+from conftest import make_scene, march, quad, render_method
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from warpscatter.config import load_config
 from warpscatter.gbuffer import gbuffer_raster
 from warpscatter.scattering import epipolar as ep
+from warpscatter.scattering import epipolar_textures as et
+from warpscatter.scattering import epipolar_upsampling as eu
+from warpscatter.scattering import marching
 from warpscatter.scattering.epipolar_lines import epipolar_lines, light_texture_level
-from warpscatter.scattering.raymarch import MediumParams, medium_params, raymarch
 from warpscatter.scene import DeviceGeometry, build_scene
 from warpscatter.scene.camera import Camera, CameraParams
-from warpscatter.scene.lights import DirectionalLight, LightParams, SpotLight, light_params, light_texture_array
+from warpscatter.scene.lights import DirectionalLight, SpotLight
 from warpscatter.scene.medium import Medium
-from warpscatter.shadows.shadow_map import ShadowMapParams, render_shadow_map
+from warpscatter.shadows.shadow_map import render_shadow_map
 from warpscatter.wpinit import default_device, module_options
 
 module_options()
@@ -49,15 +51,16 @@ def _ground_scene(light_direction, camera=None, medium=None, extra=None):
                       medium=med)
 
 
-def _render_pair(scene, settings, steps=16, seed=1, sm_res=512):
-    """(epipolar, per-pixel reference, info), both with shadow-map visibility, same steps and seed."""
+def _render_pair(scene, epipolar, steps=16, seed=1, sm_res=512):
+    """(epipolar, per-pixel reference, info), both with shadow-map visibility, same steps and seed; ``epipolar``:
+    the ``render.scattering.epipolar`` keys."""
     geo = DeviceGeometry(scene)
     gb = gbuffer_raster(scene, geo)
     sm = render_shadow_map(scene, sm_res)
-    ref = raymarch(scene, gb, steps=steps, visibility="shadow_map", shadow_map=sm, seed=seed).numpy()
-    out, info = ep.render_epipolar(scene, gb, settings=settings, steps=steps, visibility="shadow_map", shadow_map=sm,
-                                   seed=seed)
-    return out.numpy(), ref, info
+    ref = march(scene, gb, steps=steps, visibility="shadow_map", shadow_map=sm, seed=seed)
+    out, info = render_method(scene, gb, "epipolar", steps=steps, visibility="shadow_map", shadow_map=sm, seed=seed,
+                              epipolar=epipolar)
+    return out, ref, info
 
 
 def _segment_distance(p, a, b):
@@ -116,8 +119,8 @@ def test_samples_beside_depth_edges_are_ray_marched():
     gb = gbuffer_raster(scene, DeviceGeometry(scene))
     thr = 0.05
     lines, _ = epipolar_lines(scene.camera, scene.light, 128, 8)
-    tex = ep.line_samples(lines, gb.distance, thr)
-    ep.classify_samples(lines, tex, thr)
+    tex = et.line_samples(lines, gb.distance, thr)
+    et.classify_samples(lines, tex, thr)
     # the coordinate texture is the paper's layout: row = line, column = texel, entry -> exit
     v = lines.valid
     np.testing.assert_allclose(tex.coords.numpy()[v], lines.texel_positions()[v], atol=2e-3)
@@ -150,7 +153,7 @@ def test_samples_beside_depth_edges_are_ray_marched():
 ])
 def test_discontinuity_free_scene_matches_raymarching(direction, bound):
     scene = _ground_scene(direction)
-    out, ref, info = _render_pair(scene, ep.EpipolarSettings(lines=128, initial_samples=16))
+    out, ref, info = _render_pair(scene, {"lines": 128, "initial_samples": 16})
     assert info["epipolar_fallback"] is None
     rel = np.abs(out - ref) / ref
     assert rel.max() < bound
@@ -165,16 +168,15 @@ def test_colonnade_error_and_sample_fraction():
     gb = gbuffer_raster(scene, geo)
     sm = render_shadow_map(scene, 1024)
     steps = 32
-    ref = raymarch(scene, gb, steps=steps, visibility="shadow_map", shadow_map=sm).numpy()
-    out, info = ep.render_epipolar(scene, gb, settings=ep.EpipolarSettings(lines=256, initial_samples=8),
-                                   steps=steps, visibility="shadow_map", shadow_map=sm)
-    out = out.numpy()
+    ref = march(scene, gb, steps=steps, visibility="shadow_map", shadow_map=sm)
+    out, info = render_method(scene, gb, "epipolar", epipolar={"lines": 256, "initial_samples": 8}, steps=steps,
+                              visibility="shadow_map", shadow_map=sm)
     assert np.isfinite(out).all()
     assert info["epipolar_raymarched_fraction"] < 0.15  # measured 0.109
     rel_l1 = np.abs(out - ref).sum() / np.abs(ref).sum()
     assert rel_l1 < 0.13  # measured 0.095, mostly the reference's own jitter noise at 32 steps
     # against a converged marcher epipolar sampling is at least as good as per-pixel marching at equal steps
-    conv = raymarch(scene, gb, steps=256, visibility="shadow_map", shadow_map=sm, seed=7).numpy()
+    conv = march(scene, gb, steps=256, visibility="shadow_map", shadow_map=sm, seed=7)
     err_epi = np.abs(out - conv).sum() / conv.sum()
     err_ref = np.abs(ref - conv).sum() / conv.sum()
     assert err_epi < err_ref  # measured 0.068 < 0.089
@@ -184,7 +186,7 @@ def test_degenerate_case_falls_back_to_screen_space_subsampling(caplog):
     # forward = normalize(0, -3, -4): a light travelling along (1, -1.5, 1.125) is parallel to the image plane
     scene = _ground_scene([1.0, -1.5, 1.125])
     with caplog.at_level(logging.WARNING, logger="warpscatter"):
-        out, ref, info = _render_pair(scene, ep.EpipolarSettings(fallback_stride=4))
+        out, ref, info = _render_pair(scene, {"fallback_stride": 4})
     assert "infinity" in info["epipolar_fallback"]
     assert any("screen-space subsampling" in r.getMessage() for r in caplog.records)
     assert np.isfinite(out).all()
@@ -198,8 +200,8 @@ def test_pixels_without_valid_taps_are_ray_marched():
     # a 1 % depth tolerance without outer lines leaves many pixels without a valid tap: they get the reference
     # value itself (the direct ray march at the pixel centre)
     scene = _ground_scene([1.0, -0.3, 0.2])
-    out, ref, info = _render_pair(scene, ep.EpipolarSettings(lines=64, initial_samples=8, kernel="threshold",
-                                                             depth_sigma=0.01, outer_lines=0))
+    out, ref, info = _render_pair(scene, {"lines": 64, "initial_samples": 8, "kernel": "threshold",
+                                                             "depth_sigma": 0.01, "outer_lines": 0})
     assert np.isfinite(out).all()
     n = info["epipolar_raymarched_pixels"]
     assert 0.1 < n / (W * H) < 0.9  # measured 0.285
@@ -209,7 +211,7 @@ def test_pixels_without_valid_taps_are_ray_marched():
 @pytest.mark.parametrize("kernel, taps, bound", [("shepard", 5, 0.01), ("threshold", 4, 0.03)])
 def test_other_kernels(kernel, taps, bound):
     scene = _ground_scene([1.0, -0.3, 0.2])
-    out, ref, _ = _render_pair(scene, ep.EpipolarSettings(lines=128, initial_samples=16, kernel=kernel, taps=taps))
+    out, ref, _ = _render_pair(scene, {"lines": 128, "initial_samples": 16, "kernel": kernel, "taps": taps})
     assert np.abs(out - ref).max() / ref.max() < bound  # measured 0.0041 (shepard), 0.018 (threshold: no distance term)
 
 
@@ -227,7 +229,7 @@ def test_never_nan_near_degenerate_epipoles(azimuth, tilt, sign, n_lines, initia
     if d[1] > -0.05:  # keep the light above the ground so that the shadow map stays well defined
         d = d - (d[1] + 0.3) * np.array([0.0, 1.0, 0.0])
     scene = _ground_scene(d, camera=_TINY, extra=[quad([-1, 0, -1], [1, 0, -1], [1, 2.5, -1], [-1, 2.5, -1])])
-    out, ref, info = _render_pair(scene, ep.EpipolarSettings(lines=n_lines, initial_samples=initial), steps=4,
+    out, ref, info = _render_pair(scene, {"lines": n_lines, "initial_samples": initial}, steps=4,
                                   sm_res=64)
     assert np.isfinite(out).all() and (out >= 0).all()
     # loose (40 x 24 pixels, 4 steps, down to 8 lines), catches garbage: measured max 0.096 over 200 random draws,
@@ -254,7 +256,7 @@ def _spot_scene(texture=None, look_at=(0, 0.5, 3)):
 
 
 def test_spot_light_texture_modulation_matches_raymarching():
-    settings = ep.EpipolarSettings(lines=256, initial_samples=16)
+    settings = {"lines": 256, "initial_samples": 16}
     # camera rays that never enter the cone (brute force along each ray) are exactly 0
     facing = _spot_scene(look_at=(0, 1, -3))
     out_f, _, info = _render_pair(facing, settings, steps=8)
@@ -296,10 +298,9 @@ def test_textured_spot_colonnade_error_and_sample_fraction(jitter, bound):
     geo = DeviceGeometry(scene)
     gb = gbuffer_raster(scene, geo)
     sm = render_shadow_map(scene, 1024)
-    ref = raymarch(scene, gb, steps=128, visibility="shadow_map", shadow_map=sm, jitter=jitter).numpy()
-    out, info = ep.render_epipolar(scene, gb, settings=ep.EpipolarSettings(lines=256, initial_samples=16),
-                                   steps=128, visibility="shadow_map", shadow_map=sm, jitter=jitter)
-    out = out.numpy()
+    ref = march(scene, gb, steps=128, visibility="shadow_map", shadow_map=sm, jitter=jitter)
+    out, info = render_method(scene, gb, "epipolar", epipolar={"lines": 256, "initial_samples": 16}, steps=128,
+                              visibility="shadow_map", shadow_map=sm, jitter=jitter)
     assert np.isfinite(out).all()
     assert info["epipolar_raymarched_fraction"] < 0.15  # measured 0.096
     assert np.abs(out - ref).sum() / ref.sum() < bound
@@ -307,7 +308,7 @@ def test_textured_spot_colonnade_error_and_sample_fraction(jitter, bound):
     # sampling is as close as per-pixel marching at equal steps (what remains against the latter is mostly the
     # latter's own noise); with the fixed pattern the marcher has no per-pixel noise and the interpolation error
     # shows (per-pixel marcher 0.0077)
-    conv = raymarch(scene, gb, steps=512, visibility="shadow_map", shadow_map=sm, seed=7).numpy()
+    conv = march(scene, gb, steps=512, visibility="shadow_map", shadow_map=sm, seed=7)
     err_epi = np.abs(out - conv).sum() / conv.sum()
     err_ref = np.abs(ref - conv).sum() / conv.sum()
     assert err_epi < 0.02  # measured 0.0140 (per_pixel), 0.0117 (fixed)
@@ -329,15 +330,15 @@ def test_light_texture_prefilter():
     levels = []
     for n in (64, 256, 1024):
         lines, _ = epipolar_lines(scene.camera, scene.light, n, 8)
-        lines = ep.trim_to_cone(lines, scene.camera, scene.light)
+        lines = et.trim_to_cone(lines, scene.camera, scene.light)
         levels.append(light_texture_level(lines, scene.camera, scene.light, scene.light.texture.shape)[0])
     assert levels == [3, 1, 0]  # footprints measured 10.1, 2.5, 0.64 texels of the 256^2 texture
     gb = gbuffer_raster(scene, DeviceGeometry(scene))
     sm = render_shadow_map(scene, 256)
-    out, info = ep.render_epipolar(scene, gb, settings=ep.EpipolarSettings(lines=64, initial_samples=8,
-                                                                           prefilter_light_texture=True),
-                                   steps=8, shadow_map=sm)
-    assert info["epipolar_light_texture_level"] == levels[0] and np.isfinite(out.numpy()).all()
+    out, info = render_method(scene, gb, "epipolar", epipolar={"lines": 64, "initial_samples": 8,
+                                                                   "prefilter_light_texture": True},
+                              steps=8, visibility="shadow_map", shadow_map=sm)
+    assert info["epipolar_light_texture_level"] == levels[0] and np.isfinite(out).all()
 
 
 # ---- the @wp.funcs from a user kernel ---------------------------------------------------------------------------
@@ -348,8 +349,8 @@ def _user_kernel(origins: wp.array(dtype=wp.vec3), dirs: wp.array(dtype=wp.vec3)
                  cos_cone: float, hit: wp.array(dtype=wp.int32), e: wp.array(dtype=wp.vec2),
                  d: wp.array(dtype=wp.vec2), s: wp.array(dtype=wp.float32)):
     i = wp.tid()
-    hit[i] = wp.where(ep.ray_enters_cone(origins[i], dirs[i], apex, axis, cos_cone), 1, 0)
-    s[i] = ep.border_arclength(e[i], d[i], 10.0, 6.0)
+    hit[i] = wp.where(et.ray_enters_cone(origins[i], dirs[i], apex, axis, cos_cone), 1, 0)
+    s[i] = et.border_arclength(e[i], d[i], 10.0, 6.0)
 
 
 def test_funcs_from_a_user_kernel():
@@ -395,7 +396,7 @@ def test_funcs_from_a_user_kernel():
 @wp.kernel
 def _kernel_weight_kernel(kind: int, x: wp.array(dtype=wp.float32), out: wp.array(dtype=wp.float32)):
     i = wp.tid()
-    out[i] = ep.kernel_weight(kind, x[i])
+    out[i] = eu.kernel_weight(kind, x[i])
 
 
 def test_kernel_weights_match_their_formulas():
@@ -403,8 +404,8 @@ def test_kernel_weights_match_their_formulas():
     x = np.concatenate([np.linspace(0.0, 0.07, 701), np.linspace(0.07, 3.0, 300)]).astype(np.float32)
     x64 = x.astype(np.float64)
     dev = default_device()
-    want = {ep.KERNEL_GAUSSIAN: np.exp(-x64**2), ep.KERNEL_SHEPARD: 1.0 / (1.0 + x64**2),
-            ep.KERNEL_THRESHOLD: (x <= 1.0).astype(np.float64)}
+    want = {eu.KERNEL_GAUSSIAN: np.exp(-x64**2), eu.KERNEL_SHEPARD: 1.0 / (1.0 + x64**2),
+            eu.KERNEL_THRESHOLD: (x <= 1.0).astype(np.float64)}
     for kind, w in want.items():
         out = wp.zeros(len(x), dtype=wp.float32, device=dev)
         wp.launch(_kernel_weight_kernel, len(x), [int(kind), wp.array(x, dtype=wp.float32, device=dev), out],
@@ -420,33 +421,24 @@ def test_samples_at_pixel_centres_reproduce_the_reference_exactly(jitter):
                                                             width=24, height=16), extra=[board])
     geo = DeviceGeometry(scene)
     gb = gbuffer_raster(scene, geo)
-    ref = raymarch(scene, gb, steps=24, visibility="exact", geometry=geo, seed=5, jitter=jitter).numpy()
-    out, info = ep.render_epipolar(scene, gb, settings=ep.EpipolarSettings(lines=32, initial_samples=4), steps=24,
-                                   visibility="exact", geometry=geo, seed=5, jitter=jitter)
-    assert np.isfinite(out.numpy()).all() and info["epipolar_raymarched_samples"] > 0
-    lo, hi = scene.bounds()
-    eps = 1e-5 * float(max(1.0, abs(lo).max(), abs(hi).max()))
+    ref = march(scene, gb, steps=24, visibility="exact", geometry=geo, seed=5, jitter=jitter)
+    out, info = render_method(scene, gb, "epipolar", epipolar={"lines": 32, "initial_samples": 4}, steps=24,
+                              visibility="exact", geometry=geo, seed=5, jitter=jitter)
+    assert np.isfinite(out).all() and info["epipolar_raymarched_samples"] > 0
     dev = default_device()
     got = wp.zeros((16, 24), dtype=wp.vec3, device=dev)
-    sm = ShadowMapParams()
-    sm.width = sm.height = 1
-    wp.launch(_centre_kernel, (16, 24), [scene.camera.params(), gb.distance, light_params(scene.light),
-                                         light_texture_array(scene.light, dev), medium_params(scene.medium), 24, 5,
-                                         ["per_pixel", "fixed"].index(jitter), geo.mesh.id, eps, sm,
-                                         wp.zeros((1, 1), dtype=wp.float32, device=dev), got],
-              device=dev)
+    m = marching.marcher_params(scene, steps=24, seed=5, jitter=jitter,
+                                visibility=marching.visibility_params(scene, "exact", geo))
+    wp.launch(_centre_kernel, (16, 24), [scene.camera.params(), gb.distance, m, got], device=dev)
     np.testing.assert_array_equal(got.numpy(), ref)
     assert (ref.sum(-1) < 0.8 * ref.sum(-1).max()).any()  # the board shadows part of the medium
 
 
 @wp.kernel
-def _centre_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32), light: LightParams,
-                   tex: wp.array2d(dtype=wp.vec3), med: MediumParams, steps: int, seed: int, jitter: int,
-                   mesh: wp.uint64, eps: float, sm: ShadowMapParams, sm_depth: wp.array2d(dtype=wp.float32),
+def _centre_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32), m: marching.Marcher,
                    out: wp.array2d(dtype=wp.vec3)):
     j, i = wp.tid()
-    out[j, i] = ep.march_screen_point(cam, float(i) + 0.5, float(j) + 0.5, distance[j, i], light, tex, med, steps,
-                                      seed, jitter, 0, mesh, eps, sm, sm_depth, 0.0)  # exact visibility
+    out[j, i] = marching.march_screen_point(cam, float(i) + 0.5, float(j) + 0.5, distance[j, i], m)
 
 
 # ---- settings -------------------------------------------------------------------------------------------------
@@ -458,5 +450,5 @@ def test_bad_settings_are_rejected(field, value):
     scene = _ground_scene([1.0, -0.3, 0.2], camera=_camera(width=8, height=6))
     gb = gbuffer_raster(scene, DeviceGeometry(scene))
     with pytest.raises(ValueError, match=field):
-        ep.render_epipolar(scene, gb, settings=ep.EpipolarSettings(**{field: value}), steps=4,
-                           shadow_map=render_shadow_map(scene, 16))
+        render_method(scene, gb, "epipolar", epipolar={field: value}, steps=4, visibility="shadow_map",
+                      shadow_map=render_shadow_map(scene, 16))

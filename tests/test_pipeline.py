@@ -18,8 +18,10 @@ from warpscatter.scene import DeviceGeometry, build_scene
 from warpscatter.scene.camera import Camera
 from warpscatter.scene.lights import DirectionalLight
 from warpscatter.scene.medium import Medium
-from warpscatter.shading import ShadowSettings, prepare_shadows, shade_and_compose
+from warpscatter.shading import shade_and_compose
+from warpscatter.shadows.settings import ShadowsSettings
 from warpscatter.shadows.shadow_map import render_shadow_map
+from warpscatter.shadows.surface import prepare_shadows
 
 ROOT = Path(__file__).resolve().parent.parent
 SMALL = ["--set", "camera.width=64", "--set", "camera.height=36", "--set", "render.scattering.steps=16",
@@ -68,7 +70,7 @@ def test_lambert_plane_matches_closed_form():
     gb = gbuffer_raster(scene, geo)
     sm = render_shadow_map(scene, 256)
     zeros = wp.zeros((cam.height, cam.width), dtype=wp.vec3)
-    img = shade_and_compose(scene, gb, zeros, shadows=prepare_shadows(scene, sm, ShadowSettings(method="pcf")))
+    img = shade_and_compose(scene, gb, zeros, shadows=prepare_shadows(scene, sm, ShadowsSettings(method="pcf"))[0])
     s = gb.distance.numpy()
     hit = gb.material.numpy() >= 0
     assert hit.mean() > 0.4

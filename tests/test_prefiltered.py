@@ -10,11 +10,13 @@ import pytest
 
 from warpscatter.config import load_config
 from warpscatter.pipeline import render_images
-from warpscatter.scattering import prefilter as pf
+from warpscatter.scattering import filtered_lookups as fl
+from warpscatter.scattering import prefix_sums as pf
 from warpscatter.scattering import rectify_projective as rp
-from warpscatter.scattering.prefiltered import PrefilteredSettings, row_weights
-from warpscatter.scattering.rectify import NonlinearRectification
+from warpscatter.scattering.prefiltered import row_weights
+from warpscatter.scattering.rectify_nonlinear import NonlinearRectification
 from warpscatter.scattering.rectify_projective import ProjectiveRectification
+from warpscatter.scattering.settings import MAX_SPLITS, PrefilteredSettings, ScatteringSettings
 from warpscatter.scene import build_scene
 from warpscatter.scene.camera import Camera
 
@@ -113,11 +115,11 @@ def test_split_evaluation_equals_unsplit(wrap):
     n = 4000
     coords = np.stack([rng.uniform(-0.05, 1.05, n), rng.uniform(0.0, 1.0, n), rng.uniform(0.05, 0.95, n)], axis=-1)
     coords[:200, 0] = (np.arange(200) % cols + rng.choice([0.0, 1.0, 0.5, 0.999], 200)) / cols  # column edges
-    one = pf.evaluate_visibility(pf.prefilter_weighted(depth, m, tau, lengths), coords, wrap_rows=bool(wrap))
-    plain = pf.evaluate_visibility(pf.prefilter_weighted(depth, m, tau, lengths).basis, coords, wrap_rows=bool(wrap))
+    one = fl.evaluate_visibility(pf.prefilter_weighted(depth, m, tau, lengths), coords, wrap_rows=bool(wrap))
+    plain = fl.evaluate_visibility(pf.prefilter_weighted(depth, m, tau, lengths).basis, coords, wrap_rows=bool(wrap))
     assert np.array_equal(one, plain)  # a FilteredBasis with splits = 1 is the plain path
     for splits in (3, 5):
-        split = pf.evaluate_visibility(pf.prefilter_weighted(depth, m, tau, lengths, splits=splits), coords,
+        split = fl.evaluate_visibility(pf.prefilter_weighted(depth, m, tau, lengths, splits=splits), coords,
                                        wrap_rows=bool(wrap))
         assert np.abs(split - one).max() < 5e-6  # measured 4.8e-7 (3 regions), 6.6e-7 (5); wrapped rows 3.6e-7, 4.2e-7
     assert one.std() > 0.1  # the queries see real visibility structure (measured 0.38, 0.37)
@@ -132,13 +134,13 @@ def test_prefilter_weighted_rejects_bad_input():
     with pytest.raises(ValueError, match="splits"):
         pf.prefilter_weighted(depth, 8, splits=0)
     with pytest.raises(ValueError, match="splits"):
-        pf.prefilter_weighted(depth, 8, splits=pf.MAX_SPLITS + 1)
+        pf.prefilter_weighted(depth, 8, splits=MAX_SPLITS + 1)
     with pytest.raises(ValueError, match="optical_step"):
         pf.prefilter_weighted(depth, 8, -1.0)
     with pytest.raises(ValueError, match="projective_weights"):
-        PrefilteredSettings(projective_weights="linear").validate()
+        PrefilteredSettings(projective_weights="linear")
     with pytest.raises(ValueError, match="regions"):
-        PrefilteredSettings(regions=0).validate()
+        PrefilteredSettings(regions=0)
 
 
 def test_row_weights_give_world_optical_thickness():
@@ -299,12 +301,12 @@ def test_moments6_against_the_marcher_and_fourier():
 
 
 def test_moment_settings_errors():
-    with pytest.raises(ValueError, match="moment_storage_bits"):
-        PrefilteredSettings(basis="moments4", moment_storage_bits=96).validate()
+    with pytest.raises(ValueError, match="storage_bits 96 is not a moments4 mode"):
+        ScatteringSettings(method="moments4", moments={"storage_bits": 96})
     with pytest.raises(ValueError, match="splits"):
-        PrefilteredSettings(basis="moments6", splits=2).validate()
+        ScatteringSettings(method="moments6", prefiltered={"splits": 2})
     with pytest.raises(ValueError, match="overestimation"):
-        PrefilteredSettings(basis="moments6", overestimation=1.5).validate()
+        ScatteringSettings(method="moments6", moments={"overestimation": 1.5})
     from warpscatter.config import ConfigError
 
     with pytest.raises(ConfigError, match="storage_bits"):
@@ -341,7 +343,7 @@ def test_fourier_against_exact_reference(config, bound):
 def test_epipole_region_rectangles_hold_every_pixel_of_the_cone():
     """Random cameras and light directions (epipole inside, near the border, outside, behind): every pixel whose ray
     lies inside a region's outer cone is inside its rectangle, and no region is reported for a cone off the image."""
-    from warpscatter.scattering.prefiltered import epipole_regions
+    from warpscatter.scattering.epipole_fallback import epipole_regions
 
     rng = np.random.default_rng(7)
     for _ in range(60):

@@ -5,7 +5,7 @@ import pytest
 
 from warpscatter.bench import bench_scene_config, errors
 from warpscatter.config import Config, ConfigError
-from warpscatter.csm.render import scene_occluders
+from warpscatter.csm.occluders import scene_occluders
 from warpscatter.gbuffer import gbuffer_raster
 from warpscatter.pipeline import render_images
 from warpscatter.scene import DeviceGeometry, Scene, build_scene

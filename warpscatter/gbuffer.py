@@ -22,10 +22,20 @@ import warp as wp
 
 from .parallel import launch_rows
 from .raster import ndc_to_view_depth, rasterize
+from .scene import MeshArrays
 from .scene.camera import CameraParams, far_plane_distance, pixel_ray_direction
 from .wpinit import default_device, module_options
 
 module_options()
+
+
+@wp.struct
+class GBufferArrays:
+    """A camera G-buffer as kernels see it (:meth:`GBuffer.arrays`)."""
+
+    distance: wp.array2d(dtype=wp.float32)  # scene units along the unit pixel ray
+    normal: wp.array2d(dtype=wp.vec3)  # unit, facing the camera; 0 where no hit
+    material: wp.array2d(dtype=wp.int32)  # material index, -1 where no hit
 
 
 @dataclass
@@ -38,6 +48,12 @@ class GBuffer:
 
     def numpy(self) -> dict[str, np.ndarray]:
         return {"distance": self.distance.numpy(), "normal": self.normal.numpy(), "material": self.material.numpy()}
+
+    def arrays(self) -> GBufferArrays:
+        """The G-buffer as kernels see it."""
+        g = GBufferArrays()
+        g.distance, g.normal, g.material = self.distance, self.normal, self.material
+        return g
 
 
 @wp.func
@@ -54,9 +70,7 @@ def facing_normal(v0: wp.vec3, v1: wp.vec3, v2: wp.vec3, d: wp.vec3) -> wp.vec3:
 
 
 @wp.func
-def hit_record(origin: wp.vec3, d: wp.vec3, t_far: float, tri: int, t_fallback: float,
-               vertices: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp.int32),
-               tri_material: wp.array(dtype=wp.int32)):
+def hit_record(origin: wp.vec3, d: wp.vec3, t_far: float, tri: int, t_fallback: float, mesh: MeshArrays):
     """(distance, camera-facing unit normal, material) of the ray origin + t d hitting triangle ``tri``.
 
     The distance is the exact ray-plane intersection with the triangle; grazing rays (|n . d| < 1e-4)
@@ -64,13 +78,13 @@ def hit_record(origin: wp.vec3, d: wp.vec3, t_far: float, tri: int, t_fallback: 
     """
     if tri < 0:
         return t_far, wp.vec3(0.0, 0.0, 0.0), -1
-    v0 = vertices[triangles[tri, 0]]
-    n = facing_normal(v0, vertices[triangles[tri, 1]], vertices[triangles[tri, 2]], d)
+    v0 = mesh.vertices[mesh.triangles[tri, 0]]
+    n = facing_normal(v0, mesh.vertices[mesh.triangles[tri, 1]], mesh.vertices[mesh.triangles[tri, 2]], d)
     denom = wp.dot(n, d)
     t = t_fallback
     if denom < -1.0e-4:
         t = wp.dot(n, v0 - origin) / denom
-    return wp.clamp(t, 0.0, t_far), n, tri_material[tri]
+    return wp.clamp(t, 0.0, t_far), n, mesh.tri_material[tri]
 
 
 @wp.kernel
@@ -80,12 +94,8 @@ def gbuffer_from_raster_kernel(
     ndc_depth: wp.array2d(dtype=wp.float32),
     p22: float,  # projection entries for the grazing-ray fallback (see raster.ndc_to_view_depth)
     p23: float,
-    vertices: wp.array(dtype=wp.vec3),
-    triangles: wp.array2d(dtype=wp.int32),
-    tri_material: wp.array(dtype=wp.int32),
-    distance: wp.array2d(dtype=wp.float32),
-    normal: wp.array2d(dtype=wp.vec3),
-    material: wp.array2d(dtype=wp.int32),
+    mesh: MeshArrays,
+    out: GBufferArrays,
     offset: int,
 ):
     j, i = wp.tid()
@@ -93,42 +103,37 @@ def gbuffer_from_raster_kernel(
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     # rasterized depth -> view depth -> distance along the ray; only used for grazing rays
     t_raster = ndc_to_view_depth(ndc_depth[j, i], p22, p23, -1.0, 0.0) / wp.dot(d, cam.forward)
-    t, n, m = hit_record(cam.position, d, far_plane_distance(cam, d), tri_id[j, i], t_raster, vertices, triangles,
-                         tri_material)
-    distance[j, i] = t
-    normal[j, i] = n
-    material[j, i] = m
+    t, n, m = hit_record(cam.position, d, far_plane_distance(cam, d), tri_id[j, i], t_raster, mesh)
+    out.distance[j, i] = t
+    out.normal[j, i] = n
+    out.material[j, i] = m
 
 
 @wp.kernel
 def gbuffer_raycast_kernel(
     cam: CameraParams,
-    mesh: wp.uint64,
-    vertices: wp.array(dtype=wp.vec3),
-    triangles: wp.array2d(dtype=wp.int32),
-    tri_material: wp.array(dtype=wp.int32),
-    distance: wp.array2d(dtype=wp.float32),
-    normal: wp.array2d(dtype=wp.vec3),
-    material: wp.array2d(dtype=wp.int32),
+    bvh: wp.uint64,
+    mesh: MeshArrays,
+    out: GBufferArrays,
     offset: int,
 ):
     j, i = wp.tid()
     j += offset
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     t_far = far_plane_distance(cam, d)
-    q = wp.mesh_query_ray(mesh, cam.position, d, t_far)
+    q = wp.mesh_query_ray(bvh, cam.position, d, t_far)
     tri = int(-1)
     if q.result:
         tri = q.face
-    t, n, m = hit_record(cam.position, d, t_far, tri, q.t, vertices, triangles, tri_material)
-    distance[j, i] = t
-    normal[j, i] = n
-    material[j, i] = m
+    t, n, m = hit_record(cam.position, d, t_far, tri, q.t, mesh)
+    out.distance[j, i] = t
+    out.normal[j, i] = n
+    out.material[j, i] = m
 
 
-def _alloc(h, w, device):
-    return (wp.empty((h, w), dtype=wp.float32, device=device), wp.empty((h, w), dtype=wp.vec3, device=device),
-            wp.empty((h, w), dtype=wp.int32, device=device))
+def _alloc(h, w, device) -> GBuffer:
+    return GBuffer(wp.empty((h, w), dtype=wp.float32, device=device), wp.empty((h, w), dtype=wp.vec3, device=device),
+                   wp.empty((h, w), dtype=wp.int32, device=device))
 
 
 def gbuffer_raster(scene, geometry, device=None) -> GBuffer:
@@ -143,20 +148,18 @@ def gbuffer_raster(scene, geometry, device=None) -> GBuffer:
     cam = scene.camera
     proj = cam.projection()
     r = rasterize(scene.vertices, scene.triangles, proj @ cam.view(), cam.width, cam.height, device=device)
-    distance, normal, material = _alloc(cam.height, cam.width, device)
+    out = _alloc(cam.height, cam.width, device)
     launch_rows(gbuffer_from_raster_kernel, (cam.height, cam.width),
                 [cam.params(), r.device_tri_id[0], r.device_ndc_depth[0], float(proj[2, 2]), float(proj[2, 3]),
-                 geometry.vertices, geometry.triangles, geometry.tri_material, distance, normal, material],
-                device=device)
-    return GBuffer(distance, normal, material)
+                 geometry.arrays(), out.arrays()], device=device)
+    return out
 
 
 def gbuffer_raycast(scene, geometry, device=None) -> GBuffer:
     """Exact G-buffer by BVH ray casting (one ray per pixel centre)."""
     device = default_device(device)
     cam = scene.camera
-    distance, normal, material = _alloc(cam.height, cam.width, device)
+    out = _alloc(cam.height, cam.width, device)
     launch_rows(gbuffer_raycast_kernel, (cam.height, cam.width),
-                [cam.params(), geometry.mesh.id, geometry.vertices, geometry.triangles, geometry.tri_material,
-                 distance, normal, material], device=device)
-    return GBuffer(distance, normal, material)
+                [cam.params(), geometry.mesh.id, geometry.arrays(), out.arrays()], device=device)
+    return out

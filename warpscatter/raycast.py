@@ -17,7 +17,9 @@ import numpy as np
 import warp as wp
 
 from . import parallel
-from .raster import RasterResult, as_points, as_triangles, check_matrix, check_size, pixel_center_ndc
+from .raster import RasterResult
+from .raster_funcs import pixel_center_ndc
+from .raster_inputs import as_points, as_triangles, check_matrix, check_size
 from .scene.camera import Camera, CameraParams, far_plane_distance, pixel_ray_direction
 from .wpinit import default_device, module_options
 
@@ -115,9 +117,6 @@ def raycast_camera_kernel(
     tri_id[j, i] = face
 
 
-# ---- host side -------------------------------------------------------------------------------------
-
-
 @wp.kernel
 def shadow_rays_kernel(
     mesh: wp.uint64,
@@ -127,11 +126,15 @@ def shadow_rays_kernel(
     out: wp.array(dtype=wp.float32),
     offset: int,
 ):
+    """Visibility of ray i: 1 when nothing lies on the unit ray from ``points[i] + eps d`` along d, else 0."""
     i = wp.tid() + offset
     d = wp.normalize(directions[i])
     out[i] = 1.0
     if occluded(mesh, points[i] + d * eps, d, 1.0e30):
         out[i] = 0.0
+
+
+# ---- host side -------------------------------------------------------------------------------------
 
 
 def build_mesh(vertices, triangles, device: str | None = None) -> wp.Mesh:
@@ -198,10 +201,7 @@ def raycast_depth(
         raycast_depth_kernel, (height, width), [mesh.id, wp.mat44d(*inv.ravel()), width, height, ndc_depth, tri_id],
         device, threads=threads, min_chunk=8,
     )  # fmt: skip
-    return RasterResult(
-        ndc_depth=ndc_depth.numpy(), tri_id=tri_id.numpy(), keys=None, device_ndc_depth=ndc_depth,
-        device_tri_id=tri_id, view_proj=m,
-    )  # fmt: skip
+    return RasterResult.from_device(ndc_depth, tri_id, None, m)
 
 
 def raycast_camera(

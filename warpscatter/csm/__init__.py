@@ -13,12 +13,17 @@ coherent order, compressed losslessly into per-texel segment lists and queried w
   semi-local lights, moving and receiver-only objects, local lights) and host wrappers for batches.
 - :mod:`.brdf`: Lambert, normalized Phong and Lafortune BRDFs with importance sampling and the Russian-roulette
   lobe choice (Sec. 5.1), :class:`MaterialTable`.
-- :mod:`.lighting`: importance-sampled lat-long environment maps, the stratified MIS estimator
-  :func:`shade_environment` (CSM or wp.Mesh visibility), :class:`ProgressiveAccumulator` (Sec. 5).
-- :mod:`.lights`: area (parallelogram) and linear lights sampled by radiance with cube-CSM visibility,
-  :func:`shade_local_light` (Sec. 4.2, 5.1).
-- :mod:`.render`: the ``csm`` / ``raytrace`` render methods (``render.lighting``): CSM of the scene's occluders,
-  G-buffer, progressive passes.
+- :mod:`.direct_lighting`: what the Monte-Carlo estimators share: surface points, the visibility source (CSM,
+  shadow rays or none), strata, :class:`ProgressiveAccumulator` (Sec. 5, 5.2).
+- :mod:`.environment`: the stratified MIS estimator :func:`shade_environment` of lat-long environment maps
+  (:class:`~warpscatter.scene.environment_map.EnvironmentMap`, importance-sampled, Sec. 5.1).
+- :mod:`.local_lights`: area (parallelogram) and linear lights (:mod:`warpscatter.scene.lights`) sampled by
+  radiance with cube-CSM visibility, :func:`shade_local_light` (Sec. 4.2, 5.1).
+- :mod:`.occluders`: the CSM of a scene's occluders: built, or loaded and checked against the scene.
+- :mod:`.settings`: the Warp-free settings of ``render.lighting`` (:class:`LightingSettings`).
+
+The ``csm`` / ``raytrace`` render methods (``render.lighting``: CSM of the scene's occluders, G-buffer,
+progressive passes) are :mod:`warpscatter.pipeline.lighting`.
 
 Example::
 
@@ -27,91 +32,79 @@ Example::
     vis = csm_visibility_batch(csm, points, directions, filter="pcf")
 """
 
-from .brdf import MAX_LOBES, MaterialData, MaterialTable
-from .compress import (
-    FORMAT_VERSION,
-    CoherentShadowMap,
-    CompressionStats,
-    CSMFileError,
-    SegmentLists,
-    StreamingCompressor,
-    build_csm,
-    build_cube_csm,
-    compress_depth_maps,
-    geometry_digest,
-    load_csm,
-    save_csm,
-)
-from .depthmaps import (
-    CubeMapSet,
-    LatLongMapSet,
-    bounding_sphere,
-    cube_face_frames,
-    latlong_frames,
-    ortho_view_proj,
-    parallelogram_light_samples,
-    segment_light_samples,
-)
-from .enumeration import ENUMERATIONS, enumerate_grid, hilbert_order, scanline_order, sequence_index, zigzag_order
-from .lighting import EnvData, EnvironmentMap, ProgressiveAccumulator, shade_environment
-from .lights import AreaLight, LinearLight, LocalLightData, shade_local_light
-from .query import (
-    FILTERS,
-    CSMData,
-    CubeCSMData,
-    csm_device_data,
-    csm_local_visibility_batch,
-    csm_objects_visibility_batch,
-    csm_visibility_batch,
-)
-from .render import EnvironmentLight, LightingSettings, render_lighting
 
-__all__ = [
-    "ENUMERATIONS",
-    "FILTERS",
-    "FORMAT_VERSION",
-    "MAX_LOBES",
-    "AreaLight",
-    "CSMData",
-    "CSMFileError",
-    "CoherentShadowMap",
-    "CompressionStats",
-    "CubeCSMData",
-    "CubeMapSet",
-    "EnvData",
-    "EnvironmentLight",
-    "EnvironmentMap",
-    "LatLongMapSet",
-    "LightingSettings",
-    "LinearLight",
-    "LocalLightData",
-    "MaterialData",
-    "MaterialTable",
-    "ProgressiveAccumulator",
-    "SegmentLists",
-    "StreamingCompressor",
-    "bounding_sphere",
-    "build_csm",
-    "build_cube_csm",
-    "compress_depth_maps",
-    "cube_face_frames",
-    "csm_device_data",
-    "csm_local_visibility_batch",
-    "csm_objects_visibility_batch",
-    "csm_visibility_batch",
-    "enumerate_grid",
-    "geometry_digest",
-    "hilbert_order",
-    "latlong_frames",
-    "load_csm",
-    "ortho_view_proj",
-    "parallelogram_light_samples",
-    "render_lighting",
-    "save_csm",
-    "scanline_order",
-    "segment_light_samples",
-    "shade_environment",
-    "shade_local_light",
-    "sequence_index",
-    "zigzag_order",
-]
+from __future__ import annotations
+
+import importlib
+
+#: Public name -> the module holding it. Loaded on first access, so importing this package (or its
+#: Warp-free :mod:`.settings`) does not import Warp.
+_EXPORTS = {
+    "MAX_LOBES": "warpscatter.csm.brdf",
+    "MaterialData": "warpscatter.csm.brdf",
+    "MaterialTable": "warpscatter.csm.brdf",
+    "CSMFileError": "warpscatter.csm.compress",
+    "CoherentShadowMap": "warpscatter.csm.compress",
+    "CompressionStats": "warpscatter.csm.compress",
+    "FORMAT_VERSION": "warpscatter.csm.compress",
+    "SegmentLists": "warpscatter.csm.compress",
+    "StreamingCompressor": "warpscatter.csm.compress",
+    "build_csm": "warpscatter.csm.compress",
+    "build_cube_csm": "warpscatter.csm.compress",
+    "compress_depth_maps": "warpscatter.csm.compress",
+    "geometry_digest": "warpscatter.csm.compress",
+    "load_csm": "warpscatter.csm.compress",
+    "save_csm": "warpscatter.csm.compress",
+    "CubeMapSet": "warpscatter.csm.depthmaps",
+    "LatLongMapSet": "warpscatter.csm.depthmaps",
+    "bounding_sphere": "warpscatter.csm.depthmaps",
+    "cube_face_frames": "warpscatter.csm.depthmaps",
+    "latlong_frames": "warpscatter.csm.depthmaps",
+    "ortho_view_proj": "warpscatter.csm.depthmaps",
+    "parallelogram_light_samples": "warpscatter.csm.depthmaps",
+    "segment_light_samples": "warpscatter.csm.depthmaps",
+    "ProgressiveAccumulator": "warpscatter.csm.direct_lighting",
+    "ENUMERATIONS": "warpscatter.csm.enumeration",
+    "enumerate_grid": "warpscatter.csm.enumeration",
+    "hilbert_order": "warpscatter.csm.enumeration",
+    "scanline_order": "warpscatter.csm.enumeration",
+    "sequence_index": "warpscatter.csm.enumeration",
+    "zigzag_order": "warpscatter.csm.enumeration",
+    "shade_environment": "warpscatter.csm.environment",
+    "shade_local_light": "warpscatter.csm.local_lights",
+    "check_csm_for_scene": "warpscatter.csm.occluders",
+    "csm_kind_for": "warpscatter.csm.occluders",
+    "prepare_csm": "warpscatter.csm.occluders",
+    "scene_occluders": "warpscatter.csm.occluders",
+    "CSMData": "warpscatter.csm.query",
+    "CubeCSMData": "warpscatter.csm.query",
+    "FILTERS": "warpscatter.csm.query",
+    "csm_device_data": "warpscatter.csm.query",
+    "csm_local_visibility_batch": "warpscatter.csm.query",
+    "csm_objects_visibility_batch": "warpscatter.csm.query",
+    "csm_visibility_batch": "warpscatter.csm.query",
+    "CSMBuildSettings": "warpscatter.csm.settings",
+    "LightingSettings": "warpscatter.csm.settings",
+    "EnvData": "warpscatter.scene.environment_map",
+    "EnvironmentMap": "warpscatter.scene.environment_map",
+    "AreaLight": "warpscatter.scene.lights",
+    "EnvironmentLight": "warpscatter.scene.lights",
+    "LinearLight": "warpscatter.scene.lights",
+    "LocalLightData": "warpscatter.scene.lights",
+}
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_EXPORTS])
+
+
+__all__ = sorted(_EXPORTS)

@@ -42,8 +42,6 @@ module_options()
 
 #: Most lobes a material may have (beside the diffuse term).
 MAX_LOBES = 4
-#: Rec. 709 luminance weights (used for the sampling weights and the roulette).
-LUMA = (0.2126, 0.7152, 0.0722)
 
 
 @wp.struct

@@ -92,6 +92,17 @@ def segment_depth(lo: float, hi: float) -> float:
     return z
 
 
+@wp.struct
+class StreamState:
+    """Per-texel state of a streaming compression (held by :class:`StreamingCompressor` for the whole run)."""
+
+    lo: wp.array(dtype=wp.float32)  # open segment: running max z_lo
+    hi: wp.array(dtype=wp.float32)  # open segment: running min z_hi
+    out_depth: wp.array2d(dtype=wp.float32)  # (M^2, max_batch + 1): z_avg of the segments a batch closed
+    out_end: wp.array2d(dtype=wp.int32)  # same shape: their i_end
+    out_count: wp.array(dtype=wp.int32)  # segments the batch closed per texel
+
+
 # ---- kernels ---------------------------------------------------------------------------------------
 
 
@@ -101,18 +112,15 @@ def compress_batch_kernel(
     z_hi: wp.array2d(dtype=wp.float32),
     first: int,
     last_map: int,
-    state_lo: wp.array(dtype=wp.float32),
-    state_hi: wp.array(dtype=wp.float32),
-    out_depth: wp.array2d(dtype=wp.float32),
-    out_end: wp.array2d(dtype=wp.int32),
-    out_count: wp.array(dtype=wp.int32),
+    state: StreamState,
     offset: int,
 ):
     """Texel t: push maps first .. first + rows - 1 (rows of z_lo / z_hi) through the open segment; write every
-    segment that closes (and the last one when the batch ends at ``last_map``) to out_*[t, :out_count[t]]."""
+    segment that closes (and the last one when the batch ends at ``last_map``) to
+    state.out_*[t, :state.out_count[t]]."""
     t = wp.tid() + offset
-    lo = state_lo[t]
-    hi = state_hi[t]
+    lo = state.lo[t]
+    hi = state.hi[t]
     n = int(0)
     rows = z_lo.shape[0]
     for k in range(rows):
@@ -129,21 +137,28 @@ def compress_batch_kernel(
                 lo = nlo
                 hi = nhi
             else:
-                out_depth[t, n] = segment_depth(lo, hi)
-                out_end[t, n] = i - 1
+                state.out_depth[t, n] = segment_depth(lo, hi)
+                state.out_end[t, n] = i - 1
                 n += 1
                 lo = a
                 hi = b
     if first + rows - 1 == last_map:
-        out_depth[t, n] = segment_depth(lo, hi)
-        out_end[t, n] = last_map
+        state.out_depth[t, n] = segment_depth(lo, hi)
+        state.out_end[t, n] = last_map
         n += 1
-    state_lo[t] = lo
-    state_hi[t] = hi
-    out_count[t] = n
+    state.lo[t] = lo
+    state.hi[t] = hi
+    state.out_count[t] = n
 
 
 # ---- host side: streaming compression --------------------------------------------------------------
+
+
+def _check_count(name: str, value) -> int:
+    """``value`` as an int, or ValueError unless it is an integer >= 1 (bool excluded)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    return int(value)
 
 
 @dataclass
@@ -239,8 +254,7 @@ class StreamingCompressor:
     def __init__(self, num_texels: int, num_maps: int, max_batch: int, device: str | None = None,
                  threads: int | None = None):
         for name, v in (("num_texels", num_texels), ("num_maps", num_maps), ("max_batch", max_batch)):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+            _check_count(name, v)
         if num_maps > 2**31 - 1:
             raise ValueError(f"num_maps must be < 2^31, got {num_maps}")
         self.device = default_device(device)
@@ -250,16 +264,18 @@ class StreamingCompressor:
         self.max_batch = int(max_batch)
         self.pushed = 0
         t = self.num_texels
-        self._state_lo = wp.zeros(t, dtype=wp.float32, device=self.device)
-        self._state_hi = wp.zeros(t, dtype=wp.float32, device=self.device)
-        self._out_depth = wp.empty((t, self.max_batch + 1), dtype=wp.float32, device=self.device)
-        self._out_end = wp.empty((t, self.max_batch + 1), dtype=wp.int32, device=self.device)
-        self._out_count = wp.zeros(t, dtype=wp.int32, device=self.device)
+        self._state = StreamState()
+        self._state.lo = wp.zeros(t, dtype=wp.float32, device=self.device)
+        self._state.hi = wp.zeros(t, dtype=wp.float32, device=self.device)
+        self._state.out_depth = wp.empty((t, self.max_batch + 1), dtype=wp.float32, device=self.device)
+        self._state.out_end = wp.empty((t, self.max_batch + 1), dtype=wp.int32, device=self.device)
+        self._state.out_count = wp.zeros(t, dtype=wp.int32, device=self.device)
         self._counts = np.zeros(t, dtype=np.int64)  # segments per texel so far
         self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (texel, depth, end) per batch
         #: bytes of the per-texel state and emission buffers (held for the whole run)
-        self.working_bytes = sum(a.capacity for a in (self._state_lo, self._state_hi, self._out_depth,
-                                                      self._out_end, self._out_count)) + self._counts.nbytes
+        st = self._state
+        held = (st.lo, st.hi, st.out_depth, st.out_end, st.out_count)
+        self.working_bytes = sum(a.capacity for a in held) + self._counts.nbytes
         self.peak_working_bytes = self.working_bytes
         self.seconds = 0.0
 
@@ -309,17 +325,16 @@ class StreamingCompressor:
         self.peak_working_bytes = max(self.peak_working_bytes, self.working_bytes + lo.capacity + hi.capacity)
         parallel.launch_rows(
             compress_batch_kernel, self.num_texels,
-            [lo, hi, self.pushed, self.num_maps - 1, self._state_lo, self._state_hi, self._out_depth,
-             self._out_end, self._out_count],
+            [lo, hi, self.pushed, self.num_maps - 1, self._state],
             self.device, threads=self.threads, min_chunk=256,
         )  # fmt: skip
         self.pushed += b
-        counts = self._out_count.numpy()
+        counts = self._state.out_count.numpy()
         total = int(counts.sum())
         if total:
             mask = np.arange(self.max_batch + 1)[None, :] < counts[:, None]
-            depth = self._out_depth.numpy()[mask]  # texel-major, time order within a texel
-            end = self._out_end.numpy()[mask]
+            depth = self._state.out_depth.numpy()[mask]  # texel-major, time order within a texel
+            end = self._state.out_end.numpy()[mask]
             texel = np.repeat(np.arange(self.num_texels, dtype=np.int32), counts)
             self._chunks.append((texel, depth, end))
             self._counts += counts
@@ -389,9 +404,8 @@ def compress_depth_maps(z_lo, z_hi, batch_maps: int = 64, device: str | None = N
         raise ValueError(f"z_lo and z_hi must have equal shapes (N, M, M) or (N, M^2), got {lo.shape}, {hi.shape}")
     n = lo.shape[0]
     texels = int(np.prod(lo.shape[1:]))
-    if isinstance(batch_maps, bool) or not isinstance(batch_maps, (int, np.integer)) or batch_maps < 1:
-        raise ValueError(f"batch_maps must be an integer >= 1, got {batch_maps!r}")
-    comp = StreamingCompressor(texels, n, min(int(batch_maps), n), device)
+    batch_maps = _check_count("batch_maps", batch_maps)
+    comp = StreamingCompressor(texels, n, min(batch_maps, n), device)
     for s in range(0, n, comp.max_batch):
         comp.push(lo[s: s + comp.max_batch], hi[s: s + comp.max_batch])
     return comp.finish()
@@ -487,7 +501,7 @@ def build_csm(
     batch_maps: int = 64,
     center=None,
     radius: float | None = None,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[float], None] | None = None,
     device: str | None = None,
     threads: int | None = None,
 ) -> CoherentShadowMap:
@@ -503,7 +517,8 @@ def build_csm(
         far: ``"sphere"`` (spherical far plane) or ``"infinite"``.
         batch_maps: maps rendered and compressed per batch (memory O(M^2 batch_maps)).
         center, radius: bounding sphere (default: fitted to the vertices).
-        progress: called as ``progress(maps_done, N)`` after each batch.
+        progress: called as ``progress(fraction)`` after each batch, fraction = maps done / N in (0, 1] (as
+            :func:`warpscatter.parallel.launch_rows` reports).
         device: Warp device.
         threads: CPU worker threads.
 
@@ -514,24 +529,21 @@ def build_csm(
     device = default_device(device)
     maps = LatLongMapSet.create(vertices, triangles, n1=n1, n2=n2, resolution=resolution, enumeration=enumeration,
                                 depth_layers=depth_layers, far=far, center=center, radius=radius)  # fmt: skip
-    lists, stats = _stream(maps, batch_maps, progress, device, threads)
-    return CoherentShadowMap(
-        n1=maps.n1, n2=maps.n2, resolution=maps.resolution, center=maps.center, radius=maps.radius,
-        enumeration=enumeration, depth_layers=depth_layers, far=far, map_index=maps.map_index, lists=lists,
-        stats=stats, geometry=geometry_digest(vertices, triangles),
-    )  # fmt: skip
+    return _build(maps, vertices, triangles, batch_maps, progress, device, threads)
 
 
 def _check_batch(batch_maps, progress) -> int:
-    if isinstance(batch_maps, bool) or not isinstance(batch_maps, (int, np.integer)) or batch_maps < 1:
-        raise ValueError(f"batch_maps must be an integer >= 1, got {batch_maps!r}")
+    batch_maps = _check_count("batch_maps", batch_maps)
     if progress is not None and not callable(progress):
-        raise ValueError("progress must be callable as progress(done, total)")
-    return int(batch_maps)
+        raise ValueError("progress must be callable as progress(fraction)")
+    return batch_maps
 
 
-def _stream(maps, batch_maps: int, progress, device: str, threads) -> tuple[SegmentLists, CompressionStats]:
-    """Render ``maps`` (a LatLongMapSet or CubeMapSet) batch by batch in sequence order and compress."""
+def _build(maps, vertices, triangles, batch_maps: int, progress, device: str, threads,
+           **kind_fields) -> CoherentShadowMap:
+    """Render ``maps`` (a LatLongMapSet or CubeMapSet of the mesh ``vertices``, ``triangles``) batch by batch in
+    sequence order, compress them as they stream and return the :class:`CoherentShadowMap` (``kind_fields``: the
+    fields that only cube CSMs set)."""
     n = maps.num_maps
     batch = min(int(batch_maps), n)
     comp = StreamingCompressor(maps.num_texels, n, batch, device, threads)
@@ -550,11 +562,15 @@ def _stream(maps, batch_maps: int, progress, device: str, threads) -> tuple[Segm
         comp.push(z_lo, z_hi)
         del z_lo, z_hi
         if progress is not None:
-            progress(e, n)
+            progress(e / n)
     lists = comp.finish()
     stats = comp.stats(lists)
     stats.seconds_render = render_s
-    return lists, stats
+    return CoherentShadowMap(
+        n1=maps.n1, n2=maps.n2, resolution=maps.resolution, center=maps.center, radius=maps.radius,
+        enumeration=maps.enumeration, depth_layers=maps.depth_layers, far=maps.far, map_index=maps.map_index,
+        lists=lists, stats=stats, geometry=geometry_digest(vertices, triangles), **kind_fields,
+    )  # fmt: skip
 
 
 def build_cube_csm(
@@ -568,7 +584,7 @@ def build_cube_csm(
     far: str = "sphere",
     near: float | None = None,
     batch_maps: int = 64,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[float], None] | None = None,
     device: str | None = None,
 ) -> CoherentShadowMap:
     """Compress the depth cube maps of a fixed local light (Sec. 3.3, 4.2), streaming in batches.
@@ -591,13 +607,8 @@ def build_cube_csm(
     device = default_device(device)
     maps = CubeMapSet.create(vertices, triangles, samples, resolution=resolution, enumeration=enumeration,
                              depth_layers=depth_layers, far=far, near=near)  # fmt: skip
-    lists, stats = _stream(maps, batch_maps, progress, device, None)
-    return CoherentShadowMap(
-        n1=maps.n1, n2=maps.n2, resolution=maps.resolution, center=maps.center, radius=maps.radius,
-        enumeration=enumeration, depth_layers=depth_layers, far=far, map_index=maps.map_index, lists=lists,
-        stats=stats, kind=KIND_CUBE, light_samples=maps.samples, near=maps.near,
-        geometry=geometry_digest(vertices, triangles),
-    )  # fmt: skip
+    return _build(maps, vertices, triangles, batch_maps, progress, device, None, kind=KIND_CUBE,
+                  light_samples=maps.samples, near=maps.near)  # fmt: skip
 
 
 _ARRAYS = ("format_version", "params", "map_index", "seg_start", "seg_depth", "seg_end")

@@ -255,6 +255,16 @@ def _check_options(resolution, enumeration: str, depth_layers: str, far: str) ->
     return resolution
 
 
+def _set_fields(v: np.ndarray, t: np.ndarray, n1: int, n2: int, enumeration: str, depth_layers: str, far: str) -> dict:
+    """The fields every depth-map set fills alike from its checked mesh, its n1 x n2 grid and its options: the
+    options, the enumeration tables ``order`` / ``map_index`` and the mesh as float32 / int32 arrays."""
+    order = enumerate_grid(n1, n2, enumeration)
+    return {
+        "enumeration": enumeration, "depth_layers": depth_layers, "far": far, "order": order,
+        "map_index": sequence_index(order, n1, n2), "vertices": v.astype(np.float32), "triangles": t.astype(np.int32),
+    }  # fmt: skip
+
+
 def _check_mesh(vertices, triangles) -> tuple[np.ndarray, np.ndarray]:
     """(V, 3) finite float64 vertices and (T, 3) in-range integer triangles, or ValueError."""
     v = np.asarray(vertices, dtype=np.float64)
@@ -356,11 +366,9 @@ class LatLongMapSet:
                 raise ValueError(f"radius must be a finite number > 0, got {radius!r}")
             if far_vertex > r:
                 raise ValueError(f"radius {r} does not enclose the mesh (farthest vertex at {far_vertex})")
-        order = enumerate_grid(n1, n2, enumeration)
         return cls(
-            n1=n1, n2=n2, resolution=resolution, center=c, radius=r, enumeration=enumeration,
-            depth_layers=depth_layers, far=far, order=order, map_index=sequence_index(order, n1, n2),
-            frames=latlong_frames(n1, n2), vertices=v.astype(np.float32), triangles=t.astype(np.int32),
+            n1=n1, n2=n2, resolution=resolution, center=c, radius=r, frames=latlong_frames(n1, n2),
+            **_set_fields(v, t, n1, n2, enumeration, depth_layers, far),
         )  # fmt: skip
 
     @property
@@ -553,11 +561,9 @@ class CubeMapSet:
         near = 1e-3 * radius if near is None else float(near)
         if not np.isfinite(near) or near <= 0.0:
             raise ValueError(f"near must be a finite number > 0, got {near}")
-        order = enumerate_grid(n1, n2, enumeration)
         return cls(
             n1=n1, n2=n2, resolution=resolution, samples=s.reshape(-1, 3), center=center, radius=radius, near=near,
-            enumeration=enumeration, depth_layers=depth_layers, far=far, order=order,
-            map_index=sequence_index(order, n1, n2), vertices=v.astype(np.float32), triangles=t.astype(np.int32),
+            **_set_fields(v, t, n1, n2, enumeration, depth_layers, far),
         )  # fmt: skip
 
     @property

@@ -28,10 +28,16 @@ concatenated face by face. A query for a point p and light parameters x selects 
 2^d nearest for PCF / roulette), the cube face k of p - o, and decodes map k N + i (i: the sample's sequence
 index); texels beyond a face's border are clamped to it.
 
+Both kinds share one implementation of the filters (PCF and roulette over 2^2 maps x 2^2 texels): generic
+@wp.funcs over the CSM struct, which Warp compiles once per kind, resolving two per-kind overloads, the texel
+depth test and the 2x2-texel footprint of a point in a map.
+
 ``bias`` is in object-space scene units.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 import warp as wp
@@ -108,12 +114,6 @@ def segment_lookup(
 
 
 @wp.func
-def csm_segment_depth(csm: CSMData, texel: int, sequence: int) -> float:
-    """Stored depth of ``texel`` in map ``sequence`` of a lat-long CSM (:func:`segment_lookup`)."""
-    return segment_lookup(csm.seg_start, csm.seg_depth, csm.seg_end, texel, sequence)
-
-
-@wp.func
 def grid_bilinear(u: float, v: float, n1: int, n2: int, wrap_u: int) -> tuple[wp.vec4i, wp.vec2]:
     """The 2^2 cells of an n1 x n2 grid around parameters (u, v) in [0, 1]^2 and the bilinear weights over
     cell centres: cells (c00, c10, c01, c11) as b n1 + a and (fa, fb); weight of c10 = fa (1 - fb), of
@@ -139,6 +139,109 @@ def grid_bilinear(u: float, v: float, n1: int, n2: int, wrap_u: int) -> tuple[wp
     b1 = wp.clamp(b0 + 1, 0, n2 - 1)
     b0 = wp.clamp(b0, 0, n2 - 1)
     return wp.vec4i(b0 * n1 + a0, b0 * n1 + a1, b1 * n1 + a0, b1 * n1 + a1), wp.vec2(fa, fb)
+
+
+@wp.func
+def bilinear_blend(v00: float, v10: float, v01: float, v11: float, fx: float, fy: float) -> float:
+    """Bilinear interpolation of the corner values v00, v10, v01, v11 with fractions (fx, fy) in [0, 1]^2."""
+    return (1.0 - fy) * ((1.0 - fx) * v00 + fx * v10) + fy * ((1.0 - fx) * v01 + fx * v11)
+
+
+@wp.func
+def bilinear_pick(xi: wp.vec2, w: wp.vec2) -> wp.vec2i:
+    """Corner (dx, dy) in {0, 1}^2 of a bilinear stencil with fractions ``w``, chosen by the uniform numbers
+    ``xi`` in [0, 1)^2 with probability equal to its bilinear weight (dx = 1 iff xi_0 < w_0, likewise dy)."""
+    dx = int(0)
+    dy = int(0)
+    if xi[0] < w[0]:
+        dx = 1
+    if xi[1] < w[1]:
+        dy = 1
+    return wp.vec2i(dx, dy)
+
+
+@wp.func
+def randf4(state: wp.uint32) -> tuple[wp.vec4, wp.uint32]:
+    """Four uniform numbers in [0, 1) drawn in order from the random ``state``, and the advanced state."""
+    xi = wp.vec4(wp.randf(state), wp.randf(state), wp.randf(state), wp.randf(state))
+    return xi, state
+
+
+@wp.func
+def roulette_numbers(filter_mode: int, seed: int, query: int) -> wp.vec4:
+    """The uniform numbers ``xi`` of query ``query`` (random stream (seed, query)) under FILTER_ROULETTE; zero
+    under the other filters, which do not use them."""
+    if filter_mode == FILTER_ROULETTE:
+        xi, _state = randf4(wp.rand_init(seed, query))
+        return xi
+    return wp.vec4(0.0)
+
+
+# ---- the filters of both kinds (Sec. 4.5), generic over CSMData / CubeCSMData -------------------------
+# Per kind, two overloads do what differs: _texel_test (depth test of one texel of a map) and _map_footprint
+# (the 2x2-texel footprint of a point in the map of a grid cell: its sequence index, -1 when nothing there can
+# shadow the point, and the filter coordinates (x - 0.5, y - 0.5) and depth).
+
+
+@wp.func
+def _texel_stencil(sx: float, sy: float) -> tuple[wp.vec2i, wp.vec2]:
+    """Texel (x0, y0) at the lower corner of the 2x2 stencil of filter coordinates (sx, sy) and the fractions
+    (fx, fy) of (sx, sy) past it."""
+    fx0 = wp.floor(sx)
+    fy0 = wp.floor(sy)
+    return wp.vec2i(int(fx0), int(fy0)), wp.vec2(sx - fx0, sy - fy0)
+
+
+@wp.func
+def _map_pcf(csm: Any, cell: int, p: wp.vec3, bias: float) -> float:
+    """Bilinear percentage-closer filter over the 4 texels around ``p`` in the map of ``cell``."""
+    sequence, s = _map_footprint(csm, cell, p)
+    if sequence < 0:
+        return 1.0
+    c, f = _texel_stencil(s[0], s[1])
+    v00 = _texel_test(csm, sequence, c[0], c[1], s[2], bias)
+    v10 = _texel_test(csm, sequence, c[0] + 1, c[1], s[2], bias)
+    v01 = _texel_test(csm, sequence, c[0], c[1] + 1, s[2], bias)
+    v11 = _texel_test(csm, sequence, c[0] + 1, c[1] + 1, s[2], bias)
+    return bilinear_blend(v00, v10, v01, v11, f[0], f[1])
+
+
+@wp.func
+def _map_roulette(csm: Any, cell: int, p: wp.vec3, bias: float, xi: wp.vec2) -> float:
+    """One of the 4 texel tests of :func:`_map_pcf`, picked with its weight by ``xi`` (texel x, texel y)."""
+    sequence, s = _map_footprint(csm, cell, p)
+    if sequence < 0:
+        return 1.0
+    c, f = _texel_stencil(s[0], s[1])
+    d = bilinear_pick(xi, f)
+    return _texel_test(csm, sequence, c[0] + d[0], c[1] + d[1], s[2], bias)
+
+
+@wp.func
+def _cells_pcf(csm: Any, cells: wp.vec4i, w: wp.vec2, p: wp.vec3, bias: float) -> float:
+    """Generalised PCF: the 4-texel PCF of ``p`` in the maps of the 2^2 ``cells``, blended with weights ``w``."""
+    v00 = _map_pcf(csm, cells[0], p, bias)
+    v10 = _map_pcf(csm, cells[1], p, bias)
+    v01 = _map_pcf(csm, cells[2], p, bias)
+    v11 = _map_pcf(csm, cells[3], p, bias)
+    return bilinear_blend(v00, v10, v01, v11, w[0], w[1])
+
+
+@wp.func
+def _cells_roulette(csm: Any, cells: wp.vec4i, w: wp.vec2, p: wp.vec3, bias: float, xi: wp.vec4) -> float:
+    """One of the 16 comparisons of :func:`_cells_pcf`, picked with its weight by ``xi`` (map a, map b,
+    texel x, texel y)."""
+    d = bilinear_pick(wp.vec2(xi[0], xi[1]), w)
+    return _map_roulette(csm, cells[d[0] + 2 * d[1]], p, bias, wp.vec2(xi[2], xi[3]))
+
+
+# ---- lat-long CSMs of distant and semi-local lights (Sec. 4.1, 4.3, 4.6) ----
+
+
+@wp.func
+def csm_segment_depth(csm: CSMData, texel: int, sequence: int) -> float:
+    """Stored depth of ``texel`` in map ``sequence`` of a lat-long CSM (:func:`segment_lookup`)."""
+    return segment_lookup(csm.seg_start, csm.seg_depth, csm.seg_end, texel, sequence)
 
 
 @wp.func
@@ -182,6 +285,25 @@ def csm_texel_visibility(csm: CSMData, sequence: int, x: int, y: int, depth: flo
 
 
 @wp.func
+def _texel_test(csm: CSMData, sequence: int, x: int, y: int, depth: float, bias: float) -> float:
+    """Lat-long overload of the filters' texel test: :func:`csm_texel_visibility`."""
+    return csm_texel_visibility(csm, sequence, x, y, depth, bias)
+
+
+@wp.func
+def _map_footprint(csm: CSMData, cell: int, p: wp.vec3) -> tuple[int, wp.vec3]:
+    """Lat-long overload of the filters' footprint: none (-1) when the 2x2 texels around q = D_i p all lie
+    outside the map (also for NaN)."""
+    q = csm_project(csm, cell, p)
+    m = float(csm.resolution)
+    sx = q[0] - 0.5
+    sy = q[1] - 0.5
+    if not (sx > -1.0 and sx < m and sy > -1.0 and sy < m):
+        return -1, wp.vec3(0.0)
+    return csm.map_index[cell], wp.vec3(sx, sy, q[2])
+
+
+@wp.func
 def csm_map_visibility(csm: CSMData, cell: int, p: wp.vec3, bias: float) -> float:
     """Nearest-texel visibility of ``p`` in the map of ``cell``."""
     q = csm_project(csm, cell, p)
@@ -194,24 +316,7 @@ def csm_map_visibility(csm: CSMData, cell: int, p: wp.vec3, bias: float) -> floa
 @wp.func
 def csm_map_pcf(csm: CSMData, cell: int, p: wp.vec3, bias: float) -> float:
     """Bilinear percentage-closer filter over the 4 texels around ``p`` in the map of ``cell``."""
-    q = csm_project(csm, cell, p)
-    m = float(csm.resolution)
-    sx = q[0] - 0.5
-    sy = q[1] - 0.5
-    if not (sx > -1.0 and sx < m and sy > -1.0 and sy < m):
-        return 1.0
-    fx0 = wp.floor(sx)
-    fy0 = wp.floor(sy)
-    fx = sx - fx0
-    fy = sy - fy0
-    x0 = int(fx0)
-    y0 = int(fy0)
-    seq = csm.map_index[cell]
-    v00 = csm_texel_visibility(csm, seq, x0, y0, q[2], bias)
-    v10 = csm_texel_visibility(csm, seq, x0 + 1, y0, q[2], bias)
-    v01 = csm_texel_visibility(csm, seq, x0, y0 + 1, q[2], bias)
-    v11 = csm_texel_visibility(csm, seq, x0 + 1, y0 + 1, q[2], bias)
-    return (1.0 - fy) * ((1.0 - fx) * v00 + fx * v10) + fy * ((1.0 - fx) * v01 + fx * v11)
+    return _map_pcf(csm, cell, p, bias)
 
 
 @wp.func
@@ -224,13 +329,7 @@ def csm_visibility(csm: CSMData, p: wp.vec3, d: wp.vec3, bias: float) -> float:
 def csm_visibility_pcf(csm: CSMData, p: wp.vec3, d: wp.vec3, bias: float) -> float:
     """Generalised PCF (Ritschel 2007 Sec. 4.5): 4 nearest maps x 4 texels, bilinear weights, in [0, 1]."""
     cells, w = csm_bilinear_cells(csm, d)
-    fa = w[0]
-    fb = w[1]
-    v00 = csm_map_pcf(csm, cells[0], p, bias)
-    v10 = csm_map_pcf(csm, cells[1], p, bias)
-    v01 = csm_map_pcf(csm, cells[2], p, bias)
-    v11 = csm_map_pcf(csm, cells[3], p, bias)
-    return (1.0 - fb) * ((1.0 - fa) * v00 + fa * v10) + fb * ((1.0 - fa) * v01 + fa * v11)
+    return _cells_pcf(csm, cells, w, p, bias)
 
 
 @wp.func
@@ -238,27 +337,7 @@ def csm_visibility_roulette(csm: CSMData, p: wp.vec3, d: wp.vec3, bias: float, x
     """Russian-roulette filter (Sec. 4.5): one of the 16 PCF comparisons, picked with its PCF weight by the
     uniform numbers ``xi`` in [0, 1)^4 (map a, map b, texel x, texel y). E[result] = :func:`csm_visibility_pcf`."""
     cells, w = csm_bilinear_cells(csm, d)
-    k = int(0)
-    if xi[0] < w[0]:
-        k = k + 1
-    if xi[1] < w[1]:
-        k = k + 2
-    cell = cells[k]
-    q = csm_project(csm, cell, p)
-    m = float(csm.resolution)
-    sx = q[0] - 0.5
-    sy = q[1] - 0.5
-    if not (sx > -1.0 and sx < m and sy > -1.0 and sy < m):
-        return 1.0
-    fx0 = wp.floor(sx)
-    fy0 = wp.floor(sy)
-    x = int(fx0)
-    y = int(fy0)
-    if xi[2] < sx - fx0:
-        x = x + 1
-    if xi[3] < sy - fy0:
-        y = y + 1
-    return csm_texel_visibility(csm, csm.map_index[cell], x, y, q[2], bias)
+    return _cells_roulette(csm, cells, w, p, bias, xi)
 
 
 @wp.func
@@ -339,6 +418,22 @@ def csm_cube_texel_visibility(csm: CubeCSMData, sequence: int, x: int, y: int, d
 
 
 @wp.func
+def _texel_test(csm: CubeCSMData, sequence: int, x: int, y: int, depth: float, bias: float) -> float:  # noqa: F811
+    """Cube overload of the filters' texel test: :func:`csm_cube_texel_visibility`."""
+    return csm_cube_texel_visibility(csm, sequence, x, y, depth, bias)
+
+
+@wp.func
+def _map_footprint(csm: CubeCSMData, cell: int, p: wp.vec3) -> tuple[int, wp.vec3]:  # noqa: F811
+    """Cube overload of the filters' footprint: in face k of sample ``cell`` (map k N + i); none (-1) for a
+    point at the sample itself."""
+    k, q = csm_cube_project(csm, cell, p)
+    if q[0] < 0.0:
+        return -1, wp.vec3(0.0)
+    return k * csm.num_samples + csm.map_index[cell], wp.vec3(q[0] - 0.5, q[1] - 0.5, q[2])
+
+
+@wp.func
 def csm_cube_sample_visibility(csm: CubeCSMData, cell: int, p: wp.vec3, bias: float) -> float:
     """Nearest-texel visibility between light sample ``cell`` and ``p`` (Ritschel 2007 Fig. 7 left)."""
     k, q = csm_cube_project(csm, cell, p)
@@ -351,23 +446,7 @@ def csm_cube_sample_visibility(csm: CubeCSMData, cell: int, p: wp.vec3, bias: fl
 @wp.func
 def csm_cube_sample_pcf(csm: CubeCSMData, cell: int, p: wp.vec3, bias: float) -> float:
     """Bilinear PCF over the 4 texels around ``p`` in the selected face of sample ``cell``."""
-    k, q = csm_cube_project(csm, cell, p)
-    if q[0] < 0.0:
-        return 1.0
-    seq = k * csm.num_samples + csm.map_index[cell]
-    sx = q[0] - 0.5
-    sy = q[1] - 0.5
-    fx0 = wp.floor(sx)
-    fy0 = wp.floor(sy)
-    fx = sx - fx0
-    fy = sy - fy0
-    x0 = int(fx0)
-    y0 = int(fy0)
-    v00 = csm_cube_texel_visibility(csm, seq, x0, y0, q[2], bias)
-    v10 = csm_cube_texel_visibility(csm, seq, x0 + 1, y0, q[2], bias)
-    v01 = csm_cube_texel_visibility(csm, seq, x0, y0 + 1, q[2], bias)
-    v11 = csm_cube_texel_visibility(csm, seq, x0 + 1, y0 + 1, q[2], bias)
-    return (1.0 - fy) * ((1.0 - fx) * v00 + fx * v10) + fy * ((1.0 - fx) * v01 + fx * v11)
+    return _map_pcf(csm, cell, p, bias)
 
 
 @wp.func
@@ -389,39 +468,14 @@ def csm_local_visibility_pcf(csm: CubeCSMData, p: wp.vec3, x: wp.vec2, bias: flo
     """Generalised PCF for local lights (Sec. 4.5): the 2^d nearest light samples (bilinear in x, clamped at
     the light's edges; d = 1 when n2 = 1) times 4 texels."""
     cells, w = grid_bilinear(x[0], x[1], csm.n1, csm.n2, 0)
-    fa = w[0]
-    fb = w[1]
-    v00 = csm_cube_sample_pcf(csm, cells[0], p, bias)
-    v10 = csm_cube_sample_pcf(csm, cells[1], p, bias)
-    v01 = csm_cube_sample_pcf(csm, cells[2], p, bias)
-    v11 = csm_cube_sample_pcf(csm, cells[3], p, bias)
-    return (1.0 - fb) * ((1.0 - fa) * v00 + fa * v10) + fb * ((1.0 - fa) * v01 + fa * v11)
+    return _cells_pcf(csm, cells, w, p, bias)
 
 
 @wp.func
 def csm_local_visibility_roulette(csm: CubeCSMData, p: wp.vec3, x: wp.vec2, bias: float, xi: wp.vec4) -> float:
     """Russian-roulette filter for local lights: one of the PCF comparisons, picked with its weight."""
     cells, w = grid_bilinear(x[0], x[1], csm.n1, csm.n2, 0)
-    j = int(0)
-    if xi[0] < w[0]:
-        j = j + 1
-    if xi[1] < w[1]:
-        j = j + 2
-    cell = cells[j]
-    k, q = csm_cube_project(csm, cell, p)
-    if q[0] < 0.0:
-        return 1.0
-    sx = q[0] - 0.5
-    sy = q[1] - 0.5
-    fx0 = wp.floor(sx)
-    fy0 = wp.floor(sy)
-    tx = int(fx0)
-    ty = int(fy0)
-    if xi[2] < sx - fx0:
-        tx = tx + 1
-    if xi[3] < sy - fy0:
-        ty = ty + 1
-    return csm_cube_texel_visibility(csm, k * csm.num_samples + csm.map_index[cell], tx, ty, q[2], bias)
+    return _cells_roulette(csm, cells, w, p, bias, xi)
 
 
 @wp.func
@@ -452,10 +506,7 @@ def visibility_kernel(
 ):
     """out[i] = filtered visibility of (points[i], directions[i]) against one CSM."""
     i = wp.tid() + offset
-    xi = wp.vec4(0.0)
-    if filter_mode == FILTER_ROULETTE:
-        state = wp.rand_init(seed, i)
-        xi = wp.vec4(wp.randf(state), wp.randf(state), wp.randf(state), wp.randf(state))
+    xi = roulette_numbers(filter_mode, seed, i)
     out[i] = csm_visibility_filtered(csm, points[i], directions[i], bias, filter_mode, xi)
 
 
@@ -477,7 +528,7 @@ def objects_visibility_kernel(
     v = float(1.0)
     for k in range(objects.shape[0]):
         po, do = csm_object_space(inv_transforms[k], points[i], directions[i])
-        xi = wp.vec4(wp.randf(state), wp.randf(state), wp.randf(state), wp.randf(state))
+        xi, state = randf4(state)
         v = v * csm_visibility_filtered(objects[k], po, do, bias, filter_mode, xi)
         if v == 0.0:
             break
@@ -497,10 +548,7 @@ def local_visibility_kernel(
 ):
     """out[i] = filtered visibility between points[i] and the light point of parameters light_params[i]."""
     i = wp.tid() + offset
-    xi = wp.vec4(0.0)
-    if filter_mode == FILTER_ROULETTE:
-        state = wp.rand_init(seed, i)
-        xi = wp.vec4(wp.randf(state), wp.randf(state), wp.randf(state), wp.randf(state))
+    xi = roulette_numbers(filter_mode, seed, i)
     out[i] = csm_local_visibility_filtered(csm, points[i], light_params[i], bias, filter_mode, xi)
 
 
@@ -512,26 +560,20 @@ def csm_device_data(csm: CoherentShadowMap, device: str | None = None) -> CSMDat
     then cached on the CSM object)."""
     device = default_device(device)
     key = str(device)
-    if key not in csm._device_cache and csm.kind == KIND_CUBE:
-        d = CubeCSMData()
-        d.resolution = int(csm.resolution)
-        d.n1, d.n2 = int(csm.n1), int(csm.n2)
-        d.num_samples = int(csm.num_cells)
-        d.faces = wp.array(cube_face_frames().astype(np.float32), dtype=wp.mat33, device=device)
-        d.samples = wp.array(np.asarray(csm.light_samples, np.float32), dtype=wp.vec3, device=device)
-        d.map_index = wp.array(csm.map_index.ravel().astype(np.int32), dtype=wp.int32, device=device)
-        d.seg_start = wp.array(csm.lists.seg_start, dtype=wp.int32, device=device)
-        d.seg_depth = wp.array(csm.lists.seg_depth, dtype=wp.float32, device=device)
-        d.seg_end = wp.array(csm.lists.seg_end, dtype=wp.int32, device=device)
-        csm._device_cache[key] = d
     if key not in csm._device_cache:
-        d = CSMData()
-        d.center = wp.vec3(*(float(x) for x in csm.center))
-        d.radius = float(csm.radius)
+        if csm.kind == KIND_CUBE:
+            d = CubeCSMData()
+            d.num_samples = int(csm.num_cells)
+            d.faces = wp.array(cube_face_frames().astype(np.float32), dtype=wp.mat33, device=device)
+            d.samples = wp.array(np.asarray(csm.light_samples, np.float32), dtype=wp.vec3, device=device)
+        else:
+            d = CSMData()
+            d.center = wp.vec3(*(float(x) for x in csm.center))
+            d.radius = float(csm.radius)
+            d.num_maps = int(csm.num_maps)
+            d.frames = wp.array(csm.frames.astype(np.float32), dtype=wp.mat33, device=device)
         d.resolution = int(csm.resolution)
         d.n1, d.n2 = int(csm.n1), int(csm.n2)
-        d.num_maps = int(csm.num_maps)
-        d.frames = wp.array(csm.frames.astype(np.float32), dtype=wp.mat33, device=device)
         d.map_index = wp.array(csm.map_index.ravel().astype(np.int32), dtype=wp.int32, device=device)
         d.seg_start = wp.array(csm.lists.seg_start, dtype=wp.int32, device=device)
         d.seg_depth = wp.array(csm.lists.seg_depth, dtype=wp.float32, device=device)
@@ -554,6 +596,19 @@ def _vec3_rows(a, name: str, n: int | None = None) -> np.ndarray:
     return np.ascontiguousarray(v)
 
 
+def _directions(directions, n: int) -> np.ndarray:
+    """Checked (n, 3) float32 non-zero directions."""
+    d = _vec3_rows(directions, "directions", n)
+    if np.any(np.all(d == 0.0, axis=1)):
+        raise ValueError("directions must be non-zero")
+    return d
+
+
+def _check_bias(bias) -> None:
+    if not np.isfinite(bias) or bias < 0.0:
+        raise ValueError(f"bias must be a finite number >= 0, got {bias!r}")
+
+
 def _expect_kind(csm, kind: str, name: str) -> None:
     if not isinstance(csm, CoherentShadowMap):
         raise ValueError(f"{name} must be a CoherentShadowMap, got {type(csm).__name__}")
@@ -565,6 +620,19 @@ def _filter_mode(filter: str) -> int:
     if filter not in FILTERS:
         raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {filter!r}")
     return FILTERS[filter]
+
+
+def _run_query(kernel, csm_inputs, points, queries, dtype, bias, mode, seed, device, threads) -> np.ndarray:
+    """Upload checked query arrays and launch ``kernel`` over their K rows, with the inputs ``*csm_inputs,
+    points, queries (of Warp type dtype), bias, mode, seed, out``; returns out, (K,) float32."""
+    out = wp.empty(points.shape[0], dtype=wp.float32, device=device)
+    parallel.launch_rows(
+        kernel, points.shape[0],
+        [*csm_inputs, wp.array(points, dtype=wp.vec3, device=device), wp.array(queries, dtype=dtype, device=device),
+         float(bias), mode, int(seed), out],
+        device, threads=threads, min_chunk=1024,
+    )  # fmt: skip
+    return out.numpy()
 
 
 def csm_visibility_batch(
@@ -599,21 +667,11 @@ def csm_visibility_batch(
     device = default_device(device)
     mode = _filter_mode(filter)
     p = _vec3_rows(points, "points")
-    d = _vec3_rows(directions, "directions", p.shape[0])
-    if np.any(np.all(d == 0.0, axis=1)):
-        raise ValueError("directions must be non-zero")
-    if not np.isfinite(bias) or bias < 0.0:
-        raise ValueError(f"bias must be a finite number >= 0, got {bias!r}")
+    d = _directions(directions, p.shape[0])
+    _check_bias(bias)
     _expect_kind(csm, KIND_LATLONG, "csm")
-    out = wp.empty(p.shape[0], dtype=wp.float32, device=device)
-    data = csm_device_data(csm, device)
-    parallel.launch_rows(
-        visibility_kernel, p.shape[0],
-        [data, wp.array(p, dtype=wp.vec3, device=device), wp.array(d, dtype=wp.vec3, device=device), float(bias),
-         mode, int(seed), out],
-        device, threads=threads, min_chunk=1024,
-    )  # fmt: skip
-    return out.numpy()
+    return _run_query(visibility_kernel, [csm_device_data(csm, device)], p, d, wp.vec3, bias=bias, mode=mode,
+                      seed=seed, device=device, threads=threads)  # fmt: skip
 
 
 def csm_objects_visibility_batch(
@@ -646,11 +704,8 @@ def csm_objects_visibility_batch(
     if not objects:
         raise ValueError("objects must hold at least one (csm, transform) pair")
     p = _vec3_rows(points, "points")
-    d = _vec3_rows(directions, "directions", p.shape[0])
-    if np.any(np.all(d == 0.0, axis=1)):
-        raise ValueError("directions must be non-zero")
-    if not np.isfinite(bias) or bias < 0.0:
-        raise ValueError(f"bias must be a finite number >= 0, got {bias!r}")
+    d = _directions(directions, p.shape[0])
+    _check_bias(bias)
     datas, invs = [], []
     for k, (csm, transform) in enumerate(objects):
         t = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
@@ -661,15 +716,10 @@ def csm_objects_visibility_batch(
         _expect_kind(csm, KIND_LATLONG, f"objects[{k}] csm")
         datas.append(csm_device_data(csm, device))
         invs.append(np.linalg.inv(t).astype(np.float32))
-    out = wp.empty(p.shape[0], dtype=wp.float32, device=device)
-    parallel.launch_rows(
-        objects_visibility_kernel, p.shape[0],
-        [wp.array(datas, dtype=CSMData, device=device), wp.array(np.stack(invs), dtype=wp.mat44, device=device),
-         wp.array(p, dtype=wp.vec3, device=device), wp.array(d, dtype=wp.vec3, device=device), float(bias), mode,
-         int(seed), out],
-        device, threads=threads, min_chunk=1024,
-    )  # fmt: skip
-    return out.numpy()
+    csm_inputs = [wp.array(datas, dtype=CSMData, device=device),
+                  wp.array(np.stack(invs), dtype=wp.mat44, device=device)]  # fmt: skip
+    return _run_query(objects_visibility_kernel, csm_inputs, p, d, wp.vec3, bias=bias, mode=mode, seed=seed,
+                      device=device, threads=threads)  # fmt: skip
 
 
 def csm_local_visibility_batch(
@@ -709,13 +759,6 @@ def csm_local_visibility_batch(
         raise ValueError(f"light_params must have shape ({p.shape[0]}, 2), got {x.shape}")
     if not np.all((x >= 0.0) & (x <= 1.0)):
         raise ValueError("light_params must lie in [0, 1]")
-    if not np.isfinite(bias) or bias < 0.0:
-        raise ValueError(f"bias must be a finite number >= 0, got {bias!r}")
-    out = wp.empty(p.shape[0], dtype=wp.float32, device=device)
-    parallel.launch_rows(
-        local_visibility_kernel, p.shape[0],
-        [csm_device_data(csm, device), wp.array(p, dtype=wp.vec3, device=device),
-         wp.array(np.ascontiguousarray(x), dtype=wp.vec2, device=device), float(bias), mode, int(seed), out],
-        device, threads=threads, min_chunk=1024,
-    )  # fmt: skip
-    return out.numpy()
+    _check_bias(bias)
+    return _run_query(local_visibility_kernel, [csm_device_data(csm, device)], p, np.ascontiguousarray(x), wp.vec2,
+                      bias=bias, mode=mode, seed=seed, device=device, threads=threads)  # fmt: skip

@@ -17,7 +17,7 @@ Sec. 4.2, Fig. 4):
 In that space a camera view ray q = t (a, b, c) keeps the slopes y/x = b/a and z/x = c/a, so it lies
 in ONE row (the epipolar slice y/x) at ONE depth (z/x) and runs along the columns from the camera
 outward; a light ray keeps x and y (one texel) while z/x grows along the light (shadow-map depth).
-Rectified coordinates (the same convention as :mod:`.rectify`, so one evaluation serves both):
+Rectified coordinates (the same convention as :mod:`.rectify_nonlinear`, so one evaluation serves both):
 
 * u = column coordinate in [0, 1]: the projective depth of x, u = f (x - n) / ((f - n) x) (NDC x
   of the matrix mapped to [0, 1]); texel i has its centre at u = (i + 0.5) / cols;
@@ -64,8 +64,8 @@ import warp as wp
 from .. import raster
 from ..scene.camera import normalize
 from ..wpinit import default_device, module_options
-from .prefilter import split_columns
-from .rectify import check_reference_method, median_per_row
+from .prefix_sums import split_columns
+from .rectify_nonlinear import check_reference_method, median_per_row
 
 module_options()
 
@@ -514,7 +514,7 @@ def reference_rays(rect: ProjectiveRectification, method: str = "optimal", camer
             here, so it is always defined); ``"bisectrix"`` the angle bisector of omega_min and omega_max;
             ``"mean"`` the middle of the global depth-slope bounds; ``"pixels"`` the median-k pixel ray of
             the slice (every ``pixel_stride``-th pixel; the bisectrix where none), as
-            :func:`~.rectify.reference_ray` does for the non-linear rectification.
+            :func:`~.rectify_nonlinear.reference_ray` does for the non-linear rectification.
         camera: the camera, required by ``"pixels"``.
         pixel_stride: pixel subsampling of ``"pixels"`` (>= 1).
 

@@ -8,14 +8,16 @@ into one vertex/triangle array with a per-triangle material index.
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
-import warp as wp
 
-from .camera import Camera
-from .lights import DirectionalLight, SpotLight
-from .medium import Medium
+if TYPE_CHECKING:
+    from .camera import Camera
+    from .lights import Light
+    from .medium import Medium
 
 
 @dataclass
@@ -32,6 +34,8 @@ class Scene:
         receiver_only: (K,) bool per material, or None (all cast): materials that receive shadows but cast none
             (config ``scene.meshes.N.receiver_only``). They are left out of every shadow map, moment map, rectified
             map, exact-visibility BVH and CSM; see :meth:`casters`.
+        brdfs: per material the BRDF of the lighting methods as
+            :meth:`~warpscatter.csm.brdf.MaterialTable.from_specs` reads it, or None (Lambert with ``albedo``).
     """
 
     vertices: np.ndarray
@@ -40,9 +44,10 @@ class Scene:
     albedo: np.ndarray
     opacity: np.ndarray
     camera: Camera
-    light: DirectionalLight | SpotLight
+    light: Light
     medium: Medium
     receiver_only: np.ndarray | None = None
+    brdfs: list[dict] | None = None
 
     @property
     def triangle_count(self) -> int:
@@ -69,6 +74,13 @@ class Scene:
             verts = self.vertices
         return replace(self, vertices=verts, triangles=tris, tri_material=self.tri_material[keep], receiver_only=None)
 
+    def brdf_specs(self) -> list[dict]:
+        """Per material the BRDF as :meth:`~warpscatter.csm.brdf.MaterialTable.from_specs` reads it (Lambert with
+        ``albedo`` where the scene gives none)."""
+        if self.brdfs is not None:
+            return self.brdfs
+        return [{"albedo": tuple(float(c) for c in a)} for a in self.albedo]
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounds (min, max) of all vertices, float64."""
         v = self.vertices.astype(np.float64)
@@ -82,78 +94,59 @@ def compact_mesh(vertices, triangles) -> tuple[np.ndarray, np.ndarray]:
             np.ascontiguousarray(inverse.reshape(-1, 3), np.int32))
 
 
-class DeviceGeometry:
-    """A scene's triangles on a Warp device, with the ``wp.Mesh`` BVH built on first use.
-
-    Attributes:
-        vertices: wp.array(vec3) world positions.
-        triangles: wp.array2d(int32) (T, 3) indices.
-        tri_material: wp.array(int32) material per triangle.
-    """
-
-    def __init__(self, scene: "Scene", device=None):
-        from ..wpinit import default_device
-
-        self.device = default_device(device)
-        self.vertices = wp.array(scene.vertices, dtype=wp.vec3, device=self.device)
-        self.triangles = wp.array(scene.triangles, dtype=wp.int32, device=self.device)
-        self.tri_material = wp.array(scene.tri_material, dtype=wp.int32, device=self.device)
-        self._indices = wp.array(scene.triangles.ravel(), dtype=wp.int32, device=self.device)
-        self._mesh = None
-        casters = scene.casters()
-        self._casters = None if casters is scene else casters  # None: every triangle casts
-        self._shadow_mesh = None
-
-    @property
-    def mesh(self) -> wp.Mesh:
-        """The BVH (``wp.Mesh``) over the triangles; built once, on first access."""
-        if self._mesh is None:
-            self._mesh = wp.Mesh(points=self.vertices, indices=self._indices)
-        return self._mesh
-
-    @property
-    def shadow_mesh(self) -> wp.Mesh:
-        """The BVH of the shadow casters (:meth:`Scene.casters`), for exact visibility; :attr:`mesh` when every
-        material casts. Built once, on first access.
-
-        Raises:
-            ValueError: when every material is ``receiver_only`` (nothing casts).
-        """
-        if self._casters is None:
-            return self.mesh
-        if self._shadow_mesh is None:
-            if self._casters.triangle_count == 0:
-                raise ValueError("scene: every mesh is receiver_only, so nothing casts a shadow")
-            from ..raycast import build_mesh
-
-            self._shadow_mesh = build_mesh(self._casters.vertices, self._casters.triangles, device=self.device)
-        return self._shadow_mesh
-
-
 def camera_from_config(c) -> Camera:
+    """The :class:`~.camera.Camera` of a validated ``camera`` section."""
+    from .camera import Camera
+
     return Camera(position=c.position, look_at=c.look_at, up=c.up, fov_y=c.fov_y, width=c.width,
                   height=c.height, near=c.near, far=c.far)
 
 
-def light_from_config(c) -> DirectionalLight | SpotLight:
-    if c.type in ("environment", "area", "linear"):  # Monte-Carlo lights of render.lighting (warpscatter.csm)
-        from ..csm.render import light_from_config as mc_light_from_config
+def light_from_config(c) -> Light:
+    """The host light of a validated ``light`` section.
 
-        return mc_light_from_config(c)
+    Raises:
+        ConfigError: a texture or environment map that cannot be read or is not a valid radiance map.
+    """
+    from ..errors import ConfigError
+    from ..imageio import read_image
+    from .lights import AreaLight, DirectionalLight, EnvironmentLight, LinearLight, SpotLight
+
     if c.type == "directional":
         return DirectionalLight(direction=c.direction, irradiance=c.irradiance)
-    texture = None
-    if c.texture is not None:
-        from ..imageio import read_image
+    if c.type == "spot":
+        texture = None
+        if c.texture is not None:
+            texture = read_image(c.texture)[..., :3].astype(np.float32)
+            if texture.shape[-1] == 1:
+                texture = np.repeat(texture, 3, axis=-1)
+        return SpotLight(position=c.position, direction=c.direction, cone_deg=c.cone_deg, intensity=c.intensity,
+                         texture=texture)
+    if c.type == "environment":
+        from .environment_map import EnvironmentMap
 
-        texture = read_image(c.texture)[..., :3].astype(np.float32)
-        if texture.shape[-1] == 1:
-            texture = np.repeat(texture, 3, axis=-1)
-    return SpotLight(position=c.position, direction=c.direction, cone_deg=c.cone_deg, intensity=c.intensity,
-                     texture=texture)
+        try:
+            image = read_image(c.map)
+        except OSError as exc:
+            raise ConfigError(f"light.map: {exc}") from None
+        if image.ndim == 3 and image.shape[2] == 1:
+            image = np.repeat(image, 3, axis=2)
+        try:
+            return EnvironmentLight(EnvironmentMap(np.asarray(image)[..., :3] * np.float32(c.scale)))
+        except ValueError as exc:
+            raise ConfigError(f"light.map: {c.map}: {exc}") from None
+    if c.type == "area":
+        if c.power is not None:
+            return AreaLight.from_power(c.position, c.u, c.v, c.power, c.two_sided)
+        return AreaLight(c.position, c.u, c.v, c.radiance if c.radiance is not None else (1.0, 1.0, 1.0),
+                         c.two_sided)
+    return LinearLight(c.start, c.end, c.intensity)
 
 
 def medium_from_config(c) -> Medium:
+    """The :class:`~.medium.Medium` of a validated ``medium`` section."""
+    from .medium import Medium
+
     g = getattr(c.phase, "g", 0.0)
     return Medium(sigma_t=c.sigma_t, albedo=c.albedo, phase=c.phase.type, g=g)
 
@@ -191,7 +184,19 @@ def build_scene(cfg) -> Scene:
         opacity=np.asarray(opacity, dtype=np.float32),
         receiver_only=(np.array([m.receiver_only for m in cfg.scene.meshes], bool)
                        if any(m.receiver_only for m in cfg.scene.meshes) else None),
+        brdfs=[m.material.brdf_spec() for m in cfg.scene.meshes],
         camera=camera_from_config(cfg.camera),
         light=light_from_config(cfg.light),
         medium=medium_from_config(cfg.medium),
     )
+
+
+#: Names served from the Warp-side module :mod:`.geometry` (loaded on first access: building and validating
+#: scenes needs no Warp).
+_GEOMETRY = ("DeviceGeometry", "MeshArrays")
+
+
+def __getattr__(name: str):
+    if name in _GEOMETRY:
+        return getattr(importlib.import_module(f"{__name__}.geometry"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

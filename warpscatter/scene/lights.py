@@ -1,4 +1,6 @@
-"""Light sources (CONVENTIONS.md): directional and spot lights, host-side and as kernels see them.
+"""Light sources (CONVENTIONS.md): every light's host class, and the classic lights as kernels see them.
+
+Classic lights (the scattering methods and surface shading, :class:`LightParams`, :func:`light_sample`):
 
 * Directional: ``direction`` is the unit direction light TRAVELS; ``irradiance`` RGB on a plane
   perpendicular to it. The light is at infinity: every point of the medium receives the same E.
@@ -8,25 +10,45 @@
   perspective projection (field of view 2 * cone_deg, its +v axis along the light's up), so a
   spot shadow map and its texture share texel coordinates.
 
-``LightParams`` is a single struct for both types so kernels need one code path;
-:func:`light_sample` returns, for a world point, the incident irradiance, the unit direction the
-light travels at that point and the distance to the light (inf for directional lights).
+Monte-Carlo lights (``render.lighting``, Ritschel et al. 2007 Sec. 5; their estimators are in :mod:`warpscatter.csm`):
+
+* Environment: a distant lat-long radiance map with importance-sampling tables
+  (:class:`~warpscatter.scene.environment_map.EnvironmentMap`).
+* Area: the parallelogram y(s, t) = corner + s u + t v, (s, t) in [0, 1]^2, area A = |u x v|, unit normal
+  n_l = (u x v) / A, constant radiance L_e from its front side (or both sides when ``two_sided``); a light given
+  by its power P has L_e = P / (pi A) (one-sided) or P / (2 pi A).
+* Linear: the segment y(s) = start + s (end - start) of length l, an isotropic line emitter of intensity I per
+  unit length (W sr^-1 unit^-1): dE = I cos(theta_x) / d^2 dl.
+
+``LightParams`` is a single struct for both classic types so kernels need one code path (it holds the spot's
+texture array); :func:`light_sample` returns, for a world point, the incident irradiance, the unit direction the
+light travels at that point and the distance to the light (inf for directional lights). Area and linear lights
+reach kernels as :class:`LocalLightData`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Union
 
 import numpy as np
 import warp as wp
 
-from ..wpinit import module_options
+from ..wpinit import default_device, module_options
 from .camera import look_at_basis, normalize, perspective_matrix, view_matrix
+from .environment_map import EnvironmentMap
 
 module_options()
 
-LIGHT_DIRECTIONAL = 0
-LIGHT_SPOT = 1
+#: ``LightParams.kind`` of the classic lights.
+LIGHT_DIRECTIONAL = wp.constant(0)
+LIGHT_SPOT = wp.constant(1)
+#: ``LocalLightData.kind`` of the Monte-Carlo local lights.
+LOCAL_LIGHT_AREA = wp.constant(0)
+LOCAL_LIGHT_LINEAR = wp.constant(1)
+
+
+# ---- host classes ---------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -77,6 +99,200 @@ class SpotLight:
         return perspective_matrix(2.0 * self.cone_deg, 1.0, near, far) @ view_matrix(self.position, *self.basis())
 
 
+@dataclass(frozen=True)
+class EnvironmentLight:
+    """A distant lat-long environment map (radiance texels, already multiplied by the config's ``scale``)."""
+
+    env: EnvironmentMap
+
+    kind = "environment"
+
+
+def _vec(a, name: str) -> np.ndarray:
+    v = np.asarray(a, np.float64)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ValueError(f"{name} must be 3 finite numbers, got {a!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class AreaLight:
+    """Parallelogram light corner + s u + t v with constant radiance (see the module docstring).
+
+    Args:
+        corner, u, v: the corner y(0, 0) and the two edge vectors (scene units, not parallel).
+        radiance: RGB radiance L_e (W m^-2 sr^-1 in scene units).
+        two_sided: emit from both sides (else only towards n_l = u x v / |u x v|).
+    """
+
+    corner: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    radiance: np.ndarray
+    two_sided: bool = False
+
+    kind = "area"
+
+    def __post_init__(self):
+        for name in ("corner", "u", "v", "radiance"):
+            object.__setattr__(self, name, _vec(getattr(self, name), name))
+        if np.any(self.radiance < 0.0):
+            raise ValueError("radiance must be >= 0")
+        if not self.area > 1e-12 * max(np.dot(self.u, self.u), np.dot(self.v, self.v), 1e-30):
+            raise ValueError("u and v must span a parallelogram (non-zero and not parallel)")
+
+    @classmethod
+    def from_power(cls, corner, u, v, power, two_sided: bool = False) -> AreaLight:
+        """The light emitting RGB ``power`` (W): L_e = P / (pi A), or P / (2 pi A) when two-sided."""
+        a = float(np.linalg.norm(np.cross(_vec(u, "u"), _vec(v, "v"))))
+        if not a > 0.0:
+            raise ValueError("u and v must span a parallelogram (non-zero and not parallel)")
+        return cls(corner, u, v, _vec(power, "power") / ((2.0 if two_sided else 1.0) * np.pi * a), two_sided)
+
+    @property
+    def area(self) -> float:
+        """A = |u x v|."""
+        return float(np.linalg.norm(np.cross(self.u, self.v)))
+
+    @property
+    def normal(self) -> np.ndarray:
+        """Unit n_l = (u x v) / A."""
+        c = np.cross(self.u, self.v)
+        return c / np.linalg.norm(c)
+
+    def sample_points(self, n1: int, n2: int) -> np.ndarray:
+        """(n2, n1, 3) cell centres: the sample points of its cube CSM (Sec. 4.2)."""
+        from ..csm.depthmaps import parallelogram_light_samples
+
+        return parallelogram_light_samples(self.corner, self.u, self.v, n1, n2)
+
+    def device_data(self) -> LocalLightData:
+        """The light as kernels see it (:class:`LocalLightData`)."""
+        d = LocalLightData()
+        d.kind = LOCAL_LIGHT_AREA
+        d.origin, d.edge_u, d.edge_v = (wp.vec3(*map(float, a)) for a in (self.corner, self.u, self.v))
+        d.normal = wp.vec3(*map(float, self.normal))
+        d.size = self.area
+        d.emission = wp.vec3(*map(float, self.radiance))
+        d.two_sided = int(bool(self.two_sided))
+        return d
+
+
+@dataclass(frozen=True)
+class LinearLight:
+    """Segment light start -> end, isotropic, RGB ``intensity`` per unit length (W sr^-1 unit^-1)."""
+
+    start: np.ndarray
+    end: np.ndarray
+    intensity: np.ndarray
+
+    kind = "linear"
+
+    def __post_init__(self):
+        for name in ("start", "end", "intensity"):
+            object.__setattr__(self, name, _vec(getattr(self, name), name))
+        if np.any(self.intensity < 0.0):
+            raise ValueError("intensity must be >= 0")
+        if not self.length > 0.0:
+            raise ValueError("start and end must differ")
+
+    @property
+    def length(self) -> float:
+        return float(np.linalg.norm(self.end - self.start))
+
+    def sample_points(self, n1: int, n2: int = 1) -> np.ndarray:
+        """(1, n1, 3) cell centres of the segment: the sample points of its cube CSM (``n2`` is ignored)."""
+        from ..csm.depthmaps import segment_light_samples
+
+        return segment_light_samples(self.start, self.end, n1)
+
+    def device_data(self) -> LocalLightData:
+        """The light as kernels see it (:class:`LocalLightData`)."""
+        d = LocalLightData()
+        d.kind = LOCAL_LIGHT_LINEAR
+        d.origin = wp.vec3(*map(float, self.start))
+        d.edge_u = wp.vec3(*map(float, self.end - self.start))
+        d.edge_v = wp.vec3(0.0, 0.0, 0.0)
+        d.normal = wp.vec3(0.0, 0.0, 0.0)
+        d.size = self.length
+        d.emission = wp.vec3(*map(float, self.intensity))
+        d.two_sided = 1
+        return d
+
+
+#: Any light of a :class:`~warpscatter.scene.Scene`.
+Light = Union[DirectionalLight, SpotLight, EnvironmentLight, AreaLight, LinearLight]
+
+
+# ---- kernel views ---------------------------------------------------------------------------------
+
+
+@wp.struct
+class LocalLightData:
+    """An area or linear light as kernels see it (build with :meth:`AreaLight.device_data` /
+    :meth:`LinearLight.device_data`)."""
+
+    kind: int  # LOCAL_LIGHT_AREA or LOCAL_LIGHT_LINEAR
+    origin: wp.vec3  # area: corner y(0, 0); linear: start
+    edge_u: wp.vec3  # area: u; linear: end - start
+    edge_v: wp.vec3  # area: v; linear: unused (0)
+    normal: wp.vec3  # area: unit n_l = (u x v) / A
+    size: float  # area A (area) or length l (linear)
+    emission: wp.vec3  # area: radiance L_e; linear: intensity per unit length I
+    two_sided: int  # area: 1 emits from both sides
+
+
+@wp.func
+def area_light_point(light: LocalLightData, st: wp.vec2) -> wp.vec3:
+    """y(s, t) = corner + s u + t v."""
+    return light.origin + st[0] * light.edge_u + st[1] * light.edge_v
+
+
+@wp.func
+def area_light_radiance(light: LocalLightData, w: wp.vec3) -> wp.vec3:
+    """Radiance L_e leaving the light along the unit direction ``w`` (from the light towards the receiver);
+    0 behind a one-sided light."""
+    if light.two_sided == 0 and wp.dot(light.normal, w) <= 0.0:
+        return wp.vec3(0.0)
+    return light.emission
+
+
+@wp.func
+def area_light_pdf(light: LocalLightData, x: wp.vec3, y: wp.vec3) -> float:
+    """Solid-angle density (1/sr) of uniform area sampling seen from ``x``: d^2 / (A |cos theta_l|); 0 when
+    grazing."""
+    w = y - x
+    d2 = wp.dot(w, w)
+    c = wp.abs(wp.dot(light.normal, w)) / wp.sqrt(d2)
+    if not (c > 1.0e-7) or not (light.size > 0.0):
+        return 0.0
+    return d2 / (light.size * c)
+
+
+@wp.func
+def area_light_intersect(light: LocalLightData, x: wp.vec3, d: wp.vec3) -> tuple[float, wp.vec2]:
+    """Ray x + r d (unit d) against the parallelogram: (r, (s, t)) of the hit, r = -1 when missed."""
+    denom = wp.dot(light.normal, d)
+    if wp.abs(denom) < 1.0e-9:
+        return -1.0, wp.vec2(0.0)
+    r = wp.dot(light.normal, light.origin - x) / denom
+    if not (r > 0.0):
+        return -1.0, wp.vec2(0.0)
+    q = x + r * d - light.origin
+    # solve q = s u + t v in the plane (Gram matrix of u, v)
+    uu = wp.dot(light.edge_u, light.edge_u)
+    uv = wp.dot(light.edge_u, light.edge_v)
+    vv = wp.dot(light.edge_v, light.edge_v)
+    qu = wp.dot(q, light.edge_u)
+    qv = wp.dot(q, light.edge_v)
+    det = uu * vv - uv * uv
+    s = (qu * vv - qv * uv) / det
+    t = (qv * uu - qu * uv) / det
+    if s < 0.0 or s > 1.0 or t < 0.0 or t > 1.0:
+        return -1.0, wp.vec2(0.0)
+    return r, wp.vec2(s, t)
+
+
 @wp.struct
 class LightParams:
     """A light as kernels see it (one struct for every light type)."""
@@ -90,10 +306,18 @@ class LightParams:
     tan_cone: float  # tan(cone half-angle)
     cos_cone: float  # cos(cone half-angle)
     has_texture: int
+    texture: wp.array2d(dtype=wp.vec3)  # spot light texture, row 0 = top (+v); a 1x1 white texel without one
 
 
-def light_params(light) -> LightParams:
-    """Build :class:`LightParams` from a :class:`DirectionalLight` or :class:`SpotLight`."""
+def light_params(light, device=None, texture: wp.array | None = None) -> LightParams:
+    """:class:`LightParams` of a :class:`DirectionalLight` or :class:`SpotLight` on ``device``.
+
+    Args:
+        light: the light.
+        device: Warp device of the texture array.
+        texture: an (H, W) vec3 array to use as the spot's texture instead of ``light.texture`` (a prefiltered
+            copy, say).
+    """
     p = LightParams()
     p.direction = wp.vec3(*light.direction)
     if isinstance(light, DirectionalLight):
@@ -115,6 +339,7 @@ def light_params(light) -> LightParams:
         p.tan_cone = float(np.tan(np.radians(light.cone_deg)))
         p.cos_cone = float(np.cos(np.radians(light.cone_deg)))
         p.has_texture = int(light.texture is not None)
+    p.texture = texture if texture is not None else light_texture_array(light, device)
     return p
 
 
@@ -123,7 +348,8 @@ def light_texture_array(light, device=None) -> wp.array:
     tex = getattr(light, "texture", None)
     if tex is None:
         tex = np.ones((1, 1, 3), dtype=np.float32)
-    return wp.array(np.ascontiguousarray(tex[..., :3], dtype=np.float32), dtype=wp.vec3, device=device)
+    return wp.array(np.ascontiguousarray(tex[..., :3], dtype=np.float32), dtype=wp.vec3,
+                    device=default_device(device))
 
 
 @wp.func
@@ -145,14 +371,14 @@ def sample_bilinear_rgb(tex: wp.array2d(dtype=wp.vec3), u: float, v: float) -> w
 
 
 @wp.func
-def light_sample(light: LightParams, tex: wp.array2d(dtype=wp.vec3), x: wp.vec3):
+def light_sample(light: LightParams, x: wp.vec3):
     """Incident light at world point ``x``.
 
     Returns:
         (E, omega_l, dist): irradiance RGB at x on a plane facing the light (0 outside a spot's cone),
         the unit direction light travels at x, and the distance from x to the light (1e30 when directional).
     """
-    if light.kind == 0:
+    if light.kind == LIGHT_DIRECTIONAL:
         return light.radiance, light.direction, 1.0e30
     to_x = x - light.position
     d2 = wp.max(wp.dot(to_x, to_x), 1.0e-20)
@@ -166,6 +392,6 @@ def light_sample(light: LightParams, tex: wp.array2d(dtype=wp.vec3), x: wp.vec3)
             # project onto the spot's image plane at unit distance: [-1,1]^2 spans the cone's square
             su = wp.dot(omega, light.right) / (c * light.tan_cone)
             sv = wp.dot(omega, light.up) / (c * light.tan_cone)
-            t = sample_bilinear_rgb(tex, 0.5 * su + 0.5, 0.5 - 0.5 * sv)
+            t = sample_bilinear_rgb(light.texture, 0.5 * su + 0.5, 0.5 - 0.5 * sv)
             e = wp.cw_mul(e, t)
     return e, omega, d

@@ -19,8 +19,8 @@ module_options()
 INV_FOUR_PI = 1.0 / (4.0 * math.pi)
 
 #: Phase-function ids used by kernels.
-PHASE_ISOTROPIC = 0
-PHASE_HENYEY_GREENSTEIN = 1
+PHASE_ISOTROPIC = wp.constant(0)
+PHASE_HENYEY_GREENSTEIN = wp.constant(1)
 
 
 @dataclass(frozen=True)
@@ -47,6 +47,25 @@ class Medium:
         g = self.g
         return (1.0 - g * g) / (4.0 * math.pi * (1.0 + g * g - 2.0 * g * cos_theta) ** 1.5)
 
+    def params(self) -> MediumParams:
+        """The medium as kernels see it (:class:`MediumParams`)."""
+        p = MediumParams()
+        p.sigma_t = float(self.sigma_t)
+        p.sigma_s = float(self.sigma_s)
+        p.phase_id = int(self.phase_id)
+        p.g = float(self.g)
+        return p
+
+
+@wp.struct
+class MediumParams:
+    """Homogeneous medium as kernels see it."""
+
+    sigma_t: float  # extinction, 1/unit
+    sigma_s: float  # scattering, 1/unit
+    phase_id: int  # PHASE_ISOTROPIC or PHASE_HENYEY_GREENSTEIN
+    g: float  # HG asymmetry
+
 
 @wp.func
 def phase_hg(cos_theta: float, g: float) -> float:
@@ -58,7 +77,7 @@ def phase_hg(cos_theta: float, g: float) -> float:
 @wp.func
 def phase_eval(phase_id: int, g: float, cos_theta: float) -> float:
     """Phase function by id (PHASE_ISOTROPIC or PHASE_HENYEY_GREENSTEIN)."""
-    if phase_id == 0:
+    if phase_id == PHASE_ISOTROPIC:
         return 1.0 / (4.0 * wp.pi)
     return phase_hg(cos_theta, g)
 

@@ -27,6 +27,8 @@ Stages (each a host function that allocates and launches; names appear in timing
    the filtered texels level by level. Averages of moment vectors are moment vectors of the merged distributions, and
    Theta_4* is affine, so the 64-bit map is averaged in its stored domain (as a GPU mips a 16-bit unorm texture) and
    rounded to 16 bits again per level; odd sizes drop the last row/column (floor), as GPU mip chains do.
+   The texel operations of stages 3-5 (storage rounding, look-ups, filter and mip kernels) live in
+   :mod:`.msm_texels` and are re-exported here.
 5. Lookup (:func:`msm_visibility`, :func:`msm_visibility_rgb`, D.2): bilinear sample at the receiver's texel
    coordinates, revert the quantization transform, bias with the storage mode's alpha_b and b*, Algorithm 1's lower
    bound at the depth-biased fragment depth, over-darkening (divide by 0.98, clamp), visibility = 1 - intensity.
@@ -59,6 +61,22 @@ from ..parallel import launch_rows
 from ..raster import MAX_RESOLUTION, coverage_count, linearize_depth, ndc_to_view_depth, rasterize
 from ..wpinit import default_device, module_options
 from . import moments as mm
+from .msm_texels import (  # noqa: F401 (the texel operations are part of this module's API)
+    _MIN_ROWS,
+    _check_int,
+    bilinear_blend,
+    bilinear_footprint,
+    build_mip_levels,
+    fetch_texel,
+    gaussian_filter_texels,
+    gaussian_weights,
+    mip_level_count,
+    mip_level_offset,
+    round_texel,
+    sample_bilinear4,
+    sample_mip_bilinear4,
+    sample_trilinear4,
+)
 from .shadow_map import ShadowMap, ShadowMapParams, shadow_coords
 
 module_options()
@@ -92,6 +110,26 @@ class MomentShadowParams:
     overdarkening: float  # shadow intensity divisor (0.98, Sec. 2.6; <= 0 disables)
     channels: int  # 1 (monochrome) or 3 (coloured translucency, R G B)
     mip_levels: int  # levels of the mip chain (incl. level 0); 0: none (bilinear lookups only)
+
+
+@wp.struct
+class LightDepthMapping:
+    """Rasterized NDC depth of the light view -> signed depth, as :func:`signed_depth_from_ndc` takes it."""
+
+    proj: wp.vec4  # P[2,2], P[2,3], P[3,2], P[3,3] of the light projection
+    depth_scale: float  # signed depth z = depth_scale * d + depth_offset, d = linear light-space depth
+    depth_offset: float
+
+
+@wp.struct
+class TranslucentBand:
+    """One row band of depth-peeled translucent layers of the supersampled light view (Sec. 3.2, D.3)."""
+
+    trans_ndc: wp.array3d(dtype=wp.float32)  # (k, band sample rows, sW) translucent layers, nearest first
+    trans_tri: wp.array3d(dtype=wp.int32)  # (k, band sample rows, sW) translucent triangle index, -1 empty
+    n_layers: int  # k (0: no translucent fragments in the band; the arrays are then 1x1x1 dummies)
+    row0: int  # first map row of the band
+    trans_alpha: wp.array2d(dtype=wp.float32)  # (T_t, C) opacity per translucent triangle and channel
 
 
 # ---------------------------------------------------------------------------------------------------------------------
@@ -132,90 +170,10 @@ def encode_texel(b: wp.vec4, storage: int) -> wp.vec4:
 
 
 @wp.func
-def round_texel(t: wp.vec4, storage: int) -> wp.vec4:
-    """Write a texel-space value to the storage format: 16-bit unorm rounding (64 bits) or unchanged (128 bits)."""
-    # Peters 2017, Sec. 2.4
-    if storage == mm.STORAGE4_UNORM16:
-        bits = mm.UNORM_BITS_STORAGE4_UNORM16
-        return wp.vec4(mm.unorm_round(t[0], bits), mm.unorm_round(t[1], bits), mm.unorm_round(t[2], bits),
-                       mm.unorm_round(t[3], bits))
-    return t
-
-
-@wp.func
 def blend_over(dst: wp.vec4, src: wp.vec4, alpha: float) -> wp.vec4:
     """Over operator on texel values: alpha src + (1 - alpha) dst (back-to-front translucent blending)."""
     # Peters 2017, Sec. 3.2 / D.3
     return alpha * src + (1.0 - alpha) * dst
-
-
-@wp.func
-def fetch_texel(texels: wp.array3d(dtype=wp.vec4), c: int, i: int, j: int) -> wp.vec4:
-    """Texel (i, j) of channel c with clamp-to-edge addressing."""
-    ii = wp.clamp(i, 0, texels.shape[2] - 1)
-    jj = wp.clamp(j, 0, texels.shape[1] - 1)
-    return texels[c, jj, ii]
-
-
-@wp.func
-def sample_bilinear4(texels: wp.array3d(dtype=wp.vec4), c: int, u: float, v: float) -> wp.vec4:
-    """Bilinear sample of channel c at texture coordinates (u, v) in [0, 1] (v down), clamp-to-edge."""
-    fx = u * float(texels.shape[2]) - 0.5
-    fy = v * float(texels.shape[1]) - 0.5
-    x0 = wp.floor(fx)
-    y0 = wp.floor(fy)
-    ax = fx - x0
-    ay = fy - y0
-    i0 = int(x0)
-    j0 = int(y0)
-    top = (1.0 - ax) * fetch_texel(texels, c, i0, j0) + ax * fetch_texel(texels, c, i0 + 1, j0)
-    bottom = (1.0 - ax) * fetch_texel(texels, c, i0, j0 + 1) + ax * fetch_texel(texels, c, i0 + 1, j0 + 1)
-    return (1.0 - ay) * top + ay * bottom
-
-
-@wp.func
-def mip_level_offset(width: int, height: int, level: int) -> int:
-    """First texel of mip ``level`` in a packed chain (levels 0, 1, ... of sizes max(1, w >> l) x max(1, h >> l))."""
-    off = int(0)
-    for k in range(level):
-        off += wp.max(width >> k, 1) * wp.max(height >> k, 1)
-    return off
-
-
-@wp.func
-def sample_mip_bilinear4(mips: wp.array2d(dtype=wp.vec4), c: int, width: int, height: int, level: int, u: float,
-                         v: float) -> wp.vec4:
-    """Bilinear sample of channel c of mip ``level`` at texture coordinates (u, v) (v down), clamp-to-edge."""
-    w = wp.max(width >> level, 1)
-    h = wp.max(height >> level, 1)
-    off = mip_level_offset(width, height, level)
-    fx = u * float(w) - 0.5
-    fy = v * float(h) - 0.5
-    x0 = wp.floor(fx)
-    y0 = wp.floor(fy)
-    ax = fx - x0
-    ay = fy - y0
-    i0 = wp.clamp(int(x0), 0, w - 1)
-    i1 = wp.clamp(int(x0) + 1, 0, w - 1)
-    j0 = wp.clamp(int(y0), 0, h - 1)
-    j1 = wp.clamp(int(y0) + 1, 0, h - 1)
-    top = (1.0 - ax) * mips[c, off + j0 * w + i0] + ax * mips[c, off + j0 * w + i1]
-    bottom = (1.0 - ax) * mips[c, off + j1 * w + i0] + ax * mips[c, off + j1 * w + i1]
-    return (1.0 - ay) * top + ay * bottom
-
-
-@wp.func
-def sample_trilinear4(mips: wp.array2d(dtype=wp.vec4), c: int, width: int, height: int, levels: int, u: float,
-                      v: float, lod: float) -> wp.vec4:
-    """Trilinear sample: bilinear in mip levels floor(lod) and floor(lod) + 1, blended by the fraction of ``lod``
-    (clamped to [0, levels - 1])."""
-    t = wp.clamp(lod, 0.0, float(levels - 1))
-    l0 = int(wp.floor(t))
-    a = t - float(l0)
-    s0 = sample_mip_bilinear4(mips, c, width, height, l0, u, v)
-    if a <= 0.0 or l0 + 1 >= levels:
-        return s0
-    return (1.0 - a) * s0 + a * sample_mip_bilinear4(mips, c, width, height, l0 + 1, u, v)
 
 
 @wp.func
@@ -328,22 +286,16 @@ def msm_visibility(p: MomentShadowParams, texels: wp.array3d(dtype=wp.vec4), x: 
 @wp.kernel
 def _generate_kernel(
     opaque_ndc: wp.array3d(dtype=wp.float32),  # (1, sH, sW) NDC depth of opaque casters, +inf where empty
-    trans_ndc: wp.array3d(dtype=wp.float32),  # (k, band sample rows, sW) translucent layers, nearest first
-    trans_tri: wp.array3d(dtype=wp.int32),  # (k, band sample rows, sW) translucent triangle index, -1 empty
-    n_layers: int,  # k (0: no translucent fragments in the band; the arrays are then 1x1x1 dummies)
-    row0: int,  # first map row of the band
-    trans_alpha: wp.array2d(dtype=wp.float32),  # (T_t, C) opacity per translucent triangle and channel
+    band: TranslucentBand,
     s: int,  # supersampling factor per axis
-    proj: wp.vec4,  # P[2,2], P[2,3], P[3,2], P[3,3] of the light projection
-    depth_scale: float,
-    depth_offset: float,
+    depth: LightDepthMapping,
     storage: int,
     texels: wp.array3d(dtype=wp.vec4),  # out: (C, H, W)
     offset: int,
 ):
     j, i = wp.tid()
-    j += offset + row0
-    y0 = row0 * s  # first sample row of the band arrays
+    j += offset + band.row0
+    y0 = band.row0 * s  # first sample row of the band arrays
     for c in range(texels.shape[0]):
         acc = wp.vec4(0.0, 0.0, 0.0, 0.0)  # sum of per-sample canonical moments
         for sj in range(s):
@@ -351,17 +303,18 @@ def _generate_kernel(
             for si in range(s):
                 xs = i * s + si
                 # ---- opaque moments (D.1) ----
-                z_o = signed_depth_from_ndc(opaque_ndc[0, y, xs], proj, depth_scale, depth_offset)
+                z_o = signed_depth_from_ndc(opaque_ndc[0, y, xs], depth.proj, depth.depth_scale, depth.depth_offset)
                 b = mm.moments4_from_depth(z_o)
                 # ---- translucent layers, back to front, over operator (Sec. 3.2) ----
                 blended = bool(False)
                 q = wp.vec4(0.0, 0.0, 0.0, 0.0)  # the render target's stored value once blending starts
-                for k in range(n_layers):
-                    layer = n_layers - 1 - k
-                    t = trans_tri[layer, y - y0, xs]
+                for k in range(band.n_layers):
+                    layer = band.n_layers - 1 - k
+                    t = band.trans_tri[layer, y - y0, xs]
                     if t >= 0:
-                        z_t = signed_depth_from_ndc(trans_ndc[layer, y - y0, xs], proj, depth_scale, depth_offset)
-                        alpha = trans_alpha[t, c]
+                        z_t = signed_depth_from_ndc(band.trans_ndc[layer, y - y0, xs], depth.proj, depth.depth_scale,
+                                                    depth.depth_offset)
+                        alpha = band.trans_alpha[t, c]
                         if z_t < z_o and alpha >= ALPHA_TEST:  # depth test against the opaque surface; alpha test
                             if not blended:
                                 q = mm.store_moments4(b, storage)
@@ -373,60 +326,6 @@ def _generate_kernel(
                 acc += b
         # the resolve: average, then one quantization transform and rounding (Theta_4* is affine)
         texels[c, j, i] = mm.store_moments4(acc / float(s * s), storage)
-
-
-@wp.kernel
-def _gauss_rows_kernel(src: wp.array3d(dtype=wp.vec4), weights: wp.array(dtype=wp.float32), radius: int,
-                       storage: int, dst: wp.array3d(dtype=wp.vec4), offset: int):
-    j, i = wp.tid()
-    j += offset
-    for c in range(src.shape[0]):
-        acc = wp.vec4(0.0, 0.0, 0.0, 0.0)
-        for k in range(-radius, radius + 1):
-            acc += weights[k + radius] * fetch_texel(src, c, i + k, j)
-        dst[c, j, i] = round_texel(acc, storage)
-
-
-@wp.kernel
-def _gauss_columns_kernel(src: wp.array3d(dtype=wp.vec4), weights: wp.array(dtype=wp.float32), radius: int,
-                          storage: int, dst: wp.array3d(dtype=wp.vec4), offset: int):
-    j, i = wp.tid()
-    j += offset
-    for c in range(src.shape[0]):
-        acc = wp.vec4(0.0, 0.0, 0.0, 0.0)
-        for k in range(-radius, radius + 1):
-            acc += weights[k + radius] * fetch_texel(src, c, i, j + k)
-        dst[c, j, i] = round_texel(acc, storage)
-
-
-@wp.kernel
-def _mip_copy_kernel(texels: wp.array3d(dtype=wp.vec4), mips: wp.array2d(dtype=wp.vec4), offset: int):
-    j, i = wp.tid()
-    j += offset
-    w = texels.shape[2]
-    for c in range(texels.shape[0]):
-        mips[c, j * w + i] = texels[c, j, i]
-
-
-@wp.kernel
-def _mip_downsample_kernel(mips: wp.array2d(dtype=wp.vec4), width: int, height: int, level: int, storage: int,
-                           offset: int):
-    # D.2 mipmap generation: level l texel (i, j) = mean of texels (2i..2i+1, 2j..2j+1) of level l - 1
-    j, i = wp.tid()
-    j += offset
-    sw = wp.max(width >> (level - 1), 1)
-    sh = wp.max(height >> (level - 1), 1)
-    src = mip_level_offset(width, height, level - 1)
-    dst = mip_level_offset(width, height, level)
-    dw = wp.max(width >> level, 1)
-    i0 = wp.min(2 * i, sw - 1)
-    i1 = wp.min(2 * i + 1, sw - 1)
-    j0 = wp.min(2 * j, sh - 1)
-    j1 = wp.min(2 * j + 1, sh - 1)
-    for c in range(mips.shape[0]):
-        acc = mips[c, src + j0 * sw + i0] + mips[c, src + j0 * sw + i1] + mips[c, src + j1 * sw + i0]
-        acc += mips[c, src + j1 * sw + i1]
-        mips[c, dst + j * dw + i] = round_texel(0.25 * acc, storage)
 
 
 @wp.kernel
@@ -449,9 +348,6 @@ def _visibility_points_kernel(p: MomentShadowParams, texels: wp.array3d(dtype=wp
 # ---------------------------------------------------------------------------------------------------------------------
 # Host functions
 # ---------------------------------------------------------------------------------------------------------------------
-
-_MIN_ROWS = 8
-
 
 @dataclass
 class MapGeometry:
@@ -599,13 +495,6 @@ def _check_nonneg(x, name: str) -> None:
         raise ValueError(f"{name}: must be a finite number >= 0, got {x!r}")
 
 
-def _check_int(x, name: str, lo: int, hi: int | None = None) -> int:
-    if isinstance(x, bool) or not isinstance(x, (int, np.integer)) or x < lo or (hi is not None and x > hi):
-        bound = f">= {lo}" if hi is None else f"in [{lo}, {hi}]"
-        raise ValueError(f"{name}: expected an integer {bound}, got {x!r}")
-    return int(x)
-
-
 def channel_opacities(opacity, albedo, coloured: bool = False) -> np.ndarray:
     """Per-material, per-channel opacities alpha_c for the over operator (module docstring).
 
@@ -638,18 +527,6 @@ def channel_opacities(opacity, albedo, coloured: bool = False) -> np.ndarray:
     return (1.0 - transmittance).astype(np.float32)
 
 
-def gaussian_weights(filter_px: int) -> np.ndarray:
-    """Normalised taps of the separable Gaussian: 2 (filter_px // 2) + 1 taps, sigma = filter_px / 4 texels.
-
-    The kernel spans +-2 sigma; filter_px = 1 is the identity, 5 the paper's 5-tap filter (D.2).
-    """
-    filter_px = _check_int(filter_px, "filter_px", 1)
-    r = filter_px // 2
-    k = np.arange(-r, r + 1, dtype=np.float64)
-    w = np.exp(-0.5 * (k / (filter_px / 4.0)) ** 2)
-    return (w / w.sum()).astype(np.float32)
-
-
 def _row_band_matrix(height: int, y0: int, y1: int) -> np.ndarray:
     """Clip-space crop mapping sample rows [y0, y1) of a ``height``-row image onto a full (y1 - y0)-row image."""
     a = height / float(y1 - y0)
@@ -658,9 +535,24 @@ def _row_band_matrix(height: int, y0: int, y1: int) -> np.ndarray:
     return m
 
 
-def _projection_row(projection) -> wp.vec4:
-    p = np.asarray(projection, np.float64)
-    return wp.vec4(float(p[2, 2]), float(p[2, 3]), float(p[3, 2]), float(p[3, 3]))
+def _light_depth_mapping(shadow_map: ShadowMap, geom: MapGeometry) -> LightDepthMapping:
+    p = np.asarray(shadow_map.projection, np.float64)
+    d = LightDepthMapping()
+    d.proj = wp.vec4(float(p[2, 2]), float(p[2, 3]), float(p[3, 2]), float(p[3, 3]))
+    d.depth_scale = float(geom.depth_scale)
+    d.depth_offset = float(geom.depth_offset)
+    return d
+
+
+def _translucent_band(trans_ndc: wp.array, trans_tri: wp.array, n_layers: int, row0: int,
+                      trans_alpha: wp.array) -> TranslucentBand:
+    band = TranslucentBand()
+    band.trans_ndc = trans_ndc
+    band.trans_tri = trans_tri
+    band.n_layers = int(n_layers)
+    band.row0 = int(row0)
+    band.trans_alpha = trans_alpha
+    return band
 
 
 def generate_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: int = 2, bits: int = 64,
@@ -720,28 +612,28 @@ def generate_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: i
     texels = wp.empty((channels, h, w), dtype=wp.vec4, device=device)
     dummy_ndc = wp.full((1, 1, 1), np.inf, dtype=wp.float32, device=device)
     dummy_tri = wp.full((1, 1, 1), -1, dtype=wp.int32, device=device)
-    tail = [s, _projection_row(shadow_map.projection), float(geom.depth_scale), float(geom.depth_offset), int(storage),
-            texels]
+    depth = _light_depth_mapping(shadow_map, geom)
     if not np.any(translucent):
-        launch_rows(_generate_kernel, (h, w),
-                    [opaque_ndc, dummy_ndc, dummy_tri, 0, 0, wp.zeros((1, channels), dtype=wp.float32, device=device),
-                     *tail], device=device, min_chunk=_MIN_ROWS)  # fmt: skip
+        band = _translucent_band(dummy_ndc, dummy_tri, 0, 0, wp.zeros((1, channels), dtype=wp.float32, device=device))
+        launch_rows(_generate_kernel, (h, w), [opaque_ndc, band, s, depth, int(storage), texels], device=device,
+                    min_chunk=_MIN_ROWS)
         return MomentShadowMap(texels=texels, bits=bits, shadow_map=shadow_map, geometry=geom, supersampling=s)
     tris = scene.triangles[translucent]
     trans_alpha = wp.array(np.ascontiguousarray(tri_alpha[translucent]), dtype=wp.float32, device=device)
     counts = coverage_count(scene.vertices, tris, view_proj, sw, sh, clamp_depth=clamp, device=device)
     layers = min(int(counts.max()), max_layers)
-    band = max(1, min(h, TRANSLUCENT_BAND_BYTES // (_PEEL_BYTES * max(layers, 1) * sw * s)))  # map rows per band
-    for r0 in range(0, h, band):
-        r1 = min(h, r0 + band)
+    band_rows = max(1, min(h, TRANSLUCENT_BAND_BYTES // (_PEEL_BYTES * max(layers, 1) * sw * s)))  # map rows
+    for r0 in range(0, h, band_rows):
+        r1 = min(h, r0 + band_rows)
         k = min(int(counts[r0 * s : r1 * s].max()), max_layers)
         trans_ndc, trans_tri = dummy_ndc, dummy_tri
         if k > 0:
             crop = view_proj if (r0, r1) == (0, h) else _row_band_matrix(sh, r0 * s, r1 * s) @ view_proj
             r = rasterize(scene.vertices, tris, crop, sw, (r1 - r0) * s, layers=k, clamp_depth=clamp, device=device)
             trans_ndc, trans_tri = r.device_ndc_depth, r.device_tri_id
-        launch_rows(_generate_kernel, (r1 - r0, w), [opaque_ndc, trans_ndc, trans_tri, k, r0, trans_alpha, *tail],
-                    device=device, min_chunk=_MIN_ROWS)
+        band = _translucent_band(trans_ndc, trans_tri, k, r0, trans_alpha)
+        launch_rows(_generate_kernel, (r1 - r0, w), [opaque_ndc, band, s, depth, int(storage), texels], device=device,
+                    min_chunk=_MIN_ROWS)
     return MomentShadowMap(texels=texels, bits=bits, shadow_map=shadow_map, geometry=geom, supersampling=s,
                            translucent_layers=layers)
 
@@ -756,23 +648,10 @@ def filter_moment_shadow_map(msm: MomentShadowMap, filter_px: int, device=None) 
     """
     device = default_device(device)
     weights = gaussian_weights(filter_px)
-    radius = len(weights) // 2
-    if radius == 0:
+    if len(weights) // 2 == 0:
         return msm
-    wts = wp.array(weights, dtype=wp.float32, device=device)
-    tmp = wp.empty_like(msm.texels)
-    out = wp.empty_like(msm.texels)
-    h, w = msm.shape
-    launch_rows(_gauss_rows_kernel, (h, w), [msm.texels, wts, radius, msm.storage, tmp], device=device,
-                min_chunk=_MIN_ROWS)
-    launch_rows(_gauss_columns_kernel, (h, w), [tmp, wts, radius, msm.storage, out], device=device,
-                min_chunk=_MIN_ROWS)
-    return replace(msm, texels=out, filter_px=int(filter_px))
-
-
-def mip_level_count(width: int, height: int) -> int:
-    """Levels of a full mip chain of a width x height map (down to 1 x 1)."""
-    return int(max(int(width), int(height))).bit_length()
+    return replace(msm, texels=gaussian_filter_texels(msm.texels, weights, msm.storage, device),
+                   filter_px=int(filter_px))
 
 
 def build_mip_chain(msm: MomentShadowMap, device=None) -> MomentShadowMap:
@@ -781,18 +660,9 @@ def build_mip_chain(msm: MomentShadowMap, device=None) -> MomentShadowMap:
     Box averages of moments are the moments of the merged depth distributions, so every level is a valid moment map;
     64-bit maps are averaged in the stored Theta_4* domain (affine, hence the same as averaging canonical moments) and
     rounded to 16 bits per level, as a GPU generates the mips of a 16-bit unorm texture. Level 0 is copied into the
-    packed chain (memory: about 4/3 of the texels more).
+    packed chain (memory: about 4/3 of the texels more). See :func:`build_mip_levels`.
     """
-    device = default_device(device)
-    h, w = msm.shape
-    levels = mip_level_count(w, h)
-    total = sum(max(w >> k, 1) * max(h >> k, 1) for k in range(levels))
-    mips = wp.empty((msm.channels, total), dtype=wp.vec4, device=device)
-    launch_rows(_mip_copy_kernel, (h, w), [msm.texels, mips], device=device, min_chunk=_MIN_ROWS)
-    for level in range(1, levels):
-        # one launch per level; rows of a level are independent (launch_rows chunks own their output rows)
-        launch_rows(_mip_downsample_kernel, (max(h >> level, 1), max(w >> level, 1)), [mips, w, h, level, msm.storage],
-                    device=device, min_chunk=_MIN_ROWS)
+    mips, levels = build_mip_levels(msm.texels, msm.storage, device)
     return replace(msm, mips=mips, mip_levels=levels)
 
 

@@ -69,7 +69,6 @@ UMBRA_EPSILON = wp.constant(0.01)
 REFERENCE_KERNEL_PX = 28
 #: Largest supported kernel side (n_t <= 2^16 keeps 16 bits of precision per texel).
 MAX_KERNEL_PX = 256
-_UINT32_MAX = wp.constant(wp.float64(4294967295.0))
 
 
 @wp.struct

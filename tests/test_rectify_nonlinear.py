@@ -1,4 +1,5 @@
-"""Tests of the non-linear epipolar rectification (warpscatter.scattering.rectify; Peters 2017 Sec. 5.1.1, App. A)."""
+"""Tests of the non-linear epipolar rectification (warpscatter.scattering.rectify_nonlinear; Peters 2017 Sec. 5.1.1,
+App. A)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warpscatter.scattering import rectify
-from warpscatter.scattering.rectify import NonlinearRectification, reference_ray, resample_shadow_map
+from warpscatter.scattering import rectify_nonlinear as rectify
+from warpscatter.scattering.rectify_nonlinear import NonlinearRectification, reference_ray, resample_shadow_map
 from warpscatter.scene.camera import Camera, look_at_basis, orthographic_matrix, view_matrix
 from warpscatter.wpinit import default_device, module_options
 

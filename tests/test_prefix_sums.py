@@ -1,4 +1,5 @@
-"""Tests of prefiltered single scattering (warpscatter.scattering.prefilter; Klehm 2014 Sec. 3, Eq. 8-11, App. A)."""
+"""Tests of the Fourier and moment prefix sums and their look-ups (warpscatter.scattering.prefix_sums,
+filtered_lookups; Klehm 2014 Sec. 3, Eq. 8-11, App. A)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,9 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warpscatter.scattering import prefilter as pf
-from warpscatter.scattering.rectify import NonlinearRectification, reference_ray
+from warpscatter.scattering import filtered_lookups as fl
+from warpscatter.scattering import prefix_sums as pf
+from warpscatter.scattering.rectify_nonlinear import NonlinearRectification, reference_ray
 from warpscatter.scene.camera import Camera
 from warpscatter.wpinit import default_device, module_options
 
@@ -126,7 +128,7 @@ def test_eight_bit_storage():
     assert np.abs(code - np.round(code)).max() < 1e-4
     # visibility from 8-bit textures stays close to float storage (Klehm 2014 Sec. 3.3)
     q = np.stack([rng.uniform(0.0, 1.0, 3000), rng.uniform(0.0, 1.0, 3000), rng.uniform(MARGIN, 1 - MARGIN, 3000)], 1)
-    diff = np.abs(pf.evaluate_visibility(q8, q) - pf.evaluate_visibility(full, q))
+    diff = np.abs(fl.evaluate_visibility(q8, q) - fl.evaluate_visibility(full, q))
     assert diff.max() < 0.015  # measured 0.0046
 
 
@@ -139,7 +141,7 @@ def test_no_occluder_average_visibility_is_one(m, worst, mean):
     rng = np.random.default_rng(4)
     fb = pf.prefilter_depth(np.ones((8, 256), np.float32), m)
     q = np.stack([rng.uniform(0.0, 1.0, 4000), rng.uniform(0.0, 1.0, 4000), rng.uniform(MARGIN, 1 - MARGIN, 4000)], 1)
-    f = pf.evaluate_visibility(fb, q)
+    f = fl.evaluate_visibility(fb, q)
     assert f.max() <= 1.0
     # measured 1 - min: 0.32 (M=4), 0.049 (32), 0.017 (128); mean 0.047, 0.0061, 0.0016
     assert 1.0 - f.min() < worst and np.mean(1.0 - f) < mean
@@ -156,12 +158,12 @@ def test_no_occluder_transmittance_integral(m, tol):
         fb = pf.prefilter_depth(np.ones((rect.rows, rect.cols), np.float32), m, tau)
         dirs = cam.ray_directions().reshape(-1, 3)
         s = np.random.default_rng(5).uniform(0.05, 1.0, len(dirs)) * cam.far_distance(dirs)
-        frac, integral = pf.evaluate_points(fb, rect, cam.position + s[:, None] * dirs, sigma_t)
+        frac, integral = fl.evaluate_points(fb, rect, cam.position + s[:, None] * dirs, sigma_t)
         exact = (1.0 - np.exp(-sigma_t * s)) / sigma_t
         assert np.abs(integral / exact - 1.0).max() < tol
         np.testing.assert_allclose(integral, frac * exact, rtol=1e-5)
         # sigma_t = 0: the integral is F * s (the average-visibility form of Eq. 2)
-        _, lin = pf.evaluate_points(fb, rect, cam.position + s[:, None] * dirs, 0.0)
+        _, lin = fl.evaluate_points(fb, rect, cam.position + s[:, None] * dirs, 0.0)
         np.testing.assert_allclose(lin, frac * s, rtol=1e-5)
 
 
@@ -197,7 +199,7 @@ def test_step_occluder_ringing_decreases_with_m(tau):
     exact = _exact_step_fraction(q[:, 0], q[:, 2], start[row], z_block, cols, tau)
     errors = []
     for m in (4, 32, 128):
-        f = pf.evaluate_visibility(pf.prefilter_depth(depth, m, np.full(rows, tau, np.float32)), q)
+        f = fl.evaluate_visibility(pf.prefilter_depth(depth, m, np.full(rows, tau, np.float32)), q)
         errors.append(np.mean(np.abs(f - exact)))
     # measured mean |error| (tau 0 / 0.02): M=4 0.053 / 0.048, M=32 0.0088 / 0.0075, M=128 0.0024 / 0.0020
     assert errors[0] > 2.0 * errors[1] > 4.0 * errors[2]
@@ -210,8 +212,8 @@ def test_row_wrap_for_full_circle():
     depth[-1, :] = 0.0  # last row fully blocked for every ray
     fb = pf.prefilter_depth(depth, 32)
     q = np.array([[0.5, 0.0, 0.5], [0.5, 1.0, 0.5], [0.5, 0.5 / 8, 0.5]])
-    wrapped = pf.evaluate_visibility(fb, q, wrap_rows=True)
-    clamped = pf.evaluate_visibility(fb, q, wrap_rows=False)
+    wrapped = fl.evaluate_visibility(fb, q, wrap_rows=True)
+    clamped = fl.evaluate_visibility(fb, q, wrap_rows=False)
     assert wrapped[0] == pytest.approx(0.5, abs=0.02)  # measured 0.5: halfway between row 0 and the last row
     assert wrapped[1] == pytest.approx(0.5, abs=0.02)
     assert clamped[0] == pytest.approx(1.0, abs=0.02) and clamped[1] == pytest.approx(0.0, abs=0.02)
@@ -274,12 +276,12 @@ def test_end_to_end_against_exact_visibility():
     tau = reference_ray(rect).optical_steps(sigma_t)
     rel = {}
     for m in (4, 32, 128):
-        _, integral = pf.evaluate_points(
+        _, integral = fl.evaluate_points(
             pf.prefilter_depth(depth, m, tau), rect, cam.position + s[:, None] * dirs, sigma_t
         )
         rel[m] = np.abs(integral - exact).sum() / exact.sum()
     # average visibility (Eq. 2) for comparison: transmittance weighting must be at least as good
-    _, avg = pf.evaluate_points(pf.prefilter_depth(depth, 32), rect, cam.position + s[:, None] * dirs, sigma_t)
+    _, avg = fl.evaluate_points(pf.prefilter_depth(depth, 32), rect, cam.position + s[:, None] * dirs, sigma_t)
     rel_avg = np.abs(avg - exact).sum() / exact.sum()
     # measured relative L1: M=4 0.043, M=32 0.0106, M=128 0.0071; average visibility (M=32) 0.029
     assert rel[32] < 0.02 and rel[128] < 0.015
@@ -303,21 +305,21 @@ def test_bad_input_raises():
     with pytest.raises(ValueError, match="rectified_depth"):
         pf.prefilter_depth(np.zeros(8, np.float32), 8)
     with pytest.raises(ValueError, match="coords"):
-        pf.evaluate_visibility(pf.prefilter_depth(depth, 8), np.zeros((3, 2)))
+        fl.evaluate_visibility(pf.prefilter_depth(depth, 8), np.zeros((3, 2)))
     with pytest.raises(ValueError, match="sigma_t"):
         cam = Camera(
             position=[0, 2, 10], look_at=[0, 1, 0], up=[0, 1, 0], fov_y=50, width=16, height=9, near=0.1, far=20
         )
         rect = NonlinearRectification.from_camera(cam, [0, -1, 0], rows=4, cols=8)
-        pf.evaluate_points(pf.prefilter_depth(depth, 8), rect, np.zeros((2, 3)), sigma_t=-1.0)
-    assert math.isfinite(float(pf.evaluate_visibility(pf.prefilter_depth(depth, 8), np.zeros((1, 3)))[0]))
+        fl.evaluate_points(pf.prefilter_depth(depth, 8), rect, np.zeros((2, 3)), sigma_t=-1.0)
+    assert math.isfinite(float(fl.evaluate_visibility(pf.prefilter_depth(depth, 8), np.zeros((1, 3)))[0]))
 
 
 # ---- two depths per texel (filtering during resampling, Peters 2017 Sec. 5.2) -------------------------------
 
 
 def _sparse(z1, z2, w2):
-    from warpscatter.scattering.rectify import SparseRectifiedDepth
+    from warpscatter.scattering.rectify_nonlinear import SparseRectifiedDepth
 
     dev = wp.get_device()
     return SparseRectifiedDepth(*(wp.array(np.ascontiguousarray(a, np.float32), dtype=wp.float32, device=dev)

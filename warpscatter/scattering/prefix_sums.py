@@ -1,6 +1,7 @@
-"""Prefiltered single scattering: Fourier basis, per-row prefix sums and one dot product per pixel (Klehm 2014).
+"""Prefiltered single scattering: the Fourier and moment bases of a rectified depth map and their per-row prefix
+sums (Klehm 2014; Peters 2017 Sec. 5); the per-pixel look-ups are in :mod:`.filtered_lookups`.
 
-The input is a rectified blocker-depth map z (rows x cols, values in [0, 1]; see :mod:`.rectify`): every
+The input is a rectified blocker-depth map z (rows x cols, values in [0, 1]; see :mod:`.rectify_nonlinear`): every
 camera view ray runs along one row from column 0 with one constant depth z_r. Visibility of a ray sample
 against texel i is the step V = H(z_r - z_i) (1 when z_r <= z_i), expanded in M Fourier terms
 (Klehm 2014 Eq. 8-9, 0-based index k, pair m = k // 2, c = pi (2 m + 1)):
@@ -48,7 +49,7 @@ its own column:
 which equals the unsplit filter up to float rounding.
 
 Two depths per texel (filtering during resampling, Peters 2017 Sec. 5.2): the prefilters also accept a
-:class:`~.rectify.SparseRectifiedDepth` (z_1, z_2, w_2). The filtered value of a texel is then the weighted
+:class:`~.rectify_nonlinear.SparseRectifiedDepth` (z_1, z_2, w_2). The filtered value of a texel is then the weighted
 combination (1 - w_2) B_k(z_1) + w_2 B_k(z_2) of the basis (Fourier values, or the canonical moments before
 storage); a plain depth map is the same code path with w_2 = 0 (:func:`texel_depths`).
 """
@@ -61,15 +62,12 @@ import numpy as np
 import warp as wp
 
 from ..parallel import launch_rows
-from ..scene.medium import transmittance_integral
 from ..shadows import moments as mm
 from ..wpinit import default_device, module_options
-from .rectify import NonlinearRectification, NonlinearRectParams, SparseRectifiedDepth, world_to_rectified
+from .rectify_nonlinear import SparseRectifiedDepth
+from .settings import MAX_COEFFICIENTS, MAX_SPLITS, MIN_COEFFICIENTS
 
 module_options()
-
-MIN_COEFFICIENTS = 4
-MAX_COEFFICIENTS = 128
 
 
 # ---- Fourier basis (Klehm 2014 Eq. 8-9) ------------------------------------------------------------------
@@ -164,217 +162,28 @@ def advance_filter_weight(weight: float, sum_weights: float, step_transmittance:
     return weight / s, weight * step_transmittance, s
 
 
-# ---- per-pixel evaluation -------------------------------------------------------------------------------
+@wp.struct
+class RectifiedTexels:
+    """A rectified depth map as the prefilters read it: one depth per texel, or the sparse two-depth representation
+    of Peters 2017 Sec. 5.2 (z_1, z_2, w_2) when ``two_depths`` != 0 (:func:`rectified_texels`)."""
 
-
-#: Most split regions of a row (Klehm 2014 Sec. 3.3 uses up to 4).
-MAX_SPLITS = 16
-#: Filtered-basis look-ups of one pixel: per row (two rows), one per region in front plus two columns.
-MAX_TAPS = 2 * (MAX_SPLITS + 1)
-tap_weights = wp.types.vector(length=MAX_TAPS, dtype=wp.float32)
-tap_indices = wp.types.vector(length=MAX_TAPS, dtype=wp.int32)
-
-
-@wp.func
-def texel_footprint(rows: int, cols: int, u: float, v: float, wrap_rows: int):
-    """Bilinear footprint of rectified (u, v) in a (rows, cols) filtered-basis texture.
-
-    Columns: the inclusive prefix of column i belongs to the right edge of its texel, so u is read at
-    texel-index coordinate u * cols - 1 (clamped); rows at their centres, wrapping when ``wrap_rows`` != 0.
-
-    Returns:
-        (j0, j1, ay, i0, i1, ax): rows and the weight of j1, columns and the weight of i1.
-    """
-    x = wp.clamp(u * float(cols) - 1.0, 0.0, float(cols - 1))
-    i0 = wp.min(int(wp.floor(x)), cols - 1)
-    i1 = wp.min(i0 + 1, cols - 1)
-    ax = x - float(i0)
-    y = v * float(rows) - 0.5
-    j0 = int(0)
-    j1 = int(0)
-    ay = float(0.0)
-    if wrap_rows != 0:
-        fy = wp.floor(y)
-        ay = y - fy
-        j0 = int(fy)
-        j0 = j0 - rows * int(wp.floor(float(j0) / float(rows)))
-        j1 = j0 + 1
-        if j1 >= rows:
-            j1 = j1 - rows
-    else:
-        y = wp.clamp(y, 0.0, float(rows - 1))
-        j0 = wp.min(int(wp.floor(y)), rows - 1)
-        j1 = wp.min(j0 + 1, rows - 1)
-        ay = y - float(j0)
-    return j0, j1, ay, i0, i1, ax
+    depth: wp.array2d(dtype=wp.float32)  # (rows, cols) rectified depth z_1 in [0, 1]
+    depth2: wp.array2d(dtype=wp.float32)  # (rows, cols) second depth z_2 (two_depths != 0), else a 1x1 placeholder
+    weight2: wp.array2d(dtype=wp.float32)  # (rows, cols) weight w_2 of z_2 (two_depths != 0), else a placeholder
+    two_depths: int
 
 
 @wp.func
-def fourier_taps_visibility(filtered_basis: wp.array3d(dtype=wp.float32), tap_row: tap_indices,
-                            tap_col: tap_indices, tap_w: tap_weights, num_taps: int, z_r: float) -> float:
-    """clamp(0.5 + a(z_r) . sum_t w_t B_bar(row_t, col_t), 0, 1) (Klehm 2014 Listing 4, App. A).
-
-    a_k(z_r) of Eq. 8 for pair m: (2/c cos(c z_r), -2/c sin(c z_r)), c = pi (2m + 1); cos/sin of c z_r
-    advance by angle addition through 2 pi z_r (two trigonometric calls per pixel).
-    """
-    num = filtered_basis.shape[2]
-    cs = wp.cos(wp.pi * z_r)
-    sn = wp.sin(wp.pi * z_r)
-    step_c = wp.cos(2.0 * wp.pi * z_r)
-    step_s = wp.sin(2.0 * wp.pi * z_r)
-    acc = float(0.5)
-    for m in range(num // 2):
-        k = 2 * m
-        b0 = float(0.0)
-        b1 = float(0.0)
-        for t in range(num_taps):
-            b0 += tap_w[t] * filtered_basis[tap_row[t], tap_col[t], k]
-            b1 += tap_w[t] * filtered_basis[tap_row[t], tap_col[t], k + 1]
-        acc += 2.0 / fourier_frequency(k) * (cs * b0 - sn * b1)
-        cs_next = cs * step_c - sn * step_s
-        sn = sn * step_c + cs * step_s
-        cs = cs_next
-    return wp.clamp(acc, 0.0, 1.0)
-
-
-@wp.func
-def prefiltered_visibility(filtered_basis: wp.array3d(dtype=wp.float32), u: float, v: float, z_r: float,
-                           wrap_rows: int) -> float:
-    """Visible fraction of the view ray ending at rectified (u, v) with depth z_r (Klehm 2014 Listing 4, App. A).
-
-    Bilinear fetch of the normalised filtered-basis vector, dot product with a(z_r), + 0.5, clamped to
-    [0, 1]. For average-visibility textures this is V-bar (Eq. 4); for transmittance-weighted ones
-    multiply by integral_0^s exp(-sigma_t t) dt to get the visibility-weighted transmittance integral.
-
-    Args:
-        filtered_basis: (rows, cols, M) normalised prefix-filtered basis (module layout), one region per row.
-        u: column coordinate of the ray's end point in [0, 1] (texel i centre at (i + 0.5) / cols).
-        v: row coordinate in [0, 1].
-        z_r: rectified depth of the view ray.
-        wrap_rows: 1 when rows wrap around (full azimuth circle), else 0 (clamp).
-    """
-    # the four-tap case of fourier_taps_visibility written out: 1.5x faster on the CPU (measured)
-    j0, j1, ay, i0, i1, ax = texel_footprint(filtered_basis.shape[0], filtered_basis.shape[1], u, v, wrap_rows)
-    num = filtered_basis.shape[2]
-    w00 = (1.0 - ax) * (1.0 - ay)
-    w01 = ax * (1.0 - ay)
-    w10 = (1.0 - ax) * ay
-    w11 = ax * ay
-    cs = wp.cos(wp.pi * z_r)
-    sn = wp.sin(wp.pi * z_r)
-    step_c = wp.cos(2.0 * wp.pi * z_r)
-    step_s = wp.sin(2.0 * wp.pi * z_r)
-    acc = float(0.5)
-    for m in range(num // 2):
-        k = 2 * m
-        b0 = (w00 * filtered_basis[j0, i0, k] + w01 * filtered_basis[j0, i1, k]
-              + w10 * filtered_basis[j1, i0, k] + w11 * filtered_basis[j1, i1, k])
-        b1 = (w00 * filtered_basis[j0, i0, k + 1] + w01 * filtered_basis[j0, i1, k + 1]
-              + w10 * filtered_basis[j1, i0, k + 1] + w11 * filtered_basis[j1, i1, k + 1])
-        acc += 2.0 / fourier_frequency(k) * (cs * b0 - sn * b1)
-        cs_next = cs * step_c - sn * step_s
-        sn = sn * step_c + cs * step_s
-        cs = cs_next
-    return wp.clamp(acc, 0.0, 1.0)
-
-
-@wp.func
-def add_split_row_taps(weight_sums: wp.array2d(dtype=wp.float32), region_weights: wp.array2d(dtype=wp.float32),
-                       splits: int, j: int, i0: int, i1: int, ax: float, row_weight: float, rows: tap_indices,
-                       cols: tap_indices, w: tap_weights, n: int):
-    """Append the look-ups of row j for split regions (Klehm 2014 Sec. 3.3): the row's global normalised
-    filtered value at columns i0 and i1 (blended (1 - ax) : ax, times ``row_weight``) combined from the
-    independently filtered regions. Returns the updated (rows, cols, w, n) (Warp passes vectors by value)."""
-    cols_total = weight_sums.shape[1]
-    k0 = int(0)
-    for k in range(1, splits):
-        c_k, n_k = split_columns(splits, cols_total, k)
-        if i0 >= c_k:
-            k0 = k
-    # global weights: regions in front of k0 (at their last column), then the columns themselves
-    den0 = float(0.0)
-    first = n
-    for k in range(k0):
-        c_k, n_k = split_columns(splits, cols_total, k)
-        wk = region_weights[j, k] * weight_sums[j, c_k + n_k - 1]
-        rows[n] = j
-        cols[n] = c_k + n_k - 1
-        w[n] = wk
-        den0 += wk
-        n += 1
-    w_i0 = region_weights[j, k0] * weight_sums[j, i0]
-    den0 += w_i0
-    c_k0, n_k0 = split_columns(splits, cols_total, k0)
-    w_i1 = float(0.0)
-    den1 = float(0.0)
-    next_region = int(0)
-    if i1 == i0:
-        den1 = den0
-    elif i1 < c_k0 + n_k0:
-        w_i1 = region_weights[j, k0] * weight_sums[j, i1]
-        den1 = den0 - w_i0 + w_i1
-    else:
-        next_region = 1  # i0 ends region k0, i1 starts region k0 + 1
-        w_i1 = region_weights[j, k0 + 1] * weight_sums[j, i1]
-        den1 = den0 + w_i1
-    s0 = row_weight * (1.0 - ax) / den0
-    s1 = row_weight * ax / den1
-    for t in range(first, n):
-        w[t] = w[t] * (s0 + s1)
-    rows[n] = j
-    cols[n] = i0
-    w[n] = w_i0 * s0
-    if i1 == i0:
-        w[n] = w_i0 * (s0 + s1)
-    elif next_region != 0:
-        w[n] = w_i0 * (s0 + s1)
-    n += 1
-    if i1 != i0:
-        rows[n] = j
-        cols[n] = i1
-        w[n] = w_i1 * s1
-        n += 1
-    return rows, cols, w, n
-
-
-@wp.func
-def prefiltered_visibility_split(filtered_basis: wp.array3d(dtype=wp.float32),
-                                 weight_sums: wp.array2d(dtype=wp.float32),
-                                 region_weights: wp.array2d(dtype=wp.float32), splits: int, u: float, v: float,
-                                 z_r: float, wrap_rows: int) -> float:
-    """:func:`prefiltered_visibility` for rows filtered in ``splits`` independent regions (Klehm 2014 Sec. 3.3).
-
-    Args:
-        filtered_basis: (rows, cols, M) region-wise normalised filtered basis.
-        weight_sums: (rows, cols) region-local running weight sums (unused when splits = 1).
-        region_weights: (rows, splits) reference-ray transmittance at every region start (unused when splits = 1).
-        splits: regions per row (1 = the plain filter).
-        u, v, z_r, wrap_rows: as in :func:`prefiltered_visibility`.
-    """
-    if splits <= 1:
-        return prefiltered_visibility(filtered_basis, u, v, z_r, wrap_rows)
-    j0, j1, ay, i0, i1, ax = texel_footprint(filtered_basis.shape[0], filtered_basis.shape[1], u, v, wrap_rows)
-    rows = tap_indices()
-    cols = tap_indices()
-    w = tap_weights()
-    rows, cols, w, n = add_split_row_taps(weight_sums, region_weights, splits, j0, i0, i1, ax, 1.0 - ay, rows, cols,
-                                          w, 0)
-    rows, cols, w, n = add_split_row_taps(weight_sums, region_weights, splits, j1, i0, i1, ax, ay, rows, cols, w, n)
-    return fourier_taps_visibility(filtered_basis, rows, cols, w, n, z_r)
-
-
-@wp.func
-def texel_depths(depth: wp.array2d(dtype=wp.float32), depth2: wp.array2d(dtype=wp.float32),
-                 weight2: wp.array2d(dtype=wp.float32), two_depths: int, j: int, i: int):
+def texel_depths(rd: RectifiedTexels, j: int, i: int):
     """(z_1, z_2, w_2) of rectified texel (j, i): the sparse two-depth representation of Peters 2017 Sec. 5.2 when
-    ``two_depths`` != 0, else the single depth (z_1, z_1, 0) (``depth2``/``weight2`` are then unused dummies)."""
-    z1 = depth[j, i]
-    if two_depths == 0:
+    ``rd.two_depths`` != 0, else the single depth (z_1, z_1, 0)."""
+    z1 = rd.depth[j, i]
+    if rd.two_depths == 0:
         return z1, z1, 0.0
-    return z1, depth2[j, i], weight2[j, i]
+    return z1, rd.depth2[j, i], rd.weight2[j, i]
 
 
-# ---- kernels --------------------------------------------------------------------------------------------
+# ---- kernels -------------------------------------------------------------------------------------------
 
 
 @wp.kernel
@@ -428,10 +237,7 @@ filter_state = wp.types.vector(length=2 * PAIRS_PER_THREAD, dtype=wp.float32)
 
 @wp.kernel
 def prefilter_depth_kernel(
-    depth: wp.array2d(dtype=wp.float32),  # (rows, cols) rectified depth z_1 in [0, 1]
-    depth2: wp.array2d(dtype=wp.float32),  # (rows, cols) second depth z_2 (two_depths != 0), else a dummy
-    weight2: wp.array2d(dtype=wp.float32),  # (rows, cols) weight w_2 of z_2 (two_depths != 0), else a dummy
-    two_depths: int,  # 1: the sparse two-depth representation of Peters 2017 Sec. 5.2
+    rd: RectifiedTexels,
     optical_step: wp.array(dtype=wp.float32),  # (rows,) tau_j: optical thickness per unit column length (0 = average)
     column_length: wp.array(dtype=wp.float32),  # (cols,) relative column length l_i, or (1,): uniform columns
     splits: int,  # regions per row filtered independently (Klehm 2014 Sec. 3.3)
@@ -452,7 +258,7 @@ def prefilter_depth_kernel(
     groups = (num_pairs + PAIRS_PER_THREAD - 1) // PAIRS_PER_THREAD
     region = t // groups
     g = t - region * groups
-    c0, nc = split_columns(splits, depth.shape[1], region)
+    c0, nc = split_columns(splits, rd.depth.shape[1], region)
     tau = optical_step[j]
     uniform = column_length.shape[0] == 1  # one length for all columns: the weight ratio is a constant
     w_first, step = texel_weight(1.0, column_length[0], tau * column_length[0])
@@ -461,7 +267,7 @@ def prefilter_depth_kernel(
     transmittance = float(1.0)  # T_i from the region start (the region's normalised values ignore the rest)
     sum_w = float(0.0)
     for i in range(c0, c0 + nc):
-        z, z2, w2 = texel_depths(depth, depth2, weight2, two_depths, j, i)
+        z, z2, w2 = texel_depths(rd, j, i)
         w = float(0.0)
         if uniform:
             w = transmittance * w_first
@@ -545,10 +351,7 @@ def requantize_moments(t: mm.vec6, num_moments: int, storage: int) -> mm.vec6:
 
 @wp.kernel
 def prefilter_moments_kernel(
-    depth: wp.array2d(dtype=wp.float32),  # (rows, cols) rectified depth z_1 in [0, 1]
-    depth2: wp.array2d(dtype=wp.float32),  # (rows, cols) second depth z_2 (two_depths != 0), else a dummy
-    weight2: wp.array2d(dtype=wp.float32),  # (rows, cols) weight w_2 of z_2 (two_depths != 0), else a dummy
-    two_depths: int,  # 1: the sparse two-depth representation of Peters 2017 Sec. 5.2
+    rd: RectifiedTexels,
     optical_step: wp.array(dtype=wp.float32),  # (rows,) tau_j per unit column length (0 = average)
     column_length: wp.array(dtype=wp.float32),  # (cols,) relative column lengths, or (1,): uniform columns
     num_moments: int,  # 4 or 6
@@ -559,7 +362,7 @@ def prefilter_moments_kernel(
     # Peters 2017 Sec. 5.1.1 and D.5: transmittance-weighted prefix sums of the stored moments, with the
     # same per-texel weights as the Fourier filter (Klehm 2014 Eq. 11-12); one thread per row.
     j = wp.tid() + offset
-    cols = depth.shape[1]
+    cols = rd.depth.shape[1]
     tau = optical_step[j]
     uniform = column_length.shape[0] == 1
     w_first, step = texel_weight(1.0, column_length[0], tau * column_length[0])
@@ -576,72 +379,11 @@ def prefilter_moments_kernel(
             w, transmittance = texel_weight(transmittance, length, tau * length)
         sum_w += w
         if sum_w > 0.0:
-            z1, z2, w2 = texel_depths(depth, depth2, weight2, two_depths, j, i)
+            z1, z2, w2 = texel_depths(rd, j, i)
             state = state + (w / sum_w) * (stored_moments(z1, z2, w2, num_moments, storage) - state)
         q = requantize_moments(state, num_moments, storage)
         for k in range(num_moments):
             out[j, i, k] = q[k]
-
-
-@wp.func
-def moments_visibility(filtered: wp.array3d(dtype=wp.float32), u: float, v: float, z_r: float, wrap_rows: int,
-                       storage: int, beta: float) -> float:
-    """Visible fraction of the view ray ending at rectified (u, v) with depth z_r from prefiltered moments.
-
-    Bilinear fetch of the filtered stored moments, back to canonical moments and biased for the storage mode,
-    then Algorithm 1 (4 moments) or Sec. 5.4 (6 moments) at z_f = 2 z_r - 1 with the overestimation weight
-    ``beta`` between the sharp lower (0) and upper (1) visibility bounds (Peters 2017 Sec. 5.3.1).
-    """
-    j0, j1, ay, i0, i1, ax = texel_footprint(filtered.shape[0], filtered.shape[1], u, v, wrap_rows)
-    num = filtered.shape[2]
-    w00 = (1.0 - ax) * (1.0 - ay)
-    w01 = ax * (1.0 - ay)
-    w10 = (1.0 - ax) * ay
-    w11 = ax * ay
-    t = mm.vec6()
-    for k in range(num):
-        t[k] = (w00 * filtered[j0, i0, k] + w01 * filtered[j0, i1, k] + w10 * filtered[j1, i0, k]
-                + w11 * filtered[j1, i1, k])
-    z_f = 2.0 * z_r - 1.0
-    if num == 4:
-        b = mm.load_biased_moments4(wp.vec4(t[0], t[1], t[2], t[3]), storage)
-        return 1.0 - mm.msm4_interpolated_shadow_intensity(b, z_f, beta)
-    return mm.msm6_visibility(mm.load_biased_moments6(t, storage), z_f, beta)
-
-
-@wp.kernel
-def evaluate_coords_kernel(
-    filtered_basis: wp.array3d(dtype=wp.float32),
-    weight_sums: wp.array2d(dtype=wp.float32),
-    region_weights: wp.array2d(dtype=wp.float32),
-    splits: int,
-    coords: wp.array(dtype=wp.vec3),  # (u, v, z_r) per query
-    wrap_rows: int,
-    out: wp.array(dtype=wp.float32),
-    offset: int,
-):
-    n = wp.tid() + offset
-    c = coords[n]
-    out[n] = prefiltered_visibility_split(filtered_basis, weight_sums, region_weights, splits, c[0], c[1], c[2],
-                                          wrap_rows)
-
-
-@wp.kernel
-def evaluate_points_kernel(
-    filtered_basis: wp.array3d(dtype=wp.float32),
-    rect: NonlinearRectParams,
-    points: wp.array(dtype=wp.vec3),  # world end points of camera view rays (G-buffer hits)
-    sigma_t: float,
-    fraction: wp.array(dtype=wp.float32),  # visible fraction F
-    integral: wp.array(dtype=wp.float32),  # F * integral_0^s exp(-sigma_t t) dt (world units)
-    offset: int,
-):
-    n = wp.tid() + offset
-    x = points[n]
-    c = world_to_rectified(rect, x)
-    f = prefiltered_visibility(filtered_basis, c[0], c[1], c[2], rect.full_circle)
-    fraction[n] = f
-    integral[n] = f * transmittance_integral(sigma_t, 0.0, wp.length(x - rect.origin))
 
 
 # ---- host side ------------------------------------------------------------------------------------------
@@ -667,7 +409,7 @@ def _pairs_per_thread(bases_per_thread) -> int:
     return int(bases_per_thread) // 2
 
 
-def _as_array(a, dtype, ndim: int, name: str, device) -> wp.array:
+def as_device_array(a, dtype, ndim: int, name: str, device) -> wp.array:
     if isinstance(a, wp.array):
         arr = a if a.device == wp.get_device(device) else a.to(device)
         if arr.dtype != dtype:
@@ -679,18 +421,23 @@ def _as_array(a, dtype, ndim: int, name: str, device) -> wp.array:
     return arr
 
 
-def _rectified_inputs(rectified_depth, device) -> list:
-    """[z1, z2, w2, two_depths] kernel inputs of a (rows, cols) depth map or a :class:`SparseRectifiedDepth`."""
+def rectified_texels(rectified_depth, device=None) -> RectifiedTexels:
+    """:class:`RectifiedTexels` of a (rows, cols) depth map (numpy or Warp) or a :class:`SparseRectifiedDepth`."""
+    device = default_device(device)
+    rd = RectifiedTexels()
     if isinstance(rectified_depth, SparseRectifiedDepth):
-        arrs = [_as_array(a, wp.float32, 2, f"rectified_depth.{n}", device)
+        arrs = [as_device_array(a, wp.float32, 2, f"rectified_depth.{n}", device)
                 for a, n in ((rectified_depth.z1, "z1"), (rectified_depth.z2, "z2"), (rectified_depth.w2, "w2"))]
         if not arrs[0].shape == arrs[1].shape == arrs[2].shape:
             raise ValueError(f"rectified_depth: z1, z2 and w2 must have one shape, got "
                              f"{arrs[0].shape}, {arrs[1].shape}, {arrs[2].shape}")
-        return [*arrs, 1]
-    depth = _as_array(rectified_depth, wp.float32, 2, "rectified_depth", device)
-    dummy = wp.zeros((1, 1), dtype=wp.float32, device=device)
-    return [depth, dummy, dummy, 0]
+        rd.depth, rd.depth2, rd.weight2 = arrs
+        rd.two_depths = 1
+        return rd
+    rd.depth = as_device_array(rectified_depth, wp.float32, 2, "rectified_depth", device)
+    rd.depth2 = rd.weight2 = wp.zeros((1, 1), dtype=wp.float32, device=device)
+    rd.two_depths = 0
+    return rd
 
 
 def _optical_steps(optical_step, rows: int, device) -> wp.array:
@@ -721,7 +468,7 @@ def fourier_basis_textures(rectified_depth, num_coefficients: int, *, bits: int 
     device = default_device(device)
     m = _check_coefficients(num_coefficients)
     levels = _levels(bits)
-    depth = _as_array(rectified_depth, wp.float32, 2, "rectified_depth", device)
+    depth = as_device_array(rectified_depth, wp.float32, 2, "rectified_depth", device)
     rows, cols = depth.shape
     out = wp.empty((rows, cols, m), dtype=wp.float32, device=device)
     launch_rows(basis_transform_kernel, (rows, cols), [depth, levels, out], device=device)
@@ -734,7 +481,7 @@ def prefix_filter(basis, optical_step=None, *, bases_per_thread: int = 8, bits: 
     Args:
         basis: (rows, cols, M) basis textures (e.g. from :func:`fourier_basis_textures`).
         optical_step: None or 0 for average visibility (Listing 1); else per-row tau = sigma_t * Delta_ref
-            (scalar or (rows,), e.g. :meth:`~.rectify.ReferenceRays.optical_steps`) for the
+            (scalar or (rows,), e.g. :meth:`~.rectify_nonlinear.ReferenceRays.optical_steps`) for the
             transmittance weights w_i = exp(-(i-1) tau) - exp(-i tau) of Eq. 11 (Listing 2).
         bases_per_thread: bases filtered by one thread (even); launch is rows x ceil(M / bases_per_thread).
         bits: 0 for float storage, 8 to emulate the paper's RGBA8 filtered-basis textures.
@@ -744,7 +491,7 @@ def prefix_filter(basis, optical_step=None, *, bases_per_thread: int = 8, bits: 
         (rows, cols, M) float32 Warp array of normalised filtered basis values in [-1, 1].
     """
     device = default_device(device)
-    b = _as_array(basis, wp.float32, 3, "basis", device)
+    b = as_device_array(basis, wp.float32, 3, "basis", device)
     rows, cols, m = b.shape
     _check_coefficients(m)
     ppt = _pairs_per_thread(bases_per_thread)
@@ -808,7 +555,8 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
 
     Args:
         rectified_depth: (rows, cols) float32 numpy or Warp array, depth in [0, 1], or a
-            :class:`~.rectify.SparseRectifiedDepth` (two depths per texel: the weighted basis mix is filtered).
+            :class:`~.rectify_nonlinear.SparseRectifiedDepth` (two depths per texel: the weighted basis mix is
+            filtered).
         num_coefficients: M, even, 4..128.
         optical_step: None or 0 for no transmittance (weights l_i: the length-weighted average visibility);
             else tau_j per row (scalar or (rows,)), the optical thickness per unit of ``column_length``.
@@ -826,8 +574,8 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
     """
     device = default_device(device)
     m = _check_coefficients(num_coefficients)
-    depths = _rectified_inputs(rectified_depth, device)
-    rows, cols = depths[0].shape
+    rd = rectified_texels(rectified_depth, device)
+    rows, cols = rd.depth.shape
     splits = _check_splits(splits, cols)
     levels = _levels(bits)
     tau = _optical_steps(optical_step, rows, device)
@@ -846,7 +594,7 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
     uniform = bool(np.all(lengths == lengths[0]))
     kernel_lengths = lengths[:1] if uniform else lengths
     launch_rows(prefilter_depth_kernel, (rows, splits * groups),
-                [*depths, tau, wp.array(kernel_lengths.astype(np.float32), dtype=wp.float32, device=device), splits,
+                [rd, tau, wp.array(kernel_lengths.astype(np.float32), dtype=wp.float32, device=device), splits,
                  levels, out, sums, int(splits > 1)], device=device)
     return FilteredBasis(basis=out, weight_sums=sums, region_weights=wp.array(region, dtype=wp.float32,
                                                                               device=device), splits=splits)
@@ -862,7 +610,7 @@ def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, colu
     """Transmittance-weighted prefix sums of moments of the rectified depth (Peters 2017 Sec. 5.1.1, 5.3-5.4, D.5).
 
     Args:
-        rectified_depth: (rows, cols) float32 depth in [0, 1], or a :class:`~.rectify.SparseRectifiedDepth`
+        rectified_depth: (rows, cols) float32 depth in [0, 1], or a :class:`~.rectify_nonlinear.SparseRectifiedDepth`
             (two depths per texel: their weighted moment vectors are combined, Sec. 5.2).
         num_moments: 4 or 6.
         optical_step, column_length: per-row optical steps and per-column lengths as in :func:`prefilter_weighted`.
@@ -880,14 +628,14 @@ def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, colu
     if bits not in MOMENT_STORAGE[num_moments]:
         raise ValueError(f"storage_bits for {num_moments} moments must be one of "
                          f"{sorted(MOMENT_STORAGE[num_moments])}, got {storage_bits}")
-    depths = _rectified_inputs(rectified_depth, device)
-    rows, cols = depths[0].shape
+    rd = rectified_texels(rectified_depth, device)
+    rows, cols = rd.depth.shape
     tau = _optical_steps(optical_step, rows, device)
     lengths = _column_lengths(column_length, cols)
     uniform = bool(np.all(lengths == lengths[0]))
     out = wp.empty((rows, cols, num_moments), dtype=wp.float32, device=device)
     launch_rows(prefilter_moments_kernel, rows,
-                [*depths, tau, wp.array((lengths[:1] if uniform else lengths).astype(np.float32), dtype=wp.float32,
+                [rd, tau, wp.array((lengths[:1] if uniform else lengths).astype(np.float32), dtype=wp.float32,
                                       device=device), int(num_moments), MOMENT_STORAGE[num_moments][bits], out],
                 device=device)
     return out
@@ -914,66 +662,26 @@ def prefilter_depth(rectified_depth, num_coefficients: int, optical_step=None, *
     return prefilter_weighted(rectified_depth, num_coefficients, optical_step, bits=bits, device=device).basis
 
 
-def _filtered_inputs(filtered_basis, device) -> list:
-    """[basis, weight_sums, region_weights, splits] kernel inputs of a FilteredBasis or a (rows, cols, M) array."""
-    if isinstance(filtered_basis, FilteredBasis):
-        return [filtered_basis.basis, filtered_basis.weight_sums, filtered_basis.region_weights,
-                int(filtered_basis.splits)]
-    fb = _as_array(filtered_basis, wp.float32, 3, "filtered_basis", device)
-    dummy = wp.zeros((1, 1), dtype=wp.float32, device=device)
-    return [fb, dummy, wp.ones((1, 1), dtype=wp.float32, device=device), 1]
-
-
-def evaluate_visibility(filtered_basis, coords, *, wrap_rows: bool = False, device=None) -> np.ndarray:
-    """Visible fraction for a batch of view rays given by rectified end-point coordinates (tests, debugging).
-
-    Args:
-        filtered_basis: (rows, cols, M) normalised filtered basis, or a :class:`FilteredBasis` (split regions).
-        coords: (N, 3) rectified (u, v, z_r) of the rays' end points.
-        wrap_rows: rows wrap around (full azimuth circle).
-        device: Warp device.
-
-    Returns:
-        (N,) float32 numpy array in [0, 1] (see :func:`prefiltered_visibility_split`).
-    """
-    device = default_device(device)
-    inputs = _filtered_inputs(filtered_basis, device)
-    c = np.ascontiguousarray(coords, dtype=np.float32)
-    if c.ndim != 2 or c.shape[1] != 3:
-        raise ValueError(f"coords must have shape (N, 3), got {c.shape}")
-    out = wp.empty(len(c), dtype=wp.float32, device=device)
-    launch_rows(evaluate_coords_kernel, len(c), [*inputs, wp.array(c, dtype=wp.vec3, device=device), int(wrap_rows),
-                                                 out], device=device)
-    return out.numpy()
-
-
-def evaluate_points(filtered_basis, rect: NonlinearRectification, points, sigma_t: float = 0.0,
-                    device=None) -> tuple[np.ndarray, np.ndarray]:
-    """Per-pixel evaluation for world end points of camera view rays (G-buffer hits or far-plane points).
-
-    Args:
-        filtered_basis: (rows, cols, M) normalised filtered basis built on ``rect``'s rectified map.
-        rect: the rectification.
-        points: (N, 3) world points x_s = position + s d.
-        sigma_t: extinction (1/unit) for the transmittance integral.
-        device: Warp device.
-
-    Returns:
-        (fraction, integral): (N,) float32 numpy arrays; fraction F in [0, 1] and
-        F * integral_0^s exp(-sigma_t t) dt (world units; F * s when sigma_t = 0). Multiply the integral
-        by sigma_s f E for L_scat (CONVENTIONS.md).
-    """
-    device = default_device(device)
-    if not (np.isfinite(sigma_t) and sigma_t >= 0.0):
-        raise ValueError(f"sigma_t must be finite and >= 0, got {sigma_t}")
-    fb = _as_array(filtered_basis, wp.float32, 3, "filtered_basis", device)
-    p = np.ascontiguousarray(points, dtype=np.float32)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise ValueError(f"points must have shape (N, 3), got {p.shape}")
-    n = len(p)
-    frac = wp.empty(n, dtype=wp.float32, device=device)
-    integ = wp.empty(n, dtype=wp.float32, device=device)
-    launch_rows(evaluate_points_kernel, n,
-                [fb, rect.params(), wp.array(p, dtype=wp.vec3, device=device), float(sigma_t), frac, integ],
-                device=device)
-    return frac.numpy(), integ.numpy()
+__all__ = [
+    "MOMENT_STORAGE",
+    "PAIRS_PER_THREAD",
+    "FilteredBasis",
+    "RectifiedTexels",
+    "advance_filter_weight",
+    "fourier_basis",
+    "fourier_basis_textures",
+    "fourier_coefficient",
+    "fourier_frequency",
+    "fourier_step",
+    "prefilter_depth",
+    "prefilter_moments",
+    "prefilter_weighted",
+    "prefix_filter",
+    "rectified_texels",
+    "requantize_moments",
+    "split_columns",
+    "stored_moments",
+    "texel_depths",
+    "texel_weight",
+    "unorm_roundtrip",
+]

@@ -10,20 +10,12 @@ import trimesh
 import warp as wp
 
 from warpscatter.csm import build_csm
-from warpscatter.csm.lighting import (
-    EnvData,
-    EnvironmentMap,
-    ProgressiveAccumulator,
-    brdf_eval,
-    brdf_pdf,
-    brdf_sample,
-    env_lookup,
-    env_pdf,
-    env_sample,
-    shade_environment,
-)
+from warpscatter.csm.brdf import brdf_eval, brdf_pdf, brdf_sample
+from warpscatter.csm.direct_lighting import ProgressiveAccumulator
+from warpscatter.csm.environment import shade_environment
 from warpscatter.imageio import read_image
 from warpscatter.raycast import build_mesh
+from warpscatter.scene.environment_map import EnvData, EnvironmentMap, env_lookup, env_pdf, env_sample
 
 SKY = Path(__file__).resolve().parents[1] / "assets" / "sky_small.exr"
 

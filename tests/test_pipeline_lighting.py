@@ -11,9 +11,10 @@ from click.testing import CliRunner
 from warpscatter.cli.main import main
 from warpscatter.config import load_config
 from warpscatter.csm import geometry_digest, load_csm
-from warpscatter.csm.render import pass_seed, render_lighting, scene_occluders
+from warpscatter.csm.occluders import scene_occluders
 from warpscatter.imageio import read_image, write_exr
 from warpscatter.pipeline import StageTimer, render
+from warpscatter.pipeline.lighting import pass_seed, render_lighting
 from warpscatter.scene import build_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,7 +64,7 @@ def test_progressive_passes_hand_out_images_and_use_new_patterns():
                                 "render.lighting.write_every=2"])
     scene = build_scene(config)
     seen = []
-    images, stats = render_lighting(config, scene, timer=StageTimer(),
+    images, stats = render_lighting(scene, config.render.lighting, StageTimer(),
                                     on_pass=lambda im, done, total: seen.append((done, total, im["color"].copy())))
     assert [(d, t) for d, t, _ in seen] == [(2, 5), (4, 5)]
     assert not np.array_equal(seen[0][2], seen[1][2])  # passes 3-4 drew new patterns: the mean moved
@@ -99,7 +100,7 @@ def test_csm_files_round_trip_and_mismatched_files_are_refused(tmp_path):
     config = load_config(GATE, SMALL)
     scene = build_scene(config)
     csm = load_csm(out)
-    assert csm.geometry == geometry_digest(*scene_occluders(scene, [m.receiver_only for m in config.scene.meshes]))
+    assert csm.geometry == geometry_digest(*scene_occluders(scene))
     on_the_fly = render(config, write=False).images["color"]
     from_file = render(load_config(GATE, [*SMALL, f"render.lighting.csm.file={out}"]), write=False).images["color"]
     assert np.array_equal(on_the_fly, from_file)  # the saved CSM is the one the render builds: same image

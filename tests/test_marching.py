@@ -3,11 +3,10 @@
 import numpy as np
 import pytest
 import warp as wp
-from conftest import make_scene, quad
+from conftest import make_scene, march, quad
 
 from warpscatter.gbuffer import gbuffer_raycast
-from warpscatter.scattering import raymarch as rm
-from warpscatter.scattering.raymarch import raymarch
+from warpscatter.scattering import marching as rm
 from warpscatter.scene import DeviceGeometry
 from warpscatter.scene.camera import Camera
 from warpscatter.scene.lights import DirectionalLight, LightParams
@@ -37,7 +36,7 @@ def test_no_occluder_matches_closed_form(phase, jitter):
     gb = gbuffer_raycast(scene, geo)
     s = gb.distance.numpy().astype(np.float64)
     assert (gb.material.numpy() >= 0).any() and (gb.material.numpy() < 0).any()  # both hits and far-plane rays
-    got = raymarch(scene, gb, steps=7, visibility="exact", geometry=geo, jitter=jitter).numpy()
+    got = march(scene, gb, steps=7, visibility="exact", geometry=geo, jitter=jitter)
     want = analytic_unoccluded(scene, s)
     rel = np.abs(got - want) / want
     assert rel.max() < 1e-4  # measured 5e-7 (float32 accumulation over 7 strata)
@@ -56,7 +55,7 @@ def test_half_plane_occluder_closed_form():
     gb = gbuffer_raycast(scene, geo)
     s = gb.distance.numpy().astype(np.float64)
     steps = 64
-    got = raymarch(scene, gb, steps=steps, visibility="exact", geometry=geo).numpy()[..., 0]
+    got = march(scene, gb, steps=steps, visibility="exact", geometry=geo)[..., 0]
 
     # closed form: along p(t) = o + t d, g(t) = p.x - lx (h - p.y)/ly is linear: lit where g(t) >= 0
     d = cam.ray_directions()
@@ -97,7 +96,7 @@ def test_spot_light_matches_quadrature():
     scene = _spot_scene()
     geo = DeviceGeometry(scene)
     gb = gbuffer_raycast(scene, geo)
-    got = raymarch(scene, gb, steps=256, visibility="exact", geometry=geo).numpy()
+    got = march(scene, gb, steps=256, visibility="exact", geometry=geo)
     s = gb.distance.numpy().astype(np.float64)
     dirs = scene.camera.ray_directions()
     m, light = scene.medium, scene.light
@@ -127,7 +126,7 @@ def test_spot_texture_modulates_radiance():
     for scene in (plain, half):
         geo = DeviceGeometry(scene)
         gb = gbuffer_raycast(scene, geo)
-        outs.append(raymarch(scene, gb, steps=32, visibility="exact", geometry=geo, seed=3).numpy())
+        outs.append(march(scene, gb, steps=32, visibility="exact", geometry=geo, seed=3))
     np.testing.assert_allclose(outs[1], 0.5 * outs[0], rtol=1e-5)
     # a texture whose left half (u < 0.5, the light's -right side) is red and right half green
     tex = np.zeros((8, 512, 3), np.float32)  # fine columns: bilinear blending only within 1/512 of u = 0.5
@@ -137,7 +136,7 @@ def test_spot_texture_modulates_radiance():
     right = scene.light.basis()[0]
     geo = DeviceGeometry(scene)
     gb = gbuffer_raycast(scene, geo)
-    out = raymarch(scene, gb, steps=32, visibility="exact", geometry=geo).numpy()
+    out = march(scene, gb, steps=32, visibility="exact", geometry=geo)
     assert out[..., 2].max() == 0.0
     assert out[..., 0].sum() > 0 and out[..., 1].sum() > 0
     # rays leaning to the light's -right side gather mostly red, those leaning to +right mostly green
@@ -167,17 +166,17 @@ def test_spot_shadow_map_visibility_matches_exact():
                        medium=Medium(sigma_t=0.1, albedo=1.0))
     geo = DeviceGeometry(scene)
     gb = gbuffer_raycast(scene, geo)
-    exact = raymarch(scene, gb, steps=128, visibility="exact", geometry=geo).numpy()
+    exact = march(scene, gb, steps=128, visibility="exact", geometry=geo)
     sm = render_shadow_map(scene, 512)
     assert sm.perspective and np.isfinite(sm.depth).any()
-    approx = raymarch(scene, gb, steps=128, visibility="shadow_map", shadow_map=sm).numpy()
+    approx = march(scene, gb, steps=128, visibility="shadow_map", shadow_map=sm)
     rel = np.abs(approx - exact).sum() / np.abs(exact).sum()
     assert rel < 0.02  # measured 0.011: same jitter, only the 512^2 map's texel edges differ
     # the slats cast shafts: visibility removes a good part of the unoccluded light
-    unoccluded = raymarch(scene, gb, steps=128, visibility="exact",
-                          geometry=DeviceGeometry(make_scene(*quad([50, 50, 50], [51, 50, 50], [51, 51, 50],
-                                                                   [50, 51, 50]), camera=cam, light=light,
-                                                         medium=scene.medium))).numpy()
+    unoccluded = march(scene, gb, steps=128, visibility="exact",
+                       geometry=DeviceGeometry(make_scene(*quad([50, 50, 50], [51, 50, 50], [51, 51, 50],
+                                                                [50, 51, 50]), camera=cam, light=light,
+                                                          medium=scene.medium)))
     assert exact.sum() < 0.7 * unoccluded.sum()  # measured 0.54
 
 
@@ -279,7 +278,7 @@ def test_spot_light_seen_from_outside_the_cone_matches_quadrature(steps, jitter,
     gb = gbuffer_raycast(scene, geo)
     s = gb.distance.numpy().astype(np.float64)
     want = _spot_quadrature(scene, s)
-    got = raymarch(scene, gb, steps=steps, visibility="exact", geometry=geo, jitter=jitter).numpy()
+    got = march(scene, gb, steps=steps, visibility="exact", geometry=geo, jitter=jitter)
     dark = want.sum(-1) == 0
     assert 0.05 < dark.mean() < 0.8  # rays that miss the cone (measured 0.60) are exactly 0
     assert (got[dark] == 0).all()
@@ -300,10 +299,10 @@ def test_fixed_jitter_is_coherent_between_pixels():
                           near=0.1, far=12)
     geo = DeviceGeometry(scene)
     gb = gbuffer_raycast(scene, geo)
-    conv = raymarch(scene, gb, steps=2048, visibility="exact", geometry=geo, seed=9).numpy()
+    conv = march(scene, gb, steps=2048, visibility="exact", geometry=geo, seed=9)
     ratio = {}
     for jitter in ("per_pixel", "fixed"):
-        err = raymarch(scene, gb, steps=16, visibility="exact", geometry=geo, jitter=jitter, seed=4).numpy() - conv
+        err = march(scene, gb, steps=16, visibility="exact", geometry=geo, jitter=jitter, seed=4) - conv
         ratio[jitter] = np.abs(np.diff(err, axis=1)).mean() / np.abs(err).mean()
     assert ratio["per_pixel"] > 1.2  # measured 1.36
     assert ratio["fixed"] < 0.7  # measured 0.47
@@ -314,4 +313,4 @@ def test_bad_jitter_is_rejected():
     geo = DeviceGeometry(scene)
     gb = gbuffer_raycast(scene, geo)
     with pytest.raises(ValueError, match="jitter"):
-        raymarch(scene, gb, steps=4, visibility="exact", geometry=geo, jitter="blue_noise")
+        march(scene, gb, steps=4, visibility="exact", geometry=geo, jitter="blue_noise")

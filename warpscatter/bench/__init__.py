@@ -1,0 +1,95 @@
+"""Benchmark suites: ``warpscatter bench [SUITE]``.
+
+Every suite times library stages the way a render runs them: a warm-up run first (kernel compile is measured
+apart, as the ``compile`` figure of the first load in the process), then the median of ``repeats`` runs per stage.
+Each case is rendered once per run. Rows carry the error against the exact reference where one applies (relative
+L1 = sum|a - b| / sum|b| and RMSE over all pixels and channels) and the speed-up over the brute-force ray marcher
+measured in the SAME run. Scenes are the bundled configs (``configs/*.yaml``, :mod:`.scenes`) at bench sizes.
+
+Output: a terminal table (:meth:`BenchReport.table`), ``bench-<suite>.json`` and, when matplotlib is installed
+(the ``plot`` extra), ``bench-<suite>.png``.
+
+Suites (:data:`SUITES`, one record each): ``raster``, ``reference``, ``parallel`` (:mod:`.suites_core`),
+``prefiltered``, ``moments``, ``epipolar`` (:mod:`.suites_scattering`), ``csm`` (:mod:`.suites_csm`).
+
+``quick=True`` shrinks every size (for smoke tests and CI); figures for notes come from full runs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from ..stages import ProgressFn
+from ..wpinit import init
+from .report import BenchReport, errors, machine_meta, measure, thread_limit
+from .scenes import bench_light_texture, bench_scene_config, render_timed, scattering_rows
+from .suites_core import suite_parallel, suite_raster, suite_reference
+from .suites_csm import suite_csm
+from .suites_scattering import suite_epipolar, suite_moments, suite_prefiltered
+
+
+@dataclass(frozen=True)
+class Suite:
+    """A bench suite: ``run(report, repeats, warmup, quick, progress)`` adds its rows to a :class:`BenchReport`."""
+
+    name: str
+    description: str
+    run: Callable[[BenchReport, int, int, bool, ProgressFn | None], None]
+
+
+#: The suites, in the order ``bench all`` runs them.
+SUITES: dict[str, Suite] = {s.name: s for s in (
+    Suite("raster", "1024^2 depth map of a >=1M-triangle mesh: Warp rasterizer vs wp.Mesh ray casting vs Embree",
+          suite_raster),
+    Suite("reference", "ray marching at 1920x1080, 128 steps: shadow-map vs exact (ray-cast) visibility",
+          suite_reference),
+    Suite("parallel", "speed-up of split CPU launches (1 thread vs all cores): rasterizer and ray marcher",
+          suite_parallel),
+    Suite("prefiltered", "fourier method (Klehm 2014): stage times vs map size, output size, basis count; error vs "
+                         "exact; scene-complexity sweep", suite_prefiltered),
+    Suite("moments", "fourier, moments4, moments6 (Peters 2017) and the marcher on colonnade, canopy, window "
+                     "(colonnade and canopy also with a receiver-only ground): time, bits per texel, error vs exact; "
+                     "moment soft shadows vs PCSS", suite_moments),
+    Suite("epipolar", "epipolar sampling (Engelhardt 2010) on the colonnade under a textured spot: fraction "
+                      "ray-marched, stage times, errors (vs per-pixel marching, exact, converged) for 256-1024 lines "
+                      "and 8-32 initial samples; per_pixel and fixed step patterns", suite_epipolar),
+    Suite("csm", "coherent shadow maps (Ritschel 2007): compression ratio, precompute time and memory vs N and "
+                 "enumeration; visibility queries/s (random, coherent) against BVH shadow rays; the csm render "
+                 "method's time per pass and error against raytrace", suite_csm),
+)}
+
+
+def run(suite: str = "reference", *, repeats: int = 5, warmup: int = 1, out_dir: Path | None = None,
+        quick: bool = False, progress: ProgressFn | None = None) -> BenchReport:
+    """Run one suite (or ``"all"``) and write its JSON/PNG into ``out_dir`` (default ``bench-out``).
+
+    Raises:
+        ValueError: unknown suite name, or repeats < 1 / warmup < 0.
+    """
+    names = list(SUITES) if suite == "all" else [suite]
+    for s in names:
+        if s not in SUITES:
+            raise ValueError(f"unknown bench suite {s!r} (choose from {', '.join(SUITES)}, all)")
+    if repeats < 1 or warmup < 0:
+        raise ValueError("repeats must be >= 1 and warmup >= 0")
+    init()
+    out_dir = Path(out_dir) if out_dir is not None else Path("bench-out")
+    reports = []
+    for s in names:
+        report = BenchReport(suite=s, meta={**machine_meta(), "repeats": repeats, "warmup": warmup, "quick": quick})
+        SUITES[s].run(report, repeats, warmup, quick, progress)
+        report.write(out_dir)
+        reports.append(report)
+    if len(reports) == 1:
+        return reports[0]
+    merged = BenchReport(suite="all", meta=reports[0].meta)
+    for r in reports:
+        merged.rows += [{**row, "name": f"{r.suite}: {row['name']}"} for row in r.rows]
+        merged.files += r.files
+    return merged
+
+
+__all__ = ["SUITES", "BenchReport", "Suite", "bench_light_texture", "bench_scene_config", "errors", "machine_meta",
+           "measure", "render_timed", "run", "scattering_rows", "thread_limit"]

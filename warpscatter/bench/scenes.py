@@ -1,0 +1,147 @@
+"""The bench scenes: the bundled configs (``configs/NAME.yaml``) at bench sizes, and the timed render of one case."""
+
+from __future__ import annotations
+
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .. import methods
+from ..pipeline import StageTimer, compile_kernels, render_images
+from ..resources import bundled_asset, bundled_config
+from ..scene import build_scene
+from .report import errors
+
+#: Bench scene name -> the bundled config it loads (``colonnade_spot``: the colonnade under a textured spot light).
+SCENES = {"colonnade": "colonnade", "canopy": "canopy", "window": "window", "colonnade_spot": "colonnade"}
+#: The textured spot above the colonnade, outside the view (the ``epipolar`` suite's light).
+COLONNADE_SPOT = {"type": "spot", "position": [10.0, 25.0, 14.0], "direction": [-10.0, -22.5, -14.0],
+                  "cone_deg": 25.0, "intensity": [2400.0, 2250.0, 2100.0]}
+
+
+def bench_light_texture() -> Path:
+    """The bundled light cookie (source checkout), else a generated 128^2 window-pane texture in a temp folder."""
+    try:
+        return bundled_asset("light_cookie.png")
+    except FileNotFoundError:
+        pass
+    import tempfile
+
+    from ..imageio import write_png
+
+    path = Path(tempfile.gettempdir()) / "warpscatter-bench-cookie.png"
+    if not path.is_file():
+        y, x = np.mgrid[0:128, 0:128] / 128.0
+        panes = ((np.abs((x * 4) % 1 - 0.5) < 0.42) & (np.abs((y * 4) % 1 - 0.5) < 0.42)).astype(np.float32)
+        tint = np.stack([0.6 + 0.4 * x, 0.7 + 0.3 * y, 1.0 - 0.5 * x], -1).astype(np.float32)
+        write_png(path, panes[..., None] * tint)
+    return path
+
+
+def bench_scene_config(name: str, width: int, height: int, leaves: int | None = None,
+                       receiver_only_ground: bool = False, **render):
+    """A validated config of a bench scene: the bundled config (:data:`SCENES`) at ``width`` x ``height`` with the
+    bench's own ``render`` section.
+
+    Args:
+        name: ``colonnade``, ``canopy`` or ``window`` (``configs/NAME.yaml``), or ``colonnade_spot`` (the colonnade
+            under a textured spot light).
+        width, height: image size in pixels.
+        leaves: leaf quads of the canopy (its complexity knob; None: the config's).
+        receiver_only_ground: mark the scene's ground plane ``receiver_only`` (it shadows nothing visible, so the
+            exact image is unchanged; the shadow-map methods no longer see its depths).
+        **render: the config's ``render`` section (replaces the file's).
+
+    Raises:
+        FileNotFoundError: the bundled configs are not installed (see :mod:`warpscatter.resources`).
+    """
+    from ..config import Config
+
+    path = bundled_config(SCENES[name])
+    data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    meshes = data["scene"]["meshes"]
+    for mesh in meshes:
+        if leaves is not None and mesh.get("procedural") == "canopy":
+            mesh["params"] = {**mesh.get("params", {}), "leaves": int(leaves)}
+        if receiver_only_ground and mesh.get("procedural") == "ground_plane":
+            mesh["receiver_only"] = True
+    if name == "colonnade_spot":
+        data["light"] = {**COLONNADE_SPOT, "texture": str(bench_light_texture())}
+    data["camera"] = {**data["camera"], "width": width, "height": height}
+    data["render"] = render
+    data.pop("output", None)
+    return Config.from_dict(data, config_dir=path.parent)
+
+
+def _dense_mesh(min_triangles: int):
+    """A height-field terrain with at least ``min_triangles`` triangles (from the procedural generators)."""
+    from ..scene.procedural import terrain
+
+    res = int(np.ceil(np.sqrt(min_triangles / 2.0))) + 1
+    mesh = terrain(size=40.0, resolution=res, amplitude=3.0, seed=1)
+    return mesh.vertices, mesh.triangles
+
+
+def _bumpy_sphere(count: int) -> tuple[np.ndarray, np.ndarray]:
+    """A closed, bumpy UV sphere (2 count^2 - ... triangles; count 246: about 240k) for the CSM suite."""
+    import trimesh
+
+    m = trimesh.creation.uv_sphere(radius=1.0, count=[count, count])
+    n = np.asarray(m.vertices, np.float64)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    rng = np.random.default_rng(0)
+    k, ph = rng.normal(size=(24, 3)) * 3.0, rng.uniform(0.0, 2.0 * np.pi, 24)
+    r = 1.0 + 0.5 * np.mean(np.sin(n @ k.T + ph), axis=1)
+    return (n * r[:, None]).astype(np.float32), np.asarray(m.faces, np.int32)
+
+
+def render_timed(cfg, repeats, warmup, device=None):
+    """Render a config's classic stages ``warmup + repeats`` times (one case, rendered once per run).
+
+    Returns:
+        (stages, images, compile_s, scene, stats): per-stage medians (ms, compile excluded), the images of the last
+        run, the compile time of the first load (s), the built scene and the render's stats.
+    """
+    t0 = time.perf_counter()
+    method = methods.get("scattering", cfg.render.scattering.method)
+    compile_kernels(methods.CLASSIC_MODULES + method.modules, device)
+    compile_s = time.perf_counter() - t0
+    scene = build_scene(cfg)
+    runs, images = [], None
+    for k in range(warmup + max(1, repeats)):
+        timer = StageTimer()
+        images, stats = render_images(scene, cfg.render, timer=timer, device=device)
+        if k >= warmup:
+            runs.append(timer.timings)
+    return median_stages(runs), images, compile_s, scene, stats
+
+
+def median_stages(runs: list[dict], names=None) -> dict:
+    """Per-stage median (ms) over the timings of several runs (``names``: those stages only; compile excluded)."""
+    return {n: 1e3 * statistics.median(r[n] for r in runs) for n in runs[0]
+            if n != "compile" and (names is None or n in names)}
+
+
+def scattering_rows(report, name, cfg_kw, params, repeats, warmup, reference=None, extra=None):
+    """Time one render configuration's scattering stages; add a row with errors against ``reference``.
+
+    Returns:
+        (row, images, stats).
+    """
+    cfg = bench_scene_config(**cfg_kw)
+    stages, images, compile_s, scene, stats = render_timed(cfg, repeats, warmup)
+    technique = {k: v for k, v in stages.items() if k not in ("upload", "bvh", "gbuffer", "shadow_map", "shading")}
+    marched = stats.get("epipole_raymarched_fraction")
+    row = report.add(name=name, params=params, median_ms=sum(technique.values()), stages_ms=technique,
+                     extra={"compile_s": round(compile_s, 2), **(extra or {}),
+                            **({"epipole_pct": round(100 * marched, 2)} if marched is not None else {})})
+    if reference is not None:
+        row.update(errors(images["scattering"], reference))
+    return row, images, stats
+
+
+__all__ = ["COLONNADE_SPOT", "SCENES", "bench_light_texture", "bench_scene_config", "median_stages", "render_timed",
+           "scattering_rows"]

@@ -1,0 +1,259 @@
+"""Bench suites of the single-scattering methods: ``prefiltered``, ``moments`` and ``epipolar``.
+
+* ``prefiltered`` — the ``fourier`` method (Klehm 2014): stage times against map size, output size and basis count,
+  error against the exact reference, and a scene-complexity sweep.
+* ``moments``     — ``fourier``, ``moments4``, ``moments6`` (Peters 2017) and the marcher on the colonnade, canopy and
+  window (colonnade and canopy also with a receiver-only ground): time, bits per texel, error; moment soft shadows
+  against PCSS.
+* ``epipolar``    — epipolar sampling (Engelhardt 2010) under a textured spot: fraction ray-marched, stage times,
+  errors against per-pixel marching, the exact reference and a converged marcher.
+"""
+
+from __future__ import annotations
+
+from ..config import Config
+from ..pipeline import StageTimer, render_images
+from ..scene import build_scene
+from ..stages import ProgressFn
+from .report import BenchReport, errors
+from .scenes import bench_scene_config, median_stages, render_timed, scattering_rows
+
+
+def suite_prefiltered(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
+    """Klehm 2014 Table 2 style sweeps for the ``fourier`` method, plus the speed/error bar of issue #3."""
+    full = (480, 270) if quick else (1920, 1080)
+    smap = 256 if quick else 1024
+    no_surf = {"enabled": False}
+
+    def fourier(m=32, res=smap, **f):
+        return {"method": "fourier", "shadow_map": {"resolution": res}, "fourier": {"coefficients": m, **f}}
+
+    def march(steps, vis="shadow_map", res=smap):
+        return {"method": "raymarch", "visibility": vis, "steps": steps, "shadow_map": {"resolution": res}}
+
+    # ---- the bar: colonnade at full HD, 1024^2 map ----
+    if progress:
+        progress("exact reference", 0.0)
+    w, h = full
+    ref_row, ref_img, _ = scattering_rows(report, "raymarch exact (reference)", {
+        "name": "colonnade", "width": w, "height": h, "scattering": march(128, "exact"), "surfaces": no_surf},
+        {"scene": "colonnade", "size": f"{w}x{h}", "steps": 128}, 1, 0)
+    reference = ref_img["scattering"]
+    rows = {}
+    # the brute-force marcher (exact visibility) at 32 steps with another seed: its error against the reference is
+    # its own noise, the bar's error threshold; the shadow-map marcher shows the same at the cheaper visibility
+    for label, sc, reps in (("raymarch exact 32", {**march(32, "exact"), "seed": 1}, 1),
+                            ("raymarch shadow_map 128", march(128), repeats), ("raymarch shadow_map 32", march(32),
+                                                                               repeats),
+                            ("fourier M=32", fourier(), repeats),
+                            ("fourier M=32 filtered resampling",  # Peters 2017 Sec. 5.2
+                             {**fourier(), "prefiltered": {"resample_filter": "moments"}}, repeats)):
+        if progress:
+            progress(label, 0.1)
+        rows[label], _, _ = scattering_rows(report, label, {"name": "colonnade", "width": w, "height": h,
+                                                          "scattering": sc, "surfaces": no_surf},
+                                          {"scene": "colonnade", "size": f"{w}x{h}", "map": smap}, reps,
+                                          warmup if reps > 1 else 0, reference)
+    base = ref_row["median_ms"]
+    for r in (*rows.values(), ref_row):
+        r["speedup"] = base / r["median_ms"]  # against the brute-force (exact) 128-step marcher of this run
+    f = rows["fourier M=32"]
+    report.meta["bar"] = {
+        "fourier_speedup_vs_exact_raymarch128": round(f["speedup"], 2),
+        "fourier_speedup_vs_shadow_map_raymarch128": round(rows["raymarch shadow_map 128"]["median_ms"]
+                                                           / f["median_ms"], 2),
+        "fourier_rel_l1": round(f["rel_l1"], 4),
+        "exact_raymarch32_rel_l1": round(rows["raymarch exact 32"]["rel_l1"], 4),
+        "shadow_map_raymarch32_rel_l1": round(rows["raymarch shadow_map 32"]["rel_l1"], 4),
+        "fourier_epipole_pct": f["extra"].get("epipole_pct"),
+    }
+
+    # ---- sweeps (Klehm 2014 Table 2): map size, output size, basis count ----
+    maps = [(256, 256), (512, 512)] if quick else [(512, 512), (1024, 1024), (2048, 2048), (4096, 1024)]
+    outs = [(240, 135), (480, 270)] if quick else [(480, 270), (960, 540), (1920, 1080), (3840, 2160)]
+    counts = [4, 32] if quick else [4, 8, 16, 32, 64, 128]
+    for k, (mw, mh) in enumerate(maps):
+        if progress:
+            progress(f"map {mw}x{mh}", 0.3 + 0.1 * k / len(maps))
+        scattering_rows(report, "fourier map sweep", {"name": "colonnade", "width": w, "height": h,
+                                                           "scattering": fourier(res=[mw, mh]), "surfaces": no_surf},
+                         {"map": f"{mw}x{mh}", "size": f"{w}x{h}", "M": 32}, repeats, warmup,
+                         extra={"filtered_basis_MB": round(mw * mh * 32 * 4 / 2**20, 1)})
+    for k, (ow, oh) in enumerate(outs):
+        if progress:
+            progress(f"output {ow}x{oh}", 0.4 + 0.1 * k / len(outs))
+        scattering_rows(report, "fourier output sweep", {"name": "colonnade", "width": ow, "height": oh,
+                                                              "scattering": fourier(), "surfaces": no_surf},
+                         {"size": f"{ow}x{oh}", "map": smap, "M": 32}, repeats, warmup)
+    for k, m in enumerate(counts):
+        if progress:
+            progress(f"M={m}", 0.5 + 0.1 * k / len(counts))
+        scattering_rows(report, "fourier basis sweep", {"name": "colonnade", "width": w, "height": h,
+                                                             "scattering": fourier(m), "surfaces": no_surf},
+                         {"M": m, "size": f"{w}x{h}", "map": smap}, repeats, warmup,
+                         extra={"bytes_per_texel": 4 * m, "bytes_per_texel_8bit": m})
+
+    # ---- scene complexity: canopy leaves x1 .. x100; the fourier evaluation stays flat ----
+    cw, ch = (240, 135) if quick else (480, 270)
+    steps = 16 if quick else 32
+    leaf_counts = [1000, 10000] if quick else [1000, 10000, 100000]
+    for k, leaves in enumerate(leaf_counts):
+        if progress:
+            progress(f"canopy {leaves} leaves", 0.7 + 0.3 * k / len(leaf_counts))
+        common = {"name": "canopy", "width": cw, "height": ch, "leaves": leaves, "surfaces": no_surf}
+        params = {"leaves": leaves, "triangles": 2 * leaves, "size": f"{cw}x{ch}"}
+        scattering_rows(report, "complexity fourier", dict(common, scattering=fourier()), params, repeats, warmup)
+        scattering_rows(report, f"complexity raymarch exact {steps}", dict(common, scattering=march(steps, "exact")),
+                         params, 1, 0)
+
+
+def suite_moments(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
+    """Peters 2017 Fig. 15-16/19 style: the prefiltered methods and the marcher on three scenes (colonnade and canopy
+    also with a receiver-only ground); soft shadows."""
+    w, h = (240, 135) if quick else (960, 540)
+    smap = 256 if quick else 1024
+    no_surf = {"enabled": False}
+    methods = [("raymarch shadow_map 128", {"method": "raymarch", "visibility": "shadow_map", "steps": 128}),
+               ("fourier M=32", {"method": "fourier"}), ("fourier M=32 8-bit", {"method": "fourier",
+                                                                             "fourier": {"storage_bits": 8}})]
+    methods += [(f"{m} {b}-bit", {"method": m, "moments": {"storage_bits": b}})
+                for m, bits in (("moments4", (64, 128)), ("moments6", (64, 96, 192))) for b in bits]
+    # caster culling (warpscatter's, on by default for the moment methods only): each side of the default
+    methods += [("fourier M=32 culled", {"method": "fourier", "prefiltered": {"caster_culling": True}}),
+                ("moments6 192-bit unculled", {"method": "moments6", "moments": {"storage_bits": 192},
+                                               "prefiltered": {"caster_culling": False}})]
+    # filtering during resampling (Peters 2017 Sec. 5.2, Fig. 17): a filtered 4-moment map and Algorithm 2
+    methods += [(f"{label} filtered", {**sc, "prefiltered": {"resample_filter": "moments"}}) for label, sc in methods
+                if label in ("fourier M=32", "moments4 64-bit", "moments6 64-bit", "moments6 192-bit")]
+    # each scene as configured, and colonnade / canopy once more with the ground plane receiver_only: the ground
+    # shadows nothing visible (the exact image is the same), but the shadow map is fitted to the casters and no
+    # ray that ends on the ground sees the ground's own depths just behind its fragment depth in the rectified map
+    # (where moment bounds are loosest; caster culling removes most of those too)
+    variants = [("colonnade", False), ("colonnade", True), ("canopy", False), ("canopy", True), ("window", False)]
+    casting_refs = {}
+    for k, (scene, ro_ground) in enumerate(variants):
+        title = f"{scene} (receiver-only ground)" if ro_ground else scene
+        if progress:
+            progress(f"{title}: exact reference", 0.8 * k / len(variants))
+        _, ref, _ = scattering_rows(report, f"{title}: raymarch exact (reference)", {
+            "name": scene, "width": w, "height": h, "receiver_only_ground": ro_ground,
+            "scattering": {"method": "raymarch", "visibility": "exact", "steps": 128}, "surfaces": no_surf},
+            {"size": f"{w}x{h}", "steps": 128}, 1, 0)
+        if ro_ground:  # the flag must not change the exact image (same seed): the difference is reported
+            report.rows[-1]["extra"]["vs_casting_ground_rel_l1"] = errors(ref["scattering"],
+                                                                          casting_refs[scene])["rel_l1"]
+        else:
+            casting_refs[scene] = ref["scattering"]
+        rows = {}
+        for label, sc in methods:
+            if progress:
+                progress(f"{title}: {label}", 0.8 * k / len(variants))
+            sc = {**sc, "shadow_map": {"resolution": smap}}
+            rows[label], img, _ = scattering_rows(report, f"{title}: {label}", {
+                "name": scene, "width": w, "height": h, "receiver_only_ground": ro_ground, "scattering": sc,
+                "surfaces": no_surf}, {"size": f"{w}x{h}", "map": smap}, repeats, warmup, ref["scattering"])
+            bits = 32 * (8 if "8-bit" in label else 32) if label.startswith("fourier") else (
+                int(label.split()[1].split("-")[0]) if label.startswith("moments") else None)
+            if bits:
+                rows[label]["extra"]["bits_per_texel"] = bits
+        base = rows["raymarch shadow_map 128"]["median_ms"]
+        for r in rows.values():
+            r["speedup"] = base / r["median_ms"]
+    # ---- soft shadows on surfaces: moment soft shadows against the PCSS brute force ----
+    if progress:
+        progress("soft shadows", 0.8)
+    images = {}
+    for method in ("pcss", "msm_soft"):
+        cfg = bench_scene_config("colonnade", w, h, scattering={"method": "raymarch", "visibility": "shadow_map",
+                                                                "steps": 1, "shadow_map": {"resolution": smap}},
+                                 shadows={"method": method, "light_angle_deg": 2.0})
+        cfg = Config.from_dict({**cfg.model_dump(mode="json"), "medium": {"sigma_t": 0.0}})
+        scene = build_scene(cfg)
+        runs = []
+        for k in range(warmup + repeats):
+            timer = StageTimer()
+            img, stats = render_images(scene, cfg.render, timer=timer)
+            if k >= warmup:
+                runs.append(timer.timings)
+        stages = median_stages(runs, ("msm_generate", "msm_sat", "shading"))
+        images[method] = img["surface"]
+        report.add(name=f"soft shadows {method}", params={"size": f"{w}x{h}", "map": smap, "light_angle_deg": 2.0},
+                   median_ms=sum(stages.values()), stages_ms=stages,
+                   extra={k: v for k, v in stats.items() if k in ("sat_bytes",)})
+    report.rows[-1].update(errors(images["msm_soft"], images["pcss"]))
+    report.rows[-1]["speedup"] = report.rows[-2]["median_ms"] / report.rows[-1]["median_ms"]
+
+
+def suite_epipolar(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
+    """Engelhardt & Dachsbacher 2010: fraction ray-marched, stage times and errors for line / sample counts.
+
+    Every epipolar row is compared with the per-pixel marcher at the same steps AND the same step pattern
+    (``jitter``; the sweep uses the default ``per_pixel``, the bar case 1024 lines / 16 samples is repeated with
+    ``fixed``), with the exact-visibility reference (per-pixel jitter, same steps) and with a converged marcher
+    (8x steps, another seed: its own noise is about 1/8 of the others').
+    """
+    w, h = (320, 180) if quick else (1920, 1080)
+    steps = 32 if quick else 128
+    smap = 256 if quick else 1024
+    no_surf = {"enabled": False}
+    scene = "colonnade_spot"
+    size = f"{w}x{h}"
+    common = {"name": scene, "width": w, "height": h, "surfaces": no_surf}
+    march = {"method": "raymarch", "visibility": "shadow_map", "steps": steps, "shadow_map": {"resolution": smap}}
+    if progress:
+        progress("exact reference", 0.0)
+    _, exact, _ = scattering_rows(report, "raymarch exact (reference)",
+                                dict(common, scattering={**march, "visibility": "exact"}),
+                                {"scene": scene, "size": size, "steps": steps, "jitter": "per_pixel"}, 1, 0)
+    # the same marcher with 8x the steps: a converged reference that still includes the light texture, against
+    # which the per-pixel marcher's own noise (textured lights) shows too
+    if progress:
+        progress("converged marcher", 0.05)
+    _, converged, _ = scattering_rows(report, "raymarch shadow_map (8x steps, converged)",
+                                    dict(common, scattering={**march, "steps": 8 * steps, "seed": 11}),
+                                    {"scene": scene, "size": size, "steps": 8 * steps, "jitter": "per_pixel"}, 1, 0,
+                                    exact["scattering"])
+    per_pixel = {}
+    for k, jitter in enumerate(("per_pixel", "fixed")):
+        if progress:
+            progress(f"per-pixel ray marching ({jitter})", 0.1 + 0.05 * k)
+        row, images, _ = scattering_rows(report, f"raymarch shadow_map (per pixel, {jitter})",
+                                       dict(common, scattering={**march, "jitter": jitter}),
+                                       {"scene": scene, "size": size, "steps": steps, "jitter": jitter}, repeats,
+                                       warmup, exact["scattering"])
+        row["speedup"] = 1.0
+        row["extra"]["rel_l1_vs_converged"] = round(errors(images["scattering"], converged["scattering"])["rel_l1"],
+                                                    4)
+        per_pixel[jitter] = (row, images["scattering"])
+    line_counts = [256, 1024] if quick else [256, 512, 1024]
+    sample_counts = [8, 16] if quick else [8, 16, 32]
+    cases = [(n, s, "per_pixel") for n in line_counts for s in sample_counts] + [(1024, 16, "fixed")]
+    for k, (n_lines, n_init, jitter) in enumerate(cases):
+        if progress:
+            progress(f"{n_lines} lines, {n_init} samples, {jitter}", 0.2 + 0.8 * k / len(cases))
+        sc = {**march, "method": "epipolar", "jitter": jitter,
+              "epipolar": {"lines": n_lines, "initial_samples": n_init}}
+        cfg = bench_scene_config(**dict(common, scattering=sc))
+        stages, images, compile_s, _, stats = render_timed(cfg, repeats, warmup)
+        technique = {k2: v for k2, v in stages.items() if k2 in ("lines", "discontinuities", "raymarch", "interpolate")}
+        pp_row, pp_img = per_pixel[jitter]
+        row = report.add(name="epipolar", params={"lines": n_lines, "initial": n_init, "size": size, "steps": steps,
+                                                   "jitter": jitter},
+                         median_ms=sum(technique.values()), stages_ms=technique,
+                         extra={"raymarched_pct": round(100 * stats["epipolar_raymarched_fraction"], 2),
+                                "rel_l1_vs_per_pixel": round(errors(images["scattering"], pp_img)["rel_l1"], 4),
+                                "rel_l1_vs_converged": round(errors(images["scattering"],
+                                                                    converged["scattering"])["rel_l1"], 4)})
+        row.update(errors(images["scattering"], exact["scattering"]))
+        row["speedup"] = pp_row["median_ms"] / row["median_ms"]
+    bar = {}
+    for jitter in ("per_pixel", "fixed"):
+        best = [r for r in report.rows if r["name"] == "epipolar" and r["params"]["lines"] == 1024
+                and r["params"]["initial"] == 16 and r["params"]["jitter"] == jitter]
+        if best:
+            bar[jitter] = {"speedup_vs_per_pixel": round(best[0]["speedup"], 2),
+                           "rel_l1_vs_per_pixel": best[0]["extra"]["rel_l1_vs_per_pixel"],
+                           "rel_l1_vs_converged": best[0]["extra"]["rel_l1_vs_converged"],
+                           "per_pixel_rel_l1_vs_converged": per_pixel[jitter][0]["extra"]["rel_l1_vs_converged"]}
+    if bar:
+        report.meta["bar"] = bar  # the issue's bar figure is the default step pattern, bar["per_pixel"]

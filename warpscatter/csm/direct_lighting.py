@@ -1,0 +1,306 @@
+"""What the Monte-Carlo direct-lighting estimators share (Ritschel et al. 2007 Sec. 5): the surface points, the
+visibility source, the strata and the progressive average.
+
+Both estimators — environment maps (:mod:`.environment`) and area / linear lights (:mod:`.local_lights`) — shade
+K surface points (positions, normals, view directions and materials: a G-buffer) with S = s^2 strata of a
+per-point jittered pattern (Sec. 5.1 "Random Numbers"). Visibility (:class:`LightVisibility`) comes from
+
+* ``VIS_CSM`` — a coherent shadow map: a lat-long CSM queried towards a distant direction
+  (:func:`~warpscatter.csm.query.csm_visibility_filtered`, Sec. 3.3 / 4.1) or the local light's cube CSM queried
+  with the light point's parameters (Sec. 4.2);
+* ``VIS_SEMI_LOCAL`` — a lat-long CSM queried towards a local light's point (semi-local lights, Sec. 4.3);
+* ``VIS_MESH`` — a ``wp.Mesh`` shadow ray (the reference);
+* ``VIS_NONE`` — no occlusion.
+
+Progressive rendering (Sec. 5.2): :class:`ProgressiveAccumulator` averages passes rendered with different seeds.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+from .. import parallel
+from ..wpinit import module_options
+from .brdf import MaterialTable
+from .compress import KIND_LATLONG, CoherentShadowMap
+from .query import FILTERS, CSMData, CubeCSMData, csm_device_data
+
+module_options()
+
+#: ``LightVisibility.mode``.
+VIS_NONE = wp.constant(0)
+VIS_CSM = wp.constant(1)
+VIS_MESH = wp.constant(2)
+VIS_SEMI_LOCAL = wp.constant(3)
+
+
+@wp.struct
+class SurfacePoints:
+    """The points an estimator shades, as kernels see them (:func:`surface_points`)."""
+
+    points: wp.array(dtype=wp.vec3)  # positions (scene units; with a lat-long CSM in its object space)
+    normals: wp.array(dtype=wp.vec3)  # surface normals (any non-zero length)
+    view_dirs: wp.array(dtype=wp.vec3)  # towards the viewer (any non-zero length)
+    material_index: wp.array(dtype=wp.int32)  # rows of the MaterialTable
+
+
+@wp.struct
+class LightVisibility:
+    """The visibility source of an estimator, as kernels see it (:func:`light_visibility`)."""
+
+    mode: int  # VIS_NONE, VIS_CSM, VIS_MESH or VIS_SEMI_LOCAL
+    latlong: CSMData  # VIS_CSM of a distant light, VIS_SEMI_LOCAL: the lat-long CSM (a 1x1 placeholder otherwise)
+    cube: CubeCSMData  # VIS_CSM of a local light: its cube CSM (a 1x1 placeholder otherwise)
+    filter_mode: int  # FILTER_NEAREST, FILTER_PCF or FILTER_ROULETTE
+    bias: float  # CSM depth bias (scene units)
+    mesh: wp.uint64  # VIS_MESH: the occluders' BVH
+    eps: float  # offset of the query point along the normal (scene units)
+
+
+@wp.func
+def stratum_sample(k: int, s: int, jitter: wp.vec2) -> wp.vec2:
+    """Point of stratum ``k`` of an s x s grid over [0, 1)^2 jittered by ``jitter`` in [0, 1)^2 (stratified
+    pattern, Sec. 5.1)."""
+    a = k % s
+    b = k // s
+    return wp.vec2((float(a) + jitter[0]) / float(s), (float(b) + jitter[1]) / float(s))
+
+
+# ---- host side -------------------------------------------------------------------------------------
+
+
+class ProgressiveAccumulator:
+    """Running mean of Monte-Carlo passes (Ritschel 2007 Sec. 5.2: m frames blended with weight 1 / m).
+
+    Example::
+
+        acc = ProgressiveAccumulator()
+        for k in range(passes):
+            image = acc.add(shade_environment(..., seed=k))   # write ``image`` as it converges
+    """
+
+    def __init__(self):
+        self._sum: np.ndarray | None = None
+        self.passes = 0
+
+    def add(self, frame) -> np.ndarray:
+        """Add one pass (any array shape, the same for every pass) and return the running mean (float32).
+
+        Raises:
+            ValueError: a shape differing from the earlier passes, or non-finite values.
+        """
+        f = np.asarray(frame, dtype=np.float64)
+        if not np.all(np.isfinite(f)):
+            raise ValueError("frame contains non-finite values")
+        if self._sum is None:
+            self._sum = np.zeros_like(f)
+        elif f.shape != self._sum.shape:
+            raise ValueError(f"frame must have shape {self._sum.shape} like the earlier passes, got {f.shape}")
+        self._sum += f
+        self.passes += 1
+        return self.mean
+
+    @property
+    def mean(self) -> np.ndarray:
+        """The current mean of all passes (float32).
+
+        Raises:
+            ValueError: no pass added yet.
+        """
+        if self._sum is None:
+            raise ValueError("no pass has been added yet")
+        return (self._sum / self.passes).astype(np.float32)
+
+    def reset(self) -> None:
+        """Forget all passes (call after the scene, camera or lighting changed)."""
+        self._sum = None
+        self.passes = 0
+
+
+def _rows3(a, name: str, k: int | None, default=None) -> np.ndarray:
+    if a is None:
+        return np.ascontiguousarray(np.broadcast_to(np.asarray(default, np.float32), (k, 3)))
+    try:
+        v = np.asarray(a, dtype=np.float32)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a numeric (K, 3) array") from exc
+    if k is not None and v.shape == (3,):
+        v = np.broadcast_to(v, (k, 3))
+    if v.ndim != 2 or v.shape[1] != 3 or (k is not None and v.shape[0] != k):
+        want = "(K, 3)" if k is None else f"({k}, 3) or (3,)"
+        raise ValueError(f"{name} must have shape {want}, got {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"{name} contains non-finite values")
+    return np.ascontiguousarray(v)
+
+
+_placeholders: dict = {}
+
+
+def placeholder_csms(device: str) -> tuple[CSMData, CubeCSMData]:
+    """A 1 x 1 lat-long and a one-sample cube CSM struct with valid (unused) arrays, for launches that query
+    neither."""
+    if device not in _placeholders:
+        from .depthmaps import cube_face_frames
+
+        d = CSMData()
+        d.center = wp.vec3(0.0, 0.0, 0.0)
+        d.radius = 1.0
+        d.resolution = 1
+        d.n1, d.n2, d.num_maps = 1, 1, 1
+        d.frames = wp.array(np.eye(3, dtype=np.float32)[None], dtype=wp.mat33, device=device)
+        d.map_index = wp.zeros(1, dtype=wp.int32, device=device)
+        d.seg_start = wp.array(np.array([0, 1], np.int32), dtype=wp.int32, device=device)
+        d.seg_depth = wp.array(np.array([np.inf], np.float32), dtype=wp.float32, device=device)
+        d.seg_end = wp.zeros(1, dtype=wp.int32, device=device)
+        c = CubeCSMData()
+        c.resolution, c.n1, c.n2, c.num_samples = 1, 1, 1, 1
+        c.faces = wp.array(cube_face_frames().astype(np.float32), dtype=wp.mat33, device=device)
+        c.samples = wp.zeros(1, dtype=wp.vec3, device=device)
+        c.map_index = wp.zeros(1, dtype=wp.int32, device=device)
+        c.seg_start = wp.array(np.array([0, 1], np.int32), dtype=wp.int32, device=device)
+        c.seg_depth = wp.array(np.array([np.inf], np.float32), dtype=wp.float32, device=device)
+        c.seg_end = wp.array(np.array([5], np.int32), dtype=wp.int32, device=device)
+        _placeholders[device] = (d, c)
+    return _placeholders[device]
+
+
+def surface_inputs(points, normals, albedo, *, view_dirs=None, specular=None, exponent=1.0, materials=None,
+                   material_index=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, MaterialTable]:
+    """Check and normalise the per-point inputs shared by the Monte-Carlo shading functions.
+
+    Either Lambert + Phong per point (``albedo``, ``specular``, ``exponent``) or a :class:`MaterialTable` with
+    a per-point ``material_index`` (then albedo / specular / exponent must be None / defaults).
+
+    Returns:
+        (points, normals, view_dirs, material_index (K,) int32, materials).
+
+    Raises:
+        ValueError: malformed arrays, zero normals or view directions, negative exponents, indices out of range.
+    """
+    p = _rows3(points, "points", None)
+    k = p.shape[0]
+    n = _rows3(normals, "normals", k)
+    if np.any(np.all(n == 0.0, axis=1)):
+        raise ValueError("normals must be non-zero")
+    wo = n if view_dirs is None else _rows3(view_dirs, "view_dirs", k)
+    if np.any(np.all(wo == 0.0, axis=1)):
+        raise ValueError("view_dirs must be non-zero")
+    if materials is not None:
+        if not isinstance(materials, MaterialTable):
+            raise ValueError(f"materials must be a MaterialTable, got {type(materials).__name__}")
+        if albedo is not None or specular is not None:
+            raise ValueError("give either materials (with material_index) or albedo / specular, not both")
+        idx = np.zeros(k, np.int32) if material_index is None else np.asarray(material_index)
+        if idx.shape != (k,) or not np.issubdtype(idx.dtype, np.integer):
+            raise ValueError(f"material_index must be ({k},) integers")
+        if k and (idx.min() < 0 or idx.max() >= len(materials)):
+            raise ValueError(f"material_index must lie in [0, {len(materials)})")
+        return p, n, wo, np.ascontiguousarray(idx, np.int32), materials
+    kd = _rows3(albedo, "albedo", k)
+    ks = _rows3(specular, "specular", k, default=0.0)
+    e = np.asarray(exponent, dtype=np.float32)
+    if e.ndim == 0:
+        e = np.full(k, float(e), np.float32)
+    if e.shape != (k,) or not np.all(np.isfinite(e)) or np.any(e < 0.0):
+        raise ValueError(f"exponent must be a finite scalar or ({k},) array >= 0")
+    if k == 0:
+        return p, n, wo, np.zeros(0, np.int32), MaterialTable(np.zeros((1, 3), np.float32))
+    return p, n, wo, np.arange(k, dtype=np.int32), MaterialTable.phong(kd, ks, e)
+
+
+def check_strata(samples) -> int:
+    """s for ``samples`` = s^2 >= 1 strata (a jittered s x s grid).
+
+    Raises:
+        ValueError: not a positive integer or not a perfect square.
+    """
+    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
+        raise ValueError(f"samples must be a positive integer, got {samples!r}")
+    strata = math.isqrt(int(samples))
+    if strata * strata != samples:
+        raise ValueError(f"samples must be a perfect square (jittered s x s grid), got {samples}")
+    return strata
+
+
+def check_visibility_source(filter: str, bias, ray_eps, csm, mesh) -> None:
+    """The checks every shading host function makes of its visibility inputs.
+
+    Raises:
+        ValueError: an unknown CSM filter, a negative or non-finite bias / ray_eps, both ``csm`` and ``mesh``, or
+            a ``mesh`` that is not a ``wp.Mesh``.
+    """
+    if filter not in FILTERS:
+        raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {filter!r}")
+    if not np.isfinite(bias) or bias < 0.0:
+        raise ValueError(f"bias must be a finite number >= 0, got {bias!r}")
+    if not np.isfinite(ray_eps) or ray_eps < 0.0:
+        raise ValueError(f"ray_eps must be a finite number >= 0, got {ray_eps!r}")
+    if csm is not None and mesh is not None:
+        raise ValueError("give at most one of csm and mesh as the visibility source")
+    if mesh is not None and not isinstance(mesh, wp.Mesh):
+        raise ValueError(f"mesh must be a wp.Mesh, got {type(mesh).__name__}")
+
+
+def light_visibility(csm: CoherentShadowMap | None, mesh: wp.Mesh | None, *, filter: str, bias: float,
+                     ray_eps: float, device: str) -> LightVisibility:
+    """:class:`LightVisibility` of a CSM (lat-long: ``VIS_CSM`` towards distant directions; cube: ``VIS_CSM`` of a
+    local light), a ``wp.Mesh`` (``VIS_MESH``) or neither (``VIS_NONE``). The caller switches a lat-long CSM of a
+    local light to ``VIS_SEMI_LOCAL``."""
+    v = LightVisibility()
+    v.latlong, v.cube = placeholder_csms(device)
+    v.mode, v.mesh = VIS_NONE, wp.uint64(0)
+    if csm is not None:
+        v.mode = VIS_CSM
+        if csm.kind == KIND_LATLONG:
+            v.latlong = csm_device_data(csm, device)
+        else:
+            v.cube = csm_device_data(csm, device)
+    elif mesh is not None:
+        v.mode, v.mesh = VIS_MESH, mesh.id
+    v.filter_mode, v.bias, v.eps = FILTERS[filter], float(bias), float(ray_eps)
+    return v
+
+
+def surface_points(p: np.ndarray, n: np.ndarray, wo: np.ndarray, idx: np.ndarray, device: str) -> SurfacePoints:
+    """:class:`SurfacePoints` of checked (:func:`surface_inputs`) host arrays."""
+    s = SurfacePoints()
+    s.points, s.normals, s.view_dirs = (wp.array(a, dtype=wp.vec3, device=device) for a in (p, n, wo))
+    s.material_index = wp.array(idx, dtype=wp.int32, device=device)
+    return s
+
+
+def shade_points(kernel, surface: tuple, light_data, strata: int, vis: LightVisibility, table: MaterialTable,
+                 seed: int, device: str, threads: int | None) -> np.ndarray:
+    """Launch an estimator ``kernel(surface, materials, light, strata, visibility, seed, out)`` over the points of
+    ``surface`` = (points, normals, view_dirs, material_index) split across CPU threads; (K, 3) float32 radiance."""
+    p, n, wo, idx = surface
+    k = p.shape[0]
+    out = wp.zeros(k, dtype=wp.vec3, device=device)
+    if k:
+        parallel.launch_rows(kernel, k, [surface_points(p, n, wo, idx, device), table.device_data(device), light_data,
+                                         strata, vis, int(seed) & 0x7FFFFFFF, out],
+                             device, threads=threads, min_chunk=256)
+    return out.numpy()
+
+
+__all__ = [
+    "VIS_CSM",
+    "VIS_MESH",
+    "VIS_NONE",
+    "VIS_SEMI_LOCAL",
+    "LightVisibility",
+    "ProgressiveAccumulator",
+    "SurfacePoints",
+    "check_strata",
+    "check_visibility_source",
+    "light_visibility",
+    "placeholder_csms",
+    "shade_points",
+    "stratum_sample",
+    "surface_inputs",
+    "surface_points",
+]

@@ -1,0 +1,182 @@
+"""Monte-Carlo direct lighting from an environment map with coherent-shadow-map visibility (Ritschel 2007, Sec. 5).
+
+Solves the direct lighting equation of Sec. 5,
+
+    L(x, wo) = integral over the sphere of f_r(x, wo, wi) L_in(wi) V(x, wi) max(cos theta_i, 0) dwi,
+
+for surface points (a G-buffer: positions, normals, materials) lit by a distant lat-long environment map
+(:class:`~warpscatter.scene.environment_map.EnvironmentMap`, importance-sampled by inverse CDFs P_L^-1):
+
+- BRDFs (Sec. 5.1, P_f^-1), in :mod:`.brdf`: Lambert, normalized Phong and Lafortune lobes, importance sampled
+  with the diffuse / lobe choice by Russian roulette (:class:`~warpscatter.csm.brdf.MaterialTable`).
+- Estimator: per point S = s^2 strata of a jittered s x s grid (a per-point random pattern, Sec. 5.1 "Random
+  Numbers"); each stratum draws one environment sample and one BRDF sample, combined with multiple importance
+  sampling (balance heuristic [VG95]): each sample contributes f L V cos / (p_env + p_brdf).
+- Visibility (:mod:`.direct_lighting`): a lat-long CSM (points in its object space, Sec. 3.3 / 4.1), a
+  ``wp.Mesh`` shadow ray (the reference), or none.
+
+Radiance units follow the environment map (its texels are radiance L_in).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ..raycast import occluded
+from ..scene.environment_map import EnvData, EnvironmentMap, env_lookup, env_pdf, env_sample
+from ..wpinit import default_device, module_options
+from .brdf import MaterialData, MaterialTable, material_eval, material_pdf, material_sample
+from .compress import KIND_LATLONG, CoherentShadowMap
+from .direct_lighting import (
+    VIS_CSM,
+    VIS_MESH,
+    LightVisibility,
+    SurfacePoints,
+    check_strata,
+    check_visibility_source,
+    light_visibility,
+    shade_points,
+    stratum_sample,
+    surface_inputs,
+)
+from .query import csm_visibility_filtered
+
+module_options()
+
+
+@wp.func
+def distant_visibility(vis: LightVisibility, p: wp.vec3, n: wp.vec3, d: wp.vec3, xi: wp.vec4) -> float:
+    """V(p, d) in [0, 1] towards a distant direction ``d``: the lat-long CSM query of p + eps n (Sec. 3.3; ``xi``
+    uniform in [0, 1)^4 for the roulette filter) for VIS_CSM, a shadow ray from p + eps n for VIS_MESH, else 1."""
+    if vis.mode == VIS_CSM:
+        return csm_visibility_filtered(vis.latlong, p + vis.eps * n, d, vis.bias, vis.filter_mode, xi)
+    if vis.mode == VIS_MESH:
+        if occluded(vis.mesh, p + vis.eps * n, d, 1.0e30):
+            return 0.0
+    return 1.0
+
+
+# ---- kernels ---------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def shade_environment_kernel(
+    surf: SurfacePoints,
+    mat: MaterialData,
+    env: EnvData,
+    strata: int,
+    vis: LightVisibility,
+    seed: int,
+    out: wp.array(dtype=wp.vec3),
+    offset: int,
+):
+    """out[k] = one stratified MIS estimate (s^2 strata) of the reflected radiance of point k towards view_dirs[k]."""
+    k = wp.tid() + offset
+    rng = wp.rand_init(seed, k)  # a different pattern per point and per pass (seed)
+    p = surf.points[k]
+    n = wp.normalize(surf.normals[k])
+    wo = wp.normalize(surf.view_dirs[k])
+    m = surf.material_index[k]
+    total = wp.vec3(0.0)
+    count = strata * strata
+    for s in range(count):
+        # random numbers are drawn here: wp.randf advances a state that @wp.funcs would only copy
+        j_env = wp.vec2(wp.randf(rng), wp.randf(rng))
+        j_brdf = wp.vec2(wp.randf(rng), wp.randf(rng))
+        choice = wp.randf(rng)
+        xi_env = wp.vec4(wp.randf(rng), wp.randf(rng), wp.randf(rng), wp.randf(rng))
+        xi_brdf = wp.vec4(wp.randf(rng), wp.randf(rng), wp.randf(rng), wp.randf(rng))
+        # ---- environment sample (P_L^-1), balance heuristic: f L V cos / (p_env + p_brdf) ----
+        d, radiance, pe = env_sample(env, stratum_sample(s, strata, j_env))
+        c = wp.dot(n, d)
+        if pe > 0.0 and c > 0.0:
+            f = material_eval(mat, m, n, wo, d)
+            if wp.length_sq(f) > 0.0 and wp.length_sq(radiance) > 0.0:
+                v = distant_visibility(vis, p, n, d, xi_env)
+                total += wp.cw_mul(f, radiance) * (v * c / (pe + material_pdf(mat, m, n, wo, d)))
+        # ---- BRDF sample (P_f^-1 with the diffuse / lobe roulette) ----
+        wi = material_sample(mat, m, n, wo, stratum_sample(s, strata, j_brdf), choice)
+        c = wp.dot(n, wi)
+        if c > 0.0:
+            pb = material_pdf(mat, m, n, wo, wi)
+            if pb > 0.0:
+                f = material_eval(mat, m, n, wo, wi)
+                radiance = env_lookup(env, wi)
+                if wp.length_sq(f) > 0.0 and wp.length_sq(radiance) > 0.0:
+                    v = distant_visibility(vis, p, n, wi, xi_brdf)
+                    total += wp.cw_mul(f, radiance) * (v * c / (pb + env_pdf(env, wi)))
+    out[k] = total / float(count)
+
+
+# ---- host side -------------------------------------------------------------------------------------
+
+
+def shade_environment(
+    points,
+    normals,
+    albedo,
+    env: EnvironmentMap,
+    *,
+    samples: int,
+    csm: CoherentShadowMap | None = None,
+    mesh: wp.Mesh | None = None,
+    seed: int = 0,
+    view_dirs=None,
+    specular=None,
+    exponent=1.0,
+    materials: MaterialTable | None = None,
+    material_index=None,
+    filter: str = "nearest",
+    bias: float = 0.0,
+    ray_eps: float = 1.0e-4,
+    device: str | None = None,
+    threads: int | None = None,
+) -> np.ndarray:
+    """Direct lighting from an environment map at surface points (Ritschel 2007 Sec. 5), one Monte-Carlo pass.
+
+    Args:
+        points: (K, 3) surface positions (scene units); with ``csm`` they must be in the CSM's object space.
+        normals: (K, 3) surface normals (any non-zero length).
+        albedo: (K, 3) or (3,) diffuse reflectance k_d (Lambert f = k_d / pi); None with ``materials``.
+        env: the environment map (distant light; L_in from its texels).
+        samples: S strata per point, a perfect square s^2 >= 1; each stratum gives one environment and one BRDF
+            sample (2 S directions, combined by the balance heuristic).
+        csm: lat-long coherent shadow map of the occluders (visibility by ``csm_visibility_filtered``).
+        mesh: ``wp.Mesh`` of the occluders for exact shadow rays (the reference). At most one of csm / mesh;
+            neither: no occlusion.
+        seed: random seed of this pass (use a different one per progressive pass: it changes every pattern).
+        view_dirs: (K, 3) or (3,) unit-ish directions from the point towards the viewer (default: the normal).
+        specular: (K, 3) or (3,) Phong reflectance k_s (default 0).
+        exponent: (K,) or scalar Phong exponent n >= 0.
+        materials: a :class:`~warpscatter.csm.brdf.MaterialTable` (Lambert / Phong / Lafortune) instead of
+            albedo / specular / exponent, with ``material_index`` (K,) rows into it (default 0).
+        filter: CSM filter ``"nearest"``, ``"pcf"`` or ``"roulette"`` (Sec. 4.5).
+        bias: CSM depth bias (object-space units, >= 0).
+        ray_eps: offset of the query point along the normal (scene units, >= 0): the shadow-ray origin for
+            ``mesh``, the CSM query point for ``csm``.
+        device: Warp device.
+        threads: CPU worker threads.
+
+    Returns:
+        (K, 3) float32 outgoing radiance towards ``view_dirs``.
+
+    Raises:
+        ValueError: malformed arrays, zero normals or view directions, a non-square or non-positive ``samples``,
+            both ``csm`` and ``mesh``, a non-lat-long CSM, an unknown filter, negative bias / ray_eps / exponent.
+    """
+    device = default_device(device)
+    if not isinstance(env, EnvironmentMap):
+        raise ValueError(f"env must be an EnvironmentMap, got {type(env).__name__}")
+    strata = check_strata(samples)
+    p, n, wo, idx, table = surface_inputs(points, normals, albedo, view_dirs=view_dirs, specular=specular,
+                                          exponent=exponent, materials=materials, material_index=material_index)
+    check_visibility_source(filter, bias, ray_eps, csm, mesh)
+    if csm is not None and (not isinstance(csm, CoherentShadowMap) or csm.kind != KIND_LATLONG):
+        raise ValueError("csm must be a lat-long CoherentShadowMap (build_csm)")
+    vis = light_visibility(csm, mesh, filter=filter, bias=bias, ray_eps=ray_eps, device=device)
+    return shade_points(shade_environment_kernel, (p, n, wo, idx), env.device_data(device), strata, vis, table, seed,
+                        device, threads)
+
+
+__all__ = ["distant_visibility", "shade_environment", "shade_environment_kernel"]

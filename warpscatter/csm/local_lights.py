@@ -1,0 +1,231 @@
+"""Monte-Carlo direct lighting from local area and linear lights with coherent-shadow-map visibility
+(Ritschel 2007, Sec. 4.2 and 5.1).
+
+Lights (:class:`~warpscatter.scene.lights.AreaLight`, :class:`~warpscatter.scene.lights.LinearLight`; scene
+units, radiometric quantities in linear RGB): a parallelogram y(s, t) = corner + s u + t v of constant radiance L_e,
+or a segment y(s) of intensity I per unit length (no area: BRDF samples never hit it, only light sampling
+contributes).
+
+Sampling "by radiance" (Sec. 5.1): with constant emission that is uniform in (s, t) (area) or s (linear); the
+S = s^2 strata of the per-point jittered pattern stratify (s, t), and S strata stratify s of a linear light.
+The area light's solid-angle density of a light sample y seen from x is d^2 / (A |cos theta_l|).
+
+Estimator per stratum for an area light, balance heuristic [VG95] as for environment maps: one light sample,
+f L_e V cos / (p_light + p_brdf), and one BRDF sample that contributes f L_e V cos / (p_brdf + p_light) when its
+ray hits the parallelogram (on an emitting side). Linear lights: f I V cos(theta_x) / d^2 * l per stratum.
+
+Visibility between x and the light point y of parameters (s, t): the local light's ``"cube"`` CSM
+(:func:`~warpscatter.csm.query.csm_local_visibility_filtered`, depth cube maps at the light's sample points,
+Sec. 3.3 / 4.2; the CSM must be built on the same parallelogram / segment so that (s, t) index its samples), or
+a lat-long CSM of the occluders queried in direction y - x (semi-local lights, Sec. 4.3: valid while the light
+stays outside the occluders' convex hull; one CSM serves any such light), or a ``wp.Mesh`` shadow ray from
+x + eps n to y (the reference), or none.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ..raycast import occluded
+from ..scene.lights import (
+    LOCAL_LIGHT_LINEAR,
+    AreaLight,
+    LinearLight,
+    LocalLightData,
+    area_light_intersect,
+    area_light_pdf,
+    area_light_point,
+    area_light_radiance,
+)
+from ..wpinit import default_device, module_options
+from .brdf import MaterialData, MaterialTable, material_eval, material_pdf, material_sample
+from .compress import KIND_CUBE, KIND_LATLONG, CoherentShadowMap
+from .direct_lighting import (
+    VIS_CSM,
+    VIS_MESH,
+    VIS_SEMI_LOCAL,
+    LightVisibility,
+    SurfacePoints,
+    check_strata,
+    check_visibility_source,
+    light_visibility,
+    shade_points,
+    stratum_sample,
+    surface_inputs,
+)
+from .query import csm_local_visibility_filtered, csm_visibility_filtered
+
+module_options()
+
+
+@wp.func
+def local_visibility(vis: LightVisibility, x: wp.vec3, n: wp.vec3, y: wp.vec3, st: wp.vec2, xi: wp.vec4) -> float:
+    """V between surface point ``x`` (normal n) and the light point ``y`` of parameters ``st``: the cube CSM
+    query of x + eps n (VIS_CSM), the lat-long CSM towards y (VIS_SEMI_LOCAL), a shadow ray from x + eps n that
+    stops just short of y (VIS_MESH), else 1."""
+    o = x + vis.eps * n
+    if vis.mode == VIS_CSM:
+        return csm_local_visibility_filtered(vis.cube, o, st, vis.bias, vis.filter_mode, xi)
+    if vis.mode == VIS_SEMI_LOCAL:
+        return csm_visibility_filtered(vis.latlong, o, y - o, vis.bias, vis.filter_mode, xi)
+    if vis.mode == VIS_MESH:
+        w = y - o
+        dist = wp.length(w)
+        if dist > 0.0 and occluded(vis.mesh, o, w / dist, dist * (1.0 - 1.0e-4)):
+            return 0.0
+    return 1.0
+
+
+# ---- kernels ---------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def shade_local_light_kernel(
+    surf: SurfacePoints,
+    mat: MaterialData,
+    light: LocalLightData,
+    strata: int,
+    vis: LightVisibility,
+    seed: int,
+    out: wp.array(dtype=wp.vec3),
+    offset: int,
+):
+    """out[k] = one stratified estimate of the radiance reflected at point k from the local light."""
+    k = wp.tid() + offset
+    rng = wp.rand_init(seed, k)
+    x = surf.points[k]
+    n = wp.normalize(surf.normals[k])
+    wo = wp.normalize(surf.view_dirs[k])
+    m = surf.material_index[k]
+    total = wp.vec3(0.0)
+    count = strata * strata
+    for s in range(count):
+        j_light = wp.vec2(wp.randf(rng), wp.randf(rng))
+        j_brdf = wp.vec2(wp.randf(rng), wp.randf(rng))
+        choice = wp.randf(rng)
+        xi_light = wp.vec4(wp.randf(rng), wp.randf(rng), wp.randf(rng), wp.randf(rng))
+        xi_brdf = wp.vec4(wp.randf(rng), wp.randf(rng), wp.randf(rng), wp.randf(rng))
+        if light.kind == LOCAL_LIGHT_LINEAR:
+            # ---- linear light: stratified in s, light sampling only (zero area) ----
+            sl = (float(s) + j_light[0]) / float(count)
+            y = light.origin + sl * light.edge_u
+            w = y - x
+            d2 = wp.dot(w, w)
+            if d2 > 0.0:
+                d = w / wp.sqrt(d2)
+                c = wp.dot(n, d)
+                if c > 0.0:
+                    f = material_eval(mat, m, n, wo, d)
+                    if wp.length_sq(f) > 0.0:
+                        v = local_visibility(vis, x, n, y, wp.vec2(sl, 0.5), xi_light)
+                        total += wp.cw_mul(f, light.emission) * (v * c * light.size / d2)
+        else:
+            # ---- area light sample (uniform in (s, t)), balance heuristic ----
+            st = stratum_sample(s, strata, j_light)
+            y = area_light_point(light, st)
+            w = y - x
+            d2 = wp.dot(w, w)
+            if d2 > 0.0:
+                d = w / wp.sqrt(d2)
+                c = wp.dot(n, d)
+                pl = area_light_pdf(light, x, y)
+                le = area_light_radiance(light, -d)
+                if c > 0.0 and pl > 0.0 and wp.length_sq(le) > 0.0:
+                    f = material_eval(mat, m, n, wo, d)
+                    if wp.length_sq(f) > 0.0:
+                        v = local_visibility(vis, x, n, y, st, xi_light)
+                        total += wp.cw_mul(f, le) * (v * c / (pl + material_pdf(mat, m, n, wo, d)))
+            # ---- BRDF sample: counts where its ray hits the light ----
+            wi = material_sample(mat, m, n, wo, stratum_sample(s, strata, j_brdf), choice)
+            c = wp.dot(n, wi)
+            if c > 0.0:
+                pb = material_pdf(mat, m, n, wo, wi)
+                r, sth = area_light_intersect(light, x, wi)
+                if pb > 0.0 and r > 0.0:
+                    le = area_light_radiance(light, -wi)
+                    yh = x + r * wi
+                    f = material_eval(mat, m, n, wo, wi)
+                    if wp.length_sq(le) > 0.0 and wp.length_sq(f) > 0.0:
+                        v = local_visibility(vis, x, n, yh, sth, xi_brdf)
+                        total += wp.cw_mul(f, le) * (v * c / (pb + area_light_pdf(light, x, yh)))
+    out[k] = total / float(count)
+
+
+# ---- host side -------------------------------------------------------------------------------------
+
+
+def shade_local_light(
+    points,
+    normals,
+    albedo,
+    light: AreaLight | LinearLight,
+    *,
+    samples: int,
+    csm: CoherentShadowMap | None = None,
+    mesh: wp.Mesh | None = None,
+    seed: int = 0,
+    view_dirs=None,
+    specular=None,
+    exponent=1.0,
+    materials: MaterialTable | None = None,
+    material_index=None,
+    filter: str = "nearest",
+    bias: float = 0.0,
+    ray_eps: float = 1.0e-4,
+    device: str | None = None,
+    threads: int | None = None,
+) -> np.ndarray:
+    """Direct lighting from an area or linear light at surface points (Ritschel 2007 Sec. 4.2, 5), one pass.
+
+    Args:
+        points, normals, albedo, view_dirs, specular, exponent, materials, material_index: as for
+            :func:`~warpscatter.csm.lighting.shade_environment` (world space).
+        light: :class:`AreaLight` or :class:`LinearLight`.
+        samples: S = s^2 strata per point (area: one light and one BRDF sample each; linear: one light sample).
+        csm: the light's ``"cube"`` CSM (:func:`~warpscatter.csm.compress.build_cube_csm` on
+            ``light.sample_points(...)``), or a lat-long CSM of the occluders (semi-local light, Sec. 4.3);
+            mesh: a ``wp.Mesh`` for shadow rays (the reference); at most one.
+        seed: random seed of this pass.
+        filter, bias: CSM filter and depth bias (scene units, >= 0).
+        ray_eps: offset of the query point along the normal (scene units, >= 0).
+        device, threads: Warp device and CPU worker threads.
+
+    Returns:
+        (K, 3) float32 reflected radiance towards ``view_dirs``.
+
+    Raises:
+        ValueError: as :func:`~warpscatter.csm.lighting.shade_environment`; a CSM that is not a cube CSM or does
+            not hold the light's sample points.
+    """
+    device = default_device(device)
+    if not isinstance(light, (AreaLight, LinearLight)):
+        raise ValueError(f"light must be an AreaLight or LinearLight, got {type(light).__name__}")
+    strata = check_strata(samples)
+    p, n, wo, idx, table = surface_inputs(points, normals, albedo, view_dirs=view_dirs, specular=specular,
+                                          exponent=exponent, materials=materials, material_index=material_index)
+    check_visibility_source(filter, bias, ray_eps, csm, mesh)
+    semi_local = isinstance(csm, CoherentShadowMap) and csm.kind == KIND_LATLONG
+    if csm is not None and not semi_local:
+        check_light_csm(csm, light)
+    vis = light_visibility(csm, mesh, filter=filter, bias=bias, ray_eps=ray_eps, device=device)
+    if semi_local:
+        vis.mode = VIS_SEMI_LOCAL
+    return shade_points(shade_local_light_kernel, (p, n, wo, idx), light.device_data(), strata, vis, table, seed,
+                        device, threads)
+
+
+def check_light_csm(csm, light) -> None:
+    """Raises ValueError unless ``csm`` is a cube CSM whose sample points lie on ``light`` as
+    ``light.sample_points(n1, n2)`` places them (so light parameters (s, t) select the right samples)."""
+    if not isinstance(csm, CoherentShadowMap) or csm.kind != KIND_CUBE:
+        raise ValueError("csm must be a cube CoherentShadowMap of the light (build_cube_csm)")
+    want = light.sample_points(csm.n1, csm.n2).reshape(-1, 3)
+    got = np.asarray(csm.light_samples, np.float64).reshape(-1, 3)
+    scale = max(float(np.abs(want).max()), 1.0)
+    if got.shape != want.shape or np.abs(got - want).max() > 1e-5 * scale:
+        raise ValueError(f"the CSM's {csm.n1} x {csm.n2} light samples do not lie on this light (built for another "
+                         f"light or placement)")
+
+
+__all__ = ["check_light_csm", "local_visibility", "shade_local_light", "shade_local_light_kernel"]

@@ -1,0 +1,122 @@
+"""The coherent shadow map of a scene's occluders (Ritschel et al. 2007): which triangles occlude, which CSM kind
+a light needs, building it or loading a precomputed one and checking that it fits the scene.
+
+Occluders are every mesh not marked ``receiver_only``, in world space. An environment light (and a semi-local
+area / linear light, Sec. 4.3) needs a lat-long CSM; an area or linear light with ``local_lights: cube`` needs
+depth cube maps at its sample points (Sec. 4.2). ``warpscatter precompute`` and the ``csm`` lighting method build
+them with the same functions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..stages import ReportFn
+from .compress import (
+    KIND_CUBE,
+    KIND_LATLONG,
+    CoherentShadowMap,
+    CSMFileError,
+    build_csm,
+    build_cube_csm,
+    geometry_digest,
+    load_csm,
+)
+from .local_lights import check_light_csm
+from .settings import CSMBuildSettings
+
+
+def scene_occluders(scene, receiver_only=None) -> tuple[np.ndarray, np.ndarray]:
+    """The occluder mesh of a scene: the triangles of every material (= mesh entry) k with ``receiver_only[k]``
+    false (default: the scene's own flags, :meth:`~warpscatter.scene.Scene.caster_mask`), compacted to the vertices
+    they use (float32 world positions, int32 indices; both empty when nothing casts)."""
+    from ..scene import compact_mesh
+
+    if receiver_only is not None:
+        scene = replace(scene, receiver_only=np.asarray(receiver_only, bool))
+    return compact_mesh(scene.vertices, scene.triangles[scene.caster_mask()])
+
+
+def csm_kind_for(light, local_lights: str = "cube") -> str:
+    """The CSM kind a light needs: depth cube maps at the samples of an area or linear light with ``local_lights``
+    ``cube`` (Sec. 4.2), else lat-long maps (environment and semi-local lights, Sec. 4.3, or no light at all: they
+    serve any distant or semi-local light)."""
+    if getattr(light, "kind", None) in ("area", "linear") and local_lights == "cube":
+        return KIND_CUBE
+    return KIND_LATLONG
+
+
+def check_csm_for_scene(csm: CoherentShadowMap, light, vertices, triangles, where: str = "csm",
+                        local_lights: str = "cube") -> None:
+    """Refuse a CSM that does not belong to these occluders and this light.
+
+    Checks: the kind (:func:`csm_kind_for`: lat-long for environment and semi-local lights, else cube), the geometry
+    (:func:`~warpscatter.csm.compress.geometry_digest`, or the bounding sphere for files without a digest) and,
+    for cube CSMs, that the light samples lie on the light.
+
+    Raises:
+        CSMFileError: naming ``where`` and the mismatch.
+    """
+    from .depthmaps import bounding_sphere
+
+    want = csm_kind_for(light, local_lights)
+    if csm.kind != want:
+        hint = "; build it from this config: warpscatter precompute CONFIG" if want == KIND_CUBE else ""
+        if want == KIND_CUBE and csm.kind == KIND_LATLONG:
+            hint += ", or set render.lighting.csm.local_lights: semi_local to query it towards the light points"
+        raise CSMFileError(f"{where}: a {csm.kind!r} CSM cannot light the {light.kind} light (it needs a {want!r} "
+                           f"CSM{hint})")
+    if csm.geometry is not None:
+        if csm.geometry != geometry_digest(vertices, triangles):
+            raise CSMFileError(f"{where}: built for other occluders (the geometry digest differs from this scene's "
+                               f"{len(triangles)} occluder triangles: another mesh, transform or receiver_only set)")
+    else:
+        center, radius = bounding_sphere(np.asarray(vertices, np.float64))
+        if abs(radius - csm.radius) > 1e-4 * radius or np.linalg.norm(center - csm.center) > 1e-4 * radius:
+            raise CSMFileError(f"{where}: its bounding sphere (centre {np.round(csm.center, 4).tolist()}, radius "
+                               f"{csm.radius:.4g}) is not that of this scene's occluders (centre "
+                               f"{np.round(center, 4).tolist()}, radius {radius:.4g})")
+    if want == KIND_CUBE:
+        try:
+            check_light_csm(csm, light)
+        except ValueError as exc:
+            raise CSMFileError(f"{where}: {exc}") from None
+
+
+def prepare_csm(light, settings: CSMBuildSettings, vertices, triangles, *, progress: ReportFn | None = None,
+                device=None) -> CoherentShadowMap:
+    """Load (and check) ``settings.file`` or build the CSM of the occluders for ``light``.
+
+    Args:
+        light: the scene's environment, area or linear light.
+        settings: :class:`~warpscatter.csm.settings.CSMBuildSettings` (``render.lighting.csm``).
+        vertices, triangles: the occluders (:func:`scene_occluders`).
+        progress: ``progress(fraction)`` of the build.
+        device: Warp device.
+
+    Raises:
+        CSMFileError: an unreadable, corrupt or mismatched file (the message names it).
+    """
+    if settings.file is not None:
+        csm = load_csm(settings.file)
+        check_csm_for_scene(csm, light, vertices, triangles, where=str(settings.file),
+                            local_lights=settings.local_lights)
+        return csm
+    common = {"resolution": settings.resolution, "enumeration": settings.enumeration, "depth_layers": settings.layers,
+              "far": settings.far, "batch_maps": settings.batch, "progress": progress, "device": device}
+    if csm_kind_for(light, settings.local_lights) == KIND_LATLONG:
+        return build_csm(vertices, triangles, n1=settings.maps[0], n2=settings.maps[1], **common)
+    return build_cube_csm(vertices, triangles, light.sample_points(*settings.light_samples), **common)
+
+
+def texel_size(csm: CoherentShadowMap) -> float:
+    """2R / M: the world size of one lat-long texel of the occluders' bounding sphere (R) at map size M. The
+    default depth bias of the lighting methods is one such texel and the normal offset a quarter of it (measured
+    on configs/csm_gate.yaml against raytrace: rel. L1 1.04 % for the sky, 0.96 % for an area light's cube maps;
+    larger normal offsets leak light into contact shadows)."""
+    return 2.0 * float(csm.radius) / float(csm.resolution)
+
+
+__all__ = ["check_csm_for_scene", "csm_kind_for", "prepare_csm", "scene_occluders", "texel_size"]

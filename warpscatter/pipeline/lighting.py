@@ -1,0 +1,183 @@
+"""The Monte-Carlo lighting pipeline: the ``csm`` and ``raytrace`` methods, direct lighting of a camera view
+(Ritschel 2007 Sec. 5).
+
+Stages (names as in the CLI's timing table):
+
+- ``csm`` (method ``csm``): the coherent shadow map of the scene's occluders (every mesh not marked
+  ``receiver_only``, in world space), loaded from ``render.lighting.csm.file`` (checked against the scene:
+  kind, occluder geometry, light samples) or built on the fly with the streaming builder: lat-long maps for an
+  environment light, depth cube maps at the light's sample points for an area or linear light
+  (:mod:`warpscatter.csm.occluders`).
+  ``bvh`` (method ``raytrace``): the ``wp.Mesh`` of the same occluders, for exact shadow rays (the reference).
+- ``gbuffer``: the rasterized camera G-buffer (:func:`warpscatter.gbuffer.gbuffer_raster`), the same for both
+  methods so that they differ only by the visibility query.
+- ``lighting``: ``passes`` progressive passes (Sec. 5.2). Each pass shades every visible pixel with S = s^2
+  strata (:func:`~warpscatter.csm.environment.shade_environment` or
+  :func:`~warpscatter.csm.local_lights.shade_local_light`)
+  under its own seed, so every pass draws new stratified patterns;
+  :class:`~warpscatter.csm.direct_lighting.ProgressiveAccumulator` averages them.
+  Every ``write_every`` passes the current mean is handed to ``on_pass`` (the pipeline writes the outputs then).
+
+Outputs (as the other methods): ``surface`` = L_surface exp(-sigma_t s) (the medium only attenuates: single
+scattering of environment / area / linear lights is not modelled, so ``scattering`` = 0), ``color`` = surface
+plus, with ``background``, the environment seen where no surface is hit (times exp(-sigma_t far)), ``depth``.
+
+Units: radiance as the light's (environment texels, area radiance, linear intensity per length); distances, bias
+and normal offset in scene units.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+import warp as wp
+
+from .. import methods
+from ..csm.brdf import MaterialTable
+from ..csm.direct_lighting import ProgressiveAccumulator
+from ..csm.environment import shade_environment
+from ..csm.local_lights import shade_local_light
+from ..csm.occluders import prepare_csm, scene_occluders, texel_size
+from ..csm.settings import LightingSettings
+from ..gbuffer import gbuffer_raster
+from ..raycast import build_mesh
+from ..scene import DeviceGeometry
+from ..scene.lights import EnvironmentLight
+from ..stages import StageTimer
+from ..wpinit import default_device
+from .common import check_finite, compile_kernels
+
+
+def pass_seed(seed: int, k: int) -> int:
+    """Seed of progressive pass ``k``: distinct per pass, so each pass draws new per-pixel patterns."""
+    return (int(seed) * 1_000_003 + 7919 * (int(k) + 1)) & 0x7FFFFFFF
+
+
+def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None = None,
+                    on_pass: Callable[[dict, int, int], None] | None = None, *, device=None) -> tuple[dict, dict]:
+    """Monte-Carlo direct lighting of a scene (see the module docstring; the registry's call shape of the lighting
+    methods, :mod:`warpscatter.methods`).
+
+    Args:
+        scene: a :class:`~warpscatter.scene.Scene` whose light is an environment, area or linear light.
+        settings: :class:`~warpscatter.csm.settings.LightingSettings` (``render.lighting``; ``method`` csm or
+            raytrace).
+        stage: the :class:`~warpscatter.stages.StageTimer` (created if None).
+        on_pass: ``on_pass(images, passes_done, passes)`` every ``write_every`` passes before the last.
+        device: Warp device.
+
+    Returns:
+        (images, stats) as :func:`warpscatter.pipeline.render_images`.
+
+    Raises:
+        CSMFileError: a CSM file that is corrupt or does not match the scene (the message names it).
+        NonFiniteImageError: an image with NaN or infinite pixels (a bug).
+    """
+    device = default_device(device)
+    timer = stage or StageTimer()
+    method = methods.get("lighting", settings.method)
+    light = scene.light
+    if light.kind not in method.lights:
+        raise ValueError(f"render.lighting.method {settings.method!r} lights {', '.join(method.lights)} lights (the "
+                         f"scene's light is {light.kind!r})")
+    with timer("compile"):
+        compile_kernels(methods.LIGHTING_BASE_MODULES + method.modules, device)
+    vertices, triangles = scene_occluders(scene)
+    csm = mesh = None
+    if method.visibility == methods.VISIBILITY_CSM:
+        with timer("csm") as s:
+            csm = prepare_csm(light, settings.csm, vertices, triangles, progress=s.report, device=device)
+    else:
+        with timer("bvh"):
+            mesh = build_mesh(vertices, triangles, device=device) if len(triangles) else None
+    with timer("upload"):
+        geometry = DeviceGeometry(scene, device)
+    with timer("gbuffer"):
+        gbuf = gbuffer_raster(scene, geometry, device)
+    cam = scene.camera
+    h, w = cam.height, cam.width
+    g = gbuf.numpy()
+    dirs = cam.ray_directions()
+    hit = g["material"] >= 0
+    dist = g["distance"].astype(np.float64)
+    points = (np.asarray(cam.position, np.float64) + dirs * dist[..., None])[hit].astype(np.float32)
+    normals = g["normal"][hit].astype(np.float32)
+    view = (-dirs[hit]).astype(np.float32)
+    mat_index = g["material"][hit].astype(np.int32)
+    table = MaterialTable.from_specs(scene.brdf_specs())
+    if csm is not None:
+        texel = texel_size(csm)
+        bias = texel if settings.bias is None else settings.bias
+        offset = 0.25 * texel if settings.normal_offset is None else settings.normal_offset
+    else:
+        lo, hi = scene.bounds()
+        bias = 0.0
+        offset = 1e-4 * float(np.linalg.norm(hi - lo)) if settings.normal_offset is None else settings.normal_offset
+    sigma_t = float(scene.medium.sigma_t)
+    attenuation = np.exp(-sigma_t * dist)[..., None].astype(np.float32)
+    background = np.zeros((h, w, 3), np.float32)
+    if settings.background and isinstance(light, EnvironmentLight):
+        far = cam.far_distance(dirs)
+        background = np.where(hit[..., None], 0.0, light.env.lookup(dirs, device) *
+                              np.exp(-sigma_t * far)[..., None]).astype(np.float32)
+    scattering = np.zeros((h, w, 3), np.float32)
+
+    def images_of(radiance: np.ndarray) -> dict:
+        surface = np.zeros((h, w, 3), np.float32)
+        surface[hit] = radiance
+        surface *= attenuation
+        return {"color": surface + background, "surface": surface, "scattering": scattering,
+                "depth": g["distance"].astype(np.float32)}
+
+    kw = {"samples": settings.samples, "view_dirs": view, "materials": table, "material_index": mat_index,
+          "filter": settings.filter, "bias": float(bias), "ray_eps": float(offset), "device": device}
+    if csm is not None:
+        kw["csm"] = csm
+    elif mesh is not None:
+        kw["mesh"] = mesh
+    acc = ProgressiveAccumulator()
+    pass_seconds = []
+    mean = np.zeros((0, 3), np.float32)
+    for k in range(settings.passes):
+        t0 = time.perf_counter()
+        if isinstance(light, EnvironmentLight):
+            frame = shade_environment(points, normals, None, light.env, seed=pass_seed(settings.seed, k), **kw)
+        else:
+            frame = shade_local_light(points, normals, None, light, seed=pass_seed(settings.seed, k), **kw)
+        mean = acc.add(frame)
+        wp.synchronize()
+        dt = time.perf_counter() - t0
+        pass_seconds.append(dt)
+        timer.add("lighting", dt)
+        if timer.progress:
+            timer.progress(f"lighting pass {k + 1}/{settings.passes}", (k + 1) / settings.passes)
+        done = k + 1
+        if on_pass is not None and settings.write_every and done % settings.write_every == 0 and done < settings.passes:
+            on_pass(images_of(mean), done, settings.passes)
+    images = images_of(mean)
+    check_finite(images)
+    stats = {
+        "triangles": scene.triangle_count,
+        "occluder_triangles": int(len(triangles)),
+        "resolution": [w, h],
+        "method": settings.method,
+        "light": light.kind,
+        "samples": settings.samples,
+        "passes": settings.passes,
+        "directions_per_pixel": 2 * settings.samples * settings.passes if light.kind != "linear"
+        else settings.samples * settings.passes,
+        "seconds_per_pass": float(np.median(pass_seconds)),
+        "shaded_pixels": int(hit.sum()),
+    }
+    if csm is not None:
+        stats.update(csm_kind=csm.kind, csm_maps=[csm.n1, csm.n2], csm_resolution=csm.resolution,
+                     csm_segments=csm.num_segments, csm_file=str(settings.csm.file) if settings.csm.file else None,
+                     csm_bias=float(bias))
+    if sigma_t > 0.0:
+        stats["medium"] = "attenuation only (L_scat = 0 for the lighting methods)"
+    return images, stats
+
+
+__all__ = ["pass_seed", "render_lighting"]

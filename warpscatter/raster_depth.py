@@ -1,0 +1,75 @@
+"""Host (numpy) utilities on rasterized depth: pixel-centre NDC grids, unprojection of NDC depth to
+world positions, and linearization of NDC depth to view-space distance.
+
+They mirror the device conventions of :mod:`warpscatter.raster_funcs` (``pixel_center_ndc``,
+``ndc_to_view_depth``) for images returned by :func:`warpscatter.raster.rasterize` and
+:func:`warpscatter.raycast.raycast_depth`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .raster_inputs import check_matrix
+
+
+def pixel_center_ndc_grid(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """NDC x (width,) and y (height,) of pixel centres, row 0 at the top (float64, host mirror of
+    :func:`pixel_center_ndc`)."""
+    x = 2.0 * (np.arange(width) + 0.5) / width - 1.0
+    y = 1.0 - 2.0 * (np.arange(height) + 0.5) / height
+    return x, y
+
+
+def unproject(ndc_depth, view_proj) -> np.ndarray:
+    """World positions of pixel centres at the given NDC depths.
+
+    Args:
+        ndc_depth: (..., H, W) NDC depths (e.g. ``RasterResult.ndc_depth``); non-finite = no surface.
+        view_proj: the 4x4 world -> clip matrix the depths were rendered with.
+
+    Returns:
+        (..., H, W, 3) float64 world positions; +inf where the depth is not finite.
+    """
+    m = check_matrix(view_proj, "view_proj")
+    z = np.asarray(ndc_depth, dtype=np.float64)
+    if z.ndim < 2:
+        raise ValueError(f"ndc_depth must have at least 2 dimensions (H, W), got shape {z.shape}")
+    h, w = z.shape[-2:]
+    xs, ys = pixel_center_ndc_grid(w, h)
+    finite = np.isfinite(z)
+    zz = np.where(finite, z, 0.0)
+    ndc = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None], zz, np.ones_like(zz)), axis=-1)
+    p = ndc @ np.linalg.inv(m).T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        world = p[..., :3] / p[..., 3:4]
+    world[~finite | ~np.all(np.isfinite(world), axis=-1)] = np.inf
+    return world
+
+
+def linearize_depth(ndc_depth, projection) -> np.ndarray:
+    """View-space distance along the view axis (positive in front of the camera) from NDC depth.
+
+    Host mirror of :func:`ndc_to_view_depth`; handles perspective and orthographic OpenGL-style
+    projections (the matrix without the view part, or any matrix whose rows 2 and 3 depend only on
+    view-space z).
+
+    Args:
+        ndc_depth: NDC depths, any shape; non-finite entries (empty texels) map to +inf.
+        projection: 4x4 projection matrix.
+
+    Returns:
+        float64 array of the same shape, scene units.
+
+    Raises:
+        ValueError: malformed projection, or rows 2/3 of it depending on view-space x or y.
+    """
+    p = check_matrix(projection, "projection")
+    if np.any(p[2:, :2] != 0.0):
+        raise ValueError("projection: rows 2 and 3 must not depend on view-space x or y")
+    z = np.asarray(ndc_depth, dtype=np.float64)
+    finite = np.isfinite(z)
+    zz = np.where(finite, z, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = -(p[2, 3] - p[3, 3] * zz) / (p[3, 2] * zz - p[2, 2])
+    return np.where(finite & np.isfinite(d), d, np.inf)

@@ -1,0 +1,120 @@
+"""Caster culling of a rectified shadow map: empty the texels whose blocker shadows no pixel (warpscatter's, not
+in the papers).
+
+A pixel's look-up reads rows j0, j1 and the prefix columns up to i1 (:func:`~.filtered_lookups.texel_footprint`), and a
+texel there shadows it only when the texel's blocker depth is below the pixel's z_r. A texel that no pixel reads
+with a larger z_r is lit for every pixel, whatever depth it holds: emptying it (depth 1) changes no
+hard-visibility result but takes its depth out of the filtered representation. Typical: a ground plane's own
+depths just behind the fragment depth of the rays that end on it, where Fourier series ring and moment bounds are
+loosest (the ``moments4`` / ``moments6`` methods' largest error on grazing grounds; README, *Receivers in the
+rectified map*).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ..parallel import launch_rows
+from ..wpinit import default_device, module_options
+from . import rectify_nonlinear
+from .filtered_lookups import texel_footprint
+from .rectification import wrap_rows
+
+module_options()
+
+
+#: Depth bins per row of the caster-culling table (pixels are binned by z_r; a texel keeps its blocker when any
+#: pixel in its bin or above reads it, so the binning only ever keeps more).
+CULL_DEPTH_BINS = 1024
+
+
+@wp.func
+def cull_depth_bin(z: float) -> int:
+    """Bin of rectified depth z in the caster-culling table."""
+    return wp.clamp(int(wp.floor(z * float(CULL_DEPTH_BINS))), 0, CULL_DEPTH_BINS - 1)
+
+
+@wp.kernel
+def reader_table_kernel(coords: wp.array2d(dtype=wp.vec3), rows: int, cols: int, wrap: int,
+                        table: wp.array2d(dtype=wp.int32)):
+    # one launch (CPU atomics are exact within a launch): table[row, bin] = last prefix column a pixel of that depth
+    # bin reads in that row (its look-up footprint, as the evaluation's)
+    j, i = wp.tid()
+    c = coords[j, i]
+    j0, j1, ay, i0, i1, ax = texel_footprint(rows, cols, c[0], c[1], wrap)
+    b = cull_depth_bin(c[2])
+    wp.atomic_max(table, j0, b, i1)
+    wp.atomic_max(table, j1, b, i1)
+
+
+@wp.kernel
+def reader_suffix_kernel(table: wp.array2d(dtype=wp.int32), offset: int):
+    # table[row, b] = last column read by any pixel with a depth bin >= b
+    j = wp.tid() + offset
+    for k in range(CULL_DEPTH_BINS - 1):
+        b = CULL_DEPTH_BINS - 2 - k
+        table[j, b] = wp.max(table[j, b], table[j, b + 1])
+
+
+@wp.func
+def unread_blocker(table: wp.array2d(dtype=wp.int32), j: int, i: int, z: float, bias_bins: int) -> bool:
+    """True when texel (j, i) holds a blocker (z < 1) that no pixel reads at least ``bias_bins`` bins deeper."""
+    return z < 1.0 and table[j, wp.min(cull_depth_bin(z) + bias_bins, CULL_DEPTH_BINS - 1)] < i
+
+
+@wp.kernel
+def cull_casters_kernel(
+    table: wp.array2d(dtype=wp.int32),
+    depth: wp.array2d(dtype=wp.float32),
+    depth2: wp.array2d(dtype=wp.float32),  # the second depth of a SparseRectifiedDepth (two_depths != 0)
+    two_depths: int,
+    bias_bins: int,
+    culled: wp.array(dtype=wp.int32),  # per row: texels emptied (one row per thread: no race)
+    offset: int,
+):
+    j, i = wp.tid()
+    j += offset
+    if unread_blocker(table, j, i, depth[j, i], bias_bins):
+        depth[j, i] = 1.0
+        culled[j] = culled[j] + 1
+    if two_depths != 0 and unread_blocker(table, j, i, depth2[j, i], bias_bins):
+        depth2[j, i] = 1.0
+
+
+def cull_unseen_casters(rectified, rect, coords: wp.array, bias: float = 0.0, device=None) -> float:
+    """Empty, in place, every texel of a rectified map whose blocker shadows no pixel's look-up.
+
+    A texel is kept when some pixel's look-up (:func:`~.filtered_lookups.texel_footprint`: its two rows, prefix
+    columns up to i1) reads it with a depth z_r of at least the texel's depth + ``bias`` (pixels are binned by z_r into
+    ``CULL_DEPTH_BINS`` bins, rounding towards keeping). With ``bias`` 0 no pixel's hard (step-function)
+    visibility changes.
+
+    Args:
+        rectified: (rows, cols) float32 Warp array of rectified depth in [0, 1] (1: no blocker), or a
+            :class:`~.rectify_nonlinear.SparseRectifiedDepth` (both depths are culled).
+        rect: its NonlinearRectification or ProjectiveRectification.
+        coords: (H, W) vec3 rectified coordinates of the pixels' view-ray ends (:func:`pixel_coords`).
+        bias: tolerance in rectified depth (a fraction of the depth range), >= 0.
+
+    Returns:
+        The fraction of texels emptied (of the first depth).
+    """
+    device = default_device(device)
+    if not (np.isfinite(bias) and bias >= 0.0):
+        raise ValueError(f"caster culling bias must be finite and >= 0, got {bias}")
+    bias_bins = int(np.floor(bias * CULL_DEPTH_BINS))  # floor: a partial bin still counts readers in it
+    two = isinstance(rectified, rectify_nonlinear.SparseRectifiedDepth)
+    depth = rectified.z1 if two else rectified
+    rows, cols = int(depth.shape[0]), int(depth.shape[1])
+    table = wp.full((rows, CULL_DEPTH_BINS), -1, dtype=wp.int32, device=device)
+    wrap = int(wrap_rows(rect))
+    wp.launch(reader_table_kernel, dim=coords.shape, inputs=[coords, rows, cols, wrap, table], device=device)
+    launch_rows(reader_suffix_kernel, rows, [table], device=device)
+    culled = wp.zeros(rows, dtype=wp.int32, device=device)
+    launch_rows(cull_casters_kernel, (rows, cols),
+                [table, depth, rectified.z2 if two else depth, int(two), int(bias_bins), culled], device=device)
+    return float(culled.numpy().sum()) / float(rows * cols)
+
+
+__all__ = ["CULL_DEPTH_BINS", "cull_depth_bin", "cull_unseen_casters", "unread_blocker"]

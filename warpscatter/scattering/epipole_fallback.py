@@ -1,0 +1,156 @@
+"""The epipole fallback of the prefiltered methods: ray-march the pixels around an epipole in view (Klehm et al.
+2014 Sec. 5, Fig. 8).
+
+When the light (or its flip) projects into the view, the non-linear rectification's slices all meet there and
+precision is low: light bleeds into a ring around the epipole. The pixels whose view ray lies within an angle of
+the light direction (or its flip) — at least Klehm's block of ``epipole_block`` pixels — are ray-marched with
+shadow-map visibility instead (:mod:`.marching`), blended linearly in the angle with the prefiltered result over a
+band of ``EPIPOLE_BLEND`` times that radius. An angle rather than a pixel count keeps the region the same at every
+resolution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from ..parallel import launch_rows
+from ..scene.camera import CameraParams, pixel_ray_direction
+from ..wpinit import module_options
+from .marching import Marcher, march_ray, marcher_params, visibility_params
+
+module_options()
+
+#: Width of the blend band beyond the ray-marched disc, relative to its radius.
+EPIPOLE_BLEND = 0.25
+
+
+@wp.kernel
+def epipole_region_kernel(
+    cam: CameraParams,
+    distance: wp.array2d(dtype=wp.float32),
+    axis: wp.vec3,  # unit direction of the epipole from the camera (-L for the light, +L for its flip)
+    cos_inner: float,  # cos of the fully ray-marched angular radius
+    cos_outer: float,  # cos of the outer radius of the blend band (<= cos_inner)
+    marcher: Marcher,  # shadow-map visibility, per-pixel jitter
+    x0: int,  # pixel rectangle origin (column, row) of the launch
+    y0: int,
+    out: wp.array2d(dtype=wp.vec3),
+    offset: int,
+):
+    # Klehm 2014 Sec. 5, Fig. 8: ray-march where the epipolar slices converge; a linear blend in the angle over
+    # the band between the inner and outer radius hides the seam to the prefiltered result
+    j, i = wp.tid()
+    j += offset + y0
+    i += x0
+    d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
+    c = wp.dot(d, axis)
+    if c > cos_outer:
+        marched = march_ray(cam, i, j, distance[j, i], marcher)
+        w = float(1.0)
+        if c < cos_inner:
+            psi = wp.acos(wp.clamp(c, -1.0, 1.0))
+            psi_in = wp.acos(cos_inner)
+            psi_out = wp.acos(cos_outer)
+            w = (psi_out - psi) / wp.max(psi_out - psi_in, 1.0e-12)
+        out[j, i] = marched * w + out[j, i] * (1.0 - w)
+
+
+@dataclass(frozen=True)
+class EpipoleRegion:
+    """A ray-marched region around an epipole in view (Klehm 2014 Sec. 5, Fig. 8).
+
+    Pixels whose view ray lies within ``inner_deg`` of ``axis`` are ray-marched; between ``inner_deg`` and
+    ``outer_deg`` the marched and prefiltered results are blended linearly in the angle. ``rect`` (x0, y0, w, h)
+    bounds those pixels in the image.
+    """
+
+    name: str  # "light" (axis -L) or "anti-light" (axis +L)
+    axis: tuple[float, float, float]  # unit direction of the epipole from the camera (world)
+    inner_deg: float
+    outer_deg: float
+    rect: tuple[int, int, int, int]
+
+
+def _pixel_angle_deg(camera, block: int) -> float:
+    """Angle (degrees) subtended by ``block / 2`` pixels at the image centre (a pixel size -> angle conversion)."""
+    t = np.tan(np.radians(camera.fov_y) / 2.0)
+    return float(np.degrees(np.arctan(t * block / camera.height)))
+
+
+def _cone_rect(camera, axis: np.ndarray, angle_deg: float, stride: int = 4) -> tuple[int, int, int, int] | None:
+    """Pixel rectangle (x0, y0, w, h) bounding the pixels whose view ray lies within ``angle_deg`` of ``axis``, or
+    None when there are none. Found on every ``stride``-th pixel with the angle widened by ``stride`` pixels and
+    the rectangle padded by ``stride``, so it is conservative for any cone wider than a few pixels."""
+    d = camera.ray_directions(stride)
+    margin = _pixel_angle_deg(camera, 2 * stride)
+    rows, cols = np.nonzero(d @ axis > np.cos(np.radians(min(angle_deg + margin, 180.0))))
+    if len(rows) == 0:
+        return None
+    x0 = max(int(cols.min()) * stride - stride, 0)
+    y0 = max(int(rows.min()) * stride - stride, 0)
+    x1 = min(int(cols.max()) * stride + 2 * stride, camera.width)
+    y1 = min(int(rows.max()) * stride + 2 * stride, camera.height)
+    return (x0, y0, x1 - x0, y1 - y0)
+
+
+def epipole_regions(camera, light_direction, angle_deg: float, block: int = 0,
+                    blend: float = EPIPOLE_BLEND) -> list[EpipoleRegion]:
+    """The ray-marched regions around each epipole whose cone touches the image.
+
+    Args:
+        camera: the :class:`~warpscatter.scene.camera.Camera`.
+        light_direction: unit direction the light travels.
+        angle_deg: angular radius (degrees) of the fully ray-marched disc around the epipole direction.
+        block: a minimum radius in pixels at the image centre, as ``block / 2`` (Klehm's block side; 0: none).
+        blend: relative width of the blend band beyond the inner radius (outer = inner * (1 + blend)).
+
+    Returns:
+        One :class:`EpipoleRegion` per epipole ("light": towards the light, "anti-light": its flip) whose region
+        meets the image; empty when both radii are 0.
+    """
+    inner = max(float(angle_deg), _pixel_angle_deg(camera, block) if block > 0 else 0.0)
+    if inner <= 0.0:
+        return []
+    outer = min(inner * (1.0 + blend), 89.0)
+    inner = min(inner, outer)
+    regions = []
+    for sign, name in ((-1.0, "light"), (1.0, "anti-light")):
+        axis = sign * np.asarray(light_direction, float)
+        axis = axis / np.linalg.norm(axis)
+        rect = _cone_rect(camera, axis, outer)
+        if rect is not None:
+            regions.append(EpipoleRegion(name, tuple(float(a) for a in axis), inner, outer, rect))
+    return regions
+
+
+def epipole_pixel_fraction(camera, regions: list[EpipoleRegion], stride: int = 4) -> float:
+    """Fraction of the image's pixels inside the regions' outer cones (ray-marched), estimated on every
+    ``stride``-th pixel."""
+    if not regions:
+        return 0.0
+    d = camera.ray_directions(stride)
+    inside = np.zeros(d.shape[:2], bool)
+    for r in regions:
+        inside |= d @ np.asarray(r.axis) > np.cos(np.radians(r.outer_deg))
+    return float(inside.mean())
+
+
+def march_epipole_regions(scene, gbuffer, shadow_map, regions: list[EpipoleRegion], out: wp.array, *, steps: int,
+                          seed: int, shadow_bias_texels: float, device=None) -> None:
+    """Ray-march the pixels of ``regions`` into ``out`` (shadow-map visibility, the reference marcher's estimator),
+    blending with the prefiltered values already in ``out`` over each region's blend band."""
+    cam = scene.camera
+    vis = visibility_params(scene, "shadow_map", None, shadow_map, shadow_bias_texels, device)
+    marcher = marcher_params(scene, steps=steps, visibility=vis, seed=seed, jitter="per_pixel", device=device)
+    for r in regions:
+        x0, y0, w, h = r.rect
+        launch_rows(epipole_region_kernel, (h, w),
+                    [cam.params(), gbuffer.distance, wp.vec3(*r.axis), float(np.cos(np.radians(r.inner_deg))),
+                     float(np.cos(np.radians(r.outer_deg))), marcher, int(x0), int(y0), out], device=device)
+
+
+__all__ = ["EPIPOLE_BLEND", "EpipoleRegion", "epipole_pixel_fraction", "epipole_region_kernel", "epipole_regions",
+           "march_epipole_regions"]

@@ -1,0 +1,349 @@
+"""Marching single scattering along a ray: the estimator every marching method shares (CONVENTIONS.md;
+Klehm 2014 Eq. 1).
+
+For a ray origin + t d (unit d) ending at distance s:
+
+    L_scat = sigma_s * integral_0^s f(cos_theta(x_t)) E(x_t) V(x_t) exp(-sigma_t t) dt,
+    cos_theta = dot(omega_l(x_t), -d),
+
+estimated with N stratified steps over the LIT part of the ray, [t_lo, t_hi] (Engelhardt 2010 Sec. 5.3: "we
+always ray march at a fixed step size restricted to the light frustum"): the whole [0, s] for a directional
+light, the chord inside a spot light's cone clipped to [0, s] for a spot light (:func:`lit_interval`; the cone is
+convex, so the chord is one interval). Stratum k = [t_lo + k dt, t_lo + (k+1) dt], dt = (t_hi - t_lo) / N,
+contributes f E V at one point of it times the EXACT transmittance integral over the stratum
+(:func:`~warpscatter.scene.medium.transmittance_integral`). Outside [t_lo, t_hi] the integrand is 0, so the
+estimate is that of the whole ray, with all N steps where light is. With V = 1 and a directional light the
+estimate is the analytic sigma_s f E (1 - exp(-sigma_t s)) / sigma_t for any N; with occluders or a spot light it
+converges as N grows. N is fixed per ray (the ``steps`` key), so the step length is (t_hi - t_lo) / N, shorter on
+short chords; the paper fixes the step length instead (a count that varies per ray). Here ``steps`` keeps one
+meaning for every method that marches rays.
+
+The point in each stratum (``jitter``):
+
+* ``per_pixel`` (default) — an independent uniform offset per stratum and ray (stratified jittered sampling,
+  the random stream of the ray's pixel): unbiased per pixel, noise that decorrelates between pixels;
+* ``fixed`` — one offset per frame shared by every stratum of every ray (the paper's fixed step): a regular
+  step pattern that moves smoothly from pixel to pixel, so neighbouring rays err coherently (banding instead
+  of noise) and sparse sampling with interpolation can be compared against per-pixel marching without the
+  per-pixel noise. Unbiased over the seed, not per pixel.
+
+Visibility V(x) (:class:`Visibility`) is either
+
+* ``exact`` — a shadow ray from x towards the light cast against the casters' BVH (``wp.Mesh``): the
+  ground truth every fast method is measured against; or
+* ``shadow_map`` — a hard (nearest-texel) lookup in the light's shadow map.
+
+Kernels take the estimator's inputs as one :class:`Marcher` struct (light, medium, steps, seed, step pattern,
+visibility). Calling it from your own kernel::
+
+    from warpscatter.scattering import marching
+
+    @wp.kernel
+    def my_rays(m: marching.Marcher, origins: wp.array(dtype=wp.vec3), dirs: wp.array(dtype=wp.vec3),
+                lengths: wp.array(dtype=float), out: wp.array(dtype=wp.vec3)):
+        k = wp.tid()
+        out[k] = marching.march_along(m, origins[k], dirs[k], lengths[k], k)
+
+    m = marching.marcher_params(scene, steps=64, visibility=marching.visibility_params(scene, "exact", geometry))
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from ..scene.camera import CameraParams, pixel_ray_direction
+from ..scene.lights import LIGHT_DIRECTIONAL, LightParams, light_params, light_sample
+from ..scene.medium import MediumParams, phase_eval, transmittance_integral
+from ..shadows.shadow_map import ShadowMapParams, shadow_visibility
+from ..wpinit import default_device, module_options
+from .settings import JITTERS, VISIBILITY_MODES
+
+module_options()
+
+#: ``Visibility.mode``: exact shadow rays, or the light's shadow map.
+VISIBILITY_EXACT = wp.constant(0)
+VISIBILITY_SHADOW_MAP = wp.constant(1)
+#: ``Marcher.jitter``: the step patterns (module doc).
+JITTER_PER_PIXEL = wp.constant(0)
+JITTER_FIXED = wp.constant(1)
+
+
+@wp.struct
+class Visibility:
+    """Light visibility of medium points as kernels see it (build with :func:`visibility_params`)."""
+
+    mode: int  # VISIBILITY_EXACT or VISIBILITY_SHADOW_MAP
+    mesh: wp.uint64  # exact: the casters' BVH (wp.Mesh id)
+    eps: float  # exact: shadow-ray start offset towards the light (scene units)
+    sm: ShadowMapParams  # shadow_map: the map's transform (a 1x1 placeholder for exact)
+    sm_depth: wp.array2d(dtype=wp.float32)  # shadow_map: linear caster depth per texel
+    sm_bias: float  # shadow_map: depth bias (scene units)
+
+
+@wp.struct
+class Marcher:
+    """Everything the marching estimator reads besides the ray (build with :func:`marcher_params`)."""
+
+    light: LightParams
+    medium: MediumParams
+    steps: int  # strata per ray, >= 1
+    seed: int  # jitter seed
+    jitter: int  # JITTER_PER_PIXEL or JITTER_FIXED
+    vis: Visibility
+
+
+# ---- building blocks (public @wp.func API) ---------------------------------------------------------
+
+
+@wp.func
+def exact_visibility(mesh: wp.uint64, x: wp.vec3, omega_l: wp.vec3, dist: float, eps: float) -> float:
+    """1 if the segment from x towards the light (travel direction omega_l, light at ``dist``) is unblocked."""
+    start = x - omega_l * eps
+    q = wp.mesh_query_ray(mesh, start, -omega_l, wp.min(dist, 1.0e20))
+    if q.result:
+        return 0.0
+    return 1.0
+
+
+@wp.func
+def point_visibility(vis: Visibility, x: wp.vec3, omega_l: wp.vec3, dist: float) -> float:
+    """V(x) in [0, 1] of medium point x for light travelling along omega_l from ``dist`` away."""
+    if vis.mode == VISIBILITY_EXACT:
+        return exact_visibility(vis.mesh, x, omega_l, dist, vis.eps)
+    return shadow_visibility(vis.sm, vis.sm_depth, x, vis.sm_bias)
+
+
+@wp.func
+def inscatter_sample(m: Marcher, x: wp.vec3, d: wp.vec3) -> wp.vec3:
+    """sigma_s f(cos_theta) E(x) V(x) at medium point x seen along unit view direction d (no transmittance)."""
+    e, omega, dist = light_sample(m.light, x)
+    if e[0] + e[1] + e[2] <= 0.0:
+        return wp.vec3(0.0, 0.0, 0.0)
+    v = point_visibility(m.vis, x, omega, dist)
+    if v <= 0.0:
+        return wp.vec3(0.0, 0.0, 0.0)
+    return e * (m.medium.sigma_s * phase_eval(m.medium.phase_id, m.medium.g, wp.dot(omega, -d)) * v)
+
+
+@wp.func
+def lit_interval(light: LightParams, origin: wp.vec3, d: wp.vec3, s: float):
+    """Part [t_lo, t_hi] of the ray origin + t d (unit d), t in [0, s], where the light can reach the medium.
+
+    Directional lights: the whole [0, s]. Spot lights: the chord of the ray inside the forward cone
+    {x: dot(normalize(x - position), direction) >= cos_cone} of :func:`~warpscatter.scene.lights.light_sample`,
+    clipped to [0, s]; the cone (half-angle < 90 deg) is convex, so the chord is one interval. Solved in float64
+    (the quadratic dot(w + t d, a)^2 = cos^2 |w + t d|^2, w = origin - apex, restricted to the forward half-space
+    dot(w + t d, a) >= 0) and widened by 1e-5 (|w| + s) on both sides, so float32 cone tests at the ends never
+    fall outside it (a wider interval only spreads the steps: the integrand is 0 outside the cone).
+
+    Returns:
+        (t_lo, t_hi): distances along the ray; t_hi <= t_lo when the ray never enters the light.
+    """
+    if light.kind == LIGHT_DIRECTIONAL:
+        return float(0.0), s
+    w = wp.vec3d(wp.float64(origin[0] - light.position[0]), wp.float64(origin[1] - light.position[1]),
+                 wp.float64(origin[2] - light.position[2]))
+    dd = wp.vec3d(wp.float64(d[0]), wp.float64(d[1]), wp.float64(d[2]))
+    dd = dd / wp.length(dd)
+    a = wp.vec3d(wp.float64(light.direction[0]), wp.float64(light.direction[1]), wp.float64(light.direction[2]))
+    a = a / wp.length(a)
+    c2 = wp.float64(light.cos_cone) * wp.float64(light.cos_cone)
+    zero = wp.float64(0.0)
+    lo = zero
+    hi = wp.float64(s)
+    empty = bool(False)
+    da = wp.dot(dd, a)
+    wa = wp.dot(w, a)
+    # ---- forward half-space dot(w + t d, a) >= 0 ----
+    if da > zero:
+        lo = wp.max(lo, -wa / da)
+    elif da < zero:
+        hi = wp.min(hi, -wa / da)
+    elif wa < zero:
+        empty = True
+    # ---- double cone f(t) = A t^2 + 2 b t + C >= 0 ----
+    qa = da * da - c2
+    qb = wa * da - c2 * wp.dot(w, dd)
+    qc = wa * wa - c2 * wp.dot(w, w)
+    if wp.abs(qa) < wp.float64(1.0e-12):
+        if qb > zero:
+            lo = wp.max(lo, -qc / (wp.float64(2.0) * qb))
+        elif qb < zero:
+            hi = wp.min(hi, -qc / (wp.float64(2.0) * qb))
+        elif qc < zero:
+            empty = True
+    else:
+        disc = qb * qb - qa * qc
+        if qa < zero:  # the direction lies outside the cone's angle: f >= 0 between the roots (or nowhere)
+            if disc < zero:
+                empty = True
+            else:
+                sq = wp.sqrt(disc)
+                r1 = (-qb + sq) / qa  # qa < 0: r1 <= r2
+                r2 = (-qb - sq) / qa
+                lo = wp.max(lo, r1)
+                hi = wp.min(hi, r2)
+        elif disc > zero:  # inside the cone's angle: f >= 0 outside the roots; the forward nappe is one side
+            sq = wp.sqrt(disc)
+            if da > zero:
+                lo = wp.max(lo, (-qb + sq) / qa)
+            else:
+                hi = wp.min(hi, (-qb - sq) / qa)
+    if empty or lo > hi:
+        return float(0.0), float(0.0)
+    pad = wp.float64(1.0e-5) * (wp.length(w) + wp.float64(s))
+    return float(wp.max(lo - pad, zero)), float(wp.min(hi + pad, wp.float64(s)))
+
+
+@wp.func
+def march_along(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, stream: int) -> wp.vec3:
+    """L_scat along the ray origin + t d (unit d), t in [0, s]: ``m.steps`` strata over :func:`lit_interval`.
+
+    ``m.jitter`` JITTER_PER_PIXEL draws one offset per stratum from the random stream (``m.seed``, ``stream``);
+    JITTER_FIXED uses one offset per frame (stream 0 of ``m.seed``) for every stratum of every ray (module doc).
+    """
+    t_lo, t_hi = lit_interval(m.light, origin, d, s)
+    acc = wp.vec3(0.0, 0.0, 0.0)
+    if t_hi <= t_lo:
+        return acc
+    dt = (t_hi - t_lo) / float(m.steps)
+    rng = wp.rand_init(m.seed, stream)
+    if m.jitter == JITTER_FIXED:
+        rng = wp.rand_init(m.seed, 0)
+    u = wp.randf(rng)
+    for k in range(m.steps):
+        t0 = t_lo + float(k) * dt
+        if m.jitter == JITTER_PER_PIXEL and k > 0:
+            u = wp.randf(rng)
+        x = origin + d * (t0 + u * dt)
+        c = inscatter_sample(m, x, d)
+        if c[0] + c[1] + c[2] > 0.0:
+            acc += c * transmittance_integral(m.medium.sigma_t, t0, t0 + dt)
+    return acc
+
+
+@wp.func
+def march_ray(cam: CameraParams, i: int, j: int, s: float, m: Marcher) -> wp.vec3:
+    """L_scat of pixel (i, j) whose ray ends at distance s (:func:`march_along` from the camera; see the module doc)."""
+    d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
+    return march_along(m, cam.position, d, s, j * cam.width + i)
+
+
+@wp.func
+def march_screen_point(cam: CameraParams, x: float, y: float, s: float, m: Marcher) -> wp.vec3:
+    """L_scat along the camera ray through screen point (x, y) (pixels) ending at distance s.
+
+    :func:`march_along` at a sub-pixel position; the random stream is that of the pixel containing (x, y), so a
+    sample at a pixel centre reproduces :func:`march_ray` bit for bit.
+    """
+    d = pixel_ray_direction(cam, x, y)
+    pi = wp.clamp(int(wp.floor(x)), 0, cam.width - 1)
+    pj = wp.clamp(int(wp.floor(y)), 0, cam.height - 1)
+    return march_along(m, cam.position, d, s, pj * cam.width + pi)
+
+
+# ---- host side -------------------------------------------------------------------------------------
+
+
+def jitter_mode(jitter: str) -> int:
+    """Kernel id of a step pattern name (:data:`~.settings.JITTERS`); ValueError naming the choices otherwise."""
+    if jitter not in JITTERS:
+        raise ValueError(f"jitter must be one of {', '.join(JITTERS)}, got {jitter!r}")
+    return JITTERS.index(jitter)
+
+
+def shadow_ray_offset(scene) -> float:
+    """The exact visibility's shadow-ray start offset: 1e-5 of the scene's extent (scene units)."""
+    lo, hi = scene.bounds()
+    return 1e-5 * float(max(1.0, abs(lo).max(), abs(hi).max()))
+
+
+def visibility_params(scene, visibility: str, geometry=None, shadow_map=None, shadow_bias_texels: float = 1.0,
+                      device=None) -> Visibility:
+    """:class:`Visibility` of a mode, shared by every method that marches rays.
+
+    Args:
+        scene: the :class:`~warpscatter.scene.Scene`.
+        visibility: ``"exact"`` (needs ``geometry``: the BVH of its casters,
+            :attr:`~warpscatter.scene.DeviceGeometry.shadow_mesh`, is built on first use) or ``"shadow_map"``
+            (needs ``shadow_map``).
+        geometry: :class:`~warpscatter.scene.DeviceGeometry`.
+        shadow_map: :class:`~warpscatter.shadows.shadow_map.ShadowMap`.
+        shadow_bias_texels: shadow-map depth bias in texel sizes.
+        device: Warp device.
+
+    Raises:
+        ValueError: an unknown mode, or its input missing.
+    """
+    device = default_device(device)
+    if visibility not in VISIBILITY_MODES:
+        raise ValueError(f"visibility must be 'exact' or 'shadow_map', got {visibility!r}")
+    v = Visibility()
+    v.eps = shadow_ray_offset(scene)
+    if visibility == "exact":
+        if geometry is None:
+            raise ValueError("geometry: exact visibility needs the scene's DeviceGeometry")
+        v.mode = VISIBILITY_EXACT
+        v.mesh = geometry.shadow_mesh.id
+        v.sm = ShadowMapParams()
+        v.sm.width = v.sm.height = 1
+        v.sm_depth = wp.zeros((1, 1), dtype=wp.float32, device=device)
+        v.sm_bias = 0.0
+        return v
+    if shadow_map is None:
+        raise ValueError("shadow_map: shadow_map visibility needs a rendered ShadowMap")
+    v.mode = VISIBILITY_SHADOW_MAP
+    v.mesh = wp.uint64(0)
+    v.sm = shadow_map.params()
+    v.sm_depth = shadow_map.device_depth(device)
+    v.sm_bias = float(shadow_bias_texels * shadow_map.texel_world)
+    return v
+
+
+def marcher_params(scene, *, steps: int, visibility: Visibility, seed: int = 0, jitter: str = "per_pixel",
+                   light_texture: wp.array | None = None, device=None) -> Marcher:
+    """:class:`Marcher` of a scene's light and medium.
+
+    Args:
+        scene: the :class:`~warpscatter.scene.Scene` (directional or spot light).
+        steps: strata per ray (>= 1).
+        visibility: from :func:`visibility_params`.
+        seed: jitter seed.
+        jitter: ``"per_pixel"`` or ``"fixed"`` (module doc).
+        light_texture: a spot texture to march with instead of the light's own (a prefiltered copy).
+        device: Warp device.
+
+    Raises:
+        ValueError: steps < 1 or an unknown step pattern.
+    """
+    if isinstance(steps, bool) or int(steps) != steps or steps < 1:
+        raise ValueError(f"steps must be >= 1, got {steps}")
+    m = Marcher()
+    m.light = light_params(scene.light, device, texture=light_texture)
+    m.medium = scene.medium.params()
+    m.steps = int(steps)
+    m.seed = int(seed)
+    m.jitter = jitter_mode(jitter)
+    m.vis = visibility
+    return m
+
+
+__all__ = [
+    "JITTER_FIXED",
+    "JITTER_PER_PIXEL",
+    "VISIBILITY_EXACT",
+    "VISIBILITY_SHADOW_MAP",
+    "Marcher",
+    "Visibility",
+    "exact_visibility",
+    "inscatter_sample",
+    "jitter_mode",
+    "lit_interval",
+    "march_along",
+    "march_ray",
+    "march_screen_point",
+    "marcher_params",
+    "point_visibility",
+    "shadow_ray_offset",
+    "visibility_params",
+]

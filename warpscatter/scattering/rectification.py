@@ -1,0 +1,93 @@
+"""Either rectification of the light's shadow map as kernels see it, and the per-frame choice between them.
+
+Prefiltered single scattering (Klehm et al. 2014; Peters et al. 2017 Sec. 5) works on a rectified map in which
+every camera view ray runs along one row from column 0 with one constant depth: Klehm's projective
+rectification (Sec. 4.2, :mod:`.rectify_projective`; one 4x4 matrix per light-frustum region, the scene is
+rasterized straight into it) or Peters' non-linear one (Sec. 5.1.1, App. A, :mod:`.rectify_nonlinear`; spherical light
+coordinates, the shadow map resampled into them). :func:`build_rectification` picks one per frame
+(``rectification: auto``: projective unless an epipole is (nearly) in view, Klehm's criterion for degenerate
+cases); :class:`RectificationParams` and :func:`rectified_coords` give kernels one code path for both.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from ..wpinit import module_options
+from . import rectify_nonlinear, rectify_projective
+from .rectify_nonlinear import NonlinearRectification, NonlinearRectParams
+from .rectify_projective import ProjectiveRectification, ProjectiveRectParams, choose_rectification
+from .settings import PrefilteredSettings
+
+module_options()
+
+#: ``RectificationParams.kind``.
+RECT_NONLINEAR = wp.constant(0)
+RECT_PROJECTIVE = wp.constant(1)
+
+
+@wp.struct
+class RectificationParams:
+    """Either rectification as kernels see it; ``kind`` selects RECT_NONLINEAR or RECT_PROJECTIVE."""
+
+    kind: int
+    nonlinear: NonlinearRectParams
+    projective: ProjectiveRectParams
+
+
+@wp.func
+def rectified_coords(rect: RectificationParams, x: wp.vec3) -> wp.vec3:
+    """Rectified (u, v, depth) of world point x: u along the view ray from the camera, v = row, depth in [0, 1]
+    growing along the light (the common convention of :mod:`.rectify_nonlinear` and :mod:`.rectify_projective`)."""
+    if rect.kind == RECT_PROJECTIVE:
+        return rectify_projective.world_to_rectified(rect.projective, x)
+    return rectify_nonlinear.world_to_rectified(rect.nonlinear, x)
+
+
+def wrap_rows(rect) -> bool:
+    """True when the rectified rows wrap around (non-linear rectification over the full azimuth circle)."""
+    return isinstance(rect, NonlinearRectification) and bool(rect.full_circle)
+
+
+def rectification_params(rect) -> RectificationParams:
+    """Kernel-side :class:`RectificationParams` of a NonlinearRectification or ProjectiveRectification."""
+    p = RectificationParams()
+    if isinstance(rect, ProjectiveRectification):
+        p.kind = RECT_PROJECTIVE
+        p.projective = rect.params()
+        p.nonlinear = NonlinearRectParams()
+    elif isinstance(rect, NonlinearRectification):
+        p.kind = RECT_NONLINEAR
+        p.nonlinear = rect.params()
+        p.projective = ProjectiveRectParams()
+    else:
+        raise ValueError(f"rect must be a NonlinearRectification or ProjectiveRectification, got {type(rect).__name__}")
+    return p
+
+
+def build_rectification(scene, settings: PrefilteredSettings, rows: int, cols: int):
+    """Choose and build the rectification for ``scene``'s camera and directional light.
+
+    Returns:
+        (rect, choice): a :class:`~.rectify_nonlinear.NonlinearRectification` or
+        :class:`~.rectify_projective.ProjectiveRectification`, and the
+        :class:`~.rectify_projective.RectificationChoice` (kind and reason).
+    """
+    cam, light_dir = scene.camera, scene.light.direction
+    choice = choose_rectification(cam, light_dir, settings.rectification, settings.epipole_margin)
+    if choice.kind == "projective":
+        try:
+            rect = ProjectiveRectification.from_camera(cam, light_dir, guard_band=settings.guard_band, rows=rows,
+                                                       cols=cols, regions=settings.regions)
+            return rect, choice
+        except ValueError as exc:  # numerically degenerate although the epipole is (barely) outside the image
+            choice = rectify_projective.RectificationChoice(
+                kind="nonlinear", reason=f"{choice.reason}; projective construction failed ({exc}): non-linear used",
+                epipole_distance=choice.epipole_distance)
+            rectify_projective.logger.warning("fourier rectification: %s", choice.reason)
+    rect = NonlinearRectification.from_camera(cam, light_dir, guard_band=settings.guard_band, rows=rows, cols=cols)
+    return rect, choice
+
+
+__all__ = ["RECT_NONLINEAR", "RECT_PROJECTIVE", "RectificationParams", "build_rectification", "rectification_params",
+           "rectified_coords", "wrap_rows"]

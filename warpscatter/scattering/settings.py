@@ -1,0 +1,244 @@
+"""Settings of the single-scattering methods: the keys, defaults, ranges and meanings of ``render.scattering``
+(Warp-free; the only place they are written).
+
+:class:`ScatteringSettings` holds what every method shares (``method``, ``visibility``, ``steps``, ``seed``,
+``jitter``, ``shadow_map``) and one section per technique: ``prefiltered`` (what ``fourier``, ``moments4`` and
+``moments6`` share), ``fourier``, ``moments``, ``epipolar``. The methods themselves are listed in
+:mod:`warpscatter.methods`; each reads the shared keys and its own sections.
+
+Example (a validated settings object for the library's ``render`` functions)::
+
+    settings = ScatteringSettings(method="epipolar", steps=64, visibility="shadow_map", epipolar={"lines": 512})
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal, Optional, Union
+
+from pydantic import Field, field_validator, model_validator
+
+from .. import methods
+from ..schema import Bool, Float, Int, SettingsModel
+from ..shadows.settings import ShadowMapSettings
+
+# ---- limits and defaults (one home; the technique modules import them) ---------------------------
+
+#: Visibility of the marching methods (``raymarch``, ``epipolar``).
+VISIBILITY_MODES = ("exact", "shadow_map")
+#: Step patterns of the marching methods (:mod:`~warpscatter.scattering.marching`).
+JITTERS = ("per_pixel", "fixed")
+#: The prefiltered methods' visibility representations.
+PREFILTERED_BASES = ("fourier", "moments4", "moments6")
+#: Fourier coefficients M (even).
+MIN_COEFFICIENTS = 4
+MAX_COEFFICIENTS = 128
+#: Bits per texel of the prefiltered moment maps, per moment count (Peters 2017 Sec. 5.4.3, Table 1).
+MOMENT_STORAGE_BITS = {4: (64, 128), 6: (64, 96, 192)}
+#: Default angular radius (degrees) of the ray-marched disc around an epipole in view (Klehm 2014 Fig. 8).
+EPIPOLE_ANGLE_DEG = 8.0
+MAX_EPIPOLE_ANGLE_DEG = 60.0
+#: ``rectification: auto`` picks projective when every epipole lies this many half image heights outside the image.
+EPIPOLE_MARGIN = 1.0
+#: Most light-frustum regions of the projective rectification (Klehm 2014 Sec. 4.2).
+MAX_REGIONS = 16
+#: Most split regions of a row (Klehm 2014 Sec. 3.3 uses up to 4).
+MAX_SPLITS = 16
+#: Resampling filters of the non-linear rectification (Peters 2017 Sec. 5.2) and the widest Gaussian (texels).
+RESAMPLE_FILTERS = ("none", "moments")
+MAX_RESAMPLE_FILTER_PX = 64
+#: Default tolerance of caster culling, as a fraction of the rectified depth range: a texel is kept only for
+#: readers at least this much deeper than its blocker. Between neighbouring rows (slices) and at a ray's last
+#: prefix column, the surface a ray ends on can lie a little in FRONT of the ray in the map although it is behind
+#: it in the scene (discretisation acne); 1/64 covers that on the bench scenes (0, 1/128 and 1/32 measured).
+CASTER_CULLING_BIAS = 1.0 / 64.0
+MAX_CASTER_CULLING_BIAS = 0.25
+#: Radial basis functions of the epipolar bilateral filter (Engelhardt 2010 Sec. 4.3).
+EPIPOLAR_KERNELS = ("gaussian", "shepard", "threshold")
+
+
+class PrefilteredSettings(SettingsModel):
+    """What the prefiltered methods (``fourier``, ``moments4``, ``moments6``) share: rectification, weights and the
+    epipole fallback (Klehm et al. 2014; Peters et al. 2017 Sec. 5)."""
+
+    weighting: Literal["transmittance", "average"] = Field(
+        "transmittance", description="transmittance-weighted prefix sums (Klehm 2014 Listing 2, Eq. 12) or the plain "
+                                     "average visibility (Eq. 2)")
+    reference_ray: Literal["pixels", "optimal", "bisectrix", "mean"] = Field(
+        "pixels", description="per-slice reference ray of the weights: the slice's median pixel ray, Klehm's optimum "
+                              "k_ref = sqrt(k_min k_max), the bisectrix, or Peters' mean inclination")
+    guard_band: Annotated[Float, Field(ge=0.0, le=1.0, description="relative stretch of the depth bounds")] = 0.1
+    epipole_block: Annotated[Int, Field(ge=0, description="the least ray-marched region around an epipole in view: "
+                                                          "Klehm's block side in pixels (its half side as an angle at "
+                                                          "the image centre is the least radius)")] = 32
+    epipole_angle_deg: Annotated[Float, Field(ge=0.0, le=MAX_EPIPOLE_ANGLE_DEG, description=(
+        "pixels whose view ray lies within this angle (degrees) of the light direction or its flip are ray-marched "
+        "(shadow-map visibility, `steps`), blended with the prefiltered result over a further 25 % of the angle "
+        "(Klehm 2014 Sec. 5, Fig. 8); this and epipole_block 0: off"))] = EPIPOLE_ANGLE_DEG
+    rectification: Literal["auto", "projective", "nonlinear"] = Field(
+        "auto", description="Klehm's projective map (Sec. 4.2) unless an epipole lies within epipole_margin half "
+                            "image heights of the view (then Peters' non-linear map), or one of them always")
+    epipole_margin: Annotated[Float, Field(ge=0.0, description="auto: the projective map needs every epipole this many "
+                                                               "half image heights outside the image")] = EPIPOLE_MARGIN
+    regions: Annotated[Int, Field(ge=1, le=MAX_REGIONS, description="light-frustum regions of the projective map along "
+                                                                    "x (Klehm 2014 Sec. 4.2; 1 = one matrix)")] = 8
+    projective_weights: Literal["exact", "cross_ratio"] = Field(
+        "exact", description="per-texel weights of the projective map: exact column lengths, or Eq. 12's constant "
+                             "growth factor d")
+    splits: Annotated[Int, Field(ge=1, le=MAX_SPLITS, description="row regions prefiltered independently (Klehm 2014 "
+                                                                  "Sec. 3.3; fourier only; 1 = off)")] = 1
+    resample_filter: Literal[RESAMPLE_FILTERS] = Field(  # type: ignore[valid-type]
+        "none", description="non-linear rectification: none resamples the nearest shadow-map depth; moments filters "
+                            "during resampling (Peters 2017 Sec. 5.2: a filtered 4-moment map and Algorithm 2)")
+    resample_filter_px: Optional[Annotated[Int, Field(ge=1, le=MAX_RESAMPLE_FILTER_PX)]] = Field(
+        None, description="width of that filter's Gaussian (shadow-map texels); null: the radial footprint of a "
+                          "rectified texel")
+    caster_culling: Union[Literal["auto"], Bool] = Field(
+        "auto", description="empty every rectified texel whose blocker shadows no pixel's look-up (warpscatter's, not "
+                            "in the papers); auto: on for moments4/moments6, off for fourier")
+    caster_culling_bias: Annotated[Float, Field(ge=0.0, le=MAX_CASTER_CULLING_BIAS, description=(
+        "caster culling's depth tolerance, a fraction of the rectified depth range"))] = CASTER_CULLING_BIAS
+
+
+class FourierSettings(SettingsModel):
+    """The ``fourier`` method's representation (Klehm et al. 2014): M coefficients, float32 or 8-bit storage."""
+
+    coefficients: Annotated[Int, Field(ge=MIN_COEFFICIENTS, le=MAX_COEFFICIENTS, description=(
+        "M Fourier coefficients (even: cos/sin pairs)"))] = 32
+    storage_bits: Literal[0, 8] = Field(0, description="0: float32 filtered bases; 8: the paper's 8-bit normalised "
+                                                       "storage (App. A), emulated")
+
+    @field_validator("coefficients")
+    @classmethod
+    def _even(cls, v: int) -> int:
+        if v % 2:
+            raise ValueError(f"must be even (cos/sin pairs), got {v}")
+        return v
+
+
+class MomentsSettings(SettingsModel):
+    """The ``moments4`` / ``moments6`` methods' representation (Peters et al. 2017 Sec. 5.3-5.4)."""
+
+    storage_bits: Optional[Literal[64, 96, 128, 192]] = Field(
+        None, description="bits per texel: 64 or 128 for four moments; 64 (60 used), 96 or 192 for six (Theta* and "
+                          "fixed point emulated); null: 64")
+    overestimation: Union[Literal["adaptive"], Annotated[Float, Field(ge=0.0, le=1.0)]] = Field(
+        "adaptive", description="beta between the lower (0) and upper (1) visibility bounds: adaptive "
+                                "(beta = (1 + omega_l . omega_p) / 2, Sec. 5.3.1) or a fixed number")
+
+
+class EpipolarSettings(SettingsModel):
+    """The ``epipolar`` method (Engelhardt & Dachsbacher 2010)."""
+
+    lines: Annotated[Int, Field(ge=8, le=16384, description="epipolar lines (equidistant border points)")] = 1024
+    initial_samples: Annotated[Int, Field(ge=2, le=1024, description="initial ray-marching samples per line "
+                                                                     "(Sec. 4.1)")] = 16
+    samples_per_line: Optional[Annotated[Int, Field(ge=2)]] = Field(
+        None, description="texels per line (the most samples); null: the image diagonal in pixels")
+    depth_threshold: Annotated[Float, Field(gt=0.0, description="relative camera-depth jump that is a "
+                                                                "discontinuity")] = 0.05
+    kernel: Literal[EPIPOLAR_KERNELS] = Field(  # type: ignore[valid-type]
+        "gaussian", description="bilateral weight: gaussian exp(-x^2), shepard 1/(1+x^2), threshold (depth only: "
+                                "x <= 1; distance weight 1)")
+    taps: Annotated[Int, Field(ge=3, le=5, description="taps per line of the bilateral filter")] = 3
+    distance_falloff: Annotated[Float, Field(ge=0.0, description="a of the distance weight, x^2 = a (offset / "
+                                                                 "delta)^2")] = 0.5
+    depth_sigma: Annotated[Float, Field(gt=0.0, description="relative depth difference at which the depth x = "
+                                                            "1")] = 0.1
+    min_weight: Annotated[Float, Field(gt=0.0, le=1.0, description="taps whose depth weight is below this are "
+                                                                   "invalid")] = 0.05
+    outer_lines: Annotated[Int, Field(ge=0, le=64, description="outer lines tried per side when a side has no valid "
+                                                               "tap")] = 2
+    prefilter_light_texture: Bool = Field(False, description="box-downsample a spot texture to the line spacing "
+                                                             "(Sec. 6)")
+    fallback_stride: Annotated[Int, Field(ge=1, le=256, description="grid spacing (pixels) of the degenerate-case "
+                                                                    "screen-space subsampling")] = 4
+    max_epipole_distance: Annotated[Float, Field(gt=0.0, description="epipoles farther than this many image diagonals "
+                                                                     "count as at infinity")] = 1000.0
+
+    @model_validator(mode="after")
+    def _samples(self) -> EpipolarSettings:
+        if self.samples_per_line is not None and self.samples_per_line < self.initial_samples:
+            raise ValueError(f"samples_per_line ({self.samples_per_line}) must be >= initial_samples "
+                             f"({self.initial_samples})")
+        return self
+
+
+class ScatteringSettings(SettingsModel):
+    """Single scattering (``render.scattering``): the method, what every method shares, one section per technique."""
+
+    method: Literal[tuple(methods.SCATTERING)] = Field(  # type: ignore[valid-type]
+        "raymarch", description="the single-scattering method (see the method table)")
+    visibility: Literal[VISIBILITY_MODES] = Field(  # type: ignore[valid-type]
+        "exact", description="raymarch, epipolar: exact (ray-cast shadow rays, the reference) or shadow_map")
+    steps: Annotated[Int, Field(ge=1, description="ray-march steps per ray (also the prefiltered methods' "
+                                                  "ray-marched epipole region)")] = 128
+    seed: Int = Field(0, description="jitter seed (same seed, same image)")
+    jitter: Literal[JITTERS] = Field(  # type: ignore[valid-type]
+        "per_pixel", description="raymarch, epipolar step pattern: per_pixel (stratified jitter per ray) or fixed "
+                                 "(one offset per frame, the paper's fixed step)")
+    shadow_map: ShadowMapSettings = Field(default_factory=dict, description="the light's shadow map")
+    prefiltered: PrefilteredSettings = Field(default_factory=dict, description="fourier, moments4, moments6")
+    fourier: FourierSettings = Field(default_factory=dict, description="fourier")
+    moments: MomentsSettings = Field(default_factory=dict, description="moments4, moments6")
+    epipolar: EpipolarSettings = Field(default_factory=dict, description="epipolar")
+
+    @model_validator(mode="after")
+    def _moment_storage(self) -> ScatteringSettings:
+        bits = self.moments.storage_bits
+        allowed = {"moments4": MOMENT_STORAGE_BITS[4], "moments6": MOMENT_STORAGE_BITS[6]}.get(self.method)
+        if allowed and bits is not None and bits not in allowed:
+            raise ValueError(f"moments.storage_bits {bits} is not a {self.method} mode (choose from "
+                             f"{', '.join(map(str, allowed))})")
+        if allowed and self.prefiltered.splits != 1:
+            raise ValueError("prefiltered.splits > 1 is implemented for the fourier method only")
+        return self
+
+    # ---- derived values the prefiltered methods read ----
+
+    @property
+    def num_moments(self) -> int:
+        """4 or 6 for the moment methods (0 otherwise)."""
+        return {"moments4": 4, "moments6": 6}.get(self.method, 0)
+
+    @property
+    def moment_storage_bits(self) -> int:
+        """Bits per texel of the moment maps (``moments.storage_bits``, null: 64)."""
+        return 64 if self.moments.storage_bits is None else int(self.moments.storage_bits)
+
+    @property
+    def filtered_bits_per_texel(self) -> int:
+        """Bits per texel of the prefiltered map the evaluation reads."""
+        if self.method == "fourier":
+            return self.fourier.coefficients * (8 if self.fourier.storage_bits == 8 else 32)
+        return self.moment_storage_bits
+
+    @property
+    def culls_casters(self) -> bool:
+        """Whether caster culling runs: ``prefiltered.caster_culling``, with ``auto`` = the moment methods only (it
+        lowers their error a lot where rays end on lit surfaces and moves fourier's slightly either way)."""
+        if self.prefiltered.caster_culling == "auto":
+            return self.method != "fourier"
+        return bool(self.prefiltered.caster_culling)
+
+
+__all__ = [
+    "CASTER_CULLING_BIAS",
+    "EPIPOLAR_KERNELS",
+    "EPIPOLE_ANGLE_DEG",
+    "EPIPOLE_MARGIN",
+    "JITTERS",
+    "MAX_COEFFICIENTS",
+    "MAX_REGIONS",
+    "MAX_RESAMPLE_FILTER_PX",
+    "MAX_SPLITS",
+    "MIN_COEFFICIENTS",
+    "MOMENT_STORAGE_BITS",
+    "PREFILTERED_BASES",
+    "RESAMPLE_FILTERS",
+    "VISIBILITY_MODES",
+    "EpipolarSettings",
+    "FourierSettings",
+    "MomentsSettings",
+    "PrefilteredSettings",
+    "ScatteringSettings",
+]

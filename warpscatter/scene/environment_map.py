@@ -1,0 +1,246 @@
+"""Lat-long environment maps as light sources: the radiance per direction and the importance-sampling tables
+of Ritschel et al. 2007 Sec. 5.1 (inverse CDFs P_L^-1).
+
+The map is an RGB float32 image, row 0 = zenith: texel (i, j) covers theta in pi [j, j + 1] / H from +Y and
+phi in 2 pi [i, i + 1] / W, direction d = (sin t cos p, cos t, sin t sin p) (assets/README.md); it is piecewise
+constant per texel. Sampling uses a marginal CDF over rows weighted by luminance x sin(theta_j) and one
+conditional CDF per row; in the (u, v) = (phi / 2 pi, theta / pi) domain the density is constant per texel,
+p_uv = W H P(texel), and the solid-angle density is p_uv / (2 pi^2 sin theta).
+
+:class:`EnvironmentMap` builds the tables on the host; :class:`EnvData` is the map as kernels see it, and the
+``@wp.func``s below (public API) look it up and sample it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ..csm.depthmaps import latlong_param
+from ..wpinit import default_device, module_options
+
+module_options()
+
+#: Rec. 709 luminance weights of linear RGB (environment-map and BRDF sampling weights).
+LUMA = (0.2126, 0.7152, 0.0722)
+
+
+@wp.struct
+class EnvData:
+    """A lat-long environment map and its sampling tables as kernels see it (build with :class:`EnvironmentMap`)."""
+
+    width: int  # W, columns (azimuth)
+    height: int  # H, rows (polar angle, row 0 = zenith)
+    pixels: wp.array2d(dtype=wp.vec3)  # (H, W) radiance
+    marginal_cdf: wp.array(dtype=wp.float32)  # (H + 1,) CDF over rows, 0 ... 1
+    conditional_cdf: wp.array2d(dtype=wp.float32)  # (H, W + 1) CDF over the columns of each row
+    texel_pdf: wp.array2d(dtype=wp.float32)  # (H, W) density in (u, v) = W H P(texel)
+
+
+# ---- building blocks (public @wp.func API) -----------------------------------------------------
+
+
+@wp.func
+def cdf_search(cdf: wp.array(dtype=wp.float32), n: int, x: float) -> int:
+    """Interval k in [0, n) with cdf[k] <= x < cdf[k + 1] of an (n + 1,) CDF (empty intervals are never chosen
+    for x in [0, 1)); binary search, O(log n)."""
+    lo = int(0)
+    hi = n - 1
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if cdf[mid] <= x:
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
+
+
+@wp.func
+def cdf_search_row(cdf: wp.array2d(dtype=wp.float32), row: int, n: int, x: float) -> int:
+    """:func:`cdf_search` in row ``row`` of a 2-D table of CDFs (n + 1 entries per row)."""
+    lo = int(0)
+    hi = n - 1
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if cdf[row, mid] <= x:
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
+
+
+@wp.func
+def env_direction(u: float, v: float) -> wp.vec3:
+    """Lat-long mapping (u, v) in [0, 1]^2 -> unit direction: phi = 2 pi u, theta = pi v from +Y."""
+    phi = 2.0 * wp.pi * u
+    theta = wp.pi * v
+    st = wp.sin(theta)
+    return wp.vec3(st * wp.cos(phi), wp.cos(theta), st * wp.sin(phi))
+
+
+@wp.func
+def env_texel(env: EnvData, d: wp.vec3) -> wp.vec2i:
+    """Texel (column i, row j) of the map holding direction ``d`` (any length > 0)."""
+    uv = latlong_param(d)
+    i = wp.clamp(int(uv[0] * float(env.width)), 0, env.width - 1)
+    j = wp.clamp(int(uv[1] * float(env.height)), 0, env.height - 1)
+    return wp.vec2i(i, j)
+
+
+@wp.func
+def env_lookup(env: EnvData, d: wp.vec3) -> wp.vec3:
+    """Radiance L_in arriving from direction ``d`` (nearest texel: the map is piecewise constant)."""
+    t = env_texel(env, d)
+    return env.pixels[t[1], t[0]]
+
+
+@wp.func
+def env_pdf(env: EnvData, d: wp.vec3) -> float:
+    """Solid-angle density (1/sr) with which :func:`env_sample` draws direction ``d``:
+    p = p_uv / (2 pi^2 sin theta); 0 at the poles (sin theta = 0, probability zero)."""
+    n = wp.length(d)
+    if not (n > 0.0):
+        return 0.0
+    s = wp.sqrt(d[0] * d[0] + d[2] * d[2]) / n  # sin theta, accurate near the poles (unlike sqrt(1 - y^2))
+    if s < 1.0e-7:
+        return 0.0
+    t = env_texel(env, d)
+    return env.texel_pdf[t[1], t[0]] / (2.0 * wp.pi * wp.pi * s)
+
+
+@wp.func
+def env_sample(env: EnvData, xi: wp.vec2) -> tuple[wp.vec3, wp.vec3, float]:
+    """Importance-sample the map (Ritschel 2007 Sec. 5.1, inverse CDFs P_L^-1) with uniform ``xi`` in [0, 1)^2.
+
+    Returns:
+        (direction (unit), radiance L_in of its texel, solid-angle pdf in 1/sr; pdf 0 marks an unusable sample
+        at a pole).
+    """
+    x0 = wp.clamp(xi[0], 0.0, 0.99999994)
+    x1 = wp.clamp(xi[1], 0.0, 0.99999994)
+    j = cdf_search(env.marginal_cdf, env.height, x0)
+    c0 = env.marginal_cdf[j]
+    c1 = env.marginal_cdf[j + 1]
+    dv = wp.clamp((x0 - c0) / wp.max(c1 - c0, 1.0e-30), 0.0, 1.0)
+    i = cdf_search_row(env.conditional_cdf, j, env.width, x1)
+    r0 = env.conditional_cdf[j, i]
+    r1 = env.conditional_cdf[j, i + 1]
+    du = wp.clamp((x1 - r0) / wp.max(r1 - r0, 1.0e-30), 0.0, 1.0)
+    u = (float(i) + du) / float(env.width)
+    v = (float(j) + dv) / float(env.height)
+    d = env_direction(u, v)
+    s = wp.sin(wp.pi * v)
+    pdf = float(0.0)
+    if s >= 1.0e-7:
+        pdf = env.texel_pdf[j, i] / (2.0 * wp.pi * wp.pi * s)
+    return d, env.pixels[j, i], pdf
+
+
+@wp.kernel
+def env_lookup_kernel(env: EnvData, directions: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
+    """out[k] = radiance of the map along directions[k] (:func:`env_lookup`)."""
+    k = wp.tid()
+    out[k] = env_lookup(env, directions[k])
+
+
+# ---- host side -------------------------------------------------------------------------------------
+
+
+class EnvironmentMap:
+    """A lat-long environment map with the inverse-CDF tables of its importance sampling.
+
+    Args:
+        image: (H, W, 3) or (H, W, 4) linear RGB(A) radiance (alpha ignored), row 0 = zenith; H >= 1, W >= 1,
+            finite and >= 0.
+
+    Attributes:
+        image: (H, W, 3) float32 radiance.
+        marginal_cdf: (H + 1,) float32 CDF over rows (weights: sum over the row of luminance x sin theta_j).
+        conditional_cdf: (H, W + 1) float32 CDFs over the columns of each row (weights: luminance).
+        texel_pdf: (H, W) float32 density in (u, v) of each texel, W H P(texel), P from the stored float32 CDFs.
+
+    A map whose sampling weight is zero everywhere (black) is sampled by sin theta alone (uniform on the sphere).
+
+    Raises:
+        ValueError: wrong shape, empty, non-finite or negative texels.
+    """
+
+    def __init__(self, image):
+        try:
+            img = np.asarray(image, dtype=np.float32)
+        except (TypeError, ValueError) as exc:
+            raise ValueError("image must be a numeric (H, W, 3) array") from exc
+        if img.ndim != 3 or img.shape[2] not in (3, 4) or img.shape[0] < 1 or img.shape[1] < 1:
+            raise ValueError(f"image must have shape (H, W, 3) or (H, W, 4), got {img.shape}")
+        img = np.ascontiguousarray(img[:, :, :3])
+        if not np.all(np.isfinite(img)):
+            raise ValueError("image contains non-finite texels")
+        if np.any(img < 0.0):
+            raise ValueError("image contains negative radiance")
+        h, w = img.shape[:2]
+        self.image = img
+        sin_t = np.sin(np.pi * (np.arange(h) + 0.5) / h)
+        lum = img.astype(np.float64) @ np.asarray(LUMA)
+        weight = lum * sin_t[:, None]
+        if not weight.sum() > 0.0:
+            lum = np.ones((h, w))
+            weight = lum * sin_t[:, None]
+        row = weight.sum(axis=1)
+        marginal = np.concatenate([[0.0], np.cumsum(row)]) / row.sum()
+        marginal[-1] = 1.0
+        cond = np.zeros((h, w + 1))
+        for j in range(h):
+            s = lum[j].sum()
+            cond[j, 1:] = np.cumsum(lum[j]) / s if s > 0.0 else (np.arange(1, w + 1) / w)
+            cond[j, -1] = 1.0
+        self.marginal_cdf = marginal.astype(np.float32)
+        self.conditional_cdf = cond.astype(np.float32)
+        m = self.marginal_cdf.astype(np.float64)
+        c = self.conditional_cdf.astype(np.float64)
+        prob = np.diff(m)[:, None] * np.diff(c, axis=1)
+        self.texel_pdf = (prob * (w * h)).astype(np.float32)
+        self._device_cache: dict = {}
+
+    @property
+    def width(self) -> int:
+        """Map width W (azimuth texels)."""
+        return int(self.image.shape[1])
+
+    @property
+    def height(self) -> int:
+        """Map height H (polar texels)."""
+        return int(self.image.shape[0])
+
+    def texel_solid_angles(self) -> np.ndarray:
+        """(H, W) solid angle (sr) of each texel: (2 pi / W) (cos theta_j - cos theta_{j+1})."""
+        edges = np.cos(np.pi * np.arange(self.height + 1) / self.height)
+        return np.repeat(((edges[:-1] - edges[1:]) * 2.0 * np.pi / self.width)[:, None], self.width, axis=1)
+
+    def lookup(self, directions, device: str | None = None) -> np.ndarray:
+        """(..., 3) float32 radiance along (..., 3) directions (any non-zero length), as :func:`env_lookup`."""
+        device = default_device(device)
+        d = np.asarray(directions, np.float32)
+        flat = np.ascontiguousarray(d.reshape(-1, 3))
+        out = wp.empty(len(flat), dtype=wp.vec3, device=device)
+        if len(flat):
+            wp.launch(env_lookup_kernel, dim=len(flat), inputs=[self.device_data(device),
+                                                                 wp.array(flat, dtype=wp.vec3, device=device), out],
+                      device=device)
+        return out.numpy().reshape(d.shape)
+
+    def device_data(self, device: str | None = None) -> EnvData:
+        """The :class:`EnvData` struct on ``device`` (cached per device)."""
+        device = default_device(device)
+        if device not in self._device_cache:
+            d = EnvData()
+            d.width, d.height = self.width, self.height
+            d.pixels = wp.array(self.image, dtype=wp.vec3, device=device)
+            d.marginal_cdf = wp.array(self.marginal_cdf, dtype=wp.float32, device=device)
+            d.conditional_cdf = wp.array(self.conditional_cdf, dtype=wp.float32, device=device)
+            d.texel_pdf = wp.array(self.texel_pdf, dtype=wp.float32, device=device)
+            self._device_cache[device] = d
+        return self._device_cache[device]
+
+
+__all__ = ["LUMA", "EnvData", "EnvironmentMap", "cdf_search", "cdf_search_row", "env_direction", "env_lookup",
+           "env_pdf", "env_sample", "env_texel"]

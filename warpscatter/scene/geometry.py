@@ -1,0 +1,78 @@
+"""A scene's triangles on a Warp device: the arrays kernels read and the BVHs (``wp.Mesh``) of exact visibility."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import warp as wp
+
+from ..wpinit import default_device, module_options
+
+if TYPE_CHECKING:
+    from . import Scene
+
+module_options()
+
+
+@wp.struct
+class MeshArrays:
+    """A scene's triangles as kernels see them (:meth:`DeviceGeometry.arrays`)."""
+
+    vertices: wp.array(dtype=wp.vec3)  # world positions
+    triangles: wp.array2d(dtype=wp.int32)  # (T, 3) vertex indices
+    tri_material: wp.array(dtype=wp.int32)  # material per triangle
+
+
+class DeviceGeometry:
+    """A scene's triangles on a Warp device, with the ``wp.Mesh`` BVH built on first use.
+
+    Attributes:
+        vertices: wp.array(vec3) world positions.
+        triangles: wp.array2d(int32) (T, 3) indices.
+        tri_material: wp.array(int32) material per triangle.
+    """
+
+    def __init__(self, scene: Scene, device=None):
+        self.device = default_device(device)
+        self.vertices = wp.array(scene.vertices, dtype=wp.vec3, device=self.device)
+        self.triangles = wp.array(scene.triangles, dtype=wp.int32, device=self.device)
+        self.tri_material = wp.array(scene.tri_material, dtype=wp.int32, device=self.device)
+        self._indices = wp.array(scene.triangles.ravel(), dtype=wp.int32, device=self.device)
+        self._mesh = None
+        casters = scene.casters()
+        self._casters = None if casters is scene else casters  # None: every triangle casts
+        self._shadow_mesh = None
+
+    def arrays(self) -> MeshArrays:
+        """The triangles as kernels see them."""
+        m = MeshArrays()
+        m.vertices, m.triangles, m.tri_material = self.vertices, self.triangles, self.tri_material
+        return m
+
+    @property
+    def mesh(self) -> wp.Mesh:
+        """The BVH (``wp.Mesh``) over the triangles; built once, on first access."""
+        if self._mesh is None:
+            self._mesh = wp.Mesh(points=self.vertices, indices=self._indices)
+        return self._mesh
+
+    @property
+    def shadow_mesh(self) -> wp.Mesh:
+        """The BVH of the shadow casters (:meth:`Scene.casters`), for exact visibility; :attr:`mesh` when every
+        material casts. Built once, on first access.
+
+        Raises:
+            ValueError: when every material is ``receiver_only`` (nothing casts).
+        """
+        if self._casters is None:
+            return self.mesh
+        if self._shadow_mesh is None:
+            if self._casters.triangle_count == 0:
+                raise ValueError("scene: every mesh is receiver_only, so nothing casts a shadow")
+            from ..raycast import build_mesh
+
+            self._shadow_mesh = build_mesh(self._casters.vertices, self._casters.triangles, device=self.device)
+        return self._shadow_mesh
+
+
+__all__ = ["DeviceGeometry", "MeshArrays"]

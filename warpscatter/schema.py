@@ -1,0 +1,291 @@
+"""Warp-free building blocks of every settings model: the strict base model, field types, key-path errors.
+
+Each technique writes its keys once, as a pydantic model beside it (``scattering/settings.py``,
+``shadows/settings.py``, ``csm/settings.py``) built from :class:`SettingsModel` and the field types below;
+:mod:`warpscatter.config` composes them into the whole config. Every model forbids unknown keys, states each
+key's range in its type and its meaning in ``Field(description=...)``, so the JSON schema
+(``Config.model_json_schema()``) and the README's config reference (:func:`settings_reference`) document themselves.
+
+:func:`format_validation_errors` turns a pydantic error into ``key.path: reason`` lines.
+
+This module does not import Warp.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import types
+import typing
+from pathlib import Path
+from typing import Annotated, Any, Union
+
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    Strict,
+    ValidationError,
+    ValidationInfo,
+    model_validator,
+)
+
+#: Largest accepted image / shadow-map side, in pixels (guards against typos such as 19200).
+MAX_IMAGE_SIDE = 16384
+
+
+# ---- field types ---------------------------------------------------------------------------------
+
+
+def is_number(x: Any) -> bool:
+    """True for int and float values, not bool."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def vec3(v: Any) -> tuple[float, float, float]:
+    """Accept a list of 3 numbers; return a tuple of 3 finite floats."""
+    if isinstance(v, (list, tuple)) and len(v) == 3 and all(is_number(x) for x in v):
+        out = tuple(float(x) for x in v)
+        if not all(math.isfinite(x) for x in out):
+            raise ValueError(f"must be finite, got {list(v)}")
+        return out
+    raise ValueError(f"expected a list of 3 numbers [x, y, z], got {v!r}")
+
+
+def _nonzero_unit(v: tuple[float, float, float]) -> tuple[float, float, float]:
+    n = math.sqrt(sum(x * x for x in v))
+    if n == 0.0:
+        raise ValueError("must be non-zero")
+    return tuple(x / n for x in v)
+
+
+def _nonzero(v: tuple[float, float, float]) -> tuple[float, float, float]:
+    if not any(v):
+        raise ValueError("must be non-zero")
+    return v
+
+
+def _nonnegative(v: tuple[float, float, float]) -> tuple[float, float, float]:
+    if min(v) < 0.0:
+        raise ValueError(f"every component must be >= 0, got {list(v)}")
+    return v
+
+
+def _unit_interval(v: tuple[float, float, float]) -> tuple[float, float, float]:
+    if min(v) < 0.0 or max(v) > 1.0:
+        raise ValueError(f"every component must lie in [0, 1], got {list(v)}")
+    return v
+
+
+def _path_string(v: Any) -> Any:
+    if isinstance(v, Path):
+        return v
+    if not isinstance(v, str) or not v.strip():
+        raise ValueError(f"expected a file path (string), got {v!r}")
+    return v
+
+
+Vec3 = Annotated[tuple[float, float, float], BeforeValidator(vec3)]
+Direction = Annotated[Vec3, AfterValidator(_nonzero_unit)]  # normalised on load
+NonZeroVec3 = Annotated[Vec3, AfterValidator(_nonzero)]
+RGB = Annotated[Vec3, AfterValidator(_nonnegative)]
+Albedo = Annotated[Vec3, AfterValidator(_unit_interval)]
+Float = Annotated[float, Strict(), Field(allow_inf_nan=False)]
+Int = Annotated[int, Strict()]
+Bool = Annotated[bool, Strict()]
+PathStr = Annotated[Path, BeforeValidator(_path_string)]
+
+
+def context_dir(info: ValidationInfo) -> Path:
+    """The folder relative paths resolve against: the validation context's ``config_dir``, else the cwd."""
+    ctx = info.context or {}
+    d = ctx.get("config_dir")
+    return Path(d).resolve() if d is not None else Path.cwd()
+
+
+def resolve_path(p: Path, info: ValidationInfo) -> Path:
+    """``p`` made absolute against :func:`context_dir` (``~`` expanded)."""
+    p = Path(p).expanduser()
+    return p if p.is_absolute() else (context_dir(info) / p).resolve()
+
+
+def existing_file(p: Path) -> Path:
+    """``p`` when it is an existing file; ValueError (a config problem) otherwise."""
+    if not p.exists():
+        raise ValueError(f"file not found: {p}")
+    if not p.is_file():
+        raise ValueError(f"not a file: {p}")
+    return p
+
+
+class SettingsModel(BaseModel):
+    """Base of every settings model: unknown keys are errors, defaults are validated, an empty section means
+    its defaults."""
+
+    # Section defaults are given as ``{}`` and validated like user input (validate_default), so they are
+    # built inside the validation context: a default ``output.dir`` resolves against the config folder.
+    model_config = ConfigDict(extra="forbid", validate_default=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _empty_sections(cls, data: Any) -> Any:
+        """An empty section (``medium:`` with nothing under it) means its defaults, as if it were absent."""
+        if not isinstance(data, dict):
+            return data
+        out = {}
+        for k, v in data.items():
+            field = cls.model_fields.get(k) if isinstance(k, str) else None
+            annotation = unwrap(field.annotation) if field is not None else None
+            is_section = isinstance(annotation, type) and issubclass(annotation, BaseModel)
+            if v is None and is_section and not field.is_required():
+                continue
+            out[k] = v
+        return out
+
+
+def did_you_mean(word: str, choices) -> str:
+    """`` (did you mean 'x'?)`` for the closest of ``choices`` to ``word``, or an empty string."""
+    close = difflib.get_close_matches(str(word), [str(c) for c in choices], n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def dotted(path) -> str:
+    """A key path as written in configs and errors: ``render.scattering.steps``, ``scene.meshes.0.path``."""
+    return ".".join(str(p) for p in path)
+
+
+# ---- validation errors ---------------------------------------------------------------------------
+
+
+def unwrap(tp):
+    """Strip Annotated / Optional layers from a type annotation."""
+    while True:
+        origin = typing.get_origin(tp)
+        if origin is Annotated:
+            tp = typing.get_args(tp)[0]
+        elif origin in (Union, types.UnionType):
+            args = [a for a in typing.get_args(tp) if a is not type(None)]
+            if len(args) == 1:
+                tp = args[0]
+            else:
+                return tp
+        else:
+            return tp
+
+
+def _display_loc(loc: tuple, root: type[BaseModel]) -> tuple[tuple, type | None]:
+    """Drop discriminated-union tag segments from a pydantic error location under model ``root``.
+
+    Returns the user-facing key path and the model class at its end (None when not a model).
+    """
+    out: list = []
+    tp: Any = root
+    for seg in loc:
+        tp = unwrap(tp)
+        if typing.get_origin(tp) in (Union, types.UnionType):
+            members = {}
+            for m in typing.get_args(tp):
+                m = unwrap(m)
+                if isinstance(m, type) and issubclass(m, BaseModel) and "type" in m.model_fields:
+                    for tag in typing.get_args(unwrap(m.model_fields["type"].annotation)):
+                        members[tag] = m
+            if seg in members:  # a union tag, not a key the user wrote
+                tp = members[seg]
+                continue
+            tp = None
+        out.append(seg)
+        if isinstance(tp, type) and issubclass(tp, BaseModel) and isinstance(seg, str) and seg in tp.model_fields:
+            tp = tp.model_fields[seg].annotation
+        elif typing.get_origin(tp) is list and isinstance(seg, int):
+            tp = typing.get_args(tp)[0]
+        else:
+            tp = None
+    tp = unwrap(tp) if tp is not None else None
+    return tuple(out), tp if isinstance(tp, type) and issubclass(tp, BaseModel) else None
+
+
+def _short(value: Any) -> str:
+    r = repr(value)
+    return r if len(r) <= 60 else r[:57] + "..."
+
+
+def _reason(err: dict) -> str:
+    kind, ctx, value = err["type"], err.get("ctx") or {}, err.get("input")
+    if kind == "extra_forbidden":
+        return "unknown key"
+    if kind == "missing":
+        return "required key missing"
+    if kind in ("value_error", "assertion_error"):
+        return str(ctx.get("error", err["msg"]))
+    if kind == "literal_error":
+        return f"must be one of {ctx.get('expected')} (got {_short(value)})"
+    if kind == "union_tag_invalid":
+        return f"unknown type {ctx.get('tag')!r} (choose from {ctx.get('expected_tags')})"
+    if kind == "union_tag_not_found":
+        return "required key missing"
+    bounds = {"greater_than": ">", "greater_than_equal": ">=", "less_than": "<", "less_than_equal": "<="}
+    if kind in bounds:
+        bound = next(iter(ctx.values()), "?")
+        bound = f"{bound:g}" if is_number(bound) else bound
+        return f"must be {bounds[kind]} {bound} (got {_short(value)})"
+    expected = {
+        "int_type": "an integer",
+        "int_parsing": "an integer",
+        "int_from_float": "an integer",
+        "float_type": "a number",
+        "float_parsing": "a number",
+        "bool_type": "true or false",
+        "bool_parsing": "true or false",
+        "string_type": "a string",
+        "list_type": "a list",
+        "dict_type": "a mapping (key: value)",
+        "model_type": "a mapping (key: value)",
+        "model_attributes_type": "a mapping (key: value)",
+    }
+    if kind in expected:
+        return f"expected {expected[kind]}, got {_short(value)}"
+    if kind == "finite_number":
+        return f"must be finite (got {_short(value)})"
+    if kind == "too_short":
+        return f"needs at least {ctx.get('min_length')} item(s)"
+    if kind == "too_long":
+        return f"takes at most {ctx.get('max_length')} item(s)"
+    return err["msg"]
+
+
+def format_validation_errors(
+    exc: ValidationError, root: type[BaseModel], key_lines: dict[tuple, int] | None = None, overridden: tuple = ()
+) -> list[str]:
+    """Turn a pydantic ValidationError into ``key.path: reason`` lines.
+
+    Args:
+        exc: the error raised by ``root.model_validate``.
+        root: the model that was validated (key paths start at it).
+        key_lines: optional map key path -> line in the YAML file, to append ``(line N)``.
+        overridden: key paths set with ``--set``; problems under them are marked ``(from --set)``.
+    """
+    key_lines = key_lines or {}
+    problems: list[str] = []
+    for err in exc.errors(include_url=False):
+        loc, _ = _display_loc(tuple(err["loc"]), root)
+        _, parent_model = _display_loc(tuple(err["loc"])[:-1], root)
+        reason = _reason(err)
+        if err["type"] in ("union_tag_invalid", "union_tag_not_found"):
+            loc = (*loc, "type")
+        if err["type"] == "extra_forbidden" and parent_model is not None:
+            reason += did_you_mean(loc[-1], parent_model.model_fields)
+        where = ""
+        if any(loc[: len(o)] == o for o in overridden):
+            where = " (from --set)"
+        else:
+            for n in range(len(loc), 0, -1):
+                if loc[:n] in key_lines:
+                    where = f" (line {key_lines[loc[:n]]})"
+                    break
+        key = dotted(loc) or "config"
+        for line in reason.splitlines() or [""]:
+            problems.append(f"{key}: {line}{where}")
+    return problems
+

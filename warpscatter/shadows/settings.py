@@ -1,0 +1,106 @@
+"""Settings of the light's shadow map and of the surface shadow methods: the keys, defaults, ranges and meanings
+of ``render.scattering.shadow_map`` and ``render.shadows`` (Warp-free; the only place they are written).
+
+* :class:`ShadowMapSettings` — the light's depth map that the shadow-map visibility of every method reads.
+* :class:`ShadowsSettings` — surface shadows: ``pcf``, moment shadow maps ``msm`` (filtered hard shadows,
+  translucent occluders), moment soft shadows ``msm_soft``, their brute-force reference ``pcss``, or ``none``
+  (Peters et al. 2017 Sec. 2-4).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal, Union
+
+from pydantic import Field, field_validator
+
+from ..schema import MAX_IMAGE_SIDE, Bool, Float, Int, SettingsModel
+
+#: Surface shadow methods (``render.shadows.method``).
+SHADOW_METHODS = ("pcf", "msm", "msm_soft", "pcss", "none")
+#: Moment-map look-ups of ``msm`` (``render.shadows.sampling``).
+SHADOW_SAMPLING = ("bilinear", "mipmap")
+#: Smallest shadow-map side (texels).
+MIN_SHADOW_MAP_SIDE = 16
+#: Widest PCF box / MSM Gaussian (texels).
+MAX_FILTER_PX = 64
+#: Most depth samples per texel and axis of a moment shadow map.
+MAX_SUPERSAMPLING = 8
+#: Most translucent layers peeled into a moment shadow map.
+MAX_TRANSLUCENT_LAYERS = 64
+#: Soft shadows: the reference region side n (n_t = n^2 texels of the summed-area table; Peters 2017 D.4 uses 28).
+REFERENCE_KERNEL_PX = 28
+#: Soft shadows: smallest and largest region side (texels).
+MIN_KERNEL_PX = 4
+MAX_KERNEL_PX = 256
+
+
+class ShadowMapSettings(SettingsModel):
+    """The light's shadow map: ``resolution`` texels and a depth ``bias`` in texel sizes.
+
+    A point counts as lit when its light-space depth is at most the stored caster depth plus ``bias`` times the
+    world size of one texel.
+    """
+
+    resolution: Union[int, tuple[int, int]] = Field(
+        1024, description=f"side of the light's shadow map in texels, or [width, height] (each "
+                          f"{MIN_SHADOW_MAP_SIDE} to {MAX_IMAGE_SIDE}); for the prefiltered methods also the rectified "
+                          f"map (columns x rows)")
+    bias: Annotated[Float, Field(ge=0.0, description="depth bias in texel sizes (world units = bias x texel "
+                                                     "size)")] = 1.0
+
+    @field_validator("resolution", mode="before")
+    @classmethod
+    def _check_resolution(cls, v: Any) -> Any:
+        sides = v if isinstance(v, (list, tuple)) else [v]
+        if len(sides) not in (1, 2) or not all(isinstance(s, int) and not isinstance(s, bool) for s in sides):
+            raise ValueError(f"expected an integer or [width, height], got {v!r}")
+        if not all(MIN_SHADOW_MAP_SIDE <= s <= MAX_IMAGE_SIDE for s in sides):
+            raise ValueError(f"each side must lie in [{MIN_SHADOW_MAP_SIDE}, {MAX_IMAGE_SIDE}], got {v!r}")
+        return tuple(sides) if isinstance(v, (list, tuple)) else v
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) in texels."""
+        r = self.resolution
+        return (r, r) if isinstance(r, int) else tuple(r)
+
+
+class ShadowsSettings(SettingsModel):
+    """Surface shadows (``render.shadows``): the method and its parameters (Peters et al. 2017 Sec. 2-4)."""
+
+    method: Literal[SHADOW_METHODS] = Field(  # type: ignore[valid-type]
+        "pcf", description="pcf (percentage-closer filtering), msm (4-moment shadow maps, translucent occluders), "
+                           "msm_soft (moment soft shadows), pcss (their brute-force reference) or none")
+    filter_px: Annotated[Int, Field(ge=1, le=MAX_FILTER_PX,
+                                    description="PCF box / MSM Gaussian width (shadow-map texels)")] = 3
+    storage: Literal[64, 128] = Field(64, description="msm bits per texel: 64 (Theta4*, 16-bit fixed point) or 128 "
+                                                      "(float32); msm_soft always uses 128")
+    supersampling: Annotated[Int, Field(ge=1, le=MAX_SUPERSAMPLING,
+                                        description="depth samples per texel and axis of the moment map")] = 2
+    coloured: Bool = Field(False, description="one moment map per RGB channel (tinted translucent occluders)")
+    max_translucent_layers: Annotated[Int, Field(ge=1, le=MAX_TRANSLUCENT_LAYERS,
+                                                 description="translucent layers peeled into the moment map")] = 16
+    light_angle_deg: Annotated[Float, Field(gt=0.0, lt=180.0, description="soft methods, directional light: its "
+                                                                           "angular size (full angle, degrees)")] = 1.0
+    light_size: Annotated[Float, Field(gt=0.0, description="soft methods, spot light: its size (scene units)")] = 0.5
+    max_kernel_px: Annotated[Int, Field(ge=MIN_KERNEL_PX, le=MAX_KERNEL_PX,
+                                        description="soft methods: widest region side (texels; n_t = side^2)")] = (
+        REFERENCE_KERNEL_PX)
+    sampling: Literal[SHADOW_SAMPLING] = Field(  # type: ignore[valid-type]
+        "bilinear", description="msm look-ups: bilinear (level 0) or mipmap (trilinear in the moment map's mip chain "
+                                "at the level of each pixel's footprint, Peters 2017 D.2)")
+
+
+__all__ = [
+    "MAX_FILTER_PX",
+    "MAX_KERNEL_PX",
+    "MAX_SUPERSAMPLING",
+    "MAX_TRANSLUCENT_LAYERS",
+    "MIN_KERNEL_PX",
+    "MIN_SHADOW_MAP_SIDE",
+    "REFERENCE_KERNEL_PX",
+    "SHADOW_METHODS",
+    "SHADOW_SAMPLING",
+    "ShadowMapSettings",
+    "ShadowsSettings",
+]
