@@ -87,6 +87,16 @@ def hit_record(origin: wp.vec3, d: wp.vec3, t_far: float, tri: int, t_fallback: 
     return wp.clamp(t, 0.0, t_far), n, mesh.tri_material[tri]
 
 
+@wp.func
+def store_hit(out: GBufferArrays, j: int, i: int, origin: wp.vec3, d: wp.vec3, t_far: float, tri: int,
+              t_fallback: float, mesh: MeshArrays):
+    """Write pixel (i, j)'s :func:`hit_record` into the G-buffer."""
+    t, n, m = hit_record(origin, d, t_far, tri, t_fallback, mesh)
+    out.distance[j, i] = t
+    out.normal[j, i] = n
+    out.material[j, i] = m
+
+
 @wp.kernel
 def gbuffer_from_raster_kernel(
     cam: CameraParams,
@@ -103,10 +113,7 @@ def gbuffer_from_raster_kernel(
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     # rasterized depth -> view depth -> distance along the ray; only used for grazing rays
     t_raster = ndc_to_view_depth(ndc_depth[j, i], p22, p23, -1.0, 0.0) / wp.dot(d, cam.forward)
-    t, n, m = hit_record(cam.position, d, far_plane_distance(cam, d), tri_id[j, i], t_raster, mesh)
-    out.distance[j, i] = t
-    out.normal[j, i] = n
-    out.material[j, i] = m
+    store_hit(out, j, i, cam.position, d, far_plane_distance(cam, d), tri_id[j, i], t_raster, mesh)
 
 
 @wp.kernel
@@ -125,10 +132,7 @@ def gbuffer_raycast_kernel(
     tri = int(-1)
     if q.result:
         tri = q.face
-    t, n, m = hit_record(cam.position, d, t_far, tri, q.t, mesh)
-    out.distance[j, i] = t
-    out.normal[j, i] = n
-    out.material[j, i] = m
+    store_hit(out, j, i, cam.position, d, t_far, tri, q.t, mesh)
 
 
 def _alloc(h, w, device) -> GBuffer:

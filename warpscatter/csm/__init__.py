@@ -70,6 +70,7 @@ _EXPORTS = {
     "scanline_order": "warpscatter.csm.enumeration",
     "sequence_index": "warpscatter.csm.enumeration",
     "zigzag_order": "warpscatter.csm.enumeration",
+    "shade_direct": "warpscatter.csm.direct_lighting",
     "shade_environment": "warpscatter.csm.environment",
     "shade_local_light": "warpscatter.csm.local_lights",
     "check_csm_for_scene": "warpscatter.csm.occluders",

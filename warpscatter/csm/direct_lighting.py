@@ -23,7 +23,7 @@ import numpy as np
 import warp as wp
 
 from .. import parallel
-from ..wpinit import module_options
+from ..wpinit import default_device, module_options
 from .brdf import MaterialTable
 from .compress import KIND_LATLONG, CoherentShadowMap
 from .query import FILTERS, CSMData, CubeCSMData, csm_device_data
@@ -287,6 +287,96 @@ def shade_points(kernel, surface: tuple, light_data, strata: int, vis: LightVisi
     return out.numpy()
 
 
+def shade_direct(
+    points,
+    normals,
+    albedo,
+    light,
+    *,
+    samples: int,
+    csm: CoherentShadowMap | None = None,
+    mesh: wp.Mesh | None = None,
+    seed: int = 0,
+    view_dirs=None,
+    specular=None,
+    exponent=1.0,
+    materials: MaterialTable | None = None,
+    material_index=None,
+    filter: str = "nearest",
+    bias: float = 0.0,
+    ray_eps: float = 1.0e-4,
+    device: str | None = None,
+    threads: int | None = None,
+) -> np.ndarray:
+    """Direct lighting at surface points from any Monte-Carlo light (Ritschel 2007 Sec. 4.2, 5), one pass.
+
+    Args:
+        points: (K, 3) surface positions (scene units); with a lat-long ``csm`` they must be in its object space.
+        normals: (K, 3) surface normals (any non-zero length).
+        albedo: (K, 3) or (3,) diffuse reflectance k_d (Lambert f = k_d / pi); None with ``materials``.
+        light: an :class:`~warpscatter.scene.environment_map.EnvironmentMap` (or the
+            :class:`~warpscatter.scene.lights.EnvironmentLight` holding one: :mod:`.environment`), an
+            :class:`~warpscatter.scene.lights.AreaLight` or a :class:`~warpscatter.scene.lights.LinearLight`
+            (:mod:`.local_lights`).
+        samples: S strata per point, a perfect square s^2 >= 1 (each: one light and one BRDF sample, combined by
+            the balance heuristic; linear lights: one light sample).
+        csm: a coherent shadow map of the occluders: lat-long (distant lights; semi-local area / linear lights,
+            Sec. 4.3) or the local light's cube CSM (Sec. 4.2, :func:`~.local_lights.check_light_csm`).
+        mesh: ``wp.Mesh`` of the occluders for exact shadow rays (the reference). At most one of csm / mesh;
+            neither: no occlusion.
+        seed: random seed of this pass (use a different one per progressive pass: it changes every pattern).
+        view_dirs: (K, 3) or (3,) unit-ish directions from the point towards the viewer (default: the normal).
+        specular: (K, 3) or (3,) Phong reflectance k_s (default 0).
+        exponent: (K,) or scalar Phong exponent n >= 0.
+        materials: a :class:`~warpscatter.csm.brdf.MaterialTable` (Lambert / Phong / Lafortune) instead of
+            albedo / specular / exponent, with ``material_index`` (K,) rows into it (default 0).
+        filter: CSM filter ``"nearest"``, ``"pcf"`` or ``"roulette"`` (Sec. 4.5).
+        bias: CSM depth bias (scene units, >= 0).
+        ray_eps: offset of the query point along the normal (scene units, >= 0): the shadow-ray origin for
+            ``mesh``, the CSM query point for ``csm``.
+        device: Warp device.
+        threads: CPU worker threads.
+
+    Returns:
+        (K, 3) float32 outgoing radiance towards ``view_dirs``.
+
+    Raises:
+        ValueError: malformed arrays, zero normals or view directions, a non-square or non-positive ``samples``,
+            both ``csm`` and ``mesh``, a CSM that does not fit the light, an unknown filter or light, negative
+            bias / ray_eps / exponent.
+    """
+    from ..scene.environment_map import EnvironmentMap
+    from ..scene.lights import AreaLight, EnvironmentLight, LinearLight
+
+    device = default_device(device)
+    strata = check_strata(samples)
+    p, n, wo, idx, table = surface_inputs(points, normals, albedo, view_dirs=view_dirs, specular=specular,
+                                          exponent=exponent, materials=materials, material_index=material_index)
+    check_visibility_source(filter, bias, ray_eps, csm, mesh)
+    latlong = isinstance(csm, CoherentShadowMap) and csm.kind == KIND_LATLONG
+    if isinstance(light, EnvironmentLight):
+        light = light.env
+    if isinstance(light, EnvironmentMap):
+        from .environment import shade_environment_kernel as kernel
+
+        if csm is not None and not latlong:
+            raise ValueError("csm must be a lat-long CoherentShadowMap (build_csm)")
+        light_data = light.device_data(device)
+    elif isinstance(light, (AreaLight, LinearLight)):
+        from .local_lights import check_light_csm
+        from .local_lights import shade_local_light_kernel as kernel
+
+        if csm is not None and not latlong:
+            check_light_csm(csm, light)
+        light_data = light.device_data()
+    else:
+        raise ValueError(f"light must be an EnvironmentMap, AreaLight or LinearLight, got {type(light).__name__}")
+    vis = light_visibility(csm, mesh, filter=filter, bias=bias, ray_eps=ray_eps, device=device)
+    if latlong and not isinstance(light, EnvironmentMap):
+        vis.mode = VIS_SEMI_LOCAL  # a lat-long CSM queried towards the local light's points
+    return shade_points(kernel, (p, n, wo, idx), light_data, strata, vis, table, seed, device, threads)
+
+
 __all__ = [
     "VIS_CSM",
     "VIS_MESH",
@@ -299,6 +389,7 @@ __all__ = [
     "check_visibility_source",
     "light_visibility",
     "placeholder_csms",
+    "shade_direct",
     "shade_points",
     "stratum_sample",
     "surface_inputs",

@@ -25,21 +25,9 @@ import warp as wp
 
 from ..raycast import occluded
 from ..scene.environment_map import EnvData, EnvironmentMap, env_lookup, env_pdf, env_sample
-from ..wpinit import default_device, module_options
-from .brdf import MaterialData, MaterialTable, material_eval, material_pdf, material_sample
-from .compress import KIND_LATLONG, CoherentShadowMap
-from .direct_lighting import (
-    VIS_CSM,
-    VIS_MESH,
-    LightVisibility,
-    SurfacePoints,
-    check_strata,
-    check_visibility_source,
-    light_visibility,
-    shade_points,
-    stratum_sample,
-    surface_inputs,
-)
+from ..wpinit import module_options
+from .brdf import MaterialData, material_eval, material_pdf, material_sample
+from .direct_lighting import VIS_CSM, VIS_MESH, LightVisibility, SurfacePoints, shade_direct, stratum_sample
 from .query import csm_visibility_filtered
 
 module_options()
@@ -112,71 +100,18 @@ def shade_environment_kernel(
 # ---- host side -------------------------------------------------------------------------------------
 
 
-def shade_environment(
-    points,
-    normals,
-    albedo,
-    env: EnvironmentMap,
-    *,
-    samples: int,
-    csm: CoherentShadowMap | None = None,
-    mesh: wp.Mesh | None = None,
-    seed: int = 0,
-    view_dirs=None,
-    specular=None,
-    exponent=1.0,
-    materials: MaterialTable | None = None,
-    material_index=None,
-    filter: str = "nearest",
-    bias: float = 0.0,
-    ray_eps: float = 1.0e-4,
-    device: str | None = None,
-    threads: int | None = None,
-) -> np.ndarray:
-    """Direct lighting from an environment map at surface points (Ritschel 2007 Sec. 5), one Monte-Carlo pass.
-
-    Args:
-        points: (K, 3) surface positions (scene units); with ``csm`` they must be in the CSM's object space.
-        normals: (K, 3) surface normals (any non-zero length).
-        albedo: (K, 3) or (3,) diffuse reflectance k_d (Lambert f = k_d / pi); None with ``materials``.
-        env: the environment map (distant light; L_in from its texels).
-        samples: S strata per point, a perfect square s^2 >= 1; each stratum gives one environment and one BRDF
-            sample (2 S directions, combined by the balance heuristic).
-        csm: lat-long coherent shadow map of the occluders (visibility by ``csm_visibility_filtered``).
-        mesh: ``wp.Mesh`` of the occluders for exact shadow rays (the reference). At most one of csm / mesh;
-            neither: no occlusion.
-        seed: random seed of this pass (use a different one per progressive pass: it changes every pattern).
-        view_dirs: (K, 3) or (3,) unit-ish directions from the point towards the viewer (default: the normal).
-        specular: (K, 3) or (3,) Phong reflectance k_s (default 0).
-        exponent: (K,) or scalar Phong exponent n >= 0.
-        materials: a :class:`~warpscatter.csm.brdf.MaterialTable` (Lambert / Phong / Lafortune) instead of
-            albedo / specular / exponent, with ``material_index`` (K,) rows into it (default 0).
-        filter: CSM filter ``"nearest"``, ``"pcf"`` or ``"roulette"`` (Sec. 4.5).
-        bias: CSM depth bias (object-space units, >= 0).
-        ray_eps: offset of the query point along the normal (scene units, >= 0): the shadow-ray origin for
-            ``mesh``, the CSM query point for ``csm``.
-        device: Warp device.
-        threads: CPU worker threads.
-
-    Returns:
-        (K, 3) float32 outgoing radiance towards ``view_dirs``.
+def shade_environment(points, normals, albedo, env: EnvironmentMap, **options) -> np.ndarray:
+    """Direct lighting from an environment map at surface points (Ritschel 2007 Sec. 5), one Monte-Carlo pass:
+    :func:`~warpscatter.csm.direct_lighting.shade_direct` with ``env`` (each stratum draws one environment and one
+    BRDF sample, 2 S directions combined by the balance heuristic; ``csm`` must be a lat-long CSM).
 
     Raises:
-        ValueError: malformed arrays, zero normals or view directions, a non-square or non-positive ``samples``,
-            both ``csm`` and ``mesh``, a non-lat-long CSM, an unknown filter, negative bias / ray_eps / exponent.
+        ValueError: ``env`` is not an :class:`~warpscatter.scene.environment_map.EnvironmentMap`, or as
+            :func:`~warpscatter.csm.direct_lighting.shade_direct`.
     """
-    device = default_device(device)
     if not isinstance(env, EnvironmentMap):
         raise ValueError(f"env must be an EnvironmentMap, got {type(env).__name__}")
-    strata = check_strata(samples)
-    p, n, wo, idx, table = surface_inputs(points, normals, albedo, view_dirs=view_dirs, specular=specular,
-                                          exponent=exponent, materials=materials, material_index=material_index)
-    check_visibility_source(filter, bias, ray_eps, csm, mesh)
-    if csm is not None and (not isinstance(csm, CoherentShadowMap) or csm.kind != KIND_LATLONG):
-        raise ValueError("csm must be a lat-long CoherentShadowMap (build_csm)")
-    vis = light_visibility(csm, mesh, filter=filter, bias=bias, ray_eps=ray_eps, device=device)
-    return shade_points(shade_environment_kernel, (p, n, wo, idx), env.device_data(device), strata, vis, table, seed,
-                        device, threads)
+    return shade_direct(points, normals, albedo, env, **options)
 
 
 __all__ = ["distant_visibility", "shade_environment", "shade_environment_kernel"]

@@ -38,21 +38,17 @@ from ..scene.lights import (
     area_light_point,
     area_light_radiance,
 )
-from ..wpinit import default_device, module_options
-from .brdf import MaterialData, MaterialTable, material_eval, material_pdf, material_sample
-from .compress import KIND_CUBE, KIND_LATLONG, CoherentShadowMap
+from ..wpinit import module_options
+from .brdf import MaterialData, material_eval, material_pdf, material_sample
+from .compress import KIND_CUBE, CoherentShadowMap
 from .direct_lighting import (
     VIS_CSM,
     VIS_MESH,
     VIS_SEMI_LOCAL,
     LightVisibility,
     SurfacePoints,
-    check_strata,
-    check_visibility_source,
-    light_visibility,
-    shade_points,
+    shade_direct,
     stratum_sample,
-    surface_inputs,
 )
 from .query import csm_local_visibility_filtered, csm_visibility_filtered
 
@@ -155,64 +151,20 @@ def shade_local_light_kernel(
 # ---- host side -------------------------------------------------------------------------------------
 
 
-def shade_local_light(
-    points,
-    normals,
-    albedo,
-    light: AreaLight | LinearLight,
-    *,
-    samples: int,
-    csm: CoherentShadowMap | None = None,
-    mesh: wp.Mesh | None = None,
-    seed: int = 0,
-    view_dirs=None,
-    specular=None,
-    exponent=1.0,
-    materials: MaterialTable | None = None,
-    material_index=None,
-    filter: str = "nearest",
-    bias: float = 0.0,
-    ray_eps: float = 1.0e-4,
-    device: str | None = None,
-    threads: int | None = None,
-) -> np.ndarray:
-    """Direct lighting from an area or linear light at surface points (Ritschel 2007 Sec. 4.2, 5), one pass.
-
-    Args:
-        points, normals, albedo, view_dirs, specular, exponent, materials, material_index: as for
-            :func:`~warpscatter.csm.lighting.shade_environment` (world space).
-        light: :class:`AreaLight` or :class:`LinearLight`.
-        samples: S = s^2 strata per point (area: one light and one BRDF sample each; linear: one light sample).
-        csm: the light's ``"cube"`` CSM (:func:`~warpscatter.csm.compress.build_cube_csm` on
-            ``light.sample_points(...)``), or a lat-long CSM of the occluders (semi-local light, Sec. 4.3);
-            mesh: a ``wp.Mesh`` for shadow rays (the reference); at most one.
-        seed: random seed of this pass.
-        filter, bias: CSM filter and depth bias (scene units, >= 0).
-        ray_eps: offset of the query point along the normal (scene units, >= 0).
-        device, threads: Warp device and CPU worker threads.
-
-    Returns:
-        (K, 3) float32 reflected radiance towards ``view_dirs``.
+def shade_local_light(points, normals, albedo, light: AreaLight | LinearLight, **options) -> np.ndarray:
+    """Direct lighting from an area or linear light at surface points (Ritschel 2007 Sec. 4.2, 5), one pass:
+    :func:`~warpscatter.csm.direct_lighting.shade_direct` with ``light`` (area: one light and one BRDF sample per
+    stratum; linear: one light sample). ``csm`` is the light's ``"cube"`` CSM
+    (:func:`~warpscatter.csm.compress.build_cube_csm` on ``light.sample_points(...)``) or a lat-long CSM of the
+    occluders (semi-local light, Sec. 4.3).
 
     Raises:
-        ValueError: as :func:`~warpscatter.csm.lighting.shade_environment`; a CSM that is not a cube CSM or does
-            not hold the light's sample points.
+        ValueError: ``light`` is not an :class:`~warpscatter.scene.lights.AreaLight` or
+            :class:`~warpscatter.scene.lights.LinearLight`, or as :func:`~warpscatter.csm.direct_lighting.shade_direct`.
     """
-    device = default_device(device)
     if not isinstance(light, (AreaLight, LinearLight)):
         raise ValueError(f"light must be an AreaLight or LinearLight, got {type(light).__name__}")
-    strata = check_strata(samples)
-    p, n, wo, idx, table = surface_inputs(points, normals, albedo, view_dirs=view_dirs, specular=specular,
-                                          exponent=exponent, materials=materials, material_index=material_index)
-    check_visibility_source(filter, bias, ray_eps, csm, mesh)
-    semi_local = isinstance(csm, CoherentShadowMap) and csm.kind == KIND_LATLONG
-    if csm is not None and not semi_local:
-        check_light_csm(csm, light)
-    vis = light_visibility(csm, mesh, filter=filter, bias=bias, ray_eps=ray_eps, device=device)
-    if semi_local:
-        vis.mode = VIS_SEMI_LOCAL
-    return shade_points(shade_local_light_kernel, (p, n, wo, idx), light.device_data(), strata, vis, table, seed,
-                        device, threads)
+    return shade_direct(points, normals, albedo, light, **options)
 
 
 def check_light_csm(csm, light) -> None:

@@ -12,8 +12,7 @@ Stages (names as in the CLI's timing table):
 - ``gbuffer``: the rasterized camera G-buffer (:func:`warpscatter.gbuffer.gbuffer_raster`), the same for both
   methods so that they differ only by the visibility query.
 - ``lighting``: ``passes`` progressive passes (Sec. 5.2). Each pass shades every visible pixel with S = s^2
-  strata (:func:`~warpscatter.csm.environment.shade_environment` or
-  :func:`~warpscatter.csm.local_lights.shade_local_light`)
+  strata (:func:`~warpscatter.csm.direct_lighting.shade_direct`)
   under its own seed, so every pass draws new stratified patterns;
   :class:`~warpscatter.csm.direct_lighting.ProgressiveAccumulator` averages them.
   Every ``write_every`` passes the current mean is handed to ``on_pass`` (the pipeline writes the outputs then).
@@ -36,9 +35,7 @@ import warp as wp
 
 from .. import methods
 from ..csm.brdf import MaterialTable
-from ..csm.direct_lighting import ProgressiveAccumulator
-from ..csm.environment import shade_environment
-from ..csm.local_lights import shade_local_light
+from ..csm.direct_lighting import ProgressiveAccumulator, shade_direct
 from ..csm.occluders import prepare_csm, scene_occluders, texel_size
 from ..csm.settings import LightingSettings
 from ..gbuffer import gbuffer_raster
@@ -142,11 +139,7 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
     mean = np.zeros((0, 3), np.float32)
     for k in range(settings.passes):
         t0 = time.perf_counter()
-        if isinstance(light, EnvironmentLight):
-            frame = shade_environment(points, normals, None, light.env, seed=pass_seed(settings.seed, k), **kw)
-        else:
-            frame = shade_local_light(points, normals, None, light, seed=pass_seed(settings.seed, k), **kw)
-        mean = acc.add(frame)
+        mean = acc.add(shade_direct(points, normals, None, light, seed=pass_seed(settings.seed, k), **kw))
         wp.synchronize()
         dt = time.perf_counter() - t0
         pass_seconds.append(dt)

@@ -153,6 +153,19 @@ def screen_point_in_light(cam: CameraParams, light: LightParams, p: wp.vec2) -> 
 
 
 @wp.func
+def cone_edge(cam: CameraParams, light: LightParams, a: wp.vec2, ab: wp.vec2, t_in: float, t_out: float) -> float:
+    """Where the screen segment a + t ab leaves the light frustum between t_in (inside) and t_out (outside):
+    24 bisection steps; returns the outside end of the final bracket (so the edge stays covered)."""
+    for _it in range(24):
+        mid = 0.5 * (t_out + t_in)
+        if screen_point_in_light(cam, light, a + ab * mid):
+            t_in = mid
+        else:
+            t_out = mid
+    return t_out
+
+
+@wp.func
 def project_on_line(a: wp.vec2, b: wp.vec2, p: wp.vec2) -> float:
     """Parameter tau of the orthogonal projection of p onto the line a + tau (b - a) (0 for a zero-length line)."""
     ab = b - a
@@ -205,26 +218,10 @@ def trim_to_cone_kernel(
     dt = 1.0 / float(points - 1)
     t_lo = float(first) * dt
     if first > 0:
-        lo = t_lo - dt  # outside
-        hi = t_lo  # inside
-        for _it in range(24):
-            mid = 0.5 * (lo + hi)
-            if screen_point_in_light(cam, light, a + ab * mid):
-                hi = mid
-            else:
-                lo = mid
-        t_lo = lo
+        t_lo = cone_edge(cam, light, a, ab, t_lo, t_lo - dt)
     t_hi = float(last) * dt
     if last < points - 1:
-        lo = t_hi  # inside
-        hi = t_hi + dt  # outside
-        for _it in range(24):
-            mid = 0.5 * (lo + hi)
-            if screen_point_in_light(cam, light, a + ab * mid):
-                lo = mid
-            else:
-                hi = mid
-        t_hi = hi
+        t_hi = cone_edge(cam, light, a, ab, t_hi, t_hi + dt)
     pad = 1.0 / wp.max(wp.length(ab), 1.0e-6)
     t_lo = wp.max(t_lo - pad, 0.0)
     t_hi = wp.min(t_hi + pad, 1.0)

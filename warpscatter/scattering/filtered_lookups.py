@@ -36,6 +36,17 @@ tap_weights = wp.types.vector(length=MAX_TAPS, dtype=wp.float32)
 tap_indices = wp.types.vector(length=MAX_TAPS, dtype=wp.int32)
 
 
+@wp.struct
+class FilteredBasisArrays:
+    """A prefiltered texture as the look-ups read it (:meth:`~.prefix_sums.FilteredBasis.arrays`): the Fourier
+    filtered basis, with split regions (Klehm 2014 Sec. 3.3), or the filtered stored moments (``splits`` 1)."""
+
+    basis: wp.array3d(dtype=wp.float32)  # (rows, cols, M) region-wise normalised filtered basis, or moments
+    weight_sums: wp.array2d(dtype=wp.float32)  # (rows, cols) region-local running weight sums (splits > 1)
+    region_weights: wp.array2d(dtype=wp.float32)  # (rows, splits) reference-ray transmittance at region starts
+    splits: int  # regions per row (1 = the plain filter)
+
+
 @wp.func
 def texel_footprint(rows: int, cols: int, u: float, v: float, wrap_rows: int):
     """Bilinear footprint of rectified (u, v) in a (rows, cols) filtered-basis texture.
@@ -140,12 +151,14 @@ def prefiltered_visibility(filtered_basis: wp.array3d(dtype=wp.float32), u: floa
 
 
 @wp.func
-def add_split_row_taps(weight_sums: wp.array2d(dtype=wp.float32), region_weights: wp.array2d(dtype=wp.float32),
-                       splits: int, j: int, i0: int, i1: int, ax: float, row_weight: float, rows: tap_indices,
-                       cols: tap_indices, w: tap_weights, n: int):
+def add_split_row_taps(fb: FilteredBasisArrays, j: int, i0: int, i1: int, ax: float, row_weight: float,
+                       rows: tap_indices, cols: tap_indices, w: tap_weights, n: int):
     """Append the look-ups of row j for split regions (Klehm 2014 Sec. 3.3): the row's global normalised
     filtered value at columns i0 and i1 (blended (1 - ax) : ax, times ``row_weight``) combined from the
     independently filtered regions. Returns the updated (rows, cols, w, n) (Warp passes vectors by value)."""
+    weight_sums = fb.weight_sums
+    region_weights = fb.region_weights
+    splits = fb.splits
     cols_total = weight_sums.shape[1]
     k0 = int(0)
     for k in range(1, splits):
@@ -199,29 +212,18 @@ def add_split_row_taps(weight_sums: wp.array2d(dtype=wp.float32), region_weights
 
 
 @wp.func
-def prefiltered_visibility_split(filtered_basis: wp.array3d(dtype=wp.float32),
-                                 weight_sums: wp.array2d(dtype=wp.float32),
-                                 region_weights: wp.array2d(dtype=wp.float32), splits: int, u: float, v: float,
-                                 z_r: float, wrap_rows: int) -> float:
-    """:func:`prefiltered_visibility` for rows filtered in ``splits`` independent regions (Klehm 2014 Sec. 3.3).
-
-    Args:
-        filtered_basis: (rows, cols, M) region-wise normalised filtered basis.
-        weight_sums: (rows, cols) region-local running weight sums (unused when splits = 1).
-        region_weights: (rows, splits) reference-ray transmittance at every region start (unused when splits = 1).
-        splits: regions per row (1 = the plain filter).
-        u, v, z_r, wrap_rows: as in :func:`prefiltered_visibility`.
-    """
-    if splits <= 1:
-        return prefiltered_visibility(filtered_basis, u, v, z_r, wrap_rows)
-    j0, j1, ay, i0, i1, ax = texel_footprint(filtered_basis.shape[0], filtered_basis.shape[1], u, v, wrap_rows)
+def prefiltered_visibility_split(fb: FilteredBasisArrays, u: float, v: float, z_r: float, wrap_rows: int) -> float:
+    """:func:`prefiltered_visibility` for rows filtered in ``fb.splits`` independent regions (Klehm 2014 Sec. 3.3;
+    ``u, v, z_r, wrap_rows`` as there)."""
+    if fb.splits <= 1:
+        return prefiltered_visibility(fb.basis, u, v, z_r, wrap_rows)
+    j0, j1, ay, i0, i1, ax = texel_footprint(fb.basis.shape[0], fb.basis.shape[1], u, v, wrap_rows)
     rows = tap_indices()
     cols = tap_indices()
     w = tap_weights()
-    rows, cols, w, n = add_split_row_taps(weight_sums, region_weights, splits, j0, i0, i1, ax, 1.0 - ay, rows, cols,
-                                          w, 0)
-    rows, cols, w, n = add_split_row_taps(weight_sums, region_weights, splits, j1, i0, i1, ax, ay, rows, cols, w, n)
-    return fourier_taps_visibility(filtered_basis, rows, cols, w, n, z_r)
+    rows, cols, w, n = add_split_row_taps(fb, j0, i0, i1, ax, 1.0 - ay, rows, cols, w, 0)
+    rows, cols, w, n = add_split_row_taps(fb, j1, i0, i1, ax, ay, rows, cols, w, n)
+    return fourier_taps_visibility(fb.basis, rows, cols, w, n, z_r)
 
 
 @wp.func
@@ -255,10 +257,7 @@ def moments_visibility(filtered: wp.array3d(dtype=wp.float32), u: float, v: floa
 
 @wp.kernel
 def evaluate_coords_kernel(
-    filtered_basis: wp.array3d(dtype=wp.float32),
-    weight_sums: wp.array2d(dtype=wp.float32),
-    region_weights: wp.array2d(dtype=wp.float32),
-    splits: int,
+    fb: FilteredBasisArrays,
     coords: wp.array(dtype=wp.vec3),  # (u, v, z_r) per query
     wrap_rows: int,
     out: wp.array(dtype=wp.float32),
@@ -266,8 +265,7 @@ def evaluate_coords_kernel(
 ):
     n = wp.tid() + offset
     c = coords[n]
-    out[n] = prefiltered_visibility_split(filtered_basis, weight_sums, region_weights, splits, c[0], c[1], c[2],
-                                          wrap_rows)
+    out[n] = prefiltered_visibility_split(fb, c[0], c[1], c[2], wrap_rows)
 
 
 @wp.kernel
@@ -291,14 +289,13 @@ def evaluate_points_kernel(
 # ---- host side ------------------------------------------------------------------------------------------
 
 
-def _filtered_inputs(filtered_basis, device) -> list:
-    """[basis, weight_sums, region_weights, splits] kernel inputs of a FilteredBasis or a (rows, cols, M) array."""
+def filtered_basis_arrays(filtered_basis, device=None) -> FilteredBasisArrays:
+    """:class:`FilteredBasisArrays` of a :class:`~.prefix_sums.FilteredBasis` or a (rows, cols, M) array."""
     if isinstance(filtered_basis, FilteredBasis):
-        return [filtered_basis.basis, filtered_basis.weight_sums, filtered_basis.region_weights,
-                int(filtered_basis.splits)]
-    fb = as_device_array(filtered_basis, wp.float32, 3, "filtered_basis", device)
-    dummy = wp.zeros((1, 1), dtype=wp.float32, device=device)
-    return [fb, dummy, wp.ones((1, 1), dtype=wp.float32, device=device), 1]
+        return filtered_basis.arrays()
+    return FilteredBasis(basis=as_device_array(filtered_basis, wp.float32, 3, "filtered_basis", device),
+                         weight_sums=wp.zeros((1, 1), dtype=wp.float32, device=device),
+                         region_weights=wp.ones((1, 1), dtype=wp.float32, device=device), splits=1).arrays()
 
 
 def evaluate_visibility(filtered_basis, coords, *, wrap_rows: bool = False, device=None) -> np.ndarray:
@@ -314,13 +311,13 @@ def evaluate_visibility(filtered_basis, coords, *, wrap_rows: bool = False, devi
         (N,) float32 numpy array in [0, 1] (see :func:`prefiltered_visibility_split`).
     """
     device = default_device(device)
-    inputs = _filtered_inputs(filtered_basis, device)
+    fb = filtered_basis_arrays(filtered_basis, device)
     c = np.ascontiguousarray(coords, dtype=np.float32)
     if c.ndim != 2 or c.shape[1] != 3:
         raise ValueError(f"coords must have shape (N, 3), got {c.shape}")
     out = wp.empty(len(c), dtype=wp.float32, device=device)
-    launch_rows(evaluate_coords_kernel, len(c), [*inputs, wp.array(c, dtype=wp.vec3, device=device), int(wrap_rows),
-                                                 out], device=device)
+    launch_rows(evaluate_coords_kernel, len(c), [fb, wp.array(c, dtype=wp.vec3, device=device), int(wrap_rows), out],
+                device=device)
     return out.numpy()
 
 
@@ -358,9 +355,11 @@ def evaluate_points(filtered_basis, rect: NonlinearRectification, points, sigma_
 
 __all__ = [
     "MAX_TAPS",
+    "FilteredBasisArrays",
     "add_split_row_taps",
     "evaluate_points",
     "evaluate_visibility",
+    "filtered_basis_arrays",
     "fourier_taps_visibility",
     "moments_visibility",
     "prefiltered_visibility",

@@ -60,7 +60,7 @@ from ..wpinit import default_device, module_options
 from . import rectify_nonlinear
 from .caster_culling import cull_unseen_casters
 from .epipole_fallback import epipole_pixel_fraction, epipole_regions, march_epipole_regions
-from .filtered_lookups import moments_visibility, prefiltered_visibility_split
+from .filtered_lookups import FilteredBasisArrays, moments_visibility, prefiltered_visibility_split
 from .prefix_sums import MOMENT_STORAGE, FilteredBasis, prefilter_moments, prefilter_weighted
 from .rectification import RectificationParams, build_rectification, rectification_params, rectified_coords, wrap_rows
 from .rectify_nonlinear import NonlinearRectification, reference_ray, resample_shadow_map
@@ -85,10 +85,7 @@ class FilteredMap:
     """The prefiltered map a pixel look-up reads, as kernels see it (either representation)."""
 
     basis: int  # BASIS_FOURIER or BASIS_MOMENTS
-    filtered: wp.array3d(dtype=wp.float32)  # filtered Fourier basis or stored moments, (rows, cols, M)
-    weight_sums: wp.array2d(dtype=wp.float32)  # Fourier split regions (see prefiltered_visibility_split)
-    region_weights: wp.array2d(dtype=wp.float32)
-    splits: int
+    texels: FilteredBasisArrays  # filtered Fourier basis (with its split regions) or stored moments, (rows, cols, M)
     wrap: int  # 1: the rows wrap around (wrap_rows)
     moment_storage: int  # moments.STORAGE*_ of the moment map
     beta: float  # moment overestimation weight in [0, 1], or < 0: adaptive (Peters 2017 Sec. 5.3.1)
@@ -132,13 +129,12 @@ def evaluate_prefiltered_kernel(
     c = coords[j, i]
     f = float(0.0)
     if fmap.basis == BASIS_FOURIER:
-        f = prefiltered_visibility_split(fmap.filtered, fmap.weight_sums, fmap.region_weights, fmap.splits, c[0], c[1],
-                                         c[2], fmap.wrap)
+        f = prefiltered_visibility_split(fmap.texels, c[0], c[1], c[2], fmap.wrap)
     else:
         b = fmap.beta
         if b < 0.0:
             b = mm.adaptive_overestimation_weight(light.direction, d)
-        f = moments_visibility(fmap.filtered, c[0], c[1], c[2], fmap.wrap, fmap.moment_storage, b)
+        f = moments_visibility(fmap.texels.basis, c[0], c[1], c[2], fmap.wrap, fmap.moment_storage, b)
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
     out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
 
@@ -209,8 +205,8 @@ def resample_filtered(scene, rect: NonlinearRectification, shadow_map, settings:
 def filtered_map(basis: int, fb: FilteredBasis, wrap: bool, moment_storage: int, beta: float) -> FilteredMap:
     """:class:`FilteredMap` of a prefiltered texture set (``beta`` < 0: adaptive overestimation)."""
     m = FilteredMap()
-    m.basis, m.filtered, m.weight_sums, m.region_weights = int(basis), fb.basis, fb.weight_sums, fb.region_weights
-    m.splits, m.wrap, m.moment_storage, m.beta = int(fb.splits), int(wrap), int(moment_storage), float(beta)
+    m.basis, m.texels = int(basis), fb.arrays()
+    m.wrap, m.moment_storage, m.beta = int(wrap), int(moment_storage), float(beta)
     return m
 
 

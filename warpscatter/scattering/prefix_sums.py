@@ -151,6 +151,21 @@ def texel_weight(transmittance: float, length: float, optical_thickness: float):
 
 
 @wp.func
+def next_texel_weight(transmittance: float, uniform: bool, w_first: float, step: float,
+                      column_length: wp.array(dtype=wp.float32), i: int, tau: float):
+    """Weight of texel i and the transmittance after it (:func:`texel_weight`); ``uniform`` columns (one length
+    for all) reuse the first texel's weight ``w_first`` and step transmittance ``step``.
+
+    Returns:
+        (weight, T_(i+1)).
+    """
+    if uniform:
+        return transmittance * w_first, transmittance * step
+    length = column_length[i]
+    return texel_weight(transmittance, length, tau * length)
+
+
+@wp.func
 def advance_filter_weight(weight: float, sum_weights: float, step_transmittance: float):
     """One column of the normalised running filter (Klehm 2014 Listing 2).
 
@@ -268,13 +283,7 @@ def prefilter_depth_kernel(
     sum_w = float(0.0)
     for i in range(c0, c0 + nc):
         z, z2, w2 = texel_depths(rd, j, i)
-        w = float(0.0)
-        if uniform:
-            w = transmittance * w_first
-            transmittance = transmittance * step
-        else:
-            length = column_length[i]
-            w, transmittance = texel_weight(transmittance, length, tau * length)
+        w, transmittance = next_texel_weight(transmittance, uniform, w_first, step, column_length, i, tau)
         sum_w += w
         alpha = float(0.0)
         if sum_w > 0.0:
@@ -370,13 +379,7 @@ def prefilter_moments_kernel(
     transmittance = float(1.0)
     sum_w = float(0.0)
     for i in range(cols):
-        w = float(0.0)
-        if uniform:
-            w = transmittance * w_first
-            transmittance = transmittance * step
-        else:
-            length = column_length[i]
-            w, transmittance = texel_weight(transmittance, length, tau * length)
+        w, transmittance = next_texel_weight(transmittance, uniform, w_first, step, column_length, i, tau)
         sum_w += w
         if sum_w > 0.0:
             z1, z2, w2 = texel_depths(rd, j, i)
@@ -517,6 +520,15 @@ class FilteredBasis:
     weight_sums: wp.array
     region_weights: wp.array
     splits: int
+
+    def arrays(self):
+        """The textures as the look-ups read them (:class:`~.filtered_lookups.FilteredBasisArrays`)."""
+        from .filtered_lookups import FilteredBasisArrays
+
+        a = FilteredBasisArrays()
+        a.basis, a.weight_sums, a.region_weights, a.splits = (self.basis, self.weight_sums, self.region_weights,
+                                                               int(self.splits))
+        return a
 
     @property
     def nbytes(self) -> int:

@@ -112,6 +112,15 @@ def light_ray_point(rect: NonlinearRectParams, u: float, v: float) -> wp.vec3:
     return rect.origin + wp.transpose(rect.to_light) * wp.vec3(r * wp.cos(phi), r * wp.sin(phi), 0.0)
 
 
+@wp.func
+def texel_light_ray(rect: NonlinearRectParams, i: int, j: int):
+    """Column coordinate u of texel (column i, row j)'s centre and the point of its light ray closest to the camera
+    (:func:`light_ray_point`)."""
+    u = (float(i) + 0.5) / float(rect.cols)
+    v = (float(j) + 0.5) / float(rect.rows)
+    return u, light_ray_point(rect, u, v)
+
+
 # ---- resampling kernel ----------------------------------------------------------------------------------
 
 
@@ -141,10 +150,8 @@ def resample_kernel(
 ):
     j, i = wp.tid()
     j += offset
-    u = (float(i) + 0.5) / float(rect.cols)
-    v = (float(j) + 0.5) / float(rect.rows)
     # the texel is a light ray; its point closest to the camera finds the shadow-map texel
-    p0 = light_ray_point(rect, u, v)
+    u, p0 = texel_light_ray(rect, i, j)
     p0h = wp.vec4(p0[0], p0[1], p0[2], 1.0)
     c = world_to_clip * p0h
     sx = (0.5 * c[0] + 0.5) * float(shadow_depth.shape[1])
@@ -172,9 +179,7 @@ def resample_moments_kernel(
     # Peters 2017 Sec. 5.2 / D.5: filtered moment sample -> Algorithm 2 -> two rectified depths
     j, i = wp.tid()
     j += offset
-    u = (float(i) + 0.5) / float(rect.cols)
-    v = (float(j) + 0.5) / float(rect.rows)
-    p0 = light_ray_point(rect, u, v)
+    u, p0 = texel_light_ray(rect, i, j)
     c = shadow_coords(mp.sm, p0)  # (u_s, v_s, linear light depth of p0)
     z1 = float(1.0)  # no caster: the blocker lies at the far end
     z2 = float(1.0)
