@@ -122,7 +122,7 @@ def test_cube_queries_equal_the_uncompressed_depth_test(rng):
     q = wp.empty(k, dtype=wp.vec4, device="cpu")
     stored = wp.empty(k, dtype=wp.float32, device="cpu")
     wp.launch(_project_kernel, dim=k, inputs=[csm_device_data(csm), wp.array(cells, dtype=wp.int32),
-                                              wp.array(pts, dtype=wp.vec3), q, stored], device="cpu")  # fmt: skip
+                                              wp.array(pts, dtype=wp.vec3), q, stored], device="cpu")
     q, stored = q.numpy(), stored.numpy()
     face = q[:, 3].astype(int)
     seq = face * 5 + csm.map_index.ravel()[cells]
@@ -151,7 +151,7 @@ def test_area_light_shadows_of_a_sphere_on_the_ground():
         assert (dist < 0.93).sum() > 20
         pcf = csm_local_visibility_batch(csm, ground, params, filter="pcf")
         roulette = np.mean([csm_local_visibility_batch(csm, ground, params, filter="roulette", seed=s)
-                            for s in range(200)], axis=0)  # fmt: skip
+                            for s in range(200)], axis=0)
         # PCF blends the 2^2 nearest samples bilinearly: away from every sample's shadow edge it equals the
         # weighted exact visibilities
         sx, sy = x[0] * 2 - 0.5, x[1] * 2 - 0.5

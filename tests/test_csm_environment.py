@@ -103,14 +103,14 @@ def test_env_pdf_integrates_to_one(sky):
     dirs = np.stack([np.sin(t) * np.cos(p), np.cos(t), np.sin(t) * np.sin(p)], -1).reshape(-1, 3).astype(np.float32)
     out = wp.empty(dirs.shape[0], dtype=wp.float32)
     wp.launch(_env_pdf_kernel, dim=dirs.shape[0], inputs=[sky.device_data(), wp.array(dirs, dtype=wp.vec3), out],
-              device="cpu")  # fmt: skip
+              device="cpu")
     d_omega = (np.cos(edges[:-1]) - np.cos(edges[1:]))[:, None] * (2.0 * np.pi / w)
     total = (out.numpy().reshape(h, w) * d_omega).sum()
     assert abs(total - 1.0) < 1e-3  # measured 2.5e-5
     # a black map is sampled uniformly on the sphere: pdf ~ 1 / (4 pi) away from the poles
     black = EnvironmentMap(np.zeros((8, 16, 3), np.float32))
     wp.launch(_env_pdf_kernel, dim=dirs.shape[0], inputs=[black.device_data(), wp.array(dirs, dtype=wp.vec3), out],
-              device="cpu")  # fmt: skip
+              device="cpu")
     assert abs((out.numpy().reshape(h, w) * d_omega).sum() - 1.0) < 1e-3  # measured 2.5e-5
 
 
@@ -145,7 +145,7 @@ def test_brdf_sampling_density_and_estimator():
     kd, ks = wp.vec3(0.4, 0.4, 0.4), wp.vec3(0.5, 0.5, 0.5)
     pdf, fcos, ratio = (wp.empty(dirs.shape[0], dtype=wp.float32) for _ in range(3))
     wp.launch(_brdf_kernel, dim=dirs.shape[0], inputs=[n, wo, kd, ks, 30.0, wp.array(dirs, dtype=wp.vec3), pdf,
-                                                       fcos, 5, ratio], device="cpu")  # fmt: skip
+                                                       fcos, 5, ratio], device="cpu")
     assert abs((pdf.numpy() * d_omega).sum() - 1.0) < 1e-3  # measured 2.4e-6 (mixture of cosine and n=30 lobe)
     albedo = (fcos.numpy() * d_omega).sum()  # directional albedo: 0.4 + 0.5 x (lobe's cos-weighted integral)
     assert abs(albedo - 0.8) < 0.01  # measured 0.800002 (= 0.4 + 0.5 cos 36.9 deg)
@@ -171,10 +171,10 @@ def test_lambertian_plane_under_constant_sky_converges_to_albedo_times_radiance(
     assert rms64 < 0.02 and rms64 < rms16 / 2.0  # measured 0.0093 (stratified: faster than 1/sqrt(S))
     # normalized Phong seen along the normal reflects k_s L_env; k_d + k_s mixes additively
     ph = shade_environment(pts, nrm, [0.0, 0.0, 0.0], env, samples=16, seed=2, specular=[0.5, 0.5, 0.5],
-                           exponent=20.0)  # fmt: skip
+                           exponent=20.0)
     assert abs(ph.mean() - 1.0) < 0.01  # measured 0.0017
     mix = shade_environment(pts, nrm, [0.3, 0.3, 0.3], env, samples=16, seed=2, specular=[0.5, 0.5, 0.5],
-                            exponent=20.0)  # fmt: skip
+                            exponent=20.0)
     assert abs(mix.mean() - 1.6) < 0.016  # measured 0.0022
 
 

@@ -85,7 +85,7 @@ def test_queries_equal_the_uncompressed_depth_test(scene, rng):
     stored = wp.empty(k, dtype=wp.float32, device="cpu")
     wp.launch(_project_kernel, dim=k,
               inputs=[csm_device_data(csm), wp.array(cells, dtype=wp.int32), wp.array(points, dtype=wp.vec3), q, vis,
-                      stored], device="cpu")  # fmt: skip
+                      stored], device="cpu")
     q, vis, stored = q.numpy(), vis.numpy(), stored.numpy()
     x, y = np.floor(q[:, 0]).astype(int), np.floor(q[:, 1]).astype(int)
     m = csm.resolution
@@ -132,7 +132,7 @@ def _run_filters(csm, points, dirs, xi):
     cell = wp.empty(k, dtype=wp.int32, device="cpu")
     wp.launch(_filters_kernel, dim=k,
               inputs=[csm_device_data(csm), wp.array(points, dtype=wp.vec3), wp.array(dirs, dtype=wp.vec3),
-                      wp.array(xi, dtype=wp.vec4), out, cell], device="cpu")  # fmt: skip
+                      wp.array(xi, dtype=wp.vec4), out, cell], device="cpu")
     return out.numpy(), cell.numpy()
 
 
@@ -239,7 +239,7 @@ def test_csm_agrees_with_ray_casting_on_surface_points(rng):
     exact = wp.empty(k, dtype=wp.float32, device="cpu")
     mesh = build_mesh(v, t)  # keep a reference: the BVH must outlive the launch
     wp.launch(_bvh_kernel, dim=k, inputs=[mesh.id, wp.array(p, dtype=wp.vec3),
-                                          wp.array(d, dtype=wp.vec3), exact], device="cpu")  # fmt: skip
+                                          wp.array(d, dtype=wp.vec3), exact], device="cpu")
     exact = exact.numpy()
     near = csm_visibility_batch(csm, p, d, bias=0.01)
     pcf = csm_visibility_batch(csm, p, d, filter="pcf", bias=0.01)

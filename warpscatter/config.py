@@ -479,12 +479,12 @@ class Config(SettingsModel):
     any) are kept as private attributes and never dumped.
     """
 
-    scene: SceneConfig
-    camera: CameraConfig
-    light: LightConfig
-    medium: MediumConfig = Field(default_factory=dict)
-    render: RenderSettings = Field(default_factory=dict)
-    output: OutputConfig = Field(default_factory=dict)
+    scene: SceneConfig = Field(description="the meshes")
+    camera: CameraConfig = Field(description="the pinhole camera")
+    light: LightConfig = Field(description="the light: directional, spot, environment, area or linear")
+    medium: MediumConfig = Field(default_factory=dict, description="the homogeneous medium")
+    render: RenderSettings = Field(default_factory=dict, description="the methods and their settings")
+    output: OutputConfig = Field(default_factory=dict, description="where and what to write")
 
     _config_dir: Path = PrivateAttr(default_factory=Path.cwd)
     _source: Path | None = PrivateAttr(default=None)

@@ -175,7 +175,7 @@ class RasterResult:
         return cls(
             ndc_depth=ndc_depth.numpy(), tri_id=tri_id.numpy(), keys=keys, device_ndc_depth=ndc_depth,
             device_tri_id=tri_id, view_proj=view_proj,
-        )  # fmt: skip
+        )
 
 
 def project_vertices(
@@ -199,7 +199,7 @@ def project_vertices(
         project_vertices_kernel, (n + batch - 1) // batch,
         [points, wp.mat44d(*view_proj.ravel()), width, height, guard_x, guard_y, batch, verts],
         device, threads=threads, min_chunk=1024,
-    )  # fmt: skip
+    )
     return verts
 
 
@@ -251,7 +251,7 @@ class _Setup:
             dim=(stop - start + batch - 1) // batch,
             inputs=[self.verts, self.tris, params, prev_keys, keys, counts, stop, batch, start],
             device=self.device,
-        )  # fmt: skip
+        )
 
     def key_pass(self, prev_keys, keys, private: list) -> None:
         """Rasterize all triangles into ``keys`` (pre-filled with EMPTY_KEY); ``private``: spare buffers."""
@@ -271,7 +271,7 @@ class _Setup:
         parallel.run_parallel(
             lambda k: self.launch(pieces[k], prev, buffers[k], self.dummy_counts, 0, peel),
             list(range(len(pieces))), self.threads,
-        )  # fmt: skip
+        )
         out = keys.numpy()
         for buf in buffers[1:]:
             np.minimum(out, buf.numpy(), out=out)  # exact: packed keys
@@ -364,7 +364,7 @@ def coverage_count(
     parallel.run_parallel(
         lambda k: s.launch(pieces[k], s.dummy_keys, s.dummy_keys, buffers[k], 1, 0), list(range(len(pieces))),
         s.threads,
-    )  # fmt: skip
+    )
     total = buffers[0].numpy().copy()
     for buf in buffers[1:]:
         total += buf.numpy()

@@ -200,7 +200,7 @@ def raycast_depth(
     parallel.launch_rows(
         raycast_depth_kernel, (height, width), [mesh.id, wp.mat44d(*inv.ravel()), width, height, ndc_depth, tri_id],
         device, threads=threads, min_chunk=8,
-    )  # fmt: skip
+    )
     return RasterResult.from_device(ndc_depth, tri_id, None, m)
 
 

@@ -50,8 +50,3 @@ def default_device(device: str | None = None) -> str:
     """Return the device to launch on: the argument, ``WARPSCATTER_DEVICE``, or ``"cpu"``."""
     init()
     return device or os.environ.get("WARPSCATTER_DEVICE", "cpu")
-
-
-def load_module(module, device: str | None = None) -> None:
-    """Compile/load a kernel module before threads launch it (else every thread compiles it)."""
-    wp.load_module(module, device=default_device(device))

@@ -327,7 +327,7 @@ class StreamingCompressor:
             compress_batch_kernel, self.num_texels,
             [lo, hi, self.pushed, self.num_maps - 1, self._state],
             self.device, threads=self.threads, min_chunk=256,
-        )  # fmt: skip
+        )
         self.pushed += b
         counts = self._state.out_count.numpy()
         total = int(counts.sum())
@@ -374,7 +374,7 @@ class StreamingCompressor:
             cursor[texel[group_first]] += group_len
         self.seconds += time.perf_counter() - t0
         return SegmentLists(seg_start=start.astype(np.int32), seg_depth=seg_depth, seg_end=seg_end,
-                            num_maps=self.num_maps)  # fmt: skip
+                            num_maps=self.num_maps)
 
     def stats(self, lists: SegmentLists) -> CompressionStats:
         """Sizes and costs of a finished compression."""
@@ -383,7 +383,7 @@ class StreamingCompressor:
             num_maps=self.num_maps, num_texels=self.num_texels, num_segments=s,
             compressed_bytes=8 * s + 4 * (self.num_texels + 1), uncompressed_bytes=4 * self.num_maps * self.num_texels,
             peak_working_bytes=int(self.peak_working_bytes), seconds_compress=self.seconds,
-        )  # fmt: skip
+        )
 
 
 def compress_depth_maps(z_lo, z_hi, batch_maps: int = 64, device: str | None = None) -> SegmentLists:
@@ -480,7 +480,7 @@ class CoherentShadowMap:
             "center": [float(x) for x in self.center], "radius": float(self.radius),
             "enumeration": self.enumeration, "depth_layers": self.depth_layers, "far": self.far,
             "num_segments": self.num_segments,
-        }  # fmt: skip
+        }
         if self.kind == KIND_CUBE:
             out["near"] = float(self.near)
         if self.geometry is not None:
@@ -528,7 +528,7 @@ def build_csm(
     batch_maps = _check_batch(batch_maps, progress)
     device = default_device(device)
     maps = LatLongMapSet.create(vertices, triangles, n1=n1, n2=n2, resolution=resolution, enumeration=enumeration,
-                                depth_layers=depth_layers, far=far, center=center, radius=radius)  # fmt: skip
+                                depth_layers=depth_layers, far=far, center=center, radius=radius)
     return _build(maps, vertices, triangles, batch_maps, progress, device, threads)
 
 
@@ -570,7 +570,7 @@ def _build(maps, vertices, triangles, batch_maps: int, progress, device: str, th
         n1=maps.n1, n2=maps.n2, resolution=maps.resolution, center=maps.center, radius=maps.radius,
         enumeration=maps.enumeration, depth_layers=maps.depth_layers, far=maps.far, map_index=maps.map_index,
         lists=lists, stats=stats, geometry=geometry_digest(vertices, triangles), **kind_fields,
-    )  # fmt: skip
+    )
 
 
 def build_cube_csm(
@@ -606,9 +606,9 @@ def build_cube_csm(
     batch_maps = _check_batch(batch_maps, progress)
     device = default_device(device)
     maps = CubeMapSet.create(vertices, triangles, samples, resolution=resolution, enumeration=enumeration,
-                             depth_layers=depth_layers, far=far, near=near)  # fmt: skip
+                             depth_layers=depth_layers, far=far, near=near)
     return _build(maps, vertices, triangles, batch_maps, progress, device, None, kind=KIND_CUBE,
-                  light_samples=maps.samples, near=maps.near)  # fmt: skip
+                  light_samples=maps.samples, near=maps.near)
 
 
 _ARRAYS = ("format_version", "params", "map_index", "seg_start", "seg_depth", "seg_end")
@@ -629,7 +629,7 @@ def save_csm(csm: CoherentShadowMap, path: str | os.PathLike) -> None:
         params=np.array(json.dumps(csm.params())), map_index=csm.map_index.astype(np.int32),
         seg_start=csm.lists.seg_start.astype(np.int32), seg_depth=csm.lists.seg_depth.astype(np.float32),
         seg_end=csm.lists.seg_end.astype(np.int32), **extra,
-    )  # fmt: skip
+    )
     os.replace(tmp, path)
 
 
@@ -658,7 +658,7 @@ def _load_params(path: str, data) -> dict:
             "enumeration": str(params["enumeration"]), "depth_layers": str(params["depth_layers"]),
             "far": str(params["far"]), "num_segments": int(params["num_segments"]),
             "geometry": str(params["geometry"]) if params.get("geometry") is not None else None,
-        }  # fmt: skip
+        }
     except (KeyError, TypeError, ValueError) as exc:
         raise _fail(path, f"params lack or mistype a field ({exc})") from exc
     if min(out["n1"], out["n2"], out["resolution"]) < 1 or out["center"].shape != (3,):
@@ -702,7 +702,7 @@ def load_csm(path: str | os.PathLike) -> CoherentShadowMap:
     cube = p["kind"] == KIND_CUBE
     n, texels, s = n1 * n2 * (6 if cube else 1), m * m, p["num_segments"]
     expect = {"map_index": ((n2, n1), np.integer), "seg_start": ((texels + 1,), np.integer),
-              "seg_depth": ((s,), np.floating), "seg_end": ((s,), np.integer)}  # fmt: skip
+              "seg_depth": ((s,), np.floating), "seg_end": ((s,), np.integer)}
     if cube:
         expect["light_samples"] = ((n1 * n2, 3), np.floating)
     for key, (shape, kind) in expect.items():
@@ -733,10 +733,10 @@ def load_csm(path: str | os.PathLike) -> CoherentShadowMap:
     if not np.array_equal(index, arrays["map_index"]):
         raise _fail(path, f"map_index does not match the {p['enumeration']} enumeration of {n1} x {n2}")
     lists = SegmentLists(seg_start=start.astype(np.int32), seg_depth=arrays["seg_depth"].astype(np.float32),
-                         seg_end=end.astype(np.int32), num_maps=n)  # fmt: skip
+                         seg_end=end.astype(np.int32), num_maps=n)
     return CoherentShadowMap(
         n1=n1, n2=n2, resolution=m, center=p["center"], radius=p["radius"], enumeration=p["enumeration"],
         depth_layers=p["depth_layers"], far=p["far"], map_index=index, lists=lists, kind=p["kind"],
         light_samples=arrays["light_samples"].astype(np.float64) if cube else None, near=p["near"],
         geometry=p["geometry"],
-    )  # fmt: skip
+    )

@@ -49,13 +49,12 @@ import warp as wp
 from .. import parallel, raster
 from ..wpinit import default_device, module_options
 from .enumeration import ENUMERATIONS, enumerate_grid, sequence_index
+from .settings import FAR_MODES
 
 module_options()
 
 #: Accepted ``depth_layers`` values and the number of peeled layers each needs.
 DEPTH_LAYERS = {"z1z2": 2, "z1z3": 3}
-#: Accepted ``far`` values.
-FAR_MODES = ("sphere", "infinite")
 #: Relative padding of the bounding-sphere radius (keeps every vertex strictly inside the maps).
 RADIUS_PADDING = 1e-5
 
@@ -262,7 +261,7 @@ def _set_fields(v: np.ndarray, t: np.ndarray, n1: int, n2: int, enumeration: str
     return {
         "enumeration": enumeration, "depth_layers": depth_layers, "far": far, "order": order,
         "map_index": sequence_index(order, n1, n2), "vertices": v.astype(np.float32), "triangles": t.astype(np.int32),
-    }  # fmt: skip
+    }
 
 
 def _check_mesh(vertices, triangles) -> tuple[np.ndarray, np.ndarray]:
@@ -369,7 +368,7 @@ class LatLongMapSet:
         return cls(
             n1=n1, n2=n2, resolution=resolution, center=c, radius=r, frames=latlong_frames(n1, n2),
             **_set_fields(v, t, n1, n2, enumeration, depth_layers, far),
-        )  # fmt: skip
+        )
 
     @property
     def num_maps(self) -> int:
@@ -425,12 +424,12 @@ class LatLongMapSet:
             p.peel = 1 if layer > 0 else 0
             prev = keys[layer - 1] if layer > 0 else keys[layer]
             parallel.launch_rows(peel_maps_kernel, (count, nb), [points, tris, view_proj, p, prev, keys[layer], dummy,
-                                                                 batch], device, threads=threads)  # fmt: skip
+                                                                 batch], device, threads=threads)
         z_lo = wp.empty((count, size * size), dtype=wp.float32, device=device)
         z_hi = wp.empty((count, size * size), dtype=wp.float32, device=device)
         far_mode = FAR_CODES[self.far]
         parallel.launch_rows(resolve_depths_kernel, count, [keys, layers - 1, far_mode, float(self.radius), z_lo, z_hi],
-                             device, threads=threads)  # fmt: skip
+                             device, threads=threads)
         self.last_working_bytes = sum(a.capacity for a in (view_proj, keys, z_lo, z_hi))
         return z_lo, z_hi
 
@@ -564,7 +563,7 @@ class CubeMapSet:
         return cls(
             n1=n1, n2=n2, resolution=resolution, samples=s.reshape(-1, 3), center=center, radius=radius, near=near,
             **_set_fields(v, t, n1, n2, enumeration, depth_layers, far),
-        )  # fmt: skip
+        )
 
     @property
     def num_samples(self) -> int:
@@ -596,7 +595,7 @@ class CubeMapSet:
         """Linear depths (z_lo, z_hi) of the maps [start, stop), each (stop - start, M, M) float32."""
         if not (0 <= start < stop <= self.num_maps):
             raise ValueError(f"[start, stop) must be a non-empty range within [0, {self.num_maps}], got "
-                             f"[{start}, {stop})")  # fmt: skip
+                             f"[{start}, {stop})")
         m = self.resolution
         layers = DEPTH_LAYERS[self.depth_layers]
         z_lo = np.empty((stop - start, m, m), np.float32)
@@ -606,7 +605,7 @@ class CubeMapSet:
         for s in range(start, stop):
             vp, proj, o = self.face_matrices(s)
             r = raster.rasterize(self.vertices, self.triangles, vp, m, m, layers=layers, clamp_depth=True,
-                                 device=device)  # fmt: skip
+                                 device=device)
             depth = raster.linearize_depth(r.ndc_depth, proj).astype(np.float32)
             lo = depth[0]
             hi = depth[layers - 1].copy()

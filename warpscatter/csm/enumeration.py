@@ -20,8 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-#: Names accepted by :func:`enumerate_grid`.
-ENUMERATIONS = ("scanline", "zigzag", "hilbert")
+from .settings import ENUMERATIONS  # the names accepted by enumerate_grid
 
 #: Largest number of cells of one grid (int32 sequence indices everywhere else).
 MAX_CELLS = 2**31 - 1
@@ -96,7 +95,7 @@ def _gilbert(x: int, y: int, ax: int, ay: int, bx: int, by: int, out: list) -> N
                 bx2, by2 = bx2 + dbx, by2 + dby
             # standard case: one step up, one long horizontal, one step down
             stack.append((x + (ax - dax) + (bx2 - dbx), y + (ay - day) + (by2 - dby),
-                          -bx2, -by2, -(ax - ax2), -(ay - ay2)))  # fmt: skip
+                          -bx2, -by2, -(ax - ax2), -(ay - ay2)))
             stack.append((x + bx2, y + by2, ax, ay, bx - bx2, by - by2))
             stack.append((x, y, bx2, by2, ax2, ay2))
 

@@ -44,6 +44,7 @@ import warp as wp
 
 from .. import parallel
 from ..wpinit import default_device, module_options
+from . import settings
 from .compress import KIND_CUBE, KIND_LATLONG, CoherentShadowMap
 from .depthmaps import cube_face_frames, latlong_param
 
@@ -52,8 +53,8 @@ module_options()
 FILTER_NEAREST = wp.constant(0)
 FILTER_PCF = wp.constant(1)
 FILTER_ROULETTE = wp.constant(2)
-#: Filter names accepted by the host wrappers.
-FILTERS = {"nearest": 0, "pcf": 1, "roulette": 2}
+#: Filter names accepted by the host wrappers (:data:`~warpscatter.csm.settings.FILTERS`) -> FILTER_* code.
+FILTERS = {name: code for code, name in enumerate(settings.FILTERS)}
 
 
 @wp.struct
@@ -631,7 +632,7 @@ def _run_query(kernel, csm_inputs, points, queries, dtype, bias, mode, seed, dev
         [*csm_inputs, wp.array(points, dtype=wp.vec3, device=device), wp.array(queries, dtype=dtype, device=device),
          float(bias), mode, int(seed), out],
         device, threads=threads, min_chunk=1024,
-    )  # fmt: skip
+    )
     return out.numpy()
 
 
@@ -671,7 +672,7 @@ def csm_visibility_batch(
     _check_bias(bias)
     _expect_kind(csm, KIND_LATLONG, "csm")
     return _run_query(visibility_kernel, [csm_device_data(csm, device)], p, d, wp.vec3, bias=bias, mode=mode,
-                      seed=seed, device=device, threads=threads)  # fmt: skip
+                      seed=seed, device=device, threads=threads)
 
 
 def csm_objects_visibility_batch(
@@ -717,9 +718,9 @@ def csm_objects_visibility_batch(
         datas.append(csm_device_data(csm, device))
         invs.append(np.linalg.inv(t).astype(np.float32))
     csm_inputs = [wp.array(datas, dtype=CSMData, device=device),
-                  wp.array(np.stack(invs), dtype=wp.mat44, device=device)]  # fmt: skip
+                  wp.array(np.stack(invs), dtype=wp.mat44, device=device)]
     return _run_query(objects_visibility_kernel, csm_inputs, p, d, wp.vec3, bias=bias, mode=mode, seed=seed,
-                      device=device, threads=threads)  # fmt: skip
+                      device=device, threads=threads)
 
 
 def csm_local_visibility_batch(
@@ -761,4 +762,4 @@ def csm_local_visibility_batch(
         raise ValueError("light_params must lie in [0, 1]")
     _check_bias(bias)
     return _run_query(local_visibility_kernel, [csm_device_data(csm, device)], p, np.ascontiguousarray(x), wp.vec2,
-                      bias=bias, mode=mode, seed=seed, device=device, threads=threads)  # fmt: skip
+                      bias=bias, mode=mode, seed=seed, device=device, threads=threads)

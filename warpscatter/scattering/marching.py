@@ -49,6 +49,8 @@ visibility). Calling it from your own kernel::
 
 from __future__ import annotations
 
+import weakref
+
 import warp as wp
 
 from ..scene.camera import CameraParams, pixel_ray_direction
@@ -244,6 +246,10 @@ def march_screen_point(cam: CameraParams, x: float, y: float, s: float, m: March
 
 # ---- host side -------------------------------------------------------------------------------------
 
+#: struct instance -> the Python object owning the BVH its ``mesh`` id points to. A Warp struct holds a wp.Mesh
+#: only as an id, so the struct keeps its owner alive here (as long as the struct lives).
+_BVH_OWNERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
 
 def jitter_mode(jitter: str) -> int:
     """Kernel id of a step pattern name (:data:`~.settings.JITTERS`); ValueError naming the choices otherwise."""
@@ -285,6 +291,7 @@ def visibility_params(scene, visibility: str, geometry=None, shadow_map=None, sh
             raise ValueError("geometry: exact visibility needs the scene's DeviceGeometry")
         v.mode = VISIBILITY_EXACT
         v.mesh = geometry.shadow_mesh.id
+        _BVH_OWNERS[v] = geometry
         v.sm = ShadowMapParams()
         v.sm.width = v.sm.height = 1
         v.sm_depth = wp.zeros((1, 1), dtype=wp.float32, device=device)
@@ -325,6 +332,8 @@ def marcher_params(scene, *, steps: int, visibility: Visibility, seed: int = 0, 
     m.seed = int(seed)
     m.jitter = jitter_mode(jitter)
     m.vis = visibility
+    if visibility in _BVH_OWNERS:
+        _BVH_OWNERS[m] = _BVH_OWNERS[visibility]  # the struct is copied into m: m keeps the BVH alive too
     return m
 
 

@@ -66,22 +66,12 @@ from ..scene.camera import normalize
 from ..wpinit import default_device, module_options
 from .prefix_sums import split_columns
 from .rectify_nonlinear import check_reference_method, median_per_row
+from .settings import EPIPOLE_MARGIN, MAX_REGIONS
 
 module_options()
 
 logger = logging.getLogger("warpscatter")
 
-#: Most light-frustum regions along x.
-MAX_REGIONS = 16
-#: Default threshold of :func:`choose_rectification`: the projective rectification is used when every
-#: epipole in front of the camera lies at least this far outside the image, in units of the image's
-#: half height on the image plane (NDC y units; x scaled by the aspect ratio). Measured on the quickstart
-#: colonnade (160x90, 512^2 maps, 8 regions, relative L1 against the shadow-map marcher) while turning the
-#: light towards the view: with the LIGHT epipole approaching, projective stays as good as non-linear down
-#: to 0.14 (0.060 vs 0.063; 0.015 vs 0.016 at 1.1); with the ANTI-light epipole approaching it falls behind
-#: (0.0080 vs 0.0074 at 1.8, 0.0110 vs 0.0094 at 0.70, 0.0188 vs 0.0127 at 0.30), so 1.0 keeps projective
-#: within ~15 % of non-linear where it is chosen.
-EPIPOLE_MARGIN = 1.0
 
 
 @wp.struct

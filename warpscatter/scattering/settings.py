@@ -37,7 +37,13 @@ MOMENT_STORAGE_BITS = {4: (64, 128), 6: (64, 96, 192)}
 #: Default angular radius (degrees) of the ray-marched disc around an epipole in view (Klehm 2014 Fig. 8).
 EPIPOLE_ANGLE_DEG = 8.0
 MAX_EPIPOLE_ANGLE_DEG = 60.0
-#: ``rectification: auto`` picks projective when every epipole lies this many half image heights outside the image.
+#: ``rectification: auto`` (:func:`~.rectify_projective.choose_rectification`) picks projective when every epipole
+#: in front of the camera lies at least this far outside the image, in units of the image's half height on the
+#: image plane (NDC y units; x scaled by the aspect ratio). Measured on the quickstart colonnade (160x90, 512^2
+#: maps, 8 regions, relative L1 against the shadow-map marcher) while turning the light towards the view: with the
+#: LIGHT epipole approaching, projective stays as good as non-linear down to 0.14 (0.060 vs 0.063; 0.015 vs 0.016
+#: at 1.1); with the ANTI-light epipole approaching it falls behind (0.0080 vs 0.0074 at 1.8, 0.0110 vs 0.0094 at
+#: 0.70, 0.0188 vs 0.0127 at 0.30), so 1.0 keeps projective within ~15 % of non-linear where it is chosen.
 EPIPOLE_MARGIN = 1.0
 #: Most light-frustum regions of the projective rectification (Klehm 2014 Sec. 4.2).
 MAX_REGIONS = 16

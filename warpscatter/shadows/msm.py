@@ -59,6 +59,7 @@ import warp as wp
 
 from ..parallel import launch_rows
 from ..raster import MAX_RESOLUTION, coverage_count, linearize_depth, ndc_to_view_depth, rasterize
+from ..stages import StageTimer
 from ..wpinit import default_device, module_options
 from . import moments as mm
 from .msm_texels import (  # noqa: F401 (the texel operations are part of this module's API)
@@ -77,6 +78,7 @@ from .msm_texels import (  # noqa: F401 (the texel operations are part of this m
     sample_mip_bilinear4,
     sample_trilinear4,
 )
+from .settings import MAX_SUPERSAMPLING
 from .shadow_map import ShadowMap, ShadowMapParams, shadow_coords
 
 module_options()
@@ -87,8 +89,6 @@ ALPHA_TEST = wp.constant(0.01)
 OPAQUE_ALPHA = 1.0
 #: Bits per texel -> 4-moment storage mode of :mod:`.moments`.
 STORAGE_OF_BITS = {64: int(mm.STORAGE4_UNORM16), 128: int(mm.STORAGE4_FLOAT32)}
-#: Largest supported supersampling factor per axis.
-MAX_SUPERSAMPLING = 8
 #: Memory budget of the depth-peeled translucent layers: the supersampled view is peeled in row bands this size.
 TRANSLUCENT_BAND_BYTES = 256 * 2**20
 _PEEL_BYTES = 24  # bytes per peeled sample and layer (int64 key, float32 depth, int32 triangle, merge buffers)
@@ -668,19 +668,14 @@ def build_mip_chain(msm: MomentShadowMap, device=None) -> MomentShadowMap:
 
 def render_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: int = 2, bits: int = 64,
                              filter_px: int = 5, coloured: bool = False, max_translucent_layers: int = 16,
-                             mipmap: bool = False, timer=None, device=None) -> MomentShadowMap:
+                             mipmap: bool = False, timer: StageTimer | None = None, device=None) -> MomentShadowMap:
     """Generate (stage ``msm_generate``), filter (stage ``msm_filter``) and optionally mip (stage ``msm_mipmap``) a
     moment shadow map for hard shadows.
 
     Arguments as in :func:`generate_moment_shadow_map` and :func:`filter_moment_shadow_map`; ``mipmap`` builds the
-    chain of :func:`build_mip_chain`; ``timer`` is an optional :class:`~warpscatter.pipeline.StageTimer`-like
-    callable returning a context manager per stage name.
+    chain of :func:`build_mip_chain`; ``timer``: the :class:`~warpscatter.stages.StageTimer` of the stages.
     """
-    from contextlib import nullcontext
-
-    def stage(name):
-        return timer(name) if timer is not None else nullcontext()
-
+    stage = timer or StageTimer()
     with stage("msm_generate"):
         msm = generate_moment_shadow_map(scene, shadow_map, supersampling=supersampling, bits=bits,
                                          coloured=coloured, max_translucent_layers=max_translucent_layers,

@@ -46,17 +46,18 @@ texels in front of the receiver, filtering = area-weighted percentage-closer tes
 
 from __future__ import annotations
 
-from contextlib import nullcontext
 from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
 from ..parallel import launch_rows
+from ..stages import StageTimer
 from ..wpinit import default_device, module_options
 from . import moments as mm
 from . import msm as msmod
 from .msm import MomentShadowMap, MomentShadowParams
+from .settings import MAX_KERNEL_PX, MIN_KERNEL_PX, REFERENCE_KERNEL_PX
 from .shadow_map import ShadowMap
 
 module_options()
@@ -65,10 +66,9 @@ module_options()
 BLOCKER_EPSILON = wp.constant(1.0e-3)
 #: eps_u of Sec. 4.5: umbra when the blocker-search shadow intensity exceeds 1 - eps_u.
 UMBRA_EPSILON = wp.constant(0.01)
-#: The paper's largest kernel, 28 x 28 = 784 texels (Sec. 4.2), for which alpha_b = 6e-7.
-REFERENCE_KERNEL_PX = 28
-#: Largest supported kernel side (n_t <= 2^16 keeps 16 bits of precision per texel).
-MAX_KERNEL_PX = 256
+# REFERENCE_KERNEL_PX: the paper's largest kernel, 28 x 28 = 784 texels (Sec. 4.2), for which alpha_b = 6e-7;
+# MAX_KERNEL_PX: the largest supported side (n_t <= 2^16 keeps 16 bits of precision per texel). Both live in
+# .settings with the other limits of render.shadows.
 
 
 @wp.struct
@@ -406,9 +406,10 @@ def _pcss_points_kernel(p: SoftShadowParams, depth_map: wp.array2d(dtype=wp.floa
 
 def _kernel_px(max_kernel_px) -> int:
     if isinstance(max_kernel_px, bool) or not isinstance(max_kernel_px, (int, np.integer)) or not (
-        4 <= max_kernel_px <= MAX_KERNEL_PX
+        MIN_KERNEL_PX <= max_kernel_px <= MAX_KERNEL_PX
     ):
-        raise ValueError(f"max_kernel_px: expected an integer in [4, {MAX_KERNEL_PX}], got {max_kernel_px!r}")
+        raise ValueError(f"max_kernel_px: expected an integer in [{MIN_KERNEL_PX}, {MAX_KERNEL_PX}], got "
+                         f"{max_kernel_px!r}")
     return int(max_kernel_px)
 
 
@@ -547,16 +548,14 @@ def sat_texel_integers(msm: MomentShadowMap, max_kernel_px: int = REFERENCE_KERN
 
 def render_soft_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: int = 2,
                            max_kernel_px: int = REFERENCE_KERNEL_PX, coloured: bool = False,
-                           max_translucent_layers: int = 16, timer=None, device=None) -> SummedAreaTable:
+                           max_translucent_layers: int = 16, timer: StageTimer | None = None,
+                           device=None) -> SummedAreaTable:
     """128-bit moment shadow map (stage ``msm_generate``) and its summed-area table (stage ``msm_sat``).
 
     Arguments as in :func:`~warpscatter.shadows.msm.generate_moment_shadow_map` and
-    :func:`build_summed_area_table`; ``timer(name)`` returns a context manager per stage (optional).
+    :func:`build_summed_area_table`; ``timer``: the :class:`~warpscatter.stages.StageTimer` of the stages.
     """
-
-    def stage(name):
-        return timer(name) if timer is not None else nullcontext()
-
+    stage = timer or StageTimer()
     with stage("msm_generate"):
         m = msmod.generate_moment_shadow_map(scene, shadow_map, supersampling=supersampling, bits=128,
                                              coloured=coloured, max_translucent_layers=max_translucent_layers,

@@ -1,0 +1,97 @@
+"""The README's config reference and method table against the settings models and the registry
+(warpscatter.reference): every key documented, nothing stale, the example config valid."""
+
+import re
+import typing
+from pathlib import Path
+
+import pytest
+import yaml
+from pydantic import BaseModel
+
+from warpscatter import methods, reference
+from warpscatter.config import Config
+
+ROOT = Path(__file__).resolve().parent.parent
+README = (ROOT / "README.md").read_text(encoding="utf-8")
+
+
+def _models(model: type[BaseModel], seen=None) -> set:
+    """Every settings model reachable from ``model`` (sections, list items, union members)."""
+    seen = set() if seen is None else seen
+    if model in seen:
+        return seen
+    seen.add(model)
+    for field in model.model_fields.values():
+        stack = [field.annotation]
+        while stack:
+            tp = stack.pop()
+            if isinstance(tp, type) and issubclass(tp, BaseModel):
+                _models(tp, seen)
+            stack.extend(typing.get_args(tp))
+    return seen
+
+
+def test_every_key_has_a_description():
+    missing = [f"{m.__name__}.{name}" for m in _models(Config) for name, f in m.model_fields.items()
+               if not (f.description or "").strip()]
+    assert not missing, f"keys without Field(description=...): {missing}"
+
+
+@pytest.mark.parametrize("name", list(reference.BLOCKS))
+def test_readme_generated_blocks_are_current(name):
+    got = reference.readme_block(README, name)
+    assert got is not None, f"README lacks the <!-- generated: {name} --> block"
+    assert got == reference.BLOCKS[name](), f"README block {name!r} is stale: python -m warpscatter.reference README.md"
+
+
+def test_config_reference_lists_every_key_of_the_json_schema():
+    # an independent walk: every property path in Config's JSON schema is a row of the reference
+    schema = Config.model_json_schema()
+    defs = schema.get("$defs", {})
+    rows = set(re.findall(r"^\| `([^`]+)`", reference.config_reference(), re.M))
+    keys = {re.sub(r" \(\w+\)$", "", r) for r in rows}
+
+    def walk(node, path, out):
+        node = defs[node["$ref"].split("/")[-1]] if "$ref" in node else node
+        for alt in node.get("anyOf", []) + node.get("oneOf", []):
+            walk(alt, path, out)
+        if node.get("type") == "array" and isinstance(node.get("items"), dict):
+            walk(node["items"], f"{path}.N", out)
+        for name, sub in node.get("properties", {}).items():
+            sub_path = f"{path}.{name}" if path else name
+            resolved = defs[sub["$ref"].split("/")[-1]] if "$ref" in sub else sub
+            if "properties" not in resolved or name == "params":
+                out.add(sub_path)
+            walk(sub, sub_path, out)
+
+    want = set()
+    walk(schema, "", want)
+    missing = [k for k in want if k not in keys and not any(r.startswith(k + ".") for r in keys)]
+    assert not missing, f"keys missing from the reference: {sorted(missing)}"
+
+
+def test_readme_example_config_is_valid():
+    block = re.search(r"## Config reference.*?```yaml\n(.*?)```", README, re.S).group(1)
+    config = Config.from_dict(yaml.safe_load(block), config_dir=ROOT / "configs")
+    assert config.render.scattering.method == "moments6" and config.scene.meshes[1].receiver_only
+
+
+def test_readme_names_every_registered_method():
+    # the overview tables at the top (hand-written prose) and a Methods section per method
+    overview = README[:README.index("## Set-up")]
+    named = set(re.findall(r"`(\w+)`", " ".join(re.findall(r"^\| ([^|]+) \|", overview, re.M))))
+    for table in (methods.SCATTERING, methods.LIGHTING):
+        for name in table:
+            assert name in named, f"README's overview tables miss {name}"
+            assert re.search(rf"^### [^\n]*`{name}`", README, re.M), f"README has no Methods section for {name}"
+
+
+def test_describe_type():
+    from typing import Annotated, Literal, Optional
+
+    from pydantic import Field
+
+    assert reference.describe_type(Literal["a", "b"]) == "`a` \\| `b`"
+    assert reference.describe_type(Annotated[int, Field(ge=1, le=8)]) == "int 1–8"
+    assert reference.describe_type(Optional[Annotated[float, Field(gt=0.0)]]) == "number > 0 or null"
