@@ -322,3 +322,13 @@ def test_precompute_bad_arguments(tmp_path, args, message):
 def test_precompute_missing_source(tmp_path):
     result = CliRunner().invoke(main, ["precompute", str(tmp_path / "nope.obj"), "-o", str(tmp_path / "a.npz")])
     assert result.exit_code == 2 and "not found" in result.output
+
+
+def test_python_dash_m_lists_every_command():
+    import subprocess
+
+    for module in ("warpscatter", "warpscatter.cli.main"):
+        out = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True, text=True)
+        assert out.returncode == 0, out.stderr
+        for command in ("render", "validate", "bench", "precompute"):
+            assert command in out.stdout, (module, command)

@@ -202,3 +202,16 @@ def test_validate_summarises_the_lighting_configs():
     assert result.exit_code == 0 and "environment map" in result.output and "lighting csm" in result.output
     result = invoke("validate", GATE, "--set", AREA)
     assert result.exit_code == 0 and "area at" in result.output
+
+
+def test_precompute_takes_the_configs_csm_settings_and_their_limits(tmp_path):
+    out = tmp_path / "c.npz"
+    result = invoke("precompute", GATE, "-o", out, "--set", "render.lighting.csm.maps=[8,4]",
+                    "--set", "render.lighting.csm.resolution=16", "--enumeration", "zigzag")
+    assert result.exit_code == 0, result.output
+    csm = load_csm(out)
+    assert (csm.n1, csm.n2, csm.resolution) == (8, 4, 16) and "zigzag" in result.output
+    # the options' limits are the settings model's: refused before any work, naming the option
+    result = invoke("precompute", GATE, "-o", tmp_path / "d.npz", "--maps", "2000x4")
+    assert result.exit_code == 2 and "--maps" in result.output and "1024" in result.output
+    assert not (tmp_path / "d.npz").exists()

@@ -174,14 +174,21 @@ def _two_depths_kernel(b: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec4),
     out[i] = wp.vec4(depths[0], depths[1], weights[0], weights[1])
 
 
+#: The ``op`` of the host wrappers' transform kernels.
+_OP_THETA = wp.constant(0)  # the quantization transform Theta*
+_OP_THETA_INVERSE = wp.constant(1)
+_OP_STORE = wp.constant(2)  # store_moments (Theta* and fixed point)
+_OP_LOAD = wp.constant(3)  # load_moments
+
+
 @wp.kernel
 def _transform4_kernel(b: wp.array(dtype=wp.vec4), op: int, storage: int, out: wp.array(dtype=wp.vec4), offset: int):
     i = wp.tid() + offset
-    if op == 0:
+    if op == _OP_THETA:
         out[i] = quantization_transform4(b[i])
-    elif op == 1:
+    elif op == _OP_THETA_INVERSE:
         out[i] = inverse_quantization_transform4(b[i])
-    elif op == 2:
+    elif op == _OP_STORE:
         out[i] = store_moments4(b[i], storage)
     else:
         out[i] = load_moments4(b[i], storage)
@@ -190,11 +197,11 @@ def _transform4_kernel(b: wp.array(dtype=wp.vec4), op: int, storage: int, out: w
 @wp.kernel
 def _transform6_kernel(b: wp.array(dtype=vec6), op: int, storage: int, out: wp.array(dtype=vec6), offset: int):
     i = wp.tid() + offset
-    if op == 0:
+    if op == _OP_THETA:
         out[i] = quantization_transform6(b[i])
-    elif op == 1:
+    elif op == _OP_THETA_INVERSE:
         out[i] = inverse_quantization_transform6(b[i])
-    elif op == 2:
+    elif op == _OP_STORE:
         out[i] = store_moments6(b[i], storage)
     else:
         out[i] = load_moments6(b[i], storage)
@@ -384,7 +391,7 @@ def _transform(b, length: int, kernel, dtype, op: int, storage: int, device) -> 
 
 def apply_quantization_transform4(b, inverse: bool = False, device=None) -> np.ndarray:
     """Theta_4* of Eq. (3) (or its inverse) applied to (..., 4) arrays; float32."""
-    return _transform(b, 4, _transform4_kernel, wp.vec4, 1 if inverse else 0, 0, device)
+    return _transform(b, 4, _transform4_kernel, wp.vec4, _OP_THETA_INVERSE if inverse else _OP_THETA, 0, device)
 
 
 def quantize4(b, storage=STORAGE4_UNORM16, device=None) -> np.ndarray:
@@ -392,27 +399,27 @@ def quantize4(b, storage=STORAGE4_UNORM16, device=None) -> np.ndarray:
 
     STORAGE4_UNORM16: Theta_4*(b) rounded to multiples of 1/65535 in [0, 1]; STORAGE4_FLOAT32: b itself.
     """
-    return _transform(b, 4, _transform4_kernel, wp.vec4, 2, _storage(storage, _STORAGE4, "4-moment"), device)
+    return _transform(b, 4, _transform4_kernel, wp.vec4, _OP_STORE, _storage(storage, _STORAGE4, "4-moment"), device)
 
 
 def dequantize4(texels, storage=STORAGE4_UNORM16, device=None) -> np.ndarray:
     """Canonical (unbiased) moments (..., 4) from texel values of ``storage`` (inverse of :func:`quantize4`)."""
-    return _transform(texels, 4, _transform4_kernel, wp.vec4, 3, _storage(storage, _STORAGE4, "4-moment"), device)
+    return _transform(texels, 4, _transform4_kernel, wp.vec4, _OP_LOAD, _storage(storage, _STORAGE4, "4-moment"), device)
 
 
 def apply_quantization_transform6(b, inverse: bool = False, device=None) -> np.ndarray:
     """Theta_6* of Sec. 5.4.3 (or its inverse) on (..., 6) arrays; texel order (q_odd, q_even); float32."""
-    return _transform(b, 6, _transform6_kernel, vec6, 1 if inverse else 0, 0, device)
+    return _transform(b, 6, _transform6_kernel, vec6, _OP_THETA_INVERSE if inverse else _OP_THETA, 0, device)
 
 
 def quantize6(b, storage=STORAGE6_UNORM16, device=None) -> np.ndarray:
     """Texel values (..., 6) float32 after storing canonical six moments in ``storage`` (STORAGE6_*)."""
-    return _transform(b, 6, _transform6_kernel, vec6, 2, _storage(storage, _STORAGE6, "6-moment"), device)
+    return _transform(b, 6, _transform6_kernel, vec6, _OP_STORE, _storage(storage, _STORAGE6, "6-moment"), device)
 
 
 def dequantize6(texels, storage=STORAGE6_UNORM16, device=None) -> np.ndarray:
     """Canonical (unbiased) six moments (..., 6) from texel values of ``storage`` (inverse of :func:`quantize6`)."""
-    return _transform(texels, 6, _transform6_kernel, vec6, 3, _storage(storage, _STORAGE6, "6-moment"), device)
+    return _transform(texels, 6, _transform6_kernel, vec6, _OP_LOAD, _storage(storage, _STORAGE6, "6-moment"), device)
 
 
 def solve_cubic(coeffs, device=None) -> np.ndarray:
