@@ -404,7 +404,8 @@ def quantize4(b, storage=STORAGE4_UNORM16, device=None) -> np.ndarray:
 
 def dequantize4(texels, storage=STORAGE4_UNORM16, device=None) -> np.ndarray:
     """Canonical (unbiased) moments (..., 4) from texel values of ``storage`` (inverse of :func:`quantize4`)."""
-    return _transform(texels, 4, _transform4_kernel, wp.vec4, _OP_LOAD, _storage(storage, _STORAGE4, "4-moment"), device)
+    storage = _storage(storage, _STORAGE4, "4-moment")
+    return _transform(texels, 4, _transform4_kernel, wp.vec4, _OP_LOAD, storage, device)
 
 
 def apply_quantization_transform6(b, inverse: bool = False, device=None) -> np.ndarray:
