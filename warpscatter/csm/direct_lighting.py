@@ -69,6 +69,25 @@ def stratum_sample(k: int, s: int, jitter: wp.vec2) -> wp.vec2:
     return wp.vec2((float(a) + jitter[0]) / float(s), (float(b) + jitter[1]) / float(s))
 
 
+@wp.func
+def surface_point(surf: SurfacePoints, k: int):
+    """Point k of ``surf``: (position, unit normal, unit direction towards the viewer, material index)."""
+    return surf.points[k], wp.normalize(surf.normals[k]), wp.normalize(surf.view_dirs[k]), surf.material_index[k]
+
+
+@wp.func
+def stratum_random_numbers(rng: wp.uint32):
+    """The uniform numbers of one stratum of the estimators, drawn in this order from ``rng``: the light sample's
+    and the BRDF sample's jitter in the stratum, the BRDF lobe choice, and four numbers for each sample's CSM
+    roulette filter. Returns them and the advanced state (Warp passes the state by value)."""
+    j_light = wp.vec2(wp.randf(rng), wp.randf(rng))
+    j_brdf = wp.vec2(wp.randf(rng), wp.randf(rng))
+    choice = wp.randf(rng)
+    xi_light = wp.vec4(wp.randf(rng), wp.randf(rng), wp.randf(rng), wp.randf(rng))
+    xi_brdf = wp.vec4(wp.randf(rng), wp.randf(rng), wp.randf(rng), wp.randf(rng))
+    return j_light, j_brdf, choice, xi_light, xi_brdf, rng
+
+
 # ---- host side -------------------------------------------------------------------------------------
 
 
@@ -391,7 +410,9 @@ __all__ = [
     "placeholder_csms",
     "shade_direct",
     "shade_points",
+    "stratum_random_numbers",
     "stratum_sample",
+    "surface_point",
     "surface_inputs",
     "surface_points",
 ]

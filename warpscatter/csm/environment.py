@@ -27,7 +27,16 @@ from ..raycast import occluded
 from ..scene.environment_map import EnvData, EnvironmentMap, env_lookup, env_pdf, env_sample
 from ..wpinit import module_options
 from .brdf import MaterialData, material_eval, material_pdf, material_sample
-from .direct_lighting import VIS_CSM, VIS_MESH, LightVisibility, SurfacePoints, shade_direct, stratum_sample
+from .direct_lighting import (
+    VIS_CSM,
+    VIS_MESH,
+    LightVisibility,
+    SurfacePoints,
+    shade_direct,
+    stratum_random_numbers,
+    stratum_sample,
+    surface_point,
+)
 from .query import csm_visibility_filtered
 
 module_options()
@@ -62,19 +71,11 @@ def shade_environment_kernel(
     """out[k] = one stratified MIS estimate (s^2 strata) of the reflected radiance of point k towards view_dirs[k]."""
     k = wp.tid() + offset
     rng = wp.rand_init(seed, k)  # a different pattern per point and per pass (seed)
-    p = surf.points[k]
-    n = wp.normalize(surf.normals[k])
-    wo = wp.normalize(surf.view_dirs[k])
-    m = surf.material_index[k]
+    p, n, wo, m = surface_point(surf, k)
     total = wp.vec3(0.0)
     count = strata * strata
     for s in range(count):
-        # random numbers are drawn here: wp.randf advances a state that @wp.funcs would only copy
-        j_env = wp.vec2(wp.randf(rng), wp.randf(rng))
-        j_brdf = wp.vec2(wp.randf(rng), wp.randf(rng))
-        choice = wp.randf(rng)
-        xi_env = wp.vec4(wp.randf(rng), wp.randf(rng), wp.randf(rng), wp.randf(rng))
-        xi_brdf = wp.vec4(wp.randf(rng), wp.randf(rng), wp.randf(rng), wp.randf(rng))
+        j_env, j_brdf, choice, xi_env, xi_brdf, rng = stratum_random_numbers(rng)
         # ---- environment sample (P_L^-1), balance heuristic: f L V cos / (p_env + p_brdf) ----
         d, radiance, pe = env_sample(env, stratum_sample(s, strata, j_env))
         c = wp.dot(n, d)

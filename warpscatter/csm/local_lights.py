@@ -48,7 +48,9 @@ from .direct_lighting import (
     LightVisibility,
     SurfacePoints,
     shade_direct,
+    stratum_random_numbers,
     stratum_sample,
+    surface_point,
 )
 from .query import csm_local_visibility_filtered, csm_visibility_filtered
 
@@ -90,18 +92,11 @@ def shade_local_light_kernel(
     """out[k] = one stratified estimate of the radiance reflected at point k from the local light."""
     k = wp.tid() + offset
     rng = wp.rand_init(seed, k)
-    x = surf.points[k]
-    n = wp.normalize(surf.normals[k])
-    wo = wp.normalize(surf.view_dirs[k])
-    m = surf.material_index[k]
+    x, n, wo, m = surface_point(surf, k)
     total = wp.vec3(0.0)
     count = strata * strata
     for s in range(count):
-        j_light = wp.vec2(wp.randf(rng), wp.randf(rng))
-        j_brdf = wp.vec2(wp.randf(rng), wp.randf(rng))
-        choice = wp.randf(rng)
-        xi_light = wp.vec4(wp.randf(rng), wp.randf(rng), wp.randf(rng), wp.randf(rng))
-        xi_brdf = wp.vec4(wp.randf(rng), wp.randf(rng), wp.randf(rng), wp.randf(rng))
+        j_light, j_brdf, choice, xi_light, xi_brdf, rng = stratum_random_numbers(rng)
         if light.kind == LOCAL_LIGHT_LINEAR:
             # ---- linear light: stratified in s, light sampling only (zero area) ----
             sl = (float(s) + j_light[0]) / float(count)
