@@ -1,12 +1,17 @@
-"""Camera G-buffer: rasterized and ray-cast sources agree; misses end on the far plane."""
+"""Camera G-buffer: rasterized and ray-cast sources agree; misses end on the far plane; the fused raster
+G-buffer is bitwise the per-pixel reference."""
 
 from pathlib import Path
 
 import numpy as np
+import pytest
+import warp as wp
 
+from warpscatter import gbuffer, raster
 from warpscatter.config import load_config
 from warpscatter.gbuffer import gbuffer_raster, gbuffer_raycast
-from warpscatter.scene import DeviceGeometry, build_scene
+from warpscatter.scene import DeviceGeometry, MeshArrays, build_scene
+from warpscatter.scene.camera import Camera
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -39,3 +44,74 @@ def test_raster_and_raycast_gbuffers_agree_off_silhouettes():
     rel = np.abs(a["distance"] - b["distance"])[interior] / b["distance"][interior]
     assert rel.max() < 1e-4  # measured 1.6e-6: both intersect the same plane exactly
     assert (a["material"][interior] == b["material"][interior]).all()
+
+
+# ---- the fused raster G-buffer is bitwise the per-pixel reference ------------------------------------------------
+
+
+def _reference_gbuffer(scene, geo):
+    """The per-pixel G-buffer: store_hit on the resolved raster (gbuffer_from_raster_kernel)."""
+    cam = scene.camera
+    proj = cam.projection()
+    r = raster.rasterize(scene.vertices, scene.triangles, proj @ cam.view(), cam.width, cam.height, threads=1)
+    out = gbuffer._alloc(cam.height, cam.width, "cpu")
+    wp.launch(gbuffer.gbuffer_from_raster_kernel, dim=(cam.height, cam.width),
+              inputs=[cam.params(), r.device_tri_id[0], r.device_ndc_depth[0], float(proj[2, 2]), float(proj[2, 3]),
+                      geo.arrays(), out.arrays(), 0])
+    return out.numpy()
+
+
+@pytest.mark.parametrize("name", ["colonnade", "canopy", "window"])
+def test_fused_gbuffer_is_bitwise_the_per_pixel_reference(name, monkeypatch):
+    cfg = load_config(ROOT / "configs" / f"{name}.yaml", ["camera.width=173", "camera.height=97"])
+    scene = build_scene(cfg)
+    geo = DeviceGeometry(scene)
+    ref = _reference_gbuffer(scene, geo)
+    monkeypatch.setattr(raster, "MIN_BAND_ROWS", 4)
+    monkeypatch.setattr(raster, "MIN_BAND_PIXELS", 1)
+    monkeypatch.setattr(raster, "MIN_PIECE_TRIANGLES", 100)
+    for per_pixel in (0.0, 1e9):  # the rasterizer's two splits across threads: triangle chunks, row bands
+        monkeypatch.setattr(raster, "BANDED_TRIANGLES_PER_PIXEL", per_pixel)
+        for threads in (1, 2, 3):
+            g = gbuffer_raster(scene, geo, threads=threads).numpy()
+            for k in ref:
+                assert np.array_equal(g[k].view(np.uint32), ref[k].view(np.uint32)), (k, per_pixel, threads)
+
+
+def test_degenerate_and_grazing_triangles_match_store_hit():
+    # keys naming a regular, a degenerate (collinear: zero normal) and a grazing triangle (its plane x = 0
+    # contains the camera and the rays of the middle column: the rasterized depth is used), and empty texels
+    h, w = 40, 57
+    verts = np.array([[-1, -1, -5], [1, -1, -5], [0, 1, -6], [0, 0, -3], [1, 1, -4], [2, 2, -5],
+                      [0, -1, -2], [0, 1, -2], [0, 0, -9]], np.float32)
+    tris = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]], np.int32)
+    mesh = MeshArrays()
+    mesh.vertices = wp.array(verts, dtype=wp.vec3)
+    mesh.triangles = wp.array(tris, dtype=wp.int32)
+    mesh.tri_material = wp.array([4, 7, 9], dtype=wp.int32)
+    cam = Camera([0.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0, 1, 0], 60.0, w, h, 0.5, 20.0)
+    proj = cam.projection()
+    rng = np.random.default_rng(2)
+    tri = rng.integers(-1, 3, (h, w))
+    depth01 = rng.uniform(0.2, 0.99, (h, w)).astype(np.float32)
+    keys = (depth01.view(np.uint32).astype(np.int64) << 32) | np.maximum(tri, 0)
+    keys[tri < 0] = raster.EMPTY_KEY
+    keys = wp.array(keys, dtype=wp.int64)
+    ndc, tri_id = wp.empty((1, h, w), dtype=float), wp.empty((1, h, w), dtype=wp.int32)
+    wp.launch(raster.resolve_keys_kernel, dim=h, inputs=[keys, 0, ndc, tri_id, 0])
+    params, p22, p23 = cam.params(), float(proj[2, 2]), float(proj[2, 3])
+    planes = wp.empty(3, dtype=wp.vec4)
+    wp.launch(gbuffer.triangle_planes_kernel, dim=1, inputs=[mesh, params.position, planes, 4, 0])
+    assert np.array_equal(planes.numpy()[1], np.zeros(4, np.float32))  # degenerate: full store_hit
+    xn = wp.empty(w, dtype=float)
+    wp.launch(gbuffer.column_factors_kernel, dim=w, inputs=[params, xn])
+    a, b = gbuffer._alloc(h, w, "cpu"), gbuffer._alloc(h, w, "cpu")
+    wp.launch(gbuffer.gbuffer_from_keys_kernel, dim=h, inputs=[params, keys, p22, p23, mesh, planes, xn, a.arrays(), 0])
+    wp.launch(gbuffer.gbuffer_from_raster_kernel, dim=(h, w),
+              inputs=[params, tri_id[0], ndc[0], p22, p23, mesh, b.arrays(), 0])
+    ga, gb = a.numpy(), b.numpy()
+    for k in ga:
+        assert np.array_equal(ga[k].view(np.uint32), gb[k].view(np.uint32)), k
+    assert set(np.unique(ga["material"])) == {-1, 4, 7, 9}
+    grazing = (tri[:, w // 2] == 2)
+    assert grazing.any() and (ga["distance"][grazing, w // 2] > 0).all()  # the rasterized depth, not the plane's 0

@@ -570,6 +570,147 @@ def test_linearize_depth_round_trip(kind):
         raster.linearize_depth(z, np.ones((4, 4)))
 
 
+# ---- the row-span scan and the parallel splits ------------------------------------------------------------
+
+
+@wp.kernel
+def _scan_rows_kernel(a: wp.array(dtype=wp.vec3d), b: wp.array(dtype=wp.vec3d), c: wp.array(dtype=wp.vec3d),
+                      rows: wp.array(dtype=wp.vec2i), p: raster.RasterParams, keys: wp.array3d(dtype=wp.int64),
+                      counts: wp.array3d(dtype=wp.int32)):
+    k = wp.tid()
+    raster.rasterize_screen_triangle_rows(a[k], b[k], c[k], k, p, rows[k][0], rows[k][1], keys[k], keys[k], counts[k])
+
+
+@wp.kernel
+def _every_centre_kernel(a: wp.array(dtype=wp.vec3d), b: wp.array(dtype=wp.vec3d), c: wp.array(dtype=wp.vec3d),
+                         rows: wp.array(dtype=wp.vec2i), p: raster.RasterParams, keys: wp.array3d(dtype=wp.int64),
+                         counts: wp.array3d(dtype=wp.int32)):
+    """Reference: test every pixel centre of the image (the pre-span scan), one thread per (triangle, pixel)."""
+    k, j, i = wp.tid()
+    if j < rows[k][0] or j > rows[k][1]:
+        return
+    va = a[k]
+    flip = raster.edge_function(wp.int64(va[0]), wp.int64(va[1]), wp.int64(b[k][0]), wp.int64(b[k][1]),
+                                wp.int64(c[k][0]), wp.int64(c[k][1])) < wp.int64(0)
+    if not flip and p.cull_backfaces != 0:
+        return
+    vb = wp.where(flip, c[k], b[k])  # orient to positive area
+    vc = wp.where(flip, b[k], c[k])
+    x0, y0, z0 = wp.int64(va[0]), wp.int64(va[1]), va[2]
+    x1, y1, z1 = wp.int64(vb[0]), wp.int64(vb[1]), vb[2]
+    x2, y2, z2 = wp.int64(vc[0]), wp.int64(vc[1]), vc[2]
+    area = raster.edge_function(x0, y0, x1, y1, x2, y2)
+    if area == wp.int64(0):
+        return
+    b0 = raster.top_left_bias(x1, y1, x2, y2)
+    b1 = raster.top_left_bias(x2, y2, x0, y0)
+    b2 = raster.top_left_bias(x0, y0, x1, y1)
+    px = (wp.int64(i) << wp.int64(10)) + wp.int64(512)
+    py = (wp.int64(j) << wp.int64(10)) + wp.int64(512)
+    e0 = raster.edge_function(x1, y1, x2, y2, px, py) + b0
+    e1 = raster.edge_function(x2, y2, x0, y0, px, py) + b1
+    e2 = raster.edge_function(x0, y0, x1, y1, px, py) + b2
+    if (e0 | e1 | e2) >= wp.int64(0):
+        z = float((wp.float64(e0 - b0) * z0 + wp.float64(e1 - b1) * z1 + wp.float64(e2 - b2) * z2) / wp.float64(area))
+        if p.clamp_depth != 0 or z <= 1.0:
+            counts[k, j, i] = 1
+            keys[k, j, i] = raster.depth_key(wp.clamp(z, -1.0, 1.0), k)
+
+
+def _bezout(a: int, b: int) -> tuple[int, int]:
+    """(x, y) with a x + b y = gcd(a, b) (extended Euclid)."""
+    x0, y0, x1, y1 = 1, 0, 0, 1
+    while b:
+        q = a // b
+        a, b, x0, x1, y0, y1 = b, a - q * b, x1, x0 - q * x1, y1, y0 - q * y1
+    return (x0, y0) if a > 0 else (-x0, -y0)
+
+
+@pytest.mark.parametrize("cull", [0, 1])
+def test_row_spans_match_testing_every_centre(cull):
+    # wide, tiny, sliver and pixel-aligned triangles (both windings), partly outside a 53 x 21 image, random row
+    # ranges: the span scan gives the fragments, depths and keys of testing every centre
+    rng = np.random.default_rng(5)
+    n, w, h = 1200, 53, 21
+    scale = rng.choice([2.0, 8.0, 40.0, 120.0], n)[:, None, None]
+    pts = rng.uniform([-10, -6], [w + 10, h + 6], (n, 1, 2)) + rng.normal(0, 1, (n, 3, 2)) * scale
+    pts[::4, 2] = pts[::4, 0] + 1e-3 * (pts[::4, 1] - pts[::4, 0]) * rng.uniform(-1, 1, (n // 4 + (n % 4 > 0), 1))
+    pts[1::5] = np.round(pts[1::5]) + 0.5  # corners on pixel centres: top-left ties
+    pts[2::5] = np.round(pts[2::5]) + 0.5
+    fixed = np.round(pts * 1024.0)
+    fixed[2::5] += rng.integers(-1, 2, fixed[2::5].shape)  # centres nudged by 1/1024: edge functions of +-1 at centres
+    for k in range(n - 200, n):  # a centre exactly next to a right edge (edge function 1): the last pixel of a span
+        dx, dy = 0, 0
+        while np.gcd(dx, dy) != 1:
+            dx, dy = int(rng.integers(-40000, 40000)), int(rng.integers(1, 4000))
+        x, y = _bezout(dx, dy)  # dx x + dy y = 1
+        u, v = (-y, x) if x > 0 else (dx - y, x + dy)  # dx v - dy u = 1, 0 < v <= dy: centre between a and b
+        centre = 1024 * rng.integers([0, 0], [w, h]) + 512
+        a = centre - [u, v]
+        c = centre + max(1, round(30 * 1024 / np.hypot(dx, dy))) * np.array([-dy, dx])
+        fixed[k] = [a, a + [dx, dy], c]
+    z = rng.uniform(-1.3, 1.3, (n, 3, 1))
+    tri = np.concatenate([fixed, z], axis=2)
+    r0 = rng.integers(-3, h, n)
+    rows = np.stack([r0, r0 + rng.integers(0, h + 3, n)], 1).astype(np.int32)
+    args = [wp.array(np.ascontiguousarray(tri[:, v]), dtype=wp.vec3d) for v in range(3)]
+    args.append(wp.array(rows, dtype=wp.vec2i))
+    for clamp, count_mode in ((0, 0), (1, 0), (0, 1)):
+        p = raster.RasterParams()
+        p.width, p.height, p.guard_x, p.guard_y = w, h, 1.0, 1.0
+        p.clip_near, p.clamp_depth, p.cull_backfaces, p.count_mode, p.peel = 1, clamp, cull, count_mode, 0
+        out = []
+        for kernel, dim in ((_scan_rows_kernel, n), (_every_centre_kernel, (n, h, w))):
+            keys = wp.full((n, h, w), raster.EMPTY_KEY, dtype=wp.int64)
+            counts = wp.zeros((n, h, w), dtype=wp.int32)
+            wp.launch(kernel, dim=dim, inputs=[*args, p, keys, counts])
+            out.append(counts.numpy() if count_mode else keys.numpy())
+        assert np.array_equal(out[0], out[1])
+        assert (out[0] != (0 if count_mode else raster.EMPTY_KEY)).sum() > 10000
+
+
+@pytest.mark.parametrize("kind", ["perspective", "orthographic"])
+def test_bands_and_triangle_chunks_give_identical_results(kind, monkeypatch):
+    v, f = random_scene(3)
+    pv, pf = grid_plane(40, 30, 3.0, np.random.default_rng(4))  # 2400 thin triangles crossing many bands
+    v, f = np.concatenate([v, pv]), np.concatenate([f, pf + len(v)])
+    w, h = 83, 61
+    if kind == "perspective":
+        cam = Camera([0.4, 2.5, 4.0], [0, 0, 0], [0, 1, 0], 60.0, w, h, 0.5, 9.0)
+        proj, view = cam.projection(), cam.view()
+    else:
+        proj = orthographic_matrix(-3.0, 3.0, -2.4, 2.4, 1.0, 7.0)
+        view = view_matrix([0.3, 4.0, 2.0], *look_at_basis([0.3, 4.0, 2.0], [0, 0, 0], [0, 1, 0]))
+    vp = proj @ view
+    opts = [{"layers": 3}, {"layers": 2, "cull_backfaces": True}, {"clamp_depth": True}]
+    ref = [raster.rasterize(v, f, vp, w, h, threads=1, **o) for o in opts]
+    ref_counts = raster.coverage_count(v, f, vp, w, h, threads=1)
+    lin_ref = raster.linearize_depth(ref[2].ndc_depth[0], proj).astype(np.float32)
+    lin_ref[ref[2].tri_id[0] < 0] = np.inf
+    monkeypatch.setattr(raster, "MIN_BAND_ROWS", 1)
+    monkeypatch.setattr(raster, "MIN_BAND_PIXELS", 1)
+    monkeypatch.setattr(raster, "MIN_PIECE_TRIANGLES", 100)
+    for per_pixel in (0.0, 1e9):  # chunks of triangles, row bands
+        monkeypatch.setattr(raster, "BANDED_TRIANGLES_PER_PIXEL", per_pixel)
+        s = raster._Setup(v, f, vp, w, h, False, False, None, 2)
+        assert s.banded == (per_pixel > 0) and len(s.band_list) == 16 and len(s.pieces) == (1 if s.banded else 2)
+        for threads in (2, 3):
+            for o, r in zip(opts, ref, strict=True):
+                assert np.array_equal(raster.rasterize(v, f, vp, w, h, threads=threads, **o).keys.numpy(),
+                                      r.keys.numpy())
+            assert np.array_equal(raster.coverage_count(v, f, vp, w, h, threads=threads), ref_counts)
+            seen = np.zeros(h, int)
+
+            def on_rows(keys, r0, r1, seen=seen):  # called once per band, with the band's rows final
+                seen[r0:r1] += 1
+                assert np.array_equal(keys.numpy()[r0:r1], ref[2].keys.numpy()[0, r0:r1])
+
+            keys = raster.rasterize_keys(v, f, vp, w, h, on_rows=on_rows, clamp_depth=True, threads=threads)
+            assert np.array_equal(keys.numpy(), ref[2].keys.numpy()[0]) and (seen == 1).all()
+            lin = raster.rasterize_linear_depth(v, f, vp, proj, w, h, clamp_depth=True, threads=threads)
+            assert np.array_equal(lin.view(np.uint32), lin_ref.view(np.uint32))
+
+
 # ---- input validation ----------------------------------------------------------------------------------------------
 
 

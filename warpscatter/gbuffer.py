@@ -7,6 +7,12 @@ Two sources with one output format:
   triangle's plane (so rasterized and ray-cast G-buffers agree to float precision off silhouettes).
 * ``raycast`` — one BVH ray per pixel (``wp.mesh_query_ray``), the exact reference.
 
+The raster G-buffer is fused with the rasterizer: :func:`warpscatter.raster.rasterize_keys` calls back once
+a band of rows is final and :func:`gbuffer_from_keys_kernel` turns its packed keys into G-buffer rows at
+once, from each triangle's plane computed once per call (:func:`triangle_planes_kernel`) and the pixel rays
+split into per-column and per-row factors (:func:`~.scene.camera.pixel_ray_factors`). The result is bitwise that of
+:func:`store_hit` per pixel on the resolved raster (:func:`gbuffer_from_raster_kernel`, kept as the reference).
+
 ``distance`` is the ``s`` of the scattering integral: the camera hit distance, or the far-plane
 distance far / dot(direction, forward) where nothing is hit (hits beyond the far plane count as
 misses, as the rasterizer clips them). ``normal`` is the unit geometric normal turned to face the
@@ -20,10 +26,23 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .parallel import launch_rows
-from .raster import ndc_to_view_depth, rasterize
+from .parallel import launch_rows, thread_count
+from .raster import (
+    TRIANGLES_PER_CPU_THREAD,
+    empty_array,
+    key_ndc_depth,
+    key_triangle,
+    ndc_to_view_depth,
+    rasterize_keys,
+)
 from .scene import MeshArrays
-from .scene.camera import CameraParams, far_plane_distance, pixel_ray_direction
+from .scene.camera import (
+    CameraParams,
+    factors_ray_direction,
+    far_plane_distance,
+    pixel_ray_direction,
+    pixel_ray_factors,
+)
 from .wpinit import default_device, module_options
 
 module_options()
@@ -117,6 +136,82 @@ def gbuffer_from_raster_kernel(
 
 
 @wp.kernel
+def triangle_planes_kernel(mesh: MeshArrays, origin: wp.vec3, planes: wp.array(dtype=wp.vec4), batch: int, offset: int):
+    """Per triangle (unit normal n, dot(n, v0 - origin)) as :func:`facing_normal` and :func:`hit_record` compute
+    them before turning n to the camera; (0, 0, 0, 0) where the normal's length is not positive (such triangles,
+    and any whose stored n is 0, take the full :func:`hit_record`). Thread ``tid + offset`` handles triangles
+    [batch k, batch (k + 1)), k = tid + offset."""
+    first = (wp.tid() + offset) * batch
+    for tri in range(first, wp.min(first + batch, planes.shape[0])):
+        v0 = mesh.vertices[mesh.triangles[tri, 0]]
+        v1 = mesh.vertices[mesh.triangles[tri, 1]]
+        v2 = mesh.vertices[mesh.triangles[tri, 2]]
+        n = wp.cross(v1 - v0, v2 - v0)
+        ln = wp.length(n)
+        plane = wp.vec4(0.0, 0.0, 0.0, 0.0)
+        if ln > 0.0:
+            n = n / ln
+            plane = wp.vec4(n[0], n[1], n[2], wp.dot(n, v0 - origin))
+        planes[tri] = plane
+
+
+@wp.kernel
+def column_factors_kernel(cam: CameraParams, xn: wp.array(dtype=float)):
+    """``xn[i]``: the :func:`pixel_ray_factors` x factor of pixel column i."""
+    i = wp.tid()
+    xn[i] = pixel_ray_factors(cam, float(i) + 0.5, 0.5)[0]
+
+
+@wp.kernel
+def gbuffer_from_keys_kernel(
+    cam: CameraParams,
+    keys: wp.array2d(dtype=wp.int64),
+    p22: float,  # projection entries for the grazing-ray fallback (see raster.ndc_to_view_depth)
+    p23: float,
+    mesh: MeshArrays,
+    planes: wp.array(dtype=wp.vec4),
+    xn: wp.array(dtype=float),
+    out: GBufferArrays,
+    offset: int,
+):
+    """Row ``tid + offset`` of the G-buffer from the rasterizer's packed keys: bitwise :func:`store_hit` with the
+    triangle and NDC depth of each key, the triangle's plane taken from ``planes`` (triangle_planes_kernel) and the
+    pixel rays from the column factors ``xn`` (column_factors_kernel) and the row's factor."""
+    j = wp.tid() + offset
+    yn = pixel_ray_factors(cam, 0.5, float(j) + 0.5)[1]
+    zero = wp.vec3(0.0, 0.0, 0.0)
+    for i in range(keys.shape[1]):
+        key = keys[j, i]
+        tri = key_triangle(key)
+        d = factors_ray_direction(cam, xn[i], yn)
+        t_far = far_plane_distance(cam, d)
+        if tri < 0:
+            out.distance[j, i] = t_far
+            out.normal[j, i] = zero
+            out.material[j, i] = -1
+            continue
+        pl = planes[tri]
+        n = wp.vec3(pl[0], pl[1], pl[2])
+        if n == zero:
+            t_raster = ndc_to_view_depth(key_ndc_depth(key), p22, p23, -1.0, 0.0) / wp.dot(d, cam.forward)
+            store_hit(out, j, i, cam.position, d, t_far, tri, t_raster, mesh)
+            continue
+        c = pl[3]
+        if wp.dot(n, d) > 0.0:
+            n = -n
+            c = -c
+        denom = wp.dot(n, d)
+        t = float(0.0)
+        if denom < -1.0e-4:
+            t = c / denom
+        else:
+            t = ndc_to_view_depth(key_ndc_depth(key), p22, p23, -1.0, 0.0) / wp.dot(d, cam.forward)
+        out.distance[j, i] = wp.clamp(t, 0.0, t_far)
+        out.normal[j, i] = n
+        out.material[j, i] = mesh.tri_material[tri]
+
+
+@wp.kernel
 def gbuffer_raycast_kernel(
     cam: CameraParams,
     bvh: wp.uint64,
@@ -136,26 +231,45 @@ def gbuffer_raycast_kernel(
 
 
 def _alloc(h, w, device) -> GBuffer:
-    return GBuffer(wp.empty((h, w), dtype=wp.float32, device=device), wp.empty((h, w), dtype=wp.vec3, device=device),
-                   wp.empty((h, w), dtype=wp.int32, device=device))
+    return GBuffer(empty_array((h, w), wp.float32, device), empty_array((h, w), wp.vec3, device),
+                   empty_array((h, w), wp.int32, device))
 
 
-def gbuffer_raster(scene, geometry, device=None) -> GBuffer:
+def gbuffer_raster(scene, geometry, device=None, threads: int | None = None) -> GBuffer:
     """G-buffer from the rasterized camera view (see module docstring).
+
+    The G-buffer rows are written band by band as soon as the rasterizer has resolved them (see
+    :func:`warpscatter.raster.rasterize_keys`), from each triangle's plane computed once.
 
     Args:
         scene: the :class:`~warpscatter.scene.Scene`.
         geometry: :class:`~warpscatter.scene.DeviceGeometry` (vertices, triangles, materials on device).
+        threads: CPU worker threads (default :func:`warpscatter.parallel.thread_count`).
     """
 
     device = default_device(device)
+    threads = threads or thread_count()
     cam = scene.camera
     proj = cam.projection()
-    r = rasterize(scene.vertices, scene.triangles, proj @ cam.view(), cam.width, cam.height, device=device)
+    mesh = geometry.arrays()
+    n = mesh.triangles.shape[0]
+    batch = TRIANGLES_PER_CPU_THREAD if wp.get_device(device).is_cpu else 1
+    params = cam.params()
+    planes = wp.empty(n, dtype=wp.vec4, device=device)
+    launch_rows(triangle_planes_kernel, (n + batch - 1) // batch, [mesh, params.position, planes, batch],
+                device=device, threads=threads, min_chunk=64)
+    xn = wp.empty(cam.width, dtype=float, device=device)
+    wp.launch(column_factors_kernel, dim=cam.width, inputs=[params, xn], device=device)
     out = _alloc(cam.height, cam.width, device)
-    launch_rows(gbuffer_from_raster_kernel, (cam.height, cam.width),
-                [cam.params(), r.device_tri_id[0], r.device_ndc_depth[0], float(proj[2, 2]), float(proj[2, 3]),
-                 geometry.arrays(), out.arrays()], device=device)
+    arrays = out.arrays()
+    p22, p23 = float(proj[2, 2]), float(proj[2, 3])
+
+    def rows(keys, r0, r1):
+        wp.launch(gbuffer_from_keys_kernel, dim=r1 - r0,
+                  inputs=[params, keys, p22, p23, mesh, planes, xn, arrays, r0], device=device)
+
+    rasterize_keys(scene.vertices, scene.triangles, proj @ cam.view(), cam.width, cam.height, on_rows=rows,
+                   device=device, threads=threads)
     return out
 
 

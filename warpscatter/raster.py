@@ -4,8 +4,10 @@ The rasterizer is exact in the sense of GPU hardware rasterizers: fixed-point sc
 int64 edge functions and the top-left fill rule hit every pixel centre covered by a closed
 tessellated surface exactly once, and the z-buffer resolves packed (depth, triangle index) int64
 keys with ``wp.atomic_min`` (see :mod:`warpscatter.raster_funcs` for these device building blocks).
-This module holds the kernels and the host entry points :func:`rasterize` and
-:func:`coverage_count`; input checks live in :mod:`warpscatter.raster_inputs` and the numpy depth
+This module holds the kernels and the host entry points :func:`rasterize`, :func:`rasterize_keys`
+(keys only, with a per-band callback for passes fused with the scan, e.g. the G-buffer),
+:func:`rasterize_linear_depth` (shadow maps) and :func:`coverage_count`; input checks live in
+:mod:`warpscatter.raster_inputs` and the numpy depth
 utilities (:func:`unproject`, :func:`linearize_depth`, :func:`pixel_center_ndc_grid`) in
 :mod:`warpscatter.raster_depth`. The names of those modules are re-exported here.
 
@@ -28,9 +30,25 @@ behind the centre of projection is still cut away while geometry in front of the
 along x with the camera as centre of projection) needs exactly this: casters between the light and
 the camera frustum stay in the map.
 
-Parallelism: one CPU launch runs on one core, so the triangles are split into contiguous chunks,
-one per thread, each rasterizing into a private key buffer; the buffers are merged with a minimum
-over the packed keys, which is exact. On CUDA one launch with real atomics does the work.
+Parallelism: one CPU launch runs on one core, and CPU atomics are not atomic across concurrent launches,
+so every concurrent launch owns the keys it writes. Two splits, chosen per call (:class:`_Setup`):
+
+* Row bands, for scenes with few triangles per pixel (<= :data:`BANDED_TRIANGLES_PER_PIXEL`): the image is
+  cut into horizontal bands of rows (:data:`BANDS_PER_THREAD` per thread). A triangle pass records the
+  rows each triangle may cover and bins the triangles to the bands they overlap (both split into chunks
+  of triangles across threads, each chunk counting and writing its own slots). Each CPU task then owns
+  one band: it clears the band's keys, scans the band's triangles restricted to its rows, and resolves
+  them at once (all depth layers: peeling a texel reads only that texel's previous layer). A large
+  triangle (a ground plane covering half the screen) is thus shared out over the bands.
+* Chunks of triangles, for dense meshes: each chunk is scanned into its own key buffer (the first into
+  the result); the buffers are merged by a minimum over the packed keys and resolved, band by band in
+  parallel. One thread (or CUDA, where one launch with real atomics does the work) scans all triangles
+  into the result directly.
+
+Both give bitwise the result of a single scan: the minimum over packed keys, the keys strictly behind the
+previous layer's, and the fragment counts do not depend on the order of the fragments. Within a
+triangle, each row is scanned over the exact span of centres its edge functions accept
+(:func:`rasterize_screen_triangle_rows`), not over the whole bounding box.
 """
 
 from __future__ import annotations
@@ -52,28 +70,50 @@ from .raster_funcs import (
     ProjectedVertices,
     RasterParams,
     ScreenPolygon,
+    bbox_rows,
     clip_outcode,
     clip_polygon_plane,
     clip_position,
+    clip_triangle,
     depth_key,
     edge_function,
+    edge_span,
     key_ndc_depth,
     key_triangle,
     ndc_to_view_depth,
     pixel_center_ndc,
+    polygon_rows,
     project_vertex,
     rasterize_screen_triangle,
+    rasterize_screen_triangle_rows,
     rasterize_triangle,
+    rasterize_triangle_rows,
     snap_to_screen,
     top_left_bias,
+    triangle_crossing,
+    triangle_rows,
 )
 from .raster_inputs import as_points, as_triangles, check_matrix, check_size, is_affine
 from .wpinit import default_device, module_options
 
 module_options()
 
+_EMPTY_KEY = wp.constant(wp.int64(EMPTY_KEY))
+
 #: Triangles (or vertices) per Warp thread on the CPU (amortises the per-thread cost of a CPU launch).
 TRIANGLES_PER_CPU_THREAD = 64
+#: Row bands per CPU thread (more bands than threads even out unequal band costs).
+BANDS_PER_THREAD = 8
+#: Fewest image rows in a band.
+MIN_BAND_ROWS = 16
+#: Fewest triangles in a chunk scanned into its own key buffer (when not banded).
+MIN_PIECE_TRIANGLES = 2048
+#: Fewest pixels in a band (each band costs a few launches: small images get few bands).
+MIN_BAND_PIXELS = 32768
+#: Up to this many triangles per pixel, CPU threads split the image into row bands (else the triangles, each chunk
+#: into its own key buffer, merged afterwards): banding pays a triangle pass and binning per triangle, but shares out
+#: large triangles and needs no merge.
+BANDED_TRIANGLES_PER_PIXEL = 0.125
 
 
 # ---- kernels ---------------------------------------------------------------------------------------
@@ -117,6 +157,77 @@ def rasterize_kernel(
         rasterize_triangle(t, verts, triangles, params, prev_keys, keys, counts)
 
 
+@wp.struct
+class TriangleBins:
+    """Triangles binned to horizontal bands of image rows (see :func:`triangle_rows_kernel`)."""
+
+    rows: wp.array(dtype=wp.vec2i)  # per triangle: image rows (first, last) it may cover, (0, -1) for none
+    band_of_row: wp.array(dtype=wp.int32)  # band index of each image row
+    start: wp.array(dtype=wp.int32)  # bands + 1 offsets: band b holds tris[start[b]:start[b + 1]]
+    tris: wp.array(dtype=wp.int32)  # triangle indices, band by band, ascending within a band
+
+
+@wp.kernel
+def triangle_rows_kernel(
+    verts: ProjectedVertices,
+    triangles: wp.array2d(dtype=wp.int32),
+    params: RasterParams,
+    bins: TriangleBins,
+    counts: wp.array2d(dtype=wp.int32),
+    batch: int,
+    chunk: int,
+    offset: int,
+):
+    """Triangle pass: ``bins.rows[t]`` = the image rows (first, last) triangle ``t`` may cover, (0, -1) for none
+    (:func:`triangle_rows`), and ``counts[chunk, b]`` += the number of these triangles overlapping band b.
+    Thread ``tid + offset`` handles triangles [batch k, batch (k + 1)), k = tid + offset; concurrent launches
+    take distinct ``chunk`` rows of ``counts``."""
+    first = (wp.tid() + offset) * batch
+    for t in range(first, wp.min(first + batch, triangles.shape[0])):
+        r = triangle_rows(t, verts, triangles, params)
+        bins.rows[t] = r
+        if r[0] <= r[1]:
+            for b in range(bins.band_of_row[r[0]], bins.band_of_row[r[1]] + 1):
+                counts[chunk, b] += 1
+
+
+@wp.kernel
+def bin_triangles_kernel(bins: TriangleBins, cursor: wp.array2d(dtype=wp.int32), batch: int, chunk: int, offset: int):
+    """Write the triangles [batch k, batch (k + 1)), k = tid + offset, to the bins of the bands they overlap:
+    ``cursor[chunk, b]`` is the next free slot of band b for this chunk (exclusive prefix sums of the counts of
+    :func:`triangle_rows_kernel`, so the chunks fill disjoint slots in ascending triangle order)."""
+    first = (wp.tid() + offset) * batch
+    for t in range(first, wp.min(first + batch, bins.rows.shape[0])):
+        r = bins.rows[t]
+        if r[0] <= r[1]:
+            for b in range(bins.band_of_row[r[0]], bins.band_of_row[r[1]] + 1):
+                k = cursor[chunk, b]
+                bins.tris[k] = t
+                cursor[chunk, b] = k + 1
+
+
+@wp.kernel
+def rasterize_band_kernel(
+    verts: ProjectedVertices,
+    triangles: wp.array2d(dtype=wp.int32),
+    params: RasterParams,
+    bins: TriangleBins,
+    band: wp.vec3i,
+    prev_keys: wp.array2d(dtype=wp.int64),
+    keys: wp.array2d(dtype=wp.int64),
+    counts: wp.array2d(dtype=wp.int32),
+    batch: int,
+):
+    """The triangles of bin ``band[2]``, scanned over the image rows [band[0], band[1]] only (the band's rows);
+    thread ``tid`` takes ``batch`` of them."""
+    first = bins.start[band[2]] + wp.tid() * batch
+    for k in range(first, wp.min(first + batch, bins.start[band[2] + 1])):
+        t = bins.tris[k]
+        r = bins.rows[t]
+        rasterize_triangle_rows(t, verts, triangles, params, wp.max(r[0], band[0]), wp.min(r[1], band[1]), prev_keys,
+                                keys, counts)
+
+
 @wp.kernel
 def resolve_keys_kernel(
     keys: wp.array2d(dtype=wp.int64),
@@ -131,6 +242,30 @@ def resolve_keys_kernel(
         key = keys[j, i]
         ndc_depth[layer, j, i] = key_ndc_depth(key)
         tri_id[layer, j, i] = key_triangle(key)
+
+
+@wp.kernel
+def linear_depth_kernel(
+    keys: wp.array2d(dtype=wp.int64),
+    p22: wp.float64,
+    p23: wp.float64,
+    p32: wp.float64,
+    p33: wp.float64,
+    depth: wp.array2d(dtype=wp.float32),
+    offset: int,
+):
+    """Packed keys -> float32 view-space distance (+inf where empty), one row per thread: the float64 formula of
+    :func:`linearize_depth` on the NDC depth of each key, rounded to float32."""
+    j = wp.tid() + offset
+    for i in range(keys.shape[1]):
+        key = keys[j, i]
+        out = wp.inf
+        if key != _EMPTY_KEY:
+            z = wp.float64(key_ndc_depth(key))
+            d = -(p23 - p33 * z) / (p32 * z - p22)
+            if wp.isfinite(d):
+                out = wp.float32(d)
+        depth[j, i] = out
 
 
 # ---- host side -------------------------------------------------------------------------------------
@@ -178,6 +313,28 @@ class RasterResult:
         )
 
 
+#: numpy layout (scalar type, trailing shape) of the Warp dtypes :func:`empty_array` backs with numpy memory
+_NUMPY_LAYOUT = {wp.int64: (np.int64, ()), wp.int32: (np.int32, ()), wp.float32: (np.float32, ()),
+                 wp.vec3: (np.float32, (3,)), wp.vec4: (np.float32, (4,))}
+
+
+def empty_array(shape, dtype, device: str, fill=None) -> wp.array:
+    """``wp.empty`` (or ``wp.full`` with ``fill``) that on the CPU takes its memory from numpy.
+
+    numpy asks Linux for transparent huge pages on large allocations (``madvise``), so first touches of a fresh
+    image-sized buffer fault 2 MiB pages instead of 4 KiB ones: a 1920x1080 G-buffer plus its key buffer is
+    about 14k page faults from ``wp.empty`` when the C allocator has given the memory back to the system
+    between calls (measured: tens of ms on the shared 2-core machine), a few dozen this way.
+    """
+    layout = _NUMPY_LAYOUT.get(dtype)
+    if layout is None or not wp.get_device(device).is_cpu:
+        return wp.empty(shape, dtype=dtype, device=device) if fill is None else wp.full(shape, fill, dtype=dtype,
+                                                                                        device=device)
+    shape = (shape,) if isinstance(shape, int) else tuple(shape)
+    a = np.empty(shape + layout[1], layout[0]) if fill is None else np.full(shape + layout[1], fill, layout[0])
+    return wp.array(a, dtype=dtype, device=device, copy=False)
+
+
 def project_vertices(
     points: wp.array,
     view_proj: np.ndarray,
@@ -198,13 +355,15 @@ def project_vertices(
     parallel.launch_rows(
         project_vertices_kernel, (n + batch - 1) // batch,
         [points, wp.mat44d(*view_proj.ravel()), width, height, guard_x, guard_y, batch, verts],
-        device, threads=threads, min_chunk=1024,
+        device, threads=threads, min_chunk=128,
     )
     return verts
 
 
 class _Setup:
-    """Everything a rasterization pass needs, prepared once per call."""
+    """Everything a rasterization pass needs, prepared once per call: checked inputs, the vertex pass, and the
+    split of the work across CPU threads (see the module docstring): row bands with binned triangles
+    (:attr:`banded`), or chunks of triangles into private key buffers (:attr:`pieces`)."""
 
     def __init__(self, vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads,
                  clip_near=None):
@@ -223,58 +382,161 @@ class _Setup:
         self.guard_x = float(2.0 * GUARD_BAND_PIXELS / self.width - 1.0)
         self.guard_y = float(2.0 * GUARD_BAND_PIXELS / self.height - 1.0)
         self.threads = threads or parallel.thread_count()
+        self.is_cpu = wp.get_device(self.device).is_cpu
+        self.batch = TRIANGLES_PER_CPU_THREAD if self.is_cpu else 1
         self.verts = project_vertices(
             points, self.view_proj, self.width, self.height, self.guard_x, self.guard_y, self.device, self.threads
         )
         self.dummy_keys = wp.zeros((1, 1), dtype=wp.int64, device=self.device)
         self.dummy_counts = wp.zeros((1, 1), dtype=wp.int32, device=self.device)
-        self.is_cpu = wp.get_device(self.device).is_cpu
-
-    def pieces(self) -> list[tuple[int, int]]:
+        self.dummy_ints = wp.zeros(1, dtype=wp.int32, device=self.device)
         n = self.tris.shape[0]
-        if not self.is_cpu or self.threads <= 1:
-            return [(0, n)] if n else []
-        return parallel.chunks(n, self.threads, min_chunk=2048) if n else []
+        multi = self.is_cpu and self.threads > 1
+        #: row bands [start, stop): the CPU tasks of the scan (banded) or of the merge and resolve (else)
+        self.band_list = [(0, self.height)]
+        if multi:
+            parts = min(BANDS_PER_THREAD * self.threads, self.height // MIN_BAND_ROWS,
+                        self.width * self.height // MIN_BAND_PIXELS)
+            self.band_list = parallel.chunks(self.height, max(1, parts))
+        self.banded = len(self.band_list) > 1 and n <= BANDED_TRIANGLES_PER_PIXEL * self.width * self.height
+        #: triangle ranges [start, stop) scanned into separate key buffers (not banded)
+        self.pieces = [(0, n)]
+        if self.banded:
+            self._bin()
+        elif multi:
+            self.pieces = parallel.chunks(n, self.threads, min_chunk=MIN_PIECE_TRIANGLES) or [(0, 0)]
+        wp.load_module(rasterize_kernel.module, device=self.device)
 
-    def launch(self, piece, prev_keys, keys, counts, count_mode: int, peel: int) -> None:
-        """Rasterize triangles [start, stop) of ``piece`` into ``keys`` (or ``counts``)."""
-        start, stop = piece
-        params = RasterParams()
-        params.width, params.height = self.width, self.height
-        params.guard_x, params.guard_y = self.guard_x, self.guard_y
-        params.clip_near, params.clamp_depth = self.clip_near, self.clamp_depth
-        params.cull_backfaces = self.cull_backfaces
-        params.count_mode, params.peel = count_mode, peel
-        batch = TRIANGLES_PER_CPU_THREAD if self.is_cpu else 1
+    def _bin(self) -> None:
+        """Triangle pass (the rows of each triangle) and binning of the triangles to the bands (each band then visits
+        only its own triangles), both split into chunks of triangles across threads."""
+        n = self.tris.shape[0]
+        bands = len(self.band_list)
+        bins = self.bins = TriangleBins()
+        bins.rows = wp.empty(n, dtype=wp.vec2i, device=self.device)
+        sizes = [stop - start for start, stop in self.band_list]
+        bins.band_of_row = wp.array(np.repeat(np.arange(bands, dtype=np.int32), sizes), device=self.device)
+        bins.start = bins.tris = self.dummy_ints
+        nbatch = (n + self.batch - 1) // self.batch
+        pieces = parallel.chunks(nbatch, self.threads * 4, min_chunk=16)
+        counts = wp.zeros((max(1, len(pieces)), bands), dtype=wp.int32, device=self.device)
+        params = self.params(0, 0)
+
+        def count(c):
+            start, stop = pieces[c]
+            wp.launch(triangle_rows_kernel, dim=stop - start,
+                      inputs=[self.verts, self.tris, params, bins, counts, self.batch, c, start], device=self.device)
+
+        parallel.run_parallel(count, list(range(len(pieces))), self.threads)
+        per_chunk = counts.numpy()
+        start = np.concatenate([[0], np.cumsum(per_chunk.sum(axis=0))]).astype(np.int32)
+        bins.start = wp.array(start, dtype=wp.int32, device=self.device)
+        bins.tris = wp.empty(max(1, int(start[-1])), dtype=wp.int32, device=self.device)
+        cursor = wp.array((start[:-1] + np.cumsum(per_chunk, axis=0) - per_chunk).astype(np.int32), dtype=wp.int32,
+                          device=self.device)
+
+        def scatter(c):
+            begin, stop = pieces[c]
+            wp.launch(bin_triangles_kernel, dim=stop - begin, inputs=[bins, cursor, self.batch, c, begin],
+                      device=self.device)
+
+        parallel.run_parallel(scatter, list(range(len(pieces))), self.threads)
+
+    def params(self, count_mode: int, peel: int) -> RasterParams:
+        p = RasterParams()
+        p.width, p.height = self.width, self.height
+        p.guard_x, p.guard_y = self.guard_x, self.guard_y
+        p.clip_near, p.clamp_depth = self.clip_near, self.clamp_depth
+        p.cull_backfaces = self.cull_backfaces
+        p.count_mode, p.peel = count_mode, peel
+        return p
+
+    def scan_band(self, band: int, params, prev_keys, keys, counts) -> None:
+        """Rasterize the triangles of band number ``band`` of :attr:`band_list` into its rows (banded)."""
+        start, stop = self.band_list[band]
+        n = int(self.bins.tris.shape[0])
+        batch = n if self.is_cpu else 1  # one CPU thread per band: no per-thread cost
         wp.launch(
-            rasterize_kernel,
-            dim=(stop - start + batch - 1) // batch,
-            inputs=[self.verts, self.tris, params, prev_keys, keys, counts, stop, batch, start],
+            rasterize_band_kernel, dim=(n + batch - 1) // batch,
+            inputs=[self.verts, self.tris, params, self.bins, wp.vec3i(start, stop - 1, band), prev_keys, keys, counts,
+                    batch],
             device=self.device,
         )
 
-    def key_pass(self, prev_keys, keys, private: list) -> None:
-        """Rasterize all triangles into ``keys`` (pre-filled with EMPTY_KEY); ``private``: spare buffers."""
-        pieces = self.pieces()
-        peel = 0 if prev_keys is None else 1
-        prev = self.dummy_keys if prev_keys is None else prev_keys
-        if len(pieces) <= 1:
-            for piece in pieces:
-                self.launch(piece, prev, keys, self.dummy_counts, 0, peel)
+    def scan_piece(self, piece: int, params, prev_keys, keys, counts) -> None:
+        """Rasterize the triangles of :attr:`pieces` number ``piece`` into the whole image (not banded)."""
+        start, stop = self.pieces[piece]
+        if stop > start:
+            wp.launch(
+                rasterize_kernel, dim=(stop - start + self.batch - 1) // self.batch,
+                inputs=[self.verts, self.tris, params, prev_keys, keys, counts, stop, self.batch, start],
+                device=self.device,
+            )
+
+    def render_keys(self, keys, on_rows=None) -> None:
+        """Rasterize all layers of ``keys`` (layers, H, W); ``on_rows(layer, start, stop)`` is called (from a worker
+        thread, bands concurrently) once rows [start, stop) of that layer are final."""
+        layers = keys.shape[0]
+        first = self.params(0, 0)
+        peel = self.params(0, 1)
+        bands = list(range(len(self.band_list)))
+        if self.banded:
+
+            def band_task(band):
+                r0, r1 = self.band_list[band]
+                for layer in range(layers):
+                    keys[layer][r0:r1].fill_(EMPTY_KEY)
+                    if layer == 0:
+                        self.scan_band(band, first, self.dummy_keys, keys[0], self.dummy_counts)
+                    else:
+                        self.scan_band(band, peel, keys[layer - 1], keys[layer], self.dummy_counts)
+                    if on_rows is not None:
+                        on_rows(layer, r0, r1)
+
+            parallel.run_parallel(band_task, bands, self.threads)
             return
-        wp.load_module(rasterize_kernel.module, device=self.device)
-        while len(private) < len(pieces) - 1:
-            private.append(wp.empty((self.height, self.width), dtype=wp.int64, device=self.device))
-        buffers = [keys, *private[: len(pieces) - 1]]
+        private = [empty_array((self.height, self.width), wp.int64, self.device) for _ in self.pieces[1:]]
+        for layer in range(layers):
+            self._render_layer(keys, layer, first if layer == 0 else peel, private, on_rows)
+
+    def _render_layer(self, keys, layer: int, params, private: list, on_rows) -> None:
+        """One layer, not banded: the pieces of triangles into ``keys[layer]`` and the ``private`` buffers in parallel,
+        then per band (in parallel) the merge of the buffers and ``on_rows``."""
+        buffers = [keys[layer], *private]
+        prev = self.dummy_keys if layer == 0 else keys[layer - 1]
+
+        def piece_task(k):
+            buffers[k].fill_(EMPTY_KEY)
+            self.scan_piece(k, params, prev, buffers[k], self.dummy_counts)
+
+        def merge_task(band):
+            r0, r1 = self.band_list[band]
+            if private:
+                out = keys[layer].numpy()[r0:r1]
+                for buf in private:
+                    np.minimum(out, buf.numpy()[r0:r1], out=out)  # exact: packed keys
+            if on_rows is not None:
+                on_rows(layer, r0, r1)
+
+        parallel.run_parallel(piece_task, list(range(len(self.pieces))), self.threads)
+        if private or on_rows is not None:
+            parallel.run_parallel(merge_task, list(range(len(self.band_list))), self.threads)
+
+    def render_counts(self) -> np.ndarray:
+        """(H, W) int32 fragment counts (count mode, no depth test)."""
+        params = self.params(1, 0)
+        if self.banded:
+            counts = empty_array((self.height, self.width), wp.int32, self.device, fill=0)
+            parallel.run_parallel(lambda band: self.scan_band(band, params, self.dummy_keys, self.dummy_keys, counts),
+                                  list(range(len(self.band_list))), self.threads)
+            return counts.numpy().copy()
+        buffers = [empty_array((self.height, self.width), wp.int32, self.device, fill=0) for _ in self.pieces]
+        parallel.run_parallel(lambda k: self.scan_piece(k, params, self.dummy_keys, self.dummy_keys, buffers[k]),
+                              list(range(len(self.pieces))), self.threads)
+        total = buffers[0].numpy().copy()
         for buf in buffers[1:]:
-            buf.fill_(EMPTY_KEY)
-        parallel.run_parallel(
-            lambda k: self.launch(pieces[k], prev, buffers[k], self.dummy_counts, 0, peel),
-            list(range(len(pieces))), self.threads,
-        )
-        out = keys.numpy()
-        for buf in buffers[1:]:
-            np.minimum(out, buf.numpy(), out=out)  # exact: packed keys
+            total += buf.numpy()
+        return total
 
 
 def rasterize(
@@ -324,16 +586,80 @@ def rasterize(
         raise ValueError(f"layers must be an integer >= 1, got {layers!r}")
     s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads, clip_near)
     h, w = s.height, s.width
-    keys = wp.full((int(layers), h, w), EMPTY_KEY, dtype=wp.int64, device=s.device)
-    ndc_depth = wp.empty((int(layers), h, w), dtype=wp.float32, device=s.device)
-    tri_id = wp.empty((int(layers), h, w), dtype=wp.int32, device=s.device)
-    private: list = []
-    for layer in range(int(layers)):
-        s.key_pass(keys[layer - 1] if layer > 0 else None, keys[layer], private)
-        parallel.launch_rows(
-            resolve_keys_kernel, h, [keys[layer], layer, ndc_depth, tri_id], s.device, threads=s.threads, min_chunk=64
-        )
+    keys = empty_array((int(layers), h, w), wp.int64, s.device)
+    ndc_depth = empty_array((int(layers), h, w), wp.float32, s.device)
+    tri_id = empty_array((int(layers), h, w), wp.int32, s.device)
+
+    def resolve(layer, r0, r1):
+        wp.launch(resolve_keys_kernel, dim=r1 - r0, inputs=[keys[layer], layer, ndc_depth, tri_id, r0], device=s.device)
+
+    s.render_keys(keys, resolve)
     return RasterResult.from_device(ndc_depth, tri_id, keys, s.view_proj)
+
+
+def rasterize_keys(
+    vertices,
+    triangles,
+    view_proj,
+    width: int,
+    height: int,
+    *,
+    on_rows=None,
+    clamp_depth: bool = False,
+    cull_backfaces: bool = False,
+    clip_near: bool | None = None,
+    device: str | None = None,
+    threads: int | None = None,
+) -> wp.array:
+    """One depth layer as packed keys (:func:`depth_key`; EMPTY_KEY where empty), for passes fused with the scan.
+
+    ``on_rows(keys, start, stop)``, if given, is called once the rows [start, stop) of ``keys`` are final, from
+    the worker thread that rasterized them (bands run concurrently; a launch there should only write its
+    rows). Other arguments as in :func:`rasterize`.
+
+    Returns:
+        (height, width) ``wp.array`` of int64 keys on the device.
+    """
+    s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads, clip_near)
+    keys = empty_array((1, s.height, s.width), wp.int64, s.device)
+    s.render_keys(keys, None if on_rows is None else (lambda layer, r0, r1: on_rows(keys[0], r0, r1)))
+    return keys[0]
+
+
+def rasterize_linear_depth(
+    vertices,
+    triangles,
+    view_proj,
+    projection,
+    width: int,
+    height: int,
+    *,
+    clamp_depth: bool = False,
+    device: str | None = None,
+    threads: int | None = None,
+) -> np.ndarray:
+    """Nearest view-space distance per texel, float32 (+inf where empty): bitwise
+    ``linearize_depth(rasterize(...).ndc_depth[0], projection).astype(np.float32)`` with empty texels at +inf,
+    resolved band by band with the scan.
+
+    Args:
+        projection: the 4x4 projection part of ``view_proj`` (see :func:`linearize_depth`).
+        Others as in :func:`rasterize`.
+    """
+    p = check_matrix(projection, "projection")
+    if np.any(p[2:, :2] != 0.0):
+        raise ValueError("projection: rows 2 and 3 must not depend on view-space x or y")
+    coeffs = [wp.float64(float(p[2, 2])), wp.float64(float(p[2, 3])), wp.float64(float(p[3, 2])),
+              wp.float64(float(p[3, 3]))]
+    w, h = check_size(width, height)
+    depth = empty_array((h, w), wp.float32, default_device(device))
+
+    def resolve(keys, r0, r1):
+        wp.launch(linear_depth_kernel, dim=r1 - r0, inputs=[keys, *coeffs, depth, r0], device=depth.device)
+
+    rasterize_keys(vertices, triangles, view_proj, w, h, on_rows=resolve, clamp_depth=clamp_depth, device=device,
+                   threads=threads)
+    return depth.numpy()
 
 
 def coverage_count(
@@ -358,23 +684,18 @@ def coverage_count(
         (height, width) int32 fragment counts, row 0 at the top.
     """
     s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads, clip_near)
-    pieces = s.pieces()
-    buffers = [wp.zeros((s.height, s.width), dtype=wp.int32, device=s.device) for _ in range(max(1, len(pieces)))]
-    wp.load_module(rasterize_kernel.module, device=s.device)
-    parallel.run_parallel(
-        lambda k: s.launch(pieces[k], s.dummy_keys, s.dummy_keys, buffers[k], 1, 0), list(range(len(pieces))),
-        s.threads,
-    )
-    total = buffers[0].numpy().copy()
-    for buf in buffers[1:]:
-        total += buf.numpy()
-    return total
+    return s.render_counts()
 
 
 __all__ = [
+    "BANDED_TRIANGLES_PER_PIXEL",
+    "BANDS_PER_THREAD",
     "EMPTY_KEY",
     "GUARD_BAND_PIXELS",
     "MAX_RESOLUTION",
+    "MIN_BAND_PIXELS",
+    "MIN_BAND_ROWS",
+    "MIN_PIECE_TRIANGLES",
     "SUBPIXEL_BITS",
     "TRIANGLES_PER_CPU_THREAD",
     "ClipPolygon",
@@ -383,32 +704,48 @@ __all__ = [
     "RasterParams",
     "RasterResult",
     "ScreenPolygon",
+    "TriangleBins",
     "as_points",
     "as_triangles",
+    "bin_triangles_kernel",
+    "bbox_rows",
     "check_matrix",
     "check_size",
     "clip_outcode",
     "clip_polygon_plane",
     "clip_position",
+    "clip_triangle",
     "coverage_count",
     "depth_key",
     "edge_function",
+    "empty_array",
+    "edge_span",
     "is_affine",
     "key_ndc_depth",
     "key_triangle",
+    "linear_depth_kernel",
     "linearize_depth",
     "ndc_to_view_depth",
     "pixel_center_ndc",
     "pixel_center_ndc_grid",
+    "polygon_rows",
     "project_vertex",
     "project_vertices",
     "project_vertices_kernel",
     "rasterize",
+    "rasterize_band_kernel",
     "rasterize_kernel",
+    "rasterize_keys",
+    "rasterize_linear_depth",
     "rasterize_screen_triangle",
+    "rasterize_screen_triangle_rows",
     "rasterize_triangle",
+    "rasterize_triangle_rows",
     "resolve_keys_kernel",
     "snap_to_screen",
     "top_left_bias",
+    "triangle_crossing",
+    "triangle_rows",
+    "triangle_rows_kernel",
     "unproject",
 ]

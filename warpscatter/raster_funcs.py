@@ -14,7 +14,12 @@ resolved with ``wp.atomic_min``: exact and free of races, also on CUDA, and ties
 at equal depth go to the lower triangle index. Depth peeling keeps, per layer, the smallest key
 strictly greater than the previous layer's key.
 
-Clipping: :func:`rasterize_triangle` clips in homogeneous clip space against the near plane
+Scan: :func:`rasterize_screen_triangle_rows` walks the rows of a triangle's bounding box (optionally a
+band of them) and, in boxes wider than :data:`SPAN_MIN_PIXELS`, narrows each row to the exact span of
+centres the three edge functions accept before visiting it (:func:`edge_span`); the fragments are those
+of testing every centre of the box.
+
+Clipping: :func:`clip_triangle` (for :func:`rasterize_triangle`) clips in homogeneous clip space against the near plane
 (z >= -w) and a guard band on x and y (|x|, |y| <= g w, screen positions within
 +-:data:`GUARD_BAND_PIXELS` pixels) with Sutherland-Hodgman; intersection points are always
 interpolated from the inside vertex towards the outside vertex, so two triangles sharing an edge
@@ -41,6 +46,11 @@ MAX_RESOLUTION = 2**16
 #: Key of a texel that no fragment reached (the largest int64).
 EMPTY_KEY = np.iinfo(np.int64).max
 
+#: Bounding boxes wider than this many pixels are scanned row span by row span (:func:`edge_span`); narrower
+#: ones test every centre (cheaper than the span's integer divisions for a few pixels).
+SPAN_MIN_PIXELS = 8
+
+_SPAN_MIN_PIXELS = wp.constant(wp.int64(SPAN_MIN_PIXELS))
 _SUBPIXEL_SCALE = wp.constant(wp.float64(float(1 << SUBPIXEL_BITS)))
 _SUBPIXEL_BITS = wp.constant(wp.int64(SUBPIXEL_BITS))
 _SUBPIXEL_STEP = wp.constant(wp.int64(1 << SUBPIXEL_BITS))
@@ -276,20 +286,43 @@ class RasterParams:
 
 
 @wp.func
-def rasterize_screen_triangle(
+def edge_span(e: wp.int64, step: wp.int64, lo: wp.int64, hi: wp.int64) -> tuple[wp.int64, wp.int64]:
+    """Narrow the pixel range [lo, hi] (counted from a row's first centre) to the n with e + n step >= 0.
+
+    Exact integer version of testing every centre: the edge function is linear along the row, so the
+    centres it accepts form one interval. An empty result has lo > hi.
+    """
+    if step > wp.int64(0):
+        if e < wp.int64(0):
+            lo = wp.max(lo, (step - e - wp.int64(1)) / step)  # ceil(-e / step), both operands positive
+    elif step < wp.int64(0):
+        if e < wp.int64(0):
+            hi = wp.int64(-1)
+        else:
+            hi = wp.min(hi, e / (-step))  # floor(e / -step)
+    elif e < wp.int64(0):
+        hi = wp.int64(-1)
+    return lo, hi
+
+
+@wp.func
+def rasterize_screen_triangle_rows(
     a: wp.vec3d,
     b: wp.vec3d,
     c: wp.vec3d,
     tri: int,
     p: RasterParams,
+    row0: int,
+    row1: int,
     prev_keys: wp.array2d(dtype=wp.int64),
     keys: wp.array2d(dtype=wp.int64),
     counts: wp.array2d(dtype=wp.int32),
 ):
-    """Scan one snapped screen triangle into the key (or count) buffer.
+    """:func:`rasterize_screen_triangle` restricted to image rows [row0, row1] (inclusive).
 
-    ``a``, ``b``, ``c`` are (X, Y, z_ndc) with X, Y the fixed-point screen position (y down, exact
-    integers in float64) from :func:`snap_to_screen`.
+    In bounding boxes at least :data:`SPAN_MIN_PIXELS` + 1 centres wide each row is first narrowed to the exact
+    span of centres the three edge functions accept (:func:`edge_span`, three integer divisions per row) instead
+    of testing every centre of the box; the fragments, their depths and keys are those of the full test.
     """
     x0 = wp.int64(a[0])
     y0 = wp.int64(a[1])
@@ -303,9 +336,9 @@ def rasterize_screen_triangle(
     j0 = int((wp.min(y0, wp.min(y1, y2)) - _SUBPIXEL_HALF + _SUBPIXEL_STEP - wp.int64(1)) >> _SUBPIXEL_BITS)
     j1 = int((wp.max(y0, wp.max(y1, y2)) - _SUBPIXEL_HALF) >> _SUBPIXEL_BITS)
     i0 = wp.max(i0, 0)
-    j0 = wp.max(j0, 0)
+    j0 = wp.max(j0, wp.max(row0, 0))
     i1 = wp.min(i1, p.width - 1)
-    j1 = wp.min(j1, p.height - 1)
+    j1 = wp.min(j1, wp.min(row1, p.height - 1))
     if i0 > i1 or j0 > j1:
         return
     area = edge_function(x0, y0, x1, y1, x2, y2)  # > 0: clockwise in NDC (back face)
@@ -338,12 +371,23 @@ def rasterize_screen_triangle(
     step2 = -(y1 - y0) * _SUBPIXEL_STEP
     farea = wp.float64(area)
     px0 = (wp.int64(i0) << _SUBPIXEL_BITS) + _SUBPIXEL_HALF
+    last = wp.int64(i1 - i0)
+    spans = last >= _SPAN_MIN_PIXELS  # wide boxes: narrow each row to its span first
     for j in range(j0, j1 + 1):
         py = (wp.int64(j) << _SUBPIXEL_BITS) + _SUBPIXEL_HALF
         e0 = edge_function(x1, y1, x2, y2, px0, py) + b0
         e1 = edge_function(x2, y2, x0, y0, px0, py) + b1
         e2 = edge_function(x0, y0, x1, y1, px0, py) + b2
-        for i in range(i0, i1 + 1):
+        lo = wp.int64(0)
+        hi = last
+        if spans:
+            lo, hi = edge_span(e0, step0, lo, hi)
+            lo, hi = edge_span(e1, step1, lo, hi)
+            lo, hi = edge_span(e2, step2, lo, hi)
+            e0 += lo * step0
+            e1 += lo * step1
+            e2 += lo * step2
+        for i in range(i0 + int(lo), i0 + int(hi) + 1):
             if (e0 | e1 | e2) >= wp.int64(0):
                 # NDC depth is affine in screen space: barycentric interpolation (float64).
                 z = float((wp.float64(e0 - b0) * z0 + wp.float64(e1 - b1) * z1 + wp.float64(e2 - b2) * z2) / farea)
@@ -368,38 +412,57 @@ def rasterize_screen_triangle(
 
 
 @wp.func
-def rasterize_triangle(
-    t: int,
-    verts: ProjectedVertices,
-    triangles: wp.array2d(dtype=wp.int32),
+def rasterize_screen_triangle(
+    a: wp.vec3d,
+    b: wp.vec3d,
+    c: wp.vec3d,
+    tri: int,
     p: RasterParams,
     prev_keys: wp.array2d(dtype=wp.int64),
     keys: wp.array2d(dtype=wp.int64),
     counts: wp.array2d(dtype=wp.int32),
 ):
-    """Reject, clip where needed, and scan mesh triangle ``t`` (or the fan of its clipped polygon)."""
-    ia = triangles[t, 0]
-    ib = triangles[t, 1]
-    ic = triangles[t, 2]
-    oa = verts.outcode[ia]
-    ob = verts.outcode[ib]
-    oc = verts.outcode[ic]
-    # ---- trivial reject: an invalid vertex, or all three vertices outside one plane ----
+    """Scan one snapped screen triangle into the key (or count) buffer.
+
+    ``a``, ``b``, ``c`` are (X, Y, z_ndc) with X, Y the fixed-point screen position (y down, exact
+    integers in float64) from :func:`snap_to_screen`.
+    """
+    rasterize_screen_triangle_rows(a, b, c, tri, p, 0, p.height - 1, prev_keys, keys, counts)
+
+
+@wp.func
+def triangle_crossing(t: int, verts: ProjectedVertices, triangles: wp.array2d(dtype=wp.int32), p: RasterParams) -> int:
+    """Trivial reject of mesh triangle ``t``: -1 when nothing of it can be drawn (an invalid vertex, or all three
+    vertices outside one plane), else the clip planes it crosses (0: the unclipped fast path)."""
+    oa = verts.outcode[triangles[t, 0]]
+    ob = verts.outcode[triangles[t, 1]]
+    oc = verts.outcode[triangles[t, 2]]
     if ((oa | ob | oc) & _OUT_INVALID) != 0:
-        return
+        return -1
     reject = _OUT_VIEW
     if p.clip_near != 0:
         reject = reject | _OUT_NEAR
     if p.clamp_depth == 0:
         reject = reject | _OUT_FAR
     if (oa & ob & oc & reject) != 0:
-        return
-    crossing = (oa | ob | oc) & (_OUT_GUARD | (_OUT_NEAR * p.clip_near))
-    if crossing == 0:
-        # ---- fast path: no clipping, snapped positions from the vertex pass ----
-        rasterize_screen_triangle(verts.screen[ia], verts.screen[ib], verts.screen[ic], t, p, prev_keys, keys, counts)
-        return
-    # ---- clip against the near plane and the guard band ----
+        return -1
+    return (oa | ob | oc) & (_OUT_GUARD | (_OUT_NEAR * p.clip_near))
+
+
+@wp.func
+def clip_triangle(
+    t: int,
+    verts: ProjectedVertices,
+    triangles: wp.array2d(dtype=wp.int32),
+    p: RasterParams,
+    crossing: int,
+) -> tuple[ScreenPolygon, int]:
+    """Clip mesh triangle ``t`` against the ``crossing`` planes (near, guard band) of :func:`triangle_crossing`:
+    the snapped screen polygon and its vertex count (0: nothing left to draw)."""
+    sp = ScreenPolygon()
+    ia = triangles[t, 0]
+    ib = triangles[t, 1]
+    ic = triangles[t, 2]
     poly = ClipPolygon()
     src = ClipSources()
     poly[0] = verts.clip[ia]
@@ -420,17 +483,102 @@ def rasterize_triangle(
     if (crossing & 16) != 0:  # -y <= guard_y w
         poly, src, n = clip_polygon_plane(poly, src, n, wp.vec4(0.0, 1.0, 0.0, p.guard_y))
     if n < 3:
-        return
+        return sp, 0
     # ---- snap: mesh vertices from the vertex pass, new vertices here (one call site each) ----
-    sp = ScreenPolygon()
     for k in range(n):
         v = src[k]
         if v >= 0 and (verts.outcode[v] & _OUT_GUARD) == 0:
             sp[k] = verts.screen[v]
         else:
             if not (poly[k][3] > 0.0):
-                return  # only reachable for degenerate matrices (vertex at the centre of projection)
+                return sp, 0  # only reachable for degenerate matrices (vertex at the centre of projection)
             sp[k] = snap_to_screen(poly[k], p.width, p.height)
-    # ---- scan the triangle fan of the convex polygon ----
-    for k in range(1, n - 1):
-        rasterize_screen_triangle(sp[0], sp[k], sp[k + 1], t, p, prev_keys, keys, counts)
+    return sp, n
+
+
+@wp.func
+def bbox_rows(xmin: wp.int64, xmax: wp.int64, ymin: wp.int64, ymax: wp.int64, p: RasterParams) -> wp.vec2i:
+    """Image rows (first, last) with pixel centres in the fixed-point box [xmin, xmax] x [ymin, ymax], clamped to
+    the image; (0, -1) when no centre of the image lies in it."""
+    i0 = int((xmin - _SUBPIXEL_HALF + _SUBPIXEL_STEP - wp.int64(1)) >> _SUBPIXEL_BITS)
+    i1 = int((xmax - _SUBPIXEL_HALF) >> _SUBPIXEL_BITS)
+    j0 = wp.max(int((ymin - _SUBPIXEL_HALF + _SUBPIXEL_STEP - wp.int64(1)) >> _SUBPIXEL_BITS), 0)
+    j1 = wp.min(int((ymax - _SUBPIXEL_HALF) >> _SUBPIXEL_BITS), p.height - 1)
+    if wp.max(i0, 0) > wp.min(i1, p.width - 1) or j0 > j1:
+        return wp.vec2i(0, -1)
+    return wp.vec2i(j0, j1)
+
+
+@wp.func
+def polygon_rows(sp: ScreenPolygon, n: int, p: RasterParams) -> wp.vec2i:
+    """Image rows (first, last) whose centres a screen polygon of :func:`clip_triangle` may cover:
+    its bounding box clamped to the image, (0, -1) when empty or outside the image on x."""
+    if n < 3:
+        return wp.vec2i(0, -1)
+    xmin = wp.int64(sp[0][0])
+    xmax = xmin
+    ymin = wp.int64(sp[0][1])
+    ymax = ymin
+    for k in range(1, n):
+        x = wp.int64(sp[k][0])
+        y = wp.int64(sp[k][1])
+        xmin = wp.min(xmin, x)
+        xmax = wp.max(xmax, x)
+        ymin = wp.min(ymin, y)
+        ymax = wp.max(ymax, y)
+    return bbox_rows(xmin, xmax, ymin, ymax, p)
+
+
+@wp.func
+def triangle_rows(t: int, verts: ProjectedVertices, triangles: wp.array2d(dtype=wp.int32), p: RasterParams) -> wp.vec2i:
+    """Image rows (first, last) mesh triangle ``t`` may cover after rejection and clipping, (0, -1) for none."""
+    crossing = triangle_crossing(t, verts, triangles, p)
+    if crossing < 0:
+        return wp.vec2i(0, -1)
+    if crossing > 0:
+        sp, n = clip_triangle(t, verts, triangles, p, crossing)
+        return polygon_rows(sp, n, p)
+    a = verts.screen[triangles[t, 0]]
+    b = verts.screen[triangles[t, 1]]
+    c = verts.screen[triangles[t, 2]]
+    return bbox_rows(wp.int64(wp.min(a[0], wp.min(b[0], c[0]))), wp.int64(wp.max(a[0], wp.max(b[0], c[0]))),
+                     wp.int64(wp.min(a[1], wp.min(b[1], c[1]))), wp.int64(wp.max(a[1], wp.max(b[1], c[1]))), p)
+
+
+@wp.func
+def rasterize_triangle_rows(
+    t: int,
+    verts: ProjectedVertices,
+    triangles: wp.array2d(dtype=wp.int32),
+    p: RasterParams,
+    row0: int,
+    row1: int,
+    prev_keys: wp.array2d(dtype=wp.int64),
+    keys: wp.array2d(dtype=wp.int64),
+    counts: wp.array2d(dtype=wp.int32),
+):
+    """Reject, clip where needed, and scan mesh triangle ``t`` (or the fan of its clipped polygon) over
+    image rows [row0, row1]."""
+    crossing = triangle_crossing(t, verts, triangles, p)
+    if crossing == 0:
+        # ---- fast path: no clipping, snapped positions from the vertex pass ----
+        rasterize_screen_triangle_rows(verts.screen[triangles[t, 0]], verts.screen[triangles[t, 1]],
+                                       verts.screen[triangles[t, 2]], t, p, row0, row1, prev_keys, keys, counts)
+    elif crossing > 0:
+        sp, n = clip_triangle(t, verts, triangles, p, crossing)
+        for k in range(1, n - 1):
+            rasterize_screen_triangle_rows(sp[0], sp[k], sp[k + 1], t, p, row0, row1, prev_keys, keys, counts)
+
+
+@wp.func
+def rasterize_triangle(
+    t: int,
+    verts: ProjectedVertices,
+    triangles: wp.array2d(dtype=wp.int32),
+    p: RasterParams,
+    prev_keys: wp.array2d(dtype=wp.int64),
+    keys: wp.array2d(dtype=wp.int64),
+    counts: wp.array2d(dtype=wp.int32),
+):
+    """Reject, clip where needed, and scan mesh triangle ``t`` (or the fan of its clipped polygon)."""
+    rasterize_triangle_rows(t, verts, triangles, p, 0, p.height - 1, prev_keys, keys, counts)

@@ -191,11 +191,25 @@ class CameraParams:
 
 
 @wp.func
-def pixel_ray_direction(cam: CameraParams, x: float, y: float) -> wp.vec3:
-    """Unit direction through image point (x, y) in pixels (pixel (i, j) centre = (i+0.5, j+0.5), y down)."""
+def pixel_ray_factors(cam: CameraParams, x: float, y: float) -> wp.vec2:
+    """The factors (xn, yn) of ``cam.right`` and ``cam.up`` in :func:`pixel_ray_direction` of image point (x, y):
+    xn depends on x only and yn on y only, so a row's pixels share yn and a column's share xn."""
     xn = (2.0 * x / float(cam.width) - 1.0) * cam.tan_half_fov * cam.aspect
     yn = (1.0 - 2.0 * y / float(cam.height)) * cam.tan_half_fov
+    return wp.vec2(xn, yn)
+
+
+@wp.func
+def factors_ray_direction(cam: CameraParams, xn: float, yn: float) -> wp.vec3:
+    """The unit direction of :func:`pixel_ray_factors` (xn, yn): normalize(xn right + yn up + forward)."""
     return wp.normalize(xn * cam.right + yn * cam.up + cam.forward)
+
+
+@wp.func
+def pixel_ray_direction(cam: CameraParams, x: float, y: float) -> wp.vec3:
+    """Unit direction through image point (x, y) in pixels (pixel (i, j) centre = (i+0.5, j+0.5), y down)."""
+    f = pixel_ray_factors(cam, x, y)
+    return factors_ray_direction(cam, f[0], f[1])
 
 
 @wp.func

@@ -139,16 +139,21 @@ def render_shadow_map(scene, resolution, device=None) -> ShadowMap:
         resolution: int or (width, height) in texels.
         device: Warp device.
     """
-    from ..raster import linearize_depth, rasterize
+    from ..raster import rasterize_linear_depth
 
     w, h = (resolution, resolution) if np.isscalar(resolution) else tuple(resolution)
     scene = scene.casters()
     light = scene.light
+    # Scene.bounds(), reduced column by column: the same float64 values without numpy's slow axis-0 reduction of
+    # an (N, 3) array (114k vertices of configs/terrain.yaml: 0.3 ms instead of 6.5 ms)
+    v = np.asarray(scene.vertices)
+    bounds = scene.bounds() if not len(v) else (np.array([v[:, k].min() for k in range(3)], np.float64),
+                                                np.array([v[:, k].max() for k in range(3)], np.float64))
     if isinstance(light, DirectionalLight):
-        view, proj, texel = fit_directional(scene.camera, light.direction, scene.bounds(), (w, h))
+        view, proj, texel = fit_directional(scene.camera, light.direction, bounds, (w, h))
         perspective = False
     else:
-        lo, hi = scene.bounds()
+        lo, hi = bounds
         reach = np.linalg.norm(np.maximum(np.abs(hi - light.position), np.abs(lo - light.position))) + 1.0
         near = max(1e-3, 1e-4 * reach)
         view = view_matrix(light.position, *light.basis())
@@ -158,9 +163,9 @@ def render_shadow_map(scene, resolution, device=None) -> ShadowMap:
     if scene.triangle_count == 0:  # nothing casts: every texel is empty
         depth = np.full((h, w), np.inf, np.float32)
     else:
-        r = rasterize(scene.vertices, scene.triangles, proj @ view, w, h, clamp_depth=not perspective, device=device)
-        depth = linearize_depth(r.ndc_depth[0], proj).astype(np.float32)
-        depth[r.tri_id[0] < 0] = np.inf
+        # linear depth resolved band by band with the scan (bitwise linearize_depth of the NDC depth, as float32)
+        depth = rasterize_linear_depth(scene.vertices, scene.triangles, proj @ view, proj, w, h,
+                                       clamp_depth=not perspective, device=device)
     return ShadowMap(depth=depth, view=view, projection=proj, perspective=perspective, texel_world=texel)
 
 
