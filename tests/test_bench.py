@@ -33,3 +33,22 @@ def test_every_suite_runs_quick_and_writes_finite_rows(tmp_path):
     assert pre["meta"]["bar"]["fourier_speedup_vs_exact_raymarch128"] > 0.0
     epi = json.loads((tmp_path / "bench-epipolar.json").read_text())
     assert epi["meta"]["bar"]["per_pixel"]["speedup_vs_per_pixel"] > 0.0
+    # quality per unit of time: every fast method has an equal-error speed-up against the same run's marcher curve
+    par = json.loads((tmp_path / "bench-pareto.json").read_text())
+    for scene in ("colonnade", "canopy", "window"):
+        for method in ("fourier", "moments4", "moments6", "epipolar"):
+            row = next(r for r in par["rows"] if r["name"] == f"{scene}: {method}")
+            assert row["speedup"] > 0.0 and 0.0 < row["rel_l1"] < 1.0, (scene, method)
+            assert row["extra"]["speedup_bound"] in ("=", ">=", "<="), (scene, method)
+
+
+def test_equal_error_time_interpolates_log_log_on_the_envelope_and_bounds_outside():
+    from warpscatter.bench.suites_pareto import equal_error_time
+
+    # (time, error): 10 ms -> 0.4, 40 ms -> 0.1; a dominated point (slower and worse) is ignored
+    points = [(10.0, 0.4), (40.0, 0.1), (30.0, 0.5)]
+    t, bound = equal_error_time(points, 0.2)  # halfway in log error -> geometric mean of the times
+    assert bound == "" and math.isclose(t, 20.0, rel_tol=1e-12)
+    assert equal_error_time(points, 0.05) == (40.0, ">=")  # more accurate than the best marcher: a lower bound
+    assert equal_error_time(points, 0.8) == (10.0, "<=")  # worse than the fastest: an upper bound
+    assert equal_error_time(points, 0.1) == (40.0, "")

@@ -10,7 +10,8 @@ Output: a terminal table (:meth:`BenchReport.table`), ``bench-<suite>.json`` and
 (the ``plot`` extra), ``bench-<suite>.png``.
 
 Suites (:data:`SUITES`, one record each): ``raster``, ``reference``, ``parallel`` (:mod:`.suites_core`),
-``prefiltered``, ``moments``, ``epipolar`` (:mod:`.suites_scattering`), ``csm`` (:mod:`.suites_csm`).
+``prefiltered``, ``moments``, ``epipolar`` (:mod:`.suites_scattering`), ``csm`` (:mod:`.suites_csm`), ``pareto``
+(:mod:`.suites_pareto`).
 
 ``quick=True`` shrinks every size (for smoke tests and CI); figures for notes come from full runs.
 """
@@ -27,6 +28,7 @@ from .report import BenchReport, errors, machine_meta, measure, thread_limit
 from .scenes import bench_light_texture, bench_scene_config, render_timed, scattering_rows
 from .suites_core import suite_parallel, suite_raster, suite_reference
 from .suites_csm import suite_csm
+from .suites_pareto import suite_pareto
 from .suites_scattering import suite_epipolar, suite_moments, suite_prefiltered
 
 
@@ -45,7 +47,8 @@ SUITES: dict[str, Suite] = {s.name: s for s in (
           suite_raster),
     Suite("reference", "ray marching at 1920x1080, 128 steps: shadow-map vs exact (ray-cast) visibility",
           suite_reference),
-    Suite("parallel", "speed-up of split CPU launches (1 thread vs all cores): rasterizer and ray marcher",
+    Suite("parallel", "1 thread vs all cores: the rasterizer and every stage of the marcher, fourier, moments6, "
+          "epipolar renders at 1920x1080",
           suite_parallel),
     Suite("prefiltered", "fourier method (Klehm 2014): stage times vs map size, output size, basis count; error vs "
                          "exact; scene-complexity sweep", suite_prefiltered),
@@ -58,6 +61,9 @@ SUITES: dict[str, Suite] = {s.name: s for s in (
     Suite("csm", "coherent shadow maps (Ritschel 2007): compression ratio, precompute time and memory vs N and "
                  "enumeration; visibility queries/s (random, coherent) against BVH shadow rays; the csm render "
                  "method's time per pass and error against raytrace", suite_csm),
+    Suite("pareto", "quality per time at 1920x1080: the shadow-map marcher's error/time curve (8-256 steps, both "
+                    "step patterns) against the exact reference, and each fast method's equal-error speed-up over "
+                    "it, on colonnade, canopy and window (takes long: ~15 min)", suite_pareto),
 )}
 
 

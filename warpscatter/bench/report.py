@@ -65,6 +65,8 @@ class BenchReport:
     rows: list[dict] = field(default_factory=list)
     meta: dict = field(default_factory=dict)
     files: list[Path] = field(default_factory=list)
+    #: ``chart(report, path) -> path or None``: a suite's own chart instead of the default bar chart of medians.
+    chart: Callable[[BenchReport, Path], Path | None] | None = None
 
     def add(self, **row) -> dict:
         self.rows.append(row)
@@ -102,7 +104,7 @@ class BenchReport:
         tmp.write_text(json.dumps({"suite": self.suite, "meta": self.meta, "rows": self.rows}, indent=2))
         os.replace(tmp, path)
         self.files = [path]
-        chart = self._chart(out_dir / f"bench-{self.suite}.png")
+        chart = (self.chart or BenchReport._chart)(self, out_dir / f"bench-{self.suite}.png")
         if chart is not None:
             self.files.append(chart)
         return self.files

@@ -3,7 +3,8 @@
 * ``raster``    — depth map of a >= 1M-triangle mesh: the Warp rasterizer against BVH ray casting (``wp.Mesh``)
   and Embree (embreex, the ``peers`` extra) when installed.
 * ``reference`` — the ray marcher at 1920x1080, 128 steps, with shadow-map and exact visibility.
-* ``parallel``  — speed-up of split CPU launches (1 thread against all) for the rasterizer and the marcher.
+* ``parallel``  — speed-up of split CPU launches (1 thread against all): the rasterizer, and each stage of the
+  marcher's, fourier's, moments6's and epipolar's 1920x1080 renders.
 """
 
 from __future__ import annotations
@@ -105,7 +106,19 @@ def suite_reference(report: BenchReport, repeats: int, warmup: int, quick: bool,
         progress("reference", 1.0)
 
 
+#: The renders whose every stage the ``parallel`` suite times with 1 thread and with all (colonnade, no surfaces).
+SCALING_RENDERS = {
+    "raymarch shadow_map": {"method": "raymarch", "visibility": "shadow_map", "steps": 32},
+    "fourier": {"method": "fourier"},
+    "moments6": {"method": "moments6"},
+    "epipolar": {"method": "epipolar", "visibility": "shadow_map"},
+}
+
+
 def suite_parallel(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
+    """Speed-up of all threads over one: the rasterizer, and every stage of each render in :data:`SCALING_RENDERS`
+    at 1920x1080 with 1024^2 maps (``--quick``: 320x180, 256^2). Each render row carries the per-stage times with
+    all threads (``stages_ms``), with one (``extra.stages_ms_1_thread``) and their ratio (``extra.scaling``)."""
     from .. import raster
     from ..parallel import thread_count
     from ..scene.camera import Camera
@@ -115,22 +128,27 @@ def suite_parallel(report: BenchReport, repeats: int, warmup: int, quick: bool, 
     verts, tris = _dense_mesh(50_000 if quick else 500_000)
     cam = Camera(position=[0.0, 25.0, 30.0], look_at=[0.0, 0.0, 0.0], up=[0, 1, 0], fov_y=55, width=size,
                  height=size, near=0.5, far=200.0)
-    w, h, steps = (240, 135, 32) if quick else (960, 540, 64)
-    cfg = bench_scene_config("colonnade", w, h, scattering={"method": "raymarch", "visibility": "shadow_map",
-                                                            "steps": steps}, surfaces={"enabled": False})
-    for k, threads in enumerate((1, n)):
-        if progress:
-            progress(f"{threads} thread(s)", k / 2)
+    ms = {}
+    for threads in (1, n):
         with thread_limit(threads):
             m = measure(lambda: raster.rasterize(verts, tris, cam.view_projection(), size, size), repeats, warmup)
-            report.add(name="raster", params={"threads": threads, "triangles": len(tris), "size": size},
-                       median_ms=1e3 * m["median_s"])
-            stages = render_timed(cfg, repeats, warmup)[0]
-            report.add(name="raymarch shadow_map", params={"threads": threads, "size": f"{w}x{h}", "steps": steps},
-                       median_ms=stages["scattering"])
-    by = {(r["name"], r["params"]["threads"]): r for r in report.rows}
-    for name in ("raster", "raymarch shadow_map"):
-        by[(name, n)]["speedup"] = by[(name, 1)]["median_ms"] / by[(name, n)]["median_ms"]
-        by[(name, 1)]["speedup"] = 1.0
+        ms[threads] = 1e3 * m["median_s"]
+    report.add(name="raster", params={"threads": n, "triangles": len(tris), "size": size}, median_ms=ms[n],
+               speedup=ms[1] / ms[n], extra={"ms_1_thread": round(ms[1], 1)})
+    w, h, smap = (320, 180, 256) if quick else (1920, 1080, 1024)
+    for k, (label, scattering) in enumerate(SCALING_RENDERS.items()):
+        if progress:
+            progress(label, k / len(SCALING_RENDERS))
+        cfg = bench_scene_config("colonnade", w, h, surfaces={"enabled": False},
+                                 scattering={**scattering, "shadow_map": {"resolution": smap}})
+        stages = {}
+        for threads in (1, n):
+            with thread_limit(threads):
+                stages[threads] = render_timed(cfg, repeats, warmup)[0]
+        total = {t: sum(st.values()) for t, st in stages.items()}
+        report.add(name=label, params={"threads": n, "size": f"{w}x{h}", "map": smap}, median_ms=total[n],
+                   stages_ms=stages[n], speedup=total[1] / total[n],
+                   extra={"stages_ms_1_thread": {s: round(v, 1) for s, v in stages[1].items()},
+                          "scaling": {s: round(stages[1][s] / v, 2) for s, v in stages[n].items() if v > 0.0}})
     if progress:
         progress("parallel", 1.0)

@@ -38,6 +38,42 @@ def raymarch_kernel(
     out[j, i] = march_ray(cam, i, j, distance[j, i], marcher)
 
 
+@wp.kernel
+def raymarch_subset_kernel(
+    cam: CameraParams,
+    distance: wp.array2d(dtype=wp.float32),
+    marcher: Marcher,
+    stride: int,  # every stride-th pixel in x and y, from (first, first)
+    first: int,
+    out: wp.array2d(dtype=wp.vec3),  # (ceil((H - first) / stride), ceil((W - first) / stride))
+    offset: int,
+):
+    sj, si = wp.tid()
+    sj += offset
+    i = first + si * stride
+    j = first + sj * stride
+    out[sj, si] = march_ray(cam, i, j, distance[j, i], marcher)
+
+
+def march_pixel_subset(camera, distance: wp.array, marcher: Marcher, stride: int, first: int = 0, report=None,
+                       device=None) -> wp.array:
+    """L_scat of every ``stride``-th pixel in x and y from pixel (first, first): the same values as
+    :func:`march_pixels` at those pixels (same random streams), for references on a pixel subset.
+
+    Returns:
+        (ceil((H - first) / stride), ceil((W - first) / stride)) vec3 array.
+    """
+    device = default_device(device)
+    if not (isinstance(stride, int) and stride >= 1 and 0 <= first < stride):
+        raise ValueError(f"stride must be an integer >= 1 and first in [0, stride), got {stride}, {first}")
+    h = -(-(camera.height - first) // stride)
+    w = -(-(camera.width - first) // stride)
+    out = wp.zeros((h, w), dtype=wp.vec3, device=device)
+    launch_rows(raymarch_subset_kernel, (h, w), [camera.params(), distance, marcher, int(stride), int(first), out],
+                device=device, progress=report)
+    return out
+
+
 def march_pixels(camera, distance: wp.array, marcher: Marcher, *, region=None, out: wp.array | None = None,
                  report=None, device=None) -> wp.array:
     """Ray-march single scattering for the camera's pixels (all, or a ``region``).
@@ -89,4 +125,4 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
     return out, {}
 
 
-__all__ = ["march_pixels", "raymarch_kernel", "render"]
+__all__ = ["march_pixel_subset", "march_pixels", "raymarch_kernel", "raymarch_subset_kernel", "render"]

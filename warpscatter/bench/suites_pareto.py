@@ -1,0 +1,256 @@
+"""Bench suite ``pareto``: quality per unit of time, the fast methods against the simple shadow-map marcher.
+
+On the bundled colonnade, canopy and window configs at 1920x1080 with 1024^2 maps (``--quick``: 320x180, 256^2):
+
+* the **exact reference**: the ray marcher with exact (ray-cast) visibility, :data:`REFERENCE_STEPS` steps, twice
+  with two seeds, on every :data:`REFERENCE_STRIDE`-th pixel in x and y (a regular pixel subset: the relative L1 on
+  it estimates the whole image's); the reference is the mean of the two and its own error is estimated as half
+  their relative L1 distance (each carries sigma, their distance is sqrt(2) sigma in the mean, the mean carries
+  sigma / sqrt(2)). The suite states it and checks it against a fifth of the smallest error compared;
+* the **error/time curve of the shadow-map marcher**: steps 8 ... 256 in both step patterns (``per_pixel``,
+  ``fixed``);
+* every **fast method's (time, error) point** at its default settings: ``fourier``, ``moments4``, ``moments6``,
+  ``epipolar``.
+
+Time is the technique's own stages — G-buffer, maps, scattering — as the median of ``repeats`` runs after
+``warmup``; the kernel compile, the scene load and the writing of the frame's EXR/PNG files are reported apart.
+Each method's **equal-error speed-up** is the marcher's time interpolated log-log at the method's error (on the
+lower envelope of both step patterns: the faster marcher at that error), divided by the method's time. A method
+more accurate than the 256-step marcher gets a lower bound (``>=``, the 256-step time), one less accurate than the
+8-step marcher an upper bound (``<=``, the 8-step time).
+
+The chart (``bench-pareto.png``, the ``plot`` extra) draws error against time per scene on log-log axes.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..stages import ProgressFn
+from .report import BenchReport
+from .scenes import bench_scene_config, render_timed
+
+#: The scenes (bundled configs) and the fast methods at their defaults.
+SCENES = ("colonnade", "canopy", "window")
+METHODS = {
+    "fourier": {"method": "fourier"},
+    "moments4": {"method": "moments4"},
+    "moments6": {"method": "moments6"},
+    "epipolar": {"method": "epipolar", "visibility": "shadow_map"},
+}
+#: The shadow-map marcher's curve: steps and step patterns.
+MARCH_STEPS = (8, 16, 32, 64, 128, 256)
+JITTERS = ("per_pixel", "fixed")
+#: The exact reference: steps per ray, the two seeds, the pixel subset.
+REFERENCE_STEPS = 1024
+REFERENCE_SEEDS = (101, 202)
+REFERENCE_STRIDE = 4
+#: Stages that are not the technique's own time.
+APART = ("compile", "upload", "shading")
+
+
+def rel_l1(a: np.ndarray, b: np.ndarray) -> float:
+    """sum |a - b| / sum |b| in float64."""
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    return float(np.abs(a - b).sum() / max(np.abs(b).sum(), 1e-300))
+
+
+def exact_reference(name: str, width: int, height: int, steps: int, stride: int, seeds=REFERENCE_SEEDS):
+    """The exact marcher on every ``stride``-th pixel (from ``stride // 2``) of a bench scene, twice.
+
+    Returns:
+        (reference (Hs, Ws, 3) float64: the mean of the two seeds, its estimated own rel. L1 error, seconds).
+    """
+    from .. import methods
+    from ..gbuffer import gbuffer_raycast
+    from ..pipeline import compile_kernels
+    from ..scattering.marching import marcher_params, visibility_params
+    from ..scattering.raymarch import march_pixel_subset
+    from ..scene import DeviceGeometry, build_scene
+
+    cfg = bench_scene_config(name, width, height, scattering={"method": "raymarch", "visibility": "exact"},
+                             surfaces={"enabled": False})
+    compile_kernels(methods.CLASSIC_MODULES + methods.SCATTERING["raymarch"].modules)
+    t0 = time.perf_counter()
+    scene = build_scene(cfg)
+    geometry = DeviceGeometry(scene)
+    gbuffer = gbuffer_raycast(scene, geometry)
+    vis = visibility_params(scene, "exact", geometry)
+    runs = []
+    for seed in seeds:
+        m = marcher_params(scene, steps=steps, visibility=vis, seed=seed)
+        runs.append(march_pixel_subset(scene.camera, gbuffer.distance, m, stride, stride // 2).numpy()
+                    .astype(np.float64))
+    reference = sum(runs) / len(runs)
+    own = rel_l1(runs[0], runs[1]) / 2.0
+    return reference, own, time.perf_counter() - t0
+
+
+def _envelope(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """(time, error) points sorted by time, keeping those whose error is below every faster one's."""
+    out: list[tuple[float, float]] = []
+    for t, e in sorted(points):
+        if e > 0.0 and (not out or e < out[-1][1]):
+            out.append((t, e))
+    return out
+
+
+def equal_error_time(points: list[tuple[float, float]], error: float) -> tuple[float, str]:
+    """The marcher's time at ``error`` interpolated log-log on the envelope of its (time, error) points.
+
+    Returns:
+        (time, bound): bound ``""`` inside the curve, ``">="`` when ``error`` is below the curve's smallest error (the
+        time of the most accurate point: a lower bound), ``"<="`` when above its largest (the fastest point's time).
+    """
+    env = _envelope(points)
+    if error <= env[-1][1]:
+        return env[-1][0], ">=" if error < env[-1][1] else ""
+    if error >= env[0][1]:
+        return env[0][0], "<=" if error > env[0][1] else ""
+    for (t0, e0), (t1, e1) in zip(env, env[1:], strict=False):
+        if e1 <= error <= e0:
+            f = (math.log(error) - math.log(e0)) / (math.log(e1) - math.log(e0))
+            return math.exp(math.log(t0) + f * (math.log(t1) - math.log(t0))), ""
+    return env[-1][0], ">="  # unreachable for a sorted envelope
+
+
+def _technique_ms(stages: dict) -> tuple[float, dict]:
+    own = {k: v for k, v in stages.items() if k not in APART}
+    return sum(own.values()), own
+
+
+def _write_seconds(images: dict) -> float:
+    """Seconds to write one frame's outputs (every AOV, the default compression) into a temporary folder."""
+    from ..imageio import write_outputs
+
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        write_outputs(Path(tmp), "frame", images, ["color", "scattering", "surface", "depth"], 1.0)
+        return time.perf_counter() - t0
+
+
+def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
+    """The error/time curves and equal-error speed-ups (see the module doc)."""
+    from ..scene import build_scene
+
+    w, h = (320, 180) if quick else (1920, 1080)
+    smap = 256 if quick else 1024
+    ref_steps = 256 if quick else REFERENCE_STEPS
+    stride = 2 if quick else REFERENCE_STRIDE
+    march_steps = MARCH_STEPS[:4] if quick else MARCH_STEPS
+    first = stride // 2
+    no_surf = {"enabled": False}
+    cases = len(SCENES) * (1 + len(march_steps) * len(JITTERS) + len(METHODS))
+    done = 0
+
+    def step(label):
+        nonlocal done
+        if progress:
+            progress(label, done / cases)
+        done += 1
+
+    report.meta.update(size=f"{w}x{h}", map=smap, reference_steps=ref_steps, reference_seeds=list(REFERENCE_SEEDS),
+                       reference_stride=stride, time="G-buffer + maps + scattering (compile, scene, write apart)")
+    summary = {}
+    for scene_name in SCENES:
+        step(f"{scene_name}: exact reference")
+        reference, own_error, ref_s = exact_reference(scene_name, w, h, ref_steps, stride)
+        report.add(name=f"{scene_name}: exact reference", params={"steps": ref_steps, "stride": stride},
+                   median_ms=1e3 * ref_s, extra={"own_rel_l1": round(own_error, 5)})
+        curves: dict[str, list[tuple[float, float]]] = {j: [] for j in JITTERS}
+        for jitter in JITTERS:
+            for steps in march_steps:
+                step(f"{scene_name}: marcher {steps} {jitter}")
+                cfg = bench_scene_config(scene_name, w, h, surfaces=no_surf, scattering={
+                    "method": "raymarch", "visibility": "shadow_map", "steps": steps, "jitter": jitter,
+                    "shadow_map": {"resolution": smap}})
+                stages, images, compile_s, _, _ = render_timed(cfg, repeats, warmup)
+                total, own = _technique_ms(stages)
+                err = rel_l1(images["scattering"][first::stride, first::stride], reference)
+                curves[jitter].append((total, err))
+                report.add(name=f"{scene_name}: marcher shadow_map {jitter}", params={"steps": steps},
+                           median_ms=total, stages_ms=own, rel_l1=err, extra={"compile_s": round(compile_s, 2)})
+        envelope = curves["per_pixel"] + curves["fixed"]
+        smallest = min(e for _, e in envelope)
+        scene_summary = {"reference_own_rel_l1": round(own_error, 5),
+                         "reference_ok": own_error < smallest / 5.0}
+        for label, sc in METHODS.items():
+            step(f"{scene_name}: {label}")
+            cfg = bench_scene_config(scene_name, w, h, surfaces=no_surf,
+                                     scattering={**sc, "shadow_map": {"resolution": smap}})
+            t_scene = time.perf_counter()
+            build_scene(cfg)
+            scene_s = time.perf_counter() - t_scene
+            stages, images, compile_s, _, stats = render_timed(cfg, repeats, warmup)
+            total, own = _technique_ms(stages)
+            err = rel_l1(images["scattering"][first::stride, first::stride], reference)
+            smallest = min(smallest, err)
+            marcher_ms, bound = equal_error_time(envelope, err)
+            per_jitter = {j: equal_error_time(curves[j], err) for j in JITTERS}
+            row = report.add(name=f"{scene_name}: {label}", params={"map": smap}, median_ms=total, stages_ms=own,
+                             rel_l1=err, speedup=marcher_ms / total,
+                             extra={"speedup_bound": bound or "=", "marcher_ms_at_equal_error": round(marcher_ms, 1),
+                                    **{f"speedup_vs_{j}": f"{t[1]}{t[0] / total:.2f}" for j, t in per_jitter.items()},
+                                    "compile_s": round(compile_s, 2), "scene_s": round(scene_s, 3),
+                                    "write_s": round(_write_seconds(images), 3)})
+            if "epipole_raymarched_fraction" in stats:
+                row["extra"]["epipole_pct"] = round(100 * stats["epipole_raymarched_fraction"], 2)
+            if "epipolar_raymarched_fraction" in stats:
+                row["extra"]["raymarched_pct"] = round(100 * stats["epipolar_raymarched_fraction"], 2)
+            scene_summary[label] = {"ms": round(total, 1), "rel_l1": round(err, 5),
+                                    "speedup": f"{bound}{marcher_ms / total:.2f}"}
+        scene_summary["reference_ok"] = own_error < smallest / 5.0
+        summary[scene_name] = scene_summary
+    report.meta["bar"] = summary
+    report.chart = chart_pareto
+    if progress:
+        progress("pareto", 1.0)
+
+
+def chart_pareto(report: BenchReport, path: Path) -> Path | None:
+    """Error against time per scene (log-log): the marcher's two curves and the fast methods' points."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    import os
+
+    fig, axes = plt.subplots(1, len(SCENES), figsize=(5.2 * len(SCENES), 4.2), squeeze=False)
+    markers = {"fourier": "o", "moments4": "s", "moments6": "D", "epipolar": "^"}
+    for ax, scene_name in zip(axes[0], SCENES, strict=True):
+        for jitter, style in zip(JITTERS, ("-", "--"), strict=True):
+            rows = [r for r in report.rows if r["name"] == f"{scene_name}: marcher shadow_map {jitter}"]
+            ax.plot([r["median_ms"] for r in rows], [r["rel_l1"] for r in rows], style, marker=".", color="0.4",
+                    label=f"shadow-map marcher ({jitter})")
+            for r in rows:
+                ax.annotate(str(r["params"]["steps"]), (r["median_ms"], r["rel_l1"]), fontsize=6, color="0.4")
+        for label, marker in markers.items():
+            rows = [r for r in report.rows if r["name"] == f"{scene_name}: {label}"]
+            for r in rows:
+                ax.plot(r["median_ms"], r["rel_l1"], marker, markersize=7,
+                        label=f"{label} ({r['extra']['speedup_bound'].replace('=', '')}{r['speedup']:.1f}x)")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("time (ms): G-buffer + maps + scattering")
+        ax.set_ylabel("rel. L1 vs exact reference")
+        ax.set_title(f"{scene_name} {report.meta.get('size', '')}")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    tmp = path.with_name(".tmp-" + path.name)
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+__all__ = ["chart_pareto", "equal_error_time", "exact_reference", "rel_l1", "suite_pareto"]
