@@ -332,6 +332,23 @@ def test_output_section(tmp_path):
     assert "output.exposure: must be > 0" in msg
 
 
+def test_output_compression(tmp_path):
+    assert load_config(write(tmp_path)).output.compression == "none"
+    for choice in cfgmod.EXR_COMPRESSIONS:
+        assert load_config(write(tmp_path, {"output": {"compression": choice}})).output.compression == choice
+    assert load_config(write(tmp_path), ["output.compression=piz"]).output.compression == "piz"
+    msg = problems(tmp_path, {"output": {"compression": "dwaa"}})  # lossy: not offered
+    assert "output.compression: must be one of 'none', 'rle', 'zips', 'zip' or 'piz' (got 'dwaa')" in msg
+    msg = problems(tmp_path, overrides=["output.compression=zip2"])
+    assert "output.compression: must be one of 'none', 'rle', 'zips', 'zip' or 'piz' (got 'zip2') (from --set)" in msg
+
+
+def test_output_compression_matches_the_image_writer():
+    imageio = pytest.importorskip("warpscatter.imageio")
+    assert cfgmod.EXR_COMPRESSIONS == imageio.EXR_COMPRESSIONS
+    assert cfgmod.OutputConfig().compression == imageio.DEFAULT_EXR_COMPRESSION
+
+
 def test_every_problem_reported_with_line_numbers(tmp_path):
     text = (
         "scene:\n"

@@ -1,11 +1,15 @@
 """Image files (warpscatter.imageio): EXR round trips, sRGB previews, row order, atomic all-or-nothing writes."""
 
+import threading
+
 import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from warpscatter import imageio
+from warpscatter import __version__, imageio
 from warpscatter.imageio import (
+    DEFAULT_EXR_COMPRESSION,
+    EXR_COMPRESSIONS,
     ImageWriteError,
     read_image,
     srgb_decode,
@@ -65,6 +69,77 @@ def test_exr_converts_float64(tmp_path, rng):
 
 
 # ---- PNG -------------------------------------------------------------------------------------------
+
+
+def _exr_header(path):
+    spec = oiio.ImageInput.open(str(path)).spec()
+    return spec.get_string_attribute("compression"), spec.channelnames, spec.get_string_attribute("Software")
+
+
+@pytest.mark.parametrize("compression", EXR_COMPRESSIONS)
+def test_exr_compressions_are_lossless(tmp_path, rng, compression):
+    rgb = (rng.standard_normal((37, 53, 3)) * 10.0 ** rng.integers(-30, 30, (37, 53, 3))).astype(np.float32)
+    rgb[:8] = 0.25  # a constant block (compresses) next to noise (does not)
+    rgb[0, 0] = [1e-45, 3.4e38, -0.0]  # denormal, near-max, negative zero
+    depth = rng.random((37, 53)).astype(np.float32) * 100
+    write_exr(tmp_path / "a.exr", rgb, compression=compression)
+    write_exr(tmp_path / "d.exr", depth, compression=compression)
+    back = read_image(tmp_path / "a.exr")
+    assert back.view(np.uint32).tobytes() == rgb.view(np.uint32).tobytes()  # bit for bit, -0.0 included
+    assert np.array_equal(read_image(tmp_path / "d.exr")[:, :, 0].view(np.uint32), depth.view(np.uint32))
+    assert _exr_header(tmp_path / "a.exr") == (compression, ("R", "G", "B"), f"warpscatter {__version__}")
+    assert _exr_header(tmp_path / "d.exr") == (compression, ("Y",), f"warpscatter {__version__}")
+
+
+def test_exr_default_compression_and_bad_names(tmp_path):
+    assert DEFAULT_EXR_COMPRESSION == "none" and DEFAULT_EXR_COMPRESSION in EXR_COMPRESSIONS
+    write_exr(tmp_path / "a.exr", np.ones((2, 2, 3)))
+    assert _exr_header(tmp_path / "a.exr")[0] == "none"
+    for bad in ("dwaa", "b44", "pxr24", "ZIP", ""):  # lossy or unknown
+        with pytest.raises(ValueError, match="compression: must be one of none, rle, zips, zip, piz"):
+            write_exr(tmp_path / "b.exr", np.ones((2, 2, 3)), compression=bad)
+    assert files_in(tmp_path) == ["a.exr"]
+
+
+def test_png_table_encoding_matches_the_direct_formula():
+    # _srgb8 (table look-up) must give exactly round(255 * srgb_encode(clamp(v, 0, 1))) for every float32: checked
+    # here on every step of the code (the threshold and its neighbours) and on random and special values; checked
+    # exhaustively (all 1,065,353,217 float32 values in [0, 1]) when it was written.
+    tables = imageio._srgb8_tables()
+    assert tables is not None
+    steps = tables[1][tables[1] != 0xFFFFFFFF].astype(np.int64)
+    assert len(steps) == 255  # codes 1 .. 255, one step each
+    near = (steps[:, None] + np.arange(-3, 4)[None, :]).ravel().astype(np.uint32).view(np.float32)
+    rng = np.random.default_rng(5)
+    values = np.concatenate([
+        near,
+        rng.uniform(-0.1, 1.1, 200_000).astype(np.float32),
+        (10.0 ** rng.uniform(-45, 0, 200_000)).astype(np.float32),
+        np.array([0.0, -0.0, 1.0, np.nextafter(1, 2, dtype=np.float32), -1e-45, 1e-45, 3.4e38, np.inf, -np.inf],
+                 np.float32),
+    ])
+    assert np.array_equal(imageio._srgb8(values), imageio._srgb8_reference(values))
+    assert imageio._srgb8(values.reshape(-1, 1, 1)).shape == (len(values), 1, 1)
+
+
+def test_png_with_alpha_keeps_alpha_linear(tmp_path, rng):
+    rgba = rng.uniform(-0.2, 1.3, (4, 6, 4)).astype(np.float32)
+    rgba[0, :, 3] = 1.0
+    colour = np.rint(255 * np.clip(srgb_encode(rgba[:, :, :3] * np.float32(0.7)), 0, 1)).astype(np.uint8)
+    alpha = np.rint(np.clip(rgba[:, :, 3], 0, 1) * 255).astype(np.uint8)
+    assert np.array_equal(imageio._png_pixels(rgba, 0.7), np.dstack([colour, alpha]))  # what OpenImageIO gets
+    write_png(tmp_path / "a.png", rgba, exposure=0.7)
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)  # the values as stored (OpenImageIO premultiplies otherwise)
+    inp = oiio.ImageInput.open(str(tmp_path / "a.png"), config)
+    raw = inp.read_image(format="uint8")
+    assert inp.spec().channelnames == ("R", "G", "B", "A")
+    assert inp.spec().get_string_attribute("Software") == f"warpscatter {__version__}"
+    inp.close()
+    assert np.array_equal(raw[:, :, 3], alpha)
+    # OpenImageIO takes colour as premultiplied and divides it by alpha when it writes a PNG: where alpha is 1
+    # the stored colour is the preview's
+    assert np.array_equal(raw[0, :, :3], colour[0])
 
 
 def test_png_row_zero_is_top(tmp_path):
@@ -201,6 +276,20 @@ def test_write_outputs_contract(tmp_path, rng):
     assert np.array_equal(raw, expect)
 
 
+@pytest.mark.parametrize("compression", ["zips", "rle"])
+def test_write_outputs_compression(tmp_path, rng, compression):
+    images = render_images(rng)
+    files = write_outputs(tmp_path, "r", images, ["scattering", "surface", "depth"], compression=compression)
+    for f in files:
+        if f.suffix == ".exr":
+            aov = f.name.split(".")[1] if f.name.count(".") == 2 else "color"
+            assert _exr_header(f)[0] == compression
+            assert np.array_equal(read_image(f).reshape(images[aov].shape), images[aov])
+    with pytest.raises(ValueError, match="compression: must be one of"):
+        write_outputs(tmp_path / "o", "r", images, compression="dwaa")
+    assert not (tmp_path / "o").exists()
+
+
 def test_write_outputs_only_requested_aovs(tmp_path, rng):
     files = write_outputs(tmp_path, "r", render_images(rng), ["depth"])
     assert [f.name for f in files] == ["r.exr", "r.png", "r.depth.exr"]
@@ -208,20 +297,69 @@ def test_write_outputs_only_requested_aovs(tmp_path, rng):
 
 
 def test_write_outputs_all_or_nothing(tmp_path, rng, monkeypatch):
+    # The fourth file (in output order) fails; the others are written (concurrently) and then removed too.
     real = imageio._write_oiio
     calls = []
 
     def fail_on_fourth(path, *args, **kwargs):
         calls.append(path.name)
-        if len(calls) == 4:
+        if path.name.startswith(".r.surface.tmp-"):
             raise ImageWriteError("no space left on device")
         real(path, *args, **kwargs)
+        assert path.exists()  # the temporary file is there before the failure is handled
 
     monkeypatch.setattr(imageio, "_write_oiio", fail_on_fourth)
     with pytest.raises(ImageWriteError, match="r.surface.exr: no space left"):
         write_outputs(tmp_path, "r", render_images(rng), ["scattering", "surface", "depth"])
-    assert len(calls) == 4
+    assert sorted(n.split(".tmp-")[0] for n in calls) == [".r", ".r", ".r.depth", ".r.scattering", ".r.surface"]
     assert files_in(tmp_path) == []  # neither finished outputs nor temporaries
+
+
+def test_write_outputs_reports_the_first_failure_in_output_order(tmp_path, rng, monkeypatch):
+    real = imageio._write_oiio
+    started = threading.Event()
+
+    def png_and_depth_fail(path, *args, **kwargs):
+        if path.suffix == ".png":
+            assert started.wait(10)  # the depth file fails first in time ...
+            raise ImageWriteError("png encoder broke")
+        if path.name.startswith(".r.depth."):
+            started.set()
+            raise ImageWriteError("depth disk full")
+        real(path, *args, **kwargs)
+
+    monkeypatch.setattr(imageio, "_write_oiio", png_and_depth_fail)
+    with pytest.raises(ImageWriteError, match="r.png: png encoder broke"):  # ... the png comes first in order
+        write_outputs(tmp_path, "r", render_images(rng), ["depth"])
+    assert files_in(tmp_path) == []
+
+
+def test_write_outputs_writes_the_files_concurrently(tmp_path, rng, monkeypatch):
+    # Every writer waits until all five run at the same time: sequential writing would break the barrier.
+    real = imageio._write_oiio
+    barrier = threading.Barrier(5, timeout=30)
+
+    def meet_then_write(path, *args, **kwargs):
+        barrier.wait()
+        real(path, *args, **kwargs)
+
+    monkeypatch.setattr(imageio, "_write_oiio", meet_then_write)
+    files = write_outputs(tmp_path, "r", render_images(rng), ["scattering", "surface", "depth"])
+    assert len(files) == 5 and files_in(tmp_path) == sorted(f.name for f in files)
+
+
+def test_write_outputs_interrupted_writer_leaves_nothing(tmp_path, rng, monkeypatch):
+    real = imageio._write_oiio
+
+    def interrupted(path, *args, **kwargs):
+        real(path, *args, **kwargs)
+        if path.name.startswith(".r.scattering."):
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(imageio, "_write_oiio", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        write_outputs(tmp_path, "r", render_images(rng), ["scattering", "surface", "depth"])
+    assert files_in(tmp_path) == []
 
 
 def test_write_outputs_rename_failure_removes_renamed(tmp_path, rng, monkeypatch):

@@ -1,4 +1,7 @@
-"""Tests of warpscatter.scene.meshes: the TriangleMesh container, file loading through trimesh, transforms."""
+"""Tests of warpscatter.scene.meshes: the TriangleMesh container, file loading through trimesh, transforms, and the
+in-process mesh cache."""
+
+import os
 
 import numpy as np
 import pytest
@@ -214,3 +217,140 @@ def test_load_errors_name_file_and_reason(tmp_path, name, content, reason):
         load_mesh(path)
     assert name in str(info.value)
     assert isinstance(info.value, ValueError)
+
+
+# ---- the in-process mesh cache ---------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def empty_cache():
+    from warpscatter.scene import meshes
+
+    meshes.clear_mesh_cache()
+    yield meshes
+    meshes.clear_mesh_cache()
+
+
+def _bits(a: np.ndarray) -> bytes:
+    return np.ascontiguousarray(a).view(np.uint8).tobytes()
+
+
+def test_apply_transform_identity_is_exactly_the_general_path():
+    v = np.array([[-0.0, -0.0, -0.0], [1e-45, -3.25, 7.0], [2.0, -0.0, 0.0], [-0.0, 1.0, -2.0]], np.float32)
+    mesh = TriangleMesh(v, [[0, 1, 2], [1, 2, 3]])
+
+    def general(m):  # the float64 product every other matrix takes
+        return (v.astype(np.float64) @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
+
+    fast = apply_transform(mesh, transform_matrix())
+    assert _bits(fast.vertices) == _bits(general(np.eye(4))) and not np.signbit(fast.vertices[0]).any()
+    assert fast.vertices is not mesh.vertices and fast.triangles is not mesh.triangles
+    for m in (transform_matrix(translate=[-0.0, 0.0, -0.0]), transform_matrix(rotate_deg=[0, 360, 0]),
+              transform_matrix(scale=2.0)):  # not the identity (or not exactly): the general path
+        assert _bits(apply_transform(mesh, m).vertices) == _bits(general(m))
+
+
+def test_cached_mesh_builds_once_and_hands_out_read_only_arrays(empty_cache):
+    built = []
+
+    def build():
+        built.append(1)
+        return TriangleMesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+
+    a = empty_cache.cached_mesh(("k", 1), build)
+    b = empty_cache.cached_mesh(("k", 1), build)
+    assert len(built) == 1 and a is not b
+    assert _bits(a.vertices) == _bits(b.vertices) and _bits(a.triangles) == _bits(b.triangles)
+    with pytest.raises(ValueError, match="read-only"):
+        a.vertices[0, 0] = 5.0
+    with pytest.raises(ValueError, match="read-only"):
+        b.triangles += 1
+    a.vertices = np.zeros((3, 3), np.float32)  # rebinding a returned mesh's attribute does not reach the cache
+    c = empty_cache.cached_mesh(("k", 1), build)
+    np.testing.assert_array_equal(c.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    info = empty_cache.mesh_cache_info()
+    assert (info["entries"], info["hits"], info["misses"], len(built)) == (1, 2, 1, 1)
+    assert info["bytes"] == 3 * 3 * 4 + 3 * 4
+    empty_cache.cached_mesh(None, build)  # no key: built every time, not stored
+    empty_cache.cached_mesh(None, build)
+    assert len(built) == 3 and empty_cache.mesh_cache_info()["entries"] == 1
+
+
+def test_cached_mesh_does_not_keep_failures_and_evicts_least_recent(empty_cache, monkeypatch):
+    def fail():
+        raise MeshLoadError("broken")
+
+    with pytest.raises(MeshLoadError):
+        empty_cache.cached_mesh("bad", fail)
+    assert empty_cache.mesh_cache_info()["entries"] == 0
+
+    def tri(x):
+        return lambda: TriangleMesh([[x, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+
+    monkeypatch.setattr(empty_cache, "MESH_CACHE_BYTES", 2 * 48)  # room for two 48-byte meshes
+    empty_cache.cached_mesh("a", tri(1))
+    empty_cache.cached_mesh("b", tri(2))
+    empty_cache.cached_mesh("a", tri(99))  # a hit: "a" becomes the most recent
+    empty_cache.cached_mesh("c", tri(3))  # evicts "b"
+    assert empty_cache.cached_mesh("a", tri(99)).vertices[0, 0] == 1
+    assert empty_cache.cached_mesh("b", tri(4)).vertices[0, 0] == 4  # rebuilt
+    assert empty_cache.mesh_cache_info()["entries"] == 2 and empty_cache.mesh_cache_info()["bytes"] == 96
+    monkeypatch.setattr(empty_cache, "MESH_CACHE_BYTES", 0)  # off: nothing new is stored
+    empty_cache.clear_mesh_cache()
+    empty_cache.cached_mesh("d", tri(5))
+    assert empty_cache.mesh_cache_info()["entries"] == 0
+
+
+def test_file_key_follows_the_file(tmp_path):
+    from warpscatter.scene.meshes import file_key
+
+    path = tmp_path / "m.obj"
+    assert file_key(path) is None
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    key = file_key(path)
+    assert key == file_key(str(path)) and key[1] == str(path)
+    path.write_text("v 0 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\n")  # same size, new content: times change
+    os.utime(path, ns=(1, 1))  # even with an old modification time the change time differs
+    assert file_key(path) != key
+
+
+def _scene_config(tmp_path, meshes):
+    from warpscatter.config import Config
+
+    return Config.from_dict({"scene": {"meshes": meshes}, "camera": {"position": [0, 1, 5], "look_at": [0, 1, 0]},
+                             "light": {"type": "directional", "direction": [0, -1, 0]}}, config_dir=tmp_path)
+
+
+def test_build_scene_caches_meshes_and_returns_fresh_arrays(tmp_path, empty_cache):
+    from warpscatter.scene import build_scene, load_entry_mesh
+    from warpscatter.scene.procedural import canopy
+
+    (tmp_path / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    entries = [
+        {"procedural": "canopy", "params": {"leaves": 50, "seed": 3}, "transform": {"rotate_deg": [0, 30, 0]}},
+        {"procedural": "canopy", "params": {"leaves": 50, "seed": 3}},  # same generator, other transform
+        {"path": "tri.obj", "transform": {"translate": [1, 2, 3]}},
+    ]
+    cfg = _scene_config(tmp_path, entries)
+    first = build_scene(cfg)
+    assert empty_cache.mesh_cache_info()["misses"] == 3
+    turned = apply_transform(canopy(leaves=50, seed=3), transform_matrix(rotate_deg=[0, 30, 0]))
+    expect = np.concatenate([turned.vertices, canopy(leaves=50, seed=3).vertices,
+                             np.float32([[1, 2, 3], [2, 2, 3], [1, 3, 3]])])
+    assert _bits(first.vertices) == _bits(expect)
+    first.vertices[:] = 7.0  # the scene's arrays are its own ...
+    first.triangles[:] = 0
+    again = build_scene(cfg)
+    assert empty_cache.mesh_cache_info()["hits"] == 3
+    assert _bits(again.vertices) == _bits(expect)  # ... the cache is untouched
+    assert again.vertices.flags.writeable and again.triangles.flags.writeable
+    assert not load_entry_mesh(cfg.scene.meshes[0]).vertices.flags.writeable
+    # a changed file is loaded again
+    (tmp_path / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nf 1 2 4\n")
+    changed = build_scene(cfg)
+    np.testing.assert_array_equal(changed.vertices[-1], [6, 7, 8])
+    # other parameters are other meshes
+    misses = empty_cache.mesh_cache_info()["misses"]
+    for params in ({"leaves": 51, "seed": 3}, {"leaves": 50, "seed": 4}):
+        build_scene(_scene_config(tmp_path, [{"procedural": "canopy", "params": params}]))
+    assert empty_cache.mesh_cache_info()["misses"] == misses + 2

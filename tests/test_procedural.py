@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from warpscatter.scene import procedural as P
-from warpscatter.scene.meshes import TriangleMesh, load_mesh
+from warpscatter.scene.meshes import TriangleMesh, concatenate, load_mesh
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -280,3 +280,216 @@ def test_make_assets_reproduces_the_bundled_files(tmp_path):
         np.testing.assert_array_equal(fresh, bundled)
     total = sum((ROOT / "assets" / n).stat().st_size for n in ("gate.obj", "light_cookie.png", "sky_small.exr"))
     assert total < 300 * 1024  # measured 63 KiB
+
+
+# ---- vectorised generators: the same meshes as the part-by-part construction they replaced ------------------------
+
+
+def _ref_cylinder(radius, y0, y1, s, center_xz, caps=True):
+    theta = 2.0 * np.pi * np.arange(s) / s
+    ring = np.stack([center_xz[0] + radius * np.cos(theta), np.zeros(s), center_xz[1] + radius * np.sin(theta)], 1)
+    k = np.arange(s)
+    k1 = (k + 1) % s
+    tris = [P.quads_to_triangles(np.stack([k, s + k, s + k1, k1], axis=1))]
+    verts = [ring + [0.0, y0, 0.0], ring + [0.0, y1, 0.0]]
+    if caps:
+        verts.append(np.array([[center_xz[0], y0, center_xz[1]], [center_xz[0], y1, center_xz[1]]]))
+        tris.append(np.stack([np.full(s, 2 * s), k, k1], axis=1))
+        tris.append(np.stack([np.full(s, 2 * s + 1), s + k1, s + k], axis=1))
+    return TriangleMesh(np.concatenate(verts), np.concatenate(tris))
+
+
+def _ref_colonnade(pillars=8, spacing=2.0, radius=0.3, height=5.0, segments=16, roof=True, row_gap=4.0,
+                   roof_thickness=0.4):
+    xs = (np.arange(pillars) - 0.5 * (pillars - 1)) * spacing
+    parts = [_ref_cylinder(radius, 0.0, height, segments, (x, z)) for z in (-0.5 * row_gap, 0.5 * row_gap) for x in xs]
+    if roof:
+        t = roof_thickness
+        x0, x1 = xs[0] - 0.5 * spacing, xs[-1] + 0.5 * spacing
+        for z in (-0.5 * row_gap, 0.5 * row_gap):
+            parts.append(P.box([x0, height, z - 1.3 * radius], [x1, height + t, z + 1.3 * radius]))
+        zr = 0.5 * row_gap + 1.5 * radius
+        parts.append(P.box([x0, height + t, -zr], [x1, height + 2.0 * t, zr]))
+    return concatenate(parts)[0]
+
+
+def _ref_fence(posts=12, slats=5, gap=0.08, height=1.8, post_spacing=1.5, post_width=0.12, slat_thickness=0.03,
+               rails=2):
+    board = (post_spacing - post_width - (slats + 1) * gap) / slats if slats > 0 else 0.0
+    xs = (np.arange(posts) - 0.5 * (posts - 1)) * post_spacing
+    hw, thick, rail_h = 0.5 * post_width, slat_thickness, 0.08
+    parts = [P.box([x - hw, 0.0, -hw], [x + hw, height, hw]) for x in xs]
+    for x in xs[:-1]:
+        for k in range(slats):
+            bx = x + hw + gap + k * (board + gap)
+            parts.append(P.box([bx, 0.06 * height, -0.5 * thick], [bx + board, 0.94 * height, 0.5 * thick]))
+    for r in range(rails):
+        yc = height * (r + 1) / (rails + 1)
+        parts.append(P.box([xs[0] + hw, yc - 0.5 * rail_h, 0.5 * thick],
+                           [xs[-1] - hw, yc + 0.5 * rail_h, 0.5 * thick + 0.04]))
+    return concatenate(parts)[0]
+
+
+def _ref_room_quads(nx, ny, pc, pr):
+    """The room's wall quads and inward normals, cell by cell."""
+    quads, normals = [], []
+
+    def wall(axis, fixed, inward, skip=lambda a, b: False):
+        other = [a for a in range(3) if a != axis]
+        counts = [nx, ny, 2]
+        for a in range(counts[other[0]] - 1):
+            for b in range(counts[other[1]] - 1):
+                if skip(a, b):
+                    continue
+                corner = []
+                for da, db in ((0, 0), (1, 0), (1, 1), (0, 1)):
+                    idx = [0, 0, 0]
+                    idx[axis], idx[other[0]], idx[other[1]] = fixed, a + da, b + db
+                    corner.append(idx[0] + nx * (idx[1] + ny * idx[2]))
+                quads.append(corner)
+                n = np.zeros(3)
+                n[axis] = inward
+                normals.append(n)
+
+    def is_pane(i, j):
+        return 1 <= i <= 2 * pc - 1 and i % 2 == 1 and 1 <= j <= 2 * pr - 1 and j % 2 == 1
+
+    for args in ((2, 0, 1.0, is_pane), (2, 1, -1.0), (0, 0, 1.0), (0, nx - 1, -1.0), (1, 0, 1.0), (1, ny - 1, -1.0)):
+        wall(*args)
+    return np.array(quads, dtype=np.int64), np.array(normals)
+
+
+@pytest.mark.parametrize(
+    "params",
+    [{}, {"pillars": 3, "segments": 5, "roof": False}, {"pillars": 1}, {"pillars": 12, "segments": 24, "row_gap": 5.0},
+     {"pillars": 7, "segments": 3, "spacing": 1.1, "radius": 0.5, "height": 2.3, "row_gap": 1.01,
+      "roof_thickness": 0.07}, {"pillars": 40, "segments": 31, "spacing": 0.9, "radius": 0.333}],
+)
+def test_colonnade_is_the_part_by_part_mesh(params):
+    mesh, ref = P.colonnade(**params), _ref_colonnade(**params)
+    assert mesh.vertices.tobytes() == ref.vertices.tobytes()  # bit for bit
+    assert mesh.triangles.tobytes() == ref.triangles.tobytes()
+
+
+@pytest.mark.parametrize(
+    "params",
+    [{}, {"posts": 3, "slats": 2, "rails": 0}, {"posts": 2, "slats": 0, "rails": 1},
+     {"posts": 5, "slats": 1, "gap": 0.3},
+     {"posts": 57, "slats": 13, "gap": 0.011, "height": 2.7, "post_spacing": 1.33, "post_width": 0.17,
+      "slat_thickness": 0.021, "rails": 5}],
+)
+def test_fence_is_the_part_by_part_mesh(params):
+    mesh, ref = P.fence(**params), _ref_fence(**params)
+    assert mesh.vertices.tobytes() == ref.vertices.tobytes()
+    assert mesh.triangles.tobytes() == ref.triangles.tobytes()
+
+
+def test_cylinder_is_the_direct_construction():
+    for args in ((0.7, -1.0, 2.5, 13, (0.3, -0.2)), (1.0, 0.0, 2.0, 64, (0.0, 0.0)), (0.25, 1.0, 1.5, 3, (-0.0, 4.0))):
+        for caps in (True, False):
+            mesh, ref = P.cylinder(*args, caps=caps), _ref_cylinder(*args, caps=caps)
+            assert mesh.vertices.tobytes() == ref.vertices.tobytes()
+            assert mesh.triangles.tobytes() == ref.triangles.tobytes()
+
+
+def _ref_room_window(size=(8.0, 4.0, 8.0), window=(2.0, 1.6), window_center=(0.0, 2.2), panes=(1, 1), mullion=0.08):
+    (W, H, D), (ww, wh), (cx, cy), (pc, pr) = size, window, window_center, panes
+    pane_w, pane_h = (ww - (pc - 1) * mullion) / pc, (wh - (pr - 1) * mullion) / pr
+
+    def lines(lo_edge, hi_edge, start, pane, count):
+        inner = []
+        for k in range(count):
+            a = start + k * (pane + mullion)
+            inner += [a, a + pane]
+        return np.array([lo_edge, *inner, hi_edge])
+
+    xl, yl = lines(-0.5 * W, 0.5 * W, cx - 0.5 * ww, pane_w, pc), lines(0.0, H, cy - 0.5 * wh, pane_h, pr)
+    zl = np.array([-0.5 * D, 0.5 * D])
+    nx, ny = len(xl), len(yl)
+    quads, normals = _ref_room_quads(nx, ny, pc, pr)
+    gx, gy, gz = np.meshgrid(xl, yl, zl, indexing="ij")
+    lattice = np.zeros((nx * ny * 2, 3))
+    ii, jj, kk = np.meshgrid(np.arange(nx), np.arange(ny), np.arange(2), indexing="ij")
+    lattice[(ii + nx * (jj + ny * kk)).ravel()] = np.stack([gx, gy, gz], axis=-1).reshape(-1, 3)
+    p = lattice[quads]
+    facing = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), normals)
+    quads[facing < 0] = quads[facing < 0][:, ::-1]
+    used, remap = np.unique(quads, return_inverse=True)
+    return TriangleMesh(lattice[used], P.quads_to_triangles(remap.reshape(-1, 4)))
+
+
+@pytest.mark.parametrize(
+    "params",
+    [{}, {"panes": (3, 2)}, {"panes": (16, 12), "mullion": 0.02},
+     {"size": (6.0, 3.0, 5.0), "window": (2.0, 1.2), "window_center": (0.5, 1.6), "panes": (2, 3), "mullion": 0.1}],
+)
+def test_room_window_is_the_cell_by_cell_mesh(params):
+    mesh, ref = P.room_window(**params), _ref_room_window(**params)
+    assert mesh.vertices.tobytes() == ref.vertices.tobytes()
+    assert mesh.triangles.tobytes() == ref.triangles.tobytes()
+
+
+def _ref_canopy(leaves=4000, radius=3.0, trunk_height=3.0, seed=0, leaf_size=0.25, crown_ratio=0.7, clusters=40,
+                cluster_radius=0.8, trunk_radius=0.2, trunk_segments=12):
+    rng = np.random.default_rng(seed)
+    semi = np.array([radius, crown_ratio * radius, radius])
+    centre = np.array([0.0, trunk_height + semi[1], 0.0])
+    trunk = _ref_cylinder(trunk_radius, 0.0, centre[1], trunk_segments, (0.0, 0.0))
+
+    def in_ball(count):
+        d = rng.normal(size=(count, 3))
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        return d * rng.random((count, 1)) ** (1.0 / 3.0)
+
+    if clusters == 0:
+        pos = centre + in_ball(leaves) * semi
+    else:
+        centres = centre + in_ball(clusters) * np.maximum(semi - cluster_radius, 0.25 * semi)
+        pos = centres[rng.integers(0, clusters, size=leaves)] + in_ball(leaves) * cluster_radius
+    normal = rng.normal(size=(leaves, 3))
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    helper = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u0 = np.cross(normal, helper)
+    u0 /= np.linalg.norm(u0, axis=1, keepdims=True)
+    v0 = np.cross(normal, u0)
+    phi = rng.random((leaves, 1)) * 2.0 * np.pi
+    u = np.cos(phi) * u0 + np.sin(phi) * v0
+    v = np.cross(normal, u)
+    h = 0.5 * leaf_size
+    corners = np.stack([pos - h * u - h * v, pos + h * u - h * v, pos + h * u + h * v, pos - h * u + h * v], axis=1)
+    leaf_mesh = TriangleMesh(corners.reshape(-1, 3), P.quads_to_triangles(np.arange(4 * leaves).reshape(leaves, 4)))
+    return concatenate([trunk, leaf_mesh])[0]
+
+
+@pytest.mark.parametrize(
+    "params",
+    [{}, {"leaves": 37, "trunk_segments": 5, "clusters": 0}, {"leaves": 1, "seed": 9},
+     {"leaves": 3000, "clusters": 7, "cluster_radius": 0.3, "radius": 2.0, "crown_ratio": 1.3, "trunk_radius": 0.1,
+      "trunk_height": 1.5, "seed": 77}],
+)
+def test_canopy_is_the_concatenated_mesh(params):
+    mesh, ref = P.canopy(**params), _ref_canopy(**params)
+    assert mesh.vertices.tobytes() == ref.vertices.tobytes()
+    assert mesh.triangles.tobytes() == ref.triangles.tobytes()
+
+
+# ---- cache keys ------------------------------------------------------------------------------------------------------
+
+
+def test_generator_key_is_exact():
+    key = P.generator_key("canopy", {"leaves": 10, "seed": 2})
+    assert key == P.generator_key("canopy", {"seed": 2, "leaves": 10})  # parameter order does not matter
+    assert hash(key) == hash(P.generator_key("canopy", {"seed": 2, "leaves": 10}))
+    assert P.generator_key("canopy", None) == P.generator_key("canopy", {})
+    different = [
+        P.generator_key("canopy", {"leaves": 10.0, "seed": 2}),  # 10.0 == 10 in Python, but another value here
+        P.generator_key("canopy", {"leaves": 11, "seed": 2}),
+        P.generator_key("terrain", {"leaves": 10, "seed": 2}),
+    ]
+    assert all(k is not None and k != key for k in different)
+    assert P.generator_key("colonnade", {"roof": True}) != P.generator_key("colonnade", {"roof": 1})
+    assert P.generator_key("room_window", {"window_center": [0.0, 2.0]}) != P.generator_key(
+        "room_window", {"window_center": [-0.0, 2.0]})
+    assert P.generator_key("room_window", {"panes": [2, 3]}) == P.generator_key("room_window", {"panes": [2, 3]})
+    assert P.generator_key("tower", {}) is None  # unknown generator
+    assert P.generator_key("canopy", {"leaves": object()}) is None  # not keyable: not cached

@@ -439,14 +439,25 @@ class RenderSettings(SettingsModel):
 # ---- output --------------------------------------------------------------------------------------
 
 
+#: Lossless EXR compressions of ``output.compression`` (OpenImageIO names; the same tuple as
+#: :data:`warpscatter.imageio.EXR_COMPRESSIONS`, kept here so that validating needs no OpenImageIO).
+#: The four float32 EXRs of a 1280x720 render take (two shared cores, one after the other): none 0.17-0.21 s
+#: for 36.9 MB, rle 0.24 s / 24.6 MB, zips 0.47-0.70 s / 24.3 MB, zip 0.83-1.17 s / 22.6 MB, piz 1.9-2.8 s / 20.6 MB.
+EXR_COMPRESSIONS = ("none", "rle", "zips", "zip", "piz")
+
+
 class OutputConfig(SettingsModel):
-    """Where results go: ``dir`` (relative to the config file), file stem ``name``, ``aovs``, PNG ``exposure``."""
+    """Where results go: ``dir`` (relative to the config file), file stem ``name``, ``aovs``, PNG ``exposure``,
+    EXR ``compression``."""
 
     dir: PathStr = Field(Path("out"), description="output folder, relative to the config file")
     name: str = Field("render", description="file stem of the outputs")
     aovs: list[Literal[AOV_NAMES]] = Field(  # type: ignore[valid-type]
         default_factory=lambda: list(AOV_NAMES), description="images to write besides NAME.exr/.png")
     exposure: Annotated[Float, Field(gt=0.0, description="PNG preview exposure (linear factor)")] = 1.0
+    compression: Literal[EXR_COMPRESSIONS] = Field(  # type: ignore[valid-type]
+        "none", description="EXR compression, all lossless: none is the fastest to write; rle makes the files a "
+                            "third smaller for 1.3-2x the time, zips, zip and piz 34-44 % smaller for 2-8x")
 
     @field_validator("dir")
     @classmethod

@@ -76,7 +76,8 @@ def render(config, out_dir: Path | None = None, progress: ProgressFn | None = No
         def on_pass(images, done, total):  # rewrite the outputs as the image converges
             if write:
                 with timer("write"):
-                    write_outputs(out, config.output.name, images, config.output.aovs, config.output.exposure)
+                    write_outputs(out, config.output.name, images, config.output.aovs, config.output.exposure,
+                                  compression=config.output.compression)
 
         try:
             images, stats = render_lighting(scene, config.render.lighting, timer, on_pass, device=device)
@@ -87,7 +88,8 @@ def render(config, out_dir: Path | None = None, progress: ProgressFn | None = No
     files: list[Path] = []
     if write:
         with timer("write"):
-            files = write_outputs(out, config.output.name, images, config.output.aovs, config.output.exposure)
+            files = write_outputs(out, config.output.name, images, config.output.aovs, config.output.exposure,
+                                  compression=config.output.compression)
     return RenderResult(images=images, files=files, timings=timer.timings, stats=stats)
 
 

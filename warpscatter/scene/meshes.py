@@ -12,12 +12,19 @@ arrive triangulated. Files that cannot be read, or hold no triangles (empty, poi
 Transforms follow CONVENTIONS.md: scale first, then the rotations about X, Y and Z (in that order, about the
 mesh origin, angles in degrees), then the translation, i.e. ``M = T @ Rz @ Ry @ Rx @ S`` acting on column
 vectors ``[x, y, z, 1]``.
+
+:func:`cached_mesh` keeps built meshes in process (least recently used first out, :data:`MESH_CACHE_BYTES` in
+all) so that repeated renders of a scene (bench runs, loops in Python) load and generate each mesh once; the
+scene builder keys it by what determines a mesh (:func:`file_key`, the generator and its parameters, the
+transform). Cached meshes hold read-only arrays: nobody can change the cache's copy by accident.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,6 +78,13 @@ class TriangleMesh:
             raise ValueError(f"triangles index vertices in [{lo}, {hi}] but there are {v.shape[0]} vertices")
         self.vertices = v
         self.triangles = np.ascontiguousarray(t, dtype=np.int32)
+
+    @classmethod
+    def _trusted(cls, vertices: np.ndarray, triangles: np.ndarray) -> TriangleMesh:
+        """A mesh around arrays known to be valid (float32 (N, 3), int32 (T, 3) in range): no checks, no copies."""
+        mesh = cls.__new__(cls)
+        mesh.vertices, mesh.triangles = vertices, triangles
+        return mesh
 
     @property
     def num_vertices(self) -> int:
@@ -295,6 +309,79 @@ def apply_transform(mesh: TriangleMesh, matrix) -> TriangleMesh:
     det = np.linalg.det(m[:3, :3])
     if abs(det) < 1e-300:
         raise ValueError("matrix is singular (zero determinant)")
+    if np.array_equal(m[:3, :3], np.eye(3)) and not np.any(m[:3, 3]) and not np.any(np.signbit(m[:3, 3])):
+        # The identity (the default transform): v @ I + 0 is exactly v + 0 (which turns -0.0 into +0.0).
+        return TriangleMesh(mesh.vertices + np.float32(0.0), mesh.triangles.copy())
     v = mesh.vertices.astype(np.float64) @ m[:3, :3].T + m[:3, 3]
     tris = mesh.triangles if det > 0 else mesh.triangles[:, ::-1]
     return TriangleMesh(v, tris.copy())
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# In-process cache
+# ---------------------------------------------------------------------------------------------------------------------
+
+#: Total size (vertex and index bytes) of the meshes :func:`cached_mesh` keeps; 0 turns the cache off.
+MESH_CACHE_BYTES = 256 * 2**20
+
+_cache: OrderedDict[Hashable, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+_cache_lock = threading.Lock()
+_cache_state = {"bytes": 0, "hits": 0, "misses": 0}
+
+
+def file_key(path: str | os.PathLike) -> tuple | None:
+    """Cache key of a mesh file: absolute path, size, modification and change times (ns), inode; None when the
+    file cannot be stat'ed (the loader then reports the problem)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return ("file", os.path.abspath(os.fspath(path)), st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
+
+
+def cached_mesh(key: Hashable | None, build: Callable[[], TriangleMesh]) -> TriangleMesh:
+    """The mesh ``build()`` makes, built once per ``key`` while it stays in the cache.
+
+    ``build`` must return a new mesh (one nobody else holds): its arrays become the cache's and are made
+    read-only. Every call returns a new :class:`TriangleMesh` object around these shared read-only arrays, so
+    writing into them raises and the cached mesh stays as built. ``key`` None (or a mesh larger than
+    :data:`MESH_CACHE_BYTES`) bypasses the cache; errors of ``build`` are not cached. The least recently used
+    meshes leave first once the cache holds more than :data:`MESH_CACHE_BYTES`.
+    """
+    if key is not None:
+        with _cache_lock:
+            hit = _cache.get(key)
+            if hit is not None:
+                _cache.move_to_end(key)
+                _cache_state["hits"] += 1
+                return TriangleMesh._trusted(*hit)
+            _cache_state["misses"] += 1
+    mesh = build()
+    vertices, triangles = mesh.vertices, mesh.triangles
+    vertices.flags.writeable = False
+    triangles.flags.writeable = False
+    size = vertices.nbytes + triangles.nbytes
+    if key is not None and size <= MESH_CACHE_BYTES:
+        with _cache_lock:
+            old = _cache.pop(key, None)  # another thread built it meanwhile
+            if old is not None:
+                _cache_state["bytes"] -= old[0].nbytes + old[1].nbytes
+            _cache[key] = (vertices, triangles)
+            _cache_state["bytes"] += size
+            while _cache_state["bytes"] > MESH_CACHE_BYTES:
+                v, t = _cache.popitem(last=False)[1]
+                _cache_state["bytes"] -= v.nbytes + t.nbytes
+    return TriangleMesh._trusted(vertices, triangles)
+
+
+def clear_mesh_cache() -> None:
+    """Forget every cached mesh (and reset the hit and miss counts)."""
+    with _cache_lock:
+        _cache.clear()
+        _cache_state.update(bytes=0, hits=0, misses=0)
+
+
+def mesh_cache_info() -> dict:
+    """``{"entries", "bytes", "hits", "misses", "max_bytes"}`` of the mesh cache."""
+    with _cache_lock:
+        return {"entries": len(_cache), **_cache_state, "max_bytes": MESH_CACHE_BYTES}

@@ -139,6 +139,47 @@ def box(lo, hi) -> TriangleMesh:
     return TriangleMesh(v, quads_to_triangles(q))
 
 
+def _boxes(lo: np.ndarray, hi: np.ndarray) -> TriangleMesh:
+    """B boxes at once, the same mesh as ``concatenate([box(lo[b], hi[b]) for b in range(B)])``.
+
+    Args:
+        lo, hi: (B, 3) float64 corners, B >= 1.
+    """
+    bad = np.flatnonzero(~np.all(hi > lo, axis=1))
+    if len(bad):
+        box_quads(lo[bad[0]], hi[bad[0]])  # raises the same error as box() would
+    bits = (np.arange(8)[:, None] >> np.arange(3)[None, :]) & 1
+    vertices = np.where(bits[None] == 1, hi[:, None, :], lo[:, None, :])  # (B, 8, 3)
+    triangles = quads_to_triangles(_BOX_QUADS)[None] + 8 * np.arange(len(lo))[:, None, None]
+    return TriangleMesh(vertices.reshape(-1, 3), triangles.reshape(-1, 3))
+
+
+def _cylinders(radius: float, y0: float, y1: float, s: int, cx: np.ndarray, cz: np.ndarray,
+               caps: bool = True) -> TriangleMesh:
+    """P cylinders at once (axes at ``(cx[p], cz[p])``), the same mesh as concatenating ``cylinder(radius, y0, y1,
+    s, (cx[p], cz[p]), caps)`` for p = 0 .. P - 1 (parameters already checked)."""
+    theta = 2.0 * np.pi * np.arange(s) / s
+    ring = np.zeros((len(cx), s, 3))
+    ring[:, :, 0] = cx[:, None] + radius * np.cos(theta)
+    ring[:, :, 2] = cz[:, None] + radius * np.sin(theta)
+    per = 2 * s + 2 if caps else 2 * s  # vertices per cylinder: bottom ring, top ring, cap centres
+    verts = np.empty((len(cx), per, 3))
+    verts[:, :s] = ring + [0.0, y0, 0.0]
+    verts[:, s : 2 * s] = ring + [0.0, y1, 0.0]
+    k = np.arange(s)
+    k1 = (k + 1) % s
+    quads = np.stack([k, s + k, s + k1, k1], axis=1)  # bottom_k, top_k, top_k+1, bottom_k+1: outward
+    tris = [quads_to_triangles(quads)]
+    if caps:
+        verts[:, 2 * s] = np.stack([cx, np.full(len(cx), y0), cz], axis=1)
+        verts[:, 2 * s + 1] = np.stack([cx, np.full(len(cx), y1), cz], axis=1)
+        cb, ct = 2 * s, 2 * s + 1
+        tris.append(np.stack([np.full(s, cb), k, k1], axis=1))  # faces -Y
+        tris.append(np.stack([np.full(s, ct), s + k1, s + k], axis=1))  # faces +Y
+    triangles = np.concatenate(tris)[None] + per * np.arange(len(cx))[:, None, None]
+    return TriangleMesh(verts.reshape(-1, 3), triangles.reshape(-1, 3))
+
+
 def cylinder(radius: float, y0: float, y1: float, segments: int, center_xz=(0.0, 0.0), caps: bool = True):
     """Vertical cylinder (axis parallel to +Y) approximated by a prism with ``segments`` sides.
 
@@ -154,21 +195,8 @@ def cylinder(radius: float, y0: float, y1: float, segments: int, center_xz=(0.0,
     """
     if not (radius > 0.0 and y1 > y0 and segments >= 3):
         raise ValueError(f"cylinder needs radius > 0, y1 > y0, segments >= 3; got {radius}, {y0}, {y1}, {segments}")
-    s = int(segments)
-    theta = 2.0 * np.pi * np.arange(s) / s
-    ring = np.stack([center_xz[0] + radius * np.cos(theta), np.zeros(s), center_xz[1] + radius * np.sin(theta)], 1)
-    bottom, top = ring + [0.0, y0, 0.0], ring + [0.0, y1, 0.0]
-    k = np.arange(s)
-    k1 = (k + 1) % s
-    quads = np.stack([k, s + k, s + k1, k1], axis=1)  # bottom_k, top_k, top_k+1, bottom_k+1: outward
-    tris = [quads_to_triangles(quads)]
-    verts = [bottom, top]
-    if caps:
-        verts.append(np.array([[center_xz[0], y0, center_xz[1]], [center_xz[0], y1, center_xz[1]]]))
-        cb, ct = 2 * s, 2 * s + 1
-        tris.append(np.stack([np.full(s, cb), k, k1], axis=1))  # faces -Y
-        tris.append(np.stack([np.full(s, ct), s + k1, s + k], axis=1))  # faces +Y
-    return TriangleMesh(np.concatenate(verts), np.concatenate(tris))
+    cx, cz = np.array([center_xz[0]], np.float64), np.array([center_xz[1]], np.float64)
+    return _cylinders(radius, y0, y1, int(segments), cx, cz, caps)
 
 
 def _height_grid(size: float, n: int, heights: np.ndarray | None = None) -> TriangleMesh:
@@ -234,6 +262,30 @@ def describe(name: str) -> str:
         parts.append(f"{p.name}: {ann} = {p.default!r}")
     doc = (inspect.getdoc(fn) or "").strip().splitlines()
     return f"{name}({', '.join(parts)}): {doc[0] if doc else ''}"
+
+
+def _canonical(value):
+    """A hashable, exact stand-in for a parameter value: equal only for values of the same type and repr (so 1,
+    1.0 and True differ, and so do 0.0 and -0.0); lists, tuples and dicts recursively."""
+    if isinstance(value, dict):
+        return ("dict", tuple(sorted((str(k), _canonical(v)) for k, v in value.items())))
+    if isinstance(value, (list, tuple)):
+        return (type(value).__name__, tuple(_canonical(v) for v in value))
+    if value is None or isinstance(value, (bool, int, float, str, np.bool_, np.integer, np.floating)):
+        return (type(value).__name__, repr(value))
+    raise TypeError(f"no cache key for a {type(value).__name__}")
+
+
+def generator_key(name: str, params: dict | None = None) -> tuple | None:
+    """Cache key of ``GENERATORS[name](**params)``: the registered function itself and the exact parameter values
+    (generators are deterministic); None for an unknown name or parameter values of other types (not cached)."""
+    fn = GENERATORS.get(name)
+    if fn is None:
+        return None
+    try:
+        return ("procedural", name, fn, _canonical(dict(params or {})))
+    except TypeError:
+        return None
 
 
 def generate(name: str, params: dict | None = None) -> TriangleMesh:
@@ -309,13 +361,16 @@ def colonnade(
     t = _float("roof_thickness", roof_thickness, 0.0)
 
     xs = (np.arange(n) - 0.5 * (n - 1)) * spacing
-    parts = [cylinder(radius, 0.0, height, s, (x, z)) for z in (-0.5 * row_gap, 0.5 * row_gap) for x in xs]
-    if roof:
-        x0, x1 = xs[0] - 0.5 * spacing, xs[-1] + 0.5 * spacing
-        for z in (-0.5 * row_gap, 0.5 * row_gap):
-            parts.append(box([x0, height, z - 1.3 * radius], [x1, height + t, z + 1.3 * radius]))
-        zr = 0.5 * row_gap + 1.5 * radius
-        parts.append(box([x0, height + t, -zr], [x1, height + 2.0 * t, zr]))
+    rows = np.array([-0.5 * row_gap, 0.5 * row_gap])
+    pillars = _cylinders(radius, 0.0, height, s, np.tile(xs, 2), np.repeat(rows, n))  # row by row, x increasing
+    if not roof:
+        return pillars
+    x0, x1 = xs[0] - 0.5 * spacing, xs[-1] + 0.5 * spacing
+    parts = [pillars]
+    for z in (-0.5 * row_gap, 0.5 * row_gap):
+        parts.append(box([x0, height, z - 1.3 * radius], [x1, height + t, z + 1.3 * radius]))
+    zr = 0.5 * row_gap + 1.5 * radius
+    parts.append(box([x0, height + t, -zr], [x1, height + 2.0 * t, zr]))
     return concatenate(parts)[0]
 
 
@@ -371,17 +426,23 @@ def fence(
         raise ValueError(f"parameter 'rails' = {rails} does not fit in height {height}")
     xs = (np.arange(n) - 0.5 * (n - 1)) * post_spacing
     hw = 0.5 * post_width
-    parts = [box([x - hw, 0.0, -hw], [x + hw, height, hw]) for x in xs]
-    for x in xs[:-1]:
-        for k in range(m):
-            bx = x + hw + gap + k * (board + gap)
-            parts.append(box([bx, 0.06 * height, -0.5 * thick], [bx + board, 0.94 * height, 0.5 * thick]))
-    for r in range(rails):
-        yc = height * (r + 1) / (rails + 1)
-        parts.append(
-            box([xs[0] + hw, yc - 0.5 * rail_h, 0.5 * thick], [xs[-1] - hw, yc + 0.5 * rail_h, 0.5 * thick + 0.04])
-        )
-    return concatenate(parts)[0]
+
+    def corners(x, y, z) -> np.ndarray:
+        """(B, 3) corners from per-box arrays or scalars (broadcast)."""
+        x, y, z = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64), np.asarray(z, np.float64))
+        return np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+
+    lo = [corners(xs - hw, 0.0, -hw)]  # posts
+    hi = [corners(xs + hw, height, hw)]
+    if m > 0:  # slats, bay by bay, left to right
+        bx = (xs[:-1, None] + hw + gap + np.arange(m)[None, :] * (board + gap)).ravel()
+        lo.append(corners(bx, 0.06 * height, -0.5 * thick))
+        hi.append(corners(bx + board, 0.94 * height, 0.5 * thick))
+    if rails > 0:
+        yc = height * (np.arange(rails) + 1) / (rails + 1)
+        lo.append(corners(xs[0] + hw, yc - 0.5 * rail_h, 0.5 * thick))
+        hi.append(corners(xs[-1] - hw, yc + 0.5 * rail_h, 0.5 * thick + 0.04))
+    return _boxes(np.concatenate(lo), np.concatenate(hi))
 
 
 @_generator
@@ -461,10 +522,18 @@ def canopy(
     u = np.cos(phi) * u0 + np.sin(phi) * v0
     v = np.cross(normal, u)
     h = 0.5 * leaf_size
-    corners = np.stack([pos - h * u - h * v, pos + h * u - h * v, pos + h * u + h * v, pos - h * u + h * v], axis=1)
-    quads = np.arange(4 * nl).reshape(nl, 4)
-    leaves_mesh = TriangleMesh(corners.reshape(-1, 3), quads_to_triangles(quads))
-    return concatenate([trunk, leaves_mesh])[0]
+    hu, hv = h * u, h * v
+    # The trunk's vertices, then the leaves' corners (float32, as concatenating the two meshes gives them).
+    nt = trunk.num_vertices
+    vertices = np.empty((nt + 4 * nl, 3), dtype=np.float32)
+    vertices[:nt] = trunk.vertices
+    corners = vertices[nt:].reshape(nl, 4, 3)
+    corners[:, 0] = pos - hu - hv
+    corners[:, 1] = pos + hu - hv
+    corners[:, 2] = pos + hu + hv
+    corners[:, 3] = pos - hu + hv
+    leaf_triangles = quads_to_triangles(np.arange(nt, nt + 4 * nl).reshape(nl, 4))
+    return TriangleMesh(vertices, np.concatenate([trunk.triangles, leaf_triangles]))
 
 
 @_generator
@@ -527,27 +596,29 @@ def room_window(
 
     quads, normals = [], []
 
-    def wall(axis: int, fixed: int, inward: float, skip=lambda a, b: False):
-        """Quads of the wall where lattice index along ``axis`` is ``fixed``; inward normal sign along ``axis``."""
+    def wall(axis: int, fixed: int, inward: float, skip=None):
+        """Quads of the wall where lattice index along ``axis`` is ``fixed``; inward normal sign along ``axis``.
+        Cells (a, b) along the two other axes in row-major order, those where ``skip(a, b)`` holds left out."""
         other = [a for a in range(3) if a != axis]
         counts = [nx, ny, 2]
-        for a in range(counts[other[0]] - 1):
-            for b in range(counts[other[1]] - 1):
-                if skip(a, b):
-                    continue
-                corner = []
-                for da, db in ((0, 0), (1, 0), (1, 1), (0, 1)):
-                    idx = [0, 0, 0]
-                    idx[axis], idx[other[0]], idx[other[1]] = fixed, a + da, b + db
-                    corner.append(vid(*idx))
-                quads.append(corner)
-                n = np.zeros(3)
-                n[axis] = inward
-                normals.append(n)
+        a, b = np.meshgrid(np.arange(counts[other[0]] - 1), np.arange(counts[other[1]] - 1), indexing="ij")
+        a, b = a.ravel(), b.ravel()
+        if skip is not None:
+            keep = ~skip(a, b)
+            a, b = a[keep], b[keep]
+        corner = []
+        for da, db in ((0, 0), (1, 0), (1, 1), (0, 1)):
+            idx = [0, 0, 0]
+            idx[axis], idx[other[0]], idx[other[1]] = fixed, a + da, b + db
+            corner.append(vid(*idx))
+        quads.append(np.stack(corner, axis=1))
+        n = np.zeros((len(a), 3))
+        n[:, axis] = inward
+        normals.append(n)
 
     def is_pane(i, j):
         # Cells between xl[1 + 2p] and xl[2 + 2p] (and likewise in y) are openings.
-        return 1 <= i <= 2 * pc - 1 and i % 2 == 1 and 1 <= j <= 2 * pr - 1 and j % 2 == 1
+        return (1 <= i) & (i <= 2 * pc - 1) & (i % 2 == 1) & (1 <= j) & (j <= 2 * pr - 1) & (j % 2 == 1)
 
     wall(2, 0, +1.0, skip=is_pane)  # -Z wall with the window, faces +Z
     wall(2, 1, -1.0)  # +Z wall
@@ -560,10 +631,10 @@ def room_window(
     lattice = np.zeros((nx * ny * 2, 3))
     ii, jj, kk = np.meshgrid(np.arange(nx), np.arange(ny), np.arange(2), indexing="ij")
     lattice[vid(ii, jj, kk).ravel()] = np.stack([gx, gy, gz], axis=-1).reshape(-1, 3)
-    quads = np.array(quads, dtype=np.int64)
+    quads = np.concatenate(quads).astype(np.int64)
     # Orient every quad so that (b - a) x (c - a) points along its inward normal.
     p = lattice[quads]
-    facing = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), np.array(normals))
+    facing = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), np.concatenate(normals))
     quads[facing < 0] = quads[facing < 0][:, ::-1]
     used, remap = np.unique(quads, return_inverse=True)
     return TriangleMesh(lattice[used], quads_to_triangles(remap.reshape(-1, 4)))
