@@ -144,6 +144,76 @@ def test_samples_beside_depth_edges_are_ray_marched():
     assert (cum[rows, right[interp]] == cum[rows, left[interp]]).all()
 
 
+def _paper_search(depth, segment, thr):
+    """Engelhardt 2010 Sec. 5.2 pseudo-code, texel by texel: the (left, right) interpolation sources found by searching
+    each texel's initial segment left and right for depth discontinuities (float32, as on the device)."""
+    n = len(depth)
+    disc = np.abs(depth[1:] - depth[:-1]) > np.float32(thr) * np.minimum(depth[1:], depth[:-1])
+    src = np.empty((n, 2), np.int64)
+    for x in range(n):
+        start = x // segment * segment
+        end = min(start + segment, n - 1)
+        left = right = x
+        while left > start and not disc[left - 1]:
+            left -= 1
+        while right < end and not disc[right]:
+            right += 1
+        src[x] = left, right
+    return src
+
+
+def test_classification_is_the_papers_per_texel_search():
+    # the per-line pass (runs between discontinuities) gives exactly the sources of the per-texel search, and the
+    # list of ray-marching samples is the flat indices of the texels that are their own source, in order
+    board = quad([-1, 0, -1], [1, 0, -1], [1, 2.5, -1], [-1, 2.5, -1])
+    scene = _ground_scene([0.4, -0.5, -1.0], extra=[board])
+    gb = gbuffer_raster(scene, DeviceGeometry(scene))
+    thr = 0.05
+    lines, _ = epipolar_lines(scene.camera, scene.light, 96, 6)
+    tex = et.classify_samples(lines, et.line_samples(lines, gb.distance, thr), thr)
+    depth, src = tex.depth.numpy(), tex.interp.numpy()
+    x = np.arange(lines.samples)
+    want_march = np.zeros((lines.count, lines.samples), bool)
+    for k in range(lines.count):
+        if lines.valid[k]:
+            want = _paper_search(depth[k], lines.segment, thr)
+            np.testing.assert_array_equal(src[k], want)
+            want_march[k] = (want[:, 0] == x) | (want[:, 1] == x)
+        else:
+            np.testing.assert_array_equal(src[k], np.stack([x, x], 1))
+    np.testing.assert_array_equal(tex.march.numpy(), want_march.ravel().astype(np.int32))
+    assert tex.sample_count == want_march.sum() > 96 * 6
+    np.testing.assert_array_equal(tex.samples.numpy()[:tex.sample_count], np.flatnonzero(want_march))
+    # the radiance and depth textures are views of the one texel texture the upsampling reads
+    tex.radiance.fill_(wp.vec3(1.0, 2.0, 3.0))
+    np.testing.assert_array_equal(tex.texels.numpy()[..., :3], np.broadcast_to([1.0, 2.0, 3.0], (96, lines.samples, 3)))
+    np.testing.assert_array_equal(tex.texels.numpy()[..., 3], depth)
+
+
+@wp.kernel
+def _wrap_kernel(k0: int, n: int, out: wp.array(dtype=wp.int32)):
+    i = wp.tid()
+    out[i] = et.wrap_line(k0 + i, n)
+
+
+def test_wrap_line_and_gather_rows():
+    dev = default_device()
+    for n in (1, 7, 1024):
+        out = wp.zeros(8 * n + 3, dtype=wp.int32, device=dev)
+        wp.launch(_wrap_kernel, out.shape[0], [-4 * n - 1, n, out], device=dev)
+        np.testing.assert_array_equal(out.numpy(), (np.arange(out.shape[0]) - 4 * n - 1) % n)
+    rows = np.full((4, 6), -1, np.int32)
+    rows[0, :2], rows[2, :3] = [1, 4], [0, 2, 5]
+    count = np.array([2, 0, 3, 0], np.int32)
+    idx, total = et.gather_rows(wp.array(rows, dtype=wp.int32, device=dev), wp.array(count, dtype=wp.int32, device=dev),
+                                dev)
+    assert total == 5
+    np.testing.assert_array_equal(idx.numpy(), [1, 4, 12, 14, 17])
+    idx, total = et.gather_rows(wp.zeros((3, 2), dtype=wp.int32, device=dev), wp.zeros(3, dtype=wp.int32, device=dev),
+                                dev)
+    assert total == 0 and idx.shape == (1,)
+
+
 # ---- against per-pixel ray marching ----------------------------------------------------------------------------
 
 

@@ -8,14 +8,16 @@ lines and interpolated elsewhere. Stages (names as they appear in timings):
    viewport and culled when outside (:mod:`.epipolar_lines`, host numpy), clipped against a spot light's cone
    (:func:`trim_to_cone`); then the **coordinate texture** (line x texel -> screen position, Sec. 5.1; row =
    line, column = position along it) and the camera depth (G-buffer distance) at every texel.
-2. ``discontinuities`` — every texel searches left and right inside its initial segment for depth
-   discontinuities (Sec. 5.2 pseudo-code); the **interpolation texture** stores the two sources found; texels
-   that are their own source (initial samples and texels beside a discontinuity) are ray-marching samples,
-   compacted into a list (the paper's stencil mask).
+2. ``discontinuities`` — the sources of every texel as the paper's per-texel search left and right inside its
+   initial segment finds them (Sec. 5.2 pseudo-code), in one pass per line: each initial segment splits into
+   runs at the depth discontinuities between neighbouring texels, and every texel of a run gets the run's ends.
+   The **interpolation texture** stores the two sources; texels that are their own source (initial samples and
+   texels beside a discontinuity) are ray-marching samples, listed per line and gathered into one list (the
+   paper's stencil mask).
 3. ``raymarch``        — the ray-marching samples only, with the reference marcher's estimator
    (:func:`~.marching.march_screen_point` = :func:`~.marching.march_ray` at a sub-pixel position; same steps
    restricted to the lit part of the ray, same jitter pattern and visibility: shadow map or exact), into the
-   **radiance texture**.
+   **radiance texture** (which shares one vec4 texture with the texels' camera depth).
 4. ``interpolate``     — linear interpolation along each line between the sources; then per pixel (Sec. 4.3,
    5.3): the two nearest lines from the border arclength of the ray epipole -> pixel (the 1D border lookup,
    analytic because the border points are equidistant), projection onto them, a 3-5 tap bilateral filter
@@ -25,6 +27,9 @@ lines and interpolated elsewhere. Stages (names as they appear in timings):
    no valid tap on any tried line are ray-marched directly with :func:`~.marching.march_ray` (counted in
    ``epipolar_raymarched_fraction``; timed under ``raymarch``), so no pixel is ever left undefined. Pixels
    whose camera ray misses a spot light's cone are exactly 0.
+
+Every stage runs on all cores (:func:`~warpscatter.parallel.launch_rows`): one thread per line for the line
+textures, one per band of image rows, walked in square tiles, for the upsampling.
 
 Degenerate case: when the epipole is at infinity (light direction parallel to the image plane) or undefined
 (a spot light at the camera), the method falls back to plain screen-space subsampling: a regular grid of
@@ -59,12 +64,14 @@ from .epipolar_textures import (
     EpipolarGeometry,
     classify_samples,
     compact,
+    gather_rows,
     geometry_params,
     line_samples,
     sample_texture_bytes,
     trim_to_cone,
 )
 from .epipolar_upsampling import (
+    UPSAMPLE_TILE,
     filter_params,
     grid_node,
     grid_upsample_kernel,
@@ -213,7 +220,6 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
     flt = filter_params(ep, device)
     h, w = cam.height, cam.width
     out = wp.empty((h, w), dtype=wp.vec3, device=device)
-    unresolved = wp.empty(h * w, dtype=wp.int32, device=device)
     info = {"epipolar_lines": ep.lines, "epipolar_initial_samples": ep.initial_samples}
 
     with stage("lines"):
@@ -244,6 +250,7 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
             launch_rows(grid_raymarch_kernel, (gh, gw), [cam_p, gbuffer.distance, int(stride), marcher, grid],
                         device=device)
         with stage("interpolate"):
+            unresolved = wp.empty(h * w, dtype=wp.int32, device=device)
             launch_rows(grid_upsample_kernel, (h, w),
                         [cam_p, gbuffer.distance, int(stride), grid, flt, out, unresolved], device=device)
         marched_samples = gw * gh
@@ -253,17 +260,17 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
         geo = geometry_params(lines)
         with stage("discontinuities"):
             classify_samples(lines, tex, ep.depth_threshold, device)
-            sample_idx, marched_samples = compact(tex.march, device)
+            sample_idx, marched_samples = tex.samples, tex.sample_count
         with stage("raymarch"):
-            tex.radiance = wp.zeros((lines.count, lines.samples), dtype=wp.vec3, device=device)
             if marched_samples:
                 launch_rows(raymarch_samples_kernel, marched_samples,
                             [sample_idx, geo, tex.coords, tex.depth, cam_p, marcher, tex.radiance], device=device)
         with stage("interpolate"):
-            launch_rows(interpolate_lines_kernel, (lines.count, lines.samples), [tex.valid, tex.interp, tex.radiance],
-                        device=device)
-            launch_rows(upsample_kernel, (h, w),
-                        [cam_p, gbuffer.distance, marcher.light, geo, flt, tex.arrays(), out, unresolved],
+            launch_rows(interpolate_lines_kernel, lines.count, [tex.valid, tex.interp, tex.radiance], device=device)
+            rows = wp.empty((h, w), dtype=wp.int32, device=device)
+            row_count = wp.empty(h, dtype=wp.int32, device=device)
+            launch_rows(upsample_kernel, -(-h // UPSAMPLE_TILE),
+                        [cam_p, gbuffer.distance, marcher.light, geo, flt, tex.arrays(), out, rows, row_count],
                         device=device)
         info.update({"epipolar_fallback": None, "epipolar_epipole": [float(v) for v in lines.epipole],
                      "epipolar_light_behind": lines.light_behind, "epipolar_lines_valid": int(lines.valid.sum()),
@@ -271,7 +278,10 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
                      "epipolar_texture_bytes": sample_texture_bytes(lines)})
 
     with stage("raymarch"):
-        pixel_idx, marched_pixels = compact(unresolved, device)
+        if lines is None:
+            pixel_idx, marched_pixels = compact(unresolved, device)
+        else:
+            pixel_idx, marched_pixels = gather_rows(rows, row_count, device)
         if marched_pixels:
             launch_rows(raymarch_pixels_kernel, marched_pixels, [pixel_idx, cam_p, gbuffer.distance, marcher, out],
                         device=device)

@@ -3,8 +3,10 @@ it, the coordinate texture, the camera depth at every texel, the discontinuity s
 ray-marching and interpolation samples.
 
 Textures are (lines, samples) in the paper's layout (Fig. 6): row = line, column = position along it from the
-epipole side (:mod:`.epipolar_lines` computes the layout on the host). Depth comparisons are relative: two camera
-depths a, b are discontinuous when |a - b| > threshold min(a, b) (Sec. 6).
+epipole side (:mod:`.epipolar_lines` computes the layout on the host). The radiance and the camera depth of the
+texels share one vec4 texture (what a bilateral tap reads). The per-texel kernels run one thread per line (a loop
+along it), split across cores. Depth comparisons are relative: two camera depths a, b are discontinuous when
+|a - b| > threshold min(a, b) (Sec. 6).
 """
 
 from __future__ import annotations
@@ -36,6 +38,11 @@ class EpipolarGeometry:
     segment: int  # texels per initial segment
 
 
+#: One line's segment as the upsampling reads it: entry (x, y), exit - entry (x, y), |exit - entry|^2,
+#: |exit - entry|, valid (1 or 0), unused.
+LineRecord = wp.types.vector(length=8, dtype=wp.float32)
+
+
 @wp.struct
 class LineArrays:
     """The per-line textures the upsampling reads, as kernels see them (:meth:`LineTextures.arrays`)."""
@@ -45,6 +52,8 @@ class LineArrays:
     valid: wp.array(dtype=wp.int32)  # (N,) 0 for culled lines
     depth: wp.array2d(dtype=wp.float32)  # (N, samples) camera depth at each texel
     radiance: wp.array2d(dtype=wp.vec3)  # (N, samples) L_scat at each texel
+    records: wp.array(dtype=LineRecord)  # (N,) the segment as the per-pixel projections read it
+    texels: wp.array(dtype=wp.vec4)  # (N * samples,) (L_scat, camera depth) at each texel, flat: one read per texel
 
 
 # ---- building blocks (public @wp.func API) -------------------------------------------------------
@@ -178,9 +187,15 @@ def project_on_line(a: wp.vec2, b: wp.vec2, p: wp.vec2) -> float:
 @wp.func
 def wrap_line(k: int, n: int) -> int:
     """Line index k modulo n (non-negative)."""
-    r = k % n
+    r = k
     if r < 0:
-        r += n
+        r += n  # the common cases (-n <= k < 2n) without an integer division
+    elif r >= n:
+        r -= n
+    if r < 0 or r >= n:
+        r = k % n
+        if r < 0:
+            r += n
     return r
 
 
@@ -230,6 +245,20 @@ def trim_to_cone_kernel(
 
 
 @wp.kernel
+def line_records_kernel(
+    entry: wp.array(dtype=wp.vec2),
+    exit_: wp.array(dtype=wp.vec2),
+    valid: wp.array(dtype=wp.int32),
+    records: wp.array(dtype=LineRecord),  # out
+):
+    # the per-line terms of project_on_line and of the segment length, computed once per line
+    k = wp.tid()
+    a = entry[k]
+    ab = exit_[k] - a
+    records[k] = LineRecord(a[0], a[1], ab[0], ab[1], wp.dot(ab, ab), wp.length(ab), float(valid[k]), 0.0)
+
+
+@wp.kernel
 def line_samples_kernel(
     geo: EpipolarGeometry,
     entry: wp.array(dtype=wp.vec2),
@@ -241,39 +270,21 @@ def line_samples_kernel(
     line_depth: wp.array2d(dtype=wp.float32),  # out: camera depth at each texel
     offset: int,
 ):
-    # Engelhardt 2010 Sec. 5.1: texel positions by interpolation between the clipped segment's end points
-    k, x = wp.tid()
-    k += offset
+    # Engelhardt 2010 Sec. 5.1: texel positions by interpolation between the clipped segment's end points; one
+    # thread per line
+    k = wp.tid() + offset
+    n = geo.samples
     if valid[k] == 0:
-        coords[k, x] = wp.vec2(-1.0, -1.0)
-        line_depth[k, x] = 0.0
+        for x in range(n):
+            coords[k, x] = wp.vec2(-1.0, -1.0)
+            line_depth[k, x] = 0.0
         return
-    t = float(x) / float(geo.samples - 1)
-    p = entry[k] + (exit_[k] - entry[k]) * t
-    coords[k, x] = p
-    line_depth[k, x] = sample_distance(distance, p[0], p[1], threshold)
-
-
-@wp.kernel
-def segment_discontinuity_kernel(
-    geo: EpipolarGeometry,
-    valid: wp.array(dtype=wp.int32),
-    line_depth: wp.array2d(dtype=wp.float32),
-    threshold: float,
-    segment_has_edge: wp.array2d(dtype=wp.int32),  # out: 1 if initial segment m of line k holds a discontinuity
-    offset: int,
-):
-    # one pass per initial segment, so that texels of discontinuity-free segments (most of them) need no search
-    k, m = wp.tid()
-    k += offset
-    found = int(0)
-    if valid[k] != 0:
-        x0 = m * geo.segment
-        for x in range(x0, x0 + geo.segment):
-            if depth_discontinuity(line_depth[k, x], line_depth[k, x + 1], threshold):
-                found = 1
-                break
-    segment_has_edge[k, m] = found
+    a = entry[k]
+    ab = exit_[k] - entry[k]
+    for x in range(n):
+        p = a + ab * (float(x) / float(n - 1))
+        coords[k, x] = p
+        line_depth[k, x] = sample_distance(distance, p[0], p[1], threshold)
 
 
 @wp.kernel
@@ -282,45 +293,68 @@ def discontinuity_kernel(
     valid: wp.array(dtype=wp.int32),
     line_depth: wp.array2d(dtype=wp.float32),
     threshold: float,
-    segment_has_edge: wp.array2d(dtype=wp.int32),
     interp: wp.array2d(dtype=wp.vec2i),  # out: interpolation texture (left, right source texels)
     march: wp.array(dtype=wp.int32),  # out: 1 for ray-marching samples, flat index line * samples + texel
+    marched: wp.array2d(dtype=wp.int32),  # out: the line's ray-marching texels in order (the first count[k])
+    count: wp.array(dtype=wp.int32),  # out: ray-marching samples per line
     offset: int,
 ):
-    # Engelhardt 2010 Sec. 5.2 pseudo-code: search the texel's initial segment left and right for discontinuities
-    k, x = wp.tid()
-    k += offset
-    flat = k * geo.samples + x
+    # Engelhardt 2010 Sec. 5.2, one pass per line: the texels of an initial segment split into runs at the depth
+    # discontinuities between neighbours; every texel of a run [a, b] gets the sources (a, b), exactly what the
+    # paper's per-texel search left and right inside the segment finds, and a and b are ray-marching samples.
+    k = wp.tid() + offset
+    n = geo.samples
+    row = k * n
     if valid[k] == 0:
-        interp[k, x] = wp.vec2i(x, x)
-        march[flat] = 0
+        for x in range(n):
+            interp[k, x] = wp.vec2i(x, x)
+            march[row + x] = 0
+        count[k] = 0
         return
-    m = x // geo.segment
-    seg_start = m * geo.segment
-    seg_end = wp.min(seg_start + geo.segment, geo.samples - 1)
-    if m < segment_has_edge.shape[1]:
-        if segment_has_edge[k, m] == 0:  # the search would run to both ends of the segment
-            interp[k, x] = wp.vec2i(seg_start, seg_end)
-            if x == seg_start:
-                march[flat] = 1
-            else:
-                march[flat] = 0
-            return
-    left = int(x)
-    while left > seg_start:
-        if depth_discontinuity(line_depth[k, left - 1], line_depth[k, left], threshold):
-            break
-        left -= 1
-    right = int(x)
-    while right < seg_end:
-        if depth_discontinuity(line_depth[k, right], line_depth[k, right + 1], threshold):
-            break
-        right += 1
-    interp[k, x] = wp.vec2i(left, right)
-    if left == x or right == x:  # interpolates from itself: a ray-marching sample
-        march[flat] = 1
-    else:
-        march[flat] = 0
+    c = int(0)
+    seg = geo.segment
+    for x0 in range(0, n - 1, seg):
+        end = x0 + seg  # the segment's last texel (the next segment's first)
+        a = x0
+        d_next = line_depth[k, x0]
+        for x in range(x0, end + 1):
+            d = d_next
+            cut = x == end
+            if not cut:
+                d_next = line_depth[k, x + 1]
+                cut = depth_discontinuity(d, d_next, threshold)
+            if cut:  # the run [a, x] ends here
+                for y in range(a, wp.min(x + 1, end)):
+                    interp[k, y] = wp.vec2i(a, x)
+                    march[row + y] = 0
+                if a < end:
+                    march[row + a] = 1
+                    marched[k, c] = a
+                    c += 1
+                if x > a and x < end:
+                    march[row + x] = 1
+                    marched[k, c] = x
+                    c += 1
+                a = x + 1
+    # the last texel closes the last segment and is its own source
+    interp[k, n - 1] = wp.vec2i(n - 1, n - 1)
+    march[row + n - 1] = 1
+    marched[k, c] = n - 1
+    count[k] = c + 1
+
+
+@wp.kernel
+def gather_rows_kernel(
+    rows: wp.array2d(dtype=wp.int32),  # per row, the columns listed (the first count[r])
+    count: wp.array(dtype=wp.int32),
+    start: wp.array(dtype=wp.int32),  # exclusive prefix sum of count
+    indices: wp.array(dtype=wp.int32),  # out: flat indices row * row_length + column, row-major
+    offset: int,
+):
+    r = wp.tid() + offset
+    s = start[r]
+    for c in range(count[r]):
+        indices[s + c] = r * rows.shape[1] + rows[r, c]
 
 
 @wp.kernel
@@ -352,6 +386,28 @@ def compact(flags: wp.array, device=None) -> tuple[wp.array, int]:
     return indices, count
 
 
+def gather_rows(rows: wp.array, count: wp.array, device=None) -> tuple[wp.array, int]:
+    """Flat indices ``row * rows.shape[1] + column`` of per-row column lists, row-major.
+
+    Args:
+        rows: (R, C) int32: row r lists ``count[r]`` columns first (the rest is never read).
+        count: (R,) int32.
+
+    Returns:
+        (indices, total): int32 array of length max(total, 1) (the first ``total`` entries are valid) and total.
+    """
+    device = default_device(device)
+    counts = count.numpy().astype(np.int64)
+    total = int(counts.sum())
+    indices = wp.empty(max(total, 1), dtype=wp.int32, device=device)
+    if total:
+        start = np.zeros(len(counts), dtype=np.int32)
+        np.cumsum(counts[:-1], out=start[1:])
+        launch_rows(gather_rows_kernel, len(counts), [rows, count, wp.array(start, dtype=wp.int32, device=device),
+                                                      indices], device=device)
+    return indices, total
+
+
 def geometry_params(lines: EpipolarLines) -> EpipolarGeometry:
     """:class:`EpipolarGeometry` of a set of lines."""
     g = EpipolarGeometry()
@@ -364,21 +420,30 @@ def geometry_params(lines: EpipolarLines) -> EpipolarGeometry:
 
 @dataclass
 class LineTextures:
-    """Device textures of the epipolar lines, all (lines, samples) in the paper's layout (Fig. 6)."""
+    """Device textures of the epipolar lines, all (lines, samples) in the paper's layout (Fig. 6).
+
+    The radiance and the camera depth share one texture, ``texels`` (vec4: L_scat, depth), so that a bilateral tap
+    reads one texel; ``radiance`` and ``depth`` are strided views of it.
+    """
 
     entry: wp.array  # (N,) vec2
     exit: wp.array  # (N,) vec2
     valid: wp.array  # (N,) int32
+    records: wp.array  # (N,) LineRecord: the segments as the upsampling reads them
     coords: wp.array  # coordinate texture: vec2 screen position
-    depth: wp.array  # camera depth (G-buffer distance) at each texel
+    texels: wp.array  # vec4 (L_scat, camera depth)
+    depth: wp.array  # float32 view of texels: camera depth (G-buffer distance) at each texel
+    radiance: wp.array  # vec3 view of texels: the radiance texture (L_scat; filled by ray marching + interpolation)
     interp: wp.array | None = None  # interpolation texture: vec2i (left, right) sources
     march: wp.array | None = None  # (N * samples,) int32: 1 for ray-marching samples
-    radiance: wp.array | None = None  # radiance texture: vec3 L_scat
+    samples: wp.array | None = None  # (max(sample_count, 1),) int32: flat indices of the ray-marching samples
+    sample_count: int = 0  # ray-marching samples
 
     def arrays(self) -> LineArrays:
-        """The textures the upsampling reads (:class:`LineArrays`); ``radiance`` must be filled."""
+        """The textures the upsampling reads (:class:`LineArrays`); the radiance must be filled."""
         a = LineArrays()
         a.entry, a.exit_, a.valid, a.depth, a.radiance = self.entry, self.exit, self.valid, self.depth, self.radiance
+        a.records, a.texels = self.records, self.texels.flatten()
         return a
 
 
@@ -404,6 +469,15 @@ def trim_to_cone(lines: EpipolarLines, camera, light, device=None) -> EpipolarLi
     return replace(lines, entry=entry.numpy(), exit=exit_.numpy(), valid=valid.numpy().astype(bool))
 
 
+def texel_views(texels: wp.array) -> tuple[wp.array, wp.array]:
+    """(radiance, depth): vec3 and float32 views of an (N, S) vec4 texture's (xyz, w), sharing its memory."""
+    n, s = texels.shape
+    strides = (s * 16, 16)
+    radiance = wp.array(ptr=texels.ptr, dtype=wp.vec3, shape=(n, s), strides=strides, device=texels.device)
+    depth = wp.array(ptr=texels.ptr + 12, dtype=wp.float32, shape=(n, s), strides=strides, device=texels.device)
+    return radiance, depth
+
+
 def line_samples(lines: EpipolarLines, distance: wp.array, depth_threshold: float, device=None) -> LineTextures:
     """Coordinate texture and per-texel camera depth (Engelhardt 2010 Sec. 5.1).
 
@@ -415,12 +489,16 @@ def line_samples(lines: EpipolarLines, distance: wp.array, depth_threshold: floa
     """
     device = default_device(device)
     n, s = lines.count, lines.samples
+    texels = wp.empty((n, s), dtype=wp.vec4, device=device)
+    radiance, depth = texel_views(texels)
     tex = LineTextures(entry=wp.array(lines.entry, dtype=wp.vec2, device=device),
                        exit=wp.array(lines.exit, dtype=wp.vec2, device=device),
                        valid=wp.array(lines.valid.astype(np.int32), dtype=wp.int32, device=device),
+                       records=wp.empty(n, dtype=LineRecord, device=device),
                        coords=wp.empty((n, s), dtype=wp.vec2, device=device),
-                       depth=wp.empty((n, s), dtype=wp.float32, device=device))
-    launch_rows(line_samples_kernel, (n, s),
+                       texels=texels, depth=depth, radiance=radiance)
+    wp.launch(line_records_kernel, n, [tex.entry, tex.exit, tex.valid, tex.records], device=device)
+    launch_rows(line_samples_kernel, n,
                 [geometry_params(lines), tex.entry, tex.exit, tex.valid, distance, float(depth_threshold), tex.coords,
                  tex.depth], device=device)
     return tex
@@ -429,36 +507,40 @@ def line_samples(lines: EpipolarLines, distance: wp.array, depth_threshold: floa
 def classify_samples(lines: EpipolarLines, tex: LineTextures, depth_threshold: float, device=None) -> LineTextures:
     """Discontinuity search and classification into ray-marching / interpolation samples (Sec. 5.2).
 
-    Fills ``tex.interp`` (left, right sources per texel) and ``tex.march`` (flat ray-marching flags).
+    Fills ``tex.interp`` (left, right sources per texel), ``tex.march`` (flat ray-marching flags) and
+    ``tex.samples`` / ``tex.sample_count`` (the flat indices of the ray-marching samples, in flat order: the
+    paper's stencil mask as a list).
     """
     device = default_device(device)
     n, s = lines.count, lines.samples
     tex.interp = wp.empty((n, s), dtype=wp.vec2i, device=device)
     tex.march = wp.empty(n * s, dtype=wp.int32, device=device)
+    marched = wp.empty((n, s), dtype=wp.int32, device=device)
+    count = wp.empty(n, dtype=wp.int32, device=device)
     geo = geometry_params(lines)
-    segments = (s - 1) // lines.segment
-    has_edge = wp.empty((n, segments), dtype=wp.int32, device=device)
-    launch_rows(segment_discontinuity_kernel, (n, segments),
-                [geo, tex.valid, tex.depth, float(depth_threshold), has_edge], device=device)
-    launch_rows(discontinuity_kernel, (n, s),
-                [geo, tex.valid, tex.depth, float(depth_threshold), has_edge, tex.interp, tex.march], device=device)
+    launch_rows(discontinuity_kernel, n,
+                [geo, tex.valid, tex.depth, float(depth_threshold), tex.interp, tex.march, marched, count],
+                device=device)
+    tex.samples, tex.sample_count = gather_rows(marched, count, device)
     return tex
 
 
 def sample_texture_bytes(lines: EpipolarLines) -> int:
-    """Bytes of the per-line textures (coordinate 8, depth 4, interpolation 8, flags 4, radiance 12 per texel)."""
-    return int(lines.count * lines.samples * (8 + 4 + 8 + 4 + 12))
+    """Bytes of the per-line textures (coordinate 8, radiance and depth 16, interpolation 8, flags 4 per texel)."""
+    return int(lines.count * lines.samples * (8 + 16 + 8 + 4))
 
 
 __all__ = [
     "CONE_TRIM_POINTS",
     "EpipolarGeometry",
     "LineArrays",
+    "LineRecord",
     "LineTextures",
     "border_arclength",
     "classify_samples",
     "compact",
     "depth_discontinuity",
+    "gather_rows",
     "geometry_params",
     "line_samples",
     "project_on_line",
@@ -466,6 +548,7 @@ __all__ = [
     "sample_distance",
     "sample_texture_bytes",
     "screen_point_in_light",
+    "texel_views",
     "trim_to_cone",
     "wrap_line",
 ]

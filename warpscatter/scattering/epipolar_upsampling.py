@@ -5,8 +5,14 @@ Per pixel: the two nearest lines from the border arclength of the ray epipole ->
 analytic because the border points are equidistant), projection onto them, a 3-5 tap bilateral filter along each
 (taps a multiple of the projections' distance apart, in symmetric pairs; distance and depth weights, Gaussian,
 Shepard or threshold), then between the lines by their weight sums; a side without valid taps moves to the next
-outer line (at most ``outer_lines``). Pixels with no valid tap on any tried line are flagged ``unresolved`` (the
-method ray-marches them). Pixels whose camera ray misses a spot light's cone are exactly 0.
+outer line (at most ``outer_lines``). Pixels with no valid tap on any tried line are listed per row as
+``unresolved`` (the method ray-marches them). Pixels whose camera ray misses a spot light's cone are exactly 0.
+
+Work layout (the arithmetic is :func:`line_filter`'s, operation for operation, so the images do not depend on it):
+one thread per band of :data:`UPSAMPLE_TILE` image rows, walked in square tiles so that the texels of the few lines
+crossing a tile stay in the cache; each line's segment is read from one :data:`~.epipolar_textures.LineRecord` and
+each tap texel from one vec4 (radiance, depth); the projections on the two nearest lines serve the tap spacing and
+the filters alike; both nearest lines are filtered before the outer lines are tried.
 """
 
 from __future__ import annotations
@@ -20,8 +26,8 @@ from ..wpinit import default_device, module_options
 from .epipolar_textures import (
     EpipolarGeometry,
     LineArrays,
+    LineRecord,
     border_arclength,
-    project_on_line,
     screen_point_in_light,
     wrap_line,
 )
@@ -33,6 +39,9 @@ module_options()
 KERNEL_GAUSSIAN = wp.constant(0)
 KERNEL_SHEPARD = wp.constant(1)
 KERNEL_THRESHOLD = wp.constant(2)
+
+#: Pixels per side of the square tiles the upsampling walks (one thread per band of this many rows).
+UPSAMPLE_TILE = wp.constant(16)
 
 
 #: Distance weights of up to 5 taps, precomputed on the host (index m = tap).
@@ -46,6 +55,7 @@ class BilateralFilter:
     kernel: int  # KERNEL_GAUSSIAN, KERNEL_SHEPARD or KERNEL_THRESHOLD
     taps: int  # taps per line, 3..5
     tap_weights: TapWeights  # distance weight of tap m at offset m - (taps-1)/2 (in units of delta)
+    tap_offsets: TapWeights  # offset m - (taps-1)/2 of tap m (in units of delta)
     depth_sigma: float  # relative depth difference mapped to x = 1
     min_weight: float  # depth weight below which a tap is invalid
     depth_cutoff: float  # largest depth x whose weight reaches min_weight (x beyond it: weight 0, no exp)
@@ -100,6 +110,69 @@ def depth_weight(flt: BilateralFilter, tap_depth: float, pixel_depth: float) -> 
 
 
 @wp.func
+def record_projection(r: LineRecord, p: wp.vec2) -> float:
+    """:func:`~.epipolar_textures.project_on_line` of p from a line's :data:`~.epipolar_textures.LineRecord` (the same
+    operations, so the same result)."""
+    if r[4] < 1.0e-12:
+        return 0.0
+    return wp.dot(p - wp.vec2(r[0], r[1]), wp.vec2(r[2], r[3])) / r[4]
+
+
+@wp.func
+def line_taps(flt: BilateralFilter, texels: wp.array(dtype=wp.vec4), row: int, n: int, tc: float, step: float,
+              pixel_depth: float, scale: float):
+    """The taps of :func:`line_filter` along the line whose n texels start at flat index ``row`` of the (L, depth)
+    texels, around texel position tc (n - 1), ``step`` texels apart; ``scale`` is :func:`depth_scale`.
+
+    Returns:
+        (sum of w (L, depth), sum of w).
+    """
+    last = float(n - 1)
+    centre = tc * last
+    reach = wp.min(centre, last - centre) + 1.0e-4  # taps go in symmetric pairs: a pair reaching past an end is dropped
+    acc = wp.vec4(0.0, 0.0, 0.0, 0.0)
+    wsum = float(0.0)
+    for m in range(5):  # unrolled (taps <= 5)
+        if m < flt.taps:
+            o = flt.tap_offsets[m]
+            if not (wp.abs(o) * step > reach and o != 0.0):
+                c = wp.clamp(centre + o * step, 0.0, last)
+                wdist = flt.tap_weights[m]
+                t0 = wp.min(int(c), n - 1)  # c >= 0: truncation is the floor
+                f = c - float(t0)
+                if f < 1.0:
+                    v0 = texels[row + t0]
+                    w0 = (1.0 - f) * wdist * depth_weight_scaled(flt, v0[3], pixel_depth, scale)
+                    if w0 > 0.0:
+                        acc += v0 * w0
+                        wsum += w0
+                if f > 0.0:
+                    v1 = texels[row + wp.min(t0 + 1, n - 1)]
+                    w1 = f * wdist * depth_weight_scaled(flt, v1[3], pixel_depth, scale)
+                    if w1 > 0.0:
+                        acc += v1 * w1
+                        wsum += w1
+    return acc, wsum
+
+
+@wp.func
+def line_filter_at(geo: EpipolarGeometry, flt: BilateralFilter, texels: wp.array(dtype=wp.vec4), k: int,
+                   r: LineRecord, tau: float, p: wp.vec2, delta: float, pixel_depth: float, scale: float):
+    """:func:`line_filter` with line k's record r, p's projection parameter tau on it and the pixel's
+    :func:`depth_scale` given. Returns (sum of w (L, depth), sum of w, distance from p to the line)."""
+    tc = wp.clamp(tau, 0.0, 1.0)
+    seg_len = r[5]
+    dist = wp.length(p - (wp.vec2(r[0], r[1]) + wp.vec2(r[2], r[3]) * tc))
+    if r[6] == 0.0 or seg_len < 1.0e-6:
+        return wp.vec4(0.0, 0.0, 0.0, 0.0), 0.0, dist
+    if wp.abs(tau - tc) * seg_len > wp.max(2.0 * delta, 2.0):
+        return wp.vec4(0.0, 0.0, 0.0, 0.0), 0.0, dist
+    last = float(geo.samples - 1)
+    acc, wsum = line_taps(flt, texels, k * geo.samples, geo.samples, tc, delta / seg_len * last, pixel_depth, scale)
+    return acc, wsum, dist
+
+
+@wp.func
 def line_filter(geo: EpipolarGeometry, flt: BilateralFilter, lines: LineArrays, k: int, p: wp.vec2,
                 pixel_depth: float, delta: float):
     """1D bilateral filter along epipolar line k for pixel p (Engelhardt 2010 Sec. 4.3).
@@ -114,43 +187,21 @@ def line_filter(geo: EpipolarGeometry, flt: BilateralFilter, lines: LineArrays, 
         culled, does not reach p (the projection lies more than max(2 delta, 2 px) beyond the segment) or has
         no valid tap.
     """
-    acc = wp.vec3(0.0, 0.0, 0.0)
-    wsum = float(0.0)
-    a = lines.entry[k]
-    b = lines.exit_[k]
-    tau = project_on_line(a, b, p)
-    tc = wp.clamp(tau, 0.0, 1.0)
-    seg_len = wp.length(b - a)
-    dist = wp.length(p - (a + (b - a) * tc))
-    if lines.valid[k] == 0 or seg_len < 1.0e-6:
+    r = lines.records[k]
+    acc, wsum, dist = line_filter_at(geo, flt, lines.texels, k, r, record_projection(r, p), p, delta, pixel_depth,
+                                     depth_scale(flt, pixel_depth))
+    return wp.vec3(acc[0], acc[1], acc[2]), wsum, dist
+
+
+@wp.func
+def side_filter(geo: EpipolarGeometry, flt: BilateralFilter, texels: wp.array(dtype=wp.vec4), k: int, r: LineRecord,
+                tau: float, p: wp.vec2, m: int, delta: float, pixel_depth: float, scale: float):
+    """:func:`line_filter_at` on the m-th line outwards on one side of p, if the upsampling accepts it (a valid tap,
+    and within m + 1 line spacings + 1 px of p: never a line across the pencil), else zeros."""
+    acc, wsum, dist = line_filter_at(geo, flt, texels, k, r, tau, p, delta, pixel_depth, scale)
+    if wsum > 0.0 and dist <= (float(m) + 1.0) * geo.spacing + 1.0:
         return acc, wsum, dist
-    if wp.abs(tau - tc) * seg_len > wp.max(2.0 * delta, 2.0):
-        return acc, wsum, dist
-    last = float(geo.samples - 1)
-    centre = tc * last
-    step = delta / seg_len * last
-    reach = wp.min(centre, last - centre)  # taps go in symmetric pairs: a pair reaching past an end is dropped
-    scale = depth_scale(flt, pixel_depth)
-    for m in range(flt.taps):
-        o = float(m) - 0.5 * float(flt.taps - 1)
-        if wp.abs(o) * step > reach + 1.0e-4 and o != 0.0:
-            continue
-        c = wp.clamp(centre + o * step, 0.0, last)
-        wdist = flt.tap_weights[m]
-        t0 = wp.min(int(wp.floor(c)), geo.samples - 1)
-        t1 = wp.min(t0 + 1, geo.samples - 1)
-        f = c - float(t0)
-        if f < 1.0:
-            w0 = (1.0 - f) * wdist * depth_weight_scaled(flt, lines.depth[k, t0], pixel_depth, scale)
-            if w0 > 0.0:
-                acc += lines.radiance[k, t0] * w0
-                wsum += w0
-        if f > 0.0:
-            w1 = f * wdist * depth_weight_scaled(flt, lines.depth[k, t1], pixel_depth, scale)
-            if w1 > 0.0:
-                acc += lines.radiance[k, t1] * w1
-                wsum += w1
-    return acc, wsum, dist
+    return wp.vec4(0.0, 0.0, 0.0, 0.0), 0.0, 0.0
 
 
 @wp.func
@@ -175,21 +226,24 @@ def tap_weights_kernel(kernel: int, taps: int, distance_scale: float, weights: w
 def interpolate_lines_kernel(
     valid: wp.array(dtype=wp.int32),
     interp: wp.array2d(dtype=wp.vec2i),
-    radiance: wp.array2d(dtype=wp.vec3),  # in: ray-marching samples; out: interpolation samples
+    radiance: wp.array2d(dtype=wp.vec3),  # in: ray-marching samples; out: interpolation samples (0 on culled lines)
     offset: int,
 ):
-    # Engelhardt 2010 Sec. 5.3: linear interpolation between the two sources (reads marched texels only)
-    k, x = wp.tid()
-    k += offset
+    # Engelhardt 2010 Sec. 5.3: linear interpolation between the two sources (reads marched texels only); one
+    # thread per line
+    k = wp.tid() + offset
+    n = radiance.shape[1]
     if valid[k] == 0:
+        for x in range(n):
+            radiance[k, x] = wp.vec3(0.0, 0.0, 0.0)
         return
-    src = interp[k, x]
-    left = src[0]
-    right = src[1]
-    if left == x or right == x:
-        return
-    t = float(x - left) / float(right - left)
-    radiance[k, x] = radiance[k, left] * (1.0 - t) + radiance[k, right] * t
+    for x in range(n):
+        src = interp[k, x]
+        left = src[0]
+        right = src[1]
+        if left != x and right != x:
+            t = float(x - left) / float(right - left)
+            radiance[k, x] = radiance[k, left] * (1.0 - t) + radiance[k, right] * t
 
 
 @wp.kernel
@@ -201,66 +255,80 @@ def upsample_kernel(
     flt: BilateralFilter,
     lines: LineArrays,
     out: wp.array2d(dtype=wp.vec3),  # out: L_scat per pixel
-    unresolved: wp.array(dtype=wp.int32),  # out: 1 where no valid tap was found (ray-marched afterwards)
+    unresolved: wp.array2d(dtype=wp.int32),  # out: per row, the columns of the pixels without a valid tap
+    unresolved_count: wp.array(dtype=wp.int32),  # out: per row, how many
     offset: int,
 ):
-    # Engelhardt 2010 Sec. 4.3 / 5.3 and Fig. 5, 8
-    j, i = wp.tid()
-    j += offset
-    unresolved[j * cam.width + i] = 0
-    p = wp.vec2(float(i) + 0.5, float(j) + 0.5)
-    if not screen_point_in_light(cam, light, p):
-        out[j, i] = wp.vec3(0.0, 0.0, 0.0)  # the ray never enters the light frustum: exactly 0
-        return
-    pixel_depth = distance[j, i]
-    # ---- 1D border lookup: the two lines whose border points enclose the ray's exit point ----
-    dv = p - geo.epipole
-    if wp.length(dv) < 1.0e-6:
-        dv = wp.vec2(1.0, 0.0)
-    u = border_arclength(geo.epipole - wp.vec2(0.5, 0.5), dv, geo.border_width, geo.border_height) / geo.spacing - 0.5
-    k0 = wrap_line(int(wp.floor(u)), geo.lines)
-    k1 = wrap_line(k0 + 1, geo.lines)
-    # ---- tap spacing: distance between p's projections on the two nearest lines ----
-    q0 = lines.entry[k0] + (lines.exit_[k0] - lines.entry[k0]) * project_on_line(lines.entry[k0], lines.exit_[k0], p)
-    q1 = lines.entry[k1] + (lines.exit_[k1] - lines.entry[k1]) * project_on_line(lines.entry[k1], lines.exit_[k1], p)
-    delta = wp.length(q0 - q1)
-    # ---- bilateral filter along each side's nearest valid line, moving outwards ----
-    acc_l = wp.vec3(0.0, 0.0, 0.0)
-    w_l = float(0.0)
-    d_l = float(0.0)
-    for m in range(flt.outer_lines + 1):
-        a, wsum, dist = line_filter(geo, flt, lines,
-                                    wrap_line(k0 - m, geo.lines), p, pixel_depth, delta)
-        if wsum > 0.0 and dist <= (float(m) + 1.0) * geo.spacing + 1.0:  # never a line across the pencil
-            acc_l = a
-            w_l = wsum
-            d_l = dist
-            break
-    acc_r = wp.vec3(0.0, 0.0, 0.0)
-    w_r = float(0.0)
-    d_r = float(0.0)
-    for m in range(flt.outer_lines + 1):
-        a, wsum, dist = line_filter(geo, flt, lines,
-                                    wrap_line(k1 + m, geo.lines), p, pixel_depth, delta)
-        if wsum > 0.0 and dist <= (float(m) + 1.0) * geo.spacing + 1.0:
-            acc_r = a
-            w_r = wsum
-            d_r = dist
-            break
-    if w_l <= 0.0 and w_r <= 0.0:
-        out[j, i] = wp.vec3(0.0, 0.0, 0.0)
-        unresolved[j * cam.width + i] = 1
-        return
-    # ---- between the lines: linear position between them times their weight sums ----
-    frac = float(0.5)
-    if d_l + d_r > 0.0:
-        frac = d_l / (d_l + d_r)
-    wl = (1.0 - frac) * w_l
-    wr = frac * w_r
-    if wl + wr > 1.0e-30:
-        out[j, i] = (acc_l * (1.0 - frac) + acc_r * frac) / (wl + wr)
-    else:
-        out[j, i] = (acc_l + acc_r) / (w_l + w_r)
+    # Engelhardt 2010 Sec. 4.3 / 5.3 and Fig. 5, 8: one thread per band of UPSAMPLE_TILE rows, in tiles of
+    # UPSAMPLE_TILE columns (the texels of the few lines that cross a tile stay in the cache)
+    j0 = (wp.tid() + offset) * UPSAMPLE_TILE
+    j1 = wp.min(j0 + UPSAMPLE_TILE, cam.height)
+    for j in range(j0, j1):
+        unresolved_count[j] = 0
+    e_rel = geo.epipole - wp.vec2(0.5, 0.5)
+    for x0 in range(0, cam.width, UPSAMPLE_TILE):
+        for j in range(j0, j1):
+            for i in range(x0, wp.min(x0 + UPSAMPLE_TILE, cam.width)):
+                p = wp.vec2(float(i) + 0.5, float(j) + 0.5)
+                if not screen_point_in_light(cam, light, p):
+                    out[j, i] = wp.vec3(0.0, 0.0, 0.0)  # the ray never enters the light frustum: exactly 0
+                    continue
+                pixel_depth = distance[j, i]
+                # ---- 1D border lookup: the two lines whose border points enclose the ray's exit point ----
+                dv = p - geo.epipole
+                if wp.length(dv) < 1.0e-6:
+                    dv = wp.vec2(1.0, 0.0)
+                u = border_arclength(e_rel, dv, geo.border_width, geo.border_height) / geo.spacing - 0.5
+                k0 = wrap_line(int(wp.floor(u)), geo.lines)
+                k1 = k0 + 1
+                if k1 == geo.lines:
+                    k1 = 0
+                # ---- tap spacing: distance between p's projections on the two nearest lines ----
+                r0 = lines.records[k0]
+                r1 = lines.records[k1]
+                tau0 = record_projection(r0, p)
+                tau1 = record_projection(r1, p)
+                delta = wp.length((wp.vec2(r0[0], r0[1]) + wp.vec2(r0[2], r0[3]) * tau0)
+                                  - (wp.vec2(r1[0], r1[1]) + wp.vec2(r1[2], r1[3]) * tau1))
+                scale = depth_scale(flt, pixel_depth)
+                # ---- bilateral filter along each side's nearest valid line, moving outwards (line_filter): the
+                # nearest line on both sides first (independent work), outer lines only where that has no valid tap ----
+                a_l, w_l, d_l = side_filter(geo, flt, lines.texels, k0, r0, tau0, p, 0, delta, pixel_depth,
+                                            scale)
+                a_r, w_r, d_r = side_filter(geo, flt, lines.texels, k1, r1, tau1, p, 0, delta, pixel_depth,
+                                            scale)
+                m = int(1)
+                while w_l <= 0.0 and m <= flt.outer_lines:
+                    k = wrap_line(k0 - m, geo.lines)
+                    r = lines.records[k]
+                    a_l, w_l, d_l = side_filter(geo, flt, lines.texels, k, r, record_projection(r, p), p, m,
+                                                delta, pixel_depth, scale)
+                    m += 1
+                m = int(1)
+                while w_r <= 0.0 and m <= flt.outer_lines:
+                    k = wrap_line(k1 + m, geo.lines)
+                    r = lines.records[k]
+                    a_r, w_r, d_r = side_filter(geo, flt, lines.texels, k, r, record_projection(r, p), p, m,
+                                                delta, pixel_depth, scale)
+                    m += 1
+                acc_l = wp.vec3(a_l[0], a_l[1], a_l[2])
+                acc_r = wp.vec3(a_r[0], a_r[1], a_r[2])
+                if w_l <= 0.0 and w_r <= 0.0:
+                    out[j, i] = wp.vec3(0.0, 0.0, 0.0)
+                    c = unresolved_count[j]
+                    unresolved[j, c] = i
+                    unresolved_count[j] = c + 1
+                    continue
+                # ---- between the lines: linear position between them times their weight sums ----
+                frac = float(0.5)
+                if d_l + d_r > 0.0:
+                    frac = d_l / (d_l + d_r)
+                wl = (1.0 - frac) * w_l
+                wr = frac * w_r
+                if wl + wr > 1.0e-30:
+                    out[j, i] = (acc_l * (1.0 - frac) + acc_r * frac) / (wl + wr)
+                else:
+                    out[j, i] = (acc_l + acc_r) / (w_l + w_r)
 
 
 @wp.kernel
@@ -320,6 +388,7 @@ def filter_params(settings: EpipolarSettings, device=None) -> BilateralFilter:
     wp.launch(tap_weights_kernel, settings.taps, [f.kernel, f.taps, float(np.sqrt(settings.distance_falloff)),
                                                   weights], device=device)
     f.tap_weights = TapWeights(*weights.numpy())
+    f.tap_offsets = TapWeights(*[m - 0.5 * (f.taps - 1) for m in range(5)])
     f.depth_sigma = float(settings.depth_sigma)
     f.min_weight = float(settings.min_weight)
     # kernel_weight(x) >= min_weight  <=>  x <= depth_cutoff
@@ -334,6 +403,7 @@ __all__ = [
     "KERNEL_GAUSSIAN",
     "KERNEL_SHEPARD",
     "KERNEL_THRESHOLD",
+    "UPSAMPLE_TILE",
     "BilateralFilter",
     "depth_scale",
     "depth_weight",
@@ -341,4 +411,8 @@ __all__ = [
     "filter_params",
     "kernel_weight",
     "line_filter",
+    "line_filter_at",
+    "line_taps",
+    "record_projection",
+    "side_filter",
 ]
