@@ -56,7 +56,7 @@ import warp as wp
 from ..scene.camera import CameraParams, pixel_ray_direction
 from ..scene.lights import LIGHT_DIRECTIONAL, LightParams, light_params, light_sample
 from ..scene.medium import MediumParams, phase_eval, transmittance_integral
-from ..shadows.shadow_map import ShadowMapParams, shadow_visibility
+from ..shadows.shadow_map import ShadowMapParams, orthographic_ray_coords, shadow_visibility, shadow_visibility_at
 from ..wpinit import default_device, module_options
 from .settings import JITTERS, VISIBILITY_MODES
 
@@ -198,6 +198,36 @@ def lit_interval(light: LightParams, origin: wp.vec3, d: wp.vec3, s: float):
 
 
 @wp.func
+def march_directional_shadow_map(m: Marcher, origin: wp.vec3, d: wp.vec3, dt: float, u: float,
+                                 rng: wp.uint32) -> wp.vec3:
+    """:func:`march_along`'s strata for a directional light and an orthographic shadow map, ray from t = 0.
+
+    Along such a ray E, omega_l and the phase term are constant, the map coordinates are affine in t
+    (:func:`~warpscatter.shadows.shadow_map.orthographic_ray_coords`) and the strata's transmittance integrals a
+    geometric sequence (factor exp(-sigma_t dt)), so a step costs a texel fetch and a few multiply-adds. The
+    same samples (``u`` and ``rng`` as :func:`march_along` drew them) and the same estimate up to float rounding.
+    """
+    acc = wp.vec3(0.0, 0.0, 0.0)
+    e = m.light.radiance
+    if e[0] + e[1] + e[2] <= 0.0:
+        return acc
+    e = e * (m.medium.sigma_s * phase_eval(m.medium.phase_id, m.medium.g, wp.dot(m.light.direction, -d)))
+    sm = m.vis.sm
+    c0, dc = orthographic_ray_coords(sm, origin, d)
+    stratum = transmittance_integral(m.medium.sigma_t, 0.0, dt)  # of the first stratum; then times decay^k
+    decay = wp.exp(-m.medium.sigma_t * dt)
+    for k in range(m.steps):
+        t0 = float(k) * dt
+        if m.jitter == JITTER_PER_PIXEL and k > 0:
+            u = wp.randf(rng)
+        v = shadow_visibility_at(sm, m.vis.sm_depth, c0 + dc * (t0 + u * dt), m.vis.sm_bias)
+        if v > 0.0:
+            acc += e * (v * stratum)
+        stratum *= decay
+    return acc
+
+
+@wp.func
 def march_along(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, stream: int) -> wp.vec3:
     """L_scat along the ray origin + t d (unit d), t in [0, s]: ``m.steps`` strata over :func:`lit_interval`.
 
@@ -213,6 +243,8 @@ def march_along(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, stream: int) 
     if m.jitter == JITTER_FIXED:
         rng = wp.rand_init(m.seed, 0)
     u = wp.randf(rng)
+    if m.light.kind == LIGHT_DIRECTIONAL and m.vis.mode == VISIBILITY_SHADOW_MAP and m.vis.sm.perspective == 0:
+        return march_directional_shadow_map(m, origin, d, dt, u, rng)
     for k in range(m.steps):
         t0 = t_lo + float(k) * dt
         if m.jitter == JITTER_PER_PIXEL and k > 0:

@@ -190,14 +190,33 @@ def shadow_texel_lit(depth_map: wp.array2d(dtype=wp.float32), i: int, j: int, d:
 
 
 @wp.func
-def shadow_visibility(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float32), x: wp.vec3, bias: float) -> float:
-    """Hard shadow-map visibility of world point x (nearest texel); 1 = lit. ``bias`` in world units."""
-    c = shadow_coords(sm, x)
+def shadow_visibility_at(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float32), c: wp.vec3,
+                         bias: float) -> float:
+    """Hard shadow-map visibility at map coordinates c = (u, v, depth) of :func:`shadow_coords` (nearest texel;
+    outside the map: lit); 1 = lit. ``bias`` in world units."""
     if c[0] < 0.0 or c[0] >= 1.0 or c[1] < 0.0 or c[1] >= 1.0:
         return 1.0
     i = int(c[0] * float(sm.width))
     j = int(c[1] * float(sm.height))
     return shadow_texel_lit(depth_map, i, j, c[2], bias)
+
+
+@wp.func
+def shadow_visibility(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float32), x: wp.vec3, bias: float) -> float:
+    """Hard shadow-map visibility of world point x (nearest texel); 1 = lit. ``bias`` in world units."""
+    return shadow_visibility_at(sm, depth_map, shadow_coords(sm, x), bias)
+
+
+@wp.func
+def orthographic_ray_coords(sm: ShadowMapParams, origin: wp.vec3, d: wp.vec3):
+    """:func:`shadow_coords` along the ray origin + t d of an ORTHOGRAPHIC map (``perspective`` 0), where they
+    are affine in t: returns (c0, dc) with coords(t) = c0 + t dc (equal to :func:`shadow_coords` up to float
+    rounding)."""
+    c = sm.view_proj * wp.vec4(origin[0], origin[1], origin[2], 1.0)
+    cd = sm.view_proj * wp.vec4(d[0], d[1], d[2], 0.0)
+    pv = sm.view * wp.vec4(origin[0], origin[1], origin[2], 1.0)
+    pd = sm.view * wp.vec4(d[0], d[1], d[2], 0.0)
+    return wp.vec3(0.5 * c[0] + 0.5, 0.5 - 0.5 * c[1], -pv[2]), wp.vec3(0.5 * cd[0], -0.5 * cd[1], -pd[2])
 
 
 @wp.func
