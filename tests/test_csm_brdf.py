@@ -14,6 +14,10 @@ from warpscatter.csm.brdf import (
     material_eval,
     material_pdf,
     material_sample,
+    shading_eval,
+    shading_pdf,
+    shading_point,
+    shading_sample,
 )
 
 N = np.array([0.0, 0.0, 1.0])
@@ -179,3 +183,53 @@ def test_material_table_rejects_bad_input():
         MaterialTable(np.ones((1, 3)), -np.ones((1, 1, 4)), np.zeros((1, 1, 3)))
     with pytest.raises(ValueError, match="non-finite"):
         MaterialTable(np.full((1, 3), np.nan))
+
+
+@wp.kernel
+def _shading_point_kernel(mat: MaterialData, m: wp.array(dtype=wp.int32), n: wp.array(dtype=wp.vec3),
+                          wo: wp.array(dtype=wp.vec3), wi: wp.array(dtype=wp.vec3), xi: wp.array(dtype=wp.vec3),
+                          ref: wp.array2d(dtype=wp.float32), got: wp.array2d(dtype=wp.float32)):
+    """Row k: f (3), pdf, sample (3), pdf of the sample by material_* (ref) and by one shading_point (got)."""
+    k = wp.tid()
+    nk = wp.normalize(n[k])
+    wok = wp.normalize(wo[k])
+    u = wp.vec2(xi[k][0], xi[k][1])
+    f = material_eval(mat, m[k], nk, wok, wi[k])
+    s = material_sample(mat, m[k], nk, wok, u, xi[k][2])
+    sp = shading_point(mat, m[k], nk, wok)
+    g = shading_eval(sp, wi[k])
+    t = shading_sample(sp, u, xi[k][2])
+    for c in range(3):
+        ref[k, c] = f[c]
+        got[k, c] = g[c]
+        ref[k, 4 + c] = s[c]
+        got[k, 4 + c] = t[c]
+    ref[k, 3] = material_pdf(mat, m[k], nk, wok, wi[k])
+    got[k, 3] = shading_pdf(sp, wi[k])
+    ref[k, 7] = material_pdf(mat, m[k], nk, wok, s)
+    got[k, 7] = shading_pdf(sp, t)
+
+
+def test_shading_point_equals_the_material_functions_bit_for_bit(table):
+    """The estimators compute the per-point part of the BRDF once (shading_point); eval, pdf and sample must stay
+    exactly material_eval / material_pdf / material_sample (same images as before the hoisting)."""
+    phong = MaterialTable.phong(np.float32([[0.4, 0.3, 0.2], [0.5, 0.5, 0.5]]), np.float32([[0.3, 0.3, 0.3],
+                                                                                          [0.0, 0.0, 0.0]]), 17.0)
+    black = MaterialTable.from_specs([{"albedo": (0.0, 0.0, 0.0)}, {"albedo": (0.0, 0.0, 0.0), "lafortune": [
+        {"coefficients": (0.0, 0.0, 0.0), "exponent": 3.0, "color": (1.0, 1.0, 1.0)}]}])
+    rng = np.random.default_rng(8)
+    k = 20_000
+    for t in (table, phong, black):
+        n = rng.normal(size=(k, 3)).astype(np.float32)
+        wo = rng.normal(size=(k, 3)).astype(np.float32)
+        wo *= np.sign(np.sum(wo * n, axis=1))[:, None]
+        wi = rng.normal(size=(k, 3))
+        wi = (wi / np.linalg.norm(wi, axis=1, keepdims=True)).astype(np.float32)
+        xi = rng.random((k, 3)).astype(np.float32)
+        m = rng.integers(0, len(t), k).astype(np.int32)
+        ref, got = wp.zeros((k, 8), dtype=wp.float32), wp.zeros((k, 8), dtype=wp.float32)
+        wp.launch(_shading_point_kernel, dim=k, inputs=[t.device_data(), wp.array(m, dtype=wp.int32),
+                                                        *(wp.array(a, dtype=wp.vec3) for a in (n, wo, wi, xi)),
+                                                        ref, got], device="cpu")
+        assert np.array_equal(ref.numpy(), got.numpy())
+        assert np.isfinite(got.numpy()).all()

@@ -11,11 +11,26 @@ import warp as wp
 
 from warpscatter.csm import build_csm
 from warpscatter.csm.brdf import brdf_eval, brdf_pdf, brdf_sample
+from warpscatter.csm.depthmaps import latlong_param
 from warpscatter.csm.direct_lighting import ProgressiveAccumulator
 from warpscatter.csm.environment import shade_environment
 from warpscatter.imageio import read_image
 from warpscatter.raycast import build_mesh
-from warpscatter.scene.environment_map import EnvData, EnvironmentMap, env_lookup, env_pdf, env_sample
+from warpscatter.scene.environment_map import (
+    EnvData,
+    EnvironmentMap,
+    cdf_search,
+    cdf_search_row,
+    env_direction,
+    env_lookup,
+    env_lookup_uv,
+    env_pdf,
+    env_pdf_uv,
+    env_sample,
+    env_sample_uv,
+    guided_search,
+    guided_search_row,
+)
 
 SKY = Path(__file__).resolve().parents[1] / "assets" / "sky_small.exr"
 
@@ -254,3 +269,89 @@ def test_bad_input_raises(sky, sphere_over_plane):
         EnvironmentMap(np.ones((4, 8)))
     with pytest.raises(ValueError, match="non-finite"):
         EnvironmentMap(np.full((4, 8, 3), np.nan))
+
+
+@wp.kernel
+def _search_kernel(cdf: wp.array2d(dtype=wp.float32), guide: wp.array2d(dtype=wp.int32), row: int, n: int,
+                   xs: wp.array(dtype=wp.float32), out: wp.array2d(dtype=wp.int32)):
+    k = wp.tid()
+    out[k, 0] = cdf_search_row(cdf, row, n, xs[k])
+    out[k, 1] = guided_search_row(cdf, guide, row, n, xs[k])
+
+
+@wp.kernel
+def _search1_kernel(cdf: wp.array(dtype=wp.float32), guide: wp.array(dtype=wp.int32), n: int,
+                    xs: wp.array(dtype=wp.float32), out: wp.array2d(dtype=wp.int32)):
+    k = wp.tid()
+    out[k, 0] = cdf_search(cdf, n, xs[k])
+    out[k, 1] = guided_search(cdf, guide, n, xs[k])
+
+
+def _probe_points(cdf, buckets, rng):
+    """Uniform numbers plus every CDF value and guide-bucket edge and their float32 neighbours, clamped as
+    env_sample clamps them."""
+    edges = (np.arange(buckets + 1) / buckets).astype(np.float32)
+    c = np.asarray(cdf, np.float32)
+    xs = np.concatenate([rng.random(4000).astype(np.float32), c, edges]).astype(np.float32)
+    xs = np.concatenate([xs, np.nextafter(xs, np.float32(-1.0)), np.nextafter(xs, np.float32(2.0))])
+    return np.clip(xs, 0.0, 0.99999994).astype(np.float32)
+
+
+def test_guided_cdf_search_finds_the_binary_search_interval(sky):
+    """env_sample's guide-table searches (the cutpoint method) return exactly cdf_search's interval, also for x on
+    a CDF value, on a bucket edge and one float32 step either side, and for CDFs with empty intervals."""
+    rng = np.random.default_rng(4)
+    stepped = np.zeros((6, 40, 3), np.float32)
+    stepped[:, ::7] = 1.0  # rows and columns of zero weight: empty intervals, repeated CDF values
+    stepped[2, :, :] = 0.0
+    for env in (sky, EnvironmentMap(stepped), EnvironmentMap(rng.random((9, 13, 3)) ** 8)):
+        cdf = wp.array(env.conditional_cdf, dtype=wp.float32)
+        guide = wp.array(env.conditional_guide, dtype=wp.int32)
+        for row in range(env.height):
+            xs = _probe_points(env.conditional_cdf[row], env.conditional_guide.shape[1], rng)
+            out = wp.zeros((len(xs), 2), dtype=wp.int32)
+            wp.launch(_search_kernel, dim=len(xs), inputs=[cdf, guide, row, env.width, wp.array(xs), out],
+                      device="cpu")
+            o = out.numpy()
+            assert np.array_equal(o[:, 0], o[:, 1]), row
+        xs = _probe_points(env.marginal_cdf, len(env.marginal_guide), rng)
+        out = wp.zeros((len(xs), 2), dtype=wp.int32)
+        wp.launch(_search1_kernel, dim=len(xs), inputs=[wp.array(env.marginal_cdf, dtype=wp.float32),
+                                                        wp.array(env.marginal_guide, dtype=wp.int32), env.height,
+                                                        wp.array(xs), out], device="cpu")
+        o = out.numpy()
+        assert np.array_equal(o[:, 0], o[:, 1])
+        assert env.marginal_guide.dtype == np.int32 and env.conditional_guide.shape == (env.height, 2 * env.width)
+
+
+@wp.kernel
+def _uv_kernel(env: EnvData, seed: int, f: wp.array2d(dtype=wp.float32)):
+    k = wp.tid()
+    rng = wp.rand_init(seed, k)
+    xi = wp.vec2(wp.randf(rng), wp.randf(rng))
+    d, r, p = env_sample(env, xi)
+    d2, r2, p2, uv = env_sample_uv(env, xi)
+    e = env_direction(uv[0], uv[1])
+    ll = latlong_param(d)
+    w = wp.normalize(wp.vec3(wp.randf(rng) - 0.5, wp.randf(rng) - 0.5, wp.randf(rng) - 0.5))
+    wuv = latlong_param(w)
+    f[k, 0] = wp.length(d - d2) + wp.length(r - r2) + wp.abs(p - p2) + wp.length(d - e)  # exactly 0
+    f[k, 1] = wp.length(env_lookup(env, w) - env_lookup_uv(env, wuv)) + wp.abs(env_pdf(env, w) - env_pdf_uv(env, w,
+                                                                                                           wuv))
+    f[k, 2] = wp.abs(ll[0] - uv[0])  # the sample's (u, v) against the ones recomputed from its direction
+    f[k, 3] = wp.abs(ll[1] - uv[1])
+
+
+def test_env_sample_uv_is_the_sample_and_its_lat_long_parameters(sky):
+    """env_sample_uv draws env_sample's direction (which is env_direction of the returned (u, v)); the CSM query of
+    an environment sample takes those (u, v) instead of latlong_param of the direction: they agree to float32
+    rounding (away from the azimuth seam u = 0 = 1). The _uv look-ups equal the plain ones bit for bit."""
+    n = 50_000
+    f = wp.zeros((n, 4), dtype=wp.float32)
+    wp.launch(_uv_kernel, dim=n, inputs=[sky.device_data(), 17, f], device="cpu")
+    f = f.numpy()
+    assert np.all(f[:, 0] == 0.0) and np.all(f[:, 1] == 0.0)
+    du = np.minimum(f[:, 2], 1.0 - f[:, 2])  # the seam: u = 1 and u = 0 are the same direction
+    assert du.max() < 2e-6  # measured 1.2e-7
+    # acos of the float32 height loses digits towards the poles (the sample's own v is the exact one there)
+    assert f[:, 3].max() < 1e-4 and np.quantile(f[:, 3], 0.999) < 1e-6  # measured 1.5e-5 and 2.6e-7

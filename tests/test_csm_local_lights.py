@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 from warpscatter.csm import build_csm, build_cube_csm
+from warpscatter.csm.direct_lighting import DirectLighting
 from warpscatter.csm.local_lights import check_light_csm, shade_local_light
 from warpscatter.raycast import build_mesh
 from warpscatter.scene.lights import AreaLight, LinearLight
@@ -138,3 +139,24 @@ def test_bad_lights_raise():
     with pytest.raises(ValueError, match="perfect square"):
         shade_local_light(np.zeros((1, 3)), [[0, 1, 0]], [0.5] * 3, LinearLight([0, 1, 0], [1, 1, 0], [1] * 3),
                           samples=3)
+
+
+@pytest.mark.parametrize("kind", ["area", "linear"])
+def test_one_setup_shades_every_pass_like_shade_local_light(occluded_scene, kind):
+    """DirectLighting (what the pipeline builds once per render) gives shade_local_light's pass bit for bit for any
+    seed and thread count, with the roulette filter of the cube CSM and with shadow rays."""
+    v, t, pts, nrm, mesh = occluded_scene
+    if kind == "area":
+        light = AreaLight([-0.6, 2.2, -0.4], [1.2, 0.0, 0.0], [0.0, 0.0, 0.8], [2.0, 2.0, 2.0], two_sided=True)
+        csm = build_cube_csm(v, t, light.sample_points(4, 4), resolution=32)
+    else:
+        light = LinearLight([-0.8, 2.2, 0.0], [0.8, 2.2, 0.3], [2.0, 2.0, 2.0])
+        csm = build_cube_csm(v, t, light.sample_points(8), resolution=32)
+    for vis in ({"csm": csm, "filter": "roulette", "bias": 0.01}, {"mesh": mesh}):
+        kw = {"samples": 9, "specular": [0.3, 0.3, 0.3], "exponent": 12.0, **vis}
+        lighting = DirectLighting(pts, nrm, [0.6] * 3, light, **kw)
+        single = DirectLighting(pts, nrm, [0.6] * 3, light, threads=1, **kw)
+        for seed in (3, 4):
+            got = lighting.shade(seed)
+            assert np.array_equal(got, shade_local_light(pts, nrm, [0.6] * 3, light, seed=seed, **kw))
+            assert np.array_equal(got, single.shade(seed)) and got.mean() > 0.0

@@ -7,6 +7,7 @@ import trimesh
 import warp as wp
 
 from warpscatter.csm import LatLongMapSet, build_csm, csm_objects_visibility_batch, csm_visibility_batch
+from warpscatter.csm.depthmaps import latlong_param
 from warpscatter.csm.query import (
     CSMData,
     csm_device_data,
@@ -16,6 +17,8 @@ from warpscatter.csm.query import (
     csm_segment_depth,
     csm_texel_visibility,
     csm_visibility,
+    csm_visibility_filtered,
+    csm_visibility_filtered_uv,
     csm_visibility_pcf,
     csm_visibility_roulette,
     csm_visibility_to_point,
@@ -309,3 +312,36 @@ def test_bad_query_arguments_raise(scene):
         csm_objects_visibility_batch([(csm, np.zeros((4, 4)) + np.diag([0, 0, 0, 1.0]))], p, p + 1)
     with pytest.raises(ValueError, match="at least one"):
         csm_objects_visibility_batch([], p, p + 1)
+
+
+@wp.kernel
+def _uv_filters_kernel(csm: CSMData, points: wp.array(dtype=wp.vec3), dirs: wp.array(dtype=wp.vec3),
+                       xi: wp.array(dtype=wp.vec4), out: wp.array2d(dtype=wp.float32)):
+    k = wp.tid()
+    p = points[k]
+    d = dirs[k]
+    uv = latlong_param(d)
+    for f in range(3):
+        out[k, f] = csm_visibility_filtered(csm, p, d, 0.01, f, xi[k])
+        out[k, 3 + f] = csm_visibility_filtered_uv(csm, p, uv, 0.01, f, xi[k])
+    out[k, 6] = csm_visibility(csm, p, d, 0.01)
+    out[k, 7] = csm_visibility_pcf(csm, p, d, 0.01)
+    out[k, 8] = csm_visibility_roulette(csm, p, d, 0.01, xi[k])
+
+
+def test_queries_of_known_lat_long_parameters_equal_the_direction_queries(scene, rng):
+    """csm_visibility_filtered_uv with uv = latlong_param(d) (what the environment estimator passes for a BRDF
+    sample, sharing the parameters with its map look-up) is csm_visibility_filtered(d) bit for bit, for every
+    filter, and csm_visibility_filtered is the nearest / PCF / roulette query it names."""
+    _, _, csm, _, _ = scene
+    k = 20_000
+    points = rng.uniform(-1.6, 1.6, (k, 3)).astype(np.float32)
+    dirs = rng.normal(size=(k, 3)).astype(np.float32)
+    xi = rng.random((k, 4)).astype(np.float32)
+    out = wp.zeros((k, 9), dtype=wp.float32)
+    wp.launch(_uv_filters_kernel, dim=k, inputs=[csm_device_data(csm), wp.array(points, dtype=wp.vec3),
+                                                 wp.array(dirs, dtype=wp.vec3), wp.array(xi, dtype=wp.vec4), out],
+              device="cpu")
+    o = out.numpy()
+    assert np.array_equal(o[:, :3], o[:, 3:6]) and np.array_equal(o[:, :3], o[:, 6:9])
+    assert 0.05 < (o[:, 0] == 0.0).mean() < 0.95  # both lit and shadowed queries

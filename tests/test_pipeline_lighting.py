@@ -14,8 +14,10 @@ from warpscatter.csm import geometry_digest, load_csm
 from warpscatter.csm.occluders import scene_occluders
 from warpscatter.imageio import read_image, write_exr
 from warpscatter.pipeline import StageTimer, render
+from warpscatter.pipeline import lighting as lighting_module
 from warpscatter.pipeline.lighting import pass_seed, render_lighting
 from warpscatter.scene import build_scene
+from warpscatter.wpinit import default_device
 
 ROOT = Path(__file__).resolve().parents[1]
 GATE = ROOT / "configs" / "csm_gate.yaml"
@@ -215,3 +217,48 @@ def test_precompute_takes_the_configs_csm_settings_and_their_limits(tmp_path):
     result = invoke("precompute", GATE, "-o", tmp_path / "d.npz", "--maps", "2000x4")
     assert result.exit_code == 2 and "--maps" in result.output and "1024" in result.output
     assert not (tmp_path / "d.npz").exists()
+
+
+
+def test_passes_reuse_one_estimator_setup(monkeypatch):
+    """Every pass of a render shades with the one DirectLighting built (checked and uploaded) before the passes: no
+    per-pass re-upload of the points, the material table or the CSM. A pass is shade_direct's pass bit for bit,
+    splitting it across threads changes nothing, and each pass hands out its own array."""
+    from warpscatter.csm import direct_lighting as dl
+
+    built, seeds, csm_uploads = [], [], []
+    real_upload = dl.csm_device_data
+
+    class Counting(dl.DirectLighting):
+        def __init__(self, *args, **kwargs):
+            built.append((args, kwargs))
+            super().__init__(*args, **kwargs)
+
+        def shade(self, seed=0):
+            seeds.append(seed)
+            return super().shade(seed)
+
+    def counting_upload(csm, device=None):
+        if str(device) not in csm._device_cache:  # an upload, not a cache hit
+            csm_uploads.append(str(device))
+        return real_upload(csm, device)
+
+    monkeypatch.setattr(lighting_module, "DirectLighting", Counting)
+    monkeypatch.setattr(dl, "csm_device_data", counting_upload)
+    monkeypatch.setattr(lighting_module, "csm_device_data", counting_upload)
+    config = load_config(GATE, [*SMALL, "render.lighting.passes=3"])
+    timer = StageTimer()
+    images, stats = render_lighting(build_scene(config), config.render.lighting, timer)
+    assert len(built) == 1 and len(seeds) == 3 and stats["passes"] == 3 and "setup" in timer.timings
+    assert csm_uploads == [str(default_device())]  # the segment lists went up once, in the csm stage
+    args, kwargs = built[0]
+    assert kwargs["csm"] is not None and kwargs["filter"] == "roulette"
+    one = dl.DirectLighting(*args, **kwargs)
+    single = dl.DirectLighting(*args, **{**kwargs, "threads": 1})
+    for seed in seeds:
+        got = one.shade(seed)
+        assert np.array_equal(got, dl.shade_direct(*args, seed=seed, **kwargs))
+        assert np.array_equal(got, single.shade(seed))
+        got[:] = -1.0  # the caller owns it
+        assert np.all(one.shade(seed) >= 0.0)
+    assert len(csm_uploads) == 1  # cached on the CSM: none of these set-ups uploaded it again

@@ -24,6 +24,10 @@ the light; ``n`` is the unit (camera-facing) normal. f_r is in 1/sr; it is 0 for
   (C_x != C_y) follow that frame, which is not tied to the mesh (use C_x = C_y on meshes).
 - :class:`MaterialTable` holds k_d and up to :data:`MAX_LOBES` lobes per material for kernels
   (:class:`MaterialData`); Phong materials are stored as their equivalent Lafortune lobe.
+- :class:`ShadingPoint` (:func:`shading_point`) is a material at one surface point and view direction: the frame,
+  the lobe axes and the roulette weights, computed once per point; :func:`shading_eval`, :func:`shading_pdf` and
+  :func:`shading_sample` then cost only their per-direction part and return exactly what ``material_eval``,
+  ``material_pdf`` and ``material_sample`` return.
 
 f is reciprocal (symmetric in u, v) by construction; energy conservation is the caller's choice of rho / C
 (normalized Phong with lum(k_d) + lum(k_s) <= 1 conserves energy).
@@ -266,6 +270,134 @@ def material_sample(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3, xi: wp.v
         return lambert_sample(n, xi)
     c = mat.lobes[m, chosen]
     return cos_power_sample(wp.normalize(lafortune_axis(n, t, b, wo, c)), c[3], xi)
+
+
+# ---- per-point shading state (the estimators' strata loops) ------------------------------------------
+# What material_eval / material_pdf / material_sample compute from the material, the normal and the view direction
+# alone (the tangent frame, every lobe's axis, its normalised axis and frame, its roulette weight) does not change
+# between the 2 S samples of a point: :func:`shading_point` computes it once per point and :func:`shading_eval`,
+# :func:`shading_pdf`, :func:`shading_sample` finish the per-direction part with the same arithmetic, so they
+# return bit for bit what the material_* functions return.
+
+#: MAX_LOBES x 3 rows, one per lobe.
+LobeRows = wp.types.matrix(shape=(MAX_LOBES, 3), dtype=wp.float32)
+
+
+@wp.struct
+class ShadingPoint:
+    """Material ``m`` at one surface point seen from ``wo`` (:func:`shading_point`)."""
+
+    n: wp.vec3  # unit normal
+    t: wp.vec3  # orthonormal_basis(n)
+    b: wp.vec3
+    diffuse: wp.vec3  # k_d / pi
+    wd: float  # diffuse roulette weight max(lum(k_d), 0)
+    lobe_count: int
+    axis: LobeRows  # lafortune_axis of each lobe (world space, not normalised)
+    unit_axis: LobeRows  # the axes normalised (the Phong sampler's axis)
+    axis_t: LobeRows  # orthonormal_basis of each unit axis
+    axis_b: LobeRows
+    rho: LobeRows  # lobe RGB scale (1/sr)
+    exponent: wp.vec4
+    weight: wp.vec4  # lafortune_lobe_weight of each lobe
+    total_pdf: float  # wd + the weights > 0 (the normaliser of material_pdf)
+    total_sample: float  # wd + every weight (the normaliser of material_sample)
+
+
+@wp.func
+def frame_direction(t: wp.vec3, b: wp.vec3, axis: wp.vec3, cos_t: float, phi: float) -> wp.vec3:
+    """:func:`lobe_direction` with the frame (t, b) = orthonormal_basis(axis) given."""
+    sin_t = wp.sqrt(wp.max(1.0 - cos_t * cos_t, 0.0))
+    return wp.normalize(sin_t * wp.cos(phi) * t + sin_t * wp.sin(phi) * b + cos_t * axis)
+
+
+@wp.func
+def shading_point(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3) -> ShadingPoint:
+    """The per-point part of material ``m`` (unit normal ``n``, unit ``wo`` towards the viewer): computed once per
+    surface point, then :func:`shading_eval` / :func:`shading_pdf` / :func:`shading_sample` per direction."""
+    sp = ShadingPoint()
+    t, b = orthonormal_basis(n)
+    sp.n = n
+    sp.t = t
+    sp.b = b
+    kd = mat.kd[m]
+    sp.diffuse = kd / wp.pi
+    wd = wp.max(luminance(kd), 0.0)
+    sp.wd = wd
+    count = mat.lobe_count[m]
+    sp.lobe_count = count
+    total_pdf = wd
+    total_sample = wd
+    for i in range(count):
+        c = mat.lobes[m, i]
+        axis = lafortune_axis(n, t, b, wo, c)
+        w = lafortune_lobe_weight(axis, mat.lobe_rho[m, i], c[3])
+        unit = wp.normalize(axis)
+        at, ab = orthonormal_basis(unit)
+        sp.axis[i] = axis
+        sp.unit_axis[i] = unit
+        sp.axis_t[i] = at
+        sp.axis_b[i] = ab
+        sp.rho[i] = mat.lobe_rho[m, i]
+        sp.exponent[i] = c[3]
+        sp.weight[i] = w
+        total_sample += w
+        if w > 0.0:
+            total_pdf += w
+    sp.total_pdf = total_pdf
+    sp.total_sample = total_sample
+    return sp
+
+
+@wp.func(inline=True)
+def shading_eval(sp: ShadingPoint, wi: wp.vec3) -> wp.vec3:
+    """f_r (1/sr) towards unit ``wi``: :func:`material_eval` of the point's material, n and wo."""
+    if wp.dot(sp.n, wi) <= 0.0:
+        return wp.vec3(0.0)
+    f = sp.diffuse
+    for i in range(sp.lobe_count):
+        f += sp.rho[i] * lafortune_lobe(sp.axis[i], wi, sp.exponent[i])
+    return f
+
+
+@wp.func(inline=True)
+def shading_pdf(sp: ShadingPoint, wi: wp.vec3) -> float:
+    """Density (1/sr) of :func:`shading_sample` at unit ``wi``: :func:`material_pdf`."""
+    p = sp.wd * lambert_pdf(sp.n, wi)
+    for i in range(sp.lobe_count):
+        w = sp.weight[i]
+        if w > 0.0:
+            p += w * cos_power_pdf(sp.unit_axis[i], wi, sp.exponent[i])
+    if not (sp.total_pdf > 0.0):
+        return 0.0
+    return p / sp.total_pdf
+
+
+@wp.func(inline=True)
+def shading_sample(sp: ShadingPoint, xi: wp.vec2, choice: float) -> wp.vec3:
+    """Sample the point's material with ``xi`` in [0, 1)^2 and the roulette ``choice`` in [0, 1):
+    :func:`material_sample`."""
+    if not (sp.total_sample > 0.0):
+        return sp.n
+    x = choice * sp.total_sample
+    if x < sp.wd:
+        return frame_direction(sp.t, sp.b, sp.n, wp.sqrt(1.0 - xi[0]), 2.0 * wp.pi * xi[1])
+    acc = sp.wd
+    chosen = int(-1)
+    last = int(-1)
+    for i in range(sp.lobe_count):
+        w = sp.weight[i]
+        if w > 0.0:
+            last = i
+            acc += w
+            if chosen < 0 and x < acc:
+                chosen = i
+    if chosen < 0:
+        chosen = last  # x rounded onto the total
+    if chosen < 0:
+        return frame_direction(sp.t, sp.b, sp.n, wp.sqrt(1.0 - xi[0]), 2.0 * wp.pi * xi[1])
+    cos_a = wp.pow(1.0 - xi[0], 1.0 / (sp.exponent[chosen] + 1.0))
+    return frame_direction(sp.axis_t[chosen], sp.axis_b[chosen], sp.unit_axis[chosen], cos_a, 2.0 * wp.pi * xi[1])
 
 
 # ---- host side -------------------------------------------------------------------------------------

@@ -12,7 +12,14 @@ per-point jittered pattern (Sec. 5.1 "Random Numbers"). Visibility (:class:`Ligh
 * ``VIS_MESH`` — a ``wp.Mesh`` shadow ray (the reference);
 * ``VIS_NONE`` — no occlusion.
 
-Progressive rendering (Sec. 5.2): :class:`ProgressiveAccumulator` averages passes rendered with different seeds.
+Progressive rendering (Sec. 5.2): :class:`DirectLighting` checks and uploads the points, the material table, the
+light and the visibility source once, then shades any number of passes (one launch each, split across the CPU
+cores); :class:`ProgressiveAccumulator` averages passes rendered with different seeds. :func:`shade_direct` is one
+pass of a fresh :class:`DirectLighting`.
+
+The estimators' per-sample functions (visibility, BRDF evaluation, density and sampling of a
+:class:`~warpscatter.csm.brdf.ShadingPoint`) are inlined into the kernels: the structs they take hold many arrays,
+and an out-of-line call copies its struct arguments on the CPU.
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ import numpy as np
 import warp as wp
 
 from .. import parallel
+from ..raycast import occluded
 from ..wpinit import default_device, module_options
 from .brdf import MaterialTable
 from .compress import KIND_LATLONG, CoherentShadowMap
@@ -58,6 +66,14 @@ class LightVisibility:
     bias: float  # CSM depth bias (scene units)
     mesh: wp.uint64  # VIS_MESH: the occluders' BVH
     eps: float  # offset of the query point along the normal (scene units)
+
+
+@wp.func(inline=False)
+def shadow_ray_blocked(mesh: wp.uint64, origin: wp.vec3, direction: wp.vec3, t_max: float) -> bool:
+    """A shadow ray's any-hit query (:func:`~warpscatter.raycast.occluded`), kept out of line: the BVH traversal
+    is long, inlined at each of an estimator's call sites it would only grow the kernel (no speed-up measured), and
+    its arguments are a few words, unlike the visibility struct whose copies the inlined callers avoid."""
+    return occluded(mesh, origin, direction, t_max)
 
 
 @wp.func
@@ -292,6 +308,29 @@ def surface_points(p: np.ndarray, n: np.ndarray, wo: np.ndarray, idx: np.ndarray
     return s
 
 
+#: Chunks per worker thread of a CPU pass: points differ in cost (sky-facing ground vs. occluded crevices), so a few
+#: more chunks than threads keep both cores busy to the end of the pass (a launch costs ~50 us).
+CHUNKS_PER_THREAD = 8
+
+
+def launch_points(kernel, count: int, inputs: list, device: str, threads: int | None = None) -> None:
+    """Launch an estimator ``kernel(*inputs, offset)`` over ``count`` points: on the CPU cut into
+    :data:`CHUNKS_PER_THREAD` chunks per worker thread (:mod:`warpscatter.parallel`), on CUDA one launch."""
+    if count == 0:
+        return
+    n = threads or parallel.thread_count()
+    if not wp.get_device(device).is_cpu or n <= 1:
+        wp.launch(kernel, dim=count, inputs=[*inputs, 0], device=device)
+        return
+    wp.load_module(kernel.module, device=device)
+
+    def _one(piece):
+        start, stop = piece
+        wp.launch(kernel, dim=stop - start, inputs=[*inputs, start], device=device)
+
+    parallel.run_parallel(_one, parallel.chunks(count, CHUNKS_PER_THREAD * n, min_chunk=256), n)
+
+
 def shade_points(kernel, surface: tuple, light_data, strata: int, vis: LightVisibility, table: MaterialTable,
                  seed: int, device: str, threads: int | None) -> np.ndarray:
     """Launch an estimator ``kernel(surface, materials, light, strata, visibility, seed, out)`` over the points of
@@ -299,11 +338,98 @@ def shade_points(kernel, surface: tuple, light_data, strata: int, vis: LightVisi
     p, n, wo, idx = surface
     k = p.shape[0]
     out = wp.zeros(k, dtype=wp.vec3, device=device)
-    if k:
-        parallel.launch_rows(kernel, k, [surface_points(p, n, wo, idx, device), table.device_data(device), light_data,
-                                         strata, vis, int(seed) & 0x7FFFFFFF, out],
-                             device, threads=threads, min_chunk=256)
+    launch_points(kernel, k, [surface_points(p, n, wo, idx, device), table.device_data(device), light_data, strata,
+                              vis, int(seed) & 0x7FFFFFFF, out], device, threads)
     return out.numpy()
+
+
+class DirectLighting:
+    """Monte-Carlo direct lighting of fixed surface points under one light, set up once for any number of passes
+    (Ritschel 2007 Sec. 5.2): the inputs are checked, and the points, the material table, the light and the
+    visibility source (CSM or BVH) uploaded, in the constructor; :meth:`shade` then only launches the estimator
+    with a pass's seed. :func:`shade_direct` is one pass of it; the ``csm`` / ``raytrace`` pipeline makes one per
+    render.
+
+    Args:
+        points, normals, albedo, light: as :func:`shade_direct`.
+        **options: the keyword arguments of :func:`shade_direct` except ``seed``.
+
+    Raises:
+        ValueError: as :func:`shade_direct`.
+
+    Example::
+
+        lighting = DirectLighting(points, normals, None, env, samples=16, csm=csm, materials=table,
+                                  material_index=idx, filter="roulette", bias=b, ray_eps=e)
+        acc = ProgressiveAccumulator()
+        for k in range(passes):
+            image = acc.add(lighting.shade(seed=k))
+    """
+
+    def __init__(
+        self,
+        points,
+        normals,
+        albedo,
+        light,
+        *,
+        samples: int,
+        csm: CoherentShadowMap | None = None,
+        mesh: wp.Mesh | None = None,
+        view_dirs=None,
+        specular=None,
+        exponent=1.0,
+        materials: MaterialTable | None = None,
+        material_index=None,
+        filter: str = "nearest",
+        bias: float = 0.0,
+        ray_eps: float = 1.0e-4,
+        device: str | None = None,
+        threads: int | None = None,
+    ):
+        from ..scene.environment_map import EnvironmentMap
+        from ..scene.lights import AreaLight, EnvironmentLight, LinearLight
+
+        device = default_device(device)
+        strata = check_strata(samples)
+        p, n, wo, idx, table = surface_inputs(points, normals, albedo, view_dirs=view_dirs, specular=specular,
+                                              exponent=exponent, materials=materials, material_index=material_index)
+        check_visibility_source(filter, bias, ray_eps, csm, mesh)
+        latlong = isinstance(csm, CoherentShadowMap) and csm.kind == KIND_LATLONG
+        if isinstance(light, EnvironmentLight):
+            light = light.env
+        if isinstance(light, EnvironmentMap):
+            from .environment import shade_environment_kernel as kernel
+
+            if csm is not None and not latlong:
+                raise ValueError("csm must be a lat-long CoherentShadowMap (build_csm)")
+            light_data = light.device_data(device)
+        elif isinstance(light, (AreaLight, LinearLight)):
+            from .local_lights import check_light_csm
+            from .local_lights import shade_local_light_kernel as kernel
+
+            if csm is not None and not latlong:
+                check_light_csm(csm, light)
+            light_data = light.device_data()
+        else:
+            raise ValueError(f"light must be an EnvironmentMap, AreaLight or LinearLight, got {type(light).__name__}")
+        vis = light_visibility(csm, mesh, filter=filter, bias=bias, ray_eps=ray_eps, device=device)
+        if latlong and not isinstance(light, EnvironmentMap):
+            vis.mode = VIS_SEMI_LOCAL  # a lat-long CSM queried towards the local light's points
+        self.count = int(p.shape[0])
+        self.samples = int(samples)
+        self.device = device
+        self.threads = threads
+        self._kernel = kernel
+        self._inputs = [surface_points(p, n, wo, idx, device), table.device_data(device), light_data, strata, vis]
+        self._out = wp.zeros(self.count, dtype=wp.vec3, device=device)
+
+    def shade(self, seed: int = 0) -> np.ndarray:
+        """One pass: (K, 3) float32 outgoing radiance towards the view directions, drawn with ``seed`` (use a new
+        seed per progressive pass: it changes every pattern)."""
+        launch_points(self._kernel, self.count, [*self._inputs, int(seed) & 0x7FFFFFFF, self._out], self.device,
+                      self.threads)
+        return self._out.numpy().copy()
 
 
 def shade_direct(
@@ -364,50 +490,27 @@ def shade_direct(
             both ``csm`` and ``mesh``, a CSM that does not fit the light, an unknown filter or light, negative
             bias / ray_eps / exponent.
     """
-    from ..scene.environment_map import EnvironmentMap
-    from ..scene.lights import AreaLight, EnvironmentLight, LinearLight
-
-    device = default_device(device)
-    strata = check_strata(samples)
-    p, n, wo, idx, table = surface_inputs(points, normals, albedo, view_dirs=view_dirs, specular=specular,
-                                          exponent=exponent, materials=materials, material_index=material_index)
-    check_visibility_source(filter, bias, ray_eps, csm, mesh)
-    latlong = isinstance(csm, CoherentShadowMap) and csm.kind == KIND_LATLONG
-    if isinstance(light, EnvironmentLight):
-        light = light.env
-    if isinstance(light, EnvironmentMap):
-        from .environment import shade_environment_kernel as kernel
-
-        if csm is not None and not latlong:
-            raise ValueError("csm must be a lat-long CoherentShadowMap (build_csm)")
-        light_data = light.device_data(device)
-    elif isinstance(light, (AreaLight, LinearLight)):
-        from .local_lights import check_light_csm
-        from .local_lights import shade_local_light_kernel as kernel
-
-        if csm is not None and not latlong:
-            check_light_csm(csm, light)
-        light_data = light.device_data()
-    else:
-        raise ValueError(f"light must be an EnvironmentMap, AreaLight or LinearLight, got {type(light).__name__}")
-    vis = light_visibility(csm, mesh, filter=filter, bias=bias, ray_eps=ray_eps, device=device)
-    if latlong and not isinstance(light, EnvironmentMap):
-        vis.mode = VIS_SEMI_LOCAL  # a lat-long CSM queried towards the local light's points
-    return shade_points(kernel, (p, n, wo, idx), light_data, strata, vis, table, seed, device, threads)
+    return DirectLighting(points, normals, albedo, light, samples=samples, csm=csm, mesh=mesh, view_dirs=view_dirs,
+                          specular=specular, exponent=exponent, materials=materials, material_index=material_index,
+                          filter=filter, bias=bias, ray_eps=ray_eps, device=device, threads=threads).shade(seed)
 
 
 __all__ = [
+    "CHUNKS_PER_THREAD",
     "VIS_CSM",
     "VIS_MESH",
     "VIS_NONE",
     "VIS_SEMI_LOCAL",
+    "DirectLighting",
     "LightVisibility",
     "ProgressiveAccumulator",
     "SurfacePoints",
     "check_strata",
     "check_visibility_source",
+    "launch_points",
     "light_visibility",
     "placeholder_csms",
+    "shadow_ray_blocked",
     "shade_direct",
     "shade_points",
     "stratum_random_numbers",

@@ -13,7 +13,8 @@ for surface points (a G-buffer: positions, normals, materials) lit by a distant 
   Numbers"); each stratum draws one environment sample and one BRDF sample, combined with multiple importance
   sampling (balance heuristic [VG95]): each sample contributes f L V cos / (p_env + p_brdf).
 - Visibility (:mod:`.direct_lighting`): a lat-long CSM (points in its object space, Sec. 3.3 / 4.1), a
-  ``wp.Mesh`` shadow ray (the reference), or none.
+  ``wp.Mesh`` shadow ray (the reference), or none. Both samples of a stratum use the same directions whatever the
+  visibility source, so ``csm`` and ``raytrace`` images differ by the visibility query alone.
 
 Radiance units follow the environment map (its texels are radiance L_in).
 """
@@ -23,33 +24,50 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..raycast import occluded
-from ..scene.environment_map import EnvData, EnvironmentMap, env_lookup, env_pdf, env_sample
+from ..scene.environment_map import EnvData, EnvironmentMap, env_lookup_uv, env_pdf_uv, env_sample_uv
 from ..wpinit import module_options
-from .brdf import MaterialData, material_eval, material_pdf, material_sample
+from .brdf import MaterialData, shading_eval, shading_pdf, shading_point, shading_sample
+from .depthmaps import latlong_param
 from .direct_lighting import (
     VIS_CSM,
     VIS_MESH,
     LightVisibility,
     SurfacePoints,
     shade_direct,
+    shadow_ray_blocked,
     stratum_random_numbers,
     stratum_sample,
     surface_point,
 )
-from .query import csm_visibility_filtered
+from .query import csm_visibility_filtered, csm_visibility_filtered_uv
 
 module_options()
 
 
-@wp.func
+@wp.func(inline=True)
 def distant_visibility(vis: LightVisibility, p: wp.vec3, n: wp.vec3, d: wp.vec3, xi: wp.vec4) -> float:
     """V(p, d) in [0, 1] towards a distant direction ``d``: the lat-long CSM query of p + eps n (Sec. 3.3; ``xi``
-    uniform in [0, 1)^4 for the roulette filter) for VIS_CSM, a shadow ray from p + eps n for VIS_MESH, else 1."""
+    uniform in [0, 1)^4 for the roulette filter) for VIS_CSM, a shadow ray from p + eps n for VIS_MESH, else 1.
+
+    Inlined into its callers (as every per-sample function of the estimators): the visibility struct holds a dozen
+    arrays, which an out-of-line call would copy twice per sample on the CPU."""
     if vis.mode == VIS_CSM:
         return csm_visibility_filtered(vis.latlong, p + vis.eps * n, d, vis.bias, vis.filter_mode, xi)
     if vis.mode == VIS_MESH:
-        if occluded(vis.mesh, p + vis.eps * n, d, 1.0e30):
+        if shadow_ray_blocked(vis.mesh, p + vis.eps * n, d, 1.0e30):
+            return 0.0
+    return 1.0
+
+
+@wp.func(inline=True)
+def distant_visibility_uv(vis: LightVisibility, p: wp.vec3, n: wp.vec3, d: wp.vec3, uv: wp.vec2,
+                          xi: wp.vec4) -> float:
+    """:func:`distant_visibility` of a direction ``d`` whose lat-long parameters ``uv`` (= latlong_param(d)) the
+    caller already has."""
+    if vis.mode == VIS_CSM:
+        return csm_visibility_filtered_uv(vis.latlong, p + vis.eps * n, uv, vis.bias, vis.filter_mode, xi)
+    if vis.mode == VIS_MESH:
+        if shadow_ray_blocked(vis.mesh, p + vis.eps * n, d, 1.0e30):
             return 0.0
     return 1.0
 
@@ -68,33 +86,40 @@ def shade_environment_kernel(
     out: wp.array(dtype=wp.vec3),
     offset: int,
 ):
-    """out[k] = one stratified MIS estimate (s^2 strata) of the reflected radiance of point k towards view_dirs[k]."""
+    """out[k] = one stratified MIS estimate (s^2 strata) of the reflected radiance of point k towards view_dirs[k].
+
+    The material's per-point part (frame, lobe axes and weights) is computed once per point (:func:`shading_point`).
+    The lat-long CSM is queried with lat-long parameters the estimator already has: an environment sample's own
+    (u, v) (its direction is env_direction(u, v); recomputing them from the direction would only add an atan2, an
+    acos and their rounding), a BRDF sample's latlong_param, which also serves its map look-up and density."""
     k = wp.tid() + offset
     rng = wp.rand_init(seed, k)  # a different pattern per point and per pass (seed)
     p, n, wo, m = surface_point(surf, k)
+    sp = shading_point(mat, m, n, wo)
     total = wp.vec3(0.0)
     count = strata * strata
     for s in range(count):
         j_env, j_brdf, choice, xi_env, xi_brdf, rng = stratum_random_numbers(rng)
         # ---- environment sample (P_L^-1), balance heuristic: f L V cos / (p_env + p_brdf) ----
-        d, radiance, pe = env_sample(env, stratum_sample(s, strata, j_env))
+        d, radiance, pe, uv = env_sample_uv(env, stratum_sample(s, strata, j_env))
         c = wp.dot(n, d)
         if pe > 0.0 and c > 0.0:
-            f = material_eval(mat, m, n, wo, d)
+            f = shading_eval(sp, d)
             if wp.length_sq(f) > 0.0 and wp.length_sq(radiance) > 0.0:
-                v = distant_visibility(vis, p, n, d, xi_env)
-                total += wp.cw_mul(f, radiance) * (v * c / (pe + material_pdf(mat, m, n, wo, d)))
+                v = distant_visibility_uv(vis, p, n, d, uv, xi_env)
+                total += wp.cw_mul(f, radiance) * (v * c / (pe + shading_pdf(sp, d)))
         # ---- BRDF sample (P_f^-1 with the diffuse / lobe roulette) ----
-        wi = material_sample(mat, m, n, wo, stratum_sample(s, strata, j_brdf), choice)
+        wi = shading_sample(sp, stratum_sample(s, strata, j_brdf), choice)
         c = wp.dot(n, wi)
         if c > 0.0:
-            pb = material_pdf(mat, m, n, wo, wi)
+            pb = shading_pdf(sp, wi)
             if pb > 0.0:
-                f = material_eval(mat, m, n, wo, wi)
-                radiance = env_lookup(env, wi)
+                f = shading_eval(sp, wi)
+                uv = latlong_param(wi)
+                radiance = env_lookup_uv(env, uv)
                 if wp.length_sq(f) > 0.0 and wp.length_sq(radiance) > 0.0:
-                    v = distant_visibility(vis, p, n, wi, xi_brdf)
-                    total += wp.cw_mul(f, radiance) * (v * c / (pb + env_pdf(env, wi)))
+                    v = distant_visibility_uv(vis, p, n, wi, uv, xi_brdf)
+                    total += wp.cw_mul(f, radiance) * (v * c / (pb + env_pdf_uv(env, wi, uv)))
     out[k] = total / float(count)
 
 
@@ -115,4 +140,4 @@ def shade_environment(points, normals, albedo, env: EnvironmentMap, **options) -
     return shade_direct(points, normals, albedo, env, **options)
 
 
-__all__ = ["distant_visibility", "shade_environment", "shade_environment_kernel"]
+__all__ = ["distant_visibility", "distant_visibility_uv", "shade_environment", "shade_environment_kernel"]

@@ -27,7 +27,6 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..raycast import occluded
 from ..scene.lights import (
     LOCAL_LIGHT_LINEAR,
     AreaLight,
@@ -39,7 +38,7 @@ from ..scene.lights import (
     area_light_radiance,
 )
 from ..wpinit import module_options
-from .brdf import MaterialData, material_eval, material_pdf, material_sample
+from .brdf import MaterialData, shading_eval, shading_pdf, shading_point, shading_sample
 from .compress import KIND_CUBE, CoherentShadowMap
 from .direct_lighting import (
     VIS_CSM,
@@ -48,6 +47,7 @@ from .direct_lighting import (
     LightVisibility,
     SurfacePoints,
     shade_direct,
+    shadow_ray_blocked,
     stratum_random_numbers,
     stratum_sample,
     surface_point,
@@ -57,11 +57,11 @@ from .query import csm_local_visibility_filtered, csm_visibility_filtered
 module_options()
 
 
-@wp.func
+@wp.func(inline=True)
 def local_visibility(vis: LightVisibility, x: wp.vec3, n: wp.vec3, y: wp.vec3, st: wp.vec2, xi: wp.vec4) -> float:
     """V between surface point ``x`` (normal n) and the light point ``y`` of parameters ``st``: the cube CSM
     query of x + eps n (VIS_CSM), the lat-long CSM towards y (VIS_SEMI_LOCAL), a shadow ray from x + eps n that
-    stops just short of y (VIS_MESH), else 1."""
+    stops just short of y (VIS_MESH), else 1. Inlined into the estimator (no copies of the visibility struct)."""
     o = x + vis.eps * n
     if vis.mode == VIS_CSM:
         return csm_local_visibility_filtered(vis.cube, o, st, vis.bias, vis.filter_mode, xi)
@@ -70,7 +70,7 @@ def local_visibility(vis: LightVisibility, x: wp.vec3, n: wp.vec3, y: wp.vec3, s
     if vis.mode == VIS_MESH:
         w = y - o
         dist = wp.length(w)
-        if dist > 0.0 and occluded(vis.mesh, o, w / dist, dist * (1.0 - 1.0e-4)):
+        if dist > 0.0 and shadow_ray_blocked(vis.mesh, o, w / dist, dist * (1.0 - 1.0e-4)):
             return 0.0
     return 1.0
 
@@ -89,10 +89,12 @@ def shade_local_light_kernel(
     out: wp.array(dtype=wp.vec3),
     offset: int,
 ):
-    """out[k] = one stratified estimate of the radiance reflected at point k from the local light."""
+    """out[k] = one stratified estimate of the radiance reflected at point k from the local light (the material's
+    per-point part computed once, :func:`~warpscatter.csm.brdf.shading_point`)."""
     k = wp.tid() + offset
     rng = wp.rand_init(seed, k)
     x, n, wo, m = surface_point(surf, k)
+    sp = shading_point(mat, m, n, wo)
     total = wp.vec3(0.0)
     count = strata * strata
     for s in range(count):
@@ -107,7 +109,7 @@ def shade_local_light_kernel(
                 d = w / wp.sqrt(d2)
                 c = wp.dot(n, d)
                 if c > 0.0:
-                    f = material_eval(mat, m, n, wo, d)
+                    f = shading_eval(sp, d)
                     if wp.length_sq(f) > 0.0:
                         v = local_visibility(vis, x, n, y, wp.vec2(sl, 0.5), xi_light)
                         total += wp.cw_mul(f, light.emission) * (v * c * light.size / d2)
@@ -123,20 +125,20 @@ def shade_local_light_kernel(
                 pl = area_light_pdf(light, x, y)
                 le = area_light_radiance(light, -d)
                 if c > 0.0 and pl > 0.0 and wp.length_sq(le) > 0.0:
-                    f = material_eval(mat, m, n, wo, d)
+                    f = shading_eval(sp, d)
                     if wp.length_sq(f) > 0.0:
                         v = local_visibility(vis, x, n, y, st, xi_light)
-                        total += wp.cw_mul(f, le) * (v * c / (pl + material_pdf(mat, m, n, wo, d)))
+                        total += wp.cw_mul(f, le) * (v * c / (pl + shading_pdf(sp, d)))
             # ---- BRDF sample: counts where its ray hits the light ----
-            wi = material_sample(mat, m, n, wo, stratum_sample(s, strata, j_brdf), choice)
+            wi = shading_sample(sp, stratum_sample(s, strata, j_brdf), choice)
             c = wp.dot(n, wi)
             if c > 0.0:
-                pb = material_pdf(mat, m, n, wo, wi)
+                pb = shading_pdf(sp, wi)
                 r, sth = area_light_intersect(light, x, wi)
                 if pb > 0.0 and r > 0.0:
                     le = area_light_radiance(light, -wi)
                     yh = x + r * wi
-                    f = material_eval(mat, m, n, wo, wi)
+                    f = shading_eval(sp, wi)
                     if wp.length_sq(le) > 0.0 and wp.length_sq(f) > 0.0:
                         v = local_visibility(vis, x, n, yh, sth, xi_brdf)
                         total += wp.cw_mul(f, le) * (v * c / (pb + area_light_pdf(light, x, yh)))

@@ -32,6 +32,11 @@ Both kinds share one implementation of the filters (PCF and roulette over 2^2 ma
 @wp.funcs over the CSM struct, which Warp compiles once per kind, resolving two per-kind overloads, the texel
 depth test and the 2x2-texel footprint of a point in a map.
 
+Callers that already have a direction's lat-long parameters (the environment estimator: an environment sample's
+own (u, v), a BRDF sample's shared with its map look-up) query with :func:`csm_visibility_filtered_uv`, which is
+:func:`csm_visibility_filtered` without its atan2 / acos; the filtered queries are inlined into their callers (the
+CSM struct holds six arrays, which an out-of-line call copies on the CPU).
+
 ``bias`` is in object-space scene units.
 """
 
@@ -246,20 +251,31 @@ def csm_segment_depth(csm: CSMData, texel: int, sequence: int) -> float:
 
 
 @wp.func
-def csm_nearest_cell(csm: CSMData, d: wp.vec3) -> int:
-    """Grid cell b n1 + a of the map selected for direction ``d`` (nearest cell centre in (u, v))."""
-    uv = latlong_param(d)
+def csm_nearest_cell_uv(csm: CSMData, uv: wp.vec2) -> int:
+    """Grid cell b n1 + a of the map selected for the direction of lat-long parameters ``uv`` (nearest cell
+    centre; ``uv`` = :func:`~warpscatter.csm.depthmaps.latlong_param` of the direction)."""
     a = wp.min(int(uv[0] * float(csm.n1)), csm.n1 - 1)
     b = wp.min(int(uv[1] * float(csm.n2)), csm.n2 - 1)
     return b * csm.n1 + a
 
 
 @wp.func
+def csm_nearest_cell(csm: CSMData, d: wp.vec3) -> int:
+    """Grid cell b n1 + a of the map selected for direction ``d`` (nearest cell centre in (u, v))."""
+    return csm_nearest_cell_uv(csm, latlong_param(d))
+
+
+@wp.func
+def csm_bilinear_cells_uv(csm: CSMData, uv: wp.vec2) -> tuple[wp.vec4i, wp.vec2]:
+    """:func:`csm_bilinear_cells` of the direction of lat-long parameters ``uv``."""
+    return grid_bilinear(uv[0], uv[1], csm.n1, csm.n2, 1)
+
+
+@wp.func
 def csm_bilinear_cells(csm: CSMData, d: wp.vec3) -> tuple[wp.vec4i, wp.vec2]:
     """The 2^2 cells around direction ``d`` and the bilinear weights: cells (c00, c10, c01, c11) and
     (fa, fb), weight of c10 = fa (1 - fb), of c01 = (1 - fa) fb, of c11 = fa fb (Sec. 4.5)."""
-    uv = latlong_param(d)
-    return grid_bilinear(uv[0], uv[1], csm.n1, csm.n2, 1)
+    return csm_bilinear_cells_uv(csm, latlong_param(d))
 
 
 @wp.func
@@ -341,15 +357,25 @@ def csm_visibility_roulette(csm: CSMData, p: wp.vec3, d: wp.vec3, bias: float, x
     return _cells_roulette(csm, cells, w, p, bias, xi)
 
 
-@wp.func
+@wp.func(inline=True)
+def csm_visibility_filtered_uv(csm: CSMData, p: wp.vec3, uv: wp.vec2, bias: float, filter_mode: int,
+                               xi: wp.vec4) -> float:
+    """:func:`csm_visibility_filtered` of the direction whose lat-long parameters ``uv`` (= latlong_param of it)
+    the caller already has: the environment estimator shares them with its map look-up."""
+    if filter_mode == FILTER_PCF:
+        cells, w = csm_bilinear_cells_uv(csm, uv)
+        return _cells_pcf(csm, cells, w, p, bias)
+    if filter_mode == FILTER_ROULETTE:
+        cells, w = csm_bilinear_cells_uv(csm, uv)
+        return _cells_roulette(csm, cells, w, p, bias, xi)
+    return csm_map_visibility(csm, csm_nearest_cell_uv(csm, uv), p, bias)
+
+
+@wp.func(inline=True)
 def csm_visibility_filtered(csm: CSMData, p: wp.vec3, d: wp.vec3, bias: float, filter_mode: int, xi: wp.vec4) -> float:
     """Visibility with the filter ``filter_mode`` (FILTER_NEAREST, FILTER_PCF or FILTER_ROULETTE; ``xi`` is
     used by the roulette only)."""
-    if filter_mode == FILTER_PCF:
-        return csm_visibility_pcf(csm, p, d, bias)
-    if filter_mode == FILTER_ROULETTE:
-        return csm_visibility_roulette(csm, p, d, bias, xi)
-    return csm_visibility(csm, p, d, bias)
+    return csm_visibility_filtered_uv(csm, p, latlong_param(d), bias, filter_mode, xi)
 
 
 @wp.func
@@ -479,7 +505,7 @@ def csm_local_visibility_roulette(csm: CubeCSMData, p: wp.vec3, x: wp.vec2, bias
     return _cells_roulette(csm, cells, w, p, bias, xi)
 
 
-@wp.func
+@wp.func(inline=True)
 def csm_local_visibility_filtered(
     csm: CubeCSMData, p: wp.vec3, x: wp.vec2, bias: float, filter_mode: int, xi: wp.vec4
 ) -> float:

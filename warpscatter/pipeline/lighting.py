@@ -7,12 +7,16 @@ Stages (names as in the CLI's timing table):
   ``receiver_only``, in world space), loaded from ``render.lighting.csm.file`` (checked against the scene:
   kind, occluder geometry, light samples) or built on the fly with the streaming builder: lat-long maps for an
   environment light, depth cube maps at the light's sample points for an area or linear light
-  (:mod:`warpscatter.csm.occluders`).
+  (:mod:`warpscatter.csm.occluders`), and put on the device.
   ``bvh`` (method ``raytrace``): the ``wp.Mesh`` of the same occluders, for exact shadow rays (the reference).
 - ``gbuffer``: the rasterized camera G-buffer (:func:`warpscatter.gbuffer.gbuffer_raster`), the same for both
   methods so that they differ only by the visibility query.
+- ``setup``: the estimator, once for all passes (:class:`~warpscatter.csm.direct_lighting.DirectLighting`): the
+  visible pixels' points, normals, view directions and materials, the material table and the light are checked and
+  put on the device with the visibility source (the CSM's segment lists, uploaded in the ``csm`` stage, or the
+  BVH); no pass re-uploads or re-checks anything.
 - ``lighting``: ``passes`` progressive passes (Sec. 5.2). Each pass shades every visible pixel with S = s^2
-  strata (:func:`~warpscatter.csm.direct_lighting.shade_direct`)
+  strata (:meth:`~warpscatter.csm.direct_lighting.DirectLighting.shade`: one launch split across the CPU cores)
   under its own seed, so every pass draws new stratified patterns;
   :class:`~warpscatter.csm.direct_lighting.ProgressiveAccumulator` averages them.
   Every ``write_every`` passes the current mean is handed to ``on_pass`` (the pipeline writes the outputs then).
@@ -29,14 +33,16 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
 from .. import methods
 from ..csm.brdf import MaterialTable
-from ..csm.direct_lighting import ProgressiveAccumulator, shade_direct
+from ..csm.direct_lighting import DirectLighting, ProgressiveAccumulator
 from ..csm.occluders import prepare_csm, scene_occluders, texel_size
+from ..csm.query import csm_device_data
 from ..csm.settings import LightingSettings
 from ..gbuffer import gbuffer_raster
 from ..raycast import build_mesh
@@ -50,6 +56,42 @@ from .common import check_finite, compile_kernels
 def pass_seed(seed: int, k: int) -> int:
     """Seed of progressive pass ``k``: distinct per pass, so each pass draws new per-pixel patterns."""
     return (int(seed) * 1_000_003 + 7919 * (int(k) + 1)) & 0x7FFFFFFF
+
+
+@dataclass
+class CameraSurface:
+    """The visible surface of a camera view as the Monte-Carlo estimators take it (:func:`camera_surface`)."""
+
+    gbuffer: dict  # the rasterized G-buffer's arrays ("distance", "normal", "material")
+    directions: np.ndarray  # (H, W, 3) unit camera-ray directions
+    hit: np.ndarray  # (H, W) bool: a surface is seen
+    distance: np.ndarray  # (H, W) float64 hit distance
+    points: np.ndarray  # (K, 3) float32 surface points of the hit pixels (row-major)
+    normals: np.ndarray  # (K, 3) float32
+    view_dirs: np.ndarray  # (K, 3) float32 towards the camera
+    material_index: np.ndarray  # (K,) int32 rows of materials
+    materials: MaterialTable
+
+
+def camera_surface(scene, stage: StageTimer | None = None, device=None) -> CameraSurface:
+    """The stages ``upload`` and ``gbuffer`` of :func:`render_lighting`: the scene's geometry on the device, the
+    rasterized G-buffer and the estimators' per-pixel inputs (what every ``csm`` / ``raytrace`` pass shades)."""
+    device = default_device(device)
+    timer = stage or StageTimer()
+    with timer("upload"):
+        geometry = DeviceGeometry(scene, device)
+    with timer("gbuffer"):
+        gbuf = gbuffer_raster(scene, geometry, device)
+    cam = scene.camera
+    g = gbuf.numpy()
+    dirs = cam.ray_directions()
+    hit = g["material"] >= 0
+    dist = g["distance"].astype(np.float64)
+    points = (np.asarray(cam.position, np.float64) + dirs * dist[..., None])[hit].astype(np.float32)
+    return CameraSurface(gbuffer=g, directions=dirs, hit=hit, distance=dist, points=points,
+                         normals=g["normal"][hit].astype(np.float32), view_dirs=(-dirs[hit]).astype(np.float32),
+                         material_index=g["material"][hit].astype(np.int32),
+                         materials=MaterialTable.from_specs(scene.brdf_specs()))
 
 
 def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None = None,
@@ -86,24 +128,14 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
     if method.visibility == methods.VISIBILITY_CSM:
         with timer("csm") as s:
             csm = prepare_csm(light, settings.csm, vertices, triangles, progress=s.report, device=device)
+            csm_device_data(csm, device)  # the segment lists on the device, once per render
     else:
         with timer("bvh"):
             mesh = build_mesh(vertices, triangles, device=device) if len(triangles) else None
-    with timer("upload"):
-        geometry = DeviceGeometry(scene, device)
-    with timer("gbuffer"):
-        gbuf = gbuffer_raster(scene, geometry, device)
+    surf = camera_surface(scene, timer, device)
     cam = scene.camera
     h, w = cam.height, cam.width
-    g = gbuf.numpy()
-    dirs = cam.ray_directions()
-    hit = g["material"] >= 0
-    dist = g["distance"].astype(np.float64)
-    points = (np.asarray(cam.position, np.float64) + dirs * dist[..., None])[hit].astype(np.float32)
-    normals = g["normal"][hit].astype(np.float32)
-    view = (-dirs[hit]).astype(np.float32)
-    mat_index = g["material"][hit].astype(np.int32)
-    table = MaterialTable.from_specs(scene.brdf_specs())
+    g, dirs, hit, dist = surf.gbuffer, surf.directions, surf.hit, surf.distance
     if csm is not None:
         texel = texel_size(csm)
         bias = texel if settings.bias is None else settings.bias
@@ -128,18 +160,17 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
         return {"color": surface + background, "surface": surface, "scattering": scattering,
                 "depth": g["distance"].astype(np.float32)}
 
-    kw = {"samples": settings.samples, "view_dirs": view, "materials": table, "material_index": mat_index,
-          "filter": settings.filter, "bias": float(bias), "ray_eps": float(offset), "device": device}
-    if csm is not None:
-        kw["csm"] = csm
-    elif mesh is not None:
-        kw["mesh"] = mesh
+    with timer("setup"):  # once per render: every pass reuses the device data
+        lighting = DirectLighting(surf.points, surf.normals, None, light, samples=settings.samples, csm=csm,
+                                  mesh=mesh, view_dirs=surf.view_dirs, materials=surf.materials,
+                                  material_index=surf.material_index, filter=settings.filter, bias=float(bias),
+                                  ray_eps=float(offset), device=device)
     acc = ProgressiveAccumulator()
     pass_seconds = []
     mean = np.zeros((0, 3), np.float32)
     for k in range(settings.passes):
         t0 = time.perf_counter()
-        mean = acc.add(shade_direct(points, normals, None, light, seed=pass_seed(settings.seed, k), **kw))
+        mean = acc.add(lighting.shade(pass_seed(settings.seed, k)))
         wp.synchronize()
         dt = time.perf_counter() - t0
         pass_seconds.append(dt)
@@ -173,4 +204,4 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
     return images, stats
 
 
-__all__ = ["pass_seed", "render_lighting"]
+__all__ = ["CameraSurface", "camera_surface", "pass_seed", "render_lighting"]

@@ -5,7 +5,9 @@ The map is an RGB float32 image, row 0 = zenith: texel (i, j) covers theta in pi
 phi in 2 pi [i, i + 1] / W, direction d = (sin t cos p, cos t, sin t sin p) (assets/README.md); it is piecewise
 constant per texel. Sampling uses a marginal CDF over rows weighted by luminance x sin(theta_j) and one
 conditional CDF per row; in the (u, v) = (phi / 2 pi, theta / pi) domain the density is constant per texel,
-p_uv = W H P(texel), and the solid-angle density is p_uv / (2 pi^2 sin theta).
+p_uv = W H P(texel), and the solid-angle density is p_uv / (2 pi^2 sin theta). The inverse CDFs are searched
+through guide tables (the cutpoint method: :func:`cdf_guide`, :func:`guided_search`), which return the binary
+search's interval with about half a step of scanning instead of log2 n mispredicted branches.
 
 :class:`EnvironmentMap` builds the tables on the host; :class:`EnvData` is the map as kernels see it, and the
 ``@wp.func``s below (public API) look it up and sample it.
@@ -35,6 +37,8 @@ class EnvData:
     marginal_cdf: wp.array(dtype=wp.float32)  # (H + 1,) CDF over rows, 0 ... 1
     conditional_cdf: wp.array2d(dtype=wp.float32)  # (H, W + 1) CDF over the columns of each row
     texel_pdf: wp.array2d(dtype=wp.float32)  # (H, W) density in (u, v) = W H P(texel)
+    marginal_guide: wp.array(dtype=wp.int32)  # (GUIDE H,) guide table of marginal_cdf (cdf_guide)
+    conditional_guide: wp.array2d(dtype=wp.int32)  # (H, GUIDE W) guide table of each row of conditional_cdf
 
 
 # ---- building blocks (public @wp.func API) -----------------------------------------------------
@@ -70,42 +74,115 @@ def cdf_search_row(cdf: wp.array2d(dtype=wp.float32), row: int, n: int, x: float
 
 
 @wp.func
-def env_direction(u: float, v: float) -> wp.vec3:
-    """Lat-long mapping (u, v) in [0, 1]^2 -> unit direction: phi = 2 pi u, theta = pi v from +Y."""
-    phi = 2.0 * wp.pi * u
-    theta = wp.pi * v
-    st = wp.sin(theta)
-    return wp.vec3(st * wp.cos(phi), wp.cos(theta), st * wp.sin(phi))
+def guided_search(cdf: wp.array(dtype=wp.float32), guide: wp.array(dtype=wp.int32), n: int, x: float) -> int:
+    """:func:`cdf_search` (the same interval, bit for bit) started from the guide table of the CDF (the cutpoint
+    method, :func:`cdf_guide`): the bucket of x gives an interval at or below the answer, and a short scan upwards
+    (on average about half a step) finds it; a binary search mispredicts about every other of its log2 n steps."""
+    g = wp.clamp(int(x * float(guide.shape[0])), 0, guide.shape[0] - 1)
+    k = guide[g]
+    while k + 1 < n and cdf[k + 1] <= x:
+        k = k + 1
+    return k
 
 
 @wp.func
-def env_texel(env: EnvData, d: wp.vec3) -> wp.vec2i:
-    """Texel (column i, row j) of the map holding direction ``d`` (any length > 0)."""
-    uv = latlong_param(d)
+def guided_search_row(cdf: wp.array2d(dtype=wp.float32), guide: wp.array2d(dtype=wp.int32), row: int, n: int,
+                      x: float) -> int:
+    """:func:`guided_search` in row ``row`` of a 2-D table of CDFs and their guide tables."""
+    g = wp.clamp(int(x * float(guide.shape[1])), 0, guide.shape[1] - 1)
+    k = guide[row, g]
+    while k + 1 < n and cdf[row, k + 1] <= x:
+        k = k + 1
+    return k
+
+
+@wp.func
+def env_direction_sin(u: float, v: float) -> tuple[wp.vec3, float]:
+    """:func:`env_direction` of (u, v) and its sin(theta) = sin(pi v) (one sine for both)."""
+    phi = 2.0 * wp.pi * u
+    theta = wp.pi * v
+    st = wp.sin(theta)
+    return wp.vec3(st * wp.cos(phi), wp.cos(theta), st * wp.sin(phi)), st
+
+
+@wp.func
+def env_direction(u: float, v: float) -> wp.vec3:
+    """Lat-long mapping (u, v) in [0, 1]^2 -> unit direction: phi = 2 pi u, theta = pi v from +Y."""
+    d, _st = env_direction_sin(u, v)
+    return d
+
+
+@wp.func
+def env_texel_uv(env: EnvData, uv: wp.vec2) -> wp.vec2i:
+    """Texel (column i, row j) of the map holding the direction of lat-long parameters ``uv``
+    (:func:`~warpscatter.csm.depthmaps.latlong_param`)."""
     i = wp.clamp(int(uv[0] * float(env.width)), 0, env.width - 1)
     j = wp.clamp(int(uv[1] * float(env.height)), 0, env.height - 1)
     return wp.vec2i(i, j)
 
 
 @wp.func
-def env_lookup(env: EnvData, d: wp.vec3) -> wp.vec3:
-    """Radiance L_in arriving from direction ``d`` (nearest texel: the map is piecewise constant)."""
-    t = env_texel(env, d)
+def env_texel(env: EnvData, d: wp.vec3) -> wp.vec2i:
+    """Texel (column i, row j) of the map holding direction ``d`` (any length > 0)."""
+    return env_texel_uv(env, latlong_param(d))
+
+
+@wp.func
+def env_lookup_uv(env: EnvData, uv: wp.vec2) -> wp.vec3:
+    """:func:`env_lookup` of the direction whose lat-long parameters ``uv`` the caller already has."""
+    t = env_texel_uv(env, uv)
     return env.pixels[t[1], t[0]]
 
 
 @wp.func
-def env_pdf(env: EnvData, d: wp.vec3) -> float:
-    """Solid-angle density (1/sr) with which :func:`env_sample` draws direction ``d``:
-    p = p_uv / (2 pi^2 sin theta); 0 at the poles (sin theta = 0, probability zero)."""
+def env_lookup(env: EnvData, d: wp.vec3) -> wp.vec3:
+    """Radiance L_in arriving from direction ``d`` (nearest texel: the map is piecewise constant)."""
+    return env_lookup_uv(env, latlong_param(d))
+
+
+@wp.func
+def env_pdf_uv(env: EnvData, d: wp.vec3, uv: wp.vec2) -> float:
+    """:func:`env_pdf` of direction ``d`` whose lat-long parameters ``uv`` = latlong_param(d) the caller already
+    has (one atan2 / acos for the environment look-up, its density and the CSM query of a BRDF sample)."""
     n = wp.length(d)
     if not (n > 0.0):
         return 0.0
     s = wp.sqrt(d[0] * d[0] + d[2] * d[2]) / n  # sin theta, accurate near the poles (unlike sqrt(1 - y^2))
     if s < 1.0e-7:
         return 0.0
-    t = env_texel(env, d)
+    t = env_texel_uv(env, uv)
     return env.texel_pdf[t[1], t[0]] / (2.0 * wp.pi * wp.pi * s)
+
+
+@wp.func
+def env_pdf(env: EnvData, d: wp.vec3) -> float:
+    """Solid-angle density (1/sr) with which :func:`env_sample` draws direction ``d``:
+    p = p_uv / (2 pi^2 sin theta); 0 at the poles (sin theta = 0, probability zero)."""
+    return env_pdf_uv(env, d, latlong_param(d))
+
+
+@wp.func
+def env_sample_uv(env: EnvData, xi: wp.vec2) -> tuple[wp.vec3, wp.vec3, float, wp.vec2]:
+    """:func:`env_sample`, also returning the sample's lat-long parameters (u, v) (its direction is
+    env_direction(u, v) exactly; a lat-long CSM query of the sample can take them instead of recomputing them from
+    the direction with an atan2 and an acos)."""
+    x0 = wp.clamp(xi[0], 0.0, 0.99999994)
+    x1 = wp.clamp(xi[1], 0.0, 0.99999994)
+    j = guided_search(env.marginal_cdf, env.marginal_guide, env.height, x0)
+    c0 = env.marginal_cdf[j]
+    c1 = env.marginal_cdf[j + 1]
+    dv = wp.clamp((x0 - c0) / wp.max(c1 - c0, 1.0e-30), 0.0, 1.0)
+    i = guided_search_row(env.conditional_cdf, env.conditional_guide, j, env.width, x1)
+    r0 = env.conditional_cdf[j, i]
+    r1 = env.conditional_cdf[j, i + 1]
+    du = wp.clamp((x1 - r0) / wp.max(r1 - r0, 1.0e-30), 0.0, 1.0)
+    u = (float(i) + du) / float(env.width)
+    v = (float(j) + dv) / float(env.height)
+    d, s = env_direction_sin(u, v)  # s = sin(pi v)
+    pdf = float(0.0)
+    if s >= 1.0e-7:
+        pdf = env.texel_pdf[j, i] / (2.0 * wp.pi * wp.pi * s)
+    return d, env.pixels[j, i], pdf, wp.vec2(u, v)
 
 
 @wp.func
@@ -116,24 +193,8 @@ def env_sample(env: EnvData, xi: wp.vec2) -> tuple[wp.vec3, wp.vec3, float]:
         (direction (unit), radiance L_in of its texel, solid-angle pdf in 1/sr; pdf 0 marks an unusable sample
         at a pole).
     """
-    x0 = wp.clamp(xi[0], 0.0, 0.99999994)
-    x1 = wp.clamp(xi[1], 0.0, 0.99999994)
-    j = cdf_search(env.marginal_cdf, env.height, x0)
-    c0 = env.marginal_cdf[j]
-    c1 = env.marginal_cdf[j + 1]
-    dv = wp.clamp((x0 - c0) / wp.max(c1 - c0, 1.0e-30), 0.0, 1.0)
-    i = cdf_search_row(env.conditional_cdf, j, env.width, x1)
-    r0 = env.conditional_cdf[j, i]
-    r1 = env.conditional_cdf[j, i + 1]
-    du = wp.clamp((x1 - r0) / wp.max(r1 - r0, 1.0e-30), 0.0, 1.0)
-    u = (float(i) + du) / float(env.width)
-    v = (float(j) + dv) / float(env.height)
-    d = env_direction(u, v)
-    s = wp.sin(wp.pi * v)
-    pdf = float(0.0)
-    if s >= 1.0e-7:
-        pdf = env.texel_pdf[j, i] / (2.0 * wp.pi * wp.pi * s)
-    return d, env.pixels[j, i], pdf
+    d, radiance, pdf, _uv = env_sample_uv(env, xi)
+    return d, radiance, pdf
 
 
 @wp.kernel
@@ -144,6 +205,39 @@ def env_lookup_kernel(env: EnvData, directions: wp.array(dtype=wp.vec3), out: wp
 
 
 # ---- host side -------------------------------------------------------------------------------------
+
+#: Guide-table buckets per CDF interval (:func:`cdf_guide`): the scan of :func:`guided_search` takes about
+#: 1 / (2 GUIDE) steps on average.
+GUIDE = 2
+
+
+def cdf_guide(cdf, buckets: int) -> np.ndarray:
+    """Guide table of an (n + 1,) float32 CDF for :func:`guided_search` (the cutpoint method, Chen & Asau 1974):
+    entry g is the last interval k < n with cdf[k] <= x_g, x_g the smallest float32 x that the kernel puts in bucket
+    g (int(x * buckets) computed in float32 >= g), so every x of the bucket has its interval at or above it.
+
+    Returns:
+        (buckets,) int32.
+    """
+    c = np.asarray(cdf, np.float32)
+    n = c.shape[0] - 1
+    g = np.arange(buckets)
+    scale = np.float32(buckets)
+    x = (g / buckets).astype(np.float32)
+    for _ in range(8):  # up while the float32 product lands below bucket g
+        below = (x * scale).astype(np.float32) < g
+        if not below.any():
+            break
+        x = np.where(below, np.nextafter(x, np.float32(2.0)), x)
+    for _ in range(8):  # down while it still lands in bucket g: the bucket's first x
+        lower = np.nextafter(x, np.float32(-1.0))
+        inside = (x > 0.0) & ((lower * scale).astype(np.float32) >= g)
+        if not inside.any():
+            break
+        x = np.where(inside, lower, x)
+    k = np.searchsorted(c[:n], x, side="right") - 1
+    return np.clip(k, 0, n - 1).astype(np.int32)
+
 
 
 class EnvironmentMap:
@@ -199,6 +293,8 @@ class EnvironmentMap:
         c = self.conditional_cdf.astype(np.float64)
         prob = np.diff(m)[:, None] * np.diff(c, axis=1)
         self.texel_pdf = (prob * (w * h)).astype(np.float32)
+        self.marginal_guide = cdf_guide(self.marginal_cdf, GUIDE * h)
+        self.conditional_guide = np.stack([cdf_guide(row, GUIDE * w) for row in self.conditional_cdf])
         self._device_cache: dict = {}
 
     @property
@@ -238,9 +334,30 @@ class EnvironmentMap:
             d.marginal_cdf = wp.array(self.marginal_cdf, dtype=wp.float32, device=device)
             d.conditional_cdf = wp.array(self.conditional_cdf, dtype=wp.float32, device=device)
             d.texel_pdf = wp.array(self.texel_pdf, dtype=wp.float32, device=device)
+            d.marginal_guide = wp.array(self.marginal_guide, dtype=wp.int32, device=device)
+            d.conditional_guide = wp.array(self.conditional_guide, dtype=wp.int32, device=device)
             self._device_cache[device] = d
         return self._device_cache[device]
 
 
-__all__ = ["LUMA", "EnvData", "EnvironmentMap", "cdf_search", "cdf_search_row", "env_direction", "env_lookup",
-           "env_pdf", "env_sample", "env_texel"]
+__all__ = [
+    "GUIDE",
+    "LUMA",
+    "EnvData",
+    "EnvironmentMap",
+    "cdf_guide",
+    "cdf_search",
+    "cdf_search_row",
+    "env_direction",
+    "env_direction_sin",
+    "env_lookup",
+    "env_lookup_uv",
+    "env_pdf",
+    "env_pdf_uv",
+    "env_sample",
+    "env_sample_uv",
+    "env_texel",
+    "env_texel_uv",
+    "guided_search",
+    "guided_search_row",
+]
