@@ -247,7 +247,7 @@ def test_moment_prefix_sums_match_float64(m, bits, tol):
     rows, cols = 6, 200
     depth = rng.uniform(0.0, 1.0, (rows, cols)).astype(np.float32)
     tau = np.array([0.0, 1e-3, 0.02, 0.3, 2.0, 0.05], np.float32)
-    got = pf.prefilter_moments(depth, m, tau, storage_bits=bits).numpy().astype(np.float64)
+    got = pf.prefilter_moments(depth, m, tau, storage_bits=bits).values().numpy().astype(np.float64)
     z = 2.0 * depth.astype(np.float64) - 1.0
     b = np.stack([z ** (k + 1) for k in range(m)], axis=-1)
     w = np.exp(-np.arange(cols)[None, :] * tau.astype(np.float64)[:, None])
@@ -298,6 +298,59 @@ def test_moments6_against_the_marcher_and_fourier():
     exact = window("raymarch")
     e6, ef = rel(window("moments6"), exact), rel(window("fourier"), exact)
     assert e6 < 0.75 * ef  # measured 0.246 vs 0.375 here (0.320 without caster culling)
+
+
+#: every quantized storage mode: (method, setting, bits per texel)
+QUANTIZED = [("fourier", "fourier.storage_bits=8", 32 * 8), ("moments4", "moments.storage_bits=64", 64),
+             ("moments6", "moments.storage_bits=96", 96), ("moments6", "moments.storage_bits=64", 64)]
+
+
+@pytest.mark.parametrize("method, setting, bits", QUANTIZED)
+def test_packed_storage_renders_the_emulated_image(monkeypatch, method, setting, bits):
+    """A render from the packed textures (RGBA8, 16-bit and packed 10-bit codes) is bit for bit the render of the
+    storage emulation: the same texture handed to the look-ups as float32 values (for RGBA8 rounded by the emulation
+    formula of before; for the moments decoded, equal to the emulation of before by
+    test_prefix_sums::test_packed_moments_decode_to_the_emulation_bit_for_bit). The stats report the real bytes."""
+    import dataclasses
+
+    import warp as wp
+
+    from warpscatter.scattering import prefiltered
+
+    @wp.kernel
+    def emulate_rgba8(values: wp.array3d(dtype=float), out: wp.array3d(dtype=float)):
+        j, i = wp.tid()
+        for k in range(values.shape[2]):  # prefix_sums.unorm_roundtrip as written before packed storage
+            q = wp.round(wp.clamp(0.5 * values[j, i, k] + 0.5, 0.0, 1.0) * 255.0) / 255.0
+            out[j, i, k] = 2.0 * q - 1.0
+
+    def emulated_fourier(*args, bits=0, **kw):
+        fb = pf.prefilter_weighted(*args, bits=0, **kw)
+        out = wp.empty_like(fb.basis)
+        wp.launch(emulate_rgba8, fb.basis.shape[:2], [fb.basis, out], device=fb.basis.device)
+        return dataclasses.replace(fb, basis=out)
+
+    def emulated_moments(*args, **kw):
+        fm = pf.prefilter_moments(*args, **kw)
+        return dataclasses.replace(fm, texels=fm.values())
+
+    over = (f"render.scattering.method={method}", f"render.scattering.{setting}", f"light.direction={SIDE_LIGHT}",
+            "render.scattering.prefiltered.splits=" + ("3" if method == "fourier" else "1"))
+    packed, stats, _ = _render(*over)
+    with monkeypatch.context() as mp:
+        mp.setattr(prefiltered, "prefilter_weighted", emulated_fourier)
+        mp.setattr(prefiltered, "prefilter_moments", emulated_moments)
+        emulated, stats_e, _ = _render(*over)
+    a, b = packed["scattering"], emulated["scattering"]
+    assert a.dtype == b.dtype == np.float32 and np.array_equal(a.view(np.uint32), b.view(np.uint32))
+    rows, cols = stats["rectified_map"][1], stats["rectified_map"][0]
+    split_bytes = 4 * rows * cols + 4 * rows * 3 if method == "fourier" else 0  # weight sums, region weights
+    assert stats["filtered_map_bytes"] == rows * cols * bits // 8 + split_bytes
+    float_bits = 32 * 32 if method == "fourier" else 32 * int(method[-1])
+    assert stats_e["filtered_map_bytes"] == rows * cols * float_bits // 8 + split_bytes  # the emulation's float32
+    if method == "fourier":  # the storage is seen: 8 bits is not the float32 image
+        full, _, _ = _render(*over[:1], *over[2:])
+        assert not np.array_equal(full["scattering"], a)
 
 
 def test_moment_settings_errors():

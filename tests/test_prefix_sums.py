@@ -13,6 +13,8 @@ from warpscatter.scattering import filtered_lookups as fl
 from warpscatter.scattering import prefix_sums as pf
 from warpscatter.scattering.rectify_nonlinear import NonlinearRectification, reference_ray
 from warpscatter.scene.camera import Camera
+from warpscatter.shadows import moment_storage as ms
+from warpscatter.shadows import moments as mm
 from warpscatter.wpinit import default_device, module_options
 
 module_options()
@@ -114,22 +116,272 @@ def test_prefix_sums_match_float64(m, tol):
 
 
 def test_eight_bit_storage():
-    """bits=8 stores every filtered value on the RGBA8 grid, within half a step of the float value."""
+    """bits=8 stores every filtered value as an RGBA8 code (uint8, M bytes per texel) whose value 2 code / 255 - 1
+    lies within half a step of the float value."""
     rng = np.random.default_rng(3)
     depth = rng.uniform(0.0, 1.0, (6, 200)).astype(np.float32)
     tau = np.full(6, 0.01, np.float32)
     full = pf.prefilter_depth(depth, 32, tau).numpy()
-    q8 = pf.prefilter_depth(depth, 32, tau, bits=8).numpy()
-    code = (q8 + 1.0) * 0.5 * 255.0
-    assert np.abs(code - np.round(code)).max() < 1e-4  # measured 3.8e-6 (float32 mapping)
+    packed = pf.prefilter_weighted(depth, 32, tau, bits=8)
+    assert packed.basis.dtype == wp.uint8 and packed.basis.shape == (6, 200, 32) and packed.bits == 8
+    assert packed.nbytes == 6 * 200 * 32 and full.nbytes == 4 * packed.nbytes  # one byte per coefficient
+    codes = packed.basis.numpy()
+    assert codes.min() < 40 and codes.max() > 215  # the codes use the range (the basis values span [-1, 1])
+    q8 = packed.values().numpy()
+    assert q8.dtype == np.float32
+    np.testing.assert_array_equal(q8, 2.0 * (codes.astype(np.float32) / np.float32(255.0)) - 1.0)
     assert np.abs(q8 - full).max() <= 1.0 / 255.0 + 1e-6  # half a step of 2/255
-    b8 = pf.fourier_basis_textures(depth, 32, bits=8).numpy()
-    code = (b8 + 1.0) * 0.5 * 255.0
-    assert np.abs(code - np.round(code)).max() < 1e-4
-    # visibility from 8-bit textures stays close to float storage (Klehm 2014 Sec. 3.3)
+    b8 = pf.fourier_basis_textures(depth, 32, bits=8)
+    assert b8.dtype == wp.uint8
+    b32 = pf.fourier_basis_textures(depth, 32).numpy()
+    assert np.abs((b8.numpy() / 255.0 * 2.0 - 1.0) - b32).max() <= 1.0 / 255.0 + 1e-6
+    # visibility from 8-bit textures stays close to float storage (Klehm 2014 Sec. 3.3); both read the same way
     q = np.stack([rng.uniform(0.0, 1.0, 3000), rng.uniform(0.0, 1.0, 3000), rng.uniform(MARGIN, 1 - MARGIN, 3000)], 1)
-    diff = np.abs(fl.evaluate_visibility(q8, q) - fl.evaluate_visibility(full, q))
+    vis8 = fl.evaluate_visibility(packed, q)
+    diff = np.abs(vis8 - fl.evaluate_visibility(full, q))
     assert diff.max() < 0.015  # measured 0.0046
+    assert np.array_equal(vis8, fl.evaluate_visibility(packed.basis, q))  # a bare uint8 array is RGBA8
+    assert np.array_equal(vis8, fl.evaluate_visibility(q8, q))  # the decoded float32 texture: same visibility
+
+
+# ---- packed storage: the codes decode to the storage emulation, bit for bit -------------------------------
+
+
+@wp.func
+def emulated_unorm_round(x: float, bits: int) -> float:
+    """The fixed-point emulation as written before packed storage (moment_storage.unorm_round, literally)."""
+    scale = wp.float32((1 << bits) - 1)
+    xc = x
+    if wp.isnan(xc):
+        xc = 0.0
+    xc = wp.clamp(xc, 0.0, 1.0)
+    return wp.floor(xc * scale + 0.5) / scale
+
+
+@wp.func
+def emulated_unorm_roundtrip(x: float, levels: float) -> float:
+    """The RGBA8 emulation as written before packed storage (prefix_sums.unorm_roundtrip, literally)."""
+    q = wp.round(wp.clamp(0.5 * x + 0.5, 0.0, 1.0) * levels) / levels
+    return 2.0 * q - 1.0
+
+
+@wp.kernel
+def emulate_rgba8_kernel(values: wp.array3d(dtype=float), out: wp.array3d(dtype=float)):
+    j, i = wp.tid()
+    for k in range(values.shape[2]):
+        out[j, i, k] = emulated_unorm_roundtrip(values[j, i, k], 255.0)
+
+
+@wp.kernel
+def emulate_moment_filter_kernel(rd: pf.RectifiedTexels, optical_step: wp.array(dtype=float),
+                                 column_length: wp.array(dtype=float), num: int, storage: int,
+                                 out: wp.array3d(dtype=float)):
+    # the moment prefilter as it was before packed storage: the same running filter, every texel written as float32
+    # values rounded to the mode's fixed point
+    j = wp.tid()
+    tau = optical_step[j]
+    uniform = column_length.shape[0] == 1
+    w_first, step = pf.texel_weight(1.0, column_length[0], tau * column_length[0])
+    state = mm.vec6()
+    transmittance = float(1.0)
+    sum_w = float(0.0)
+    bits = int(0)
+    if num == 4 and storage == mm.STORAGE4_UNORM16:
+        bits = 16
+    if num == 6 and storage == mm.STORAGE6_UNORM16:
+        bits = 16
+    if num == 6 and storage == mm.STORAGE6_UNORM10:
+        bits = 10
+    for i in range(rd.depth.shape[1]):
+        w, transmittance = pf.next_texel_weight(transmittance, uniform, w_first, step, column_length, i, tau)
+        sum_w += w
+        if sum_w > 0.0:
+            z1, z2, w2 = pf.texel_depths(rd, j, i)
+            state = state + (w / sum_w) * (pf.stored_moments(z1, z2, w2, num, storage) - state)
+        for k in range(num):
+            q = state[k]
+            if bits > 0:
+                q = emulated_unorm_round(q, bits)
+            out[j, i, k] = q
+
+
+def _emulate_rgba8(values: wp.array) -> np.ndarray:
+    out = wp.empty(values.shape, dtype=float, device=values.device)
+    wp.launch(emulate_rgba8_kernel, values.shape[:2], [values, out], device=values.device)
+    return out.numpy()
+
+
+def _emulate_moments(depth, m: int, bits: int, tau, lengths=None) -> np.ndarray:
+    dev = default_device()
+    rd = pf.rectified_texels(depth, dev)
+    rows, cols = rd.depth.shape
+    lengths = np.ones(1, np.float32) if lengths is None else np.asarray(lengths, np.float32)
+    out = wp.empty((rows, cols, m), dtype=float, device=dev)
+    wp.launch(emulate_moment_filter_kernel, rows,
+              [rd, wp.array(np.broadcast_to(np.float32(tau), rows).copy(), dtype=float, device=dev),
+               wp.array(lengths, dtype=float, device=dev), m, pf.MOMENT_STORAGE[m][bits], out], device=dev)
+    return out.numpy()
+
+
+def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and a.dtype == b.dtype == np.float32 and np.array_equal(a.view(np.uint32),
+                                                                                     b.view(np.uint32))
+
+
+#: moments, bits per texel -> (dtype, words per texel) of the packed texture
+PACKED = {(4, 64): (np.uint16, 4), (4, 128): (np.float32, 4), (6, 64): (np.uint64, 1), (6, 96): (np.uint16, 6),
+          (6, 192): (np.float32, 6)}
+
+
+@pytest.mark.parametrize("m, bits", sorted(PACKED))
+def test_moment_textures_have_the_real_dtype_and_bytes(m, bits):
+    """Every moment storage mode allocates exactly its bits per texel: uint16 codes (64 / 96 bits), one uint64 with
+    six 10-bit codes (64 bits) or float32 (128 / 192 bits)."""
+    depth = np.random.default_rng(1).uniform(0.0, 1.0, (5, 30)).astype(np.float32)
+    fm = pf.prefilter_moments(depth, m, 0.05, storage_bits=bits)
+    dtype, words = PACKED[(m, bits)]
+    assert fm.texels.dtype == wp.dtype_from_numpy(dtype) and fm.texels.numpy().dtype == dtype
+    assert fm.texels.shape == ((5, 30) if words == 1 else (5, 30, words))
+    assert fm.nbytes == fm.texels.numpy().nbytes == 5 * 30 * bits // 8 and fm.bits_per_texel == bits
+    assert fm.values().shape == (5, 30, m)
+
+
+@pytest.mark.parametrize("m, bits", [(4, 64), (6, 96), (6, 64), (4, 128), (6, 192)])
+def test_packed_moments_decode_to_the_emulation_bit_for_bit(m, bits):
+    """The codes of every mode decode to exactly the float32 texels of the previous emulation (the same filter with
+    every value rounded to the fixed point and kept in float32): plain and two-depth texels, uneven columns."""
+    from warpscatter.scattering.rectify_nonlinear import SparseRectifiedDepth
+
+    rng = np.random.default_rng(m * bits)
+    rows, cols = 7, 90
+    depth = rng.uniform(0.0, 1.0, (rows, cols)).astype(np.float32)
+    depth[2, 40:] = 1.0
+    lengths = rng.uniform(0.3, 3.0, cols)
+    z2, w2 = rng.uniform(0.0, 1.0, (2, rows, cols)).astype(np.float32)
+    w2[:, ::3] = 0.0
+    dev = default_device()
+    sparse = SparseRectifiedDepth(*(wp.array(a, dtype=float, device=dev) for a in (depth, z2, w2)))
+    for rd, tau, cl in ((depth, 0.03, None), (depth, 0.0, lengths), (sparse, 0.2, None)):
+        fm = pf.prefilter_moments(rd, m, tau, cl, storage_bits=bits)
+        want = _emulate_moments(rd, m, bits, tau, cl)
+        assert _same_bits(fm.values().numpy(), want)
+    if bits in (128, 192):
+        return
+    # the codes are real: a texel is what the bytes say (channel k of a 64-bit word in bits 10 k .. 10 k + 9)
+    codes = fm.texels.numpy()
+    if bits == 64 and m == 6:
+        assert np.all(codes >> np.uint64(60) == 0)  # 60 of the 64 bits used
+        fields = (codes[..., None] >> (np.uint64(10) * np.arange(6, dtype=np.uint64))) & np.uint64(1023)
+        decoded = fields.astype(np.float32) / np.float32(1023.0)
+    else:
+        decoded = codes.astype(np.float32) / np.float32(65535.0)
+        assert codes.max() > 60000 and codes.min() < 5000  # Theta* uses the range
+    assert _same_bits(decoded, want)
+
+
+def test_packed_fourier_decodes_to_the_emulation_bit_for_bit():
+    """RGBA8 codes (fused filter with splits and uneven columns, the two-pass filter, the basis textures) decode to
+    exactly the previous emulation: the float32 values rounded to the 8-bit grid."""
+    rng = np.random.default_rng(11)
+    rows, cols, m = 9, 120, 12
+    depth = rng.uniform(0.0, 1.0, (rows, cols)).astype(np.float32)
+    tau = rng.uniform(0.0, 0.05, rows).astype(np.float32)
+    lengths = rng.uniform(0.5, 2.0, cols)
+    for splits in (1, 3):
+        full = pf.prefilter_weighted(depth, m, tau, lengths, splits=splits)
+        packed = pf.prefilter_weighted(depth, m, tau, lengths, splits=splits, bits=8)
+        assert _same_bits(packed.values().numpy(), _emulate_rgba8(full.basis))
+        assert np.array_equal(packed.weight_sums.numpy(), full.weight_sums.numpy())  # the weights stay float32
+        assert packed.nbytes == full.nbytes - 3 * rows * cols * m  # 1 instead of 4 bytes per value
+    basis = pf.fourier_basis_textures(depth, m)
+    basis8 = pf.fourier_basis_textures(depth, m, bits=8)
+    emulated_basis = _emulate_rgba8(basis)
+    assert _same_bits(pf.FilteredBasis(basis8, None, None, 1).values().numpy(), emulated_basis)
+    # the two-pass filter reads RGBA8 basis textures as their values and writes RGBA8 codes
+    two_pass = pf.prefix_filter(basis8, tau, bits=8)
+    from_emulated = pf.prefix_filter(emulated_basis, tau)
+    assert two_pass.dtype == wp.uint8
+    assert _same_bits(pf.FilteredBasis(two_pass, None, None, 1).values().numpy(), _emulate_rgba8(from_emulated))
+
+
+def test_texel_codes_round_trip():
+    """unorm_round is decode(encode) bit for bit (the MSM emulation is unchanged), codes lie in [0, 2^n - 1], a
+    packed 10-bit texel holds the six codes; the Fourier codes and tables give unorm_roundtrip and 2 / c exactly.
+    (The code helpers of moment_storage are underscored until the moments facade re-exports them.)"""
+
+    @wp.kernel
+    def codes_kernel(x: wp.array(dtype=float), bits: int, rounded: wp.array(dtype=float),
+                     emulated: wp.array(dtype=float), decoded: wp.array(dtype=float), codes: wp.array(dtype=int)):
+        n = wp.tid()
+        rounded[n] = ms.unorm_round(x[n], bits)
+        emulated[n] = emulated_unorm_round(x[n], bits)
+        codes[n] = ms.unorm_encode(x[n], bits)
+        decoded[n] = ms.unorm_decode(codes[n], bits)
+
+    @wp.kernel
+    def pack_kernel(q: wp.array(dtype=mm.vec6), words: wp.array(dtype=wp.uint64), values: wp.array(dtype=mm.vec6)):
+        n = wp.tid()
+        words[n] = ms.pack_unorm10x6(q[n])
+        for k in range(6):
+            values[n][k] = ms.unpack_unorm10(words[n], k)
+
+    @wp.kernel
+    def fourier_kernel(x: wp.array(dtype=float), tables: pf.FourierTables, roundtrip: wp.array(dtype=float),
+                       emulated: wp.array(dtype=float), table_value: wp.array(dtype=float),
+                       scales: wp.array2d(dtype=float)):
+        n = wp.tid()
+        roundtrip[n] = pf.unorm_roundtrip(x[n], 255.0)
+        emulated[n] = emulated_unorm_roundtrip(x[n], 255.0)
+        table_value[n] = tables.code_values[pf.signed_unorm_code(x[n], 255.0)]
+        if n < tables.pair_scales.shape[0]:
+            scales[n, 0] = tables.pair_scales[n]
+            scales[n, 1] = 2.0 / pf.fourier_frequency(2 * n)
+
+    dev = default_device()
+    rng = np.random.default_rng(2)
+    x = np.concatenate([rng.uniform(-0.2, 1.2, 20000), (np.arange(2048) + 0.5) / 1023.0,
+                        (np.arange(512) + 0.5) / 65535.0,  # halfway between codes
+                        [0.0, 1.0, -0.0, np.nan, np.inf, -np.inf, 0.5 / 1023.0]]).astype(np.float32)
+    xa = wp.array(x, dtype=float, device=dev)
+    n = len(x)
+    for bits in (8, 10, 16, 24):
+        outs = [wp.empty(n, dtype=float, device=dev) for _ in range(3)] + [wp.empty(n, dtype=int, device=dev)]
+        wp.launch(codes_kernel, n, [xa, bits, *outs], device=dev)
+        rounded, emulated, decoded, codes = (a.numpy() for a in outs)
+        assert _same_bits(rounded, emulated) and _same_bits(decoded, emulated)
+        assert codes.min() == 0 and codes.max() == (2**bits - 1 if bits < 24 else 2**24)  # 24: float32 scale 2^24
+        assert np.all(codes[np.isnan(x)] == 0)
+    # every code of the texture formats decodes to code / (2^n - 1) in float32 (a GPU's unorm fetch)
+    for bits in (8, 10, 16):
+        c = np.arange(2**bits)
+        dec = wp.empty(len(c), dtype=float, device=dev)
+        out = [wp.empty(len(c), dtype=float, device=dev) for _ in range(2)] + [dec, wp.empty(len(c), dtype=int,
+                                                                                             device=dev)]
+        wp.launch(codes_kernel, len(c), [wp.array(c.astype(np.float32) / np.float32(2**bits - 1), dtype=float,
+                                                  device=dev), bits, *out], device=dev)
+        assert np.array_equal(out[3].numpy(), c)  # the value of a code encodes back to it
+        assert _same_bits(dec.numpy(), c.astype(np.float32) / np.float32(2**bits - 1))
+    q = rng.uniform(-0.1, 1.1, (500, 6)).astype(np.float32)
+    words = wp.empty(500, dtype=wp.uint64, device=dev)
+    values = wp.zeros(500, dtype=mm.vec6, device=dev)
+    wp.launch(pack_kernel, 500, [wp.array(q, dtype=mm.vec6, device=dev), words, values], device=dev)
+    fields = (words.numpy()[:, None] >> (np.uint64(10) * np.arange(6, dtype=np.uint64))) & np.uint64(1023)
+    outs = [wp.empty(q.size, dtype=float, device=dev) for _ in range(3)] + [wp.empty(q.size, dtype=int, device=dev)]
+    wp.launch(codes_kernel, q.size, [wp.array(q.ravel(), dtype=float, device=dev), 10, *outs], device=dev)
+    assert np.array_equal(fields, outs[3].numpy().reshape(500, 6))  # channel k: the code of q_k in bits 10 k ..
+    assert np.all(words.numpy() >> np.uint64(60) == 0)
+    assert _same_bits(values.numpy(), fields.astype(np.float32) / np.float32(1023.0))
+    # Fourier: codes and the decode table give unorm_roundtrip; the pair factors are 2 / c
+    tables = pf.fourier_tables(dev)
+    outs = [wp.empty(n, dtype=float, device=dev) for _ in range(3)]
+    scales = wp.empty((tables.pair_scales.shape[0], 2), dtype=float, device=dev)
+    xf = np.concatenate([rng.uniform(-1.1, 1.1, n - 259), 2.0 * (np.arange(256) + 0.5) / 255.0 - 1.0,
+                         [-1.0, 0.0, 1.0]]).astype(np.float32)  # the midpoints between codes too
+    wp.launch(fourier_kernel, n, [wp.array(xf, dtype=float, device=dev), tables, *outs, scales], device=dev)
+    roundtrip, emulated, table_value = (a.numpy() for a in outs)
+    assert _same_bits(roundtrip, emulated) and _same_bits(table_value, emulated)
+    assert len(np.unique(table_value)) == 256  # every code met
+    assert _same_bits(scales.numpy()[:, 0].copy(), scales.numpy()[:, 1].copy())
 
 
 # ---- evaluation ----------------------------------------------------------------------------------------------
@@ -352,7 +604,7 @@ def test_two_depth_texels_filter_the_weighted_basis_mix():
     assert np.abs(got - _weighted_prefix_mean(mix, tau)).max() < 2e-5  # measured 8.3e-7
     for m in (4, 6):
         bits = 128 if m == 4 else 192  # float32 storage: the canonical moments
-        got = pf.prefilter_moments(_sparse(z1, z2, w2), m, tau, storage_bits=bits).numpy()
+        got = pf.prefilter_moments(_sparse(z1, z2, w2), m, tau, storage_bits=bits).texels.numpy()
         p = np.arange(1, m + 1)
         s1, s2 = 2.0 * z1[..., None] - 1.0, 2.0 * z2[..., None] - 1.0
         mix = (1.0 - w2[..., None]) * s1**p + w2[..., None] * s2**p
@@ -360,7 +612,7 @@ def test_two_depth_texels_filter_the_weighted_basis_mix():
     # the single-depth path is the w_2 = 0 case
     zero = np.zeros_like(w2)
     for a, b in ((pf.prefilter_weighted(_sparse(z1, z2, zero), 8, tau).basis, pf.prefilter_weighted(z1, 8, tau).basis),
-                 (pf.prefilter_moments(_sparse(z1, z2, zero), 6, tau), pf.prefilter_moments(z1, 6, tau))):
+                 (pf.prefilter_moments(_sparse(z1, z2, zero), 6, tau).texels, pf.prefilter_moments(z1, 6, tau).texels)):
         assert np.array_equal(a.numpy(), b.numpy())
 
 

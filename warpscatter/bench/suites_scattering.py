@@ -1,22 +1,115 @@
 """Bench suites of the single-scattering methods: ``prefiltered``, ``moments`` and ``epipolar``.
 
 * ``prefiltered`` — the ``fourier`` method (Klehm 2014): stage times against map size, output size and basis count,
-  error against the exact reference, and a scene-complexity sweep.
+  error against the exact reference, and a scene-complexity sweep; prefix-sum throughput of its float32 and RGBA8
+  textures against a memcpy.
 * ``moments``     — ``fourier``, ``moments4``, ``moments6`` (Peters 2017) and the marcher on the colonnade, canopy and
-  window (colonnade and canopy also with a receiver-only ground): time, bits per texel, error; moment soft shadows
-  against PCSS.
+  window (colonnade and canopy also with a receiver-only ground): time, bits per texel, error; prefix-sum
+  throughput of every storage mode against a memcpy (Peters 2017 App. C); moment soft shadows against PCSS.
+
+Every prefiltered render row also reports its texture's real size (``filtered_map_MB``), the prefilter stage's
+texture bytes written per second (``prefilter_GBps``) and the evaluate stage's wall time per pixel
+(``evaluate_ns_per_px``; both stages run on all threads).
 * ``epipolar``    — epipolar sampling (Engelhardt 2010) under a textured spot: fraction ray-marched, stage times,
   errors against per-pixel marching, the exact reference and a converged marcher.
 """
 
 from __future__ import annotations
 
+import numpy as np
+import warp as wp
+
 from ..config import Config
+from ..parallel import chunks, run_parallel, thread_count
 from ..pipeline import StageTimer, render_images
 from ..scene import build_scene
 from ..stages import ProgressFn
-from .report import BenchReport, errors
+from .report import BenchReport, errors, measure
 from .scenes import bench_scene_config, median_stages, render_timed, scattering_rows
+
+#: The prefilter's storage modes: (method, storage bits: fourier.storage_bits or moments.storage_bits).
+PREFIX_SUM_MODES = (("fourier", 0), ("fourier", 8), ("moments4", 64), ("moments4", 128), ("moments6", 64),
+                    ("moments6", 96), ("moments6", 192))
+#: Coefficients of the fourier textures of the prefix-sum rows (the method's default).
+PREFIX_SUM_COEFFICIENTS = 32
+
+
+def storage_extras(row: dict, stats: dict, pixels: int) -> dict:
+    """Add to a prefiltered render row its texture's allocated size, the prefilter stage's texture bytes written per
+    second and the evaluate stage's wall time per pixel (no-op for other methods). Returns the row."""
+    stages = row.get("stages_ms") or {}
+    if "filtered_map_bytes" not in stats or "prefilter" not in stages:
+        return row
+    nbytes = stats["filtered_map_bytes"]
+    row["extra"].update(filtered_map_MB=round(nbytes / 2**20, 2),
+                        prefilter_GBps=round(nbytes / (1e-3 * stages["prefilter"]) / 1e9, 3),
+                        evaluate_ns_per_px=round(1e6 * stages["evaluate"] / pixels, 1))
+    return row
+
+
+def bench_rectified_depth(size: int, seed: int = 0) -> np.ndarray:
+    """A (size, size) rectified blocker-depth map like a real one: smooth depths per row, steps, empty columns."""
+    rng = np.random.default_rng(seed)
+    x = np.linspace(0.0, 1.0, size)
+    d = 0.5 + 0.3 * np.sin(6.0 * x[None, :] + rng.uniform(0.0, 6.0, (size, 1)))
+    d += 0.2 * (rng.uniform(0.0, 1.0, (size, size)) < 0.05)
+    d[:, rng.integers(0, size, size // 10)] = 1.0
+    return np.clip(d, 0.0, 1.0).astype(np.float32)
+
+
+def memcpy_seconds(nbytes: int, repeats: int) -> tuple[float, int]:
+    """The faster memcpy of ``nbytes`` on this machine: median seconds of numpy copies on one thread and of contiguous
+    chunks on all pool threads, and the thread count of the faster."""
+    src = np.random.default_rng(1).integers(0, 256, nbytes, dtype=np.uint8)
+    dst = np.empty_like(src)
+    best = (float("inf"), 1)
+    for threads in sorted({1, thread_count()}):
+        pieces = chunks(nbytes, threads)
+
+        def copy(pieces=pieces, threads=threads):
+            run_parallel(lambda p: np.copyto(dst[p[0]:p[1]], src[p[0]:p[1]]), pieces, threads)
+
+        best = min(best, (measure(copy, repeats, 1)["median_s"], threads))
+    return best
+
+
+def prefix_sum_rows(report: BenchReport, modes, size: int, repeats: int, warmup: int) -> list[dict]:
+    """Prefix-sum throughput (Peters 2017 App. C): per storage mode, the prefilter (basis or moment transform fused
+    into the transmittance-weighted prefix sums, all threads) of a (size, size) rectified map, in texture bytes
+    written per second, against the faster memcpy of the same bytes on this machine (one thread or all; ``x_memcpy``:
+    prefilter time over memcpy time; the paper's GPU: 1.3x for 64-bit four moments, 2.1x for six).
+
+    Returns:
+        The rows added.
+    """
+    from ..scattering.prefix_sums import prefilter_moments, prefilter_weighted
+
+    depth = wp.array(bench_rectified_depth(size), dtype=wp.float32)
+    tau = np.full(size, 4.0 / size, np.float32)  # optical depth 4 over a row
+    threads = thread_count()
+    rows = []
+    for method, bits in modes:
+        if method == "fourier":
+            def prefilter(b=bits):
+                return prefilter_weighted(depth, PREFIX_SUM_COEFFICIENTS, tau, bits=b)
+            label = f"fourier M={PREFIX_SUM_COEFFICIENTS} {'8-bit' if bits else 'float32'}"
+        else:
+            def prefilter(n=int(method[-1]), b=bits):
+                return prefilter_moments(depth, n, tau, storage_bits=b)
+            label = f"{method} {bits}-bit"
+        texture = prefilter()
+        nbytes = texture.nbytes
+        seconds = measure(prefilter, repeats, warmup)["median_s"]
+        copy_s, copy_threads = memcpy_seconds(nbytes, max(5, repeats))
+        rows.append(report.add(
+            name="prefix sums", params={"mode": label, "map": f"{size}x{size}"}, median_ms=1e3 * seconds,
+            stages_ms={"prefilter": 1e3 * seconds},
+            extra={"bits_per_texel": 8 * nbytes // (size * size), "texture_MB": round(nbytes / 2**20, 2),
+                   "GBps": round(nbytes / seconds / 1e9, 3), "memcpy_GBps": round(nbytes / copy_s / 1e9, 3),
+                   "memcpy_threads": copy_threads, "x_memcpy": round(seconds / copy_s, 2), "threads": threads}))
+    report.meta["prefix_sums"] = {r["params"]["mode"]: {k: r["extra"][k] for k in ("GBps", "memcpy_GBps", "x_memcpy")}
+                                  for r in rows}
+    return rows
 
 
 def suite_prefiltered(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
@@ -50,10 +143,11 @@ def suite_prefiltered(report: BenchReport, repeats: int, warmup: int, quick: boo
                              {**fourier(), "prefiltered": {"resample_filter": "moments"}}, repeats)):
         if progress:
             progress(label, 0.1)
-        rows[label], _, _ = scattering_rows(report, label, {"name": "colonnade", "width": w, "height": h,
-                                                          "scattering": sc, "surfaces": no_surf},
-                                          {"scene": "colonnade", "size": f"{w}x{h}", "map": smap}, reps,
-                                          warmup if reps > 1 else 0, reference)
+        rows[label], _, stats = scattering_rows(report, label, {"name": "colonnade", "width": w, "height": h,
+                                                              "scattering": sc, "surfaces": no_surf},
+                                              {"scene": "colonnade", "size": f"{w}x{h}", "map": smap}, reps,
+                                              warmup if reps > 1 else 0, reference)
+        storage_extras(rows[label], stats, w * h)
     base = ref_row["median_ms"]
     for r in (*rows.values(), ref_row):
         r["speedup"] = base / r["median_ms"]  # against the brute-force (exact) 128-step marcher of this run
@@ -75,23 +169,28 @@ def suite_prefiltered(report: BenchReport, repeats: int, warmup: int, quick: boo
     for k, (mw, mh) in enumerate(maps):
         if progress:
             progress(f"map {mw}x{mh}", 0.3 + 0.1 * k / len(maps))
-        scattering_rows(report, "fourier map sweep", {"name": "colonnade", "width": w, "height": h,
-                                                           "scattering": fourier(res=[mw, mh]), "surfaces": no_surf},
-                         {"map": f"{mw}x{mh}", "size": f"{w}x{h}", "M": 32}, repeats, warmup,
-                         extra={"filtered_basis_MB": round(mw * mh * 32 * 4 / 2**20, 1)})
+        storage_extras(*scattering_rows(report, "fourier map sweep", {
+            "name": "colonnade", "width": w, "height": h, "scattering": fourier(res=[mw, mh]), "surfaces": no_surf},
+            {"map": f"{mw}x{mh}", "size": f"{w}x{h}", "M": 32}, repeats, warmup)[::2], w * h)
     for k, (ow, oh) in enumerate(outs):
         if progress:
             progress(f"output {ow}x{oh}", 0.4 + 0.1 * k / len(outs))
-        scattering_rows(report, "fourier output sweep", {"name": "colonnade", "width": ow, "height": oh,
-                                                              "scattering": fourier(), "surfaces": no_surf},
-                         {"size": f"{ow}x{oh}", "map": smap, "M": 32}, repeats, warmup)
+        storage_extras(*scattering_rows(report, "fourier output sweep", {
+            "name": "colonnade", "width": ow, "height": oh, "scattering": fourier(), "surfaces": no_surf},
+            {"size": f"{ow}x{oh}", "map": smap, "M": 32}, repeats, warmup)[::2], ow * oh)
     for k, m in enumerate(counts):
         if progress:
             progress(f"M={m}", 0.5 + 0.1 * k / len(counts))
-        scattering_rows(report, "fourier basis sweep", {"name": "colonnade", "width": w, "height": h,
-                                                             "scattering": fourier(m), "surfaces": no_surf},
-                         {"M": m, "size": f"{w}x{h}", "map": smap}, repeats, warmup,
-                         extra={"bytes_per_texel": 4 * m, "bytes_per_texel_8bit": m})
+        for bits in (0, 8):
+            storage_extras(*scattering_rows(report, "fourier basis sweep", {
+                "name": "colonnade", "width": w, "height": h, "scattering": fourier(m, storage_bits=bits),
+                "surfaces": no_surf}, {"M": m, "bits": bits or 32, "size": f"{w}x{h}", "map": smap}, repeats,
+                warmup, extra={"bytes_per_texel": m * (1 if bits else 4)})[::2], w * h)
+
+    # ---- prefix-sum throughput of the float32 and RGBA8 textures against a memcpy (Peters 2017 App. C) ----
+    if progress:
+        progress("prefix sums", 0.65)
+    prefix_sum_rows(report, PREFIX_SUM_MODES[:2], 512 if quick else 1024, repeats, warmup)
 
     # ---- scene complexity: canopy leaves x1 .. x100; the fourier evaluation stays flat ----
     cw, ch = (240, 135) if quick else (480, 270)
@@ -102,7 +201,8 @@ def suite_prefiltered(report: BenchReport, repeats: int, warmup: int, quick: boo
             progress(f"canopy {leaves} leaves", 0.7 + 0.3 * k / len(leaf_counts))
         common = {"name": "canopy", "width": cw, "height": ch, "leaves": leaves, "surfaces": no_surf}
         params = {"leaves": leaves, "triangles": 2 * leaves, "size": f"{cw}x{ch}"}
-        scattering_rows(report, "complexity fourier", dict(common, scattering=fourier()), params, repeats, warmup)
+        storage_extras(*scattering_rows(report, "complexity fourier", dict(common, scattering=fourier()), params,
+                                        repeats, warmup)[::2], cw * ch)
         scattering_rows(report, f"complexity raymarch exact {steps}", dict(common, scattering=march(steps, "exact")),
                          params, 1, 0)
 
@@ -149,19 +249,22 @@ def suite_moments(report: BenchReport, repeats: int, warmup: int, quick: bool, p
             if progress:
                 progress(f"{title}: {label}", 0.8 * k / len(variants))
             sc = {**sc, "shadow_map": {"resolution": smap}}
-            rows[label], img, _ = scattering_rows(report, f"{title}: {label}", {
+            rows[label], img, stats = scattering_rows(report, f"{title}: {label}", {
                 "name": scene, "width": w, "height": h, "receiver_only_ground": ro_ground, "scattering": sc,
                 "surfaces": no_surf}, {"size": f"{w}x{h}", "map": smap}, repeats, warmup, ref["scattering"])
-            bits = 32 * (8 if "8-bit" in label else 32) if label.startswith("fourier") else (
-                int(label.split()[1].split("-")[0]) if label.startswith("moments") else None)
-            if bits:
-                rows[label]["extra"]["bits_per_texel"] = bits
+            if "bits_per_texel" in stats:
+                rows[label]["extra"]["bits_per_texel"] = stats["bits_per_texel"]
+            storage_extras(rows[label], stats, w * h)
         base = rows["raymarch shadow_map 128"]["median_ms"]
         for r in rows.values():
             r["speedup"] = base / r["median_ms"]
+    # ---- prefix-sum throughput of every storage mode against a memcpy (Peters 2017 App. C) ----
+    if progress:
+        progress("prefix sums", 0.8)
+    prefix_sum_rows(report, PREFIX_SUM_MODES, 512 if quick else 1024, repeats, warmup)
     # ---- soft shadows on surfaces: moment soft shadows against the PCSS brute force ----
     if progress:
-        progress("soft shadows", 0.8)
+        progress("soft shadows", 0.85)
     images = {}
     for method in ("pcss", "msm_soft"):
         cfg = bench_scene_config("colonnade", w, h, scattering={"method": "raymarch", "visibility": "shadow_map",

@@ -4,7 +4,11 @@ visible fraction of a camera view ray from the filtered textures of :mod:`.prefi
 A ray ending at rectified (u, v) with depth z_r reads a bilinear footprint of the (rows, cols, M) texture
 (:func:`texel_footprint`: the inclusive prefix of column i belongs to the right edge of its texel, so u is read
 at texel-index coordinate u * cols - 1; rows at their centres, wrapping around when the rectification covers the
-full azimuth circle) and reconstructs:
+full azimuth circle): per row one contiguous run of 2 M values (columns i0 and i1). The textures come in the
+storage the prefilter wrote (:class:`~.prefix_sums.FilteredBasisArrays`, :class:`~.prefix_sums.FilteredMomentArrays`:
+float32, RGBA8 codes, 16-bit codes or packed 10-bit codes); a look-up picks the storage's array once per pixel and
+reads it through generic functions specialised per array type at compile time (no per-value branch), decoding
+each code to exactly the float32 value the storage emulation gave. It then reconstructs:
 
 * Fourier: F = clamp(0.5 + sum_k a_k(z_r) B_bar_k, 0, 1) (:func:`prefiltered_visibility`); with split regions
   (Sec. 3.3) one look-up per region in front of the ray and its own (:func:`prefiltered_visibility_split`);
@@ -17,6 +21,8 @@ The scattering integral is then F * integral_0^s exp(-sigma_t t) dt (= F * s for
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import warp as wp
 
@@ -24,7 +30,18 @@ from ..parallel import launch_rows
 from ..scene.medium import transmittance_integral
 from ..shadows import moments as mm
 from ..wpinit import default_device, module_options
-from .prefix_sums import FilteredBasis, as_device_array, fourier_frequency, split_columns
+from .prefix_sums import (
+    CODE_BITS_UNORM10,
+    FilteredBasis,
+    FilteredBasisArrays,
+    FilteredMomentArrays,
+    FilteredMoments,
+    FourierTables,
+    basis_arrays,
+    basis_value,
+    moment_texel_values,
+    split_columns,
+)
 from .rectify_nonlinear import NonlinearRectification, NonlinearRectParams, world_to_rectified
 from .settings import MAX_SPLITS
 
@@ -34,17 +51,6 @@ module_options()
 MAX_TAPS = 2 * (MAX_SPLITS + 1)
 tap_weights = wp.types.vector(length=MAX_TAPS, dtype=wp.float32)
 tap_indices = wp.types.vector(length=MAX_TAPS, dtype=wp.int32)
-
-
-@wp.struct
-class FilteredBasisArrays:
-    """A prefiltered texture as the look-ups read it (:meth:`~.prefix_sums.FilteredBasis.arrays`): the Fourier
-    filtered basis, with split regions (Klehm 2014 Sec. 3.3), or the filtered stored moments (``splits`` 1)."""
-
-    basis: wp.array3d(dtype=wp.float32)  # (rows, cols, M) region-wise normalised filtered basis, or moments
-    weight_sums: wp.array2d(dtype=wp.float32)  # (rows, cols) region-local running weight sums (splits > 1)
-    region_weights: wp.array2d(dtype=wp.float32)  # (rows, splits) reference-ray transmittance at region starts
-    splits: int  # regions per row (1 = the plain filter)
 
 
 @wp.func
@@ -82,12 +88,13 @@ def texel_footprint(rows: int, cols: int, u: float, v: float, wrap_rows: int):
 
 
 @wp.func
-def fourier_taps_visibility(filtered_basis: wp.array3d(dtype=wp.float32), tap_row: tap_indices,
-                            tap_col: tap_indices, tap_w: tap_weights, num_taps: int, z_r: float) -> float:
+def fourier_taps_visibility(filtered_basis: Any, tables: FourierTables, tap_row: tap_indices, tap_col: tap_indices,
+                            tap_w: tap_weights, num_taps: int, z_r: float) -> float:
     """clamp(0.5 + a(z_r) . sum_t w_t B_bar(row_t, col_t), 0, 1) (Klehm 2014 Listing 4, App. A).
 
     a_k(z_r) of Eq. 8 for pair m: (2/c cos(c z_r), -2/c sin(c z_r)), c = pi (2m + 1); cos/sin of c z_r
-    advance by angle addition through 2 pi z_r (two trigonometric calls per pixel).
+    advance by angle addition through 2 pi z_r (two trigonometric calls per pixel). ``filtered_basis`` and
+    ``tables`` as in :func:`prefiltered_visibility`.
     """
     num = filtered_basis.shape[2]
     cs = wp.cos(wp.pi * z_r)
@@ -100,9 +107,9 @@ def fourier_taps_visibility(filtered_basis: wp.array3d(dtype=wp.float32), tap_ro
         b0 = float(0.0)
         b1 = float(0.0)
         for t in range(num_taps):
-            b0 += tap_w[t] * filtered_basis[tap_row[t], tap_col[t], k]
-            b1 += tap_w[t] * filtered_basis[tap_row[t], tap_col[t], k + 1]
-        acc += 2.0 / fourier_frequency(k) * (cs * b0 - sn * b1)
+            b0 += tap_w[t] * basis_value(filtered_basis, tables.code_values, tap_row[t], tap_col[t], k)
+            b1 += tap_w[t] * basis_value(filtered_basis, tables.code_values, tap_row[t], tap_col[t], k + 1)
+        acc += tables.pair_scales[m] * (cs * b0 - sn * b1)  # 2 / c (cos(c z_r) b0 - sin(c z_r) b1)
         cs_next = cs * step_c - sn * step_s
         sn = sn * step_c + cs * step_s
         cs = cs_next
@@ -110,7 +117,7 @@ def fourier_taps_visibility(filtered_basis: wp.array3d(dtype=wp.float32), tap_ro
 
 
 @wp.func
-def prefiltered_visibility(filtered_basis: wp.array3d(dtype=wp.float32), u: float, v: float, z_r: float,
+def prefiltered_visibility(filtered_basis: Any, tables: FourierTables, u: float, v: float, z_r: float,
                            wrap_rows: int) -> float:
     """Visible fraction of the view ray ending at rectified (u, v) with depth z_r (Klehm 2014 Listing 4, App. A).
 
@@ -119,19 +126,26 @@ def prefiltered_visibility(filtered_basis: wp.array3d(dtype=wp.float32), u: floa
     multiply by integral_0^s exp(-sigma_t t) dt to get the visibility-weighted transmittance integral.
 
     Args:
-        filtered_basis: (rows, cols, M) normalised prefix-filtered basis (module layout), one region per row.
+        filtered_basis: (rows, cols, M) normalised prefix-filtered basis (module layout), one region per row: a
+            float32 array of values, or a uint8 array of RGBA8 codes (Klehm 2014 App. A).
+        tables: the device's :class:`~.prefix_sums.FourierTables` (:func:`~.prefix_sums.fourier_tables`): the decode
+            table of the codes and the factors 2 / c of the pairs.
         u: column coordinate of the ray's end point in [0, 1] (texel i centre at (i + 0.5) / cols).
         v: row coordinate in [0, 1].
         z_r: rectified depth of the view ray.
         wrap_rows: 1 when rows wrap around (full azimuth circle), else 0 (clamp).
     """
-    # the four-tap case of fourier_taps_visibility written out: 1.5x faster on the CPU (measured)
+    # the four-tap case of fourier_taps_visibility written out: 1.5x faster on the CPU (measured). Per row the two
+    # columns i0, i1 are one contiguous run of 2 M values; the row and column offsets are loop invariants the
+    # compiler hoists (an explicit flat index into a 1-D view measured 1.5x slower), and 2 / c comes from a table
+    # (no division per pair)
     j0, j1, ay, i0, i1, ax = texel_footprint(filtered_basis.shape[0], filtered_basis.shape[1], u, v, wrap_rows)
     num = filtered_basis.shape[2]
     w00 = (1.0 - ax) * (1.0 - ay)
     w01 = ax * (1.0 - ay)
     w10 = (1.0 - ax) * ay
     w11 = ax * ay
+    cv = tables.code_values
     cs = wp.cos(wp.pi * z_r)
     sn = wp.sin(wp.pi * z_r)
     step_c = wp.cos(2.0 * wp.pi * z_r)
@@ -139,11 +153,15 @@ def prefiltered_visibility(filtered_basis: wp.array3d(dtype=wp.float32), u: floa
     acc = float(0.5)
     for m in range(num // 2):
         k = 2 * m
-        b0 = (w00 * filtered_basis[j0, i0, k] + w01 * filtered_basis[j0, i1, k]
-              + w10 * filtered_basis[j1, i0, k] + w11 * filtered_basis[j1, i1, k])
-        b1 = (w00 * filtered_basis[j0, i0, k + 1] + w01 * filtered_basis[j0, i1, k + 1]
-              + w10 * filtered_basis[j1, i0, k + 1] + w11 * filtered_basis[j1, i1, k + 1])
-        acc += 2.0 / fourier_frequency(k) * (cs * b0 - sn * b1)
+        b0 = (w00 * basis_value(filtered_basis, cv, j0, i0, k)
+              + w01 * basis_value(filtered_basis, cv, j0, i1, k)
+              + w10 * basis_value(filtered_basis, cv, j1, i0, k)
+              + w11 * basis_value(filtered_basis, cv, j1, i1, k))
+        b1 = (w00 * basis_value(filtered_basis, cv, j0, i0, k + 1)
+              + w01 * basis_value(filtered_basis, cv, j0, i1, k + 1)
+              + w10 * basis_value(filtered_basis, cv, j1, i0, k + 1)
+              + w11 * basis_value(filtered_basis, cv, j1, i1, k + 1))
+        acc += tables.pair_scales[m] * (cs * b0 - sn * b1)  # 2 / c (cos(c z_r) b0 - sin(c z_r) b1)
         cs_next = cs * step_c - sn * step_s
         sn = sn * step_c + cs * step_s
         cs = cs_next
@@ -212,39 +230,64 @@ def add_split_row_taps(fb: FilteredBasisArrays, j: int, i0: int, i1: int, ax: fl
 
 
 @wp.func
-def prefiltered_visibility_split(fb: FilteredBasisArrays, u: float, v: float, z_r: float, wrap_rows: int) -> float:
-    """:func:`prefiltered_visibility` for rows filtered in ``fb.splits`` independent regions (Klehm 2014 Sec. 3.3;
-    ``u, v, z_r, wrap_rows`` as there)."""
+def split_visibility(fb: FilteredBasisArrays, texels: Any, u: float, v: float, z_r: float, wrap_rows: int) -> float:
+    """:func:`prefiltered_visibility_split` on ``texels``, the array of ``fb``'s storage (float32 or uint8)."""
     if fb.splits <= 1:
-        return prefiltered_visibility(fb.basis, u, v, z_r, wrap_rows)
-    j0, j1, ay, i0, i1, ax = texel_footprint(fb.basis.shape[0], fb.basis.shape[1], u, v, wrap_rows)
+        return prefiltered_visibility(texels, fb.tables, u, v, z_r, wrap_rows)
+    j0, j1, ay, i0, i1, ax = texel_footprint(texels.shape[0], texels.shape[1], u, v, wrap_rows)
     rows = tap_indices()
     cols = tap_indices()
     w = tap_weights()
     rows, cols, w, n = add_split_row_taps(fb, j0, i0, i1, ax, 1.0 - ay, rows, cols, w, 0)
     rows, cols, w, n = add_split_row_taps(fb, j1, i0, i1, ax, ay, rows, cols, w, n)
-    return fourier_taps_visibility(fb.basis, rows, cols, w, n, z_r)
+    return fourier_taps_visibility(texels, fb.tables, rows, cols, w, n, z_r)
 
 
 @wp.func
-def moments_visibility(filtered: wp.array3d(dtype=wp.float32), u: float, v: float, z_r: float, wrap_rows: int,
-                       storage: int, beta: float) -> float:
-    """Visible fraction of the view ray ending at rectified (u, v) with depth z_r from prefiltered moments.
+def prefiltered_visibility_split(fb: FilteredBasisArrays, u: float, v: float, z_r: float, wrap_rows: int) -> float:
+    """:func:`prefiltered_visibility` of a Fourier texture in either storage, its rows filtered in ``fb.splits``
+    independent regions (Klehm 2014 Sec. 3.3; ``u, v, z_r, wrap_rows`` as there)."""
+    if fb.code_bits == 0:
+        return split_visibility(fb, fb.basis, u, v, z_r, wrap_rows)
+    return split_visibility(fb, fb.codes, u, v, z_r, wrap_rows)
 
-    Bilinear fetch of the filtered stored moments, back to canonical moments and biased for the storage mode,
-    then Algorithm 1 (4 moments) or Sec. 5.4 (6 moments) at z_f = 2 z_r - 1 with the overestimation weight
-    ``beta`` between the sharp lower (0) and upper (1) visibility bounds (Peters 2017 Sec. 5.3.1).
-    """
-    j0, j1, ay, i0, i1, ax = texel_footprint(filtered.shape[0], filtered.shape[1], u, v, wrap_rows)
-    num = filtered.shape[2]
+
+@wp.func
+def bilinear_moments(texels: Any, num: int, u: float, v: float, wrap_rows: int) -> mm.vec6:
+    """Bilinear fetch of the filtered stored moments (slots 0..num-1) at rectified (u, v) from the array of a
+    moment map's storage (float32, uint16 codes or uint64 packed 10-bit codes): each of the four texels is read
+    and decoded once (:func:`~.prefix_sums.moment_texel_values`)."""
+    j0, j1, ay, i0, i1, ax = texel_footprint(texels.shape[0], texels.shape[1], u, v, wrap_rows)
     w00 = (1.0 - ax) * (1.0 - ay)
     w01 = ax * (1.0 - ay)
     w10 = (1.0 - ax) * ay
     w11 = ax * ay
+    t00 = moment_texel_values(texels, j0, i0, num)
+    t01 = moment_texel_values(texels, j0, i1, num)
+    t10 = moment_texel_values(texels, j1, i0, num)
+    t11 = moment_texel_values(texels, j1, i1, num)
+    return w00 * t00 + w01 * t01 + w10 * t10 + w11 * t11
+
+
+@wp.func
+def moments_visibility(filtered: FilteredMomentArrays, u: float, v: float, z_r: float, wrap_rows: int,
+                       beta: float) -> float:
+    """Visible fraction of the view ray ending at rectified (u, v) with depth z_r from prefiltered moments.
+
+    Bilinear fetch of the filtered stored moments (decoded from the storage mode's codes), back to canonical
+    moments and biased for the storage mode, then Algorithm 1 (4 moments) or Sec. 5.4 (6 moments) at
+    z_f = 2 z_r - 1 with the overestimation weight ``beta`` between the sharp lower (0) and upper (1) visibility
+    bounds (Peters 2017 Sec. 5.3.1).
+    """
+    num = filtered.num_moments
+    storage = filtered.storage
     t = mm.vec6()
-    for k in range(num):
-        t[k] = (w00 * filtered[j0, i0, k] + w01 * filtered[j0, i1, k] + w10 * filtered[j1, i0, k]
-                + w11 * filtered[j1, i1, k])
+    if filtered.code_bits == 0:
+        t = bilinear_moments(filtered.values, num, u, v, wrap_rows)
+    elif filtered.code_bits == CODE_BITS_UNORM10:
+        t = bilinear_moments(filtered.codes10, num, u, v, wrap_rows)
+    else:
+        t = bilinear_moments(filtered.codes16, num, u, v, wrap_rows)
     z_f = 2.0 * z_r - 1.0
     if num == 4:
         b = mm.load_biased_moments4(wp.vec4(t[0], t[1], t[2], t[3]), storage)
@@ -270,7 +313,7 @@ def evaluate_coords_kernel(
 
 @wp.kernel
 def evaluate_points_kernel(
-    filtered_basis: wp.array3d(dtype=wp.float32),
+    filtered_basis: FilteredBasisArrays,
     rect: NonlinearRectParams,
     points: wp.array(dtype=wp.vec3),  # world end points of camera view rays (G-buffer hits)
     sigma_t: float,
@@ -281,7 +324,7 @@ def evaluate_points_kernel(
     n = wp.tid() + offset
     x = points[n]
     c = world_to_rectified(rect, x)
-    f = prefiltered_visibility(filtered_basis, c[0], c[1], c[2], rect.full_circle)
+    f = prefiltered_visibility_split(filtered_basis, c[0], c[1], c[2], rect.full_circle)
     fraction[n] = f
     integral[n] = f * transmittance_integral(sigma_t, 0.0, wp.length(x - rect.origin))
 
@@ -290,19 +333,19 @@ def evaluate_points_kernel(
 
 
 def filtered_basis_arrays(filtered_basis, device=None) -> FilteredBasisArrays:
-    """:class:`FilteredBasisArrays` of a :class:`~.prefix_sums.FilteredBasis` or a (rows, cols, M) array."""
+    """:class:`FilteredBasisArrays` of a :class:`~.prefix_sums.FilteredBasis` or a (rows, cols, M) array (float32
+    values, or uint8 RGBA8 codes)."""
     if isinstance(filtered_basis, FilteredBasis):
         return filtered_basis.arrays()
-    return FilteredBasis(basis=as_device_array(filtered_basis, wp.float32, 3, "filtered_basis", device),
-                         weight_sums=wp.zeros((1, 1), dtype=wp.float32, device=device),
-                         region_weights=wp.ones((1, 1), dtype=wp.float32, device=device), splits=1).arrays()
+    return basis_arrays(filtered_basis, "filtered_basis", default_device(device))
 
 
 def evaluate_visibility(filtered_basis, coords, *, wrap_rows: bool = False, device=None) -> np.ndarray:
     """Visible fraction for a batch of view rays given by rectified end-point coordinates (tests, debugging).
 
     Args:
-        filtered_basis: (rows, cols, M) normalised filtered basis, or a :class:`FilteredBasis` (split regions).
+        filtered_basis: (rows, cols, M) normalised filtered basis (float32 values or uint8 RGBA8 codes), or a
+            :class:`FilteredBasis` (split regions).
         coords: (N, 3) rectified (u, v, z_r) of the rays' end points.
         wrap_rows: rows wrap around (full azimuth circle).
         device: Warp device.
@@ -326,7 +369,8 @@ def evaluate_points(filtered_basis, rect: NonlinearRectification, points, sigma_
     """Per-pixel evaluation for world end points of camera view rays (G-buffer hits or far-plane points).
 
     Args:
-        filtered_basis: (rows, cols, M) normalised filtered basis built on ``rect``'s rectified map.
+        filtered_basis: (rows, cols, M) normalised filtered basis built on ``rect``'s rectified map (float32 values
+            or uint8 RGBA8 codes), or a :class:`FilteredBasis`.
         rect: the rectification.
         points: (N, 3) world points x_s = position + s d.
         sigma_t: extinction (1/unit) for the transmittance integral.
@@ -340,7 +384,7 @@ def evaluate_points(filtered_basis, rect: NonlinearRectification, points, sigma_
     device = default_device(device)
     if not (np.isfinite(sigma_t) and sigma_t >= 0.0):
         raise ValueError(f"sigma_t must be finite and >= 0, got {sigma_t}")
-    fb = as_device_array(filtered_basis, wp.float32, 3, "filtered_basis", device)
+    fb = filtered_basis_arrays(filtered_basis, device)
     p = np.ascontiguousarray(points, dtype=np.float32)
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"points must have shape (N, 3), got {p.shape}")
@@ -356,7 +400,11 @@ def evaluate_points(filtered_basis, rect: NonlinearRectification, points, sigma_
 __all__ = [
     "MAX_TAPS",
     "FilteredBasisArrays",
+    "FilteredMomentArrays",
+    "FilteredMoments",
+    "FourierTables",
     "add_split_row_taps",
+    "bilinear_moments",
     "evaluate_points",
     "evaluate_visibility",
     "filtered_basis_arrays",
@@ -364,5 +412,6 @@ __all__ = [
     "moments_visibility",
     "prefiltered_visibility",
     "prefiltered_visibility_split",
+    "split_visibility",
     "texel_footprint",
 ]

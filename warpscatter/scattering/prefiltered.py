@@ -24,7 +24,10 @@ Stages (names as they appear in timings):
    (Klehm Listing 1) or transmittance-weighted with the per-slice reference ray (Listing 2/3); the
    projective map's columns are uneven, so its weights are per texel (Eq. 12: exact column lengths, or
    the paper's constant growth factor d with ``projective_weights: cross_ratio``); rows may be split
-   into ``splits`` regions filtered independently (Sec. 3.3);
+   into ``splits`` regions filtered independently (Sec. 3.3). The texture is stored as configured:
+   float32, the paper's RGBA8 (``fourier.storage_bits: 8``, uint8 codes), or the moment storage modes
+   (``moments.storage_bits``: 16-bit codes of Theta* in uint16, six 10-bit codes packed in one uint64 per
+   texel, or float32); ``filtered_map_bytes`` in the info dict is the memory really allocated;
 3. ``evaluate``  — per pixel: the G-buffer hit -> rectified (u, v, z_r) (one @wp.func dispatching on the
    rectification kind) -> bilinear fetch of the filtered-basis vector (one look-up per split region in
    front of the hit plus the hit's own) -> dot with a(z_r) + 0.5, clamped -> times
@@ -47,6 +50,8 @@ README's config reference).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import warp as wp
 
@@ -60,8 +65,15 @@ from ..wpinit import default_device, module_options
 from . import rectify_nonlinear
 from .caster_culling import cull_unseen_casters
 from .epipole_fallback import epipole_pixel_fraction, epipole_regions, march_epipole_regions
-from .filtered_lookups import FilteredBasisArrays, moments_visibility, prefiltered_visibility_split
-from .prefix_sums import MOMENT_STORAGE, FilteredBasis, prefilter_moments, prefilter_weighted
+from .filtered_lookups import moments_visibility, prefiltered_visibility_split
+from .prefix_sums import (
+    FilteredBasis,
+    FilteredBasisArrays,
+    FilteredMomentArrays,
+    FilteredMoments,
+    prefilter_moments,
+    prefilter_weighted,
+)
 from .rectification import RectificationParams, build_rectification, rectification_params, rectified_coords, wrap_rows
 from .rectify_nonlinear import NonlinearRectification, reference_ray, resample_shadow_map
 from .rectify_projective import (
@@ -75,20 +87,27 @@ from .settings import MAX_RESAMPLE_FILTER_PX, PrefilteredSettings, ScatteringSet
 
 module_options()
 
-#: ``FilteredMap.basis``: the visibility representation of the prefiltered map.
-BASIS_FOURIER = wp.constant(0)
-BASIS_MOMENTS = wp.constant(1)
+
+# ---- the per-pixel look-up of either representation ------------------------------------------------
 
 
-@wp.struct
-class FilteredMap:
-    """The prefiltered map a pixel look-up reads, as kernels see it (either representation)."""
+@wp.func
+def map_visibility(texels: FilteredBasisArrays, c: wp.vec3, wrap: int, beta: float, light_direction: wp.vec3,
+                   view_direction: wp.vec3) -> float:
+    """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a Fourier texture (Klehm 2014
+    Listing 4; ``beta`` and the directions unused)."""
+    return prefiltered_visibility_split(texels, c[0], c[1], c[2], wrap)
 
-    basis: int  # BASIS_FOURIER or BASIS_MOMENTS
-    texels: FilteredBasisArrays  # filtered Fourier basis (with its split regions) or stored moments, (rows, cols, M)
-    wrap: int  # 1: the rows wrap around (wrap_rows)
-    moment_storage: int  # moments.STORAGE*_ of the moment map
-    beta: float  # moment overestimation weight in [0, 1], or < 0: adaptive (Peters 2017 Sec. 5.3.1)
+
+@wp.func
+def map_visibility(texels: FilteredMomentArrays, c: wp.vec3, wrap: int, beta: float,  # noqa: F811
+                   light_direction: wp.vec3, view_direction: wp.vec3) -> float:
+    """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a moment map (Peters 2017 D.5);
+    ``beta`` < 0: the adaptive overestimation weight of the light and view directions (Sec. 5.3.1)."""
+    b = beta
+    if b < 0.0:
+        b = mm.adaptive_overestimation_weight(light_direction, view_direction)
+    return moments_visibility(texels, c[0], c[1], c[2], wrap, b)
 
 
 # ---- kernels ---------------------------------------------------------------------------------------
@@ -115,7 +134,9 @@ def evaluate_prefiltered_kernel(
     cam: CameraParams,
     distance: wp.array2d(dtype=wp.float32),
     coords: wp.array2d(dtype=wp.vec3),  # pixel_coords_kernel's output
-    fmap: FilteredMap,
+    texels: Any,  # FilteredBasisArrays or FilteredMomentArrays: one compiled kernel per representation
+    wrap: int,  # 1: the rows wrap around (wrap_rows)
+    beta: float,  # moment overestimation weight in [0, 1], or < 0: adaptive (Peters 2017 Sec. 5.3.1)
     light: LightParams,
     med: MediumParams,
     out: wp.array2d(dtype=wp.vec3),
@@ -126,17 +147,14 @@ def evaluate_prefiltered_kernel(
     j += offset
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     s = distance[j, i]
-    c = coords[j, i]
-    f = float(0.0)
-    if fmap.basis == BASIS_FOURIER:
-        f = prefiltered_visibility_split(fmap.texels, c[0], c[1], c[2], fmap.wrap)
-    else:
-        b = fmap.beta
-        if b < 0.0:
-            b = mm.adaptive_overestimation_weight(light.direction, d)
-        f = moments_visibility(fmap.texels.basis, c[0], c[1], c[2], fmap.wrap, fmap.moment_storage, b)
+    f = map_visibility(texels, coords[j, i], wrap, beta, light.direction, d)
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
     out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
+
+
+# one kernel per representation: the look-ups of the other would slow a kernel's own (measured 3-5 %)
+wp.overload(evaluate_prefiltered_kernel, {"texels": FilteredBasisArrays})
+wp.overload(evaluate_prefiltered_kernel, {"texels": FilteredMomentArrays})
 
 
 def pixel_coords(rect, camera, distance: wp.array, device=None) -> wp.array:
@@ -202,14 +220,6 @@ def resample_filtered(scene, rect: NonlinearRectification, shadow_map, settings:
         return rectify_nonlinear.resample_moment_shadow_map(rect, moments, device=device), int(filter_px)
 
 
-def filtered_map(basis: int, fb: FilteredBasis, wrap: bool, moment_storage: int, beta: float) -> FilteredMap:
-    """:class:`FilteredMap` of a prefiltered texture set (``beta`` < 0: adaptive overestimation)."""
-    m = FilteredMap()
-    m.basis, m.texels = int(basis), fb.arrays()
-    m.wrap, m.moment_storage, m.beta = int(wrap), int(moment_storage), float(beta)
-    return m
-
-
 def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None) -> tuple[wp.array, dict]:
     """Prefiltered single scattering: the ``fourier``, ``moments4`` and ``moments6`` methods (see the module doc;
     the registry's call shape, :mod:`warpscatter.methods`).
@@ -260,21 +270,18 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     with stage("prefilter"):
         tau, lengths, weight_info = row_weights(rect, p, scene.medium.sigma_t, cam)
         if settings.method == "fourier":
-            fb: FilteredBasis = prefilter_weighted(rectified, settings.fourier.coefficients, tau, lengths,
-                                                   splits=p.splits, bits=settings.fourier.storage_bits, device=device)
-            basis, storage = BASIS_FOURIER, 0
+            fb: FilteredBasis | FilteredMoments = prefilter_weighted(
+                rectified, settings.fourier.coefficients, tau, lengths, splits=p.splits,
+                bits=settings.fourier.storage_bits, device=device)
         else:
-            moments = prefilter_moments(rectified, settings.num_moments, tau, lengths,
-                                        storage_bits=settings.moment_storage_bits, device=device)
-            fb = FilteredBasis(basis=moments, weight_sums=wp.zeros((1, 1), dtype=wp.float32, device=device),
-                               region_weights=wp.zeros((1, 1), dtype=wp.float32, device=device), splits=1)
-            basis, storage = BASIS_MOMENTS, MOMENT_STORAGE[settings.num_moments][settings.moment_storage_bits]
+            fb = prefilter_moments(rectified, settings.num_moments, tau, lengths,
+                                   storage_bits=settings.moment_storage_bits, device=device)
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
         beta = -1.0 if overestimation == "adaptive" else float(overestimation)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
-                    [cam.params(), gbuffer.distance, coords, filtered_map(basis, fb, wrap_rows(rect), storage, beta),
+                    [cam.params(), gbuffer.distance, coords, fb.arrays(), int(wrap_rows(rect)), beta,
                      light_params(scene.light, device), scene.medium.params(), out], device=device)
     regions = epipole_regions(cam, scene.light.direction, p.epipole_angle_deg, p.epipole_block)
     if regions:
@@ -293,7 +300,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         **resample_info,
         "caster_culling": culled is not None,
         **({} if culled is None else {"culled_texel_fraction": round(culled, 4)}),
-        "filtered_map_bytes": int(rows * cols * settings.filtered_bits_per_texel // 8),
+        "filtered_map_bytes": fb.nbytes,  # allocated: the texture (and a split filter's weight sums)
         "epipole_blocks": [[*r.rect, r.name] for r in regions],
         "epipole_angle_deg": round(regions[0].inner_deg, 3) if regions else None,
         "epipole_raymarched_fraction": round(epipole_pixel_fraction(cam, regions), 4),
@@ -306,11 +313,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
 
 
 __all__ = [
-    "BASIS_FOURIER",
-    "BASIS_MOMENTS",
-    "FilteredMap",
     "evaluate_prefiltered_kernel",
-    "filtered_map",
+    "map_visibility",
     "pixel_coords",
     "pixel_coords_kernel",
     "render",

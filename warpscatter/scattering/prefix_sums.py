@@ -28,13 +28,21 @@ As in Klehm 2014 App. A the stored values are NORMALISED: B_bar_k(i) = sum_{i'<=
 
 and the scattering integral is F * integral_0^s exp(-sigma_t t) dt (= F * s for average visibility).
 
-Data layout: filtered-basis textures are ONE float32 array of shape (rows, cols, M), C-contiguous, so the
-M-vector of a texel is contiguous and a bilinear fetch reads four contiguous runs. The inclusive prefix of
-column i belongs to the right edge of its texel, so a hit point at continuous column position p = u * cols
-is read at texel-index coordinate p - 1 (linear between columns, clamped); rows are read at their centres,
-wrapping around when the rectification covers the full azimuth circle. ``bits = 8`` emulates the paper's
-RGBA8 textures: each stored value is mapped to [0, 1], rounded to 8 bits and mapped back (the running
-filter itself keeps full precision, as registers do on the GPU).
+Data layout: a filtered-basis texture is ONE array of shape (rows, cols, M), C-contiguous, so the M-vector of a
+texel is contiguous and the two columns a bilinear fetch reads in a row are one run of 2 M values. The inclusive
+prefix of column i belongs to the right edge of its texel, so a hit point at continuous column position
+p = u * cols is read at texel-index coordinate p - 1 (linear between columns, clamped); rows are read at their
+centres, wrapping around when the rectification covers the full azimuth circle.
+
+Storage (:class:`FilteredBasisArrays`): ``bits = 0`` keeps float32 values (4 M bytes per texel); ``bits = 8`` is the
+paper's RGBA8 storage (Klehm 2014 App. A, M bytes per texel): a uint8 array of codes round((0.5 x + 0.5) 255)
+(:func:`signed_unorm_code`), decoded at look-up time to 2 code / 255 - 1 through a 256-entry table
+(:func:`signed_unorm_value`, :class:`FourierTables`). The running filter itself keeps full precision, as registers
+do on the GPU; only what is written is quantized. The moment maps (:func:`prefilter_moments`,
+:class:`FilteredMomentArrays`) store the modes of Peters 2017 Sec. 2.4 / 5.4.3 the same way: float32, 16-bit codes
+of Theta*(b) in a uint16 array, or six 10-bit codes packed in one uint64 per texel (:data:`MOMENT_TEXEL_LAYOUT`; the
+codes are those of :mod:`warpscatter.shadows.moment_storage`). Decoding gives exactly the float32 values of the
+storage emulation (:func:`unorm_roundtrip`, :func:`requantize_moments`), so images do not depend on the packing.
 
 Split regions (Klehm 2014 Sec. 3.3, end): with ``splits`` = S > 1 each row is cut uniformly into S
 regions filtered independently (S times more parallel threads). The normalised values of a region do
@@ -62,6 +70,7 @@ import numpy as np
 import warp as wp
 
 from ..parallel import launch_rows
+from ..shadows import moment_storage as ms
 from ..shadows import moments as mm
 from ..wpinit import default_device, module_options
 from .rectify_nonlinear import SparseRectifiedDepth
@@ -107,15 +116,28 @@ def fourier_step(num_coefficients: int, z_r: float, z_i: float) -> float:
 
 
 @wp.func
+def signed_unorm_code(x: float, levels: float) -> int:
+    """Code of x in [-1, 1] stored as a [0, 1] unorm with ``levels`` = 2^bits - 1 steps (Klehm 2014 App. A: the sine
+    and cosine values mapped to [0, 1]): round(clamp(0.5 x + 0.5, 0, 1) levels), in [0, levels]."""
+    return int(wp.round(wp.clamp(0.5 * x + 0.5, 0.0, 1.0) * levels))
+
+
+@wp.func
+def signed_unorm_value(code: int, levels: float) -> float:
+    """Value in [-1, 1] of a code of :func:`signed_unorm_code`: 2 (code / levels) - 1, in float32."""
+    return 2.0 * (float(code) / levels) - 1.0
+
+
+@wp.func
 def unorm_roundtrip(x: float, levels: float) -> float:
-    """x in [-1, 1] after storage as a [0, 1] unorm with ``levels`` = 2^bits - 1 steps (Klehm 2014 App. A).
+    """x in [-1, 1] after storage as a [0, 1] unorm with ``levels`` = 2^bits - 1 steps (Klehm 2014 App. A): the
+    value of its code, bit for bit what a look-up decodes from an RGBA8 texture.
 
     ``levels <= 0`` stores full float precision (x unchanged).
     """
     if levels <= 0.0:
         return x
-    q = wp.round(wp.clamp(0.5 * x + 0.5, 0.0, 1.0) * levels) / levels
-    return 2.0 * q - 1.0
+    return signed_unorm_value(signed_unorm_code(x, levels), levels)
 
 
 @wp.func
@@ -198,38 +220,225 @@ def texel_depths(rd: RectifiedTexels, j: int, i: int):
     return z1, rd.depth2[j, i], rd.weight2[j, i]
 
 
+# ---- texture storage: what the prefilters write and the look-ups read -----------------------------------
+
+#: Bits of the packed Fourier storage: the paper's RGBA8 filtered-basis textures (Klehm 2014 App. A).
+FOURIER_UNORM_BITS = 8
+#: Steps of the 8-bit Fourier codes (2^8 - 1).
+FOURIER_UNORM_LEVELS = wp.constant(255.0)
+
+
+@wp.struct
+class FourierTables:
+    """Constant tables of the Fourier look-ups, built once per device (:func:`fourier_tables`): a table entry is the
+    float32 value of the expression it replaces, bit for bit."""
+
+    code_values: wp.array(dtype=wp.float32)  # (256,) signed_unorm_value of every RGBA8 code: the decode table
+    pair_scales: wp.array(dtype=wp.float32)  # (MAX_COEFFICIENTS / 2,) 2 / c of pair m, c = pi (2 m + 1) (Eq. 8)
+
+
+@wp.struct
+class FilteredBasisArrays:
+    """A Fourier basis texture as the kernels write and read it (:meth:`FilteredBasis.arrays`): the normalised
+    filtered basis, with its split regions (Klehm 2014 Sec. 3.3), in one of two storages. The array of the other
+    storage is None."""
+
+    basis: wp.array3d(dtype=wp.float32)  # (rows, cols, M) float32 values in [-1, 1] (bits 0)
+    codes: wp.array3d(dtype=wp.uint8)  # (rows, cols, M) RGBA8 codes, signed_unorm_code (bits 8)
+    tables: FourierTables  # the decode table of the codes and the look-ups' coefficient factors
+    code_bits: int  # which array holds the texture: 0 (float32 values) or 8 (RGBA8 codes, Klehm 2014 App. A)
+    weight_sums: wp.array2d(dtype=wp.float32)  # (rows, cols) region-local running weight sums (splits > 1)
+    region_weights: wp.array2d(dtype=wp.float32)  # (rows, splits) reference-ray transmittance at region starts
+    splits: int  # regions per row (1 = the plain filter)
+
+
+@wp.func
+def store_basis(tex: FilteredBasisArrays, j: int, i: int, k: int, x: float):
+    """Write the value x of basis k at texel (j, i) in the texture's storage (8 bits: its code)."""
+    if tex.code_bits == 0:
+        tex.basis[j, i, k] = x
+    else:
+        tex.codes[j, i, k] = wp.uint8(signed_unorm_code(x, FOURIER_UNORM_LEVELS))
+
+
+@wp.func
+def basis_value(basis: wp.array3d(dtype=wp.float32), code_values: wp.array(dtype=wp.float32), j: int, i: int,
+                k: int) -> float:
+    """Value of basis k at texel (j, i) of a float32 texture (``code_values`` unused)."""
+    return basis[j, i, k]
+
+
+@wp.func
+def basis_value(basis: wp.array3d(dtype=wp.uint8), code_values: wp.array(dtype=wp.float32), j: int, i: int,  # noqa: F811
+                k: int) -> float:
+    """Value of basis k at texel (j, i) of an RGBA8 texture: the decode table's entry for its code (the value of
+    :func:`unorm_roundtrip`, bit for bit)."""
+    return code_values[int(basis[j, i, k])]
+
+
+@wp.func
+def basis_texel(tex: FilteredBasisArrays, j: int, i: int, k: int) -> float:
+    """Value of basis k at texel (j, i) in either storage (a branch per value: the look-ups use :func:`basis_value`
+    on the storage's own array instead)."""
+    if tex.code_bits == 0:
+        return tex.basis[j, i, k]
+    return basis_value(tex.codes, tex.tables.code_values, j, i, k)
+
+
+@wp.func
+def basis_shape(tex: FilteredBasisArrays):
+    """(rows, cols, M) of a Fourier basis texture."""
+    if tex.code_bits == 0:
+        return tex.basis.shape[0], tex.basis.shape[1], tex.basis.shape[2]
+    return tex.codes.shape[0], tex.codes.shape[1], tex.codes.shape[2]
+
+
+#: ``FilteredMomentArrays.code_bits``: which array holds a moment map's texels (0: float32 values).
+CODE_BITS_UNORM16 = wp.constant(16)  # uint16 codes, one per channel (STORAGE4_UNORM16, STORAGE6_UNORM16)
+CODE_BITS_UNORM10 = wp.constant(10)  # six 10-bit codes packed in one uint64 per texel (STORAGE6_UNORM10)
+
+#: Texture layout of each moment storage mode: (moments, STORAGE*_ value) -> (numpy dtype, words per texel), at the
+#: bits per texel of Peters 2017: 64 / 128 (four moments), 64 (60 used) / 96 / 192 (six).
+MOMENT_TEXEL_LAYOUT = {(4, int(mm.STORAGE4_UNORM16)): (np.uint16, 4), (4, int(mm.STORAGE4_FLOAT32)): (np.float32, 4),
+                       (6, int(mm.STORAGE6_UNORM10)): (np.uint64, 1), (6, int(mm.STORAGE6_UNORM16)): (np.uint16, 6),
+                       (6, int(mm.STORAGE6_FLOAT32)): (np.float32, 6)}
+
+
+@wp.func
+def moment_code_bits(num_moments: int, storage: int) -> int:
+    """Bits per fixed-point channel of a moment storage mode (16 or 10), 0 for the float32 modes."""
+    if num_moments == 4 and storage == mm.STORAGE4_UNORM16:
+        return mm.UNORM_BITS_STORAGE4_UNORM16
+    if num_moments == 6 and storage == mm.STORAGE6_UNORM16:
+        return mm.UNORM_BITS_STORAGE6_UNORM16
+    if num_moments == 6 and storage == mm.STORAGE6_UNORM10:
+        return mm.UNORM_BITS_STORAGE6_UNORM10
+    return 0
+
+
+@wp.struct
+class FilteredMomentArrays:
+    """A prefiltered moment map as the kernels write and read it (:meth:`FilteredMoments.arrays`): the texels of a
+    storage mode (Peters 2017 Sec. 2.4, 5.4.3) in the array of ``code_bits``, the other arrays None. A map holds the
+    codes of its mode (:data:`MOMENT_TEXEL_LAYOUT`), or float32 values: the float32 modes' canonical moments, or
+    the decoded values of a fixed-point mode (its emulation)."""
+
+    values: wp.array3d(dtype=wp.float32)  # (rows, cols, n) float32 values (code_bits 0)
+    codes16: wp.array3d(dtype=wp.uint16)  # (rows, cols, n) 16-bit unorm codes of Theta*(b) (code_bits 16)
+    codes10: wp.array2d(dtype=wp.uint64)  # (rows, cols) six 10-bit codes of Theta_6*(b) per word (code_bits 10)
+    code_bits: int  # which array holds the texels: 0 (float32), CODE_BITS_UNORM16 or CODE_BITS_UNORM10
+    num_moments: int  # 4 or 6
+    storage: int  # moments.STORAGE4_* / STORAGE6_*: what the values mean (Theta*, moment bias)
+
+
+@wp.func
+def requantize_moments(t: mm.vec6, num_moments: int, storage: int) -> mm.vec6:
+    """A filtered texel written back in the storage format, as float32 values: the quantization transforms are
+    affine, so the weighted mean of stored texels only needs rounding to the mode's fixed point again (float modes:
+    unchanged). The emulation of :func:`store_moment_texel` followed by :func:`moment_texel` (same values, bit for
+    bit)."""
+    bits = moment_code_bits(num_moments, storage)
+    if bits == 0:
+        return t
+    return mm.vec6(mm.unorm_round(t[0], bits), mm.unorm_round(t[1], bits), mm.unorm_round(t[2], bits),
+                   mm.unorm_round(t[3], bits), mm.unorm_round(t[4], bits), mm.unorm_round(t[5], bits))
+
+
+@wp.func
+def store_moment_texel(tex: FilteredMomentArrays, j: int, i: int, t: mm.vec6):
+    """Write texel (j, i): the stored moments t (slots 0..n-1) rounded to the map's storage mode, as codes or as
+    float32 values (:func:`requantize_moments`)."""
+    if tex.code_bits == 0:
+        q = requantize_moments(t, tex.num_moments, tex.storage)
+        for k in range(wp.static(6)):  # unrolled (see moment_texel_values)
+            if k < tex.num_moments:
+                tex.values[j, i, k] = q[k]
+    elif tex.code_bits == CODE_BITS_UNORM10:
+        tex.codes10[j, i] = ms.pack_unorm10x6(t)
+    else:
+        for k in range(wp.static(6)):
+            if k < tex.num_moments:
+                tex.codes16[j, i, k] = wp.uint16(ms.unorm_encode(t[k], CODE_BITS_UNORM16))
+
+
+@wp.func
+def moment_texel_values(values: wp.array3d(dtype=wp.float32), j: int, i: int, num: int) -> mm.vec6:
+    """Stored moments (slots 0..num-1) of texel (j, i) of a float32 moment map."""
+    t = mm.vec6()
+    for k in range(wp.static(6)):  # unrolled: t stays in registers (a dynamic index spills it: 1.3x slower)
+        if k < num:
+            t[k] = values[j, i, k]
+    return t
+
+
+@wp.func
+def moment_texel_values(codes: wp.array3d(dtype=wp.uint16), j: int, i: int, num: int) -> mm.vec6:  # noqa: F811
+    """Stored moments of texel (j, i) of a 16-bit moment map: the values of its unorm codes."""
+    t = mm.vec6()
+    for k in range(wp.static(6)):  # unrolled, as above
+        if k < num:
+            t[k] = ms.unorm_decode(int(codes[j, i, k]), CODE_BITS_UNORM16)
+    return t
+
+
+@wp.func
+def moment_texel_values(codes: wp.array2d(dtype=wp.uint64), j: int, i: int, num: int) -> mm.vec6:  # noqa: F811
+    """Stored moments of texel (j, i) of a STORAGE6_UNORM10 map: the six channels of its 64-bit word (one load)."""
+    word = codes[j, i]
+    return mm.vec6(ms.unpack_unorm10(word, 0), ms.unpack_unorm10(word, 1), ms.unpack_unorm10(word, 2),
+                   ms.unpack_unorm10(word, 3), ms.unpack_unorm10(word, 4), ms.unpack_unorm10(word, 5))
+
+
+@wp.func
+def moment_texel(tex: FilteredMomentArrays, j: int, i: int) -> mm.vec6:
+    """Stored moments of texel (j, i) of any moment map (a branch per texel; the look-ups dispatch once)."""
+    if tex.code_bits == 0:
+        return moment_texel_values(tex.values, j, i, tex.num_moments)
+    if tex.code_bits == CODE_BITS_UNORM10:
+        return moment_texel_values(tex.codes10, j, i, tex.num_moments)
+    return moment_texel_values(tex.codes16, j, i, tex.num_moments)
+
+
 # ---- kernels -------------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def fourier_tables_kernel(tables: FourierTables):
+    # the decode table of an RGBA8 texture (the value of every code) and the factors 2 / c of the pairs
+    c = wp.tid()
+    tables.code_values[c] = signed_unorm_value(c, FOURIER_UNORM_LEVELS)
+    if c < tables.pair_scales.shape[0]:
+        tables.pair_scales[c] = 2.0 / fourier_frequency(2 * c)
 
 
 @wp.kernel
 def basis_transform_kernel(
     depth: wp.array2d(dtype=wp.float32),  # (rows, cols) rectified depth in [0, 1]
-    levels: float,  # unorm steps of the stored basis (0 = float)
-    out: wp.array3d(dtype=wp.float32),  # (rows, cols, M) basis textures B_k(z_i)
+    out: FilteredBasisArrays,  # (rows, cols, M) basis textures B_k(z_i), float32 or RGBA8
     offset: int,
 ):
     j, i = wp.tid()
     j += offset
     z = depth[j, i]
-    for k in range(out.shape[2]):
-        out[j, i, k] = unorm_roundtrip(fourier_basis(k, z), levels)
+    rows, cols, num = basis_shape(out)
+    for k in range(num):
+        store_basis(out, j, i, k, fourier_basis(k, z))
 
 
 @wp.kernel
 def prefix_filter_kernel(
-    basis: wp.array3d(dtype=wp.float32),  # (rows, cols, M) basis textures
+    basis: FilteredBasisArrays,  # (rows, cols, M) basis textures
     optical_step: wp.array(dtype=wp.float32),  # (rows,) tau = sigma_t Delta_ref per row (0 = average)
     pairs_per_thread: int,  # basis pairs (sin, cos) filtered by one thread
-    levels: float,  # unorm steps of the stored filtered values (0 = float)
-    out: wp.array3d(dtype=wp.float32),  # (rows, cols, M) normalised filtered basis
+    out: FilteredBasisArrays,  # (rows, cols, M) normalised filtered basis
     offset: int,
 ):
     # Klehm 2014 Listings 1-2: one thread per (row, group of bases) walks the row left to right.
     j, g = wp.tid()
     j += offset
-    cols = basis.shape[1]
+    rows, cols, num = basis_shape(basis)
     q = wp.exp(-optical_step[j])  # transmittance of one texel step
-    m_end = wp.min((g + 1) * pairs_per_thread, basis.shape[2] // 2)
+    m_end = wp.min((g + 1) * pairs_per_thread, num // 2)
     for m in range(g * pairs_per_thread, m_end):
         k = 2 * m
         f0 = float(0.0)
@@ -238,10 +447,10 @@ def prefix_filter_kernel(
         sum_w = float(0.0)
         for i in range(cols):
             alpha, weight, sum_w = advance_filter_weight(weight, sum_w, q)
-            f0 = f0 + alpha * (basis[j, i, k] - f0)
-            f1 = f1 + alpha * (basis[j, i, k + 1] - f1)
-            out[j, i, k] = unorm_roundtrip(f0, levels)
-            out[j, i, k + 1] = unorm_roundtrip(f1, levels)
+            f0 = f0 + alpha * (basis_texel(basis, j, i, k) - f0)
+            f1 = f1 + alpha * (basis_texel(basis, j, i, k + 1) - f1)
+            store_basis(out, j, i, k, f0)
+            store_basis(out, j, i, k + 1, f1)
 
 
 #: (sin, cos) pairs one thread of the fused filter carries in registers (a compile-time constant so the
@@ -255,11 +464,7 @@ def prefilter_depth_kernel(
     rd: RectifiedTexels,
     optical_step: wp.array(dtype=wp.float32),  # (rows,) tau_j: optical thickness per unit column length (0 = average)
     column_length: wp.array(dtype=wp.float32),  # (cols,) relative column length l_i, or (1,): uniform columns
-    splits: int,  # regions per row filtered independently (Klehm 2014 Sec. 3.3)
-    levels: float,
-    out: wp.array3d(dtype=wp.float32),  # (rows, cols, M) normalised filtered basis (per region)
-    weight_sums: wp.array2d(dtype=wp.float32),  # (rows, cols) region-local running weight sums (if store_sums)
-    store_sums: int,
+    out: FilteredBasisArrays,  # normalised filtered basis per region (Klehm 2014 Sec. 3.3), weight sums if splits > 1
     offset: int,
 ):
     # Klehm 2014 Listing 3: the basis transform fused into the prefix filter (no basis textures), with the
@@ -269,11 +474,12 @@ def prefilter_depth_kernel(
     # addition), so a texel costs four trigonometric calls whatever the group size.
     j, t = wp.tid()
     j += offset
-    num_pairs = out.shape[2] // 2
+    rows, cols, num = basis_shape(out)
+    num_pairs = num // 2
     groups = (num_pairs + PAIRS_PER_THREAD - 1) // PAIRS_PER_THREAD
     region = t // groups
     g = t - region * groups
-    c0, nc = split_columns(splits, rd.depth.shape[1], region)
+    c0, nc = split_columns(out.splits, cols, region)
     tau = optical_step[j]
     uniform = column_length.shape[0] == 1  # one length for all columns: the weight ratio is a constant
     w_first, step = texel_weight(1.0, column_length[0], tau * column_length[0])
@@ -288,8 +494,8 @@ def prefilter_depth_kernel(
         alpha = float(0.0)
         if sum_w > 0.0:
             alpha = w / sum_w
-        if store_sums != 0 and g == 0:
-            weight_sums[j, i] = sum_w
+        if out.splits > 1 and g == 0:
+            out.weight_sums[j, i] = sum_w
         sn = wp.sin(fourier_frequency(2 * m0) * z)
         cs = wp.cos(fourier_frequency(2 * m0) * z)
         step_s = wp.sin(2.0 * wp.pi * z)
@@ -308,8 +514,8 @@ def prefilter_depth_kernel(
                 state[2 * p] = state[2 * p] + alpha * (b_s - state[2 * p])
                 state[2 * p + 1] = state[2 * p + 1] + alpha * (b_c - state[2 * p + 1])
                 k = 2 * (m0 + p)
-                out[j, i, k] = unorm_roundtrip(state[2 * p], levels)
-                out[j, i, k + 1] = unorm_roundtrip(state[2 * p + 1], levels)
+                store_basis(out, j, i, k, state[2 * p])
+                store_basis(out, j, i, k + 1, state[2 * p + 1])
                 sn_next = sn * step_c + cs * step_s
                 cs = cs * step_c - sn * step_s
                 sn = sn_next
@@ -341,31 +547,12 @@ def stored_moments(depth01: float, depth01_2: float, weight2: float, num_moments
     return mm.store_moments6(b6, storage)
 
 
-@wp.func
-def requantize_moments(t: mm.vec6, num_moments: int, storage: int) -> mm.vec6:
-    """A filtered texel written back in the storage format: the quantization transforms are affine, so the
-    weighted mean of stored texels only needs rounding to the mode's fixed point again (float modes: unchanged)."""
-    bits = int(0)
-    if num_moments == 4 and storage == mm.STORAGE4_UNORM16:
-        bits = mm.UNORM_BITS_STORAGE4_UNORM16
-    if num_moments == 6 and storage == mm.STORAGE6_UNORM16:
-        bits = mm.UNORM_BITS_STORAGE6_UNORM16
-    if num_moments == 6 and storage == mm.STORAGE6_UNORM10:
-        bits = mm.UNORM_BITS_STORAGE6_UNORM10
-    if bits == 0:
-        return t
-    return mm.vec6(mm.unorm_round(t[0], bits), mm.unorm_round(t[1], bits), mm.unorm_round(t[2], bits),
-                   mm.unorm_round(t[3], bits), mm.unorm_round(t[4], bits), mm.unorm_round(t[5], bits))
-
-
 @wp.kernel
 def prefilter_moments_kernel(
     rd: RectifiedTexels,
     optical_step: wp.array(dtype=wp.float32),  # (rows,) tau_j per unit column length (0 = average)
     column_length: wp.array(dtype=wp.float32),  # (cols,) relative column lengths, or (1,): uniform columns
-    num_moments: int,  # 4 or 6
-    storage: int,  # moments.STORAGE4_* / STORAGE6_*
-    out: wp.array3d(dtype=wp.float32),  # (rows, cols, num_moments) normalised filtered stored moments
+    out: FilteredMomentArrays,  # (rows, cols) normalised filtered stored moments in the map's storage mode
     offset: int,
 ):
     # Peters 2017 Sec. 5.1.1 and D.5: transmittance-weighted prefix sums of the stored moments, with the
@@ -383,10 +570,27 @@ def prefilter_moments_kernel(
         sum_w += w
         if sum_w > 0.0:
             z1, z2, w2 = texel_depths(rd, j, i)
-            state = state + (w / sum_w) * (stored_moments(z1, z2, w2, num_moments, storage) - state)
-        q = requantize_moments(state, num_moments, storage)
-        for k in range(num_moments):
-            out[j, i, k] = q[k]
+            state = state + (w / sum_w) * (stored_moments(z1, z2, w2, out.num_moments, out.storage) - state)
+        store_moment_texel(out, j, i, state)  # fixed point: rounded once more, as the emulation requantize_moments
+
+
+@wp.kernel
+def decode_basis_kernel(tex: FilteredBasisArrays, out: wp.array3d(dtype=wp.float32), offset: int):
+    # the float32 values of a Fourier basis texture (tests, inspection)
+    j, i = wp.tid()
+    j += offset
+    for k in range(out.shape[2]):
+        out[j, i, k] = basis_texel(tex, j, i, k)
+
+
+@wp.kernel
+def decode_moments_kernel(tex: FilteredMomentArrays, out: wp.array3d(dtype=wp.float32), offset: int):
+    # the float32 stored moments of a moment map (tests, inspection)
+    j, i = wp.tid()
+    j += offset
+    t = moment_texel(tex, j, i)
+    for k in range(out.shape[2]):
+        out[j, i, k] = t[k]
 
 
 # ---- host side ------------------------------------------------------------------------------------------
@@ -400,10 +604,11 @@ def _check_coefficients(num_coefficients) -> int:
     return m
 
 
-def _levels(bits) -> float:
-    if int(bits) != bits or not (bits == 0 or 1 <= bits <= 16):
-        raise ValueError(f"bits must be 0 (float storage) or an integer in [1, 16], got {bits}")
-    return float(2 ** int(bits) - 1) if bits else 0.0
+def _check_bits(bits) -> int:
+    if isinstance(bits, bool) or bits not in (0, FOURIER_UNORM_BITS):
+        raise ValueError(f"bits must be 0 (float32 storage) or {FOURIER_UNORM_BITS} (the paper's RGBA8 storage, "
+                         f"Klehm 2014 App. A), got {bits}")
+    return int(bits)
 
 
 def _pairs_per_thread(bases_per_thread) -> int:
@@ -418,7 +623,8 @@ def as_device_array(a, dtype, ndim: int, name: str, device) -> wp.array:
         if arr.dtype != dtype:
             raise ValueError(f"{name} must hold {dtype.__name__}, got {arr.dtype.__name__}")
     else:
-        arr = wp.array(np.ascontiguousarray(a, dtype=np.float32), dtype=dtype, device=device)
+        arr = wp.array(np.ascontiguousarray(a, dtype=wp.dtype_to_numpy(dtype)), dtype=dtype,
+                       device=device)
     if arr.ndim != ndim:
         raise ValueError(f"{name} must be a {ndim}D array, got shape {arr.shape}")
     return arr
@@ -456,61 +662,35 @@ def _optical_steps(optical_step, rows: int, device) -> wp.array:
     return wp.array(np.ascontiguousarray(tau), dtype=wp.float32, device=device)
 
 
-def fourier_basis_textures(rectified_depth, num_coefficients: int, *, bits: int = 0, device=None) -> wp.array:
-    """Basis textures B_k(z_i) of a rectified depth map (Klehm 2014 Eq. 8, Sec. 3.3).
+_TABLES: dict = {}
 
-    Args:
-        rectified_depth: (rows, cols) float32 numpy or Warp array, depth in [0, 1].
-        num_coefficients: M, even, 4..128.
-        bits: 0 for float storage, 8 to emulate RGBA8 basis textures.
-        device: Warp device.
 
-    Returns:
-        (rows, cols, M) float32 Warp array.
-    """
+def fourier_tables(device=None) -> FourierTables:
+    """The :class:`FourierTables` of a device (built on first use): the value (:func:`signed_unorm_value`) of every
+    RGBA8 code and the factor 2 / c of every coefficient pair."""
     device = default_device(device)
-    m = _check_coefficients(num_coefficients)
-    levels = _levels(bits)
-    depth = as_device_array(rectified_depth, wp.float32, 2, "rectified_depth", device)
-    rows, cols = depth.shape
-    out = wp.empty((rows, cols, m), dtype=wp.float32, device=device)
-    launch_rows(basis_transform_kernel, (rows, cols), [depth, levels, out], device=device)
-    return out
+    key = str(wp.get_device(device))
+    if key not in _TABLES:
+        tables = FourierTables()
+        tables.code_values = wp.empty(2**FOURIER_UNORM_BITS, dtype=wp.float32, device=device)
+        tables.pair_scales = wp.empty(MAX_COEFFICIENTS // 2, dtype=wp.float32, device=device)
+        wp.launch(fourier_tables_kernel, tables.code_values.shape, [tables], device=device)
+        _TABLES[key] = tables
+    return _TABLES[key]
 
 
-def prefix_filter(basis, optical_step=None, *, bases_per_thread: int = 8, bits: int = 0, device=None) -> wp.array:
-    """Normalised per-row prefix filtering of basis textures (Klehm 2014 Listing 1, or Listing 2 with weights).
-
-    Args:
-        basis: (rows, cols, M) basis textures (e.g. from :func:`fourier_basis_textures`).
-        optical_step: None or 0 for average visibility (Listing 1); else per-row tau = sigma_t * Delta_ref
-            (scalar or (rows,), e.g. :meth:`~.rectify_nonlinear.ReferenceRays.optical_steps`) for the
-            transmittance weights w_i = exp(-(i-1) tau) - exp(-i tau) of Eq. 11 (Listing 2).
-        bases_per_thread: bases filtered by one thread (even); launch is rows x ceil(M / bases_per_thread).
-        bits: 0 for float storage, 8 to emulate the paper's RGBA8 filtered-basis textures.
-        device: Warp device.
-
-    Returns:
-        (rows, cols, M) float32 Warp array of normalised filtered basis values in [-1, 1].
-    """
-    device = default_device(device)
-    b = as_device_array(basis, wp.float32, 3, "basis", device)
-    rows, cols, m = b.shape
-    _check_coefficients(m)
-    ppt = _pairs_per_thread(bases_per_thread)
-    tau = _optical_steps(optical_step, rows, device)
-    out = wp.empty((rows, cols, m), dtype=wp.float32, device=device)
-    groups = -(-(m // 2) // ppt)
-    launch_rows(prefix_filter_kernel, (rows, groups), [b, tau, ppt, _levels(bits), out], device=device)
-    return out
+def basis_texture(rows: int, cols: int, num: int, bits: int, device) -> wp.array:
+    """An uninitialised (rows, cols, M) Fourier basis texture: float32 (bits 0) or uint8 codes (bits 8)."""
+    return wp.empty((rows, cols, num), dtype=wp.uint8 if bits else wp.float32, device=device)
 
 
 @dataclass
 class FilteredBasis:
-    """Output of :func:`prefilter_weighted`: the filtered-basis textures and what split evaluation needs.
+    """A Fourier basis texture (the output of :func:`prefilter_weighted`) and what split evaluation needs.
 
     Attributes:
-        basis: (rows, cols, M) float32 normalised filtered basis, each split region filtered on its own.
+        basis: (rows, cols, M) normalised filtered basis, each split region filtered on its own: float32 values in
+            [-1, 1], or uint8 codes of the paper's RGBA8 storage (Klehm 2014 App. A; value 2 code / 255 - 1).
         weight_sums: (rows, cols) float32 region-local running weight sums ((1, 1) placeholder when splits = 1).
         region_weights: (rows, splits) float32 reference-ray transmittance at every region start (region 0: 1).
         splits: regions per row (Klehm 2014 Sec. 3.3).
@@ -521,20 +701,94 @@ class FilteredBasis:
     region_weights: wp.array
     splits: int
 
-    def arrays(self):
-        """The textures as the look-ups read them (:class:`~.filtered_lookups.FilteredBasisArrays`)."""
-        from .filtered_lookups import FilteredBasisArrays
+    @property
+    def bits(self) -> int:
+        """Bits per stored value: 0 (float32) or 8 (RGBA8 codes)."""
+        return FOURIER_UNORM_BITS if self.basis.dtype == wp.uint8 else 0
 
+    def arrays(self) -> FilteredBasisArrays:
+        """The texture as the kernels read it (:class:`FilteredBasisArrays`)."""
         a = FilteredBasisArrays()
-        a.basis, a.weight_sums, a.region_weights, a.splits = (self.basis, self.weight_sums, self.region_weights,
-                                                               int(self.splits))
+        a.code_bits, a.tables = self.bits, fourier_tables(self.basis.device)
+        if a.code_bits:
+            a.codes = self.basis
+        else:
+            a.basis = self.basis
+        a.weight_sums, a.region_weights, a.splits = self.weight_sums, self.region_weights, int(self.splits)
         return a
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the textures an evaluation reads."""
+        """Bytes allocated for the textures an evaluation reads (the basis texture; with split regions also the
+        weight sums and region weights)."""
         return int(self.basis.capacity + (self.weight_sums.capacity + self.region_weights.capacity
                                           if self.splits > 1 else 0))
+
+    def values(self) -> wp.array:
+        """(rows, cols, M) float32 Warp array: the values the look-ups see (RGBA8 codes decoded)."""
+        out = wp.empty(self.basis.shape, dtype=wp.float32, device=self.basis.device)
+        launch_rows(decode_basis_kernel, self.basis.shape[:2], [self.arrays(), out], device=self.basis.device)
+        return out
+
+
+def basis_arrays(basis, name: str, device) -> FilteredBasisArrays:
+    """:class:`FilteredBasisArrays` of a (rows, cols, M) float32 or uint8 (RGBA8 codes) numpy or Warp array."""
+    is_codes = (basis.dtype == wp.uint8) if isinstance(basis, wp.array) else np.asarray(basis).dtype == np.uint8
+    arr = as_device_array(basis, wp.uint8 if is_codes else wp.float32, 3, name, device)
+    return FilteredBasis(basis=arr, weight_sums=None, region_weights=None, splits=1).arrays()
+
+
+def fourier_basis_textures(rectified_depth, num_coefficients: int, *, bits: int = 0, device=None) -> wp.array:
+    """Basis textures B_k(z_i) of a rectified depth map (Klehm 2014 Eq. 8, Sec. 3.3).
+
+    Args:
+        rectified_depth: (rows, cols) float32 numpy or Warp array, depth in [0, 1].
+        num_coefficients: M, even, 4..128.
+        bits: 0 for float32 storage, 8 for the paper's RGBA8 basis textures (uint8 codes).
+        device: Warp device.
+
+    Returns:
+        (rows, cols, M) Warp array: float32 values, or uint8 codes (:class:`FilteredBasis`, ``basis``).
+    """
+    device = default_device(device)
+    m = _check_coefficients(num_coefficients)
+    bits = _check_bits(bits)
+    depth = as_device_array(rectified_depth, wp.float32, 2, "rectified_depth", device)
+    rows, cols = depth.shape
+    out = FilteredBasis(basis=basis_texture(rows, cols, m, bits, device), weight_sums=None, region_weights=None,
+                        splits=1)
+    launch_rows(basis_transform_kernel, (rows, cols), [depth, out.arrays()], device=device)
+    return out.basis
+
+
+def prefix_filter(basis, optical_step=None, *, bases_per_thread: int = 8, bits: int = 0, device=None) -> wp.array:
+    """Normalised per-row prefix filtering of basis textures (Klehm 2014 Listing 1, or Listing 2 with weights).
+
+    Args:
+        basis: (rows, cols, M) basis textures (e.g. from :func:`fourier_basis_textures`), float32 values or uint8
+            RGBA8 codes.
+        optical_step: None or 0 for average visibility (Listing 1); else per-row tau = sigma_t * Delta_ref
+            (scalar or (rows,), e.g. :meth:`~.rectify_nonlinear.ReferenceRays.optical_steps`) for the
+            transmittance weights w_i = exp(-(i-1) tau) - exp(-i tau) of Eq. 11 (Listing 2).
+        bases_per_thread: bases filtered by one thread (even); launch is rows x ceil(M / bases_per_thread).
+        bits: 0 for float32 storage, 8 for the paper's RGBA8 filtered-basis textures (uint8 codes).
+        device: Warp device.
+
+    Returns:
+        (rows, cols, M) Warp array of normalised filtered basis values in [-1, 1]: float32, or uint8 codes.
+    """
+    device = default_device(device)
+    inp = basis_arrays(basis, "basis", device)
+    b = inp.codes if inp.code_bits else inp.basis
+    rows, cols, m = b.shape
+    _check_coefficients(m)
+    ppt = _pairs_per_thread(bases_per_thread)
+    tau = _optical_steps(optical_step, rows, device)
+    out = FilteredBasis(basis=basis_texture(rows, cols, m, _check_bits(bits), device), weight_sums=None,
+                        region_weights=None, splits=1)
+    groups = -(-(m // 2) // ppt)
+    launch_rows(prefix_filter_kernel, (rows, groups), [inp, tau, ppt, out.arrays()], device=device)
+    return out.basis
 
 
 def _column_lengths(column_length, cols: int) -> np.ndarray:
@@ -556,6 +810,12 @@ def _check_splits(splits, cols: int) -> int:
     return int(splits)
 
 
+def _kernel_lengths(lengths: np.ndarray, device) -> wp.array:
+    """The column lengths as the prefilter kernels read them: (1,) when all are equal (uniform columns)."""
+    uniform = bool(np.all(lengths == lengths[0]))
+    return wp.array((lengths[:1] if uniform else lengths).astype(np.float32), dtype=wp.float32, device=device)
+
+
 def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None, column_length=None, *,
                        splits: int = 1, bits: int = 0, device=None) -> FilteredBasis:
     """Fused basis transform and prefix filter with per-texel weights and split regions (Klehm 2014 Listing 3,
@@ -575,7 +835,8 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
         column_length: None (uniform) or (cols,) relative world lengths l_i > 0 of the columns along the
             reference rays (e.g. Eq. 12's Delta d^i, or the exact lengths of a projective rectification).
         splits: regions per row filtered independently (1..MAX_SPLITS); > 1 also stores the weight sums.
-        bits: 0 for float storage, 8 to emulate RGBA8 storage.
+        bits: 0 for float32 storage (4 M bytes per texel), 8 for the paper's RGBA8 storage (M bytes per texel:
+            uint8 codes, Klehm 2014 App. A).
         device: Warp device.
 
     Returns:
@@ -589,10 +850,9 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
     rd = rectified_texels(rectified_depth, device)
     rows, cols = rd.depth.shape
     splits = _check_splits(splits, cols)
-    levels = _levels(bits)
+    bits = _check_bits(bits)
     tau = _optical_steps(optical_step, rows, device)
     lengths = _column_lengths(column_length, cols)
-    out = wp.empty((rows, cols, m), dtype=wp.float32, device=device)
     if splits > 1:
         sums = wp.empty((rows, cols), dtype=wp.float32, device=device)
         # transmittance of the reference ray from the row start to each region start, in float64
@@ -602,23 +862,80 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
     else:
         sums = wp.zeros((1, 1), dtype=wp.float32, device=device)
         region = np.ones((rows, 1), np.float32)
+    out = FilteredBasis(basis=basis_texture(rows, cols, m, bits, device), weight_sums=sums,
+                        region_weights=wp.array(region, dtype=wp.float32, device=device), splits=splits)
     groups = -(-(m // 2) // PAIRS_PER_THREAD)
-    uniform = bool(np.all(lengths == lengths[0]))
-    kernel_lengths = lengths[:1] if uniform else lengths
     launch_rows(prefilter_depth_kernel, (rows, splits * groups),
-                [rd, tau, wp.array(kernel_lengths.astype(np.float32), dtype=wp.float32, device=device), splits,
-                 levels, out, sums, int(splits > 1)], device=device)
-    return FilteredBasis(basis=out, weight_sums=sums, region_weights=wp.array(region, dtype=wp.float32,
-                                                                              device=device), splits=splits)
+                [rd, tau, _kernel_lengths(lengths, device), out.arrays()], device=device)
+    return out
 
 
 #: Storage modes of prefiltered moment maps: bits per texel -> moments.STORAGE*_ constant, per moment count.
 MOMENT_STORAGE = {4: {64: int(mm.STORAGE4_UNORM16), 128: int(mm.STORAGE4_FLOAT32)},
                   6: {64: int(mm.STORAGE6_UNORM10), 96: int(mm.STORAGE6_UNORM16), 192: int(mm.STORAGE6_FLOAT32)}}
 
+_WARP_DTYPES = {np.float32: wp.float32, np.uint16: wp.uint16, np.uint64: wp.uint64}
+
+
+@dataclass
+class FilteredMoments:
+    """A prefiltered moment map (the output of :func:`prefilter_moments`) in the layout of its storage mode.
+
+    Attributes:
+        texels: the texture in the layout of the storage mode (:data:`MOMENT_TEXEL_LAYOUT`): float32
+            (rows, cols, n) canonical moments (128 / 192 bits per texel); uint16 (rows, cols, n) 16-bit codes of
+            Theta*(b) (64 / 96 bits); uint64 (rows, cols), six 10-bit codes of Theta_6*(b) in each word (64 bits,
+            60 used). A float32 texture of a fixed-point mode holds its decoded values (:meth:`values`: the storage
+            emulation, read exactly like the codes).
+        num_moments: 4 or 6.
+        storage: the moments.STORAGE4_* / STORAGE6_* mode.
+    """
+
+    texels: wp.array
+    num_moments: int
+    storage: int
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, cols) of the map."""
+        return int(self.texels.shape[0]), int(self.texels.shape[1])
+
+    @property
+    def bits_per_texel(self) -> int:
+        """Bits per texel of the storage mode (64, 96, 128 or 192)."""
+        return 8 * int(self.texels.capacity) // (self.shape[0] * self.shape[1])
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes allocated for the texture an evaluation reads."""
+        return int(self.texels.capacity)
+
+    def arrays(self) -> FilteredMomentArrays:
+        """The texture as the kernels read it (:class:`FilteredMomentArrays`)."""
+        a = FilteredMomentArrays()
+        a.num_moments, a.storage = int(self.num_moments), int(self.storage)
+        packed = MOMENT_TEXEL_LAYOUT[(a.num_moments, a.storage)][0]
+        if self.texels.dtype == wp.float32:
+            a.values, a.code_bits = self.texels, 0
+        elif self.texels.dtype == _WARP_DTYPES[packed] == wp.uint16:
+            a.codes16, a.code_bits = self.texels, int(CODE_BITS_UNORM16)
+        elif self.texels.dtype == _WARP_DTYPES[packed] == wp.uint64:
+            a.codes10, a.code_bits = self.texels, int(CODE_BITS_UNORM10)
+        else:
+            raise ValueError(f"{self.texels.dtype.__name__} texels do not hold storage mode {self.storage} of "
+                             f"{self.num_moments} moments")
+        return a
+
+    def values(self) -> wp.array:
+        """(rows, cols, n) float32 Warp array: the stored moments the look-ups see (codes decoded; Theta* still
+        applied in the fixed-point modes)."""
+        out = wp.empty((*self.shape, self.num_moments), dtype=wp.float32, device=self.texels.device)
+        launch_rows(decode_moments_kernel, self.shape, [self.arrays(), out], device=self.texels.device)
+        return out
+
 
 def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, column_length=None, *,
-                      storage_bits: int | None = None, device=None) -> wp.array:
+                      storage_bits: int | None = None, device=None) -> FilteredMoments:
     """Transmittance-weighted prefix sums of moments of the rectified depth (Peters 2017 Sec. 5.1.1, 5.3-5.4, D.5).
 
     Args:
@@ -627,11 +944,12 @@ def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, colu
         num_moments: 4 or 6.
         optical_step, column_length: per-row optical steps and per-column lengths as in :func:`prefilter_weighted`.
         storage_bits: bits per texel, 64 or 128 (4 moments) / 64 (60 used), 96 or 192 (6 moments); None: the
-            smallest (64) mode. Quantized modes store Theta* of the moments in fixed point (emulated).
+            smallest (64) mode. The fixed-point modes store the codes of Theta*(b): 16-bit codes in a uint16 array
+            (64 / 96 bits per texel) or six 10-bit codes packed in one uint64 per texel (64 bits).
         device: Warp device.
 
     Returns:
-        (rows, cols, num_moments) float32 array of normalised filtered texels in the storage format.
+        :class:`FilteredMoments` of normalised filtered texels in the storage format.
     """
     device = default_device(device)
     if num_moments not in MOMENT_STORAGE:
@@ -640,15 +958,16 @@ def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, colu
     if bits not in MOMENT_STORAGE[num_moments]:
         raise ValueError(f"storage_bits for {num_moments} moments must be one of "
                          f"{sorted(MOMENT_STORAGE[num_moments])}, got {storage_bits}")
+    storage = MOMENT_STORAGE[num_moments][bits]
     rd = rectified_texels(rectified_depth, device)
     rows, cols = rd.depth.shape
     tau = _optical_steps(optical_step, rows, device)
     lengths = _column_lengths(column_length, cols)
-    uniform = bool(np.all(lengths == lengths[0]))
-    out = wp.empty((rows, cols, num_moments), dtype=wp.float32, device=device)
-    launch_rows(prefilter_moments_kernel, rows,
-                [rd, tau, wp.array((lengths[:1] if uniform else lengths).astype(np.float32), dtype=wp.float32,
-                                      device=device), int(num_moments), MOMENT_STORAGE[num_moments][bits], out],
+    dtype, words = MOMENT_TEXEL_LAYOUT[(num_moments, storage)]
+    shape = (rows, cols) if words == 1 else (rows, cols, words)
+    out = FilteredMoments(texels=wp.empty(shape, dtype=_WARP_DTYPES[dtype], device=device), num_moments=num_moments,
+                          storage=storage)
+    launch_rows(prefilter_moments_kernel, rows, [rd, tau, _kernel_lengths(lengths, device), out.arrays()],
                 device=device)
     return out
 
@@ -664,34 +983,56 @@ def prefilter_depth(rectified_depth, num_coefficients: int, optical_step=None, *
         rectified_depth: (rows, cols) float32 numpy or Warp array, depth in [0, 1].
         num_coefficients: M, even, 4..128.
         optical_step: as in :func:`prefix_filter`.
-        bits: 0 for float storage, 8 to emulate RGBA8 storage.
+        bits: 0 for float32 storage, 8 for the paper's RGBA8 storage (uint8 codes).
         device: Warp device.
 
     Returns:
-        (rows, cols, M) float32 Warp array of normalised filtered basis values in [-1, 1]; the launch is
-        rows x ceil(M / (2 PAIRS_PER_THREAD)) threads.
+        (rows, cols, M) Warp array of normalised filtered basis values in [-1, 1] (float32, or uint8 codes); the
+        launch is rows x ceil(M / (2 PAIRS_PER_THREAD)) threads.
     """
     return prefilter_weighted(rectified_depth, num_coefficients, optical_step, bits=bits, device=device).basis
 
 
 __all__ = [
+    "CODE_BITS_UNORM10",
+    "CODE_BITS_UNORM16",
+    "FOURIER_UNORM_BITS",
+    "FOURIER_UNORM_LEVELS",
     "MOMENT_STORAGE",
+    "MOMENT_TEXEL_LAYOUT",
     "PAIRS_PER_THREAD",
     "FilteredBasis",
+    "FilteredBasisArrays",
+    "FilteredMomentArrays",
+    "FilteredMoments",
+    "FourierTables",
     "RectifiedTexels",
     "advance_filter_weight",
+    "basis_arrays",
+    "basis_shape",
+    "basis_texel",
+    "basis_texture",
+    "basis_value",
     "fourier_basis",
     "fourier_basis_textures",
     "fourier_coefficient",
     "fourier_frequency",
     "fourier_step",
+    "fourier_tables",
+    "moment_code_bits",
+    "moment_texel",
+    "moment_texel_values",
     "prefilter_depth",
     "prefilter_moments",
     "prefilter_weighted",
     "prefix_filter",
     "rectified_texels",
     "requantize_moments",
+    "signed_unorm_code",
+    "signed_unorm_value",
     "split_columns",
+    "store_basis",
+    "store_moment_texel",
     "stored_moments",
     "texel_depths",
     "texel_weight",

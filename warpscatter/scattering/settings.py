@@ -111,7 +111,7 @@ class FourierSettings(SettingsModel):
     coefficients: Annotated[Int, Field(ge=MIN_COEFFICIENTS, le=MAX_COEFFICIENTS, description=(
         "M Fourier coefficients (even: cos/sin pairs)"))] = 32
     storage_bits: Literal[0, 8] = Field(0, description="0: float32 filtered bases; 8: the paper's 8-bit normalised "
-                                                       "storage (App. A), emulated")
+                                                       "storage (App. A) in uint8 textures, a quarter of the bytes")
 
     @field_validator("coefficients")
     @classmethod
@@ -125,8 +125,8 @@ class MomentsSettings(SettingsModel):
     """The ``moments4`` / ``moments6`` methods' representation (Peters et al. 2017 Sec. 5.3-5.4)."""
 
     storage_bits: Optional[Literal[64, 96, 128, 192]] = Field(
-        None, description="bits per texel: 64 or 128 for four moments; 64 (60 used), 96 or 192 for six (Theta* and "
-                          "fixed point emulated); null: 64")
+        None, description="bits per texel: 64 or 128 for four moments; 64 (60 used), 96 or 192 for six (Theta* in "
+                          "16- or 10-bit fixed point packed in uint16 / uint64 textures, or float32); null: 64")
     overestimation: Union[Literal["adaptive"], Annotated[Float, Field(ge=0.0, le=1.0)]] = Field(
         "adaptive", description="beta between the lower (0) and upper (1) visibility bounds: adaptive "
                                 "(beta = (1 + omega_l . omega_p) / 2, Sec. 5.3.1) or a fixed number")

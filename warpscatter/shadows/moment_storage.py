@@ -7,6 +7,10 @@ docstring states the conventions). Here, in the paper's terms:
 * Quantization (Sec. 2.4, Eq. 3; Sec. 5.4.3): ``quantization_transform4/6`` (Theta_4*, Theta_6*) and inverses,
   ``unorm_round`` / ``unorm_round4`` (n-bit fixed point and back), ``store_moments4/6`` and ``load_moments4/6``
   emulating the storage modes below.
+* Texel codes (what a texture of a fixed-point mode really holds; underscored until the :mod:`.moments` facade
+  re-exports them): ``unorm_encode`` / ``unorm_decode`` (one n-bit code and its float32 value, ``unorm_round`` =
+  decode o encode), ``pack_unorm10x6`` / ``unpack_unorm10`` (the six 10-bit codes of a 64-bit STORAGE6_UNORM10
+  texel). The prefiltered scattering textures (:mod:`warpscatter.scattering.prefix_sums`) store these codes.
 * Biasing (Sec. 2.5, Sec. 5.4.3): ``bias_moments4/6`` with the worst-case bias vectors b* and the moment bias
   alpha_b of each storage mode (module constants), ``load_biased_moments4/6``.
 * Sanitizing: ``sanitize_moments4/6`` and ``sanitize_depth``, applied by every shadow function of
@@ -181,17 +185,42 @@ def inverse_quantization_transform6(q: vec6) -> vec6:
 
 
 @wp.func
-def unorm_round(x: wp.float32, bits: wp.int32) -> wp.float32:
-    """Value of x after storage in an n-bit unsigned normalized fixed-point channel: round(clamp(x,0,1)(2^n-1))/(2^n-1).
+def unorm_encode(x: wp.float32, bits: wp.int32) -> wp.int32:
+    """Code of x in an n-bit unsigned normalized fixed-point channel: round(clamp(x, 0, 1) (2^n - 1)), in [0, 2^n - 1].
 
-    NaN stores as 0 (as a GPU stores NaN to unorm). ``bits`` in [1, 24].
+    NaN encodes as 0 (as a GPU stores NaN to unorm). ``bits`` in [1, 24] (at 24 bits the float32 scale rounds to
+    2^24, and so may the largest code). The integer a texture of the fixed-point storage modes holds (Peters 2017
+    Sec. 2.4, 5.4.3); :func:`unorm_decode` gives its value.
     """
     scale = wp.float32((1 << bits) - 1)
     xc = x
     if wp.isnan(xc):
         xc = 0.0
     xc = wp.clamp(xc, 0.0, 1.0)
-    return wp.floor(xc * scale + 0.5) / scale
+    return int(wp.floor(xc * scale + 0.5))
+
+
+@wp.func
+def unorm_decode(code: wp.int32, bits: wp.int32) -> wp.float32:
+    """Value in [0, 1] of an n-bit unorm code: code / (2^n - 1) correctly rounded to float32 (what a GPU's unorm fetch
+    returns), bit for bit the float32 quotient.
+
+    Computed as a float64 product with the reciprocal (a constant per format) instead of a float32 division: the
+    float64 error (< 2^-52 relative) is far below the distance of code / (2^n - 1) (odd denominator < 2^24) from any
+    float32 rounding midpoint (> 2^-49 relative) unless it is exact, so the rounding to float32 never differs (every
+    code of the 8-, 10- and 16-bit formats is checked in the tests). A look-up decodes up to 24 codes per pixel.
+    """
+    return wp.float32(wp.float64(code) * (wp.float64(1.0) / wp.float64((1 << bits) - 1)))
+
+
+@wp.func
+def unorm_round(x: wp.float32, bits: wp.int32) -> wp.float32:
+    """Value of x after storage in an n-bit unsigned normalized fixed-point channel: round(clamp(x,0,1)(2^n-1))/(2^n-1).
+
+    NaN stores as 0 (as a GPU stores NaN to unorm). ``bits`` in [1, 24]. Equal, bit for bit, to
+    ``unorm_decode(unorm_encode(x, bits), bits)`` (the code is an integer exact in float32).
+    """
+    return unorm_decode(unorm_encode(x, bits), bits)
 
 
 @wp.func
@@ -239,6 +268,34 @@ def load_moments6(texel: vec6, storage: wp.int32) -> vec6:
     if storage == STORAGE6_FLOAT32:
         return texel
     return inverse_quantization_transform6(texel)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Texel codes: what the textures of the fixed-point storage modes hold
+# ---------------------------------------------------------------------------------------------------------------------
+# STORAGE4_UNORM16 and STORAGE6_UNORM16 hold one 16-bit code per channel (a uint16 array, 4 or 6 channels, 64 or 96
+# bits per texel). STORAGE6_UNORM10 packs its six 10-bit codes into ONE 64-bit word per texel (a uint64 array): the
+# code of channel k in bits [10 k, 10 k + 10), bits 60-63 zero. Decoding a code gives exactly the float32 value of
+# the emulated storage (unorm_round), so the look-ups reconstruct the same visibility bit for bit.
+
+#: The code of one STORAGE6_UNORM10 channel in its 64-bit texel word.
+UNORM10_MASK = wp.constant(wp.uint64(1023))
+
+
+@wp.func
+def pack_unorm10x6(q: vec6) -> wp.uint64:
+    """A STORAGE6_UNORM10 texel: the six 10-bit codes of q (:func:`unorm_encode`) in one 64-bit word (60 bits used)."""
+    # Peters 2017, Sec. 5.4.3: 6 x 10 bits
+    word = wp.uint64(0)
+    for k in range(6):
+        word = word | (wp.uint64(unorm_encode(q[k], UNORM_BITS_STORAGE6_UNORM10)) << wp.uint64(10 * k))
+    return word
+
+
+@wp.func
+def unpack_unorm10(word: wp.uint64, k: wp.int32) -> wp.float32:
+    """Value of channel k (0..5) of a packed STORAGE6_UNORM10 texel (:func:`unorm_decode` of its 10-bit code)."""
+    return unorm_decode(wp.int32((word >> wp.uint64(10 * k)) & UNORM10_MASK), UNORM_BITS_STORAGE6_UNORM10)
 
 
 # ---------------------------------------------------------------------------------------------------------------------
