@@ -320,7 +320,7 @@ def test_packed_storage_renders_the_emulated_image(monkeypatch, method, setting,
     @wp.kernel
     def emulate_rgba8(values: wp.array3d(dtype=float), out: wp.array3d(dtype=float)):
         j, i = wp.tid()
-        for k in range(values.shape[2]):  # prefix_sums.unorm_roundtrip as written before packed storage
+        for k in range(values.shape[2]):  # filtered_textures.unorm_roundtrip as written before packed storage
             q = wp.round(wp.clamp(0.5 * values[j, i, k] + 0.5, 0.0, 1.0) * 255.0) / 255.0
             out[j, i, k] = 2.0 * q - 1.0
 

@@ -10,6 +10,7 @@ import pytest
 import warp as wp
 
 from warpscatter.scattering import filtered_lookups as fl
+from warpscatter.scattering import filtered_textures as ft
 from warpscatter.scattering import prefix_sums as pf
 from warpscatter.scattering.rectify_nonlinear import NonlinearRectification, reference_ray
 from warpscatter.scene.camera import Camera
@@ -66,9 +67,9 @@ def test_fourier_funcs_in_user_kernel():
     ):
         n = wp.tid()
         for k in range(m):
-            a[n, k] = pf.fourier_coefficient(k, zr[n])
-            b[n, k] = pf.fourier_basis(k, zi[n])
-        step[n] = pf.fourier_step(m, zr[n], zi[n])
+            a[n, k] = ft.fourier_coefficient(k, zr[n])
+            b[n, k] = ft.fourier_basis(k, zi[n])
+        step[n] = ft.fourier_step(m, zr[n], zi[n])
 
     device = default_device()
     rng = np.random.default_rng(0)
@@ -160,7 +161,7 @@ def emulated_unorm_round(x: float, bits: int) -> float:
 
 @wp.func
 def emulated_unorm_roundtrip(x: float, levels: float) -> float:
-    """The RGBA8 emulation as written before packed storage (prefix_sums.unorm_roundtrip, literally)."""
+    """The RGBA8 emulation as written before packed storage (filtered_textures.unorm_roundtrip, literally)."""
     q = wp.round(wp.clamp(0.5 * x + 0.5, 0.0, 1.0) * levels) / levels
     return 2.0 * q - 1.0
 
@@ -219,7 +220,7 @@ def _emulate_moments(depth, m: int, bits: int, tau, lengths=None) -> np.ndarray:
     out = wp.empty((rows, cols, m), dtype=float, device=dev)
     wp.launch(emulate_moment_filter_kernel, rows,
               [rd, wp.array(np.broadcast_to(np.float32(tau), rows).copy(), dtype=float, device=dev),
-               wp.array(lengths, dtype=float, device=dev), m, pf.MOMENT_STORAGE[m][bits], out], device=dev)
+               wp.array(lengths, dtype=float, device=dev), m, ft.MOMENT_STORAGE[m][bits], out], device=dev)
     return out.numpy()
 
 
@@ -296,12 +297,12 @@ def test_packed_fourier_decodes_to_the_emulation_bit_for_bit():
     basis = pf.fourier_basis_textures(depth, m)
     basis8 = pf.fourier_basis_textures(depth, m, bits=8)
     emulated_basis = _emulate_rgba8(basis)
-    assert _same_bits(pf.FilteredBasis(basis8, None, None, 1).values().numpy(), emulated_basis)
+    assert _same_bits(ft.FilteredBasis(basis8, None, None, 1).values().numpy(), emulated_basis)
     # the two-pass filter reads RGBA8 basis textures as their values and writes RGBA8 codes
     two_pass = pf.prefix_filter(basis8, tau, bits=8)
     from_emulated = pf.prefix_filter(emulated_basis, tau)
     assert two_pass.dtype == wp.uint8
-    assert _same_bits(pf.FilteredBasis(two_pass, None, None, 1).values().numpy(), _emulate_rgba8(from_emulated))
+    assert _same_bits(ft.FilteredBasis(two_pass, None, None, 1).values().numpy(), _emulate_rgba8(from_emulated))
 
 
 def test_texel_codes_round_trip():
@@ -326,16 +327,16 @@ def test_texel_codes_round_trip():
             values[n][k] = ms.unpack_unorm10(words[n], k)
 
     @wp.kernel
-    def fourier_kernel(x: wp.array(dtype=float), tables: pf.FourierTables, roundtrip: wp.array(dtype=float),
+    def fourier_kernel(x: wp.array(dtype=float), tables: ft.FourierTables, roundtrip: wp.array(dtype=float),
                        emulated: wp.array(dtype=float), table_value: wp.array(dtype=float),
                        scales: wp.array2d(dtype=float)):
         n = wp.tid()
-        roundtrip[n] = pf.unorm_roundtrip(x[n], 255.0)
+        roundtrip[n] = ft.unorm_roundtrip(x[n], 255.0)
         emulated[n] = emulated_unorm_roundtrip(x[n], 255.0)
-        table_value[n] = tables.code_values[pf.signed_unorm_code(x[n], 255.0)]
+        table_value[n] = tables.code_values[ft.signed_unorm_code(x[n], 255.0)]
         if n < tables.pair_scales.shape[0]:
             scales[n, 0] = tables.pair_scales[n]
-            scales[n, 1] = 2.0 / pf.fourier_frequency(2 * n)
+            scales[n, 1] = 2.0 / ft.fourier_frequency(2 * n)
 
     dev = default_device()
     rng = np.random.default_rng(2)
@@ -372,7 +373,7 @@ def test_texel_codes_round_trip():
     assert np.all(words.numpy() >> np.uint64(60) == 0)
     assert _same_bits(values.numpy(), fields.astype(np.float32) / np.float32(1023.0))
     # Fourier: codes and the decode table give unorm_roundtrip; the pair factors are 2 / c
-    tables = pf.fourier_tables(dev)
+    tables = ft.fourier_tables(dev)
     outs = [wp.empty(n, dtype=float, device=dev) for _ in range(3)]
     scales = wp.empty((tables.pair_scales.shape[0], 2), dtype=float, device=dev)
     xf = np.concatenate([rng.uniform(-1.1, 1.1, n - 259), 2.0 * (np.arange(256) + 0.5) / 255.0 - 1.0,

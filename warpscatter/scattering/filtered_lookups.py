@@ -4,10 +4,10 @@ visible fraction of a camera view ray from the filtered textures of :mod:`.prefi
 A ray ending at rectified (u, v) with depth z_r reads a bilinear footprint of the (rows, cols, M) texture
 (:func:`texel_footprint`: the inclusive prefix of column i belongs to the right edge of its texel, so u is read
 at texel-index coordinate u * cols - 1; rows at their centres, wrapping around when the rectification covers the
-full azimuth circle): per row one contiguous run of 2 M values (columns i0 and i1). The textures come in the
-storage the prefilter wrote (:class:`~.prefix_sums.FilteredBasisArrays`, :class:`~.prefix_sums.FilteredMomentArrays`:
-float32, RGBA8 codes, 16-bit codes or packed 10-bit codes); a look-up picks the storage's array once per pixel and
-reads it through generic functions specialised per array type at compile time (no per-value branch), decoding
+full azimuth circle): per row one contiguous run of 2 M values (columns i0 and i1). The textures come in the storage the
+prefilter wrote (:class:`~.filtered_textures.FilteredBasisArrays`, :class:`~.filtered_textures.FilteredMomentArrays`:
+float32, RGBA8 codes, 16-bit codes or packed 10-bit codes); a look-up picks the storage's array once per pixel and reads
+it through generic functions specialised per array type at compile time (no per-value branch), decoding
 each code to exactly the float32 value the storage emulation gave. It then reconstructs:
 
 * Fourier: F = clamp(0.5 + sum_k a_k(z_r) B_bar_k, 0, 1) (:func:`prefiltered_visibility`); with split regions
@@ -30,7 +30,7 @@ from ..parallel import launch_rows
 from ..scene.medium import transmittance_integral
 from ..shadows import moments as mm
 from ..wpinit import default_device, module_options
-from .prefix_sums import (
+from .filtered_textures import (
     CODE_BITS_UNORM10,
     FilteredBasis,
     FilteredBasisArrays,
@@ -40,6 +40,8 @@ from .prefix_sums import (
     basis_arrays,
     basis_value,
     moment_texel_values,
+)
+from .prefix_sums import (
     split_columns,
 )
 from .rectify_nonlinear import NonlinearRectification, NonlinearRectParams, world_to_rectified
@@ -128,8 +130,8 @@ def prefiltered_visibility(filtered_basis: Any, tables: FourierTables, u: float,
     Args:
         filtered_basis: (rows, cols, M) normalised prefix-filtered basis (module layout), one region per row: a
             float32 array of values, or a uint8 array of RGBA8 codes (Klehm 2014 App. A).
-        tables: the device's :class:`~.prefix_sums.FourierTables` (:func:`~.prefix_sums.fourier_tables`): the decode
-            table of the codes and the factors 2 / c of the pairs.
+        tables: the device's :class:`~.filtered_textures.FourierTables` (:func:`~.filtered_textures.fourier_tables`):
+            the decode table of the codes and the factors 2 / c of the pairs.
         u: column coordinate of the ray's end point in [0, 1] (texel i centre at (i + 0.5) / cols).
         v: row coordinate in [0, 1].
         z_r: rectified depth of the view ray.
@@ -256,7 +258,7 @@ def prefiltered_visibility_split(fb: FilteredBasisArrays, u: float, v: float, z_
 def bilinear_moments(texels: Any, num: int, u: float, v: float, wrap_rows: int) -> mm.vec6:
     """Bilinear fetch of the filtered stored moments (slots 0..num-1) at rectified (u, v) from the array of a
     moment map's storage (float32, uint16 codes or uint64 packed 10-bit codes): each of the four texels is read
-    and decoded once (:func:`~.prefix_sums.moment_texel_values`)."""
+    and decoded once (:func:`~.filtered_textures.moment_texel_values`)."""
     j0, j1, ay, i0, i1, ax = texel_footprint(texels.shape[0], texels.shape[1], u, v, wrap_rows)
     w00 = (1.0 - ax) * (1.0 - ay)
     w01 = ax * (1.0 - ay)
@@ -333,7 +335,7 @@ def evaluate_points_kernel(
 
 
 def filtered_basis_arrays(filtered_basis, device=None) -> FilteredBasisArrays:
-    """:class:`FilteredBasisArrays` of a :class:`~.prefix_sums.FilteredBasis` or a (rows, cols, M) array (float32
+    """:class:`FilteredBasisArrays` of a :class:`~.filtered_textures.FilteredBasis` or a (rows, cols, M) array (float32
     values, or uint8 RGBA8 codes)."""
     if isinstance(filtered_basis, FilteredBasis):
         return filtered_basis.arrays()

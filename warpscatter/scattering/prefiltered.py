@@ -66,11 +66,13 @@ from . import rectify_nonlinear
 from .caster_culling import cull_unseen_casters
 from .epipole_fallback import epipole_pixel_fraction, epipole_regions, march_epipole_regions
 from .filtered_lookups import moments_visibility, prefiltered_visibility_split
-from .prefix_sums import (
+from .filtered_textures import (
     FilteredBasis,
     FilteredBasisArrays,
     FilteredMomentArrays,
     FilteredMoments,
+)
+from .prefix_sums import (
     prefilter_moments,
     prefilter_weighted,
 )
