@@ -10,7 +10,7 @@ On the bundled colonnade, canopy and window configs at 1920x1080 with 1024^2 map
 * the **error/time curve of the shadow-map marcher**: steps 8 ... 256 in both step patterns (``per_pixel``,
   ``fixed``);
 * every **fast method's (time, error) point** at its default settings: ``fourier``, ``moments4``, ``moments6``,
-  ``epipolar``.
+  ``epipolar``, and ``moments6`` without the ray-marched epipole disc (``moments6 no disc``).
 
 Time is the technique's own stages — G-buffer, maps, scattering — as the median of ``repeats`` runs after
 ``warmup``; the kernel compile, the scene load and the writing of the frame's EXR/PNG files are reported apart.
@@ -42,6 +42,9 @@ METHODS = {
     "moments4": {"method": "moments4"},
     "moments6": {"method": "moments6"},
     "epipolar": {"method": "epipolar", "visibility": "shadow_map"},
+    # Peters 2017 Sec. 6: the moment methods need no special case at the epipole; this point shows what the
+    # ray-marched disc (on by default for every prefiltered method) costs and buys
+    "moments6 no disc": {"method": "moments6", "prefiltered": {"epipole_angle_deg": 0.0, "epipole_block": 0}},
 }
 #: The shadow-map marcher's curve: steps and step patterns.
 MARCH_STEPS = (8, 16, 32, 64, 128, 256)
@@ -220,12 +223,13 @@ def chart_pareto(report: BenchReport, path: Path) -> Path | None:
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
+        from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
     except ImportError:
         return None
     import os
 
     fig, axes = plt.subplots(1, len(SCENES), figsize=(5.2 * len(SCENES), 4.2), squeeze=False)
-    markers = {"fourier": "o", "moments4": "s", "moments6": "D", "epipolar": "^"}
+    markers = {"fourier": "o", "moments4": "s", "moments6": "D", "epipolar": "^", "moments6 no disc": "d"}
     for ax, scene_name in zip(axes[0], SCENES, strict=True):
         for jitter, style in zip(JITTERS, ("-", "--"), strict=True):
             rows = [r for r in report.rows if r["name"] == f"{scene_name}: marcher shadow_map {jitter}"]
@@ -240,6 +244,10 @@ def chart_pareto(report: BenchReport, path: Path) -> Path | None:
                         label=f"{label} ({r['extra']['speedup_bound'].replace('=', '')}{r['speedup']:.1f}x)")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        for axis in (ax.xaxis, ax.yaxis):  # plain numbers at 1, 2, 5 x 10^k (the default labels collide)
+            axis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+            axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+            axis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("time (ms): G-buffer + maps + scattering")
         ax.set_ylabel("rel. L1 vs exact reference")
         ax.set_title(f"{scene_name} {report.meta.get('size', '')}")
