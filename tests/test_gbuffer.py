@@ -9,9 +9,9 @@ import warp as wp
 
 from warpscatter import gbuffer, raster
 from warpscatter.config import load_config
-from warpscatter.gbuffer import gbuffer_raster, gbuffer_raycast
+from warpscatter.gbuffer import GBufferArrays, gbuffer_raster, gbuffer_raycast
 from warpscatter.scene import DeviceGeometry, MeshArrays, build_scene
-from warpscatter.scene.camera import Camera
+from warpscatter.scene.camera import Camera, CameraParams, far_plane_distance, pixel_ray_direction
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -49,13 +49,33 @@ def test_raster_and_raycast_gbuffers_agree_off_silhouettes():
 # ---- the fused raster G-buffer is bitwise the per-pixel reference ------------------------------------------------
 
 
+@wp.kernel
+def _gbuffer_from_raster_kernel(
+    cam: CameraParams,
+    tri_id: wp.array2d(dtype=wp.int32),
+    ndc_depth: wp.array2d(dtype=wp.float32),
+    p22: float,  # projection entries for the grazing-ray fallback (see raster.ndc_to_view_depth)
+    p23: float,
+    mesh: MeshArrays,
+    out: GBufferArrays,
+    offset: int,
+):
+    # the per-pixel G-buffer: store_hit on the resolved raster (what the fused keys kernel must equal bitwise)
+    j, i = wp.tid()
+    j += offset
+    d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
+    # rasterized depth -> view depth -> distance along the ray; only used for grazing rays
+    t_raster = raster.ndc_to_view_depth(ndc_depth[j, i], p22, p23, -1.0, 0.0) / wp.dot(d, cam.forward)
+    gbuffer.store_hit(out, j, i, cam.position, d, far_plane_distance(cam, d), tri_id[j, i], t_raster, mesh)
+
+
 def _reference_gbuffer(scene, geo):
-    """The per-pixel G-buffer: store_hit on the resolved raster (gbuffer_from_raster_kernel)."""
+    """The per-pixel G-buffer: store_hit on the resolved raster (_gbuffer_from_raster_kernel)."""
     cam = scene.camera
     proj = cam.projection()
     r = raster.rasterize(scene.vertices, scene.triangles, proj @ cam.view(), cam.width, cam.height, threads=1)
     out = gbuffer._alloc(cam.height, cam.width, "cpu")
-    wp.launch(gbuffer.gbuffer_from_raster_kernel, dim=(cam.height, cam.width),
+    wp.launch(_gbuffer_from_raster_kernel, dim=(cam.height, cam.width),
               inputs=[cam.params(), r.device_tri_id[0], r.device_ndc_depth[0], float(proj[2, 2]), float(proj[2, 3]),
                       geo.arrays(), out.arrays(), 0])
     return out.numpy()
@@ -107,7 +127,7 @@ def test_degenerate_and_grazing_triangles_match_store_hit():
     wp.launch(gbuffer.column_factors_kernel, dim=w, inputs=[params, xn])
     a, b = gbuffer._alloc(h, w, "cpu"), gbuffer._alloc(h, w, "cpu")
     wp.launch(gbuffer.gbuffer_from_keys_kernel, dim=h, inputs=[params, keys, p22, p23, mesh, planes, xn, a.arrays(), 0])
-    wp.launch(gbuffer.gbuffer_from_raster_kernel, dim=(h, w),
+    wp.launch(_gbuffer_from_raster_kernel, dim=(h, w),
               inputs=[params, tri_id[0], ndc[0], p22, p23, mesh, b.arrays(), 0])
     ga, gb = a.numpy(), b.numpy()
     for k in ga:

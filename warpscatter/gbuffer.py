@@ -11,7 +11,7 @@ The raster G-buffer is fused with the rasterizer: :func:`warpscatter.raster.rast
 a band of rows is final and :func:`gbuffer_from_keys_kernel` turns its packed keys into G-buffer rows at
 once, from each triangle's plane computed once per call (:func:`triangle_planes_kernel`) and the pixel rays
 split into per-column and per-row factors (:func:`~.scene.camera.pixel_ray_factors`). The result is bitwise that of
-:func:`store_hit` per pixel on the resolved raster (:func:`gbuffer_from_raster_kernel`, kept as the reference).
+:func:`store_hit` per pixel on the resolved raster (the reference in tests/test_gbuffer.py).
 
 ``distance`` is the ``s`` of the scattering integral: the camera hit distance, or the far-plane
 distance far / dot(direction, forward) where nothing is hit (hits beyond the far plane count as
@@ -114,25 +114,6 @@ def store_hit(out: GBufferArrays, j: int, i: int, origin: wp.vec3, d: wp.vec3, t
     out.distance[j, i] = t
     out.normal[j, i] = n
     out.material[j, i] = m
-
-
-@wp.kernel
-def gbuffer_from_raster_kernel(
-    cam: CameraParams,
-    tri_id: wp.array2d(dtype=wp.int32),
-    ndc_depth: wp.array2d(dtype=wp.float32),
-    p22: float,  # projection entries for the grazing-ray fallback (see raster.ndc_to_view_depth)
-    p23: float,
-    mesh: MeshArrays,
-    out: GBufferArrays,
-    offset: int,
-):
-    j, i = wp.tid()
-    j += offset
-    d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
-    # rasterized depth -> view depth -> distance along the ray; only used for grazing rays
-    t_raster = ndc_to_view_depth(ndc_depth[j, i], p22, p23, -1.0, 0.0) / wp.dot(d, cam.forward)
-    store_hit(out, j, i, cam.position, d, far_plane_distance(cam, d), tri_id[j, i], t_raster, mesh)
 
 
 @wp.kernel

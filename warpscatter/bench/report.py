@@ -110,12 +110,8 @@ class BenchReport:
         return self.files
 
     def _chart(self, path: Path) -> Path | None:
-        try:
-            import matplotlib
-
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-        except ImportError:
+        plt = pyplot()
+        if plt is None:
             return None
         rows = [r for r in self.rows if r.get("median_ms") is not None]
         if not rows:
@@ -127,12 +123,31 @@ class BenchReport:
         ax.set_ylabel("median time (ms)")
         ax.set_yscale("log")
         ax.set_title(f"warpscatter bench {self.suite} ({self.meta.get('threads')} threads)")
-        fig.tight_layout()
-        tmp = path.with_name(".tmp-" + path.name)
-        fig.savefig(tmp, dpi=110)
-        plt.close(fig)
-        os.replace(tmp, path)
-        return path
+        return save_figure(fig, path)
+
+
+def pyplot():
+    """matplotlib.pyplot on the file-only Agg backend, or None when matplotlib (the ``plot`` extra) is missing."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    return plt
+
+
+def save_figure(fig, path: Path) -> Path:
+    """Save a chart atomically (a temporary file renamed into place) at 110 dpi and close it; returns ``path``."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    tmp = path.with_name(".tmp-" + path.name)
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
 
 
 def machine_meta() -> dict:
@@ -142,4 +157,4 @@ def machine_meta() -> dict:
             platform.machine(), "threads": thread_count(), "device": default_device()}
 
 
-__all__ = ["BenchReport", "errors", "machine_meta", "measure", "thread_limit"]
+__all__ = ["BenchReport", "errors", "machine_meta", "measure", "pyplot", "save_figure", "thread_limit"]

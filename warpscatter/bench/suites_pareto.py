@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..stages import ProgressFn
-from .report import BenchReport
+from .report import BenchReport, pyplot, save_figure
 from .scenes import bench_scene_config, render_timed
 
 #: The scenes (bundled configs) and the fast methods at their defaults.
@@ -218,15 +218,10 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
 
 def chart_pareto(report: BenchReport, path: Path) -> Path | None:
     """Error against time per scene (log-log): the marcher's two curves and the fast methods' points."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
-    except ImportError:
+    plt = pyplot()
+    if plt is None:
         return None
-    import os
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     fig, axes = plt.subplots(1, len(SCENES), figsize=(5.2 * len(SCENES), 4.2), squeeze=False)
     markers = {"fourier": "o", "moments4": "s", "moments6": "D", "epipolar": "^", "moments6 no disc": "d"}
@@ -253,12 +248,7 @@ def chart_pareto(report: BenchReport, path: Path) -> Path | None:
         ax.set_title(f"{scene_name} {report.meta.get('size', '')}")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    tmp = path.with_name(".tmp-" + path.name)
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return save_figure(fig, path)
 
 
 __all__ = ["chart_pareto", "equal_error_time", "exact_reference", "rel_l1", "suite_pareto"]

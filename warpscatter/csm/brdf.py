@@ -26,8 +26,8 @@ the light; ``n`` is the unit (camera-facing) normal. f_r is in 1/sr; it is 0 for
   (:class:`MaterialData`); Phong materials are stored as their equivalent Lafortune lobe.
 - :class:`ShadingPoint` (:func:`shading_point`) is a material at one surface point and view direction: the frame,
   the lobe axes and the roulette weights, computed once per point; :func:`shading_eval`, :func:`shading_pdf` and
-  :func:`shading_sample` then cost only their per-direction part and return exactly what ``material_eval``,
-  ``material_pdf`` and ``material_sample`` return.
+  :func:`shading_sample` then cost only their per-direction part; ``material_eval``, ``material_pdf`` and
+  ``material_sample`` are the one-direction form of the same code.
 
 f is reciprocal (symmetric in u, v) by construction; energy conservation is the caller's choice of rho / C
 (normalized Phong with lum(k_d) + lum(k_s) <= 1 conserves energy).
@@ -205,79 +205,12 @@ def lafortune_lobe_weight(axis: wp.vec3, rho: wp.vec3, exponent: float) -> float
     return wp.max(luminance(rho), 0.0) * wp.pow(a, exponent) * 2.0 * wp.pi / (exponent + 2.0)
 
 
-@wp.func
-def material_eval(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3, wi: wp.vec3) -> wp.vec3:
-    """f_r (1/sr) of material ``m``: k_d / pi plus its Lafortune lobes; 0 for wi below the surface."""
-    if wp.dot(n, wi) <= 0.0:
-        return wp.vec3(0.0)
-    t, b = orthonormal_basis(n)
-    f = mat.kd[m] / wp.pi
-    for i in range(mat.lobe_count[m]):
-        c = mat.lobes[m, i]
-        f += mat.lobe_rho[m, i] * lafortune_lobe(lafortune_axis(n, t, b, wo, c), wi, c[3])
-    return f
-
-
-@wp.func
-def material_pdf(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3, wi: wp.vec3) -> float:
-    """Density (1/sr) of :func:`material_sample`: sum over components of P(component) x its density."""
-    t, b = orthonormal_basis(n)
-    wd = wp.max(luminance(mat.kd[m]), 0.0)
-    total = wd
-    p = wd * lambert_pdf(n, wi)
-    for i in range(mat.lobe_count[m]):
-        c = mat.lobes[m, i]
-        axis = lafortune_axis(n, t, b, wo, c)
-        w = lafortune_lobe_weight(axis, mat.lobe_rho[m, i], c[3])
-        if w > 0.0:
-            total += w
-            p += w * cos_power_pdf(wp.normalize(axis), wi, c[3])
-    if not (total > 0.0):
-        return 0.0
-    return p / total
-
-
-@wp.func
-def material_sample(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3, xi: wp.vec2, choice: float) -> wp.vec3:
-    """Sample material ``m`` (Sec. 5.1): the Russian roulette ``choice`` in [0, 1) picks the diffuse term or a
-    lobe with the preintegrated weights, then the cosine / Phong sampler draws wi from ``xi``. A material
-    without weight (black) returns the normal, with density 0 (:func:`material_pdf`)."""
-    t, b = orthonormal_basis(n)
-    wd = wp.max(luminance(mat.kd[m]), 0.0)
-    total = wd
-    for i in range(mat.lobe_count[m]):
-        c = mat.lobes[m, i]
-        total += lafortune_lobe_weight(lafortune_axis(n, t, b, wo, c), mat.lobe_rho[m, i], c[3])
-    if not (total > 0.0):
-        return n
-    x = choice * total
-    if x < wd:
-        return lambert_sample(n, xi)
-    acc = wd
-    chosen = int(-1)
-    last = int(-1)
-    for i in range(mat.lobe_count[m]):
-        c = mat.lobes[m, i]
-        w = lafortune_lobe_weight(lafortune_axis(n, t, b, wo, c), mat.lobe_rho[m, i], c[3])
-        if w > 0.0:
-            last = i
-            acc += w
-            if chosen < 0 and x < acc:
-                chosen = i
-    if chosen < 0:
-        chosen = last  # x rounded onto the total
-    if chosen < 0:
-        return lambert_sample(n, xi)
-    c = mat.lobes[m, chosen]
-    return cos_power_sample(wp.normalize(lafortune_axis(n, t, b, wo, c)), c[3], xi)
-
-
 # ---- per-point shading state (the estimators' strata loops) ------------------------------------------
-# What material_eval / material_pdf / material_sample compute from the material, the normal and the view direction
-# alone (the tangent frame, every lobe's axis, its normalised axis and frame, its roulette weight) does not change
-# between the 2 S samples of a point: :func:`shading_point` computes it once per point and :func:`shading_eval`,
-# :func:`shading_pdf`, :func:`shading_sample` finish the per-direction part with the same arithmetic, so they
-# return bit for bit what the material_* functions return.
+# What a material's f_r, pdf and sampler need from the material, the normal and the view direction alone (the
+# tangent frame, every lobe's axis, its normalised axis and frame, its roulette weight) does not change between
+# the 2 S samples of a point: :func:`shading_point` computes it once per point and :func:`shading_eval`,
+# :func:`shading_pdf`, :func:`shading_sample` finish the per-direction part. The material_* functions are the
+# one-direction form of the same code.
 
 #: MAX_LOBES x 3 rows, one per lobe.
 LobeRows = wp.types.matrix(shape=(MAX_LOBES, 3), dtype=wp.float32)
@@ -351,7 +284,7 @@ def shading_point(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3) -> Shading
 
 @wp.func(inline=True)
 def shading_eval(sp: ShadingPoint, wi: wp.vec3) -> wp.vec3:
-    """f_r (1/sr) towards unit ``wi``: :func:`material_eval` of the point's material, n and wo."""
+    """f_r (1/sr) towards unit ``wi`` of the point's material, n and wo (:func:`material_eval`)."""
     if wp.dot(sp.n, wi) <= 0.0:
         return wp.vec3(0.0)
     f = sp.diffuse
@@ -362,7 +295,7 @@ def shading_eval(sp: ShadingPoint, wi: wp.vec3) -> wp.vec3:
 
 @wp.func(inline=True)
 def shading_pdf(sp: ShadingPoint, wi: wp.vec3) -> float:
-    """Density (1/sr) of :func:`shading_sample` at unit ``wi``: :func:`material_pdf`."""
+    """Density (1/sr) of :func:`shading_sample` at unit ``wi``: sum over components of P(component) x its density."""
     p = sp.wd * lambert_pdf(sp.n, wi)
     for i in range(sp.lobe_count):
         w = sp.weight[i]
@@ -398,6 +331,28 @@ def shading_sample(sp: ShadingPoint, xi: wp.vec2, choice: float) -> wp.vec3:
         return frame_direction(sp.t, sp.b, sp.n, wp.sqrt(1.0 - xi[0]), 2.0 * wp.pi * xi[1])
     cos_a = wp.pow(1.0 - xi[0], 1.0 / (sp.exponent[chosen] + 1.0))
     return frame_direction(sp.axis_t[chosen], sp.axis_b[chosen], sp.unit_axis[chosen], cos_a, 2.0 * wp.pi * xi[1])
+
+
+@wp.func
+def material_eval(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3, wi: wp.vec3) -> wp.vec3:
+    """f_r (1/sr) of material ``m`` (unit normal ``n``, unit ``wo`` towards the viewer) towards unit ``wi``: k_d / pi
+    plus its Lafortune lobes; 0 for wi below the surface. One direction: :func:`shading_eval` of a
+    :func:`shading_point` (the estimators build the point once for all their samples)."""
+    return shading_eval(shading_point(mat, m, n, wo), wi)
+
+
+@wp.func
+def material_pdf(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3, wi: wp.vec3) -> float:
+    """Density (1/sr) of :func:`material_sample`: sum over components of P(component) x its density."""
+    return shading_pdf(shading_point(mat, m, n, wo), wi)
+
+
+@wp.func
+def material_sample(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3, xi: wp.vec2, choice: float) -> wp.vec3:
+    """Sample material ``m`` (Sec. 5.1): the Russian roulette ``choice`` in [0, 1) picks the diffuse term or a
+    lobe with the preintegrated weights, then the cosine / Phong sampler draws wi from ``xi``. A material
+    without weight (black) returns the normal, with density 0 (:func:`material_pdf`)."""
+    return shading_sample(shading_point(mat, m, n, wo), xi, choice)
 
 
 # ---- host side -------------------------------------------------------------------------------------

@@ -39,31 +39,20 @@ from .direct_lighting import (
     stratum_sample,
     surface_point,
 )
-from .query import csm_visibility_filtered, csm_visibility_filtered_uv
+from .query import csm_visibility_filtered_uv
 
 module_options()
 
 
 @wp.func(inline=True)
-def distant_visibility(vis: LightVisibility, p: wp.vec3, n: wp.vec3, d: wp.vec3, xi: wp.vec4) -> float:
-    """V(p, d) in [0, 1] towards a distant direction ``d``: the lat-long CSM query of p + eps n (Sec. 3.3; ``xi``
-    uniform in [0, 1)^4 for the roulette filter) for VIS_CSM, a shadow ray from p + eps n for VIS_MESH, else 1.
+def distant_visibility_uv(vis: LightVisibility, p: wp.vec3, n: wp.vec3, d: wp.vec3, uv: wp.vec2,
+                          xi: wp.vec4) -> float:
+    """V(p, d) in [0, 1] towards a distant direction ``d`` with lat-long parameters ``uv`` (= latlong_param(d), which
+    the caller already has): the lat-long CSM query of p + eps n (Sec. 3.3; ``xi`` uniform in [0, 1)^4 for the
+    roulette filter) for VIS_CSM, a shadow ray from p + eps n for VIS_MESH, else 1.
 
     Inlined into its callers (as every per-sample function of the estimators): the visibility struct holds a dozen
     arrays, which an out-of-line call would copy twice per sample on the CPU."""
-    if vis.mode == VIS_CSM:
-        return csm_visibility_filtered(vis.latlong, p + vis.eps * n, d, vis.bias, vis.filter_mode, xi)
-    if vis.mode == VIS_MESH:
-        if shadow_ray_blocked(vis.mesh, p + vis.eps * n, d, 1.0e30):
-            return 0.0
-    return 1.0
-
-
-@wp.func(inline=True)
-def distant_visibility_uv(vis: LightVisibility, p: wp.vec3, n: wp.vec3, d: wp.vec3, uv: wp.vec2,
-                          xi: wp.vec4) -> float:
-    """:func:`distant_visibility` of a direction ``d`` whose lat-long parameters ``uv`` (= latlong_param(d)) the
-    caller already has."""
     if vis.mode == VIS_CSM:
         return csm_visibility_filtered_uv(vis.latlong, p + vis.eps * n, uv, vis.bias, vis.filter_mode, xi)
     if vis.mode == VIS_MESH:
@@ -140,4 +129,4 @@ def shade_environment(points, normals, albedo, env: EnvironmentMap, **options) -
     return shade_direct(points, normals, albedo, env, **options)
 
 
-__all__ = ["distant_visibility", "distant_visibility_uv", "shade_environment", "shade_environment_kernel"]
+__all__ = ["distant_visibility_uv", "shade_environment", "shade_environment_kernel"]
