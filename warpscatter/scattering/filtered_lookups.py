@@ -44,13 +44,23 @@ from .filtered_textures import (
 from .prefix_sums import (
     split_columns,
 )
+from .ray_weights import (
+    MAX_SEGMENTS,
+    RayWeights,
+    ray_optical_step,
+    segment_columns,
+    segment_sums,
+    share_column,
+    weight_sum,
+)
 from .rectify_nonlinear import NonlinearRectification, NonlinearRectParams, world_to_rectified
 from .settings import MAX_SPLITS
 
 module_options()
 
-#: Filtered-basis look-ups of one pixel: per row (two rows), one per region in front plus two columns.
-MAX_TAPS = 2 * (MAX_SPLITS + 1)
+#: Filtered-basis look-ups of one pixel: per row (two rows), one per region (or segment cut) in front plus two
+#: columns.
+MAX_TAPS = 2 * (max(MAX_SPLITS, MAX_SEGMENTS) + 1)
 tap_weights = wp.types.vector(length=MAX_TAPS, dtype=wp.float32)
 tap_indices = wp.types.vector(length=MAX_TAPS, dtype=wp.int32)
 
@@ -255,6 +265,126 @@ def prefiltered_visibility_split(fb: FilteredBasisArrays, u: float, v: float, z_
 
 
 @wp.func
+def segment_row_weights(weights: RayWeights, j: int, x: float, tau_ray: float, cut: segment_columns,
+                        esum: segment_sums, m: int) -> segment_sums:
+    """Row j's weights of a ray's look-up columns (its m interior cuts ``cut``, then the end at continuous prefix
+    column x), given the ray's own weight sums ``esum`` (entry m: the end's): D_k (r_k - r_(k+1)) / E_end per cut
+    and the end's in entry m (split (1 - ax) : ax between its two columns by the caller); they sum to one (see
+    :mod:`.ray_weights`). A ray that decays slower than the row's reference (outside the slice's frustum: the
+    neighbouring row of a bilinear pair) is weighted as if it decayed as fast, which keeps the mix convex."""
+    tau_j = wp.min(weights.optical_step[j], tau_ray)
+    w = segment_sums()
+    scale = 1.0 / esum[m]
+    d_prev = float(0.0)
+    e_prev = float(0.0)
+    r_prev = float(0.0)
+    for k in range(m + 1):
+        d = float(0.0)
+        if k < m:
+            d = weight_sum(tau_j, float(cut[k] + 1))
+        else:
+            d = weight_sum(tau_j, x + 1.0)
+        r = (esum[k] - e_prev) / wp.max(d - d_prev, 1.0e-30)
+        if k > 0:
+            w[k - 1] = d_prev * (r_prev - r) * scale
+        r_prev = r
+        d_prev = d
+        e_prev = esum[k]
+    w[m] = d_prev * r_prev * scale
+    return w
+
+
+@wp.func
+def segment_lookup(weights: RayWeights, rows: int, cols: int, u: float, v: float, z_r: float, wrap_rows: int):
+    """The look-up of the view ray ending at rectified (u, v) with depth z_r weighted by its own transmittance: rows
+    j0, j1; the m interior cuts (columns shared by both rows) and the end's columns i0, i1 (weight of i1: ax); each
+    row's weights (:func:`segment_row_weights`, bilinear row weight included).
+
+    Returns:
+        (j0, j1, cut, m, i0, i1, ax, w0, w1).
+    """
+    j0, j1, ay, i0, i1, ax = texel_footprint(rows, cols, u, v, wrap_rows)
+    x = float(i0) + ax
+    tau_ray = ray_optical_step(weights, z_r)
+    cut = segment_columns()
+    esum = segment_sums()
+    m = int(0)
+    last = int(-1)
+    for k in range(1, weights.segments):
+        c = share_column(tau_ray, x, float(k) / float(weights.segments))
+        if c > last and c < i0:
+            cut[m] = c
+            esum[m] = weight_sum(tau_ray, float(c + 1))
+            last = c
+            m += 1
+    esum[m] = weight_sum(tau_ray, x + 1.0)
+    w0 = segment_row_weights(weights, j0, x, tau_ray, cut, esum, m)
+    w1 = w0
+    if weights.optical_step[j1] != weights.optical_step[j0]:  # rows of one reference step share the weights
+        w1 = segment_row_weights(weights, j1, x, tau_ray, cut, esum, m)
+    return j0, j1, cut, m, i0, i1, ax, w0 * (1.0 - ay), w1 * ay
+
+
+@wp.func
+def fourier_column_pair(filtered_basis: Any, tables: FourierTables, j0: int, j1: int, i: int, w0: float, w1: float,
+                        rotation: wp.vec4) -> float:
+    """a(z_r) . (w0 B_bar(j0, i) + w1 B_bar(j1, i)): one column of both rows (contiguous runs of M values);
+    ``rotation`` = (cos, sin of pi z_r, cos, sin of 2 pi z_r)."""
+    num = filtered_basis.shape[2]
+    cv = tables.code_values
+    cs = rotation[0]
+    sn = rotation[1]
+    step_c = rotation[2]
+    step_s = rotation[3]
+    acc = float(0.0)
+    for m in range(num // 2):
+        k = 2 * m
+        b0 = w0 * basis_value(filtered_basis, cv, j0, i, k) + w1 * basis_value(filtered_basis, cv, j1, i, k)
+        b1 = w0 * basis_value(filtered_basis, cv, j0, i, k + 1) + w1 * basis_value(filtered_basis, cv, j1, i, k + 1)
+        acc += tables.pair_scales[m] * (cs * b0 - sn * b1)
+        cs_next = cs * step_c - sn * step_s
+        sn = sn * step_c + cs * step_s
+        cs = cs_next
+    return acc
+
+
+@wp.func
+def fourier_segments_visibility(fb: FilteredBasisArrays, texels: Any, weights: RayWeights, u: float, v: float,
+                                z_r: float, wrap_rows: int) -> float:
+    """Visible fraction of the ray's own-transmittance look-up (:func:`segment_lookup`) on ``texels``, the array of
+    ``fb``'s storage: clamp(0.5 + a(z_r) . sum of the weighted filtered-basis vectors, 0, 1)."""
+    j0, j1, cut, m, i0, i1, ax, w0, w1 = segment_lookup(weights, texels.shape[0], texels.shape[1], u, v, z_r,
+                                                        wrap_rows)
+    rot = wp.vec4(wp.cos(wp.pi * z_r), wp.sin(wp.pi * z_r), wp.cos(2.0 * wp.pi * z_r), wp.sin(2.0 * wp.pi * z_r))
+    acc = float(0.5)
+    for k in range(m):
+        acc += fourier_column_pair(texels, fb.tables, j0, j1, cut[k], w0[k], w1[k], rot)
+    acc += fourier_column_pair(texels, fb.tables, j0, j1, i0, w0[m] * (1.0 - ax), w1[m] * (1.0 - ax), rot)
+    if i1 != i0:
+        acc += fourier_column_pair(texels, fb.tables, j0, j1, i1, w0[m] * ax, w1[m] * ax, rot)
+    return wp.clamp(acc, 0.0, 1.0)
+
+
+@wp.func
+def fourier_visibility(fb: FilteredBasisArrays, weights: RayWeights, u: float, v: float, z_r: float,
+                       wrap_rows: int) -> float:
+    """Visible fraction of the view ray ending at rectified (u, v) with depth z_r from a Fourier texture, its texels
+    weighted as ``weights`` says (one segment: the reference ray's weights, :func:`prefiltered_visibility_split`;
+    split regions always use those). ``weights.end_offset`` moves the end of the look-up towards the camera."""
+    cols = int(0)
+    if fb.code_bits == 0:
+        cols = fb.basis.shape[1]
+    else:
+        cols = fb.codes.shape[1]
+    u_end = u - weights.end_offset / float(cols)
+    if weights.segments <= 1 or fb.splits > 1:
+        return prefiltered_visibility_split(fb, u_end, v, z_r, wrap_rows)
+    if fb.code_bits == 0:
+        return fourier_segments_visibility(fb, fb.basis, weights, u_end, v, z_r, wrap_rows)
+    return fourier_segments_visibility(fb, fb.codes, weights, u_end, v, z_r, wrap_rows)
+
+
+@wp.func
 def bilinear_moments(texels: Any, num: int, u: float, v: float, wrap_rows: int) -> mm.vec6:
     """Bilinear fetch of the filtered stored moments (slots 0..num-1) at rectified (u, v) from the array of a
     moment map's storage (float32, uint16 codes or uint64 packed 10-bit codes): each of the four texels is read
@@ -272,24 +402,52 @@ def bilinear_moments(texels: Any, num: int, u: float, v: float, wrap_rows: int) 
 
 
 @wp.func
-def moments_visibility(filtered: FilteredMomentArrays, u: float, v: float, z_r: float, wrap_rows: int,
-                       beta: float) -> float:
+def segment_moments(texels: Any, weights: RayWeights, num: int, u: float, v: float, z_r: float,
+                    wrap_rows: int) -> mm.vec6:
+    """The ray's own-transmittance combination (:func:`segment_lookup`) of the stored moments of ``texels``."""
+    j0, j1, cut, m, i0, i1, ax, w0, w1 = segment_lookup(weights, texels.shape[0], texels.shape[1], u, v, z_r,
+                                                        wrap_rows)
+    t = mm.vec6()
+    for k in range(m):
+        t += w0[k] * moment_texel_values(texels, j0, cut[k], num) + w1[k] * moment_texel_values(texels, j1, cut[k], num)
+    t += (w0[m] * (1.0 - ax)) * moment_texel_values(texels, j0, i0, num)
+    t += (w1[m] * (1.0 - ax)) * moment_texel_values(texels, j1, i0, num)
+    if i1 != i0:
+        t += (w0[m] * ax) * moment_texel_values(texels, j0, i1, num) + (w1[m] * ax) * moment_texel_values(texels, j1,
+                                                                                                         i1, num)
+    return t
+
+
+@wp.func
+def filtered_moments(texels: Any, weights: RayWeights, num: int, u: float, v: float, z_r: float,
+                     wrap_rows: int) -> mm.vec6:
+    """Stored moments of the view ray ending at (u, v) (``weights.end_offset`` texels towards the camera): the
+    bilinear fetch (one segment, Peters 2017 D.5) or the ray's own-transmittance combination."""
+    u_end = u - weights.end_offset / float(texels.shape[1])
+    if weights.segments <= 1:
+        return bilinear_moments(texels, num, u_end, v, wrap_rows)
+    return segment_moments(texels, weights, num, u_end, v, z_r, wrap_rows)
+
+
+@wp.func
+def moments_visibility(filtered: FilteredMomentArrays, weights: RayWeights, u: float, v: float, z_r: float,
+                       wrap_rows: int, beta: float) -> float:
     """Visible fraction of the view ray ending at rectified (u, v) with depth z_r from prefiltered moments.
 
-    Bilinear fetch of the filtered stored moments (decoded from the storage mode's codes), back to canonical
-    moments and biased for the storage mode, then Algorithm 1 (4 moments) or Sec. 5.4 (6 moments) at
-    z_f = 2 z_r - 1 with the overestimation weight ``beta`` between the sharp lower (0) and upper (1) visibility
-    bounds (Peters 2017 Sec. 5.3.1).
+    The filtered stored moments (decoded from the storage mode's codes; texels weighted as ``weights`` says,
+    :func:`filtered_moments`), back to canonical moments and biased for the storage mode, then Algorithm 1
+    (4 moments) or Sec. 5.4 (6 moments) at z_f = 2 z_r - 1 with the overestimation weight ``beta`` between the
+    sharp lower (0) and upper (1) visibility bounds (Peters 2017 Sec. 5.3.1).
     """
     num = filtered.num_moments
     storage = filtered.storage
     t = mm.vec6()
     if filtered.code_bits == 0:
-        t = bilinear_moments(filtered.values, num, u, v, wrap_rows)
+        t = filtered_moments(filtered.values, weights, num, u, v, z_r, wrap_rows)
     elif filtered.code_bits == CODE_BITS_UNORM10:
-        t = bilinear_moments(filtered.codes10, num, u, v, wrap_rows)
+        t = filtered_moments(filtered.codes10, weights, num, u, v, z_r, wrap_rows)
     else:
-        t = bilinear_moments(filtered.codes16, num, u, v, wrap_rows)
+        t = filtered_moments(filtered.codes16, weights, num, u, v, z_r, wrap_rows)
     z_f = 2.0 * z_r - 1.0
     if num == 4:
         b = mm.load_biased_moments4(wp.vec4(t[0], t[1], t[2], t[3]), storage)
@@ -411,6 +569,7 @@ __all__ = [
     "evaluate_visibility",
     "filtered_basis_arrays",
     "fourier_taps_visibility",
+    "fourier_visibility",
     "moments_visibility",
     "prefiltered_visibility",
     "prefiltered_visibility_split",

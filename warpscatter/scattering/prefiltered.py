@@ -65,7 +65,7 @@ from ..wpinit import default_device, module_options
 from . import rectify_nonlinear
 from .caster_culling import cull_unseen_casters
 from .epipole_fallback import epipole_pixel_fraction, epipole_regions, march_epipole_regions
-from .filtered_lookups import moments_visibility, prefiltered_visibility_split
+from .filtered_lookups import fourier_visibility, moments_visibility
 from .filtered_textures import (
     FilteredBasis,
     FilteredBasisArrays,
@@ -76,6 +76,7 @@ from .prefix_sums import (
     prefilter_moments,
     prefilter_weighted,
 )
+from .ray_weights import RayWeights, ray_weights
 from .rectification import RectificationParams, build_rectification, rectification_params, rectified_coords, wrap_rows
 from .rectify_nonlinear import NonlinearRectification, reference_ray, resample_shadow_map
 from .rectify_projective import (
@@ -94,22 +95,22 @@ module_options()
 
 
 @wp.func
-def map_visibility(texels: FilteredBasisArrays, c: wp.vec3, wrap: int, beta: float, light_direction: wp.vec3,
-                   view_direction: wp.vec3) -> float:
+def map_visibility(texels: FilteredBasisArrays, weights: RayWeights, c: wp.vec3, wrap: int, beta: float,
+                   light_direction: wp.vec3, view_direction: wp.vec3) -> float:
     """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a Fourier texture (Klehm 2014
-    Listing 4; ``beta`` and the directions unused)."""
-    return prefiltered_visibility_split(texels, c[0], c[1], c[2], wrap)
+    Listing 4), its texels weighted as ``weights`` says (:mod:`.ray_weights`); ``beta`` and the directions unused."""
+    return fourier_visibility(texels, weights, c[0], c[1], c[2], wrap)
 
 
 @wp.func
-def map_visibility(texels: FilteredMomentArrays, c: wp.vec3, wrap: int, beta: float,  # noqa: F811
-                   light_direction: wp.vec3, view_direction: wp.vec3) -> float:
+def map_visibility(texels: FilteredMomentArrays, weights: RayWeights, c: wp.vec3, wrap: int,  # noqa: F811
+                   beta: float, light_direction: wp.vec3, view_direction: wp.vec3) -> float:
     """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a moment map (Peters 2017 D.5);
     ``beta`` < 0: the adaptive overestimation weight of the light and view directions (Sec. 5.3.1)."""
     b = beta
     if b < 0.0:
         b = mm.adaptive_overestimation_weight(light_direction, view_direction)
-    return moments_visibility(texels, c[0], c[1], c[2], wrap, b)
+    return moments_visibility(texels, weights, c[0], c[1], c[2], wrap, b)
 
 
 # ---- kernels ---------------------------------------------------------------------------------------
@@ -137,6 +138,7 @@ def evaluate_prefiltered_kernel(
     distance: wp.array2d(dtype=wp.float32),
     coords: wp.array2d(dtype=wp.vec3),  # pixel_coords_kernel's output
     texels: Any,  # FilteredBasisArrays or FilteredMomentArrays: one compiled kernel per representation
+    weights: RayWeights,  # how a ray weights its texels (reference ray or per-ray segments)
     wrap: int,  # 1: the rows wrap around (wrap_rows)
     beta: float,  # moment overestimation weight in [0, 1], or < 0: adaptive (Peters 2017 Sec. 5.3.1)
     light: LightParams,
@@ -149,7 +151,7 @@ def evaluate_prefiltered_kernel(
     j += offset
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     s = distance[j, i]
-    f = map_visibility(texels, coords[j, i], wrap, beta, light.direction, d)
+    f = map_visibility(texels, weights, coords[j, i], wrap, beta, light.direction, d)
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
     out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
 
@@ -171,29 +173,31 @@ def pixel_coords(rect, camera, distance: wp.array, device=None) -> wp.array:
 # ---- host side ------------------------------------------------------------------------------------
 
 
-def row_weights(rect, settings: PrefilteredSettings, sigma_t: float,
-                camera=None) -> tuple[np.ndarray, np.ndarray | None, dict]:
+def row_weights(rect, settings: PrefilteredSettings, sigma_t: float, camera=None,
+                segments: int = 1) -> tuple[np.ndarray, np.ndarray | None, dict]:
     """Per-row optical steps and per-column lengths of the prefilter weights (Klehm 2014 Sec. 3.2, Eq. 11-12).
 
     Non-linear rectification: uniform columns, tau_j = sigma_t Delta_ref of the row's reference ray. Projective:
     column lengths l_i = dX_i / dX_0 (exact, or Eq. 12's Delta d^i per region) and tau_j = sigma_t times the
     reference ray's world length of column 0 (dX_0 sqrt(1 + s^2 + zeta_ref^2)). ``camera`` is needed by the
-    ``"pixels"`` reference ray.
+    ``"pixels"`` reference ray; ``segments``, the per-ray segments of the look-ups, picks the auto reference ray
+    (:meth:`~.settings.PrefilteredSettings.reference_for`).
 
     Returns:
         (optical_step (rows,) float32, column_length (cols,) float64 or None, info dict).
     """
     transmittance = settings.weighting == "transmittance"
+    reference = settings.reference_for(segments)
     if isinstance(rect, NonlinearRectification):
-        tau = reference_ray(rect, settings.reference_ray, camera).optical_steps(sigma_t) if transmittance else None
-        return tau, None, {}
+        tau = reference_ray(rect, reference, camera).optical_steps(sigma_t) if transmittance else None
+        return tau, None, {"reference_ray": reference}
     lengths = column_lengths(rect, "exact" if settings.projective_weights == "exact" else "cross_ratio")
-    info = {"projective_weights": settings.projective_weights}
+    info = {"reference_ray": reference, "projective_weights": settings.projective_weights}
     if settings.projective_weights == "cross_ratio":
         info["cross_ratio_d"] = [round(float(d), 6) for d in cross_ratio_factors(rect)[0]]
     tau = np.zeros(rect.rows, np.float32)
     if transmittance:
-        scale = reference_rays(rect, settings.reference_ray, camera).length_scale
+        scale = reference_rays(rect, reference, camera).length_scale
         tau = (sigma_t * lengths[0] * scale).astype(np.float32)
     return tau, lengths / lengths[0], info
 
@@ -269,8 +273,9 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     if settings.culls_casters:
         with stage("caster_culling"):
             culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device)
+    segments = p.segments_for(isinstance(rect, NonlinearRectification))
     with stage("prefilter"):
-        tau, lengths, weight_info = row_weights(rect, p, scene.medium.sigma_t, cam)
+        tau, lengths, weight_info = row_weights(rect, p, scene.medium.sigma_t, cam, segments)
         if settings.method == "fourier":
             fb: FilteredBasis | FilteredMoments = prefilter_weighted(
                 rectified, settings.fourier.coefficients, tau, lengths, splits=p.splits,
@@ -281,9 +286,11 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
         beta = -1.0 if overestimation == "adaptive" else float(overestimation)
+        weights = ray_weights(segments, tau, rect if segments > 1 else None, scene.medium.sigma_t, p.end_offset,
+                              device=device)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
-                    [cam.params(), gbuffer.distance, coords, fb.arrays(), int(wrap_rows(rect)), beta,
+                    [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, int(wrap_rows(rect)), beta,
                      light_params(scene.light, device), scene.medium.params(), out], device=device)
     regions = epipole_regions(cam, scene.light.direction, p.epipole_angle_deg, p.epipole_block)
     if regions:
@@ -299,6 +306,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         **({"coefficients": settings.fourier.coefficients, "splits": fb.splits} if settings.method == "fourier" else
            {"overestimation": overestimation}),
         "bits_per_texel": settings.filtered_bits_per_texel,
+        "segments": segments,
+        "end_offset": p.end_offset,
         **resample_info,
         "caster_culling": culled is not None,
         **({} if culled is None else {"culled_texel_fraction": round(culled, 4)}),
@@ -307,8 +316,9 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         "epipole_angle_deg": round(regions[0].inner_deg, 3) if regions else None,
         "epipole_raymarched_fraction": round(epipole_pixel_fraction(cam, regions), 4),
     }
+    info.update(weight_info)
     if isinstance(rect, ProjectiveRectification):
-        info.update({"regions": rect.regions, "near_far": [round(rect.near, 6), round(rect.far, 6)], **weight_info})
+        info.update({"regions": rect.regions, "near_far": [round(rect.near, 6), round(rect.far, 6)]})
     else:
         info["full_circle"] = rect.full_circle
     return out, info

@@ -513,6 +513,8 @@ def reference_ray(rect: NonlinearRectification, method: str = "optimal", camera=
             minimises the worst Delta error over all rays of the slice, including the few that run
             almost along the light (k -> 0) when the epipole is in view; weighting by the rays actually
             rendered gives lower image error there (warpscatter's choice, measured in ``bench prefiltered``).
+            ``"least"`` — omega_min itself, the slice's least optical step: every view ray of the slice decays at
+            least as fast, which the per-ray segment weights need (:mod:`.ray_weights`).
         camera: the :class:`~warpscatter.scene.camera.Camera`, required by ``"pixels"``.
         pixel_stride: pixel subsampling of ``"pixels"`` (>= 1).
 
@@ -539,6 +541,9 @@ def reference_ray(rect: NonlinearRectification, method: str = "optimal", camera=
     elif method == "pixels":
         theta_ref = _pixel_median_inclination(rect, camera, pixel_stride, default=bisectrix)
         optimal = np.zeros(phi.shape, bool)
+    elif method == "least":
+        theta_ref = theta_kmax
+        optimal = np.zeros(phi.shape, bool)
     else:
         optimal = k_small > 1e-12  # undefined iff omega_max is the light axis (k = 0)
         k_opt = np.sqrt(np.clip(k_big * k_small, 0.0, 1.0))
@@ -552,13 +557,13 @@ def reference_ray(rect: NonlinearRectification, method: str = "optimal", camera=
                          delta_ref=rect.delta_perp / k_ref, direction=local @ rect.to_light, optimal=optimal)
 
 
-REFERENCE_METHODS = ("optimal", "bisectrix", "mean", "pixels")
+REFERENCE_METHODS = ("optimal", "bisectrix", "mean", "pixels", "least")
 
 
 def check_reference_method(method: str, camera, caller: str) -> None:
     """Raise ValueError for an unknown reference-ray method, or ``"pixels"`` without a camera."""
     if method not in REFERENCE_METHODS:
-        raise ValueError(f"method must be 'optimal', 'bisectrix', 'mean' or 'pixels', got {method!r}")
+        raise ValueError(f"method must be one of {', '.join(map(repr, REFERENCE_METHODS))}, got {method!r}")
     if method == "pixels" and camera is None:
         raise ValueError(f"{caller}(method='pixels') needs the camera")
 

@@ -504,7 +504,8 @@ def reference_rays(rect: ProjectiveRectification, method: str = "optimal", camer
             here, so it is always defined); ``"bisectrix"`` the angle bisector of omega_min and omega_max;
             ``"mean"`` the middle of the global depth-slope bounds; ``"pixels"`` the median-k pixel ray of
             the slice (every ``pixel_stride``-th pixel; the bisectrix where none), as
-            :func:`~.rectify_nonlinear.reference_ray` does for the non-linear rectification.
+            :func:`~.rectify_nonlinear.reference_ray` does for the non-linear rectification; ``"least"`` omega_min
+            (the slice's least optical step).
         camera: the camera, required by ``"pixels"``.
         pixel_stride: pixel subsampling of ``"pixels"`` (>= 1).
 
@@ -529,6 +530,8 @@ def reference_rays(rect: ProjectiveRectification, method: str = "optimal", camer
         zeta_ref = bisectrix
     elif method == "pixels":
         zeta_ref = _pixel_median_slopes(rect, camera, pixel_stride, default=bisectrix)
+    elif method == "least":
+        zeta_ref = zeta_near
     else:
         k_ref = np.sqrt(np.sqrt(h2) / n_near * np.sqrt(h2) / n_far)
         zeta_ref = np.sign(zeta_far) * np.sqrt(np.maximum(h2 / k_ref**2 - h2, 0.0))
