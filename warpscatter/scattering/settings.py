@@ -58,6 +58,12 @@ MAX_RESAMPLE_FILTER_PX = 64
 #: it in the scene (discretisation acne); 1/64 covers that on the bench scenes (0, 1/128 and 1/32 measured).
 CASTER_CULLING_BIAS = 1.0 / 64.0
 MAX_CASTER_CULLING_BIAS = 0.25
+#: Default bits per texel of the moment maps. Six moments: Peters 2017 Sec. 5.4.3's 96-bit Theta6* (16-bit codes), not
+#: the 60-bit one: its moment bias (4e-3) leaks light through walls (Peters Fig. 19). Measured at 640x360 with 3 ray
+#: segments, rel. L1 against the exact marcher (colonnade / canopy / window): 64 bits 7.3 / 1.1 / 23 %, 96 bits
+#: 6.8 / 1.0 / 15.7 %, 192 bits 6.8 / - / 13.9 %, evaluate time the same at 1080p. Four moments: 64 bits (Theta4* in
+#: 16-bit codes); 128 bits measured no better (11.5 / 1.2 / 19.4 % against 11.5 / 1.2 / 20.3 %).
+DEFAULT_MOMENT_BITS = {4: 64, 6: 96}
 #: Per-ray transmittance segments of the prefiltered look-ups by default (:mod:`.ray_weights`). Measured at 640x360,
 #: 1024^2 maps, rel. L1 against the exact marcher (colonnade / canopy / window): fourier 1 segment 8.5 / 2.5 / 40 %,
 #: 3 segments 4.0 / 1.2 / 9.8 %, 4 segments 3.9 / 1.2 / - %; moments6 9.0 / 2.4 / 31 % -> 7.3 / 1.1 / 23 %. Cost at
@@ -170,7 +176,8 @@ class MomentsSettings(SettingsModel):
 
     storage_bits: Optional[Literal[64, 96, 128, 192]] = Field(
         None, description="bits per texel: 64 or 128 for four moments; 64 (60 used), 96 or 192 for six (Theta* in "
-                          "16- or 10-bit fixed point packed in uint16 / uint64 textures, or float32); null: 64")
+                          "16- or 10-bit fixed point packed in uint16 / uint64 textures, or float32); null: 64 for "
+                          "four, 96 for six moments")
     overestimation: Union[Literal["adaptive"], Annotated[Float, Field(ge=0.0, le=1.0)]] = Field(
         "adaptive", description="beta between the lower (0) and upper (1) visibility bounds: adaptive "
                                 "(beta = (1 + omega_l . omega_p) / 2, Sec. 5.3.1) or a fixed number")
@@ -252,8 +259,10 @@ class ScatteringSettings(SettingsModel):
 
     @property
     def moment_storage_bits(self) -> int:
-        """Bits per texel of the moment maps (``moments.storage_bits``, null: 64)."""
-        return 64 if self.moments.storage_bits is None else int(self.moments.storage_bits)
+        """Bits per texel of the moment maps (``moments.storage_bits``; null: :data:`DEFAULT_MOMENT_BITS`)."""
+        if self.moments.storage_bits is not None:
+            return int(self.moments.storage_bits)
+        return DEFAULT_MOMENT_BITS[6 if self.method == "moments6" else 4]
 
     @property
     def filtered_bits_per_texel(self) -> int:
