@@ -76,7 +76,7 @@ def _coords(n, seed=0):
 def test_weights_are_convex_and_sum_to_one(segments):
     _, _, cols, w, _ = _lookups(segments, _coords(400))
     assert np.allclose(w.sum(axis=(1, 2)), 1.0, atol=2e-5)
-    assert w.min() >= -1e-6  # least reference: every ray decays at least as fast -> convex mix
+    assert w.min() >= -1e-5  # least reference: every ray decays at least as fast -> convex mix (float32 rounding)
     # the interior cuts come in increasing order, before the end's columns
     for c in cols:
         used = c[c >= 0]

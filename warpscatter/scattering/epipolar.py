@@ -220,10 +220,11 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
     flt = filter_params(ep, device)
     h, w = cam.height, cam.width
     out = wp.empty((h, w), dtype=wp.vec3, device=device)
-    info = {"epipolar_lines": ep.lines, "epipolar_initial_samples": ep.initial_samples}
+    line_count = ep.lines_for(w, h)
+    info = {"epipolar_lines": line_count, "epipolar_initial_samples": ep.initial_samples}
 
     with stage("lines"):
-        lines, reason = epipolar_lines(cam, light, ep.lines, ep.initial_samples, ep.samples_per_line,
+        lines, reason = epipolar_lines(cam, light, line_count, ep.initial_samples, ep.samples_per_line,
                                        ep.max_epipole_distance)
         if lines is not None:
             lines = trim_to_cone(lines, cam, light, device)

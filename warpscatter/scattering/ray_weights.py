@@ -82,14 +82,39 @@ def ray_optical_step(weights: RayWeights, z_r: float) -> float:
 
 
 @wp.func
-def share_column(tau: float, x: float, share: float) -> int:
-    """Last whole column c (prefix through c) before the ray's weight through continuous column x reaches
-    ``share`` of its total: E(c) = share E(x)."""
+def ray_end(tau: float, x: float):
+    """The ray's own weight through continuous prefix column x: (E(x) = (1 - exp(-tau (x + 1))) / tau, its decay
+    1 - exp(-tau (x + 1)) = tau E(x)); one exp, shared by the cuts (:func:`ray_cut`)."""
+    n = x + 1.0
+    y = tau * n
+    if y < 0.01:
+        e = n * (1.0 - y * (0.5 - y * (1.0 / 6.0 - y * (1.0 / 24.0))))
+        return e, tau * e
+    decay = 1.0 - wp.exp(-y)
+    return decay / tau, decay
+
+
+@wp.func
+def ray_cut(tau: float, x: float, share: float, decay_end: float):
+    """The cut where the ray's own weight through continuous column x reaches ``share`` of its total (``decay_end``
+    from :func:`ray_end`): (c, E(c)), the last whole column c before it (prefix through c) and the ray's weight sum
+    through c. One log; exp(-tau (c + 1)) comes from the exact share position's exp(-tau n) = 1 - share decay_end
+    times exp(tau (n - c - 1)), a series of an argument below tau."""
     n = share * (x + 1.0)
-    y = tau * (x + 1.0)
-    if y >= 1.0e-3:
-        n = -wp.log(1.0 - share * (1.0 - wp.exp(-y))) / tau
-    return int(wp.floor(n)) - 1
+    t_n = 1.0 - share * decay_end
+    if tau * (x + 1.0) >= 1.0e-3:
+        n = -wp.log(t_n) / tau
+    c1 = wp.floor(n)
+    y = tau * c1
+    if y < 0.01:
+        return int(c1) - 1, c1 * (1.0 - y * (0.5 - y * (1.0 / 6.0 - y * (1.0 / 24.0))))
+    g = tau * (n - c1)
+    grow = float(0.0)
+    if g < 0.05:
+        grow = 1.0 + g * (1.0 + g * (0.5 + g * (1.0 / 6.0 + g * (1.0 / 24.0))))
+    else:
+        grow = wp.exp(g)
+    return int(c1) - 1, (1.0 - t_n * grow) / tau
 
 
 def ray_weights(segments: int, optical_step, rect=None, sigma_t: float = 0.0, end_offset: float = 0.0,
@@ -123,5 +148,5 @@ def ray_weights(segments: int, optical_step, rect=None, sigma_t: float = 0.0, en
     return w
 
 
-__all__ = ["MAX_SEGMENTS", "RayWeights", "ray_optical_step", "ray_weights", "segment_columns", "segment_sums",
-           "share_column", "weight_sum"]
+__all__ = ["MAX_SEGMENTS", "RayWeights", "ray_cut", "ray_end", "ray_optical_step", "ray_weights", "segment_columns",
+           "segment_sums", "weight_sum"]

@@ -76,6 +76,14 @@ MAX_SEGMENTS = 8
 #: their own blockers: half a texel of each lit ray-end lights the dark room).
 END_OFFSET = 1.0
 MAX_END_OFFSET = 8.0
+#: Border pixels per epipolar line by default (``epipolar.lines: null``): the line count follows the image size (1024
+#: lines at 320x180 meet nearly every border pixel and ray-march 58-67 % of the pixels). Measured with exact visibility,
+#: rel. L1 against the 512-step exact marcher and the share of pixels ray-marched (colonnade / canopy / window):
+#: 320x180: 1024 lines 1.88 / 1.04 / 1.88 % (58 / 67 / 21 % marched), 256 lines 1.94 / - / 2.63 % (15 / - / 5 %),
+#: 168 lines 2.13 / 1.08 / 3.16 %; 640x360: 1024 lines 1.84 / 1.00 / 1.85 % (14 / 16 / 5 %), 512 lines 1.81 / 1.01 /
+#: 2.03 % (7 / 8 / 3 %), 336 lines 1.85 / 1.01 / 2.20 %. At 1920x1080 the ray marching is a tenth of the epipolar
+#: time (the upsampling is most of it), so 1504 lines cost little more than 1024.
+LINE_SPACING_PX = 4
 #: Radial basis functions of the epipolar bilateral filter (Engelhardt 2010 Sec. 4.3).
 EPIPOLAR_KERNELS = ("gaussian", "shepard", "threshold")
 
@@ -186,7 +194,9 @@ class MomentsSettings(SettingsModel):
 class EpipolarSettings(SettingsModel):
     """The ``epipolar`` method (Engelhardt & Dachsbacher 2010)."""
 
-    lines: Annotated[Int, Field(ge=8, le=16384, description="epipolar lines (equidistant border points)")] = 1024
+    lines: Optional[Annotated[Int, Field(ge=8, le=16384)]] = Field(
+        None, description="epipolar lines (equidistant border points); null: one per " + str(LINE_SPACING_PX) +
+                          " border pixels (1504 at 1920x1080, 496 at 640x360, 248 at 320x180)")
     initial_samples: Annotated[Int, Field(ge=2, le=1024, description="initial ray-marching samples per line "
                                                                      "(Sec. 4.1)")] = 16
     samples_per_line: Optional[Annotated[Int, Field(ge=2)]] = Field(
@@ -211,6 +221,13 @@ class EpipolarSettings(SettingsModel):
                                                                     "screen-space subsampling")] = 4
     max_epipole_distance: Annotated[Float, Field(gt=0.0, description="epipoles farther than this many image diagonals "
                                                                      "count as at infinity")] = 1000.0
+
+    def lines_for(self, width: int, height: int) -> int:
+        """Epipolar lines for a width x height image: ``lines``, or one per :data:`LINE_SPACING_PX` pixels of the
+        image border (a multiple of 8, at least 64)."""
+        if self.lines is not None:
+            return int(self.lines)
+        return max(64, 8 * round(2 * (width + height) / LINE_SPACING_PX / 8))
 
     @model_validator(mode="after")
     def _samples(self) -> EpipolarSettings:
