@@ -328,7 +328,8 @@ def test_output_section(tmp_path):
     assert c.output.aovs == ["depth", "color"]
     msg = problems(tmp_path, {"output": {"name": "a/b", "aovs": ["normals"], "exposure": 0}})
     assert "output.name: must be a plain file stem" in msg
-    assert "output.aovs.0: must be one of 'color', 'scattering', 'surface' or 'depth' (got 'normals')" in msg
+    assert ("output.aovs.0: must be one of 'color', 'scattering', 'surface', 'depth', 'rectified', 'epipole_mask' or "
+            "'rectified_map' (got 'normals')") in msg
     assert "output.exposure: must be > 0" in msg
 
 
@@ -467,4 +468,4 @@ def test_override_into_scalar_rejected(tmp_path):
 
 
 def test_aov_names_match_output_model():
-    assert cfgmod.OutputConfig().aovs == list(cfgmod.AOV_NAMES)
+    assert cfgmod.OutputConfig().aovs == list(cfgmod.STANDARD_AOVS)

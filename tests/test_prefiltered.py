@@ -490,3 +490,31 @@ def test_epipole_angle_lowers_the_error_against_the_exact_marcher():
     # look-up, 0.134, 0.103, 0.080: the per-ray weights remove most of the bleeding the disc was there for)
     assert errs[16] < errs[8] - 0.004 and errs[8] < errs[0] - 0.004
     assert errs[8] < 0.08
+
+
+def test_debug_outputs_show_the_lookups_the_epipole_region_and_the_map(tmp_path):
+    """Issue #13: the prefiltered methods' debug AOVs (rectified look-ups, epipole mask, rectified map with the culled
+    texels) are written when asked and agree with the stats; other methods refuse them with the key named."""
+    from warpscatter.config import ConfigError
+    from warpscatter.pipeline import render
+
+    aovs = "output.aovs=[color,rectified,epipole_mask,rectified_map]"
+    cfg = load_config(ROOT / "configs" / "canopy_moments.yaml",
+                      ["camera.width=160", "camera.height=90", "render.scattering.shadow_map.resolution=256", aovs])
+    result = render(cfg, out_dir=tmp_path)
+    names = sorted(p.name for p in result.files)
+    assert names == sorted(f"canopy_moments.{n}" for n in ("exr", "png", "rectified.exr", "epipole_mask.exr",
+                                                           "rectified_map.exr"))
+    img, stats = result.images, result.stats
+    assert img["rectified"].shape == (90, 160, 3) and img["rectified_map"].shape == (256, 256, 2)
+    u, v, z = np.moveaxis(img["rectified"], -1, 0)
+    assert 0 <= u.min() and u.max() <= 1 and 0 <= v.min() and v.max() <= 1 and 0 < z.min() and z.max() < 1
+    mask = img["epipole_mask"]
+    assert mask.min() == 0 and mask.max() == 1
+    assert np.mean(mask > 0) == pytest.approx(stats["epipole_raymarched_fraction"], abs=0.01)
+    culled = img["rectified_map"][..., 1]
+    assert set(np.unique(culled)) <= {0.0, 1.0}
+    assert culled.mean() == pytest.approx(stats["culled_texel_fraction"], abs=1e-3)
+    assert np.all(img["rectified_map"][..., 0][culled == 1] == 1)  # culled texels hold no blocker
+    with pytest.raises((ConfigError, ValueError), match="output.aovs: rectified_map is made by fourier"):
+        load_config(ROOT / "configs" / "canopy.yaml", ["output.aovs=[rectified_map]"])

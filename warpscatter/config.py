@@ -57,6 +57,8 @@ from .shadows.settings import ShadowMapSettings, ShadowsSettings
 
 __all__ = [
     "AOV_NAMES",
+    "DEBUG_AOVS",
+    "STANDARD_AOVS",
     "MESH_SUFFIXES",
     "AreaLightConfig",
     "CameraConfig",
@@ -85,8 +87,16 @@ __all__ = [
     "parse_override",
 ]
 
-#: Image outputs a render can write (``output.aovs``); ``color`` is always written.
-AOV_NAMES = ("color", "scattering", "surface", "depth")
+#: Image outputs a render writes by default (``output.aovs``); ``color`` is always written.
+STANDARD_AOVS = ("color", "scattering", "surface", "depth")
+#: Debug outputs (``output.aovs``, not written unless asked) that show why an image looks as it does, each made by
+#: the scattering methods that list it (:attr:`warpscatter.methods.Method.debug_aovs`): ``rectified`` the per-pixel
+#: rectified look-up coordinates (u, v, z_r), ``epipole_mask`` the weight of the ray-marched epipole region per pixel
+#: (1: marched, 0: prefiltered), ``rectified_map`` the rectified depth map and the texels caster culling emptied
+#: (map-sized, 2 channels).
+DEBUG_AOVS = ("rectified", "epipole_mask", "rectified_map")
+#: Image outputs a render can write (``output.aovs``).
+AOV_NAMES = STANDARD_AOVS + DEBUG_AOVS
 #: Mesh file suffixes accepted in ``scene.meshes.N.path`` (loaded with trimesh).
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
 
@@ -453,7 +463,8 @@ class OutputConfig(SettingsModel):
     dir: PathStr = Field(Path("out"), description="output folder, relative to the config file")
     name: str = Field("render", description="file stem of the outputs")
     aovs: list[Literal[AOV_NAMES]] = Field(  # type: ignore[valid-type]
-        default_factory=lambda: list(AOV_NAMES), description="images to write besides NAME.exr/.png")
+        default_factory=lambda: list(STANDARD_AOVS), description="images to write besides NAME.exr/.png; the "
+        "debug outputs " + ", ".join(DEBUG_AOVS) + " need a method that makes them (the prefiltered ones)")
     exposure: Annotated[Float, Field(gt=0.0, description="PNG preview exposure (linear factor)")] = 1.0
     compression: Literal[EXR_COMPRESSIONS] = Field(  # type: ignore[valid-type]
         "none", description="EXR compression, all lossless: none is the fastest to write; rle makes the files a "
@@ -524,6 +535,23 @@ class Config(SettingsModel):
                             "from the casters)")
         if problems:
             raise ValueError("\n".join(problems))
+        return self
+
+    @model_validator(mode="after")
+    def _debug_aovs_have_a_maker(self) -> Config:
+        debug = [a for a in self.output.aovs if a in DEBUG_AOVS]
+        if not debug:
+            return self
+        if self.render.lighting.method is not None:
+            raise ValueError(f"output.aovs: {', '.join(debug)} are debug outputs of the scattering methods "
+                             f"(render.lighting.method is {self.render.lighting.method!r})")
+        method = methods.get("scattering", self.render.scattering.method)
+        missing = [a for a in debug if a not in method.debug_aovs]
+        if missing:
+            makers = sorted({m.name for m in methods.SCATTERING.values() if set(missing) <= set(m.debug_aovs)})
+            raise ValueError(f"output.aovs: {', '.join(missing)} {'is' if len(missing) == 1 else 'are'} made by "
+                             f"{', '.join(makers) or 'no method'}, not by render.scattering.method "
+                             f"{method.name!r}")
         return self
 
     @model_validator(mode="after")

@@ -30,6 +30,7 @@ from . import __version__
 
 __all__ = [
     "AOV_CHANNELS",
+    "OWN_SIZE_AOVS",
     "DEFAULT_EXR_COMPRESSION",
     "EXR_COMPRESSIONS",
     "ImageWriteError",
@@ -41,8 +42,12 @@ __all__ = [
     "write_png",
 ]
 
-#: Channel count of each render output (``color`` is also written as the PNG preview).
-AOV_CHANNELS = {"color": 3, "scattering": 3, "surface": 3, "depth": 1}
+#: Channel count of each render output (``color`` is also written as the PNG preview), in file order: the standard
+#: outputs, then the debug ones (:data:`warpscatter.config.DEBUG_AOVS`).
+AOV_CHANNELS = {"color": 3, "scattering": 3, "surface": 3, "depth": 1, "rectified": 3, "epipole_mask": 1,
+                "rectified_map": 2}
+#: Outputs with their own size (a texture, not the image): exempt from the same-size check.
+OWN_SIZE_AOVS = ("rectified_map",)
 
 #: The lossless EXR compressions (OpenImageIO names) ``write_exr``/``write_outputs`` accept; config key
 #: ``output.compression`` (the same tuple as :data:`warpscatter.config.EXR_COMPRESSIONS`). The lossy
@@ -351,16 +356,16 @@ def write_outputs(
     """Write a render's output set (CONVENTIONS.md "Config and output contract"), all or nothing.
 
     Files, in this order: ``NAME.exr`` (linear RGB) and ``NAME.png`` (preview) always, then
-    ``NAME.scattering.exr``, ``NAME.surface.exr`` (linear RGB) and ``NAME.depth.exr`` (one channel)
-    for the AOVs requested. The files are written concurrently, to temporary names that are renamed
-    once all of them succeeded.
+    ``NAME.scattering.exr``, ``NAME.surface.exr`` (linear RGB), ``NAME.depth.exr`` (one channel) and the debug
+    outputs (``NAME.rectified.exr`` ...) for the AOVs requested. The files are written concurrently, to temporary
+    names that are renamed once all of them succeeded.
 
     Args:
         out_dir: output folder (created if missing).
         name: file stem.
         images: arrays by AOV name; ``color`` is required, and every requested AOV must be present.
-            All must share (H, W); depth may be (H, W) or (H, W, 1).
-        aovs: requested AOV names out of ``color``, ``scattering``, ``surface``, ``depth``.
+            All but :data:`OWN_SIZE_AOVS` must share (H, W); one-channel images may be (H, W) or (H, W, 1).
+        aovs: requested AOV names out of :data:`AOV_CHANNELS` (each written as ``NAME.<aov>.exr``).
         exposure: PNG preview exposure (> 0).
         compression: EXR compression, one of :data:`EXR_COMPRESSIONS` (all lossless).
 
@@ -386,7 +391,7 @@ def write_outputs(
         raise ValueError(f"images: no image given for requested aov(s) {missing}")
 
     checked = {a: _as_image(a, images[a], (AOV_CHANNELS[a],)) for a in AOV_CHANNELS if a in requested}
-    sizes = {a: img.shape[:2] for a, img in checked.items()}
+    sizes = {a: img.shape[:2] for a, img in checked.items() if a not in OWN_SIZE_AOVS}
     if len(set(sizes.values())) > 1:
         raise ValueError(f"images: sizes differ {sizes}")
 
@@ -400,9 +405,9 @@ def write_outputs(
         (out_dir / f"{name}.exr", _exr_writer(checked["color"], compression)),
         (out_dir / f"{name}.png", _png_writer(checked["color"], exposure)),
     ]
-    for aov in ("scattering", "surface", "depth"):
-        if aov in checked:
-            jobs.append((out_dir / f"{name}.{aov}.exr", _exr_writer(checked[aov], compression)))
+    for aov, pixels in checked.items():
+        if aov != "color":
+            jobs.append((out_dir / f"{name}.{aov}.exr", _exr_writer(pixels, compression)))
     return _write_all(jobs)
 
 

@@ -51,6 +51,8 @@ class Method:
         reference_gbuffer: with exact visibility, ray-cast the camera G-buffer too (the reference).
         modules: the Warp modules it launches.
         entry: ``"package.module:function"`` of its render function.
+        debug_aovs: the debug outputs (:data:`warpscatter.config.DEBUG_AOVS`) it makes when the frame asks
+            (:attr:`~warpscatter.pipeline.frame.Frame.aovs`), returned in ``info["debug_images"]``.
     """
 
     name: str
@@ -63,6 +65,7 @@ class Method:
     reference_gbuffer: bool = False
     modules: tuple[str, ...] = ()
     entry: str = ""
+    debug_aovs: tuple[str, ...] = ()
 
     def marches_exact(self, visibility: str) -> bool:
         """True when this method casts exact shadow rays for ``render.scattering.visibility``."""
@@ -78,6 +81,7 @@ _PREFILTERED_MODULES = ("warpscatter.scattering.rectify_nonlinear", "warpscatter
                         "warpscatter.scattering.prefix_sums", "warpscatter.scattering.filtered_lookups",
                         "warpscatter.scattering.caster_culling", "warpscatter.scattering.epipole_fallback",
                         "warpscatter.scattering.prefiltered")
+_PREFILTERED_AOVS = ("rectified", "epipole_mask", "rectified_map")
 _LIGHTING_MODULES = ("warpscatter.csm.brdf", "warpscatter.csm.compress", "warpscatter.csm.depthmaps",
                      "warpscatter.csm.query", "warpscatter.csm.environment", "warpscatter.csm.local_lights")
 
@@ -89,15 +93,15 @@ SCATTERING: dict[str, Method] = {m.name: m for m in (
     Method("fourier", "scattering", "Klehm et al. 2014, prefiltered single scattering",
            "rectified shadow map, Fourier basis, transmittance-weighted per-row prefix sums",
            ("directional",), sections=("prefiltered", "fourier"), modules=_PREFILTERED_MODULES,
-           entry="warpscatter.scattering.prefiltered:render"),
+           entry="warpscatter.scattering.prefiltered:render", debug_aovs=_PREFILTERED_AOVS),
     Method("moments4", "scattering", "Peters et al. 2017 Sec. 5, prefiltered single scattering with moments",
            "the prefiltered pipeline with 4 moments and Algorithm 1", ("directional",),
            sections=("prefiltered", "moments"), modules=_PREFILTERED_MODULES,
-           entry="warpscatter.scattering.prefiltered:render"),
+           entry="warpscatter.scattering.prefiltered:render", debug_aovs=_PREFILTERED_AOVS),
     Method("moments6", "scattering", "Peters et al. 2017 Sec. 5, prefiltered single scattering with moments",
            "the prefiltered pipeline with 6 moments and Algorithm 1", ("directional",),
            sections=("prefiltered", "moments"), modules=_PREFILTERED_MODULES,
-           entry="warpscatter.scattering.prefiltered:render"),
+           entry="warpscatter.scattering.prefiltered:render", debug_aovs=_PREFILTERED_AOVS),
     Method("epipolar", "scattering", "Engelhardt & Dachsbacher 2010, epipolar sampling",
            "ray marching at a few percent of the pixels on epipolar lines, bilateral upsampling", CLASSIC_LIGHTS,
            sections=("epipolar",), visibility=VISIBILITY_CONFIGURABLE,

@@ -84,7 +84,7 @@ def render(config, out_dir: Path | None = None, progress: ProgressFn | None = No
         except CSMFileError as exc:
             raise ConfigError(f"render.lighting.csm.file: {exc}") from None
     else:
-        images, stats = render_images(scene, config.render, timer=timer, device=device)
+        images, stats = render_images(scene, config.render, timer=timer, device=device, aovs=config.output.aovs)
     files: list[Path] = []
     if write:
         with timer("write"):

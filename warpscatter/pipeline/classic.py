@@ -26,7 +26,8 @@ from .common import check_finite, compile_kernels
 from .frame import Frame
 
 
-def render_images(scene, settings, *, timer: StageTimer | None = None, device=None) -> tuple[dict, dict]:
+def render_images(scene, settings, *, timer: StageTimer | None = None, device=None,
+                  aovs: tuple[str, ...] | list[str] = ()) -> tuple[dict, dict]:
     """Run the classic render stages for a built scene.
 
     Args:
@@ -35,6 +36,8 @@ def render_images(scene, settings, *, timer: StageTimer | None = None, device=No
             surfaces, shadows).
         timer: a :class:`~warpscatter.stages.StageTimer` (created if None).
         device: Warp device.
+        aovs: the requested outputs (``output.aovs``); the method's debug outputs among them are made and returned
+            with the images.
 
     Returns:
         (images, stats): images as in :func:`warpscatter.shading.shade_and_compose`; stats with sizes and the
@@ -75,8 +78,10 @@ def render_images(scene, settings, *, timer: StageTimer | None = None, device=No
     if need_shadow_map:
         with timer("shadow_map"):
             shadow_map = render_shadow_map(scene, sc.shadow_map.resolution, device=device)
-    frame = Frame(scene, gbuf, geometry=geometry if marches_exact else None, shadow_map=shadow_map, device=device)
+    frame = Frame(scene, gbuf, geometry=geometry if marches_exact else None, shadow_map=shadow_map, device=device,
+                  aovs=tuple(aovs))
     l_scat, info = method.load()(frame, sc, timer)
+    debug_images = info.pop("debug_images", {})
     shadows = None
     if shadows_on:
         shadows, shadow_info = prepare_shadows(scene, shadow_map, settings.shadows, bias_texels=sc.shadow_map.bias,
@@ -85,6 +90,7 @@ def render_images(scene, settings, *, timer: StageTimer | None = None, device=No
     with timer("shading"):
         images = shade_and_compose(scene, gbuf, l_scat, shadows=shadows, surfaces=settings.surfaces.enabled,
                                    device=device)
+    images.update(debug_images)
     stats = {
         "triangles": scene.triangle_count,
         "resolution": [scene.camera.width, scene.camera.height],

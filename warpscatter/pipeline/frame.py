@@ -20,6 +20,8 @@ class Frame:
             None when the method does not cast shadow rays.
         shadow_map: the light's :class:`~warpscatter.shadows.shadow_map.ShadowMap`, or None.
         device: Warp device.
+        aovs: the requested outputs (``output.aovs``): a method makes the debug ones it lists
+            (:attr:`~warpscatter.methods.Method.debug_aovs`) and returns them in ``info["debug_images"]``.
     """
 
     scene: object
@@ -27,6 +29,7 @@ class Frame:
     geometry: object | None = None
     shadow_map: object | None = None
     device: str | wp.context.Device | None = None
+    aovs: tuple[str, ...] = ()
 
     def __post_init__(self):
         self.device = default_device(self.device)

@@ -152,5 +152,17 @@ def march_epipole_regions(scene, gbuffer, shadow_map, regions: list[EpipoleRegio
                      float(np.cos(np.radians(r.outer_deg))), marcher, int(x0), int(y0), out], device=device)
 
 
+def epipole_weights(camera, regions: list[EpipoleRegion]) -> np.ndarray:
+    """(H, W) float32 weight of the ray-marched result per pixel (1 inside the inner cone, falling linearly in the angle
+    to 0 at the outer one, as :func:`epipole_region_kernel` blends): the ``epipole_mask`` debug output."""
+    d = camera.ray_directions(1)
+    w = np.zeros(d.shape[:2], np.float32)
+    for r in regions:
+        psi = np.degrees(np.arccos(np.clip(d @ np.asarray(r.axis), -1.0, 1.0)))
+        band = max(r.outer_deg - r.inner_deg, 1e-12)
+        w = np.maximum(w, np.clip((r.outer_deg - psi) / band, 0.0, 1.0).astype(np.float32))
+    return w
+
+
 __all__ = ["EPIPOLE_BLEND", "EpipoleRegion", "epipole_pixel_fraction", "epipole_region_kernel", "epipole_regions",
-           "march_epipole_regions"]
+           "epipole_weights", "march_epipole_regions"]

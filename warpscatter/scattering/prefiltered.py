@@ -64,7 +64,7 @@ from ..stages import StageTimer
 from ..wpinit import default_device, module_options
 from . import rectify_nonlinear
 from .caster_culling import cull_unseen_casters
-from .epipole_fallback import epipole_pixel_fraction, epipole_regions, march_epipole_regions
+from .epipole_fallback import epipole_pixel_fraction, epipole_regions, epipole_weights, march_epipole_regions
 from .filtered_lookups import fourier_visibility, moments_visibility
 from .filtered_textures import (
     FilteredBasis,
@@ -240,6 +240,10 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         stage: the :class:`~warpscatter.stages.StageTimer` (stages ``rectify``, ``resample_msm``, ``pixel_coords``,
             ``caster_culling``, ``prefilter``, ``evaluate``, ``epipole``).
 
+    Debug outputs (``frame.aovs``, in ``info["debug_images"]``): ``rectified`` the (H, W, 3) look-up coordinates
+    (u, v, z_r) per pixel, ``epipole_mask`` the (H, W) weight of the ray-marched epipole region, ``rectified_map``
+    the (rows, cols, 2) rectified depth the prefilter read and 1 where caster culling emptied the texel.
+
     Returns:
         (L_scat, info): (H, W) vec3 wp.array and a dict describing the rectification (kind and the reason it
         was chosen), the filtered textures and the epipole regions.
@@ -270,6 +274,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     with stage("pixel_coords"):
         coords = pixel_coords(rect, cam, gbuffer.distance, device=device)
     culled = None
+    map_before_culling = _map_depth(rectified).copy() if "rectified_map" in frame.aovs else None
     if settings.culls_casters:
         with stage("caster_culling"):
             culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device)
@@ -321,7 +326,23 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         info.update({"regions": rect.regions, "near_far": [round(rect.near, 6), round(rect.far, 6)]})
     else:
         info["full_circle"] = rect.full_circle
+    debug = {}
+    if "rectified" in frame.aovs:
+        debug["rectified"] = coords.numpy()
+    if "epipole_mask" in frame.aovs:
+        debug["epipole_mask"] = epipole_weights(cam, regions)
+    if map_before_culling is not None:
+        depth = _map_depth(rectified)
+        debug["rectified_map"] = np.stack([depth, (depth != map_before_culling).astype(np.float32)], axis=-1)
+    if debug:
+        info["debug_images"] = debug
     return out, info
+
+
+def _map_depth(rectified) -> np.ndarray:
+    """(rows, cols) float32 rectified depth of a map (its first depth when it holds two)."""
+    depth = rectified.z1 if isinstance(rectified, rectify_nonlinear.SparseRectifiedDepth) else rectified
+    return depth.numpy()
 
 
 __all__ = [
