@@ -76,7 +76,7 @@ from .prefix_sums import (
     prefilter_moments,
     prefilter_weighted,
 )
-from .ray_weights import RayWeights, ray_weights
+from .ray_weights import RayWeights, inside_map_fraction, ray_weights
 from .rectification import RectificationParams, build_rectification, rectification_params, rectified_coords, wrap_rows
 from .rectify_nonlinear import NonlinearRectification, reference_ray, resample_shadow_map
 from .rectify_projective import (
@@ -98,7 +98,12 @@ module_options()
 def map_visibility(texels: FilteredBasisArrays, weights: RayWeights, c: wp.vec3, wrap: int, beta: float,
                    light_direction: wp.vec3, view_direction: wp.vec3) -> float:
     """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a Fourier texture (Klehm 2014
-    Listing 4), its texels weighted as ``weights`` says (:mod:`.ray_weights`); ``beta`` and the directions unused."""
+    Listing 4), its texels weighted as ``weights`` says (:mod:`.ray_weights`), those beyond the map lit; ``beta``
+    and the directions unused."""
+    inside = inside_map_fraction(weights, c[0], c[2])
+    if inside < 1.0:
+        u_map = 1.0 + weights.end_offset / float(weights.cols)  # the look-up through the whole map
+        return inside * fourier_visibility(texels, weights, u_map, c[1], c[2], wrap) + (1.0 - inside)
     return fourier_visibility(texels, weights, c[0], c[1], c[2], wrap)
 
 
@@ -110,6 +115,10 @@ def map_visibility(texels: FilteredMomentArrays, weights: RayWeights, c: wp.vec3
     b = beta
     if b < 0.0:
         b = mm.adaptive_overestimation_weight(light_direction, view_direction)
+    inside = inside_map_fraction(weights, c[0], c[2])
+    if inside < 1.0:  # as for the Fourier texture
+        u_map = 1.0 + weights.end_offset / float(weights.cols)
+        return inside * moments_visibility(texels, weights, u_map, c[1], c[2], wrap, b) + (1.0 - inside)
     return moments_visibility(texels, weights, c[0], c[1], c[2], wrap, b)
 
 
@@ -291,8 +300,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
         beta = -1.0 if overestimation == "adaptive" else float(overestimation)
-        weights = ray_weights(segments, tau, rect if segments > 1 else None, scene.medium.sigma_t, p.end_offset,
-                              device=device)
+        weights = ray_weights(segments, tau, rect if isinstance(rect, NonlinearRectification) else None,
+                              scene.medium.sigma_t, p.end_offset, device=device, cols=cols)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
                     [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, int(wrap_rows(rect)), beta,
@@ -326,6 +335,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         info.update({"regions": rect.regions, "near_far": [round(rect.near, 6), round(rect.far, 6)]})
     else:
         info["full_circle"] = rect.full_circle
+        info["map_radius"] = round(rect.r_max, 4)  # world units from the camera's light axis covered by the columns
     debug = {}
     if "rectified" in frame.aovs:
         debug["rectified"] = coords.numpy()

@@ -52,7 +52,8 @@ class RayWeights:
     tau_j per column; tau_perp: sigma_t Delta_perp, the optical step of a ray perpendicular to the light;
     theta_hi, theta_len: the non-linear rectification's depth bounds (z_r -> the ray's inclination theta);
     end_offset: texels the look-up ends before the ray's end point (the texel of the surface it ends on is its own
-    blocker: read half in, it shadows or lights the ray's last texel by chance).
+    blocker: read half in, it shadows or lights the ray's last texel by chance); cols: the map's columns (a ray
+    reaching past them, u > 1, has its texels beyond the map counted as lit: :func:`inside_map_fraction`).
     """
 
     segments: int
@@ -61,6 +62,7 @@ class RayWeights:
     theta_hi: float
     theta_len: float
     end_offset: float
+    cols: int
 
 
 @wp.func
@@ -79,6 +81,19 @@ def ray_optical_step(weights: RayWeights, z_r: float) -> float:
     (rays within 1e-4 of the light axis are capped; they end inside the ray-marched epipole region)."""
     theta = weights.theta_hi - z_r * weights.theta_len
     return weights.tau_perp / wp.max(wp.sin(theta), 1.0e-4)
+
+
+@wp.func
+def inside_map_fraction(weights: RayWeights, u: float, z_r: float) -> float:
+    """Share of the ray's own transmittance weight that lies inside the map, for a view ray ending at column
+    coordinate u (1 when it ends inside). A non-linear map fitted to the casters (``map_radius: casters``) ends
+    where the farthest caster is; a ray reaching beyond has only lit texels there."""
+    n_end = u * float(weights.cols) - weights.end_offset  # texels through the look-up's end
+    n_map = float(weights.cols)
+    if n_end <= n_map:
+        return 1.0
+    tau = ray_optical_step(weights, z_r)
+    return weight_sum(tau, n_map) / weight_sum(tau, n_end)
 
 
 @wp.func
@@ -118,16 +133,18 @@ def ray_cut(tau: float, x: float, share: float, decay_end: float):
 
 
 def ray_weights(segments: int, optical_step, rect=None, sigma_t: float = 0.0, end_offset: float = 0.0,
-                device=None) -> RayWeights:
+                device=None, cols: int | None = None) -> RayWeights:
     """Kernel-side :class:`RayWeights`.
 
     Args:
         segments: K >= 1 (K > 1 needs ``rect``, a non-linear rectification).
         optical_step: (rows,) the prefilter's tau_j (or None: average visibility, tau_j = 0).
-        rect: the :class:`~.rectify_nonlinear.NonlinearRectification` of the texture (K > 1).
+        rect: the :class:`~.rectify_nonlinear.NonlinearRectification` of the texture (K > 1, and for the lit texels
+            beyond a map fitted to the casters), or None.
         sigma_t: extinction (1/unit).
         end_offset: texels the look-up ends before the ray's end point (>= 0).
         device: Warp device.
+        cols: the map's columns (default ``rect.cols``; without either, no ray reaches past the map).
     """
     if not 1 <= int(segments) <= MAX_SEGMENTS:
         raise ValueError(f"segments must be in [1, {MAX_SEGMENTS}], got {segments}")
@@ -137,9 +154,10 @@ def ray_weights(segments: int, optical_step, rect=None, sigma_t: float = 0.0, en
     w.segments = int(segments)
     w.end_offset = float(end_offset)
     w.tau_perp, w.theta_hi, w.theta_len = 0.0, 0.0, 1.0
-    if segments > 1:
-        if rect is None:
-            raise ValueError("segments > 1 needs the non-linear rectification of the texture")
+    w.cols = int(cols if cols is not None else (rect.cols if rect is not None else 2**30))
+    if segments > 1 and rect is None:
+        raise ValueError("segments > 1 needs the non-linear rectification of the texture")
+    if rect is not None:
         w.tau_perp = float(sigma_t * rect.delta_perp)
         w.theta_hi, w.theta_len = float(rect.theta_hi), float(rect.theta_len)
     rows = 1 if optical_step is None else len(optical_step)
@@ -148,5 +166,5 @@ def ray_weights(segments: int, optical_step, rect=None, sigma_t: float = 0.0, en
     return w
 
 
-__all__ = ["MAX_SEGMENTS", "RayWeights", "ray_cut", "ray_end", "ray_optical_step", "ray_weights", "segment_columns",
-           "segment_sums", "weight_sum"]
+__all__ = ["MAX_SEGMENTS", "RayWeights", "inside_map_fraction", "ray_cut", "ray_end", "ray_optical_step", "ray_weights",
+           "segment_columns", "segment_sums", "weight_sum"]

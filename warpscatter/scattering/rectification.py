@@ -11,11 +11,12 @@ cases); :class:`RectificationParams` and :func:`rectified_coords` give kernels o
 
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
 from ..wpinit import module_options
 from . import rectify_nonlinear, rectify_projective
-from .rectify_nonlinear import NonlinearRectification, NonlinearRectParams
+from .rectify_nonlinear import NonlinearRectification, NonlinearRectParams, caster_radius
 from .rectify_projective import ProjectiveRectification, ProjectiveRectParams, choose_rectification
 from .settings import PrefilteredSettings
 
@@ -85,7 +86,13 @@ def build_rectification(scene, settings: PrefilteredSettings, rows: int, cols: i
                 kind="nonlinear", reason=f"{choice.reason}; projective construction failed ({exc}): non-linear used",
                 epipole_distance=choice.epipole_distance)
             rectify_projective.logger.warning("fourier rectification: %s", choice.reason)
-    rect = NonlinearRectification.from_camera(cam, light_dir, guard_band=settings.guard_band, rows=rows, cols=cols)
+    radius = None
+    if settings.map_radius == "casters":
+        casters = scene.casters()
+        radius = caster_radius(casters.vertices[np.unique(casters.triangles)] if len(casters.triangles) else [], cam,
+                               light_dir)
+    rect = NonlinearRectification.from_camera(cam, light_dir, guard_band=settings.guard_band, rows=rows, cols=cols,
+                                              radius=radius)
     return rect, choice
 
 

@@ -300,7 +300,7 @@ class NonlinearRectification:
 
     @classmethod
     def from_camera(cls, camera, light_direction, guard_band: float = 0.1, rows: int = 1024,
-                    cols: int = 1024) -> "NonlinearRectification":
+                    cols: int = 1024, radius: float | None = None) -> "NonlinearRectification":
         """Tight bounds of the rectified coordinates for ``camera`` and a directional light (Peters 2017 App. A).
 
         Args:
@@ -309,6 +309,9 @@ class NonlinearRectification:
             guard_band: relative stretch of the theta interval (Peters 2017 uses 0.1), >= 0.
             rows: epipolar slices of the rectified map (>= 2).
             cols: texels along each view ray (>= 2).
+            radius: caps r_max (world units, > 0): the map then covers light rays up to this distance from the
+                camera's light axis only, and the look-ups count a view ray's texels beyond it as lit
+                (:func:`caster_radius`: where the last caster is).
 
         Raises:
             ValueError: on a zero/non-finite light direction, a negative guard band or a map below 2x2.
@@ -327,6 +330,10 @@ class NonlinearRectification:
         # ---- r: distance to the light axis through the camera (r_min = 0, near plane ignored) ----
         r_max = float(np.max(np.hypot(quad[:, 0], quad[:, 1])))
         r_max = max(r_max, 1e-12 * float(np.max(np.linalg.norm(quad, axis=1))))
+        if radius is not None:
+            if not (np.isfinite(radius) and radius > 0.0):
+                raise ValueError(f"radius must be finite and > 0, got {radius}")
+            r_max = min(r_max, float(radius))
 
         # ---- phi: full circle when the (flipped) light direction lies inside the frustum ----
         light_in = direction_in_frustum(camera, ez)
@@ -492,6 +499,20 @@ class ReferenceRays:
         if not (np.isfinite(sigma_t) and sigma_t >= 0.0):
             raise ValueError(f"sigma_t must be finite and >= 0, got {sigma_t}")
         return (sigma_t * self.delta_ref).astype(np.float32)
+
+
+def caster_radius(vertices, camera, light_direction, margin: float = 0.02) -> float | None:
+    """Largest distance of a caster vertex from the light axis through the camera, widened by ``margin`` (relative):
+    no light ray farther out is blocked, so a rectified map need not reach beyond it (``map_radius: casters``).
+    None without vertices. World units."""
+    v = np.asarray(vertices, np.float64).reshape(-1, 3)
+    if len(v) == 0:
+        return None
+    axis = np.asarray(light_direction, np.float64)
+    axis = axis / np.linalg.norm(axis)
+    p = v - np.asarray(camera.position, np.float64)
+    r = np.sqrt(np.maximum(np.einsum("ij,ij->i", p, p) - (p @ axis) ** 2, 0.0))
+    return float(r.max() * (1.0 + margin)) if r.max() > 0 else None
 
 
 def reference_ray(rect: NonlinearRectification, method: str = "optimal", camera=None,
