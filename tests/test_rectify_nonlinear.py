@@ -522,6 +522,35 @@ def test_filtered_resampling_recovers_a_two_surface_texel():
     assert np.all(empty[..., 0] == 1.0) and np.all(empty[..., 1] == 1.0)
 
 
+def test_filtered_resampling_reads_the_pulled_down_far_plane_as_no_blocker():
+    """Issue #13 (a seam straight down from the canopy): a texel mixing two caster depths with empty texels (the
+    cleared far plane, +1) has no two-depth distribution; Algorithm 2's upper depth falls below +1 (here 0.964 to
+    0.9997) and, under the fixed threshold 1 - EMPTY_DEPTH_TOLERANCE, was a blocker at the map's far plane: a whole
+    texel switched from lit to shadowed between neighbouring slices. With the farthest caster known, depths beyond
+    it go continuously to "no blocker" (rectified depth 1), and the nearer depth stays where it was."""
+    light, cam, view, proj = _side_setup()
+    rect = NonlinearRectification.from_camera(cam, light, rows=16, cols=16)
+    from warpscatter.shadows import msm
+
+    g = msm.map_geometry(_synthetic_moment_map(view, proj, np.zeros((4, 4, 4))).shadow_map)
+    za, zb = -0.5, -0.2  # signed depths of the two casters; zb is the farthest
+    farthest = (zb - g.depth_offset) / g.depth_scale
+    upper, lower = [], []
+    for w in np.linspace(0.3, 0.99, 24):  # weight of the empty texels in the filter footprint
+        b = 0.5 * (1.0 - w) * (za ** np.arange(1, 5) + zb ** np.arange(1, 5)) + w
+        m = _synthetic_moment_map(view, proj, np.tile(b, (16, 16, 1)))
+        got = rectify.resample_moment_shadow_map(rect, m, farthest_caster=farthest).numpy()
+        upper.append(got[..., 1])
+        lower.append(got[..., 0])
+    upper, lower = np.array(upper), np.array(lower)
+    assert upper.min() > 0.99  # measured 0.9996; the fixed threshold gave the far plane's depth up to w = 0.94
+    assert np.abs(np.diff(upper, axis=0)).max() < 0.01  # no switch between neighbouring weights
+    two = _synthetic_moment_map(view, proj, np.tile(0.5 * (za ** np.arange(1, 5) + zb ** np.arange(1, 5)), (16, 16, 1)))
+    with_limit = rectify.resample_moment_shadow_map(rect, two, farthest_caster=farthest).numpy()
+    assert np.array_equal(with_limit, rectify.resample_moment_shadow_map(rect, two).numpy())  # casters: as before
+    assert np.ptp(lower, axis=0).max() < 1e-3  # the nearer depth (Algorithm 2's z_1 ~ -0.383) barely moves
+
+
 def test_filtered_resampling_degenerate_moments_stay_finite():
     light, cam, view, proj = _side_setup()
     rect = NonlinearRectification.from_camera(cam, light, rows=32, cols=32)

@@ -232,7 +232,11 @@ def resample_filtered(scene, rect: NonlinearRectification, shadow_map, settings:
             msm_maps.generate_moment_shadow_map(scene, shadow_map, supersampling=2, bits=128, device=device),
             filter_px, device=device)
     with stage("rectify"):
-        return rectify_nonlinear.resample_moment_shadow_map(rect, moments, device=device), int(filter_px)
+        depth = shadow_map.depth.numpy() if isinstance(shadow_map.depth, wp.array) else np.asarray(shadow_map.depth)
+        finite = depth[np.isfinite(depth)]
+        farthest = float(finite.max()) if finite.size else None  # the map's farthest caster (linear light depth)
+        return (rectify_nonlinear.resample_moment_shadow_map(rect, moments, farthest_caster=farthest, device=device),
+                int(filter_px))
 
 
 def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None) -> tuple[wp.array, dict]:
@@ -300,8 +304,11 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
         beta = -1.0 if overestimation == "adaptive" else float(overestimation)
+        # end_offset counts texels of a map reaching the view (a fixed world distance along the rays: the surface a
+        # ray ends on is its own blocker over a stretch set by the depth precision, not by the column width)
+        end_offset = p.end_offset * (rect.column_scale if isinstance(rect, NonlinearRectification) else 1.0)
         weights = ray_weights(segments, tau, rect if isinstance(rect, NonlinearRectification) else None,
-                              scene.medium.sigma_t, p.end_offset, device=device, cols=cols)
+                              scene.medium.sigma_t, end_offset, device=device, cols=cols)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
                     [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, int(wrap_rows(rect)), beta,

@@ -129,6 +129,25 @@ EMPTY_DEPTH_TOLERANCE = wp.constant(1.0e-3)
 
 
 @wp.func
+def sentinel_gap_depth(z: float, d: float, caster_limit: float, d_limit: float) -> float:
+    """Light-space depth of an Algorithm-2 depth z (linear depth d) that may lie in the gap between the farthest caster
+    (signed ``caster_limit``, linear ``d_limit``) and the cleared far plane: below the limit d itself; in the gap the
+    distance beyond the limit is stretched by 1 / (1 - s), s = the position in the gap, so that the depth goes to
+    infinity (no blocker in the frustum) as z reaches the empty threshold 1 - EMPTY_DEPTH_TOLERANCE.
+
+    No caster lies in the gap: a depth there is the empty texels' +1 pulled down by a mixture of more than two depths
+    (Algorithm 2 fits two). Read as a blocker at the map's far plane, it shadowed everything behind that plane along
+    the light (with a map fitted to the casters, the camera's side of the medium), and the hard threshold switched a
+    whole texel from shadowed to lit between neighbouring epipolar slices: a seam along one epipolar line.
+    """
+    z_empty = 1.0 - EMPTY_DEPTH_TOLERANCE
+    if z <= caster_limit:
+        return d
+    keep = wp.max((z_empty - z) / wp.max(z_empty - caster_limit, 1.0e-30), 1.0e-30)  # 1 - s
+    return d_limit + (d - d_limit) / keep
+
+
+@wp.func
 def rectified_blocker_depth(rect: NonlinearRectParams, u: float, z_b: float) -> float:
     """Rectified depth of a blocker at light-view distance z_b (along the light, from the light ray's point
     closest to the camera) on the light ray of column coordinate u, clamped to [0, 1] (Klehm 2014 Sec. 4.1:
@@ -174,6 +193,7 @@ def resample_moments_kernel(
     out_z1: wp.array2d(dtype=wp.float32),  # (rows, cols) rectified depth of the first depth in [0, 1]
     out_z2: wp.array2d(dtype=wp.float32),  # (rows, cols) rectified depth of the second depth in [0, 1]
     out_w2: wp.array2d(dtype=wp.float32),  # (rows, cols) weight w_2 of the second depth in [0, 1]
+    caster_limit: float,  # signed depth of the farthest caster (<= 1 - EMPTY_DEPTH_TOLERANCE), sentinel_gap_depth
     offset: int,
 ):
     # Peters 2017 Sec. 5.2 / D.5: filtered moment sample -> Algorithm 2 -> two rectified depths
@@ -193,6 +213,7 @@ def resample_moments_kernel(
             z = depths[k]
             if z < 1.0 - EMPTY_DEPTH_TOLERANCE:
                 d = (z - mp.depth_offset) / mp.depth_scale  # linear light-space depth of the blocker
+                d = sentinel_gap_depth(z, d, caster_limit, (caster_limit - mp.depth_offset) / mp.depth_scale)
                 r = rectified_blocker_depth(rect, u, d - c[2])
             if k == 0:
                 z1 = r
@@ -281,6 +302,7 @@ class NonlinearRectification:
         theta_min, theta_max: tight inclination bounds of the frustum (radians).
         guard_band: relative stretch of the theta interval (0.1 = 10 %, half on each side).
         rows, cols: resolution of the rectified map (epipolar slices x texels along a view ray).
+        view_radius: r_max of the view frustum alone (before a ``radius`` cap).
     """
 
     position: np.ndarray
@@ -297,6 +319,13 @@ class NonlinearRectification:
     guard_band: float
     rows: int
     cols: int
+    view_radius: float = 0.0
+
+    @property
+    def column_scale(self) -> float:
+        """View radius / r_max: how many times finer the columns are than those of a map reaching the view's far
+        corners (1 unless ``radius`` capped it)."""
+        return self.view_radius / self.r_max if self.view_radius > 0.0 else 1.0
 
     @classmethod
     def from_camera(cls, camera, light_direction, guard_band: float = 0.1, rows: int = 1024,
@@ -330,6 +359,7 @@ class NonlinearRectification:
         # ---- r: distance to the light axis through the camera (r_min = 0, near plane ignored) ----
         r_max = float(np.max(np.hypot(quad[:, 0], quad[:, 1])))
         r_max = max(r_max, 1e-12 * float(np.max(np.linalg.norm(quad, axis=1))))
+        view_radius = r_max
         if radius is not None:
             if not (np.isfinite(radius) and radius > 0.0):
                 raise ValueError(f"radius must be finite and > 0, got {radius}")
@@ -353,7 +383,8 @@ class NonlinearRectification:
         return cls(position=position, to_light=to_light, far_corners=quad, r_max=r_max, phi_min=float(phi_min),
                    phi_span=float(phi_span), full_circle=bool(light_in or flipped_in), light_in_view=bool(light_in),
                    flipped_light_in_view=bool(flipped_in), theta_min=float(min(thetas)),
-                   theta_max=float(max(thetas)), guard_band=float(guard_band), rows=int(rows), cols=int(cols))
+                   theta_max=float(max(thetas)), guard_band=float(guard_band), rows=int(rows), cols=int(cols),
+                   view_radius=float(view_radius))
 
     # ---- derived bounds ------------------------------------------------------------------------------
     @property
@@ -732,7 +763,7 @@ def resample_footprint_texels(rect: NonlinearRectification, texel_world: float) 
     return float(rect.r_max / rect.cols / texel_world)
 
 
-def resample_moment_shadow_map(rect: NonlinearRectification, msm: MomentShadowMap,
+def resample_moment_shadow_map(rect: NonlinearRectification, msm: MomentShadowMap, farthest_caster: float | None = None,
                                device=None) -> SparseRectifiedDepth:
     """Filtering during resampling (Peters 2017 Sec. 5.2, Algorithm 2, D.5): rectify a filtered moment shadow map.
 
@@ -747,6 +778,11 @@ def resample_moment_shadow_map(rect: NonlinearRectification, msm: MomentShadowMa
         rect: the rectification (its rows x cols is the output size).
         msm: a :class:`~warpscatter.shadows.msm.MomentShadowMap` of an ORTHOGRAPHIC light view along the
             rectification's light direction (channel 0 is used), filtered as wanted.
+        farthest_caster: linear light-space depth of the farthest caster in the map (e.g. the largest finite depth
+            of the plain shadow map), or None (unknown: the far plane). Algorithm-2 depths between it and the
+            cleared far plane are no casters but the empty +1 pulled down by mixtures of three or more depths; they
+            are moved continuously to infinity (:func:`sentinel_gap_depth`) instead of becoming blockers at the far
+            plane.
         device: Warp device.
 
     Returns:
@@ -766,5 +802,10 @@ def resample_moment_shadow_map(rect: NonlinearRectification, msm: MomentShadowMa
     texels = msm.texels if msm.texels.device == wp.get_device(device) else msm.texels.to(device)
     shape = (rect.rows, rect.cols)
     z1, z2, w2 = (wp.empty(shape, dtype=wp.float32, device=device) for _ in range(3))
-    launch_rows(resample_moments_kernel, shape, [rect.params(), params, texels, z1, z2, w2], device=device)
+    z_empty = 1.0 - float(EMPTY_DEPTH_TOLERANCE)
+    limit = z_empty
+    if farthest_caster is not None and np.isfinite(farthest_caster):
+        g = msm.geometry
+        limit = float(np.clip(g.depth_scale * float(farthest_caster) + g.depth_offset, -1.0, z_empty))
+    launch_rows(resample_moments_kernel, shape, [rect.params(), params, texels, z1, z2, w2, limit], device=device)
     return SparseRectifiedDepth(z1=z1, z2=z2, w2=w2)

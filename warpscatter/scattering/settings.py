@@ -107,13 +107,14 @@ class PrefilteredSettings(SettingsModel):
                           "reference weights (Klehm 2014); null: " + str(SEGMENTS) + " with transmittance weighting, "
                           "splits 1 and the non-linear rectification, else 1")
     end_offset: Annotated[Float, Field(ge=0.0, le=MAX_END_OFFSET, description=(
-        "texels the look-up ends before the ray's end point: the texel of the surface a ray ends on is its own "
-        "blocker and lights or shadows the ray's last texel by chance"))] = END_OFFSET
+        "texels the look-up ends before the ray's end point (texels of a map reaching the view: with map_radius "
+        "casters, as many more as the columns are finer): the surface a ray ends on is its own blocker and lights or "
+        "shadows the ray's last texel by chance"))] = END_OFFSET
     guard_band: Annotated[Float, Field(ge=0.0, le=1.0, description="relative stretch of the depth bounds")] = 0.1
-    map_radius: Literal["view", "casters"] = Field(
-        "view", description="non-linear rectification: the map's columns reach as far from the camera's light axis as "
-                            "the view frustum (Peters 2017 App. A), or as the farthest caster (a view ray's texels "
-                            "beyond count as lit; finer columns where the shadows are, see the README)")
+    map_radius: Literal["casters", "view"] = Field(
+        "casters", description="non-linear rectification: the map's columns reach as far from the camera's light "
+                               "axis as the farthest caster (a view ray's texels beyond count as lit; finer columns "
+                               "where the shadows are, see the README), or as the view frustum (Peters 2017 App. A)")
     epipole_block: Annotated[Int, Field(ge=0, description="the least ray-marched region around an epipole in view: "
                                                           "Klehm's block side in pixels (its half side as an angle at "
                                                           "the image centre is the least radius)")] = 32
