@@ -11,6 +11,15 @@ placed behind every caster; spot: the light position). Empty texels hold +inf.
 
 Texel (i, j) has j from the TOP (NDC y = +1), as every image in warpscatter. A lookup outside the
 map's xy footprint is lit (no caster was rasterized there).
+
+Surfaces at a contact on the map's silhouette (:func:`shadow_pcf_surface`): where a receiver meets its occluder
+along the outline of everything the light sees — the floor and walls of a closed room, whose creases are that
+outline — plain PCF leaks light into the contact shadow. Its box reaches past the outline into empty texels (lit),
+compares the receiver's single depth against an occluder that is steep in light space (a wall lit at a grazing
+angle: several texels of depth per texel), and the depth bias lets the occluder's texels next to the contact pass
+as the receiver's own. Near such an outline :func:`shadow_pcf_contact` therefore drops the empty texels (the
+receiver, itself a caster, does not reach there), compares each texel against the receiver's plane (receiver-plane
+depth) and needs only a small fraction of the bias. Elsewhere nothing changes.
 """
 
 from __future__ import annotations
@@ -28,6 +37,12 @@ module_options()
 
 SHADOW_ORTHOGRAPHIC = 0
 SHADOW_PERSPECTIVE = 1
+#: Contact PCF (:func:`shadow_pcf_contact`): the depth bias it keeps, as a fraction of the map's bias. Comparing
+#: against the receiver's plane leaves only float and rasterization noise to absorb; what remains of the bias is a
+#: wedge of occluder next to the contact that still passes as lit (0.05 texel with the default bias of one).
+CONTACT_BIAS_FRACTION = wp.constant(0.05)
+#: Texels beyond the PCF box searched for an empty texel (the map's silhouette) by :func:`shadow_pcf_surface`.
+CONTACT_RING = wp.constant(1)
 
 
 @wp.struct
@@ -251,3 +266,121 @@ def shadow_pcf(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float32), x: 
             total += wgt * shadow_texel_lit(depth_map, i0 + di, j0 + dj, c[2], bias)
             wsum += wgt
     return total / wp.max(wsum, 1.0e-12)
+
+
+@wp.func
+def shadow_texel_coords(sm: ShadowMapParams, x: wp.vec3) -> wp.vec3:
+    """(fx, fy, depth) of world point x: map coordinates in texels (texel (i, j)'s centre at (i, j)) and linear
+    light-space depth."""
+    c = shadow_coords(sm, x)
+    return wp.vec3(c[0] * float(sm.width) - 0.5, c[1] * float(sm.height) - 0.5, c[2])
+
+
+@wp.func
+def receiver_plane_gradient(sm: ShadowMapParams, x: wp.vec3, n: wp.vec3, c: wp.vec3) -> wp.vec2:
+    """Light-space depth change per texel (along map x, y) of the plane through x with unit normal n, at x's
+    :func:`shadow_texel_coords` c (local for perspective maps). Zero where the light sees the plane edge-on."""
+    a = wp.vec3(1.0, 0.0, 0.0)
+    if wp.abs(n[0]) > 0.9:
+        a = wp.vec3(0.0, 1.0, 0.0)
+    t1 = wp.normalize(wp.cross(n, a))
+    t2 = wp.cross(n, t1)
+    h = sm.texel_world  # about one texel along the plane
+    if sm.perspective != 0:
+        h = sm.texel_world * wp.max(c[2], 1.0e-6)
+    e1 = shadow_texel_coords(sm, x + t1 * h) - c
+    e2 = shadow_texel_coords(sm, x + t2 * h) - c
+    det = e1[0] * e2[1] - e2[0] * e1[1]
+    if not (wp.abs(det) > 1.0e-6):  # the plane covers (almost) no texels, or non-finite coordinates
+        return wp.vec2(0.0, 0.0)
+    return wp.vec2((e1[2] * e2[1] - e2[2] * e1[1]) / det, (e2[2] * e1[0] - e1[2] * e2[0]) / det)
+
+
+@wp.func
+def near_map_silhouette(depth_map: wp.array2d(dtype=wp.float32), i0: int, j0: int, lo: int, hi: int) -> bool:
+    """True when a texel (i0 + di, j0 + dj), di and dj in [lo, hi], inside the map is empty (+inf): the box reaches
+    past the outline of everything the light sees."""
+    for dj in range(lo, hi + 1):
+        j = j0 + dj
+        if j >= 0 and j < depth_map.shape[0]:
+            for di in range(lo, hi + 1):
+                i = i0 + di
+                if i >= 0 and i < depth_map.shape[1]:
+                    if not wp.isfinite(depth_map[j, i]):
+                        return True
+    return False
+
+
+@wp.func
+def shadow_pcf_contact(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float32), x: wp.vec3, n: wp.vec3,
+                       bias: float, filter_px: int) -> float:
+    """PCF of surface point x (unit normal n facing the light) that is itself a caster, for contacts on the map's
+    silhouette: the box of :func:`shadow_pcf` around x, empty and out-of-map texels left out (the receiver does not
+    reach there, or nothing is known there), each texel compared against the receiver's plane at that texel (depth
+    bias ``bias``, world units); 1 = lit, also when no texel of the box is left."""
+    c = shadow_texel_coords(sm, x)
+    g = receiver_plane_gradient(sm, x, n, c)
+    i0 = int(wp.floor(c[0]))
+    j0 = int(wp.floor(c[1]))
+    ax = c[0] - float(i0)
+    ay = c[1] - float(j0)
+    r = filter_px / 2
+    lo = -r
+    hi = filter_px - r
+    total = float(0.0)
+    wsum = float(0.0)
+    for dj in range(lo, hi + 1):
+        wy = 1.0
+        if dj == lo:
+            wy = 1.0 - ay
+        elif dj == hi:
+            wy = ay
+        j = j0 + dj
+        for di in range(lo, hi + 1):
+            wx = 1.0
+            if di == lo:
+                wx = 1.0 - ax
+            elif di == hi:
+                wx = ax
+            i = i0 + di
+            if i < 0 or j < 0 or i >= depth_map.shape[1] or j >= depth_map.shape[0]:
+                continue  # outside the map: nothing known about the receiver there
+            s = depth_map[j, i]
+            if not wp.isfinite(s):
+                continue  # empty: past the receiver's own outline
+            lit = float(1.0)
+            d = c[2] + g[0] * (float(i) - c[0]) + g[1] * (float(j) - c[1])
+            if d > s + bias:
+                lit = 0.0
+            wgt = wx * wy
+            total += wgt * lit
+            wsum += wgt
+    if wsum <= 1.0e-12:
+        return 1.0
+    return total / wsum
+
+
+@wp.func
+def shadow_pcf_surface(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float32), x: wp.vec3, n: wp.vec3,
+                       normal_offset: float, bias: float, filter_px: int, contact: int) -> float:
+    """PCF visibility of surface point x with unit normal n facing the light; 1 = lit.
+
+    :func:`shadow_pcf` of x moved ``normal_offset`` (world units) along n, with depth bias ``bias`` (both for a
+    texel at unit depth on perspective maps, where they grow with the receiver's depth like the texels, as the
+    moment maps' normal offset does); where ``contact`` is set (every receiver is also a caster, so it is in the map
+    itself) and the PCF box around x, grown by :data:`CONTACT_RING` texels, reaches an empty texel,
+    :func:`shadow_pcf_contact` with :data:`CONTACT_BIAS_FRACTION` of the bias instead (see the module docstring)."""
+    offset = normal_offset
+    depth_bias = bias
+    if sm.perspective != 0:  # both are given for texels at unit depth: scale them to the receiver's texels
+        z = wp.max(shadow_coords(sm, x)[2], 0.0)
+        offset = normal_offset * z
+        depth_bias = bias * z
+    if contact != 0:
+        c = shadow_texel_coords(sm, x)
+        if wp.isfinite(c[0]) and wp.isfinite(c[1]) and wp.abs(c[0]) < 1.0e6 and wp.abs(c[1]) < 1.0e6:
+            r = filter_px / 2
+            if near_map_silhouette(depth_map, int(wp.floor(c[0])), int(wp.floor(c[1])), -r - CONTACT_RING,
+                                   filter_px - r + CONTACT_RING):
+                return shadow_pcf_contact(sm, depth_map, x, n, depth_bias * CONTACT_BIAS_FRACTION, filter_px)
+    return shadow_pcf(sm, depth_map, x + n * offset, depth_bias, filter_px)

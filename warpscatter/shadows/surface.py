@@ -2,7 +2,9 @@
 
 V_shadow(x) (RGB, for tinted translucent occluders) of a surface point from the selected method:
 
-* ``pcf`` — percentage-closer filtering of the light's shadow map (one texel of normal offset);
+* ``pcf`` — percentage-closer filtering of the light's shadow map (one texel of normal offset); when every material
+  casts, contacts on the map's silhouette (the creases of a closed room) get receiver-plane PCF without the empty
+  texels (:func:`~warpscatter.shadows.shadow_map.shadow_pcf_surface`);
 * ``msm`` — a filtered 4-moment shadow map with translucent occluders (Peters et al. 2017 Sec. 2-3), bilinear or
   trilinear in its mip chain at the pixel footprint (D.2);
 * ``msm_soft`` — moment soft shadows from an integer summed-area table (Sec. 4);
@@ -21,7 +23,7 @@ from ..stages import StageTimer
 from ..wpinit import default_device, module_options
 from . import msm, soft
 from .settings import ShadowsSettings
-from .shadow_map import ShadowMapParams, shadow_pcf
+from .shadow_map import ShadowMapParams, shadow_pcf_surface
 
 module_options()
 
@@ -45,6 +47,7 @@ class SurfaceShadows:
     sm_depth: wp.array2d(dtype=wp.float32)
     sm_bias: float  # depth bias (scene units)
     filter_px: int  # PCF box width (texels)
+    contact: int  # 1: every receiver casts (no receiver_only material): contact PCF on the map's silhouette
     msm: msm.MomentShadowParams  # moment shadow map (msm)
     msm_texels: wp.array3d(dtype=wp.vec4)
     msm_mips: wp.array2d(dtype=wp.vec4)  # its mip chain ((C, 1) placeholder without one)
@@ -58,7 +61,8 @@ def surface_visibility(sh: SurfaceShadows, x: wp.vec3, n: wp.vec3, dx: wp.vec3, 
     to the neighbouring pixels' hits on x's tangent plane, read by mip-mapped ``msm``)."""
     if sh.mode == SHADOW_PCF:
         # normal offset of one texel keeps lit surfaces out of their own shadow
-        return wp.vec3(shadow_pcf(sh.sm, sh.sm_depth, x + n * sh.sm.texel_world, sh.sm_bias, sh.filter_px))
+        return wp.vec3(shadow_pcf_surface(sh.sm, sh.sm_depth, x, n, sh.sm.texel_world, sh.sm_bias, sh.filter_px,
+                                          sh.contact))
     if sh.mode == SHADOW_MSM:
         return msm.msm_visibility_rgb_footprint(sh.msm, sh.msm_texels, sh.msm_mips, x, n, dx, dy)
     if sh.mode == SHADOW_MSM_SOFT:
@@ -100,6 +104,8 @@ def prepare_shadows(scene, shadow_map, settings: ShadowsSettings, *, bias_texels
         sh.sm.width = sh.sm.height = 1
     sh.sm_bias = float(bias)
     sh.filter_px = int(settings.filter_px)
+    # receiver_only receivers are not in the map: an empty texel next to them may be lit ground, not their outline
+    sh.contact = int(scene is not None and bool(scene.caster_mask().all()))
     sh.msm = msm.MomentShadowParams()
     sh.msm_texels = wp.zeros((1, 1, 1), dtype=wp.vec4, device=device)
     sh.msm_mips = wp.zeros((1, 1), dtype=wp.vec4, device=device)
