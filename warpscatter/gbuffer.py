@@ -4,8 +4,18 @@ Two sources with one output format:
 
 * ``raster`` — the camera view rasterized by :mod:`warpscatter.raster` gives the visible triangle of
   each pixel centre; the hit distance is then the exact intersection of the pixel's ray with that
-  triangle's plane (so rasterized and ray-cast G-buffers agree to float precision off silhouettes).
+  triangle's plane (so rasterized and ray-cast G-buffers agree to float precision).
 * ``raycast`` — one BVH ray per pixel (``wp.mesh_query_ray``), the exact reference.
+
+Coverage rule (issue #13): the rasterizer runs with ``exact_edges=True``. Its fixed-point rule alone
+works on vertices snapped to 1/1024 pixel, so a pixel centre within ~5e-4 pixel of a silhouette
+edge could land on the other side of the edge than the pixel's ray does (a surface hit that the ray
+misses, or the reverse: about one pixel per 1000 pixels of silhouette). In exact-edge mode such centres
+are decided on the unrounded float64 projection of the edge, which is the ray-triangle edge test:
+the raster G-buffer hits exactly the pixels whose CONVENTIONS ray hits a triangle (float64; the
+float32 ray caster itself can err for centres within ~1e-5 pixel of an edge), and at an edge shared
+by two triangles it picks the one the ray hits. Interior edges stay watertight (both neighbours
+evaluate the same plane); edges made by near-plane clipping keep the fixed-point rule.
 
 The raster G-buffer is fused with the rasterizer: :func:`warpscatter.raster.rasterize_keys` calls back once
 a band of rows is final and :func:`gbuffer_from_keys_kernel` turns its packed keys into G-buffer rows at
@@ -250,7 +260,7 @@ def gbuffer_raster(scene, geometry, device=None, threads: int | None = None) -> 
                   inputs=[params, keys, p22, p23, mesh, planes, xn, arrays, r0], device=device)
 
     rasterize_keys(scene.vertices, scene.triangles, proj @ cam.view(), cam.width, cam.height, on_rows=rows,
-                   device=device, threads=threads)
+                   exact_edges=True, device=device, threads=threads)
     return out
 
 

@@ -16,6 +16,15 @@ z_ndc = -1 at the near plane. Pixel (i, j), j counted from the TOP row, has its 
 x_ndc = 2 (i + 0.5) / width - 1, y_ndc = 1 - 2 (j + 0.5) / height, which is exactly the centre of
 the ray :meth:`Camera.ray_directions` gives for that pixel.
 
+Exact edges (``exact_edges=True``, used by the camera G-buffer): snapping moves every edge by up to
+~1/1024 pixel, so the fixed-point rule can put a pixel centre that close to an edge on the other side
+than the pixel's ray. In this mode the fixed-point rule still decides every centre farther than the
+snapping error from each edge (the same result, at the same cost), and the others are decided on the
+unrounded float64 projection of the mesh edge, the plane through the eye and the edge, which is the
+test a ray through the centre makes against the triangle (see :func:`rasterize_triangle_rows`).
+Both triangles at a shared edge evaluate the same plane (up to an exact sign change) and the same
+tolerance, so coverage stays watertight; ties on the exact edge follow the top-left rule.
+
 Clipping: triangles are clipped in homogeneous clip space against the near plane (z >= -w) and a
 guard band on x and y (|x|, |y| <= g w, screen positions within +-2^18 pixels), watertight along
 shared edges. Fragments beyond the far plane (z_ndc > 1) are discarded. With ``clamp_depth=True``
@@ -62,35 +71,49 @@ from . import parallel
 from .raster_depth import linearize_depth, pixel_center_ndc_grid, unproject
 from .raster_funcs import (
     EMPTY_KEY,
+    EXACT_MARGIN_SUBPIXELS,
     GUARD_BAND_PIXELS,
     MAX_RESOLUTION,
     SUBPIXEL_BITS,
+    ClipEdges,
     ClipPolygon,
     ClipSources,
+    EdgeTolerances,
     ProjectedVertices,
     RasterParams,
     ScreenPolygon,
     bbox_rows,
     clip_outcode,
     clip_polygon_plane,
+    clip_polygon_plane_edges,
     clip_position,
     clip_triangle,
+    clip_triangle_edges,
     depth_key,
     edge_function,
     edge_span,
+    edge_tolerance,
+    emit_fragment,
+    exact_edge_inside,
+    exact_edge_plane,
+    homogeneous_screen,
     key_ndc_depth,
     key_triangle,
     ndc_to_view_depth,
     pixel_center_ndc,
+    polygon_edge_exact,
     polygon_rows,
     project_vertex,
+    rasterize_exact_triangle_rows,
     rasterize_screen_triangle,
     rasterize_screen_triangle_rows,
+    rasterize_screen_triangle_rows_exact,
     rasterize_triangle,
     rasterize_triangle_rows,
     snap_to_screen,
     top_left_bias,
     triangle_crossing,
+    triangle_edge_planes,
     triangle_rows,
 )
 from .raster_inputs import as_points, as_triangles, check_matrix, check_size, is_affine
@@ -345,12 +368,14 @@ def project_vertices(
     device: str,
     threads: int | None = None,
 ) -> ProjectedVertices:
-    """Vertex pass: clip coordinates, snapped screen positions and outcodes of ``points``."""
+    """Vertex pass: clip coordinates, snapped and unrounded screen positions and outcodes of ``points``."""
     n = points.shape[0]
     verts = ProjectedVertices()
     verts.clip = wp.empty(n, dtype=wp.vec4, device=device)
     verts.screen = wp.empty(n, dtype=wp.vec3d, device=device)  # entries of vertices outside the guard band stay unset
     verts.outcode = wp.empty(n, dtype=wp.int32, device=device)
+    verts.hom = wp.empty(n, dtype=wp.vec3d, device=device)
+    verts.dev = wp.empty(n, dtype=wp.float64, device=device)
     batch = TRIANGLES_PER_CPU_THREAD if wp.get_device(device).is_cpu else 1
     parallel.launch_rows(
         project_vertices_kernel, (n + batch - 1) // batch,
@@ -366,8 +391,9 @@ class _Setup:
     (:attr:`banded`), or chunks of triangles into private key buffers (:attr:`pieces`)."""
 
     def __init__(self, vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads,
-                 clip_near=None):
+                 clip_near=None, exact_edges=False):
         self.device = default_device(device)
+        self.exact_edges = int(bool(exact_edges))
         self.view_proj = check_matrix(view_proj, "view_proj")
         self.width, self.height = check_size(width, height)
         points = as_points(vertices, self.device)
@@ -449,6 +475,7 @@ class _Setup:
         p.clip_near, p.clamp_depth = self.clip_near, self.clamp_depth
         p.cull_backfaces = self.cull_backfaces
         p.count_mode, p.peel = count_mode, peel
+        p.exact_edges = self.exact_edges
         return p
 
     def scan_band(self, band: int, params, prev_keys, keys, counts) -> None:
@@ -550,6 +577,7 @@ def rasterize(
     clamp_depth: bool = False,
     cull_backfaces: bool = False,
     clip_near: bool | None = None,
+    exact_edges: bool = False,
     device: str | None = None,
     threads: int | None = None,
 ) -> RasterResult:
@@ -571,6 +599,10 @@ def rasterize(
         clip_near: None (default) clips at the near plane z >= -w unless ``clamp_depth`` is set and the
             matrix is affine; False never clips there (only the guard band, which keeps w > 0, so a
             perspective matrix still drops everything behind its centre of projection); True always clips.
+        exact_edges: decide pixel centres within the snapping error of a mesh edge on the unrounded (float64)
+            projection of the edge, as a ray through the centre would (see :func:`rasterize_triangle_rows`): the
+            coverage of silhouettes then matches :func:`warpscatter.raycast.raycast_depth`. Off by default: the
+            fixed-point rule of the snapped vertices alone, as GPU hardware.
         device: Warp device (default :func:`warpscatter.wpinit.default_device`).
         threads: CPU worker threads (default :func:`warpscatter.parallel.thread_count`).
 
@@ -584,7 +616,8 @@ def rasterize(
     """
     if isinstance(layers, bool) or not isinstance(layers, (int, np.integer)) or layers < 1:
         raise ValueError(f"layers must be an integer >= 1, got {layers!r}")
-    s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads, clip_near)
+    s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads, clip_near,
+               exact_edges)
     h, w = s.height, s.width
     keys = empty_array((int(layers), h, w), wp.int64, s.device)
     ndc_depth = empty_array((int(layers), h, w), wp.float32, s.device)
@@ -608,6 +641,7 @@ def rasterize_keys(
     clamp_depth: bool = False,
     cull_backfaces: bool = False,
     clip_near: bool | None = None,
+    exact_edges: bool = False,
     device: str | None = None,
     threads: int | None = None,
 ) -> wp.array:
@@ -620,7 +654,8 @@ def rasterize_keys(
     Returns:
         (height, width) ``wp.array`` of int64 keys on the device.
     """
-    s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads, clip_near)
+    s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads, clip_near,
+               exact_edges)
     keys = empty_array((1, s.height, s.width), wp.int64, s.device)
     s.render_keys(keys, None if on_rows is None else (lambda layer, r0, r1: on_rows(keys[0], r0, r1)))
     return keys[0]
@@ -672,6 +707,7 @@ def coverage_count(
     clamp_depth: bool = False,
     cull_backfaces: bool = False,
     clip_near: bool | None = None,
+    exact_edges: bool = False,
     device: str | None = None,
     threads: int | None = None,
 ) -> np.ndarray:
@@ -683,7 +719,8 @@ def coverage_count(
     Returns:
         (height, width) int32 fragment counts, row 0 at the top.
     """
-    s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads, clip_near)
+    s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads, clip_near,
+               exact_edges)
     return s.render_counts()
 
 
@@ -691,6 +728,7 @@ __all__ = [
     "BANDED_TRIANGLES_PER_PIXEL",
     "BANDS_PER_THREAD",
     "EMPTY_KEY",
+    "EXACT_MARGIN_SUBPIXELS",
     "GUARD_BAND_PIXELS",
     "MAX_RESOLUTION",
     "MIN_BAND_PIXELS",
@@ -698,8 +736,10 @@ __all__ = [
     "MIN_PIECE_TRIANGLES",
     "SUBPIXEL_BITS",
     "TRIANGLES_PER_CPU_THREAD",
+    "ClipEdges",
     "ClipPolygon",
     "ClipSources",
+    "EdgeTolerances",
     "ProjectedVertices",
     "RasterParams",
     "RasterResult",
@@ -707,19 +747,26 @@ __all__ = [
     "TriangleBins",
     "as_points",
     "as_triangles",
-    "bin_triangles_kernel",
     "bbox_rows",
+    "bin_triangles_kernel",
     "check_matrix",
     "check_size",
     "clip_outcode",
     "clip_polygon_plane",
+    "clip_polygon_plane_edges",
     "clip_position",
     "clip_triangle",
+    "clip_triangle_edges",
     "coverage_count",
     "depth_key",
     "edge_function",
-    "empty_array",
     "edge_span",
+    "edge_tolerance",
+    "emit_fragment",
+    "empty_array",
+    "exact_edge_inside",
+    "exact_edge_plane",
+    "homogeneous_screen",
     "is_affine",
     "key_ndc_depth",
     "key_triangle",
@@ -728,23 +775,27 @@ __all__ = [
     "ndc_to_view_depth",
     "pixel_center_ndc",
     "pixel_center_ndc_grid",
+    "polygon_edge_exact",
     "polygon_rows",
     "project_vertex",
     "project_vertices",
     "project_vertices_kernel",
     "rasterize",
     "rasterize_band_kernel",
+    "rasterize_exact_triangle_rows",
     "rasterize_kernel",
     "rasterize_keys",
     "rasterize_linear_depth",
     "rasterize_screen_triangle",
     "rasterize_screen_triangle_rows",
+    "rasterize_screen_triangle_rows_exact",
     "rasterize_triangle",
     "rasterize_triangle_rows",
     "resolve_keys_kernel",
     "snap_to_screen",
     "top_left_bias",
     "triangle_crossing",
+    "triangle_edge_planes",
     "triangle_rows",
     "triangle_rows_kernel",
     "unproject",

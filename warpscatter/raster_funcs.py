@@ -19,6 +19,10 @@ band of them) and, in boxes wider than :data:`SPAN_MIN_PIXELS`, narrows each row
 centres the three edge functions accept before visiting it (:func:`edge_span`); the fragments are those
 of testing every centre of the box.
 
+Exact edges (``RasterParams.exact_edges``): :func:`rasterize_screen_triangle_rows_exact` decides a centre within
+:func:`edge_tolerance` of a fixed-point edge on the unrounded float64 projection of the mesh edge instead
+(:func:`exact_edge_plane`, :func:`exact_edge_inside`); see :func:`rasterize_triangle_rows`.
+
 Clipping: :func:`clip_triangle` (for :func:`rasterize_triangle`) clips in homogeneous clip space against the near plane
 (z >= -w) and a guard band on x and y (|x|, |y| <= g w, screen positions within
 +-:data:`GUARD_BAND_PIXELS` pixels) with Sutherland-Hodgman; intersection points are always
@@ -50,7 +54,14 @@ EMPTY_KEY = np.iinfo(np.int64).max
 #: ones test every centre (cheaper than the span's integer divisions for a few pixels).
 SPAN_MIN_PIXELS = 8
 
+#: Exact-edge mode (``RasterParams.exact_edges``): triangles' bounding boxes are widened by this many sub-pixel units
+#: (1/8 pixel), more than any snapped vertex lies from its unrounded position (see :func:`project_vertex`).
+EXACT_MARGIN_SUBPIXELS = 128
+
 _SPAN_MIN_PIXELS = wp.constant(wp.int64(SPAN_MIN_PIXELS))
+_EXACT_MARGIN = wp.constant(wp.int64(EXACT_MARGIN_SUBPIXELS))
+_EXACT_ALWAYS = wp.constant(wp.int64(1 << 60))  # edge tolerance: decide every centre on the exact edge
+_FIXED_ONLY = wp.constant(wp.int64(-1))  # edge tolerance: the fixed-point test alone (no exact plane)
 _SUBPIXEL_SCALE = wp.constant(wp.float64(float(1 << SUBPIXEL_BITS)))
 _SUBPIXEL_BITS = wp.constant(wp.int64(SUBPIXEL_BITS))
 _SUBPIXEL_STEP = wp.constant(wp.int64(1 << SUBPIXEL_BITS))
@@ -60,6 +71,8 @@ _EMPTY_KEY = wp.constant(wp.int64(EMPTY_KEY))
 ClipPolygon = wp.types.matrix(shape=(8, 4), dtype=wp.float32)  # clipped polygon: <= 3 + 5 planes vertices
 ClipSources = wp.types.vector(length=8, dtype=wp.int32)  # source vertex of each polygon vertex (-1: new)
 ScreenPolygon = wp.types.matrix(shape=(8, 3), dtype=wp.float64)  # snapped (X, Y, z_ndc) of polygon vertices
+ClipEdges = wp.types.vector(length=8, dtype=wp.int32)  # mesh edge under polygon edge k -> k+1 (see clip_triangle_edges)
+EdgeTolerances = wp.types.vector(length=3, dtype=wp.int64)  # per edge of a screen triangle (exact-edge mode)
 
 # Outcode bits of a clip-space vertex.
 _OUT_NEAR = wp.constant(1)  # z < -w
@@ -215,6 +228,39 @@ def clip_polygon_plane(
 
 
 @wp.func
+def clip_polygon_plane_edges(
+    poly: ClipPolygon, src: ClipSources, edges: ClipEdges, n: int, plane: wp.vec4
+) -> tuple[ClipPolygon, ClipSources, ClipEdges, int]:
+    """:func:`clip_polygon_plane` (bitwise the same polygon) that also carries ``edges``: the mesh edge under each
+    polygon edge k -> k + 1 (an index 0..2 of the triangle's edges, or -1 for an edge made by clipping)."""
+    out = ClipPolygon()
+    out_src = ClipSources()
+    out_edges = ClipEdges()
+    m = int(0)
+    for k in range(n):
+        k1 = (k + 1) % n
+        a = poly[k]
+        b = poly[k1]
+        da = wp.dot(plane, a)
+        db = wp.dot(plane, b)
+        if da >= 0.0:
+            out[m] = a
+            out_src[m] = src[k]
+            out_edges[m] = edges[k]  # a -> b, or a -> the crossing point, both on edge k
+            m += 1
+        if (da >= 0.0) != (db >= 0.0):
+            if da >= 0.0:
+                out[m] = a + (b - a) * (da / (da - db))
+                out_edges[m] = -1  # leaving: the next polygon edge runs along the clip plane
+            else:
+                out[m] = b + (a - b) * (db / (db - da))
+                out_edges[m] = edges[k]  # entering: the crossing point -> b lies on edge k
+            out_src[m] = -1
+            m += 1
+    return out, out_src, out_edges, m
+
+
+@wp.func
 def snap_to_screen(v: wp.vec4, width: int, height: int) -> wp.vec3d:
     """Clip-space vertex (w > 0) -> (X, Y, z_ndc): X, Y screen position (y down) in fixed point,
     exact integers held in float64, rounded to 1 / 2^SUBPIXEL_BITS pixel."""
@@ -224,6 +270,17 @@ def snap_to_screen(v: wp.vec4, width: int, height: int) -> wp.vec3d:
     x = wp.round((wp.float64(v[0]) * inv_w * half + half) * wp.float64(width) * _SUBPIXEL_SCALE)
     y = wp.round((half - wp.float64(v[1]) * inv_w * half) * wp.float64(height) * _SUBPIXEL_SCALE)
     return wp.vec3d(x, y, wp.float64(v[2]) * inv_w)
+
+
+@wp.func
+def homogeneous_screen(c: wp.vec4d, width: int, height: int) -> wp.vec3d:
+    """Homogeneous screen position (X W, Y W, W) of float64 clip coordinates ``c``: X, Y the screen position (y down)
+    in sub-pixel units as :func:`snap_to_screen` computes it before rounding, W the clip w. Defined for any w: the
+    sign of ``dot(cross(h_u, h_v), (X_p, Y_p, 1))`` tells on which side of the plane through the eye and the edge
+    u v the ray through screen point p passes (the exact edge test of :func:`exact_edge_plane`)."""
+    half = wp.float64(0.5)
+    return wp.vec3d((half * c[0] + half * c[3]) * wp.float64(width) * _SUBPIXEL_SCALE,
+                    (half * c[3] - half * c[1]) * wp.float64(height) * _SUBPIXEL_SCALE, c[3])
 
 
 @wp.func
@@ -240,6 +297,8 @@ class ProjectedVertices:
     clip: wp.array(dtype=wp.vec4)  # clip coordinates (float64 product, stored float32)
     screen: wp.array(dtype=wp.vec3d)  # snapped (X, Y, z_ndc); set only for vertices inside the guard band
     outcode: wp.array(dtype=wp.int32)  # clip planes the vertex lies outside (see clip_outcode)
+    hom: wp.array(dtype=wp.vec3d)  # unrounded homogeneous screen position (see homogeneous_screen), float64
+    dev: wp.array(dtype=wp.float64)  # bound on |snapped - unrounded| screen position (sub-pixels); inf: not snapped
 
 
 @wp.func
@@ -253,20 +312,36 @@ def project_vertex(
     guard_x: float,
     guard_y: float,
 ):
-    """Vertex pass for mesh vertex ``i`` at world position ``q``: clip coordinates, outcode, and the snapped
-    screen position if the vertex lies inside the guard band (``verts.screen[i]`` stays unset otherwise).
+    """Vertex pass for mesh vertex ``i`` at world position ``q``: clip coordinates, outcode, the unrounded
+    homogeneous screen position (:func:`homogeneous_screen`), and the snapped screen position if the vertex lies
+    inside the guard band (``verts.screen[i]`` stays unset otherwise) with a bound on its distance from the
+    unrounded one (``verts.dev[i]``, +inf for vertices without a snapped position).
     Triangles read the snapped positions of their mesh vertices from here, so shared vertices are snapped
     once and identically for all of them."""
     v = clip_position(view_proj, q)
     verts.clip[i] = v
+    h = homogeneous_screen(view_proj * wp.vec4d(wp.float64(q[0]), wp.float64(q[1]), wp.float64(q[2]), wp.float64(1.0)),
+                           width, height)
+    verts.hom[i] = h
+    dev = wp.float64(wp.inf)
     code = clip_outcode(v, guard_x, guard_y)
     if not (wp.isfinite(v[0]) and wp.isfinite(v[1]) and wp.isfinite(v[2]) and wp.isfinite(v[3])):
         code = _OUT_INVALID
     elif (code & _OUT_GUARD) == 0:
         if v[3] > 0.0:
-            verts.screen[i] = snap_to_screen(v, width, height)
+            s = snap_to_screen(v, width, height)
+            verts.screen[i] = s
+            if h[2] > wp.float64(0.0):
+                x = h[0] / h[2]
+                y = h[1] / h[2]
+                # measured: rounding to 1/1024 pixel and float32 clip coordinates; plus a margin for float64 rounding
+                dev = wp.max(wp.abs(s[0] - x), wp.abs(s[1] - y))
+                dev += (wp.abs(x) + wp.abs(y)) * wp.float64(1.0e-12) + wp.float64(1.0e-3)
         else:
             code = code | _OUT_INVALID
+    if not (dev < wp.float64(1.0e15)):
+        dev = wp.float64(wp.inf)
+    verts.dev[i] = dev
     verts.outcode[i] = code
 
 
@@ -283,6 +358,7 @@ class RasterParams:
     cull_backfaces: int  # 1: skip triangles clockwise in NDC
     count_mode: int  # 1: count fragments into `counts` instead of the depth test into `keys`
     peel: int  # 1: only keys strictly greater than `prev_keys` (depth peeling)
+    exact_edges: int  # 1: centres near a mesh edge are decided on the unrounded positions (see rasterize_triangle_rows)
 
 
 @wp.func
@@ -303,6 +379,212 @@ def edge_span(e: wp.int64, step: wp.int64, lo: wp.int64, hi: wp.int64) -> tuple[
     elif e < wp.int64(0):
         hi = wp.int64(-1)
     return lo, hi
+
+
+@wp.func
+def exact_edge_plane(hu: wp.vec3d, hv: wp.vec3d, u: int, v: int, hw: wp.vec3d) -> wp.vec3d:
+    """Exact-edge test of mesh edge (u, v) of a triangle whose third vertex is w, from the homogeneous screen
+    positions ``hu``, ``hv``, ``hw`` (:func:`homogeneous_screen`): the plane m through the eye and the edge, turned so
+    that m . (X, Y, 1) > 0 on the side of w (see :func:`exact_edge_inside`); 0 when the triangle is degenerate seen
+    from the eye (its plane contains the eye: nothing is inside).
+
+    The cross product is taken with the lower vertex index first, so the two triangles sharing the edge get the
+    same plane up to an exact sign change: the test is antisymmetric between them (watertight)."""
+    n = wp.cross(hu, hv)
+    if v < u:
+        n = wp.cross(hv, hu)
+    side = wp.dot(n, hw)
+    if side > wp.float64(0.0):
+        return n
+    if side < wp.float64(0.0):
+        return -n
+    return wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+
+
+@wp.func
+def triangle_edge_planes(verts: ProjectedVertices, ia: int, ib: int, ic: int) -> wp.mat33d:
+    """Rows: the :func:`exact_edge_plane` of the edges opposite mesh vertices ``ia``, ``ib``, ``ic`` of a triangle."""
+    ha = verts.hom[ia]
+    hb = verts.hom[ib]
+    hc = verts.hom[ic]
+    m0 = exact_edge_plane(hb, hc, ib, ic, ha)
+    m1 = exact_edge_plane(hc, ha, ic, ia, hb)
+    m2 = exact_edge_plane(ha, hb, ia, ib, hc)
+    return wp.mat33d(m0[0], m0[1], m0[2], m1[0], m1[1], m1[2], m2[0], m2[1], m2[2])
+
+
+@wp.func
+def exact_edge_inside(m: wp.vec3d, px: wp.float64, py: wp.float64) -> bool:
+    """Whether screen point (px, py) (sub-pixel units) lies on the inner side of the :func:`exact_edge_plane` ``m``.
+
+    Points exactly on the edge follow the top-left rule of :func:`top_left_bias`: the point is moved right, then
+    (infinitesimally less) down, which picks exactly one of two triangles sharing the edge."""
+    zero = wp.float64(0.0)
+    o = m[0] * px + m[1] * py + m[2]
+    if o != zero:
+        return o > zero
+    return m[0] > zero or (m[0] == zero and m[1] > zero)
+
+
+@wp.func
+def edge_tolerance(sa: wp.vec3d, sb: wp.vec3d, da: wp.float64, db: wp.float64) -> wp.int64:
+    """Exact-edge mode: bound on |fixed-point - exact edge function| of the edge between snapped screen positions
+    ``sa``, ``sb`` whose unrounded positions lie within ``da``, ``db`` (sub-pixels, :attr:`ProjectedVertices.dev`)
+    of them, for centres alongside the edge; beyond it the fixed-point sign is the exact one. Symmetric in the two
+    ends, so both triangles sharing the edge decide each centre the same way (:data:`_EXACT_ALWAYS` when unbounded).
+
+    With |delta| <= d at both ends and L1 = |sb - sa|_1: |delta E| <= 2 d |p - sa|_1 + d L1 + 4 d^2."""
+    d = wp.max(da, db)
+    l1 = wp.abs(sb[0] - sa[0]) + wp.abs(sb[1] - sa[1])
+    t = wp.float64(4.0) * d * (l1 + wp.float64(8.0) * d + wp.float64(8.0)) + wp.float64(8.0)
+    if not (t < wp.float64(1.0e18)):
+        return _EXACT_ALWAYS
+    return wp.int64(t) + wp.int64(1)
+
+
+@wp.func
+def emit_fragment(
+    z: float,
+    tri: int,
+    j: int,
+    i: int,
+    p: RasterParams,
+    prev_keys: wp.array2d(dtype=wp.int64),
+    keys: wp.array2d(dtype=wp.int64),
+    counts: wp.array2d(dtype=wp.int32),
+):
+    """Depth clamp or far-plane discard, then the count (count mode) or the depth test of fragment (i, j) of ``tri``."""
+    keep = int(1)
+    if p.clamp_depth != 0:
+        z = wp.clamp(z, -1.0, 1.0)
+    else:
+        if z > 1.0:
+            keep = 0  # beyond the far plane
+        z = wp.max(z, -1.0)
+    if keep != 0:
+        if p.count_mode != 0:
+            wp.atomic_add(counts, j, i, 1)
+        else:
+            key = depth_key(z, tri)
+            if p.peel == 0 or key > prev_keys[j, i]:
+                if key < keys[j, i]:
+                    wp.atomic_min(keys, j, i, key)
+
+
+@wp.func
+def rasterize_screen_triangle_rows_exact(
+    a: wp.vec3d,
+    b: wp.vec3d,
+    c: wp.vec3d,
+    tri: int,
+    p: RasterParams,
+    row0: int,
+    row1: int,
+    prev_keys: wp.array2d(dtype=wp.int64),
+    keys: wp.array2d(dtype=wp.int64),
+    counts: wp.array2d(dtype=wp.int32),
+    planes: wp.mat33d,
+    tols: EdgeTolerances,
+    margin: wp.int64,
+):
+    """:func:`rasterize_screen_triangle_rows` with exact edges: a centre whose fixed-point edge function k (edge
+    opposite vertex k) lies within ``tols[k]`` of 0 is decided by :func:`exact_edge_inside` on ``planes[k]``
+    instead (``tols[k]`` = -1: always the fixed-point test), and the bounding box is widened by ``margin``
+    sub-pixels. Depths stay the fixed-point interpolation. With all tolerances -1 and no margin this is
+    :func:`rasterize_screen_triangle_rows` (kept as a separate copy: the fixed-point rule at full speed)."""
+    x0 = wp.int64(a[0])
+    y0 = wp.int64(a[1])
+    x1 = wp.int64(b[0])
+    y1 = wp.int64(b[1])
+    x2 = wp.int64(c[0])
+    y2 = wp.int64(c[1])
+    # ---- pixel centres (i + 0.5, j + 0.5) inside the bounding box, clamped to the image ----
+    i0 = int((wp.min(x0, wp.min(x1, x2)) - margin - _SUBPIXEL_HALF + _SUBPIXEL_STEP - wp.int64(1)) >> _SUBPIXEL_BITS)
+    i1 = int((wp.max(x0, wp.max(x1, x2)) + margin - _SUBPIXEL_HALF) >> _SUBPIXEL_BITS)  # floor (arithmetic shift)
+    j0 = int((wp.min(y0, wp.min(y1, y2)) - margin - _SUBPIXEL_HALF + _SUBPIXEL_STEP - wp.int64(1)) >> _SUBPIXEL_BITS)
+    j1 = int((wp.max(y0, wp.max(y1, y2)) + margin - _SUBPIXEL_HALF) >> _SUBPIXEL_BITS)
+    i0 = wp.max(i0, 0)
+    j0 = wp.max(j0, wp.max(row0, 0))
+    i1 = wp.min(i1, p.width - 1)
+    j1 = wp.min(j1, wp.min(row1, p.height - 1))
+    if i0 > i1 or j0 > j1:
+        return
+    area = edge_function(x0, y0, x1, y1, x2, y2)  # > 0: clockwise in NDC (back face)
+    if area == wp.int64(0):
+        return
+    z0 = a[2]
+    z1 = b[2]
+    z2 = c[2]
+    m0 = wp.vec3d(planes[0, 0], planes[0, 1], planes[0, 2])
+    m1 = wp.vec3d(planes[1, 0], planes[1, 1], planes[1, 2])
+    m2 = wp.vec3d(planes[2, 0], planes[2, 1], planes[2, 2])
+    t0 = tols[0]
+    t1 = tols[1]
+    t2 = tols[2]
+    if area > wp.int64(0):
+        if p.cull_backfaces != 0:
+            return
+    else:
+        # orient to positive area (two-sided): swap vertices 1 and 2 (and their opposite edges)
+        tx = x1
+        ty = y1
+        tz = z1
+        x1 = x2
+        y1 = y2
+        z1 = z2
+        x2 = tx
+        y2 = ty
+        z2 = tz
+        area = -area
+        tm = m1
+        m1 = m2
+        m2 = tm
+        tt = t1
+        t1 = t2
+        t2 = tt
+    # ---- edge functions at the first centre, top-left bias folded in ----
+    b0 = top_left_bias(x1, y1, x2, y2)  # edge opposite vertex 0
+    b1 = top_left_bias(x2, y2, x0, y0)
+    b2 = top_left_bias(x0, y0, x1, y1)
+    step0 = -(y2 - y1) * _SUBPIXEL_STEP  # change per pixel to the right
+    step1 = -(y0 - y2) * _SUBPIXEL_STEP
+    step2 = -(y1 - y0) * _SUBPIXEL_STEP
+    farea = wp.float64(area)
+    px0 = (wp.int64(i0) << _SUBPIXEL_BITS) + _SUBPIXEL_HALF
+    last = wp.int64(i1 - i0)
+    spans = last >= _SPAN_MIN_PIXELS  # wide boxes: narrow each row to its span first
+    one = wp.int64(1)
+    for j in range(j0, j1 + 1):
+        py = (wp.int64(j) << _SUBPIXEL_BITS) + _SUBPIXEL_HALF
+        e0 = edge_function(x1, y1, x2, y2, px0, py) + b0
+        e1 = edge_function(x2, y2, x0, y0, px0, py) + b1
+        e2 = edge_function(x0, y0, x1, y1, px0, py) + b2
+        lo = wp.int64(0)
+        hi = last
+        if spans:
+            # candidates: e_k >= -t_k - 1 (inside the fixed-point edge, or close enough for the exact test)
+            lo, hi = edge_span(e0 + t0 + one, step0, lo, hi)
+            lo, hi = edge_span(e1 + t1 + one, step1, lo, hi)
+            lo, hi = edge_span(e2 + t2 + one, step2, lo, hi)
+            e0 += lo * step0
+            e1 += lo * step1
+            e2 += lo * step2
+        for i in range(i0 + int(lo), i0 + int(hi) + 1):
+            inside = False
+            if e0 > t0 and e1 > t1 and e2 > t2:
+                inside = True
+            elif e0 >= -t0 - one and e1 >= -t1 - one and e2 >= -t2 - one:
+                pxf = wp.float64((wp.int64(i) << _SUBPIXEL_BITS) + _SUBPIXEL_HALF)
+                pyf = wp.float64(py)
+                inside = (e0 > t0 or exact_edge_inside(m0, pxf, pyf)) and (e1 > t1 or exact_edge_inside(m1, pxf, pyf))
+                inside = inside and (e2 > t2 or exact_edge_inside(m2, pxf, pyf))
+            if inside:
+                # NDC depth is affine in screen space: barycentric interpolation (float64).
+                z = float((wp.float64(e0 - b0) * z0 + wp.float64(e1 - b1) * z1 + wp.float64(e2 - b2) * z2) / farea)
+                emit_fragment(z, tri, j, i, p, prev_keys, keys, counts)
+            e0 += step0
+            e1 += step1
+            e2 += step2
 
 
 @wp.func
@@ -412,6 +694,65 @@ def rasterize_screen_triangle_rows(
 
 
 @wp.func
+def rasterize_exact_triangle_rows(
+    t: int,
+    verts: ProjectedVertices,
+    triangles: wp.array2d(dtype=wp.int32),
+    planes: wp.mat33d,
+    p: RasterParams,
+    row0: int,
+    row1: int,
+    prev_keys: wp.array2d(dtype=wp.int64),
+    keys: wp.array2d(dtype=wp.int64),
+    counts: wp.array2d(dtype=wp.int32),
+):
+    """Exact-edge mode, unclipped mesh triangle ``t`` whose snapped screen triangle has no area (smaller than the
+    sub-pixel grid, or a sliver): every centre of its widened bounding box by the three exact edge tests, depth
+    interpolated with the exact screen barycentrics. Its neighbours decide their shared edges exactly too, so the
+    centres it covers are not lost."""
+    ia = triangles[t, 0]
+    ib = triangles[t, 1]
+    ic = triangles[t, 2]
+    sa = verts.screen[ia]
+    sb = verts.screen[ib]
+    sc = verts.screen[ic]
+    ha = verts.hom[ia]
+    hb = verts.hom[ib]
+    hc = verts.hom[ic]
+    m0 = wp.vec3d(planes[0, 0], planes[0, 1], planes[0, 2])
+    m1 = wp.vec3d(planes[1, 0], planes[1, 1], planes[1, 2])
+    m2 = wp.vec3d(planes[2, 0], planes[2, 1], planes[2, 2])
+    d0 = wp.dot(m0, ha)  # > 0 for a triangle not seen edge-on
+    d1 = wp.dot(m1, hb)
+    d2 = wp.dot(m2, hc)
+    zero = wp.float64(0.0)
+    if not (d0 > zero and d1 > zero and d2 > zero):
+        return
+    if p.cull_backfaces != 0 and wp.dot(wp.cross(ha, hb), hc) > zero:
+        return  # clockwise in NDC (the sign of the fixed-point area)
+    xmin = wp.int64(wp.min(sa[0], wp.min(sb[0], sc[0]))) - _EXACT_MARGIN
+    xmax = wp.int64(wp.max(sa[0], wp.max(sb[0], sc[0]))) + _EXACT_MARGIN
+    ymin = wp.int64(wp.min(sa[1], wp.min(sb[1], sc[1]))) - _EXACT_MARGIN
+    ymax = wp.int64(wp.max(sa[1], wp.max(sb[1], sc[1]))) + _EXACT_MARGIN
+    i0 = wp.max(int((xmin - _SUBPIXEL_HALF + _SUBPIXEL_STEP - wp.int64(1)) >> _SUBPIXEL_BITS), 0)
+    i1 = wp.min(int((xmax - _SUBPIXEL_HALF) >> _SUBPIXEL_BITS), p.width - 1)
+    j0 = wp.max(int((ymin - _SUBPIXEL_HALF + _SUBPIXEL_STEP - wp.int64(1)) >> _SUBPIXEL_BITS), wp.max(row0, 0))
+    j1 = wp.min(int((ymax - _SUBPIXEL_HALF) >> _SUBPIXEL_BITS), wp.min(row1, p.height - 1))
+    for j in range(j0, j1 + 1):
+        pyf = wp.float64((wp.int64(j) << _SUBPIXEL_BITS) + _SUBPIXEL_HALF)
+        for i in range(i0, i1 + 1):
+            pxf = wp.float64((wp.int64(i) << _SUBPIXEL_BITS) + _SUBPIXEL_HALF)
+            if exact_edge_inside(m0, pxf, pyf) and exact_edge_inside(m1, pxf, pyf) and exact_edge_inside(m2, pxf, pyf):
+                q = wp.vec3d(pxf, pyf, wp.float64(1.0))
+                # screen barycentrics: w_k (m_k . q) / (m_k . h_k)
+                la = ha[2] * wp.dot(m0, q) / d0
+                lb = hb[2] * wp.dot(m1, q) / d1
+                lc = hc[2] * wp.dot(m2, q) / d2
+                z = float((la * sa[2] + lb * sb[2] + lc * sc[2]) / (la + lb + lc))
+                emit_fragment(z, t, j, i, p, prev_keys, keys, counts)
+
+
+@wp.func
 def rasterize_screen_triangle(
     a: wp.vec3d,
     b: wp.vec3d,
@@ -450,6 +791,57 @@ def triangle_crossing(t: int, verts: ProjectedVertices, triangles: wp.array2d(dt
 
 
 @wp.func
+def clip_triangle_edges(
+    t: int,
+    verts: ProjectedVertices,
+    triangles: wp.array2d(dtype=wp.int32),
+    p: RasterParams,
+    crossing: int,
+) -> tuple[ScreenPolygon, ClipSources, ClipEdges, int]:
+    """:func:`clip_triangle` with, per polygon vertex k, its mesh vertex (-1: made by clipping) and the triangle edge
+    under polygon edge k -> k + 1 (0, 1, 2: the edge opposite triangle vertex 0, 1, 2; -1: along a clip plane)."""
+    sp = ScreenPolygon()
+    ia = triangles[t, 0]
+    ib = triangles[t, 1]
+    ic = triangles[t, 2]
+    poly = ClipPolygon()
+    src = ClipSources()
+    edges = ClipEdges()
+    poly[0] = verts.clip[ia]
+    poly[1] = verts.clip[ib]
+    poly[2] = verts.clip[ic]
+    src[0] = ia
+    src[1] = ib
+    src[2] = ic
+    edges[0] = 2  # a -> b: opposite c
+    edges[1] = 0
+    edges[2] = 1
+    n = int(3)
+    if (crossing & 1) != 0:  # near: z + w >= 0
+        poly, src, edges, n = clip_polygon_plane_edges(poly, src, edges, n, wp.vec4(0.0, 0.0, 1.0, 1.0))
+    if (crossing & 2) != 0:  # guard band: x <= guard_x w
+        poly, src, edges, n = clip_polygon_plane_edges(poly, src, edges, n, wp.vec4(-1.0, 0.0, 0.0, p.guard_x))
+    if (crossing & 4) != 0:  # -x <= guard_x w
+        poly, src, edges, n = clip_polygon_plane_edges(poly, src, edges, n, wp.vec4(1.0, 0.0, 0.0, p.guard_x))
+    if (crossing & 8) != 0:  # y <= guard_y w
+        poly, src, edges, n = clip_polygon_plane_edges(poly, src, edges, n, wp.vec4(0.0, -1.0, 0.0, p.guard_y))
+    if (crossing & 16) != 0:  # -y <= guard_y w
+        poly, src, edges, n = clip_polygon_plane_edges(poly, src, edges, n, wp.vec4(0.0, 1.0, 0.0, p.guard_y))
+    if n < 3:
+        return sp, src, edges, 0
+    # ---- snap: mesh vertices from the vertex pass, new vertices here (one call site each) ----
+    for k in range(n):
+        v = src[k]
+        if v >= 0 and (verts.outcode[v] & _OUT_GUARD) == 0:
+            sp[k] = verts.screen[v]
+        else:
+            if not (poly[k][3] > 0.0):
+                return sp, src, edges, 0  # only reachable for degenerate matrices (vertex at the centre of projection)
+            sp[k] = snap_to_screen(poly[k], p.width, p.height)
+    return sp, src, edges, n
+
+
+@wp.func
 def clip_triangle(
     t: int,
     verts: ProjectedVertices,
@@ -459,47 +851,20 @@ def clip_triangle(
 ) -> tuple[ScreenPolygon, int]:
     """Clip mesh triangle ``t`` against the ``crossing`` planes (near, guard band) of :func:`triangle_crossing`:
     the snapped screen polygon and its vertex count (0: nothing left to draw)."""
-    sp = ScreenPolygon()
-    ia = triangles[t, 0]
-    ib = triangles[t, 1]
-    ic = triangles[t, 2]
-    poly = ClipPolygon()
-    src = ClipSources()
-    poly[0] = verts.clip[ia]
-    poly[1] = verts.clip[ib]
-    poly[2] = verts.clip[ic]
-    src[0] = ia
-    src[1] = ib
-    src[2] = ic
-    n = int(3)
-    if (crossing & 1) != 0:  # near: z + w >= 0
-        poly, src, n = clip_polygon_plane(poly, src, n, wp.vec4(0.0, 0.0, 1.0, 1.0))
-    if (crossing & 2) != 0:  # guard band: x <= guard_x w
-        poly, src, n = clip_polygon_plane(poly, src, n, wp.vec4(-1.0, 0.0, 0.0, p.guard_x))
-    if (crossing & 4) != 0:  # -x <= guard_x w
-        poly, src, n = clip_polygon_plane(poly, src, n, wp.vec4(1.0, 0.0, 0.0, p.guard_x))
-    if (crossing & 8) != 0:  # y <= guard_y w
-        poly, src, n = clip_polygon_plane(poly, src, n, wp.vec4(0.0, -1.0, 0.0, p.guard_y))
-    if (crossing & 16) != 0:  # -y <= guard_y w
-        poly, src, n = clip_polygon_plane(poly, src, n, wp.vec4(0.0, 1.0, 0.0, p.guard_y))
-    if n < 3:
-        return sp, 0
-    # ---- snap: mesh vertices from the vertex pass, new vertices here (one call site each) ----
-    for k in range(n):
-        v = src[k]
-        if v >= 0 and (verts.outcode[v] & _OUT_GUARD) == 0:
-            sp[k] = verts.screen[v]
-        else:
-            if not (poly[k][3] > 0.0):
-                return sp, 0  # only reachable for degenerate matrices (vertex at the centre of projection)
-            sp[k] = snap_to_screen(poly[k], p.width, p.height)
+    sp, src, edges, n = clip_triangle_edges(t, verts, triangles, p, crossing)
     return sp, n
 
 
 @wp.func
 def bbox_rows(xmin: wp.int64, xmax: wp.int64, ymin: wp.int64, ymax: wp.int64, p: RasterParams) -> wp.vec2i:
     """Image rows (first, last) with pixel centres in the fixed-point box [xmin, xmax] x [ymin, ymax], clamped to
-    the image; (0, -1) when no centre of the image lies in it."""
+    the image; (0, -1) when no centre of the image lies in it. Widened by :data:`EXACT_MARGIN_SUBPIXELS` in
+    exact-edge mode (``p.exact_edges``)."""
+    if p.exact_edges != 0:
+        xmin = xmin - _EXACT_MARGIN
+        xmax = xmax + _EXACT_MARGIN
+        ymin = ymin - _EXACT_MARGIN
+        ymax = ymax + _EXACT_MARGIN
     i0 = int((xmin - _SUBPIXEL_HALF + _SUBPIXEL_STEP - wp.int64(1)) >> _SUBPIXEL_BITS)
     i1 = int((xmax - _SUBPIXEL_HALF) >> _SUBPIXEL_BITS)
     j0 = wp.max(int((ymin - _SUBPIXEL_HALF + _SUBPIXEL_STEP - wp.int64(1)) >> _SUBPIXEL_BITS), 0)
@@ -546,6 +911,25 @@ def triangle_rows(t: int, verts: ProjectedVertices, triangles: wp.array2d(dtype=
 
 
 @wp.func
+def polygon_edge_exact(
+    planes: wp.mat33d, verts: ProjectedVertices, sp: ScreenPolygon, src: ClipSources, edges: ClipEdges, k: int, n: int
+) -> tuple[wp.vec3d, wp.int64]:
+    """Exact plane and tolerance (see :func:`rasterize_screen_triangle_rows_exact`) of edge k -> k + 1 of a clipped
+    polygon: the fixed-point test alone along a clip plane; on a mesh edge its :func:`exact_edge_plane`, with the
+    :func:`edge_tolerance` of its ends when both are mesh vertices, else the exact test near every centre."""
+    e = edges[k]
+    if e < 0:
+        return wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0)), _FIXED_ONLY
+    m = wp.vec3d(planes[e, 0], planes[e, 1], planes[e, 2])
+    k1 = (k + 1) % n
+    u = src[k]
+    v = src[k1]
+    if u >= 0 and v >= 0:
+        return m, edge_tolerance(sp[k], sp[k1], verts.dev[u], verts.dev[v])
+    return m, _EXACT_ALWAYS
+
+
+@wp.func
 def rasterize_triangle_rows(
     t: int,
     verts: ProjectedVertices,
@@ -558,16 +942,61 @@ def rasterize_triangle_rows(
     counts: wp.array2d(dtype=wp.int32),
 ):
     """Reject, clip where needed, and scan mesh triangle ``t`` (or the fan of its clipped polygon) over
-    image rows [row0, row1]."""
+    image rows [row0, row1].
+
+    Exact-edge mode (``p.exact_edges``): the fixed-point rule decides a pixel centre unless it lies within the
+    snapping error of a mesh edge (:func:`edge_tolerance`); there the edge is tested on the unrounded float64
+    projection (:func:`exact_edge_inside`), the test a ray through the centre makes against the triangle, so
+    silhouettes follow the ray caster instead of the vertices rounded to 1/1024 pixel. Both triangles at a shared
+    edge take the same decision (watertight). Edges made by clipping and the diagonals of a clipped polygon's fan
+    keep the fixed-point rule; depths keep the fixed-point interpolation."""
     crossing = triangle_crossing(t, verts, triangles, p)
+    if crossing < 0:
+        return
+    if p.exact_edges == 0:
+        if crossing == 0:
+            # ---- fast path: no clipping, snapped positions from the vertex pass ----
+            rasterize_screen_triangle_rows(verts.screen[triangles[t, 0]], verts.screen[triangles[t, 1]],
+                                           verts.screen[triangles[t, 2]], t, p, row0, row1, prev_keys, keys, counts)
+        else:
+            sp, n = clip_triangle(t, verts, triangles, p, crossing)
+            for k in range(1, n - 1):
+                rasterize_screen_triangle_rows(sp[0], sp[k], sp[k + 1], t, p, row0, row1, prev_keys, keys, counts)
+        return
+    ia = triangles[t, 0]
+    ib = triangles[t, 1]
+    ic = triangles[t, 2]
+    planes = triangle_edge_planes(verts, ia, ib, ic)
     if crossing == 0:
-        # ---- fast path: no clipping, snapped positions from the vertex pass ----
-        rasterize_screen_triangle_rows(verts.screen[triangles[t, 0]], verts.screen[triangles[t, 1]],
-                                       verts.screen[triangles[t, 2]], t, p, row0, row1, prev_keys, keys, counts)
-    elif crossing > 0:
-        sp, n = clip_triangle(t, verts, triangles, p, crossing)
-        for k in range(1, n - 1):
-            rasterize_screen_triangle_rows(sp[0], sp[k], sp[k + 1], t, p, row0, row1, prev_keys, keys, counts)
+        sa = verts.screen[ia]
+        sb = verts.screen[ib]
+        sc = verts.screen[ic]
+        if edge_function(wp.int64(sa[0]), wp.int64(sa[1]), wp.int64(sb[0]), wp.int64(sb[1]), wp.int64(sc[0]),
+                         wp.int64(sc[1])) == wp.int64(0):
+            rasterize_exact_triangle_rows(t, verts, triangles, planes, p, row0, row1, prev_keys, keys, counts)
+            return
+        tols = EdgeTolerances(edge_tolerance(sb, sc, verts.dev[ib], verts.dev[ic]),
+                              edge_tolerance(sc, sa, verts.dev[ic], verts.dev[ia]),
+                              edge_tolerance(sa, sb, verts.dev[ia], verts.dev[ib]))
+        rasterize_screen_triangle_rows_exact(sa, sb, sc, t, p, row0, row1, prev_keys, keys, counts, planes, tols,
+                                             _EXACT_MARGIN)
+        return
+    sp, src, edges, n = clip_triangle_edges(t, verts, triangles, p, crossing)
+    zero = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    for k in range(1, n - 1):
+        # fan triangle (0, k, k + 1): edge opposite 0 is polygon edge k; the others are polygon edges only at the ends
+        m0, t0 = polygon_edge_exact(planes, verts, sp, src, edges, k, n)
+        m1 = zero
+        t1 = _FIXED_ONLY
+        m2 = zero
+        t2 = _FIXED_ONLY
+        if k + 1 == n - 1:
+            m1, t1 = polygon_edge_exact(planes, verts, sp, src, edges, n - 1, n)
+        if k == 1:
+            m2, t2 = polygon_edge_exact(planes, verts, sp, src, edges, 0, n)
+        fan = wp.mat33d(m0[0], m0[1], m0[2], m1[0], m1[1], m1[2], m2[0], m2[1], m2[2])
+        rasterize_screen_triangle_rows_exact(sp[0], sp[k], sp[k + 1], t, p, row0, row1, prev_keys, keys, counts, fan,
+                                             EdgeTolerances(t0, t1, t2), _EXACT_MARGIN)
 
 
 @wp.func

@@ -279,9 +279,14 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
             casters = scene.casters()
             rectified = rasterize_rectified(rect, casters.vertices, casters.triangles, device=device)
         elif not filtered_resampling:
+            samples = 0
+            if isinstance(rect, NonlinearRectification) and p.resample_filter == "supersample":
+                samples = rectify_nonlinear.radial_samples_for(rect, shadow_map.texel_world)
             rectified = resample_shadow_map(rect, shadow_map.depth, shadow_map.view_projection, depth="linear",
-                                            world_to_view=shadow_map.view, device=device)
-    resample_info = {"resample_filter": p.resample_filter if filtered_resampling else "none"}
+                                            world_to_view=shadow_map.view, radial_samples=samples, device=device)
+    resample_info = {"resample_filter": p.resample_filter if isinstance(rect, NonlinearRectification) else "none"}
+    if isinstance(rect, NonlinearRectification) and p.resample_filter == "supersample":
+        resample_info["resample_samples"] = samples
     if filtered_resampling:
         rectified, resample_info["resample_filter_px"] = resample_filtered(scene, rect, shadow_map, p, stage, device)
     with stage("pixel_coords"):
@@ -317,7 +322,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     if regions:
         with stage("epipole"):
             march_epipole_regions(scene, gbuffer, shadow_map, regions, out, steps=settings.steps, seed=settings.seed,
-                                  shadow_bias_texels=settings.shadow_map.bias, device=device)
+                                  shadow_bias_texels=settings.shadow_map.bias, jitter=settings.jitter, device=device)
     info = {
         "rectification": choice.kind,
         "rectification_reason": choice.reason,

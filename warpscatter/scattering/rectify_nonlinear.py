@@ -156,6 +156,30 @@ def rectified_blocker_depth(rect: NonlinearRectParams, u: float, z_b: float) -> 
     return wp.clamp((rect.theta_hi - theta_b) / rect.theta_len, 0.0, 1.0)
 
 
+@wp.func
+def stored_blocker_depth(
+    rect: NonlinearRectParams,
+    shadow_depth: wp.array2d(dtype=wp.float32),
+    c: wp.vec4,  # clip coordinates of the light ray's point p0 (orthographic: w = 1)
+    p0_depth: float,  # stored depth of p0
+    depth_per_unit: float,
+    empty_depth: float,
+    u: float,  # column coordinate of the light ray
+) -> float:
+    """Rectified blocker depth of the light ray of column coordinate u through the point p0 at clip coordinates c:
+    the nearest shadow-map texel's caster placed on the same light ray (1: no caster, or off the map)."""
+    sx = (0.5 * c[0] + 0.5) * float(shadow_depth.shape[1])
+    sy = (0.5 - 0.5 * c[1]) * float(shadow_depth.shape[0])
+    result = float(1.0)  # no caster: the blocker lies at the far end
+    if sx >= 0.0 and sy >= 0.0 and sx < float(shadow_depth.shape[1]) and sy < float(shadow_depth.shape[0]):
+        stored = shadow_depth[int(sy), int(sx)]
+        if wp.isfinite(stored) and stored < empty_depth:
+            # blocker on this light ray: light-view z (distance along the light from p0)
+            z_b = (stored - p0_depth) / depth_per_unit
+            result = rectified_blocker_depth(rect, u, z_b)
+    return result
+
+
 @wp.kernel
 def resample_kernel(
     rect: NonlinearRectParams,
@@ -172,17 +196,127 @@ def resample_kernel(
     # the texel is a light ray; its point closest to the camera finds the shadow-map texel
     u, p0 = texel_light_ray(rect, i, j)
     p0h = wp.vec4(p0[0], p0[1], p0[2], 1.0)
-    c = world_to_clip * p0h
-    sx = (0.5 * c[0] + 0.5) * float(shadow_depth.shape[1])
-    sy = (0.5 - 0.5 * c[1]) * float(shadow_depth.shape[0])
-    result = float(1.0)  # no caster: the blocker lies at the far end
-    if sx >= 0.0 and sy >= 0.0 and sx < float(shadow_depth.shape[1]) and sy < float(shadow_depth.shape[0]):
-        stored = shadow_depth[int(sy), int(sx)]
+    out[j, i] = stored_blocker_depth(rect, shadow_depth, world_to_clip * p0h, wp.dot(depth_row, p0h), depth_per_unit,
+                                     empty_depth, u)
+
+
+#: Most radial sub-samples per rectified texel of the supersampled resampling (``resample_filter: supersample``,
+#: :func:`resample_shadow_map`).
+MAX_RADIAL_SAMPLES = 4
+
+
+@wp.func
+def radial_tap(shadow_depth: wp.array2d(dtype=wp.float32), c0: wp.vec4, ca: wp.vec4, d0: float, da: float,
+               depth_per_unit: float, empty_depth: float, u: float, t: int, weight: float):
+    """Tap t (0..3) of the bilinear footprint at column coordinate u of :func:`resample_radial_kernel`'s light rays:
+    (its caster's distance z_b along the light from the ray's point, its bilinear weight times ``weight``, 1 if the
+    texel holds a caster else 0)."""
+    c = c0 + ca * u
+    fx = (0.5 * c[0] + 0.5) * float(shadow_depth.shape[1]) - 0.5
+    fy = (0.5 - 0.5 * c[1]) * float(shadow_depth.shape[0]) - 0.5
+    x = int(wp.floor(fx))
+    y = int(wp.floor(fy))
+    wx = fx - float(x)
+    wy = fy - float(y)
+    if t % 2 == 0:
+        wx = 1.0 - wx
+    else:
+        x += 1
+    if t < 2:
+        wy = 1.0 - wy
+    else:
+        y += 1
+    z_b = float(0.0)
+    caster = float(0.0)
+    if x >= 0 and y >= 0 and x < shadow_depth.shape[1] and y < shadow_depth.shape[0]:
+        stored = shadow_depth[y, x]
         if wp.isfinite(stored) and stored < empty_depth:
-            # blocker on this light ray: light-view z (distance along the light from p0)
-            z_b = (stored - wp.dot(depth_row, p0h)) / depth_per_unit
-            result = rectified_blocker_depth(rect, u, z_b)
-    out[j, i] = result
+            z_b = (stored - (d0 + da * u)) / depth_per_unit
+            caster = 1.0
+    return z_b, weight * wx * wy, caster
+
+
+@wp.kernel
+def resample_radial_kernel(
+    rect: NonlinearRectParams,
+    shadow_depth: wp.array2d(dtype=wp.float32),  # as resample_kernel
+    world_to_clip: wp.mat44,
+    depth_row: wp.vec4,
+    depth_per_unit: float,
+    empty_depth: float,
+    samples: int,  # sub-samples along the texel's column extent, 1..MAX_RADIAL_SAMPLES
+    out_z1: wp.array2d(dtype=wp.float32),  # (rows, cols) the nearer depth of the texel's two-depth mix
+    out_z2: wp.array2d(dtype=wp.float32),  # (rows, cols) the farther depth
+    out_w2: wp.array2d(dtype=wp.float32),  # (rows, cols) the weight of z2
+    offset: int,
+):
+    # ``samples`` points at equal steps over the texel's radial extent [i, i + 1) / cols, each reading its four
+    # nearest shadow-map texels with bilinear weights. Each tap's caster lies at z_b along the light from the
+    # sample's light-ray point (the rectified depth grows with z_b). The caster taps split in two at the middle of
+    # their z_b range, each part's weighted mean z_b becoming one rectified depth at the texel's centre column; with
+    # empty taps (no caster: depth 1) the casters form one depth and the empty taps the other. The light-ray point
+    # is affine in u (p0 = origin + u a), so are its map coordinates and depth: one sin/cos and at most two atan2
+    # per texel; the taps are read twice (range, then parts) rather than kept
+    j, i = wp.tid()
+    j += offset
+    v = (float(j) + 0.5) / float(rect.rows)
+    a = light_ray_point(rect, 1.0, v) - rect.origin
+    o = wp.vec4(rect.origin[0], rect.origin[1], rect.origin[2], 1.0)
+    av = wp.vec4(a[0], a[1], a[2], 0.0)
+    c0 = world_to_clip * o
+    ca = world_to_clip * av
+    d0 = wp.dot(depth_row, o)
+    da = wp.dot(depth_row, av)
+    inv = 1.0 / float(samples)
+    lo = float(1.0e30)
+    hi = float(-1.0e30)
+    w_caster = float(0.0)
+    w_empty = float(0.0)
+    for k in range(samples):
+        u = (float(i) + (float(k) + 0.5) * inv) / float(rect.cols)
+        for t in range(4):
+            z_b, w, caster = radial_tap(shadow_depth, c0, ca, d0, da, depth_per_unit, empty_depth, u, t, inv)
+            if caster > 0.0:
+                if w > 0.0:
+                    lo = wp.min(lo, z_b)
+                    hi = wp.max(hi, z_b)
+                w_caster += w
+            else:
+                w_empty += w
+    u_mid = (float(i) + 0.5) / float(rect.cols)
+    z1 = float(1.0)
+    z2 = float(1.0)
+    share = float(0.0)
+    if w_caster > 0.0:
+        two = w_empty <= 0.0 and hi > lo
+        mid = 0.5 * (lo + hi)
+        s1 = float(0.0)
+        s2 = float(0.0)
+        w1 = float(0.0)
+        w2 = float(0.0)
+        for k in range(samples):
+            u = (float(i) + (float(k) + 0.5) * inv) / float(rect.cols)
+            for t in range(4):
+                z_b, w, caster = radial_tap(shadow_depth, c0, ca, d0, da, depth_per_unit, empty_depth, u, t, inv)
+                if caster > 0.0:
+                    if two and z_b > mid:
+                        s2 += w * z_b
+                        w2 += w
+                    else:
+                        s1 += w * z_b
+                        w1 += w
+        if w1 > 0.0:
+            z1 = rectified_blocker_depth(rect, u_mid, s1 / w1)
+        if w2 > 0.0:  # two caster depths
+            z2 = rectified_blocker_depth(rect, u_mid, s2 / w2)
+            share = w2 / (w1 + w2)
+        else:  # the casters' depth, and the empty taps at depth 1
+            share = w_empty / (w_caster + w_empty)
+            if share <= 0.0:
+                z2 = z1
+    out_z1[j, i] = z1
+    out_z2[j, i] = z2
+    out_w2[j, i] = share
 
 
 @wp.kernel
@@ -561,7 +695,8 @@ def reference_ray(rect: NonlinearRectification, method: str = "optimal", camera=
             omega_min and omega_max otherwise. ``"bisectrix"`` — the bisectrix everywhere (Klehm's
             default). ``"mean"`` — the arithmetic mean of the global theta bounds (Peters 2017 Sec. 5.1.1).
             ``"pixels"`` — the median k of the camera's pixel rays that fall in the slice (every
-            ``pixel_stride``-th pixel), the bisectrix in slices no pixel ray reaches. Klehm's reference
+            ``pixel_stride``-th pixel), the bisectrix in slices no pixel ray reaches, then a running median over
+            :data:`PIXEL_MEDIAN_SHARE` of the rows (9 of 1024). Klehm's reference
             minimises the worst Delta error over all rays of the slice, including the few that run
             almost along the light (k -> 0) when the epipole is in view; weighting by the rays actually
             rendered gives lower image error there (warpscatter's choice, measured in ``bench prefiltered``).
@@ -632,6 +767,14 @@ def median_per_row(row: np.ndarray, key: np.ndarray, value: np.ndarray, rows: in
     return np.where(has, value[np.where(has, mid, 0)], default)
 
 
+#: Share of the rows in the running median over the per-row pixel-median reference rays (``reference_ray:
+#: pixels``): 9 of 1024 rows. Measured on colonnade_fourier with one segment per ray at 640x360 (1024 rows): the
+#: largest jump of a row's reference inclination from its neighbours' 31 deg without (a horizontal line left of the
+#: sun), 5.8 deg over 5 rows, 2.2 deg over 9, 1.7 over 15; rel. L1 (colonnade / canopy / window) 8.05 / 2.23 / 32.8 %
+#: -> 7.98 / 2.22 / 32.7 % over 9 rows.
+PIXEL_MEDIAN_SHARE = 9.0 / 1024.0
+
+
 def _pixel_median_inclination(rect: NonlinearRectification, camera, stride: int, default: np.ndarray) -> np.ndarray:
     """Per row, the inclination of the median-k pixel ray of ``camera`` in that slice (``default`` where none)."""
     if int(stride) != stride or stride < 1:
@@ -641,14 +784,24 @@ def _pixel_median_inclination(rect: NonlinearRectification, camera, stride: int,
     theta = _inclination(q)
     v = (np.mod(np.arctan2(q[:, 1], q[:, 0]) - rect.phi_mid + math.pi, TWO_PI) - math.pi) / rect.phi_span + 0.5
     row = np.clip((v * rect.rows).astype(np.int64), 0, rect.rows - 1)
-    return median_per_row(row, np.sin(theta), theta, rect.rows, default)
+    theta_ref = median_per_row(row, np.sin(theta), theta, rect.rows, default)
+    # a running median over neighbouring rows: near the epipole a slice holds a few sampled pixels (or none: the
+    # default), and one odd reference ray among its neighbours gives the row its own weights, a line in the image
+    # (colonnade_fourier with one segment per ray: a horizontal line left of the sun, -60 % on 3 pixel rows at
+    # 640x360)
+    half = int(round(0.5 * (PIXEL_MEDIAN_SHARE * rect.rows - 1.0)))
+    if half < 1:
+        return theta_ref
+    padded = np.pad(theta_ref, half, mode="wrap" if rect.full_circle else "edge")
+    window = np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1)
+    return np.median(window, axis=1)
 
 
 # ---- host side: resampling ------------------------------------------------------------------------------
 
 
 def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_clip, *, depth: str = "ndc",
-                        world_to_view=None, device=None) -> wp.array:
+                        world_to_view=None, radial_samples: int = 0, device=None):
     """Resample an orthographic light shadow map into the rectified blocker-depth map (Peters 2017 Sec. 5.1.1).
 
     Each rectified texel (row j, column i) is a light ray; its point closest to the camera is projected
@@ -666,10 +819,18 @@ def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_cli
             origin, -z of ``world_to_view`` (:class:`~warpscatter.shadows.shadow_map.ShadowMap`'s
             convention). Non-finite values (e.g. +inf) are empty in all three.
         world_to_view: (4, 4) light view matrix, required for ``depth="linear"``.
+        radial_samples: 0: one nearest depth at each texel's centre. 1 to :data:`MAX_RADIAL_SAMPLES`: that many
+            points spread evenly over the texel's radial (column) extent, each reading its four nearest shadow-map
+            texels with bilinear weights, condensed to two depths (:class:`SparseRectifiedDepth`, see
+            :func:`resample_radial_kernel`). One nearest depth per texel aliases: the casters' texel staircases
+            (seen from the camera, shadow-map texels are wedges from the light's epipole) and, where a rectified
+            texel is wider than a shadow-map texel (:func:`resample_footprint_texels`), casters' edges skipped at
+            random along each row show as radial streaks in the look-ups.
         device: Warp device.
 
     Returns:
-        (rows, cols) float32 Warp array of rectified blocker depth in [0, 1].
+        (rows, cols) float32 Warp array of rectified blocker depth in [0, 1]; with ``radial_samples`` > 0 a
+        :class:`SparseRectifiedDepth`.
 
     Raises:
         ValueError: on a matrix that is not an orthographic projection along the light direction, a bad
@@ -698,6 +859,8 @@ def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_cli
         row, empty = -v[2], np.inf
     else:
         raise ValueError(f"depth must be 'ndc', 'window' or 'linear', got {depth!r}")
+    if int(radial_samples) != radial_samples or not 0 <= radial_samples <= MAX_RADIAL_SAMPLES:
+        raise ValueError(f"radial_samples must be an integer in 0..{MAX_RADIAL_SAMPLES}, got {radial_samples}")
     per_unit = float(row[:3] @ light)
     if not per_unit > 0.0:
         raise ValueError("shadow-map depth must grow along the light direction (check world_to_clip / world_to_view)")
@@ -707,11 +870,15 @@ def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_cli
         sm = wp.array(np.ascontiguousarray(shadow_depth, dtype=np.float32), dtype=wp.float32, device=device)
     if sm.ndim != 2:
         raise ValueError(f"shadow_depth must be a 2D array, got {sm.ndim} dimensions")
-    out = wp.empty((rect.rows, rect.cols), dtype=wp.float32, device=device)
-    launch_rows(resample_kernel, (rect.rows, rect.cols),
-                [rect.params(), sm, wp.mat44(*m.astype(np.float32).ravel()), wp.vec4(*row.astype(np.float32)),
-                 per_unit, float(empty), out],
-                device=device)
+    args = [rect.params(), sm, wp.mat44(*m.astype(np.float32).ravel()), wp.vec4(*row.astype(np.float32)), per_unit,
+            float(empty)]
+    shape = (rect.rows, rect.cols)
+    if radial_samples > 0:
+        z1, z2, w2 = (wp.empty(shape, dtype=wp.float32, device=device) for _ in range(3))
+        launch_rows(resample_radial_kernel, shape, [*args, int(radial_samples), z1, z2, w2], device=device)
+        return SparseRectifiedDepth(z1=z1, z2=z2, w2=w2)
+    out = wp.empty(shape, dtype=wp.float32, device=device)
+    launch_rows(resample_kernel, shape, [*args, out], device=device)
     return out
 
 
@@ -761,6 +928,13 @@ def resample_footprint_texels(rect: NonlinearRectification, texel_world: float) 
     if not (np.isfinite(texel_world) and texel_world > 0.0):
         raise ValueError(f"texel_world must be finite and > 0, got {texel_world}")
     return float(rect.r_max / rect.cols / texel_world)
+
+
+def radial_samples_for(rect: NonlinearRectification, texel_world: float) -> int:
+    """Radial sub-samples of ``resample_filter: supersample`` (:func:`resample_shadow_map`): one per shadow-map texel
+    a rectified texel spans radially (:func:`resample_footprint_texels`, rounded up), 1 to
+    :data:`MAX_RADIAL_SAMPLES`."""
+    return int(np.clip(math.ceil(resample_footprint_texels(rect, texel_world) - 1e-6), 1, MAX_RADIAL_SAMPLES))
 
 
 def resample_moment_shadow_map(rect: NonlinearRectification, msm: MomentShadowMap, farthest_caster: float | None = None,
