@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import numpy as np
 import warp as wp
 
 from ..wpinit import default_device, module_options
@@ -42,6 +43,10 @@ class DeviceGeometry:
         casters = scene.casters()
         self._casters = None if casters is scene else casters  # None: every triangle casts
         self._shadow_mesh = None
+        # light transmittance 1 - opacity of each caster triangle, in the shadow mesh's order
+        self._caster_transmittance = (1.0 - np.asarray(casters.opacity, np.float32)[casters.tri_material]).astype(
+            np.float32) if len(casters.triangles) else np.zeros(0, np.float32)
+        self._caster_transmittance_array = None
 
     def arrays(self) -> MeshArrays:
         """The triangles as kernels see them."""
@@ -73,6 +78,20 @@ class DeviceGeometry:
 
             self._shadow_mesh = build_mesh(self._casters.vertices, self._casters.triangles, device=self.device)
         return self._shadow_mesh
+
+
+    @property
+    def translucent_casters(self) -> bool:
+        """True when some shadow caster has opacity < 1 (exact visibility then multiplies their transmittances)."""
+        return bool(np.any(self._caster_transmittance > 0.0))
+
+    @property
+    def caster_transmittance(self) -> wp.array:
+        """(T,) float32 1 - opacity of each triangle of :attr:`shadow_mesh` (its ``face`` order); built once."""
+        if self._caster_transmittance_array is None:
+            t = self._caster_transmittance if len(self._caster_transmittance) else np.zeros(1, np.float32)
+            self._caster_transmittance_array = wp.array(t, dtype=wp.float32, device=self.device)
+        return self._caster_transmittance_array
 
 
 __all__ = ["DeviceGeometry", "MeshArrays"]
