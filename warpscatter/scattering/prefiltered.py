@@ -43,9 +43,9 @@ Stages (names as they appear in timings):
 Directional lights only (both rectifications are built for parallel light rays).
 
 Settings: :class:`~warpscatter.scattering.settings.ScatteringSettings` — ``render.scattering.prefiltered`` for
-what the three methods share, ``fourier`` and ``moments`` for the representation, ``steps`` / ``seed`` /
-``shadow_map`` for the ray-marched epipole region (the keys, defaults and ranges are documented there and in the
-README's config reference).
+what the three methods share, ``fourier`` and ``moments`` for the representation, ``prefiltered.epipole_steps`` /
+``seed`` / ``jitter`` / ``shadow_map`` for the ray-marched epipole region (the keys, defaults and ranges are documented
+there and in the README's config reference).
 """
 
 from __future__ import annotations
@@ -321,7 +321,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     regions = epipole_regions(cam, scene.light.direction, p.epipole_angle_deg, p.epipole_block)
     if regions:
         with stage("epipole"):
-            march_epipole_regions(scene, gbuffer, shadow_map, regions, out, steps=settings.steps, seed=settings.seed,
+            march_epipole_regions(scene, gbuffer, shadow_map, regions, out, steps=p.epipole_steps, seed=settings.seed,
                                   shadow_bias_texels=settings.shadow_map.bias, jitter=settings.jitter, device=device)
     info = {
         "rectification": choice.kind,
