@@ -126,6 +126,23 @@ def test_moment_shadow_methods_agree_with_pcf_on_surfaces(method):
     assert b.sum(-1)[lit].mean() > 5 * b.sum(-1)[shadowed].mean()  # shadows stay dark, lit stays lit
 
 
+def _pcf_surfaces(config: str):
+    """A bundled config at 320x180 with PCF surface shadows: (scene, geometry, G-buffer, surface radiance with and
+    without shadows (H, W) max over RGB, world hit points, normals)."""
+    cfg = load_config(ROOT / "configs" / config, ["camera.width=320", "camera.height=180"])
+    scene = build_scene(cfg)
+    geo = DeviceGeometry(scene)
+    gb = gbuffer_raster(scene, geo)
+    sm = render_shadow_map(scene, cfg.render.scattering.shadow_map.resolution)
+    shadows, _ = prepare_shadows(scene, sm, ShadowsSettings(method="pcf"))
+    cam = scene.camera
+    black = wp.zeros((cam.height, cam.width), dtype=wp.vec3)
+    shadowed = shade_and_compose(scene, gb, black, shadows=shadows)["surface"].max(-1)
+    unshadowed = shade_and_compose(scene, gb, black, shadows=None)["surface"].max(-1)
+    p = cam.position + cam.ray_directions() * gb.distance.numpy()[..., None]
+    return scene, geo, gb, sm, shadowed, unshadowed, p, gb.normal.numpy()
+
+
 def test_pcf_keeps_the_creases_of_a_closed_room_dark():
     """configs/window.yaml (issue #13): the room's floor-wall creases are the outline of everything the light sees.
     Plain PCF lit pixels there that the exact (ray-cast) visibility keeps in shadow: its box reached the empty
@@ -133,18 +150,8 @@ def test_pcf_keeps_the_creases_of_a_closed_room_dark():
     the walls' texels next to the contact. Contact PCF keeps them dark."""
     from warpscatter.raycast import shadow_ray_visibility
 
-    cfg = load_config(ROOT / "configs" / "window.yaml", ["camera.width=320", "camera.height=180"])
-    scene = build_scene(cfg)
-    geo = DeviceGeometry(scene)
-    gb = gbuffer_raster(scene, geo)
-    sm = render_shadow_map(scene, cfg.render.scattering.shadow_map.resolution)
-    shadows, _ = prepare_shadows(scene, sm, ShadowsSettings(method="pcf"))
-    cam = scene.camera
-    surface = shade_and_compose(scene, gb, wp.zeros((cam.height, cam.width), dtype=wp.vec3), shadows=shadows)[
-        "surface"].max(-1)
+    scene, geo, gb, sm, surface, _, p, n = _pcf_surfaces("window.yaml")
     hit = gb.material.numpy() >= 0
-    p = cam.position + cam.ray_directions() * gb.distance.numpy()[..., None]
-    n = gb.normal.numpy()
     to_light = -np.asarray(scene.light.direction, float) / np.linalg.norm(scene.light.direction)
     facing = hit & (n @ to_light > 0.0)
     exact = shadow_ray_visibility(geo.mesh, (p + 1e-4 * n)[facing], np.broadcast_to(to_light, p[facing].shape))
@@ -225,19 +232,8 @@ def test_pcf_offsets_follow_the_spot_lights_texel_size():
     self-shadowed. They now grow with the receiver's depth, as the moment maps' offset does."""
     from warpscatter.raycast import shadow_ray_visibility
 
-    cfg = load_config(ROOT / "configs" / "spot.yaml", ["camera.width=320", "camera.height=180"])
-    scene = build_scene(cfg)
-    geo = DeviceGeometry(scene)
-    gb = gbuffer_raster(scene, geo)
-    sm = render_shadow_map(scene, cfg.render.scattering.shadow_map.resolution)
-    shadows, _ = prepare_shadows(scene, sm, ShadowsSettings(method="pcf"))
-    cam = scene.camera
-    black = wp.zeros((cam.height, cam.width), dtype=wp.vec3)
-    shadowed = shade_and_compose(scene, gb, black, shadows=shadows)["surface"].max(-1)
-    unshadowed = shade_and_compose(scene, gb, black, shadows=None)["surface"].max(-1)
+    scene, geo, gb, _, shadowed, unshadowed, p, n = _pcf_surfaces("spot.yaml")
     hit = gb.material.numpy() >= 0
-    p = cam.position + cam.ray_directions() * gb.distance.numpy()[..., None]
-    n = gb.normal.numpy()
     to_light = np.asarray(scene.light.position, float) - p
     dist = np.linalg.norm(to_light, axis=-1, keepdims=True)
     to_light = to_light / np.maximum(dist, 1e-12)

@@ -204,26 +204,7 @@ def clip_polygon_plane(
     The intersection on a crossing edge is always interpolated from its inside vertex towards its
     outside vertex, so triangles sharing the edge get bitwise identical points (watertight clipping).
     """
-    out = ClipPolygon()
-    out_src = ClipSources()
-    m = int(0)
-    for k in range(n):
-        k1 = (k + 1) % n
-        a = poly[k]
-        b = poly[k1]
-        da = wp.dot(plane, a)
-        db = wp.dot(plane, b)
-        if da >= 0.0:
-            out[m] = a
-            out_src[m] = src[k]
-            m += 1
-        if (da >= 0.0) != (db >= 0.0):
-            if da >= 0.0:
-                out[m] = a + (b - a) * (da / (da - db))
-            else:
-                out[m] = b + (a - b) * (db / (db - da))
-            out_src[m] = -1
-            m += 1
+    out, out_src, _edges, m = clip_polygon_plane_edges(poly, src, ClipEdges(), n, plane)
     return out, out_src, m
 
 
@@ -490,8 +471,8 @@ def rasterize_screen_triangle_rows_exact(
     """:func:`rasterize_screen_triangle_rows` with exact edges: a centre whose fixed-point edge function k (edge
     opposite vertex k) lies within ``tols[k]`` of 0 is decided by :func:`exact_edge_inside` on ``planes[k]``
     instead (``tols[k]`` = -1: always the fixed-point test), and the bounding box is widened by ``margin``
-    sub-pixels. Depths stay the fixed-point interpolation. With all tolerances -1 and no margin this is
-    :func:`rasterize_screen_triangle_rows` (kept as a separate copy: the fixed-point rule at full speed)."""
+    sub-pixels. Depths stay the fixed-point interpolation. With all tolerances -1 and no margin this is the
+    fixed-point rule alone (:func:`rasterize_screen_triangle_rows`)."""
     x0 = wp.int64(a[0])
     y0 = wp.int64(a[1])
     x1 = wp.int64(b[0])
@@ -606,91 +587,8 @@ def rasterize_screen_triangle_rows(
     span of centres the three edge functions accept (:func:`edge_span`, three integer divisions per row) instead
     of testing every centre of the box; the fragments, their depths and keys are those of the full test.
     """
-    x0 = wp.int64(a[0])
-    y0 = wp.int64(a[1])
-    x1 = wp.int64(b[0])
-    y1 = wp.int64(b[1])
-    x2 = wp.int64(c[0])
-    y2 = wp.int64(c[1])
-    # ---- pixel centres (i + 0.5, j + 0.5) inside the bounding box, clamped to the image ----
-    i0 = int((wp.min(x0, wp.min(x1, x2)) - _SUBPIXEL_HALF + _SUBPIXEL_STEP - wp.int64(1)) >> _SUBPIXEL_BITS)
-    i1 = int((wp.max(x0, wp.max(x1, x2)) - _SUBPIXEL_HALF) >> _SUBPIXEL_BITS)  # floor (arithmetic shift)
-    j0 = int((wp.min(y0, wp.min(y1, y2)) - _SUBPIXEL_HALF + _SUBPIXEL_STEP - wp.int64(1)) >> _SUBPIXEL_BITS)
-    j1 = int((wp.max(y0, wp.max(y1, y2)) - _SUBPIXEL_HALF) >> _SUBPIXEL_BITS)
-    i0 = wp.max(i0, 0)
-    j0 = wp.max(j0, wp.max(row0, 0))
-    i1 = wp.min(i1, p.width - 1)
-    j1 = wp.min(j1, wp.min(row1, p.height - 1))
-    if i0 > i1 or j0 > j1:
-        return
-    area = edge_function(x0, y0, x1, y1, x2, y2)  # > 0: clockwise in NDC (back face)
-    if area == wp.int64(0):
-        return
-    z0 = a[2]
-    z1 = b[2]
-    z2 = c[2]
-    if area > wp.int64(0):
-        if p.cull_backfaces != 0:
-            return
-    else:
-        # orient to positive area (two-sided): swap vertices 1 and 2
-        tx = x1
-        ty = y1
-        tz = z1
-        x1 = x2
-        y1 = y2
-        z1 = z2
-        x2 = tx
-        y2 = ty
-        z2 = tz
-        area = -area
-    # ---- edge functions at the first centre, top-left bias folded in ----
-    b0 = top_left_bias(x1, y1, x2, y2)  # edge opposite vertex 0
-    b1 = top_left_bias(x2, y2, x0, y0)
-    b2 = top_left_bias(x0, y0, x1, y1)
-    step0 = -(y2 - y1) * _SUBPIXEL_STEP  # change per pixel to the right
-    step1 = -(y0 - y2) * _SUBPIXEL_STEP
-    step2 = -(y1 - y0) * _SUBPIXEL_STEP
-    farea = wp.float64(area)
-    px0 = (wp.int64(i0) << _SUBPIXEL_BITS) + _SUBPIXEL_HALF
-    last = wp.int64(i1 - i0)
-    spans = last >= _SPAN_MIN_PIXELS  # wide boxes: narrow each row to its span first
-    for j in range(j0, j1 + 1):
-        py = (wp.int64(j) << _SUBPIXEL_BITS) + _SUBPIXEL_HALF
-        e0 = edge_function(x1, y1, x2, y2, px0, py) + b0
-        e1 = edge_function(x2, y2, x0, y0, px0, py) + b1
-        e2 = edge_function(x0, y0, x1, y1, px0, py) + b2
-        lo = wp.int64(0)
-        hi = last
-        if spans:
-            lo, hi = edge_span(e0, step0, lo, hi)
-            lo, hi = edge_span(e1, step1, lo, hi)
-            lo, hi = edge_span(e2, step2, lo, hi)
-            e0 += lo * step0
-            e1 += lo * step1
-            e2 += lo * step2
-        for i in range(i0 + int(lo), i0 + int(hi) + 1):
-            if (e0 | e1 | e2) >= wp.int64(0):
-                # NDC depth is affine in screen space: barycentric interpolation (float64).
-                z = float((wp.float64(e0 - b0) * z0 + wp.float64(e1 - b1) * z1 + wp.float64(e2 - b2) * z2) / farea)
-                keep = int(1)
-                if p.clamp_depth != 0:
-                    z = wp.clamp(z, -1.0, 1.0)
-                else:
-                    if z > 1.0:
-                        keep = 0  # beyond the far plane
-                    z = wp.max(z, -1.0)
-                if keep != 0:
-                    if p.count_mode != 0:
-                        wp.atomic_add(counts, j, i, 1)
-                    else:
-                        key = depth_key(z, tri)
-                        if p.peel == 0 or key > prev_keys[j, i]:
-                            if key < keys[j, i]:
-                                wp.atomic_min(keys, j, i, key)
-            e0 += step0
-            e1 += step1
-            e2 += step2
+    rasterize_screen_triangle_rows_exact(a, b, c, tri, p, row0, row1, prev_keys, keys, counts, wp.mat33d(),
+                                         EdgeTolerances(_FIXED_ONLY, _FIXED_ONLY, _FIXED_ONLY), wp.int64(0))
 
 
 @wp.func

@@ -235,6 +235,17 @@ def orthographic_ray_coords(sm: ShadowMapParams, origin: wp.vec3, d: wp.vec3):
 
 
 @wp.func
+def box_tap_weight(d: int, lo: int, hi: int, frac: float) -> float:
+    """Weight of tap offset d in [lo, hi] of a PCF box whose centre sits ``frac`` of a texel past tap 0: 1 inside,
+    1 - frac and frac at the two ends (a box filter of the bilinearly weighted texels)."""
+    if d == lo:
+        return 1.0 - frac
+    if d == hi:
+        return frac
+    return 1.0
+
+
+@wp.func
 def shadow_pcf(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float32), x: wp.vec3, bias: float,
                filter_px: int) -> float:
     """Percentage-closer filtering over a filter_px x filter_px texel box, bilinearly weighted; 1 = lit."""
@@ -251,17 +262,9 @@ def shadow_pcf(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float32), x: 
     total = float(0.0)
     wsum = float(0.0)
     for dj in range(lo, hi + 1):
-        wy = 1.0
-        if dj == lo:
-            wy = 1.0 - ay
-        elif dj == hi:
-            wy = ay
+        wy = box_tap_weight(dj, lo, hi, ay)
         for di in range(lo, hi + 1):
-            wx = 1.0
-            if di == lo:
-                wx = 1.0 - ax
-            elif di == hi:
-                wx = ax
+            wx = box_tap_weight(di, lo, hi, ax)
             wgt = wx * wy
             total += wgt * shadow_texel_lit(depth_map, i0 + di, j0 + dj, c[2], bias)
             wsum += wgt
@@ -330,18 +333,10 @@ def shadow_pcf_contact(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float
     total = float(0.0)
     wsum = float(0.0)
     for dj in range(lo, hi + 1):
-        wy = 1.0
-        if dj == lo:
-            wy = 1.0 - ay
-        elif dj == hi:
-            wy = ay
+        wy = box_tap_weight(dj, lo, hi, ay)
         j = j0 + dj
         for di in range(lo, hi + 1):
-            wx = 1.0
-            if di == lo:
-                wx = 1.0 - ax
-            elif di == hi:
-                wx = ax
+            wx = box_tap_weight(di, lo, hi, ax)
             i = i0 + di
             if i < 0 or j < 0 or i >= depth_map.shape[1] or j >= depth_map.shape[0]:
                 continue  # outside the map: nothing known about the receiver there
