@@ -9,8 +9,13 @@ import warp as wp
 
 from warpscatter.config import load_config
 from warpscatter.pipeline import render_images
-from warpscatter.scattering.epipole_fallback import march_transmittance_strata
-from warpscatter.scattering.marching import Marcher, march_along, marcher_params, visibility_params
+from warpscatter.scattering.marching import (
+    Marcher,
+    march_along,
+    march_transmittance_strata,
+    marcher_params,
+    visibility_params,
+)
 from warpscatter.scattering.rectify_nonlinear import NonlinearRectification, reference_ray
 from warpscatter.scene import build_scene
 from warpscatter.shadows.shadow_map import render_shadow_map

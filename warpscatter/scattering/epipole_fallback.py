@@ -8,11 +8,12 @@ shadow-map visibility instead, blended linearly in the angle with the prefiltere
 ``EPIPOLE_BLEND`` times that radius. An angle rather than a pixel count keeps the region the same at every
 resolution.
 
-The march (:func:`march_transmittance_strata`) places its ``steps`` strata at equal shares of the transmittance
-weight, not at equal lengths as the reference marcher (:mod:`.marching`) does: the rays near the sun are sky rays
-of optical depth ~10, on which a handful of equal-length strata carry most of the weight, and the disc came out
-grainy against the smooth prefiltered surround (per-pixel variation ~6 % against 0.4 % outside, colonnade_fourier
-at 640x360; 0.85 % now, the 512-step reference's own noise). ``jitter`` picks per-pixel or the fixed pattern.
+The march (:func:`~.marching.march_transmittance_strata`) places its ``steps`` strata at equal shares of the
+transmittance weight, not at equal lengths as the reference marcher (:mod:`.marching`) does: the rays near the sun
+are sky rays of optical depth ~10, on which a handful of equal-length strata carry most of the weight, and the disc
+came out grainy against the smooth prefiltered surround (per-pixel variation ~6 % against 0.4 % outside,
+colonnade_fourier at 640x360; 0.85 % now, the 512-step reference's own noise). ``jitter`` picks per-pixel or the
+fixed pattern.
 """
 
 from __future__ import annotations
@@ -24,54 +25,13 @@ import warp as wp
 
 from ..parallel import launch_rows
 from ..scene.camera import CameraParams, pixel_ray_direction
-from ..scene.medium import phase_eval, transmittance_integral
-from ..shadows.shadow_map import orthographic_ray_coords, shadow_visibility_at
 from ..wpinit import module_options
-from .marching import JITTER_PER_PIXEL, Marcher, marcher_params, visibility_params
+from .marching import Marcher, march_transmittance_strata, marcher_params, visibility_params
 
 module_options()
 
 #: Width of the blend band beyond the ray-marched disc, relative to its radius.
 EPIPOLE_BLEND = 0.25
-
-
-@wp.func
-def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, stream: int) -> wp.vec3:
-    """L_scat along origin + t d (unit d), t in [0, s], for a directional light and an orthographic shadow map, with
-    ``m.steps`` strata of EQUAL transmittance weight: stratum k holds p in [k / N, (k + 1) / N] of the normalised
-    weight p(t) = (1 - exp(-sigma_t t)) / (1 - exp(-sigma_t s)), so a sample sits at t = -ln(1 - p (1 - exp(-sigma_t
-    s))) / sigma_t and counts 1 / N of sigma_s f E integral_0^s exp(-sigma_t t) dt.
-
-    The reference marcher's strata are equal in LENGTH, each weighted by its own transmittance integral: on a sky
-    ray (optical depth ~10) the first few of 64 strata carry most of the weight, so one shadow-map texel flipping
-    in one of them changes the pixel by up to ~17 % (grain against the smooth prefiltered surround). Here no
-    stratum carries more than 1 / N. Both estimators are unbiased per pixel (per-pixel jitter) and exact for V = 1.
-    """
-    acc = wp.vec3(0.0, 0.0, 0.0)
-    e = m.light.radiance
-    if s <= 0.0 or e[0] + e[1] + e[2] <= 0.0:
-        return acc
-    sigma = m.medium.sigma_t
-    e = e * (m.medium.sigma_s * phase_eval(m.medium.phase_id, m.medium.g, wp.dot(m.light.direction, -d)))
-    sm = m.vis.sm
-    c0, dc = orthographic_ray_coords(sm, origin, d)
-    x = sigma * s
-    a = 1.0 - wp.exp(-x)  # weight of the whole ray, relative to an infinite one
-    rng = wp.rand_init(m.seed, stream)
-    if m.jitter != JITTER_PER_PIXEL:
-        rng = wp.rand_init(m.seed, 0)
-    u = wp.randf(rng)
-    inv_n = 1.0 / float(m.steps)
-    lit = float(0.0)
-    for k in range(m.steps):
-        if m.jitter == JITTER_PER_PIXEL and k > 0:
-            u = wp.randf(rng)
-        p = (float(k) + u) * inv_n
-        t = p * s  # thin media: the weight is uniform in t
-        if x > 1.0e-3:
-            t = -wp.log(wp.max(1.0 - p * a, 1.0e-30)) / sigma
-        lit += shadow_visibility_at(sm, m.vis.sm_depth, c0 + dc * wp.min(t, s), m.vis.sm_bias)
-    return e * (transmittance_integral(sigma, 0.0, s) * lit * inv_n)
 
 
 @wp.kernel
@@ -188,8 +148,8 @@ def epipole_pixel_fraction(camera, regions: list[EpipoleRegion], stride: int = 4
 def march_epipole_regions(scene, gbuffer, shadow_map, regions: list[EpipoleRegion], out: wp.array, *, steps: int,
                           seed: int, shadow_bias_texels: float, jitter: str = "per_pixel", device=None) -> None:
     """Ray-march the pixels of ``regions`` into ``out`` (shadow-map visibility, ``steps`` strata of equal
-    transmittance weight, :func:`march_transmittance_strata`), blending with the prefiltered values already in
-    ``out`` over each region's blend band."""
+    transmittance weight, :func:`~.marching.march_transmittance_strata`), blending with the prefiltered values
+    already in ``out`` over each region's blend band."""
     cam = scene.camera
     vis = visibility_params(scene, "shadow_map", None, shadow_map, shadow_bias_texels, device)
     marcher = marcher_params(scene, steps=steps, visibility=vis, seed=seed, jitter=jitter, device=device)
@@ -213,4 +173,4 @@ def epipole_weights(camera, regions: list[EpipoleRegion]) -> np.ndarray:
 
 
 __all__ = ["EPIPOLE_BLEND", "EpipoleRegion", "epipole_pixel_fraction", "epipole_region_kernel", "epipole_regions",
-           "epipole_weights", "march_epipole_regions", "march_transmittance_strata"]
+           "epipole_weights", "march_epipole_regions"]

@@ -405,6 +405,45 @@ def marcher_params(scene, *, steps: int, visibility: Visibility, seed: int = 0, 
     return m
 
 
+@wp.func
+def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, stream: int) -> wp.vec3:
+    """L_scat along origin + t d (unit d), t in [0, s], for a directional light and an orthographic shadow map, with
+    ``m.steps`` strata of EQUAL transmittance weight: stratum k holds p in [k / N, (k + 1) / N] of the normalised
+    weight p(t) = (1 - exp(-sigma_t t)) / (1 - exp(-sigma_t s)), so a sample sits at t = -ln(1 - p (1 - exp(-sigma_t
+    s))) / sigma_t and counts 1 / N of sigma_s f E integral_0^s exp(-sigma_t t) dt.
+
+    The reference marcher's strata are equal in LENGTH, each weighted by its own transmittance integral: on a sky
+    ray (optical depth ~10) the first few of 64 strata carry most of the weight, so one shadow-map texel flipping
+    in one of them changes the pixel by up to ~17 % (grain against the smooth prefiltered surround). Here no
+    stratum carries more than 1 / N. Both estimators are unbiased per pixel (per-pixel jitter) and exact for V = 1.
+    """
+    acc = wp.vec3(0.0, 0.0, 0.0)
+    e = m.light.radiance
+    if s <= 0.0 or e[0] + e[1] + e[2] <= 0.0:
+        return acc
+    sigma = m.medium.sigma_t
+    e = e * (m.medium.sigma_s * phase_eval(m.medium.phase_id, m.medium.g, wp.dot(m.light.direction, -d)))
+    sm = m.vis.sm
+    c0, dc = orthographic_ray_coords(sm, origin, d)
+    x = sigma * s
+    a = 1.0 - wp.exp(-x)  # weight of the whole ray, relative to an infinite one
+    rng = wp.rand_init(m.seed, stream)
+    if m.jitter != JITTER_PER_PIXEL:
+        rng = wp.rand_init(m.seed, 0)
+    u = wp.randf(rng)
+    inv_n = 1.0 / float(m.steps)
+    lit = float(0.0)
+    for k in range(m.steps):
+        if m.jitter == JITTER_PER_PIXEL and k > 0:
+            u = wp.randf(rng)
+        p = (float(k) + u) * inv_n
+        t = p * s  # thin media: the weight is uniform in t
+        if x > 1.0e-3:
+            t = -wp.log(wp.max(1.0 - p * a, 1.0e-30)) / sigma
+        lit += shadow_visibility_at(sm, m.vis.sm_depth, c0 + dc * wp.min(t, s), m.vis.sm_bias)
+    return e * (transmittance_integral(sigma, 0.0, s) * lit * inv_n)
+
+
 __all__ = [
     "JITTER_FIXED",
     "JITTER_PER_PIXEL",
@@ -420,6 +459,7 @@ __all__ = [
     "march_ray",
     "march_screen_point",
     "marcher_params",
+    "march_transmittance_strata",
     "point_visibility",
     "shadow_ray_offset",
     "visibility_params",

@@ -203,6 +203,7 @@ def resample_kernel(
 #: Most radial sub-samples per rectified texel of the supersampled resampling (``resample_filter: supersample``,
 #: :func:`resample_shadow_map`).
 MAX_RADIAL_SAMPLES = 4
+radial_taps = wp.types.vector(length=4 * MAX_RADIAL_SAMPLES, dtype=wp.float32)
 
 
 @wp.func
@@ -256,7 +257,7 @@ def resample_radial_kernel(
     # their z_b range, each part's weighted mean z_b becoming one rectified depth at the texel's centre column; with
     # empty taps (no caster: depth 1) the casters form one depth and the empty taps the other. The light-ray point
     # is affine in u (p0 = origin + u a), so are its map coordinates and depth: one sin/cos and at most two atan2
-    # per texel; the taps are read twice (range, then parts) rather than kept
+    # per texel; the taps are kept for the split (range, then parts)
     j, i = wp.tid()
     j += offset
     v = (float(j) + 0.5) / float(rect.rows)
@@ -272,6 +273,9 @@ def resample_radial_kernel(
     hi = float(-1.0e30)
     w_caster = float(0.0)
     w_empty = float(0.0)
+    tap_z = radial_taps()  # the caster taps' depths and weights (an empty tap keeps weight 0)
+    tap_w = radial_taps()
+    n = int(0)
     for k in range(samples):
         u = (float(i) + (float(k) + 0.5) * inv) / float(rect.cols)
         for t in range(4):
@@ -281,8 +285,11 @@ def resample_radial_kernel(
                     lo = wp.min(lo, z_b)
                     hi = wp.max(hi, z_b)
                 w_caster += w
+                tap_z[n] = z_b
+                tap_w[n] = w
             else:
                 w_empty += w
+            n += 1
     u_mid = (float(i) + 0.5) / float(rect.cols)
     z1 = float(1.0)
     z2 = float(1.0)
@@ -294,17 +301,15 @@ def resample_radial_kernel(
         s2 = float(0.0)
         w1 = float(0.0)
         w2 = float(0.0)
-        for k in range(samples):
-            u = (float(i) + (float(k) + 0.5) * inv) / float(rect.cols)
-            for t in range(4):
-                z_b, w, caster = radial_tap(shadow_depth, c0, ca, d0, da, depth_per_unit, empty_depth, u, t, inv)
-                if caster > 0.0:
-                    if two and z_b > mid:
-                        s2 += w * z_b
-                        w2 += w
-                    else:
-                        s1 += w * z_b
-                        w1 += w
+        for k in range(n):
+            z_b = tap_z[k]
+            w = tap_w[k]
+            if two and z_b > mid:
+                s2 += w * z_b
+                w2 += w
+            else:
+                s1 += w * z_b
+                w1 += w
         if w1 > 0.0:
             z1 = rectified_blocker_depth(rect, u_mid, s1 / w1)
         if w2 > 0.0:  # two caster depths
