@@ -8,7 +8,7 @@ shadow-map visibility instead, blended linearly in the angle with the prefiltere
 ``EPIPOLE_BLEND`` times that radius. An angle rather than a pixel count keeps the region the same at every
 resolution.
 
-The march (:func:`~.marching.march_transmittance_strata`) places its ``steps`` strata at equal shares of the
+The march (:func:`~.marching.march_transmittance_strata`) places its ``epipole_steps`` strata at equal shares of the
 transmittance weight, not at equal lengths as the reference marcher (:mod:`.marching`) does: the rays near the sun
 are sky rays of optical depth ~10, on which a handful of equal-length strata carry most of the weight, and the disc
 came out grainy against the smooth prefiltered surround (per-pixel variation ~6 % against 0.4 % outside,
