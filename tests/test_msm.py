@@ -20,7 +20,7 @@ from warpscatter.raster import linearize_depth, rasterize
 from warpscatter.scene.camera import Camera, CameraParams, look_at_basis, orthographic_matrix, view_matrix
 from warpscatter.shading import pixel_footprint
 from warpscatter.shadows import moments as mm
-from warpscatter.shadows import msm
+from warpscatter.shadows import msm, translucency
 from warpscatter.shadows.shadow_map import ShadowMap, ShadowMapParams, shadow_pcf
 from warpscatter.wpinit import module_options
 
@@ -326,7 +326,7 @@ def test_translucent_row_bands_match_one_pass(monkeypatch):
     sm = top_down_map(scene.vertices, scene.triangles, 24)
     whole = msm.generate_moment_shadow_map(scene, sm, supersampling=3, bits=64, coloured=True)
     assert whole.translucent_layers == 7
-    monkeypatch.setattr(msm, "TRANSLUCENT_BAND_BYTES", 24 * 7 * 72 * 3 * 5)  # 5 map rows per band
+    monkeypatch.setattr(translucency, "TRANSLUCENT_BAND_BYTES", 24 * 7 * 72 * 3 * 5)  # 5 map rows per band
     banded = msm.generate_moment_shadow_map(scene, sm, supersampling=3, bits=64, coloured=True)
     np.testing.assert_array_equal(banded.numpy(), whole.numpy())
 

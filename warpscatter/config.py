@@ -165,10 +165,10 @@ class Material(SettingsModel):
     methods (``render.lighting``), an optional glossy ``brdf`` (phong or lafortune) beside the Lambert term."""
 
     albedo: Albedo = Field((0.5, 0.5, 0.5), description="diffuse (Lambert) albedo, linear RGB in [0, 1]")
-    opacity: Annotated[Float, Field(gt=0.0, le=1.0, description="opacity (< 1: a translucent occluder of the moment "
-                                                                "shadow maps and of exact scattering visibility, "
-                                                                "which passes 1 - opacity; shadow-map scattering "
-                                                                "still treats it as opaque)")] = 1.0
+    opacity: Annotated[Float, Field(gt=0.0, le=1.0, description="opacity (< 1: a translucent occluder that passes "
+                                                                "1 - opacity, in every scattering method and the "
+                                                                "msm / msm_soft surface shadows; pcf shades it like "
+                                                                "an opaque one)")] = 1.0
     brdf: Optional[BRDFConfig] = Field(None, description="lighting methods only: a glossy phong or lafortune BRDF "
                                                          "beside the Lambert term")
 

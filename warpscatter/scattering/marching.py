@@ -33,6 +33,10 @@ Visibility V(x) (:class:`Visibility`) is either
   ground truth every fast method is measured against; or
 * ``shadow_map`` — a hard (nearest-texel) lookup in the light's shadow map.
 
+Translucent casters (material opacity < 1) pass 1 - opacity each in both modes: exact shadow rays multiply the
+transmittances of every caster surface they cross (:func:`exact_transmittance`); the shadow map keeps the
+transmittance of the translucent casters in front of each texel's opaque one (:func:`map_visibility_at`).
+
 Kernels take the estimator's inputs as one :class:`Marcher` struct (light, medium, steps, seed, step pattern,
 visibility). Calling it from your own kernel::
 
@@ -56,7 +60,13 @@ import warp as wp
 from ..scene.camera import CameraParams, pixel_ray_direction
 from ..scene.lights import LIGHT_DIRECTIONAL, LightParams, light_params, light_sample
 from ..scene.medium import MediumParams, phase_eval, transmittance_integral
-from ..shadows.shadow_map import ShadowMapParams, orthographic_ray_coords, shadow_visibility, shadow_visibility_at
+from ..shadows.shadow_map import (
+    ShadowMapParams,
+    orthographic_ray_coords,
+    shadow_coords,
+    shadow_transmittance_at,
+    shadow_visibility_at,
+)
 from ..wpinit import default_device, module_options
 from .settings import JITTERS, VISIBILITY_MODES
 
@@ -77,10 +87,12 @@ class Visibility:
     mode: int  # VISIBILITY_EXACT or VISIBILITY_SHADOW_MAP
     mesh: wp.uint64  # exact: the casters' BVH (wp.Mesh id)
     eps: float  # exact: shadow-ray start offset towards the light (scene units)
-    translucent: int  # exact: 1 when some caster has opacity < 1 (then V is the product of the crossed transmittances)
+    translucent: int  # 1 when some caster has opacity < 1 (V is then a transmittance in [0, 1])
     transmittance: wp.array(dtype=wp.float32)  # exact: 1 - opacity per caster triangle (the BVH's face order)
     sm: ShadowMapParams  # shadow_map: the map's transform (a 1x1 placeholder for exact)
-    sm_depth: wp.array2d(dtype=wp.float32)  # shadow_map: linear caster depth per texel
+    sm_depth: wp.array2d(dtype=wp.float32)  # shadow_map: linear depth of the nearest caster per texel
+    sm_opaque: wp.array2d(dtype=wp.float32)  # shadow_map, translucent: linear depth of the nearest opaque caster
+    sm_transmittance: wp.array2d(dtype=wp.float32)  # shadow_map, translucent: transmittance in front of it
     sm_bias: float  # shadow_map: depth bias (scene units)
 
 
@@ -137,6 +149,14 @@ def exact_transmittance(vis: Visibility, x: wp.vec3, omega_l: wp.vec3, dist: flo
 
 
 @wp.func
+def map_visibility_at(vis: Visibility, c: wp.vec3) -> float:
+    """Shadow-map V at map coordinates c = (u, v, depth): hard, or the translucent casters' transmittance."""
+    if vis.translucent != 0:
+        return shadow_transmittance_at(vis.sm, vis.sm_depth, vis.sm_opaque, vis.sm_transmittance, c, vis.sm_bias)
+    return shadow_visibility_at(vis.sm, vis.sm_depth, c, vis.sm_bias)
+
+
+@wp.func
 def point_visibility(vis: Visibility, x: wp.vec3, omega_l: wp.vec3, dist: float) -> float:
     """V(x) in [0, 1] of medium point x for light travelling along omega_l from ``dist`` away (exact visibility with
     translucent casters: their transmittance, :func:`exact_transmittance`)."""
@@ -144,7 +164,7 @@ def point_visibility(vis: Visibility, x: wp.vec3, omega_l: wp.vec3, dist: float)
         if vis.translucent != 0:
             return exact_transmittance(vis, x, omega_l, dist)
         return exact_visibility(vis.mesh, x, omega_l, dist, vis.eps)
-    return shadow_visibility(vis.sm, vis.sm_depth, x, vis.sm_bias)
+    return map_visibility_at(vis, shadow_coords(vis.sm, x))
 
 
 @wp.func
@@ -252,7 +272,7 @@ def march_directional_shadow_map(m: Marcher, origin: wp.vec3, d: wp.vec3, dt: fl
         t0 = float(k) * dt
         if m.jitter == JITTER_PER_PIXEL and k > 0:
             u = wp.randf(rng)
-        v = shadow_visibility_at(sm, m.vis.sm_depth, c0 + dc * (t0 + u * dt), m.vis.sm_bias)
+        v = map_visibility_at(m.vis, c0 + dc * (t0 + u * dt))
         if v > 0.0:
             acc += e * (v * stratum)
         stratum *= decay
@@ -360,17 +380,18 @@ def visibility_params(scene, visibility: str, geometry=None, shadow_map=None, sh
         _BVH_OWNERS[v] = geometry
         v.sm = ShadowMapParams()
         v.sm.width = v.sm.height = 1
-        v.sm_depth = wp.zeros((1, 1), dtype=wp.float32, device=device)
+        v.sm_depth = v.sm_opaque = v.sm_transmittance = wp.zeros((1, 1), dtype=wp.float32, device=device)
         v.sm_bias = 0.0
         return v
     if shadow_map is None:
         raise ValueError("shadow_map: shadow_map visibility needs a rendered ShadowMap")
     v.mode = VISIBILITY_SHADOW_MAP
     v.mesh = wp.uint64(0)
-    v.translucent = 0
+    v.translucent = int(shadow_map.translucent)
     v.transmittance = wp.zeros(1, dtype=wp.float32, device=device)
     v.sm = shadow_map.params()
     v.sm_depth = shadow_map.device_depth(device)
+    v.sm_opaque, v.sm_transmittance = shadow_map.device_translucency(device)
     v.sm_bias = float(shadow_bias_texels * shadow_map.texel_world)
     return v
 
@@ -440,7 +461,7 @@ def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float
         t = p * s  # thin media: the weight is uniform in t
         if x > 1.0e-3:
             t = -wp.log(wp.max(1.0 - p * a, 1.0e-30)) / sigma
-        lit += shadow_visibility_at(sm, m.vis.sm_depth, c0 + dc * wp.min(t, s), m.vis.sm_bias)
+        lit += map_visibility_at(m.vis, c0 + dc * wp.min(t, s))
     return e * (transmittance_integral(sigma, 0.0, s) * lit * inv_n)
 
 
@@ -455,6 +476,7 @@ __all__ = [
     "inscatter_sample",
     "jitter_mode",
     "lit_interval",
+    "map_visibility_at",
     "march_along",
     "march_ray",
     "march_screen_point",

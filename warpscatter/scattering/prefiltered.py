@@ -60,6 +60,7 @@ from ..scene.camera import CameraParams, pixel_ray_direction
 from ..scene.lights import DirectionalLight, LightParams, light_params
 from ..scene.medium import MediumParams, phase_eval, transmittance_integral
 from ..shadows import moments as mm
+from ..shadows import translucency
 from ..stages import StageTimer
 from ..wpinit import default_device, module_options
 from . import rectify_nonlinear
@@ -277,13 +278,16 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         filtered_resampling = isinstance(rect, NonlinearRectification) and p.resample_filter == "moments"
         if isinstance(rect, ProjectiveRectification):
             casters = scene.casters()
-            rectified = rasterize_rectified(rect, casters.vertices, casters.triangles, device=device)
+            rectified = rasterize_rectified(rect, casters.vertices, casters.triangles,
+                                            opacity=translucency.triangle_opacity(casters), device=device)
         elif not filtered_resampling:
             samples = 0
             if isinstance(rect, NonlinearRectification) and p.resample_filter == "supersample":
                 samples = rectify_nonlinear.radial_samples_for(rect, shadow_map.texel_world)
-            rectified = resample_shadow_map(rect, shadow_map.depth, shadow_map.view_projection, depth="linear",
-                                            world_to_view=shadow_map.view, radial_samples=samples, device=device)
+            rectified = resample_shadow_map(
+                rect, shadow_map.depth, shadow_map.view_projection, depth="linear", world_to_view=shadow_map.view,
+                radial_samples=samples, device=device,
+                translucency=(shadow_map.opaque_depth, shadow_map.transmittance) if shadow_map.translucent else None)
     resample_info = {"resample_filter": p.resample_filter if isinstance(rect, NonlinearRectification) else "none"}
     if isinstance(rect, NonlinearRectification) and p.resample_filter == "supersample":
         resample_info["resample_samples"] = samples

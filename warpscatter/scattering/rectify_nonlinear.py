@@ -32,6 +32,12 @@ shadow map (:mod:`warpscatter.shadows.msm`), turns its first three moments into 
 Algorithm 2 (non-positive variance: the single depth b_1), converts both to rectified depth with
 clamping and returns the sparse representation (z_1, z_2, w_2) per texel (:class:`SparseRectifiedDepth`,
 D.5's "sparse rectified representation"); the prefilter stores w_1 B(z_1) + w_2 B(z_2) for any basis B.
+
+Translucent casters (a :class:`~warpscatter.shadows.shadow_map.ShadowMap` with ``transmittance``): every shadow-map
+texel is itself the two-depth distribution (1 - T) delta(nearest caster) + T delta(nearest opaque caster)
+(:mod:`warpscatter.shadows.translucency`), so the resampling returns a :class:`SparseRectifiedDepth` with both depths
+(nearest look-up), or with the texel's taps split into those two parts (``supersample``); the moment map of
+``moments`` filtering blends them in itself (Peters 2017 Sec. 3.2).
 """
 
 from __future__ import annotations
@@ -180,6 +186,17 @@ def stored_blocker_depth(
     return result
 
 
+@wp.func
+def stored_transmittance(transmittance: wp.array2d(dtype=wp.float32), c: wp.vec4) -> float:
+    """Transmittance of the translucent casters in the nearest shadow-map texel of clip coordinates c (the texel of
+    :func:`stored_blocker_depth`; 1 off the map)."""
+    sx = (0.5 * c[0] + 0.5) * float(transmittance.shape[1])
+    sy = (0.5 - 0.5 * c[1]) * float(transmittance.shape[0])
+    if sx >= 0.0 and sy >= 0.0 and sx < float(transmittance.shape[1]) and sy < float(transmittance.shape[0]):
+        return transmittance[int(sy), int(sx)]
+    return 1.0
+
+
 @wp.kernel
 def resample_kernel(
     rect: NonlinearRectParams,
@@ -200,10 +217,46 @@ def resample_kernel(
                                      empty_depth, u)
 
 
+@wp.struct
+class TranslucentLayer:
+    """A shadow map's translucent layer as the resampling kernels read it (``translucent`` 0: 1x1 placeholders)."""
+
+    translucent: int
+    opaque_depth: wp.array2d(dtype=wp.float32)  # (H, W) stored depth of the nearest opaque caster
+    transmittance: wp.array2d(dtype=wp.float32)  # (H, W) transmittance of the translucent casters in front of it
+
+
+@wp.kernel
+def resample_translucent_kernel(
+    rect: NonlinearRectParams,
+    shadow_depth: wp.array2d(dtype=wp.float32),  # as resample_kernel: the nearest caster of any kind
+    layer: TranslucentLayer,
+    world_to_clip: wp.mat44,
+    depth_row: wp.vec4,
+    depth_per_unit: float,
+    empty_depth: float,
+    out_z1: wp.array2d(dtype=wp.float32),  # (rows, cols) the nearest caster's rectified depth
+    out_z2: wp.array2d(dtype=wp.float32),  # (rows, cols) the nearest opaque caster's
+    out_w2: wp.array2d(dtype=wp.float32),  # (rows, cols) the light passing the translucent casters in front of it
+    offset: int,
+):
+    # resample_kernel's nearest look-up of both depths of the texel's two-depth distribution (module doc)
+    j, i = wp.tid()
+    j += offset
+    u, p0 = texel_light_ray(rect, i, j)
+    p0h = wp.vec4(p0[0], p0[1], p0[2], 1.0)
+    c = world_to_clip * p0h
+    d0 = wp.dot(depth_row, p0h)
+    out_z1[j, i] = stored_blocker_depth(rect, shadow_depth, c, d0, depth_per_unit, empty_depth, u)
+    out_z2[j, i] = stored_blocker_depth(rect, layer.opaque_depth, c, d0, depth_per_unit, empty_depth, u)
+    out_w2[j, i] = stored_transmittance(layer.transmittance, c)
+
+
 #: Most radial sub-samples per rectified texel of the supersampled resampling (``resample_filter: supersample``,
 #: :func:`resample_shadow_map`).
 MAX_RADIAL_SAMPLES = 4
-radial_taps = wp.types.vector(length=4 * MAX_RADIAL_SAMPLES, dtype=wp.float32)
+#: Tap entries of one texel: four bilinear taps per sub-sample, two depths each with translucent casters.
+radial_taps = wp.types.vector(length=8 * MAX_RADIAL_SAMPLES, dtype=wp.float32)
 
 
 @wp.func
@@ -211,7 +264,7 @@ def radial_tap(shadow_depth: wp.array2d(dtype=wp.float32), c0: wp.vec4, ca: wp.v
                depth_per_unit: float, empty_depth: float, u: float, t: int, weight: float):
     """Tap t (0..3) of the bilinear footprint at column coordinate u of :func:`resample_radial_kernel`'s light rays:
     (its caster's distance z_b along the light from the ray's point, its bilinear weight times ``weight``, 1 if the
-    texel holds a caster else 0)."""
+    texel holds a caster else 0, the texel's column and row)."""
     c = c0 + ca * u
     fx = (0.5 * c[0] + 0.5) * float(shadow_depth.shape[1]) - 0.5
     fy = (0.5 - 0.5 * c[1]) * float(shadow_depth.shape[0]) - 0.5
@@ -234,13 +287,28 @@ def radial_tap(shadow_depth: wp.array2d(dtype=wp.float32), c0: wp.vec4, ca: wp.v
         if wp.isfinite(stored) and stored < empty_depth:
             z_b = (stored - (d0 + da * u)) / depth_per_unit
             caster = 1.0
-    return z_b, weight * wx * wy, caster
+    return z_b, weight * wx * wy, caster, x, y
+
+
+@wp.func
+def translucent_tap(layer: TranslucentLayer, x: int, y: int, d: float, depth_per_unit: float, empty_depth: float):
+    """The opaque part of tap (x, y) of a map with translucent casters (:func:`radial_tap` gave the nearest caster):
+    (the light share T reaching the nearest opaque caster, that caster's distance z_b along the light from the tap's
+    light-ray point at stored depth d, 1 if there is one else 0); T = 0 without translucency or off the map."""
+    if layer.translucent == 0 or x < 0 or y < 0 or x >= layer.transmittance.shape[1] or \
+            y >= layer.transmittance.shape[0]:
+        return float(0.0), float(0.0), float(0.0)
+    stored = layer.opaque_depth[y, x]
+    if wp.isfinite(stored) and stored < empty_depth:
+        return layer.transmittance[y, x], (stored - d) / depth_per_unit, float(1.0)
+    return layer.transmittance[y, x], float(0.0), float(0.0)
 
 
 @wp.kernel
 def resample_radial_kernel(
     rect: NonlinearRectParams,
     shadow_depth: wp.array2d(dtype=wp.float32),  # as resample_kernel
+    layer: TranslucentLayer,
     world_to_clip: wp.mat44,
     depth_row: wp.vec4,
     depth_per_unit: float,
@@ -257,7 +325,8 @@ def resample_radial_kernel(
     # their z_b range, each part's weighted mean z_b becoming one rectified depth at the texel's centre column; with
     # empty taps (no caster: depth 1) the casters form one depth and the empty taps the other. The light-ray point
     # is affine in u (p0 = origin + u a), so are its map coordinates and depth: one sin/cos and at most two atan2
-    # per texel; the taps are kept for the split (range, then parts)
+    # per texel; the taps are kept for the split (range, then parts). With translucent casters a tap is two entries,
+    # its nearest caster with weight (1 - T) and its nearest opaque caster (or the empty far end) with weight T
     j, i = wp.tid()
     j += offset
     v = (float(j) + 0.5) / float(rect.rows)
@@ -279,17 +348,28 @@ def resample_radial_kernel(
     for k in range(samples):
         u = (float(i) + (float(k) + 0.5) * inv) / float(rect.cols)
         for t in range(4):
-            z_b, w, caster = radial_tap(shadow_depth, c0, ca, d0, da, depth_per_unit, empty_depth, u, t, inv)
-            if caster > 0.0:
-                if w > 0.0:
-                    lo = wp.min(lo, z_b)
-                    hi = wp.max(hi, z_b)
-                w_caster += w
-                tap_z[n] = z_b
-                tap_w[n] = w
-            else:
-                w_empty += w
-            n += 1
+            z_n, w_tap, caster_n, x, y = radial_tap(shadow_depth, c0, ca, d0, da, depth_per_unit, empty_depth, u, t,
+                                                    inv)
+            passed, z_o, caster_o = translucent_tap(layer, x, y, d0 + da * u, depth_per_unit, empty_depth)
+            for part in range(2):
+                if part == 0 or passed > 0.0:
+                    z_b = z_n
+                    w = w_tap * (1.0 - passed)
+                    caster = caster_n
+                    if part == 1:
+                        z_b = z_o
+                        w = w_tap * passed
+                        caster = caster_o
+                    if caster > 0.0:
+                        if w > 0.0:
+                            lo = wp.min(lo, z_b)
+                            hi = wp.max(hi, z_b)
+                        w_caster += w
+                        tap_z[n] = z_b
+                        tap_w[n] = w
+                    else:
+                        w_empty += w
+                    n += 1
     u_mid = (float(i) + 0.5) / float(rect.cols)
     z1 = float(1.0)
     z2 = float(1.0)
@@ -806,7 +886,7 @@ def _pixel_median_inclination(rect: NonlinearRectification, camera, stride: int,
 
 
 def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_clip, *, depth: str = "ndc",
-                        world_to_view=None, radial_samples: int = 0, device=None):
+                        world_to_view=None, radial_samples: int = 0, translucency=None, device=None):
     """Resample an orthographic light shadow map into the rectified blocker-depth map (Peters 2017 Sec. 5.1.1).
 
     Each rectified texel (row j, column i) is a light ray; its point closest to the camera is projected
@@ -831,11 +911,13 @@ def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_cli
             (seen from the camera, shadow-map texels are wedges from the light's epipole) and, where a rectified
             texel is wider than a shadow-map texel (:func:`resample_footprint_texels`), casters' edges skipped at
             random along each row show as radial streaks in the look-ups.
+        translucency: None, or the shadow map's translucent layer (opaque depth, transmittance): two (H, W) arrays
+            (numpy or Warp), the depth in the same kind as ``shadow_depth`` (module doc).
         device: Warp device.
 
     Returns:
-        (rows, cols) float32 Warp array of rectified blocker depth in [0, 1]; with ``radial_samples`` > 0 a
-        :class:`SparseRectifiedDepth`.
+        (rows, cols) float32 Warp array of rectified blocker depth in [0, 1]; with ``radial_samples`` > 0 or
+        ``translucency`` a :class:`SparseRectifiedDepth`.
 
     Raises:
         ValueError: on a matrix that is not an orthographic projection along the light direction, a bad
@@ -869,22 +951,42 @@ def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_cli
     per_unit = float(row[:3] @ light)
     if not per_unit > 0.0:
         raise ValueError("shadow-map depth must grow along the light direction (check world_to_clip / world_to_view)")
-    if isinstance(shadow_depth, wp.array):
-        sm = shadow_depth if shadow_depth.device == wp.get_device(device) else shadow_depth.to(device)
+    sm = _map_array(shadow_depth, "shadow_depth", device)
+    layer = TranslucentLayer()
+    layer.translucent = int(translucency is not None)
+    if translucency is None:
+        layer.opaque_depth = layer.transmittance = wp.ones((1, 1), dtype=wp.float32, device=device)
     else:
-        sm = wp.array(np.ascontiguousarray(shadow_depth, dtype=np.float32), dtype=wp.float32, device=device)
-    if sm.ndim != 2:
-        raise ValueError(f"shadow_depth must be a 2D array, got {sm.ndim} dimensions")
-    args = [rect.params(), sm, wp.mat44(*m.astype(np.float32).ravel()), wp.vec4(*row.astype(np.float32)), per_unit,
-            float(empty)]
+        opaque_depth, transmittance = translucency
+        layer.opaque_depth = _map_array(opaque_depth, "opaque depth", device)
+        layer.transmittance = _map_array(transmittance, "transmittance", device)
+        if layer.opaque_depth.shape != sm.shape or layer.transmittance.shape != sm.shape:
+            raise ValueError(f"translucency: the opaque depth and transmittance must have the map's shape {sm.shape}")
+    head = [rect.params(), sm]
+    tail = [wp.mat44(*m.astype(np.float32).ravel()), wp.vec4(*row.astype(np.float32)), per_unit, float(empty)]
     shape = (rect.rows, rect.cols)
-    if radial_samples > 0:
+    if radial_samples > 0 or translucency is not None:
         z1, z2, w2 = (wp.empty(shape, dtype=wp.float32, device=device) for _ in range(3))
-        launch_rows(resample_radial_kernel, shape, [*args, int(radial_samples), z1, z2, w2], device=device)
+        if radial_samples > 0:
+            launch_rows(resample_radial_kernel, shape, [*head, layer, *tail, int(radial_samples), z1, z2, w2],
+                        device=device)
+        else:
+            launch_rows(resample_translucent_kernel, shape, [*head, layer, *tail, z1, z2, w2], device=device)
         return SparseRectifiedDepth(z1=z1, z2=z2, w2=w2)
     out = wp.empty(shape, dtype=wp.float32, device=device)
-    launch_rows(resample_kernel, shape, [*args, out], device=device)
+    launch_rows(resample_kernel, shape, [*head, *tail, out], device=device)
     return out
+
+
+def _map_array(a, name: str, device) -> wp.array:
+    """A 2D float32 map as a Warp array on ``device``."""
+    if isinstance(a, wp.array):
+        arr = a if a.device == wp.get_device(device) else a.to(device)
+    else:
+        arr = wp.array(np.ascontiguousarray(a, dtype=np.float32), dtype=wp.float32, device=device)
+    if arr.ndim != 2:
+        raise ValueError(f"{name} must be a 2D array, got {arr.ndim} dimensions")
+    return arr
 
 
 # ---- host side: resampling with filtering (Peters 2017 Sec. 5.2) -------------------------------------------

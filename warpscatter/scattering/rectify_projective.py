@@ -419,8 +419,8 @@ class ProjectiveRectification:
 # ---- host side: rasterization straight into the rectified map ---------------------------------------------
 
 
-def rasterize_rectified(rect: ProjectiveRectification, vertices, triangles, *, device=None,
-                        threads: int | None = None) -> wp.array:
+def rasterize_rectified(rect: ProjectiveRectification, vertices, triangles, *, opacity=None, device=None,
+                        threads: int | None = None):
     """Rasterize a triangle mesh straight into the rectified blocker-depth map (Klehm 2014 Sec. 4.2).
 
     One pass per light-frustum region with that region's matrix (:meth:`ProjectiveRectification.world_to_clip`),
@@ -431,23 +431,45 @@ def rasterize_rectified(rect: ProjectiveRectification, vertices, triangles, *, d
         rect: the rectification (its rows x cols is the output size).
         vertices: (N, 3) world positions (numpy or ``wp.array(dtype=wp.vec3)``).
         triangles: (T, 3) vertex indices.
+        opacity: None (all opaque) or (T,) opacity per triangle: with translucent casters each texel holds the
+            two-depth distribution of :mod:`warpscatter.shadows.translucency` (nearest caster, nearest opaque
+            caster, the light share T passing to the latter), found by depth peeling in each region.
         device: Warp device.
         threads: CPU worker threads of the rasterizer.
 
     Returns:
-        (rows, cols) float32 Warp array of rectified depth in [0, 1] (row 0 = v = 0).
+        (rows, cols) float32 Warp array of rectified depth in [0, 1] (row 0 = v = 0); with translucent casters a
+        :class:`~.rectify_nonlinear.SparseRectifiedDepth` (z_1 the nearest caster, z_2 the opaque one, w_2 = T).
     """
+    from ..shadows import translucency
+
     device = default_device(device)
     points = raster.as_points(vertices, device)  # uploaded once for all regions
-    out = np.ones((rect.rows, rect.cols), np.float32)
+    translucent = opacity is not None and translucency.has_translucent(opacity)
+    maps = [np.ones((rect.rows, rect.cols), np.float32) for _ in range(3 if translucent else 1)]
     starts = rect.region_columns()
+
+    def rectified(z):
+        return np.where(np.isfinite(z), 0.5 * z + 0.5, 1.0)
+
     for k in range(rect.regions):
         width = int(starts[k + 1] - starts[k])
+        cols = slice(starts[k], starts[k + 1])
+        if translucent:
+            nearest, opaque, passed = translucency.translucent_depths(
+                points, triangles, opacity, rect.world_to_clip(k), width, rect.rows, clamp_depth=True,
+                clip_near=False, device=device)
+            maps[0][:, cols], maps[1][:, cols], maps[2][:, cols] = rectified(nearest), rectified(opaque), passed
+            continue
         r = raster.rasterize(points, triangles, rect.world_to_clip(k), width, rect.rows, clamp_depth=True,
                              clip_near=False, device=device, threads=threads)
-        z = r.ndc_depth[0]
-        out[:, starts[k]:starts[k + 1]] = np.where(np.isfinite(z), 0.5 * z + 0.5, 1.0)
-    return wp.array(out, dtype=wp.float32, device=device)
+        maps[0][:, cols] = rectified(r.ndc_depth[0])
+    z1, *rest = (wp.array(a, dtype=wp.float32, device=device) for a in maps)
+    if not translucent:
+        return z1
+    from .rectify_nonlinear import SparseRectifiedDepth
+
+    return SparseRectifiedDepth(z1=z1, z2=rest[0], w2=rest[1])
 
 
 # ---- host side: reference rays and column lengths (Klehm 2014 Sec. 3.2, Eq. 12) --------------------------

@@ -58,7 +58,7 @@ import numpy as np
 import warp as wp
 
 from ..parallel import launch_rows
-from ..raster import MAX_RESOLUTION, coverage_count, linearize_depth, ndc_to_view_depth, rasterize
+from ..raster import MAX_RESOLUTION, linearize_depth, ndc_to_view_depth, rasterize
 from ..stages import StageTimer
 from ..wpinit import default_device, module_options
 from . import moments as mm
@@ -80,18 +80,12 @@ from .msm_texels import (  # noqa: F401 (the texel operations are part of this m
 )
 from .settings import MAX_SUPERSAMPLING
 from .shadow_map import ShadowMap, ShadowMapParams, shadow_coords
+from .translucency import ALPHA_TEST, OPAQUE_ALPHA, peel_row_bands
 
 module_options()
 
-#: Alpha test of Sec. 3.3: translucent fragments with an opacity below 1% are discarded.
-ALPHA_TEST = wp.constant(0.01)
-#: Opacities at or above this are opaque (rendered into the opaque depth pass).
-OPAQUE_ALPHA = 1.0
 #: Bits per texel -> 4-moment storage mode of :mod:`.moments`.
 STORAGE_OF_BITS = {64: int(mm.STORAGE4_UNORM16), 128: int(mm.STORAGE4_FLOAT32)}
-#: Memory budget of the depth-peeled translucent layers: the supersampled view is peeled in row bands this size.
-TRANSLUCENT_BAND_BYTES = 256 * 2**20
-_PEEL_BYTES = 24  # bytes per peeled sample and layer (int64 key, float32 depth, int32 triangle, merge buffers)
 
 
 @wp.struct
@@ -527,14 +521,6 @@ def channel_opacities(opacity, albedo, coloured: bool = False) -> np.ndarray:
     return (1.0 - transmittance).astype(np.float32)
 
 
-def _row_band_matrix(height: int, y0: int, y1: int) -> np.ndarray:
-    """Clip-space crop mapping sample rows [y0, y1) of a ``height``-row image onto a full (y1 - y0)-row image."""
-    a = height / float(y1 - y0)
-    m = np.eye(4)
-    m[1, 1], m[1, 3] = a, 1.0 - a * (1.0 - 2.0 * y0 / height)
-    return m
-
-
 def _light_depth_mapping(shadow_map: ShadowMap, geom: MapGeometry) -> LightDepthMapping:
     p = np.asarray(shadow_map.projection, np.float64)
     d = LightDepthMapping()
@@ -570,7 +556,8 @@ def generate_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: i
         coloured: one map per colour channel (module docstring); otherwise one monochrome map.
         max_translucent_layers: most translucent fragments blended per sample (depth peeling passes); exact while
             no sample of the supersampled view lies behind more translucent fragments; beyond, the farthest are
-            dropped. The peeled layers are processed in row bands of at most TRANSLUCENT_BAND_BYTES.
+            dropped. The peeled layers are processed in row bands of bounded memory
+            (:func:`~.translucency.peel_row_bands`).
         device: Warp device.
 
     Returns:
@@ -620,20 +607,14 @@ def generate_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: i
         return MomentShadowMap(texels=texels, bits=bits, shadow_map=shadow_map, geometry=geom, supersampling=s)
     tris = scene.triangles[translucent]
     trans_alpha = wp.array(np.ascontiguousarray(tri_alpha[translucent]), dtype=wp.float32, device=device)
-    counts = coverage_count(scene.vertices, tris, view_proj, sw, sh, clamp_depth=clamp, device=device)
-    layers = min(int(counts.max()), max_layers)
-    band_rows = max(1, min(h, TRANSLUCENT_BAND_BYTES // (_PEEL_BYTES * max(layers, 1) * sw * s)))  # map rows
-    for r0 in range(0, h, band_rows):
-        r1 = min(h, r0 + band_rows)
-        k = min(int(counts[r0 * s : r1 * s].max()), max_layers)
-        trans_ndc, trans_tri = dummy_ndc, dummy_tri
-        if k > 0:
-            crop = view_proj if (r0, r1) == (0, h) else _row_band_matrix(sh, r0 * s, r1 * s) @ view_proj
-            r = rasterize(scene.vertices, tris, crop, sw, (r1 - r0) * s, layers=k, clamp_depth=clamp, device=device)
-            trans_ndc, trans_tri = r.device_ndc_depth, r.device_tri_id
-        band = _translucent_band(trans_ndc, trans_tri, k, r0, trans_alpha)
-        launch_rows(_generate_kernel, (r1 - r0, w), [opaque_ndc, band, s, depth, int(storage), texels], device=device,
-                    min_chunk=_MIN_ROWS)
+    layers = 0
+    for y0, y1, k, r in peel_row_bands(scene.vertices, tris, view_proj, sw, sh, max_layers=max_layers, row_multiple=s,
+                                       clamp_depth=clamp, device=device):
+        layers = max(layers, k)
+        trans_ndc, trans_tri = (dummy_ndc, dummy_tri) if r is None else (r.device_ndc_depth, r.device_tri_id)
+        band = _translucent_band(trans_ndc, trans_tri, k, y0 // s, trans_alpha)
+        launch_rows(_generate_kernel, ((y1 - y0) // s, w), [opaque_ndc, band, s, depth, int(storage), texels],
+                    device=device, min_chunk=_MIN_ROWS)
     return MomentShadowMap(texels=texels, bits=bits, shadow_map=shadow_map, geometry=geom, supersampling=s,
                            translucent_layers=layers)
 

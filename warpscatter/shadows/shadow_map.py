@@ -12,6 +12,12 @@ placed behind every caster; spot: the light position). Empty texels hold +inf.
 Texel (i, j) has j from the TOP (NDC y = +1), as every image in warpscatter. A lookup outside the
 map's xy footprint is lit (no caster was rasterized there).
 
+Translucent casters (material opacity < 1): the map then also keeps, per texel, the depth of the nearest OPAQUE caster
+and the transmittance T of the translucent casters in front of it (:mod:`.translucency`), and
+:func:`shadow_transmittance_at` returns 1 before the nearest caster, T up to the opaque one and 0 behind it. The
+volumetric methods read it; ``pcf`` surface shadows compare against the nearest caster of any kind (translucent casters
+shadow surfaces like opaque ones there: ``msm`` filters them properly).
+
 Surfaces at a contact on the map's silhouette (:func:`shadow_pcf_surface`): where a receiver meets its occluder
 along the outline of everything the light sees — the floor and walls of a closed room, whose creases are that
 outline — plain PCF leaks light into the contact shadow. Its box reaches past the outline into empty texels (lit),
@@ -59,13 +65,22 @@ class ShadowMapParams:
 
 @dataclass
 class ShadowMap:
-    """A rendered shadow map: linear depth (H, W) float32 (+inf empty) and its transforms (float64 4x4)."""
+    """A rendered shadow map: linear depth (H, W) float32 of the nearest caster (+inf empty) and its transforms
+    (float64 4x4); with translucent casters also ``opaque_depth`` (H, W) of the nearest opaque caster and
+    ``transmittance`` (H, W), the light fraction passing the translucent casters in front of it (module doc)."""
 
     depth: np.ndarray
     view: np.ndarray
     projection: np.ndarray
     perspective: bool
     texel_world: float
+    opaque_depth: np.ndarray | None = None
+    transmittance: np.ndarray | None = None
+
+    @property
+    def translucent(self) -> bool:
+        """True when translucent casters are in the map (``opaque_depth`` and ``transmittance`` are set)."""
+        return self.transmittance is not None
 
     @property
     def view_projection(self) -> np.ndarray:
@@ -86,6 +101,15 @@ class ShadowMap:
 
     def device_depth(self, device=None) -> wp.array:
         return wp.array(self.depth, dtype=wp.float32, device=default_device(device))
+
+    def device_translucency(self, device=None) -> tuple[wp.array, wp.array]:
+        """(opaque depth, transmittance) as Warp arrays; 1x1 placeholders (+inf, 1) without translucent casters."""
+        device = default_device(device)
+        if not self.translucent:
+            return (wp.full((1, 1), np.inf, dtype=wp.float32, device=device),
+                    wp.ones((1, 1), dtype=wp.float32, device=device))
+        return (wp.array(self.opaque_depth, dtype=wp.float32, device=device),
+                wp.array(self.transmittance, dtype=wp.float32, device=device))
 
 
 def _box_corners(lo, hi) -> np.ndarray:
@@ -145,16 +169,20 @@ def fit_directional(camera, direction, scene_bounds, resolution) -> tuple[np.nda
     return view, proj, float(max((x1 - x0) / w, (y1 - y0) / h))
 
 
-def render_shadow_map(scene, resolution, device=None) -> ShadowMap:
+def render_shadow_map(scene, resolution, device=None, max_translucent_layers: int | None = None) -> ShadowMap:
     """Rasterize the scene's casters into the light's shadow map, fitted to them.
 
     Args:
         scene: a :class:`~warpscatter.scene.Scene`; its ``receiver_only`` materials are left out
-            (:meth:`~warpscatter.scene.Scene.casters`).
+            (:meth:`~warpscatter.scene.Scene.casters`). Materials with opacity < 1 add the translucent layer
+            (``opaque_depth``, ``transmittance``; module doc).
         resolution: int or (width, height) in texels.
         device: Warp device.
+        max_translucent_layers: most translucent fragments per texel (default
+            :data:`~.translucency.DEFAULT_MAX_LAYERS`).
     """
-    from ..raster import rasterize_linear_depth
+    from ..raster import linearize_depth, rasterize_linear_depth
+    from . import translucency
 
     w, h = (resolution, resolution) if np.isscalar(resolution) else tuple(resolution)
     scene = scene.casters()
@@ -171,8 +199,18 @@ def render_shadow_map(scene, resolution, device=None) -> ShadowMap:
         proj = perspective_matrix(2.0 * light.cone_deg, 1.0, near, reach)
         texel = 2.0 * np.tan(np.radians(light.cone_deg)) / w
         perspective = True
+    opacity = translucency.triangle_opacity(scene)
     if scene.triangle_count == 0:  # nothing casts: every texel is empty
         depth = np.full((h, w), np.inf, np.float32)
+    elif translucency.has_translucent(opacity):
+        layers = translucency.DEFAULT_MAX_LAYERS if max_translucent_layers is None else int(max_translucent_layers)
+        nearest, opaque, passed = translucency.translucent_depths(
+            scene.vertices, scene.triangles, opacity, proj @ view, w, h, max_layers=layers,
+            clamp_depth=not perspective, device=device)
+
+        return ShadowMap(depth=linearize_depth(nearest, proj).astype(np.float32), view=view, projection=proj,
+                         perspective=perspective, texel_world=texel,
+                         opaque_depth=linearize_depth(opaque, proj).astype(np.float32), transmittance=passed)
     else:
         # linear depth resolved band by band with the scan (bitwise linearize_depth of the NDC depth, as float32)
         depth = rasterize_linear_depth(scene.vertices, scene.triangles, proj @ view, proj, w, h,
@@ -214,6 +252,24 @@ def shadow_visibility_at(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.flo
     i = int(c[0] * float(sm.width))
     j = int(c[1] * float(sm.height))
     return shadow_texel_lit(depth_map, i, j, c[2], bias)
+
+
+@wp.func
+def shadow_transmittance_at(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float32),
+                            opaque_depth: wp.array2d(dtype=wp.float32), transmittance: wp.array2d(dtype=wp.float32),
+                            c: wp.vec3, bias: float) -> float:
+    """:func:`shadow_visibility_at` of a map with translucent casters (``ShadowMap.opaque_depth`` and
+    ``transmittance``): 1 in front of the nearest caster, the texel's transmittance up to its opaque caster, 0
+    behind that (nearest texel; outside the map: lit)."""
+    if c[0] < 0.0 or c[0] >= 1.0 or c[1] < 0.0 or c[1] >= 1.0:
+        return 1.0
+    i = int(c[0] * float(sm.width))
+    j = int(c[1] * float(sm.height))
+    if c[2] <= depth_map[j, i] + bias:
+        return 1.0
+    if c[2] > opaque_depth[j, i] + bias:
+        return 0.0
+    return transmittance[j, i]
 
 
 @wp.func
