@@ -148,6 +148,22 @@ def test_negative_sigma_t(tmp_path):
     assert "medium.sigma_t: must be >= 0" in problems(tmp_path, {"medium": {"sigma_t": -0.5}})
 
 
+def test_coloured_medium_keys(tmp_path):
+    from warpscatter.scene import medium_from_config
+
+    c = load_config(write(tmp_path, {"medium": {"sigma_t": [0.04, 0.08, 0.16], "albedo": [0.9, 0.7, 0.5]}}))
+    m = medium_from_config(c.medium)
+    assert c.medium.sigma_t == (0.04, 0.08, 0.16) and m.coloured
+    assert m.sigma_s_rgb == pytest.approx((0.036, 0.056, 0.08)) and m.extinction == pytest.approx(0.28 / 3)
+    grey = medium_from_config(load_config(write(tmp_path, {"medium": {"sigma_t": [0.1, 0.1, 0.1]}})).medium)
+    assert not grey.coloured and grey.extinction == 0.1
+    msg = problems(tmp_path, {"medium": {"sigma_t": [0.1, -0.2, 0.3], "albedo": [0.5, 1.5, 0.5]}})
+    assert "medium.sigma_t: must be >= 0 (got [0.1, -0.2, 0.3])" in msg
+    assert "medium.albedo: must be <= 1 (got [0.5, 1.5, 0.5])" in msg
+    assert "medium.sigma_t: expected a number or a list of 3 numbers [r, g, b], got [1, 2]" in problems(
+        tmp_path, {"medium": {"sigma_t": [1, 2]}})
+
+
 def test_near_not_below_far(tmp_path):
     msg = problems(tmp_path, {"camera": {"near": 5, "far": 1.0}})
     assert "camera: near (5.0) must be < far (1.0)" in msg

@@ -51,6 +51,7 @@ from .schema import (
     format_validation_errors,
     is_number,
     resolve_path,
+    scalar_or_rgb,
     vec3,
 )
 from .shadows.settings import ShadowMapSettings, ShadowsSettings
@@ -421,11 +422,13 @@ class PhaseConfig(SettingsModel):
 
 
 class MediumConfig(SettingsModel):
-    """Homogeneous medium: extinction ``sigma_t`` (1/unit), scattering ``albedo`` rho, ``phase``."""
+    """Homogeneous medium: extinction ``sigma_t`` (1/unit), scattering ``albedo`` rho, ``phase``; either may be RGB
+    (coloured fog)."""
 
-    sigma_t: Annotated[Float, Field(ge=0.0, description="extinction sigma_t (1/scene unit)")] = 0.1
-    albedo: Annotated[Float, Field(ge=0.0, le=1.0, description="scattering albedo rho (sigma_s = rho "
-                                                              "sigma_t)")] = 1.0
+    sigma_t: Annotated[Union[float, tuple[float, float, float]], scalar_or_rgb(0.0), Field(
+        description="extinction sigma_t (1/scene unit); [r, g, b] for a coloured medium")] = 0.1
+    albedo: Annotated[Union[float, tuple[float, float, float]], scalar_or_rgb(0.0, 1.0), Field(
+        description="scattering albedo rho (sigma_s = rho sigma_t, per channel)")] = 1.0
     phase: PhaseConfig = Field(default_factory=dict, description="phase function")
 
 

@@ -72,6 +72,9 @@ def describe_type(annotation, metadata=()) -> str:
     tp, inner = _constraints(annotation)
     metadata = [*metadata, *inner]
     validators = [m.func.__name__ for m in metadata if isinstance(m, (AfterValidator, BeforeValidator))]
+    texts = [m.func.type_text for m in metadata if hasattr(getattr(m, "func", None), "type_text")]
+    if texts:
+        return texts[0]
     origin = typing.get_origin(tp)
     if origin in (Union, types.UnionType):
         args = [a for a in typing.get_args(tp) if a is not type(None)]

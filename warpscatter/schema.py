@@ -87,6 +87,30 @@ def _path_string(v: Any) -> Any:
     return v
 
 
+def scalar_or_rgb(lo: float, hi: float | None = None, what: str = "number"):
+    """A BeforeValidator accepting one number (grey) or a list of 3 [r, g, b], each in [lo, hi]; it returns a float
+    or a tuple of 3 floats. Its ``type_text`` is what the config reference shows."""
+
+    def check(v: Any):
+        if is_number(v):
+            parts, out = [float(v)], float(v)
+        elif isinstance(v, (list, tuple)) and len(v) == 3 and all(is_number(x) for x in v):
+            parts = [float(x) for x in v]
+            out = tuple(parts)
+        else:
+            raise ValueError(f"expected a number or a list of 3 numbers [r, g, b], got {_short(v)}")
+        if not all(math.isfinite(x) for x in parts):
+            raise ValueError(f"must be finite, got {_short(v)}")
+        if min(parts) < lo:
+            raise ValueError(f"must be >= {lo:g} (got {_short(v)})")
+        if hi is not None and max(parts) > hi:
+            raise ValueError(f"must be <= {hi:g} (got {_short(v)})")
+        return out
+
+    check.type_text = f"{what} or [r, g, b], each " + (f">= {lo:g}" if hi is None else f"{lo:g}–{hi:g}")
+    return BeforeValidator(check)
+
+
 Vec3 = Annotated[tuple[float, float, float], BeforeValidator(vec3)]
 Direction = Annotated[Vec3, AfterValidator(_nonzero_unit)]  # normalised on load
 NonZeroVec3 = Annotated[Vec3, AfterValidator(_nonzero)]

@@ -4,7 +4,7 @@ Surfaces are Lambertian: L_surface = albedo / pi * E(x) * max(0, dot(n, -omega_l
 with n the camera-facing normal from the G-buffer and V_shadow (RGB, for tinted translucent
 occluders) from the selected shadow method (:mod:`warpscatter.shadows.surface`: pcf, msm, msm_soft, pcss, none).
 
-The seen radiance is L_surface * exp(-sigma_t s) + L_scat.
+The seen radiance is L_surface * exp(-sigma_t s) + L_scat (per channel in a coloured medium).
 
 AOVs returned by :func:`shade_and_compose` (all (H, W, 3) float32 linear RGB, row 0 = top):
 ``surface`` = L_surface * exp(-sigma_t s) (zero where no surface), ``scattering`` = L_scat,
@@ -20,6 +20,7 @@ from .gbuffer import GBufferArrays
 from .parallel import launch_rows
 from .scene.camera import CameraParams, pixel_ray_direction
 from .scene.lights import LightParams, light_params, light_sample
+from .scene.medium import MediumParams, view_transmittance
 from .shadows.surface import SHADOW_MSM, SHADOW_NONE, SurfaceShadows, no_shadows, surface_visibility
 from .wpinit import default_device, module_options
 
@@ -68,7 +69,7 @@ def shade_kernel(
     gbuf: GBufferArrays,
     albedo: wp.array(dtype=wp.vec3),  # per material
     light: LightParams,
-    sigma_t: float,
+    med: MediumParams,
     shadows: SurfaceShadows,
     scattering: wp.array2d(dtype=wp.vec3),
     surface_out: wp.array2d(dtype=wp.vec3),
@@ -92,7 +93,10 @@ def shade_kernel(
             if shadows.mode == SHADOW_MSM and shadows.msm.mip_levels > 0:
                 dx, dy = pixel_footprint(cam, i, j, x, n)
             v = surface_visibility(shadows, x, n, dx, dy)
-        surf = wp.cw_mul(lambert(albedo[m], e, n, omega), v) * wp.exp(-sigma_t * s)
+        if med.coloured == 0:
+            surf = wp.cw_mul(lambert(albedo[m], e, n, omega), v) * wp.exp(-med.sigma_t * s)
+        else:
+            surf = wp.cw_mul(wp.cw_mul(lambert(albedo[m], e, n, omega), v), view_transmittance(med, s))
     surface_out[j, i] = surf
     color_out[j, i] = surf + scattering[j, i]
 
@@ -122,7 +126,7 @@ def shade_and_compose(scene, gbuffer, scattering: wp.array, *, shadows: SurfaceS
         albedo = wp.array(scene.albedo, dtype=wp.vec3, device=device)
         launch_rows(shade_kernel, (h, w),
                     [cam.params(), gbuffer.arrays(), albedo, light_params(scene.light, device),
-                     float(scene.medium.sigma_t), shadows if shadows is not None else no_shadows(device), scattering,
+                     scene.medium.params(), shadows if shadows is not None else no_shadows(device), scattering,
                      surface, color], device=device)
         color_np = color.numpy()
     else:

@@ -144,13 +144,16 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
         lo, hi = scene.bounds()
         bias = 0.0
         offset = 1e-4 * float(np.linalg.norm(hi - lo)) if settings.normal_offset is None else settings.normal_offset
-    sigma_t = float(scene.medium.sigma_t)
-    attenuation = np.exp(-sigma_t * dist)[..., None].astype(np.float32)
+    medium = scene.medium
+    if medium.coloured:
+        attenuation = medium.transmittance(dist).astype(np.float32)
+    else:
+        attenuation = np.exp(-medium.extinction * dist)[..., None].astype(np.float32)
     background = np.zeros((h, w, 3), np.float32)
     if settings.background and isinstance(light, EnvironmentLight):
         far = cam.far_distance(dirs)
         background = np.where(hit[..., None], 0.0, light.env.lookup(dirs, device) *
-                              np.exp(-sigma_t * far)[..., None]).astype(np.float32)
+                              medium.transmittance(far)).astype(np.float32)
     scattering = np.zeros((h, w, 3), np.float32)
 
     def images_of(radiance: np.ndarray) -> dict:
@@ -199,7 +202,7 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
         stats.update(csm_kind=csm.kind, csm_maps=[csm.n1, csm.n2], csm_resolution=csm.resolution,
                      csm_segments=csm.num_segments, csm_file=str(settings.csm.file) if settings.csm.file else None,
                      csm_bias=float(bias))
-    if sigma_t > 0.0:
+    if max(medium.sigma_t_rgb) > 0.0:
         stats["medium"] = "attenuation only (L_scat = 0 for the lighting methods)"
     return images, stats
 

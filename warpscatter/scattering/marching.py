@@ -59,7 +59,14 @@ import warp as wp
 
 from ..scene.camera import CameraParams, pixel_ray_direction
 from ..scene.lights import LIGHT_DIRECTIONAL, LightParams, light_params, light_sample
-from ..scene.medium import MediumParams, phase_eval, transmittance_integral
+from ..scene.medium import (
+    MediumParams,
+    channel_decay,
+    coloured_scattering,
+    phase_eval,
+    transmittance_integral,
+    transmittance_integral_rgb,
+)
 from ..shadows.shadow_map import (
     ShadowMapParams,
     orthographic_ray_coords,
@@ -176,6 +183,8 @@ def inscatter_sample(m: Marcher, x: wp.vec3, d: wp.vec3) -> wp.vec3:
     v = point_visibility(m.vis, x, omega, dist)
     if v <= 0.0:
         return wp.vec3(0.0, 0.0, 0.0)
+    if m.medium.coloured != 0:
+        return wp.cw_mul(e, m.medium.sigma_s_rgb) * (phase_eval(m.medium.phase_id, m.medium.g, wp.dot(omega, -d)) * v)
     return e * (m.medium.sigma_s * phase_eval(m.medium.phase_id, m.medium.g, wp.dot(omega, -d)) * v)
 
 
@@ -295,7 +304,8 @@ def march_along(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, stream: int) 
     if m.jitter == JITTER_FIXED:
         rng = wp.rand_init(m.seed, 0)
     u = wp.randf(rng)
-    if m.light.kind == LIGHT_DIRECTIONAL and m.vis.mode == VISIBILITY_SHADOW_MAP and m.vis.sm.perspective == 0:
+    if (m.light.kind == LIGHT_DIRECTIONAL and m.vis.mode == VISIBILITY_SHADOW_MAP and m.vis.sm.perspective == 0
+            and m.medium.coloured == 0):
         return march_directional_shadow_map(m, origin, d, dt, u, rng)
     for k in range(m.steps):
         t0 = t_lo + float(k) * dt
@@ -304,7 +314,10 @@ def march_along(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, stream: int) 
         x = origin + d * (t0 + u * dt)
         c = inscatter_sample(m, x, d)
         if c[0] + c[1] + c[2] > 0.0:
-            acc += c * transmittance_integral(m.medium.sigma_t, t0, t0 + dt)
+            if m.medium.coloured != 0:
+                acc += wp.cw_mul(c, transmittance_integral_rgb(m.medium, t0, t0 + dt))
+            else:
+                acc += c * transmittance_integral(m.medium.sigma_t, t0, t0 + dt)
     return acc
 
 
@@ -431,7 +444,9 @@ def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float
     """L_scat along origin + t d (unit d), t in [0, s], for a directional light and an orthographic shadow map, with
     ``m.steps`` strata of EQUAL transmittance weight: stratum k holds p in [k / N, (k + 1) / N] of the normalised
     weight p(t) = (1 - exp(-sigma_t t)) / (1 - exp(-sigma_t s)), so a sample sits at t = -ln(1 - p (1 - exp(-sigma_t
-    s))) / sigma_t and counts 1 / N of sigma_s f E integral_0^s exp(-sigma_t t) dt.
+    s))) / sigma_t and counts 1 / N of sigma_s f E integral_0^s exp(-sigma_t t) dt. In a coloured medium the strata
+    follow the mean extinction and each channel c reweights its samples by exp(-(sigma_c - sigma_t) t), normalised by
+    the sum of those weights (a ratio estimator: exact for V = 1, consistent otherwise).
 
     The reference marcher's strata are equal in LENGTH, each weighted by its own transmittance integral: on a sky
     ray (optical depth ~10) the first few of 64 strata carry most of the weight, so one shadow-map texel flipping
@@ -454,6 +469,8 @@ def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float
     u = wp.randf(rng)
     inv_n = 1.0 / float(m.steps)
     lit = float(0.0)
+    lit_rgb = wp.vec3(0.0, 0.0, 0.0)  # coloured: per-channel weighted visibility and weight sums
+    sum_rgb = wp.vec3(0.0, 0.0, 0.0)
     for k in range(m.steps):
         if m.jitter == JITTER_PER_PIXEL and k > 0:
             u = wp.randf(rng)
@@ -461,7 +478,16 @@ def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float
         t = p * s  # thin media: the weight is uniform in t
         if x > 1.0e-3:
             t = -wp.log(wp.max(1.0 - p * a, 1.0e-30)) / sigma
-        lit += map_visibility_at(m.vis, c0 + dc * wp.min(t, s))
+        v = map_visibility_at(m.vis, c0 + dc * wp.min(t, s))
+        lit += v
+        if m.medium.coloured != 0:
+            w = channel_decay(m.medium, wp.min(t, s), sigma)
+            lit_rgb += w * v
+            sum_rgb += w
+    if m.medium.coloured != 0:
+        e_rgb = coloured_scattering(m.medium, m.light.radiance, 0.0, s) * phase_eval(
+            m.medium.phase_id, m.medium.g, wp.dot(m.light.direction, -d))
+        return wp.cw_mul(e_rgb, wp.cw_div(lit_rgb, sum_rgb))
     return e * (transmittance_integral(sigma, 0.0, s) * lit * inv_n)
 
 

@@ -58,7 +58,7 @@ import warp as wp
 from ..parallel import launch_rows
 from ..scene.camera import CameraParams, pixel_ray_direction
 from ..scene.lights import DirectionalLight, LightParams, light_params
-from ..scene.medium import MediumParams, phase_eval, transmittance_integral
+from ..scene.medium import MediumParams, coloured_scattering, phase_eval, transmittance_integral
 from ..shadows import moments as mm
 from ..shadows import translucency
 from ..stages import StageTimer
@@ -77,7 +77,7 @@ from .prefix_sums import (
     prefilter_moments,
     prefilter_weighted,
 )
-from .ray_weights import RayWeights, inside_map_fraction, ray_weights
+from .ray_weights import ChannelRayWeights, RayWeights, inside_map_fraction, ray_weights
 from .rectification import RectificationParams, build_rectification, rectification_params, rectified_coords, wrap_rows
 from .rectify_nonlinear import NonlinearRectification, reference_ray, resample_shadow_map
 from .rectify_projective import (
@@ -149,6 +149,7 @@ def evaluate_prefiltered_kernel(
     coords: wp.array2d(dtype=wp.vec3),  # pixel_coords_kernel's output
     texels: Any,  # FilteredBasisArrays or FilteredMomentArrays: one compiled kernel per representation
     weights: RayWeights,  # how a ray weights its texels (reference ray or per-ray segments)
+    channel_weights: ChannelRayWeights,  # coloured media: each channel's own (grey: unused)
     wrap: int,  # 1: the rows wrap around (wrap_rows)
     beta: float,  # moment overestimation weight in [0, 1], or < 0: adaptive (Peters 2017 Sec. 5.3.1)
     light: LightParams,
@@ -161,9 +162,16 @@ def evaluate_prefiltered_kernel(
     j += offset
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     s = distance[j, i]
-    f = map_visibility(texels, weights, coords[j, i], wrap, beta, light.direction, d)
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
-    out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
+    if med.coloured == 0:
+        f = map_visibility(texels, weights, coords[j, i], wrap, beta, light.direction, d)
+        out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
+    else:  # one look-up per channel, each with the channel's own ray weights (module doc)
+        c = coords[j, i]
+        f_rgb = wp.vec3(map_visibility(texels, channel_weights.r, c, wrap, beta, light.direction, d),
+                        map_visibility(texels, channel_weights.g, c, wrap, beta, light.direction, d),
+                        map_visibility(texels, channel_weights.b, c, wrap, beta, light.direction, d))
+        out[j, i] = wp.cw_mul(coloured_scattering(med, light.radiance, 0.0, s), f_rgb) * phase
 
 
 # one kernel per representation: the look-ups of the other would slow a kernel's own (measured 3-5 %)
@@ -210,6 +218,16 @@ def row_weights(rect, settings: PrefilteredSettings, sigma_t: float, camera=None
         scale = reference_rays(rect, reference, camera).length_scale
         tau = (sigma_t * lengths[0] * scale).astype(np.float32)
     return tau, lengths / lengths[0], info
+
+
+def weights_extinction(medium, segments: int) -> float:
+    """The extinction of the prefix sums' transmittance weights (1/unit): a grey medium's own. A coloured medium's
+    least channel extinction with per-ray segments (each channel then weights its rays with its own extinction, and
+    every channel decays at least as fast as the reference: convex taps, :mod:`.ray_weights`), else the channels'
+    mean (one weighting for all channels: the approximation of the projective map and of ``segments: 1``)."""
+    if medium.coloured and segments > 1:
+        return float(min(medium.sigma_t_rgb))
+    return medium.extinction
 
 
 def resample_filtered(scene, rect: NonlinearRectification, shadow_map, settings: PrefilteredSettings,
@@ -300,9 +318,10 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     if settings.culls_casters:
         with stage("caster_culling"):
             culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device)
-    segments = p.segments_for(isinstance(rect, NonlinearRectification))
+    segments = p.segments_for(isinstance(rect, NonlinearRectification), scene.medium.coloured)
     with stage("prefilter"):
-        tau, lengths, weight_info = row_weights(rect, p, scene.medium.sigma_t, cam, segments)
+        sigma_ref = weights_extinction(scene.medium, segments)
+        tau, lengths, weight_info = row_weights(rect, p, sigma_ref, cam, segments)
         if settings.method == "fourier":
             fb: FilteredBasis | FilteredMoments = prefilter_weighted(
                 rectified, settings.fourier.coefficients, tau, lengths, splits=p.splits,
@@ -316,12 +335,18 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         # end_offset counts texels of a map reaching the view (a fixed world distance along the rays: the surface a
         # ray ends on is its own blocker over a stretch set by the depth precision, not by the column width)
         end_offset = p.end_offset * (rect.column_scale if isinstance(rect, NonlinearRectification) else 1.0)
-        weights = ray_weights(segments, tau, rect if isinstance(rect, NonlinearRectification) else None,
-                              scene.medium.sigma_t, end_offset, device=device, cols=cols)
+        nonlinear = rect if isinstance(rect, NonlinearRectification) else None
+        weights = ray_weights(segments, tau, nonlinear, sigma_ref, end_offset, device=device, cols=cols)
+        channels = ChannelRayWeights()
+        channels.r = channels.g = channels.b = weights
+        if scene.medium.coloured and segments > 1:
+            channels.r, channels.g, channels.b = (ray_weights(segments, tau, nonlinear, sigma, end_offset,
+                                                              device=device, cols=cols)
+                                                  for sigma in scene.medium.sigma_t_rgb)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
-                    [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, int(wrap_rows(rect)), beta,
-                     light_params(scene.light, device), scene.medium.params(), out], device=device)
+                    [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, channels, int(wrap_rows(rect)),
+                     beta, light_params(scene.light, device), scene.medium.params(), out], device=device)
     regions = epipole_regions(cam, scene.light.direction, p.epipole_angle_deg, p.epipole_block)
     if regions:
         with stage("epipole"):

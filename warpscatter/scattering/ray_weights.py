@@ -65,6 +65,16 @@ class RayWeights:
     cols: int
 
 
+@wp.struct
+class ChannelRayWeights:
+    """The :class:`RayWeights` of each colour channel of a coloured medium (the same texture and reference weights,
+    each channel's own extinction in ``tau_perp``)."""
+
+    r: RayWeights
+    g: RayWeights
+    b: RayWeights
+
+
 @wp.func
 def weight_sum(tau: float, n: float) -> float:
     """sum of the Eq. 12 texel weights over the first n texels of a ray with optical step tau:
@@ -166,5 +176,16 @@ def ray_weights(segments: int, optical_step, rect=None, sigma_t: float = 0.0, en
     return w
 
 
-__all__ = ["MAX_SEGMENTS", "RayWeights", "inside_map_fraction", "ray_cut", "ray_end", "ray_optical_step", "ray_weights",
-           "segment_columns", "segment_sums", "weight_sum"]
+__all__ = [
+    "MAX_SEGMENTS",
+    "ChannelRayWeights",
+    "RayWeights",
+    "inside_map_fraction",
+    "ray_cut",
+    "ray_end",
+    "ray_optical_step",
+    "ray_weights",
+    "segment_columns",
+    "segment_sums",
+    "weight_sum",
+]

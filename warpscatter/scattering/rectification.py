@@ -76,6 +76,10 @@ def build_rectification(scene, settings: PrefilteredSettings, rows: int, cols: i
     """
     cam, light_dir = scene.camera, scene.light.direction
     choice = choose_rectification(cam, light_dir, settings.rectification, settings.epipole_margin)
+    if choice.kind == "projective" and settings.rectification == "auto" and scene.medium.coloured:
+        choice = rectify_projective.RectificationChoice(
+            kind="nonlinear", reason="coloured medium: each channel's own ray weights need the non-linear map's "
+                                     "uniform columns", epipole_distance=choice.epipole_distance)
     if choice.kind == "projective":
         try:
             rect = ProjectiveRectification.from_camera(cam, light_dir, guard_band=settings.guard_band, rows=rows,

@@ -79,6 +79,11 @@ EPIPOLE_STEPS = 32
 #: 1920x1080: the fourier evaluate stage ~2.2x (182 -> ~400 ms), moments6 ~2x; the least reference ray needs no
 #: pass over the pixels (prefilter 143 -> 100 ms, 71 -> 30 ms).
 SEGMENTS = 3
+#: ... in a coloured medium, where each channel weights its rays with its own extinction against prefix sums weighted
+#: with the least one (:func:`~.prefiltered.weights_extinction`): with channel extinctions 4x apart, 3 segments left
+#: the densest channel at 3.1 / 3.3 % rel. L1 (fourier / moments6) where its grey render errs 1.1 / 1.1 %; 5 segments
+#: 1.2 / 1.3 % (tests/test_coloured_media.py's scene).
+COLOURED_SEGMENTS = 5
 MAX_SEGMENTS = 8
 #: Texels a prefiltered look-up ends before its ray's end point by default. Measured with 3 segments (as above):
 #: fourier 0 texels 3.6 / 1.2 / 16.2 %, 0.5: 3.7 / 1.2 / 12.7 %, 1: 4.0 / 1.2 / 9.8 % (the closed room's surfaces are
@@ -114,7 +119,8 @@ class PrefilteredSettings(SettingsModel):
                           "reads the texture once per cut (warpscatter's, not in the papers: the reference ray's "
                           "weights alone are the largest error near the epipole and in thick media); 1: the "
                           "reference weights (Klehm 2014); null: " + str(SEGMENTS) + " with transmittance weighting, "
-                          "splits 1 and the non-linear rectification, else 1")
+                          "splits 1 and the non-linear rectification (" + str(COLOURED_SEGMENTS) + " in a coloured "
+                          "medium), else 1")
     end_offset: Annotated[Float, Field(ge=0.0, le=MAX_END_OFFSET, description=(
         "texels the look-up ends before the ray's end point (texels of a map reaching the view: with map_radius "
         "casters, as many more as the columns are finer): the surface a ray ends on is its own blocker and lights or "
@@ -169,12 +175,15 @@ class PrefilteredSettings(SettingsModel):
                              f"{self.splits} set segments: 1 (or leave it out)")
         return self
 
-    def segments_for(self, nonlinear: bool) -> int:
-        """Per-ray segments a look-up uses (``segments``; null: :data:`SEGMENTS` where they apply). They need
-        transmittance weighting, whole rows (splits 1) and the non-linear rectification's uniform columns."""
+    def segments_for(self, nonlinear: bool, coloured: bool = False) -> int:
+        """Per-ray segments a look-up uses (``segments``; null: :data:`SEGMENTS`, :data:`COLOURED_SEGMENTS` in a
+        coloured medium, where they apply). They need transmittance weighting, whole rows (splits 1) and the
+        non-linear rectification's uniform columns."""
         if self.weighting != "transmittance" or self.splits > 1 or not nonlinear:
             return 1
-        return SEGMENTS if self.segments is None else self.segments
+        if self.segments is not None:
+            return self.segments
+        return COLOURED_SEGMENTS if coloured else SEGMENTS
 
     def reference_for(self, segments: int) -> str:
         """The reference ray used: ``reference_ray``, or for auto the least optical step with per-ray segments (their
@@ -321,6 +330,7 @@ class ScatteringSettings(SettingsModel):
 
 __all__ = [
     "CASTER_CULLING_BIAS",
+    "COLOURED_SEGMENTS",
     "EPIPOLAR_KERNELS",
     "EPIPOLE_ANGLE_DEG",
     "EPIPOLE_MARGIN",

@@ -3,6 +3,12 @@
 ``sigma_t`` is extinction (1/scene unit), ``albedo`` the scattering albedo rho, so sigma_s = rho sigma_t.
 cos_theta = dot(light_direction, -ray_direction) where light_direction is the direction light TRAVELS;
 g > 0 scatters forward (looking into the light is brightest).
+
+Coloured media: ``sigma_t`` and ``albedo`` may each be RGB triples (pbrt's and Mitsuba's spectrally varying
+homogeneous medium, reduced to three channels). Kernels then see ``coloured`` = 1 and the per-channel
+``sigma_t_rgb`` / ``sigma_s_rgb``; the scalar ``sigma_t`` is the channels' mean, the one extinction of the
+prefiltered methods' visibility weights (their only approximation of colour: see :mod:`warpscatter.scattering`).
+A grey medium keeps ``coloured`` = 0 and every kernel its scalar code.
 """
 
 from __future__ import annotations
@@ -10,6 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import warp as wp
 
 from ..wpinit import module_options
@@ -23,18 +30,53 @@ PHASE_ISOTROPIC = wp.constant(0)
 PHASE_HENYEY_GREENSTEIN = wp.constant(1)
 
 
+def _rgb(v) -> tuple[float, float, float]:
+    """A scalar or 3-sequence as an RGB tuple of floats."""
+    a = np.broadcast_to(np.asarray(v, np.float64), (3,))
+    return (float(a[0]), float(a[1]), float(a[2]))
+
+
 @dataclass(frozen=True)
 class Medium:
-    """Homogeneous medium: extinction sigma_t (1/unit), albedo rho, phase ('isotropic' or 'henyey_greenstein', g)."""
+    """Homogeneous medium: extinction sigma_t (1/unit), albedo rho, phase ('isotropic' or 'henyey_greenstein', g);
+    sigma_t and albedo are numbers (grey) or RGB triples (coloured; module doc)."""
 
-    sigma_t: float
-    albedo: float = 1.0
+    sigma_t: float | tuple[float, float, float]
+    albedo: float | tuple[float, float, float] = 1.0
     phase: str = "isotropic"
     g: float = 0.0
 
     @property
-    def sigma_s(self) -> float:
-        return self.albedo * self.sigma_t
+    def coloured(self) -> bool:
+        """True when sigma_t or albedo differs between the channels."""
+        return len(set(self.sigma_t_rgb)) > 1 or len(set(_rgb(self.albedo))) > 1
+
+    @property
+    def sigma_t_rgb(self) -> tuple[float, float, float]:
+        """Extinction per channel (1/unit)."""
+        return _rgb(self.sigma_t)
+
+    @property
+    def sigma_s_rgb(self) -> tuple[float, float, float]:
+        """Scattering coefficient rho sigma_t per channel (1/unit)."""
+        return tuple(a * t for a, t in zip(_rgb(self.albedo), self.sigma_t_rgb, strict=True))
+
+    @property
+    def extinction(self) -> float:
+        """The scalar extinction (1/unit): sigma_t of a grey medium, the channels' mean of a coloured one."""
+        return float(np.mean(self.sigma_t_rgb)) if self.coloured else self.sigma_t_rgb[0]
+
+    @property
+    def sigma_s(self):
+        """rho sigma_t: a number for a grey medium (as given), an RGB tuple for a coloured one."""
+        if np.ndim(self.sigma_t) == 0 and np.ndim(self.albedo) == 0:
+            return self.albedo * self.sigma_t
+        return self.sigma_s_rgb
+
+    def transmittance(self, distance) -> np.ndarray:
+        """exp(-sigma_t s) per channel: shape distance.shape + (3,) (float64)."""
+        d = np.asarray(distance, np.float64)[..., None]
+        return np.exp(-np.asarray(self.sigma_t_rgb) * d)
 
     @property
     def phase_id(self) -> int:
@@ -50,8 +92,15 @@ class Medium:
     def params(self) -> MediumParams:
         """The medium as kernels see it (:class:`MediumParams`)."""
         p = MediumParams()
-        p.sigma_t = float(self.sigma_t)
-        p.sigma_s = float(self.sigma_s)
+        p.coloured = int(self.coloured)
+        if self.coloured:
+            p.sigma_t = self.extinction
+            p.sigma_s = float(np.mean(self.sigma_s_rgb))
+        else:
+            p.sigma_t = self.sigma_t_rgb[0]
+            p.sigma_s = self.sigma_s_rgb[0] if np.ndim(self.sigma_s) else float(self.sigma_s)
+        p.sigma_t_rgb = wp.vec3(*self.sigma_t_rgb)
+        p.sigma_s_rgb = wp.vec3(*self.sigma_s_rgb)
         p.phase_id = int(self.phase_id)
         p.g = float(self.g)
         return p
@@ -61,8 +110,11 @@ class Medium:
 class MediumParams:
     """Homogeneous medium as kernels see it."""
 
-    sigma_t: float  # extinction, 1/unit
-    sigma_s: float  # scattering, 1/unit
+    sigma_t: float  # extinction, 1/unit (coloured: the channels' mean)
+    sigma_s: float  # scattering, 1/unit (coloured: the channels' mean)
+    coloured: int  # 1: the channels differ, use sigma_t_rgb / sigma_s_rgb
+    sigma_t_rgb: wp.vec3  # extinction per channel
+    sigma_s_rgb: wp.vec3  # scattering per channel
     phase_id: int  # PHASE_ISOTROPIC or PHASE_HENYEY_GREENSTEIN
     g: float  # HG asymmetry
 
@@ -90,3 +142,37 @@ def transmittance_integral(sigma_t: float, t0: float, t1: float) -> float:
         x = sigma_t * (t1 - t0)
         return wp.exp(-sigma_t * t0) * (t1 - t0) * (1.0 - 0.5 * x + x * x / 6.0)
     return (wp.exp(-sigma_t * t0) - wp.exp(-sigma_t * t1)) / sigma_t
+
+
+@wp.func
+def transmittance_integral_rgb(med: MediumParams, t0: float, t1: float) -> wp.vec3:
+    """:func:`transmittance_integral` per channel of a coloured medium (all three equal for a grey one)."""
+    if med.coloured == 0:
+        v = transmittance_integral(med.sigma_t, t0, t1)
+        return wp.vec3(v, v, v)
+    return wp.vec3(transmittance_integral(med.sigma_t_rgb[0], t0, t1),
+                   transmittance_integral(med.sigma_t_rgb[1], t0, t1),
+                   transmittance_integral(med.sigma_t_rgb[2], t0, t1))
+
+
+@wp.func
+def coloured_scattering(med: MediumParams, radiance: wp.vec3, t0: float, t1: float) -> wp.vec3:
+    """radiance * sigma_s * integral_t0^t1 exp(-sigma_t t) dt per channel of a coloured medium: the single-scattering
+    term of incident ``radiance`` over [t0, t1] of a view ray, before the phase and visibility factors."""
+    return wp.cw_mul(wp.cw_mul(radiance, med.sigma_s_rgb), transmittance_integral_rgb(med, t0, t1))
+
+
+@wp.func
+def channel_decay(med: MediumParams, t: float, sigma_ref: float) -> wp.vec3:
+    """exp(-(sigma_c - sigma_ref) t) per channel c of the medium's extinction."""
+    k = med.sigma_t_rgb - wp.vec3(sigma_ref, sigma_ref, sigma_ref)
+    return wp.vec3(wp.exp(-k[0] * t), wp.exp(-k[1] * t), wp.exp(-k[2] * t))
+
+
+@wp.func
+def view_transmittance(med: MediumParams, s: float) -> wp.vec3:
+    """exp(-sigma_t s) per channel: what reaches the camera of radiance leaving a surface at distance s."""
+    if med.coloured == 0:
+        v = wp.exp(-med.sigma_t * s)
+        return wp.vec3(v, v, v)
+    return channel_decay(med, s, 0.0)
