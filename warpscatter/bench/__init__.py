@@ -10,8 +10,8 @@ Output: a terminal table (:meth:`BenchReport.table`), ``bench-<suite>.json`` and
 (the ``plot`` extra), ``bench-<suite>.png``.
 
 Suites (:data:`SUITES`, one record each): ``raster``, ``reference``, ``parallel`` (:mod:`.suites_core`),
-``prefiltered``, ``moments``, ``epipolar`` (:mod:`.suites_scattering`), ``csm`` (:mod:`.suites_csm`), ``pareto``
-(:mod:`.suites_pareto`).
+``prefiltered``, ``moments``, ``epipolar`` (:mod:`.suites_scattering`), ``csm`` (:mod:`.suites_csm`), ``fidelity``
+(:mod:`.suites_fidelity`), ``pareto`` (:mod:`.suites_pareto`).
 
 ``quick=True`` shrinks every size (for smoke tests and CI); figures for notes come from full runs.
 """
@@ -28,6 +28,7 @@ from .report import BenchReport, errors, machine_meta, measure, thread_limit
 from .scenes import bench_light_texture, bench_scene_config, render_timed, scattering_rows
 from .suites_core import suite_parallel, suite_raster, suite_reference
 from .suites_csm import suite_csm
+from .suites_fidelity import suite_fidelity
 from .suites_pareto import suite_pareto
 from .suites_scattering import suite_epipolar, suite_moments, suite_prefiltered
 
@@ -61,6 +62,9 @@ SUITES: dict[str, Suite] = {s.name: s for s in (
     Suite("csm", "coherent shadow maps (Ritschel 2007): compression ratio, precompute time and memory vs N and "
                  "enumeration; visibility queries/s (random, coherent) against BVH shadow rays; the csm render "
                  "method's time per pass and error against raytrace", suite_csm),
+    Suite("fidelity", "every fast method's error on every bundled sunlit scene (light in and out of view) at 960x540 "
+                      "against the exact reference, beside the 128-step shadow-map marcher (issue #13's bar; ~10 min)",
+          suite_fidelity),
     Suite("pareto", "quality per time at 1920x1080: the shadow-map marcher's error/time curve (8-256 steps, both "
                     "step patterns) against the exact reference, and each fast method's equal-error speed-up over "
                     "it, on colonnade, canopy and window (takes long: ~15 min)", suite_pareto),

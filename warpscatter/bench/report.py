@@ -89,7 +89,8 @@ class BenchReport:
                 " ".join(f"{k}={v}" for k, v in (r.get("extra") or {}).items()),
             ])
         widths = [max(len(c), *(len(x[i]) for x in lines)) if lines else len(c) for i, c in enumerate(cols)]
-        out = [f"suite {self.suite}: " + ", ".join(f"{k}={v}" for k, v in self.meta.items() if k != "suite")]
+        out = [f"suite {self.suite}: " + ", ".join(f"{k}={v}" for k, v in self.meta.items()
+                                                   if k != "suite" and not isinstance(v, (dict, list)))]
         out.append("  ".join(c.ljust(w) for c, w in zip(cols, widths, strict=True)))
         out.append("  ".join("-" * w for w in widths))
         out += ["  ".join(x.ljust(w) for x, w in zip(line, widths, strict=True)) for line in lines]

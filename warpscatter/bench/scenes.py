@@ -16,7 +16,8 @@ from ..scene import build_scene
 from .report import errors
 
 #: Bench scene name -> the bundled config it loads (``colonnade_spot``: the colonnade under a textured spot light).
-SCENES = {"colonnade": "colonnade", "canopy": "canopy", "window": "window", "colonnade_spot": "colonnade"}
+SCENES = {"colonnade": "colonnade", "canopy": "canopy", "window": "window", "colonnade_spot": "colonnade",
+          "quickstart": "quickstart", "terrain": "terrain", "gate": "gate", "gate_translucent": "gate_soft_shadows"}
 #: The textured spot above the colonnade, outside the view (the ``epipolar`` suite's light).
 COLONNADE_SPOT = {"type": "spot", "position": [10.0, 25.0, 14.0], "direction": [-10.0, -22.5, -14.0],
                   "cone_deg": 25.0, "intensity": [2400.0, 2250.0, 2100.0]}
@@ -42,17 +43,20 @@ def bench_light_texture() -> Path:
 
 
 def bench_scene_config(name: str, width: int, height: int, leaves: int | None = None,
-                       receiver_only_ground: bool = False, **render):
+                       receiver_only_ground: bool = False, mirror_light: bool = False, **render):
     """A validated config of a bench scene: the bundled config (:data:`SCENES`) at ``width`` x ``height`` with the
     bench's own ``render`` section.
 
     Args:
-        name: ``colonnade``, ``canopy`` or ``window`` (``configs/NAME.yaml``), or ``colonnade_spot`` (the colonnade
-            under a textured spot light).
+        name: a key of :data:`SCENES`: ``colonnade``, ``canopy``, ``window``, ``quickstart``, ``terrain``, ``gate``
+            (``configs/NAME.yaml``), ``gate_translucent`` (``gate_soft_shadows.yaml``: the gate 60 % opaque) or
+            ``colonnade_spot`` (the colonnade under a textured spot light).
         width, height: image size in pixels.
         leaves: leaf quads of the canopy (its complexity knob; None: the config's).
         receiver_only_ground: mark the scene's ground plane ``receiver_only`` (it shadows nothing visible, so the
             exact image is unchanged; the shadow-map methods no longer see its depths).
+        mirror_light: turn a directional light half-way round the vertical (x and z of its direction negated): a
+            sun ahead of the camera goes behind it, so the other epipole is the one in or near the view.
         **render: the config's ``render`` section (replaces the file's).
 
     Raises:
@@ -70,6 +74,11 @@ def bench_scene_config(name: str, width: int, height: int, leaves: int | None = 
             mesh["receiver_only"] = True
     if name == "colonnade_spot":
         data["light"] = {**COLONNADE_SPOT, "texture": str(bench_light_texture())}
+    if mirror_light:
+        if data["light"].get("type") != "directional":
+            raise ValueError(f"mirror_light: {name} has no directional light")
+        x, y, z = data["light"]["direction"]
+        data["light"] = {**data["light"], "direction": [-x, y, -z]}
     data["camera"] = {**data["camera"], "width": width, "height": height}
     data["render"] = render
     data.pop("output", None)

@@ -64,8 +64,10 @@ def rel_l1(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.abs(a - b).sum() / max(np.abs(b).sum(), 1e-300))
 
 
-def exact_reference(name: str, width: int, height: int, steps: int, stride: int, seeds=REFERENCE_SEEDS):
-    """The exact marcher on every ``stride``-th pixel (from ``stride // 2``) of a bench scene, twice.
+def exact_reference(name: str, width: int, height: int, steps: int, stride: int, seeds=REFERENCE_SEEDS,
+                    **scene):
+    """The exact marcher on every ``stride``-th pixel (from ``stride // 2``) of a bench scene, twice (``scene``: more
+    :func:`~.scenes.bench_scene_config` keys).
 
     Returns:
         (reference (Hs, Ws, 3) float64: the mean of the two seeds, its estimated own rel. L1 error, seconds).
@@ -78,7 +80,7 @@ def exact_reference(name: str, width: int, height: int, steps: int, stride: int,
     from ..scene import DeviceGeometry, build_scene
 
     cfg = bench_scene_config(name, width, height, scattering={"method": "raymarch", "visibility": "exact"},
-                             surfaces={"enabled": False})
+                             surfaces={"enabled": False}, **scene)
     compile_kernels(methods.CLASSIC_MODULES + methods.SCATTERING["raymarch"].modules)
     t0 = time.perf_counter()
     scene = build_scene(cfg)
@@ -123,7 +125,8 @@ def equal_error_time(points: list[tuple[float, float]], error: float) -> tuple[f
     return env[-1][0], ">="  # unreachable for a sorted envelope
 
 
-def _technique_ms(stages: dict) -> tuple[float, dict]:
+def technique_ms(stages: dict) -> tuple[float, dict]:
+    """(total, stages) of the technique's own stages (ms): compile, upload and shading apart."""
     own = {k: v for k, v in stages.items() if k not in APART}
     return sum(own.values()), own
 
@@ -174,7 +177,7 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
                     "method": "raymarch", "visibility": "shadow_map", "steps": steps, "jitter": jitter,
                     "shadow_map": {"resolution": smap}})
                 stages, images, compile_s, _, _ = render_timed(cfg, repeats, warmup)
-                total, own = _technique_ms(stages)
+                total, own = technique_ms(stages)
                 err = rel_l1(images["scattering"][first::stride, first::stride], reference)
                 curves[jitter].append((total, err))
                 report.add(name=f"{scene_name}: marcher shadow_map {jitter}", params={"steps": steps},
@@ -191,7 +194,7 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
             build_scene(cfg)
             scene_s = time.perf_counter() - t_scene
             stages, images, compile_s, _, stats = render_timed(cfg, repeats, warmup)
-            total, own = _technique_ms(stages)
+            total, own = technique_ms(stages)
             err = rel_l1(images["scattering"][first::stride, first::stride], reference)
             smallest = min(smallest, err)
             marcher_ms, bound = equal_error_time(envelope, err)
@@ -251,4 +254,4 @@ def chart_pareto(report: BenchReport, path: Path) -> Path | None:
     return save_figure(fig, path)
 
 
-__all__ = ["chart_pareto", "equal_error_time", "exact_reference", "rel_l1", "suite_pareto"]
+__all__ = ["chart_pareto", "equal_error_time", "exact_reference", "rel_l1", "suite_pareto", "technique_ms"]
