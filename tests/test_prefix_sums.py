@@ -635,3 +635,22 @@ def test_filtered_resampling_and_mipmapped_shadows_through_the_pipeline():
         for name, img in result.images.items():
             assert np.isfinite(img).all(), name
         assert result.images["scattering"].max() > 0.0
+
+
+def test_depth_bounds_are_the_rows_prefix_min_and_max():
+    """Issue #13: the per-row prefix bounds behind the wholly lit / shadowed look-ups, against numpy, for one depth
+    and for the two-depth texels (both depths count when the second has weight)."""
+    from warpscatter.scattering.rectify_nonlinear import SparseRectifiedDepth
+
+    rng = np.random.default_rng(3)
+    z1 = rng.uniform(0.2, 0.9, (5, 40)).astype(np.float32)
+    got = pf.depth_bounds(z1).numpy()
+    np.testing.assert_array_equal(got[..., 0], np.minimum.accumulate(z1, axis=1))
+    np.testing.assert_array_equal(got[..., 1], np.maximum.accumulate(z1, axis=1))
+    z2 = rng.uniform(0.0, 1.0, z1.shape).astype(np.float32)
+    w2 = np.where(rng.uniform(size=z1.shape) < 0.5, 0.0, rng.uniform(0.1, 1.0, z1.shape)).astype(np.float32)
+    got = pf.depth_bounds(SparseRectifiedDepth(z1=z1, z2=z2, w2=w2)).numpy()
+    lo = np.where(w2 > 0, np.minimum(z1, z2), z1)
+    hi = np.where(w2 > 0, np.maximum(z1, z2), z1)
+    np.testing.assert_array_equal(got[..., 0], np.minimum.accumulate(lo, axis=1))
+    np.testing.assert_array_equal(got[..., 1], np.maximum.accumulate(hi, axis=1))

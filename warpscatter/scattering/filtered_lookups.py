@@ -100,6 +100,41 @@ def texel_footprint(rows: int, cols: int, u: float, v: float, wrap_rows: int):
     return j0, j1, ay, i0, i1, ax
 
 
+@wp.struct
+class DepthBounds:
+    """Per-row prefix bounds of the rectified depths (:func:`~.prefix_sums.depth_bounds`); ``enabled`` 0: none (a
+    1x1 placeholder, every look-up reconstructs)."""
+
+    bounds: wp.array2d(dtype=wp.vec2)
+    enabled: int
+
+
+@wp.func
+def bounded_visibility(db: DepthBounds, u_end: float, v: float, z_r: float, wrap_rows: int) -> float:
+    """1 when every texel a look-up ending at (u_end, v) reads lies behind depth z_r (the ray is wholly lit), 0 when
+    every one lies in front of it (wholly shadowed), else -1 (reconstruct). Both bilinear rows count (those of
+    non-zero weight) and the prefix through the right column of the footprint: a superset of what the look-up reads,
+    so the answer is exact for hard visibility."""
+    if db.enabled == 0:
+        return -1.0
+    j0, j1, ay, i0, i1, ax = texel_footprint(db.bounds.shape[0], db.bounds.shape[1], u_end, v, wrap_rows)
+    lo = float(1.0e30)
+    hi = float(-1.0e30)
+    if ay < 1.0:
+        b = db.bounds[j0, i1]
+        lo = b[0]
+        hi = b[1]
+    if ay > 0.0:
+        b = db.bounds[j1, i1]
+        lo = wp.min(lo, b[0])
+        hi = wp.max(hi, b[1])
+    if z_r >= hi:
+        return 0.0
+    if z_r < lo:
+        return 1.0
+    return -1.0
+
+
 @wp.func
 def fourier_taps_visibility(filtered_basis: Any, tables: FourierTables, tap_row: tap_indices, tap_col: tap_indices,
                             tap_w: tap_weights, num_taps: int, z_r: float) -> float:
@@ -588,6 +623,8 @@ def evaluate_points(filtered_basis, rect: NonlinearRectification, points, sigma_
 
 
 __all__ = [
+    "DepthBounds",
+    "bounded_visibility",
     "MAX_TAPS",
     "FilteredBasisArrays",
     "FilteredMomentArrays",

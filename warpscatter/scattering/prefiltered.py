@@ -66,7 +66,7 @@ from ..wpinit import default_device, module_options
 from . import rectify_nonlinear
 from .caster_culling import cull_unseen_casters
 from .epipole_fallback import epipole_pixel_fraction, epipole_regions, epipole_weights, march_epipole_regions
-from .filtered_lookups import fourier_visibility, moments_visibility
+from .filtered_lookups import DepthBounds, bounded_visibility, fourier_visibility, moments_visibility
 from .filtered_textures import (
     FilteredBasis,
     FilteredBasisArrays,
@@ -74,6 +74,7 @@ from .filtered_textures import (
     FilteredMoments,
 )
 from .prefix_sums import (
+    depth_bounds,
     prefilter_moments,
     prefilter_weighted,
 )
@@ -96,31 +97,43 @@ module_options()
 
 
 @wp.func
-def map_visibility(texels: FilteredBasisArrays, weights: RayWeights, c: wp.vec3, wrap: int, beta: float,
-                   light_direction: wp.vec3, view_direction: wp.vec3) -> float:
+def map_visibility(texels: FilteredBasisArrays, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, wrap: int,
+                   beta: float, light_direction: wp.vec3, view_direction: wp.vec3) -> float:
     """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a Fourier texture (Klehm 2014
-    Listing 4), its texels weighted as ``weights`` says (:mod:`.ray_weights`), those beyond the map lit; ``beta``
-    and the directions unused."""
+    Listing 4), its texels weighted as ``weights`` says (:mod:`.ray_weights`), those beyond the map lit; a ray
+    wholly lit or wholly shadowed by the ``bounds`` is answered without the series; ``beta`` and the directions
+    unused."""
     inside = inside_map_fraction(weights, c[0], c[2])
+    u = c[0]
     if inside < 1.0:
-        u_map = 1.0 + weights.end_offset / float(weights.cols)  # the look-up through the whole map
-        return inside * fourier_visibility(texels, weights, u_map, c[1], c[2], wrap) + (1.0 - inside)
-    return fourier_visibility(texels, weights, c[0], c[1], c[2], wrap)
+        u = 1.0 + weights.end_offset / float(weights.cols)  # the look-up through the whole map
+    f = bounded_visibility(bounds, u - weights.end_offset / float(bounds.bounds.shape[1]), c[1], c[2], wrap)
+    if f < 0.0:
+        f = fourier_visibility(texels, weights, u, c[1], c[2], wrap)
+    if inside < 1.0:
+        return inside * f + (1.0 - inside)
+    return f
 
 
 @wp.func
-def map_visibility(texels: FilteredMomentArrays, weights: RayWeights, c: wp.vec3, wrap: int,  # noqa: F811
-                   beta: float, light_direction: wp.vec3, view_direction: wp.vec3) -> float:
+def map_visibility(texels: FilteredMomentArrays, weights: RayWeights, bounds: DepthBounds,  # noqa: F811
+                   c: wp.vec3, wrap: int, beta: float, light_direction: wp.vec3, view_direction: wp.vec3) -> float:
     """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a moment map (Peters 2017 D.5);
-    ``beta`` < 0: the adaptive overestimation weight of the light and view directions (Sec. 5.3.1)."""
-    b = beta
-    if b < 0.0:
-        b = mm.adaptive_overestimation_weight(light_direction, view_direction)
+    ``beta`` < 0: the adaptive overestimation weight of the light and view directions (Sec. 5.3.1); ``bounds`` as
+    for the Fourier texture."""
     inside = inside_map_fraction(weights, c[0], c[2])
+    u = c[0]
     if inside < 1.0:  # as for the Fourier texture
-        u_map = 1.0 + weights.end_offset / float(weights.cols)
-        return inside * moments_visibility(texels, weights, u_map, c[1], c[2], wrap, b) + (1.0 - inside)
-    return moments_visibility(texels, weights, c[0], c[1], c[2], wrap, b)
+        u = 1.0 + weights.end_offset / float(weights.cols)
+    f = bounded_visibility(bounds, u - weights.end_offset / float(bounds.bounds.shape[1]), c[1], c[2], wrap)
+    if f < 0.0:
+        b = beta
+        if b < 0.0:
+            b = mm.adaptive_overestimation_weight(light_direction, view_direction)
+        f = moments_visibility(texels, weights, u, c[1], c[2], wrap, b)
+    if inside < 1.0:
+        return inside * f + (1.0 - inside)
+    return f
 
 
 # ---- kernels ---------------------------------------------------------------------------------------
@@ -150,6 +163,7 @@ def evaluate_prefiltered_kernel(
     texels: Any,  # FilteredBasisArrays or FilteredMomentArrays: one compiled kernel per representation
     weights: RayWeights,  # how a ray weights its texels (reference ray or per-ray segments)
     channel_weights: ChannelRayWeights,  # coloured media: each channel's own (grey: unused)
+    bounds: DepthBounds,  # per-row prefix depth bounds: wholly lit / shadowed rays skip the reconstruction
     wrap: int,  # 1: the rows wrap around (wrap_rows)
     beta: float,  # moment overestimation weight in [0, 1], or < 0: adaptive (Peters 2017 Sec. 5.3.1)
     light: LightParams,
@@ -164,13 +178,13 @@ def evaluate_prefiltered_kernel(
     s = distance[j, i]
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
     if med.coloured == 0:
-        f = map_visibility(texels, weights, coords[j, i], wrap, beta, light.direction, d)
+        f = map_visibility(texels, weights, bounds, coords[j, i], wrap, beta, light.direction, d)
         out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
     else:  # one look-up per channel, each with the channel's own ray weights (module doc)
         c = coords[j, i]
-        f_rgb = wp.vec3(map_visibility(texels, channel_weights.r, c, wrap, beta, light.direction, d),
-                        map_visibility(texels, channel_weights.g, c, wrap, beta, light.direction, d),
-                        map_visibility(texels, channel_weights.b, c, wrap, beta, light.direction, d))
+        f_rgb = wp.vec3(map_visibility(texels, channel_weights.r, bounds, c, wrap, beta, light.direction, d),
+                        map_visibility(texels, channel_weights.g, bounds, c, wrap, beta, light.direction, d),
+                        map_visibility(texels, channel_weights.b, bounds, c, wrap, beta, light.direction, d))
         out[j, i] = wp.cw_mul(coloured_scattering(med, light.radiance, 0.0, s), f_rgb) * phase
 
 
@@ -329,6 +343,10 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         else:
             fb = prefilter_moments(rectified, settings.num_moments, tau, lengths,
                                    storage_bits=settings.moment_storage_bits, device=device)
+        bounds = DepthBounds()
+        bounds.enabled = int(p.depth_bounds)
+        bounds.bounds = (depth_bounds(rectified, device=device) if p.depth_bounds else
+                         wp.zeros((1, 1), dtype=wp.vec2, device=device))
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
         beta = -1.0 if overestimation == "adaptive" else float(overestimation)
@@ -345,8 +363,9 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
                                                   for sigma in scene.medium.sigma_t_rgb)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
-                    [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, channels, int(wrap_rows(rect)),
-                     beta, light_params(scene.light, device), scene.medium.params(), out], device=device)
+                    [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, channels, bounds,
+                     int(wrap_rows(rect)), beta, light_params(scene.light, device), scene.medium.params(), out],
+                    device=device)
     regions = epipole_regions(cam, scene.light.direction, p.epipole_angle_deg, p.epipole_block)
     if regions:
         with stage("epipole"):
@@ -362,6 +381,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
            {"overestimation": overestimation}),
         "bits_per_texel": settings.filtered_bits_per_texel,
         "segments": segments,
+        "depth_bounds": p.depth_bounds,
         "end_offset": p.end_offset,
         **resample_info,
         "caster_culling": culled is not None,

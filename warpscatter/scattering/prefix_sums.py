@@ -183,6 +183,26 @@ def texel_depths(rd: RectifiedTexels, j: int, i: int):
 
 
 @wp.kernel
+def depth_bounds_kernel(
+    rd: RectifiedTexels,
+    out: wp.array2d(dtype=wp.vec2),  # (rows, cols) (least, greatest) rectified depth of columns 0..i of the row
+    offset: int,
+):
+    # the per-row prefix min / max of the texels' depths (both depths of a two-depth texel): one thread per row
+    j = wp.tid() + offset
+    lo = float(1.0e30)
+    hi = float(-1.0e30)
+    for i in range(rd.depth.shape[1]):
+        z1, z2, w2 = texel_depths(rd, j, i)
+        lo = wp.min(lo, z1)
+        hi = wp.max(hi, z1)
+        if w2 > 0.0:
+            lo = wp.min(lo, z2)
+            hi = wp.max(hi, z2)
+        out[j, i] = wp.vec2(lo, hi)
+
+
+@wp.kernel
 def basis_transform_kernel(
     depth: wp.array2d(dtype=wp.float32),  # (rows, cols) rectified depth in [0, 1]
     out: FilteredBasisArrays,  # (rows, cols, M) basis textures B_k(z_i), float32 or RGBA8
@@ -388,6 +408,19 @@ def rectified_texels(rectified_depth, device=None) -> RectifiedTexels:
     return rd
 
 
+def depth_bounds(rectified_depth, device=None) -> wp.array:
+    """Per-row prefix bounds of a rectified map's blocker depths: (rows, cols) vec2 (least, greatest depth among
+    columns 0..i of row j; both depths of a two-depth texel). A view ray at depth z_r whose texels all lie in
+    front of it (z_r >= greatest) is wholly shadowed, one whose texels all lie behind it (z_r < least) wholly lit:
+    the look-ups answer those exactly (:func:`~.filtered_lookups.bounded_visibility`), where a truncated Fourier
+    series rings and moment bounds leak (the 1D min-max idea of Chen et al. 2011, on prefix sums)."""
+    device = default_device(device)
+    rd = rectified_texels(rectified_depth, device)
+    out = wp.empty(rd.depth.shape, dtype=wp.vec2, device=device)
+    launch_rows(depth_bounds_kernel, (rd.depth.shape[0],), [rd, out], device=device)
+    return out
+
+
 def _optical_steps(optical_step, rows: int, device) -> wp.array:
     if optical_step is None:
         tau = np.zeros(rows, np.float32)
@@ -590,6 +623,8 @@ def prefilter_depth(rectified_depth, num_coefficients: int, optical_step=None, *
 
 
 __all__ = [
+    "depth_bounds",
+    "depth_bounds_kernel",
     "PAIRS_PER_THREAD",
     "RectifiedTexels",
     "advance_filter_weight",

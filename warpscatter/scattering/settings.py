@@ -125,6 +125,10 @@ class PrefilteredSettings(SettingsModel):
         "texels the look-up ends before the ray's end point (texels of a map reaching the view: with map_radius "
         "casters, as many more as the columns are finer): the surface a ray ends on is its own blocker and lights or "
         "shadows the ray's last texel by chance"))] = END_OFFSET
+    depth_bounds: Bool = Field(True, description="per-row prefix bounds of the rectified depths (8 bytes per texel): a "
+                                                 "view ray whose texels all lie behind its end is lit, all in front "
+                                                 "shadowed, exactly, without the basis' ringing or leaking "
+                                                 "(warpscatter's, after Chen et al. 2011's 1D min-max maps)")
     guard_band: Annotated[Float, Field(ge=0.0, le=1.0, description="relative stretch of the depth bounds")] = 0.1
     map_radius: Literal["view", "casters"] = Field(
         "view", description="non-linear rectification: the map's columns reach as far from the camera's light axis as "

@@ -14,6 +14,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+#: Materials below this opacity cast no shadow (the alpha test of Peters 2017 Sec. 3.3; every visibility method).
+CASTER_ALPHA_TEST = 0.01
+
 if TYPE_CHECKING:
     from .camera import Camera
     from .lights import Light
@@ -54,10 +57,12 @@ class Scene:
         return int(self.triangles.shape[0])
 
     def caster_mask(self) -> np.ndarray:
-        """(T,) bool: the triangles that cast shadows (their material is not ``receiver_only``)."""
+        """(T,) bool: the triangles that cast shadows: their material is not ``receiver_only`` and passes the alpha
+        test (opacity >= :data:`CASTER_ALPHA_TEST`, Peters 2017 Sec. 3.3)."""
+        keep = np.asarray(self.opacity, np.float64)[self.tri_material] >= CASTER_ALPHA_TEST
         if self.receiver_only is None:
-            return np.ones(self.triangle_count, bool)
-        return ~np.asarray(self.receiver_only, bool)[self.tri_material]
+            return keep
+        return keep & ~np.asarray(self.receiver_only, bool)[self.tri_material]
 
     def casters(self) -> "Scene":
         """This scene's shadow casters: ``self`` when every material casts, else a copy holding only the casting

@@ -24,9 +24,11 @@ import numpy as np
 import warp as wp
 
 from ..raster import coverage_count, rasterize
+from ..scene import CASTER_ALPHA_TEST
 
-#: Alpha test of Peters 2017 Sec. 3.3: translucent fragments with an opacity below 1% are discarded.
-ALPHA_TEST = wp.constant(0.01)
+#: Alpha test of Peters 2017 Sec. 3.3: translucent fragments with an opacity below 1% are discarded
+#: (:data:`~warpscatter.scene.CASTER_ALPHA_TEST`: such materials are no casters at all).
+ALPHA_TEST = wp.constant(CASTER_ALPHA_TEST)
 #: Opacities at or above this are opaque (rendered into the opaque depth pass).
 OPAQUE_ALPHA = 1.0
 #: Memory budget of the depth-peeled translucent layers: a view is peeled in row bands this size.
