@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from ..fastmath import fast_atan2
 from ..parallel import launch_rows
 from ..scene.camera import normalize
 from ..shadows import moments as mm
@@ -86,9 +87,9 @@ def world_to_rectified(rect: NonlinearRectParams, x: wp.vec3) -> wp.vec3:
     v = normalised azimuth (row), depth = normalised flipped inclination (pi - theta)."""
     q = rect.to_light * (x - rect.origin)
     r = wp.sqrt(q[0] * q[0] + q[1] * q[1])
-    d = wp.atan2(q[1], q[0]) - rect.phi_mid
+    d = fast_atan2(q[1], q[0]) - rect.phi_mid
     d = d - 2.0 * wp.pi * wp.floor((d + wp.pi) / (2.0 * wp.pi))  # wrap into [-pi, pi)
-    theta = wp.atan2(r, q[2])
+    theta = fast_atan2(r, q[2])
     return wp.vec3(r / rect.r_max, 0.5 + d / rect.phi_span, (rect.theta_hi - theta) / rect.theta_len)
 
 
@@ -106,7 +107,7 @@ def rectified_to_world(rect: NonlinearRectParams, c: wp.vec3) -> wp.vec3:
 def rectified_ray_depth(rect: NonlinearRectParams, direction: wp.vec3) -> float:
     """Constant rectified depth of the camera view ray with (unit or not) world direction ``direction``."""
     q = rect.to_light * direction
-    theta = wp.atan2(wp.sqrt(q[0] * q[0] + q[1] * q[1]), q[2])
+    theta = fast_atan2(wp.sqrt(q[0] * q[0] + q[1] * q[1]), q[2])
     return (rect.theta_hi - theta) / rect.theta_len
 
 
@@ -158,7 +159,7 @@ def rectified_blocker_depth(rect: NonlinearRectParams, u: float, z_b: float) -> 
     """Rectified depth of a blocker at light-view distance z_b (along the light, from the light ray's point
     closest to the camera) on the light ray of column coordinate u, clamped to [0, 1] (Klehm 2014 Sec. 4.1:
     blockers in front of the frustum -> 0, behind it -> 1; both cast the same shadows into the frustum)."""
-    theta_b = wp.atan2(u * rect.r_max, z_b)
+    theta_b = fast_atan2(u * rect.r_max, z_b)
     return wp.clamp((rect.theta_hi - theta_b) / rect.theta_len, 0.0, 1.0)
 
 
