@@ -287,9 +287,11 @@ def test_moments6_against_the_marcher_and_fourier():
     assert stats["rectification"] == "projective"
     assert rel(m6["scattering"], ref["scattering"]) < 0.02  # measured 0.0118 (0.042 without culling; fourier: 0.0050)
 
-    # the papers' look-up: one reference ray per slice, read up to the ray's end point
+    # the papers' look-up: one reference ray per slice, read up to the ray's end point, Peters' adaptive
+    # overestimation, no depth bounds
     papers = ["render.scattering.prefiltered.segments=1", "render.scattering.prefiltered.end_offset=0",
-              "render.scattering.prefiltered.map_radius=view"]
+              "render.scattering.prefiltered.map_radius=view", "render.scattering.moments.overestimation=adaptive",
+              "render.scattering.prefiltered.depth_bounds=false"]
     exact = _window_room("raymarch")
     e6, ef = rel(_window_room("moments6", *papers), exact), rel(_window_room("fourier", *papers), exact)
     assert e6 < 0.75 * ef  # measured 0.246 vs 0.375 here (0.320 without caster culling)
@@ -324,14 +326,14 @@ def test_window_room_does_not_glow():
         assert glow(new) < 0.016
 
 
-@pytest.mark.parametrize("method, lit_bound", [("fourier", 0.0065), ("moments4", 4e-4), ("moments6", 3.5e-4)])
+@pytest.mark.parametrize("method, lit_bound", [("fourier", 0.0065), ("moments4", 6e-4), ("moments6", 5e-4)])
 def test_wholly_shadowed_rays_are_dark_and_lit_rays_closer(method, lit_bound):
     """Issue #13: under an opaque roof every view ray is in shadow, yet the truncated Fourier series rang and the
-    moment bounds leaked light into it (measured: fourier 0.50 % of the lit image's mean, moments4/6 0.005 %). The
+    moment bounds leaked light into it (measured: fourier 0.50 % of the lit image's mean, moments4/6 0.003 %). The
     depth bounds answer wholly shadowed rays exactly: 0. Without the roof (opacity below the alpha test: it casts
     nothing) rays are lit up to the ground they end on, whose last texels the look-up still reads, so their error
-    only shrinks (measured with / without bounds: fourier 0.52 / 0.70 %, moments4 0.020 / 0.068 %, moments6
-    0.017 / 0.044 %)."""
+    only shrinks (measured with / without bounds: fourier 0.52 / 0.70 %, moments4 0.042 / 0.14 %, moments6
+    0.035 / 0.087 %; beta 0.25)."""
     import sys
 
     sys.path.insert(0, str(ROOT / "tests"))
@@ -355,7 +357,7 @@ def test_wholly_shadowed_rays_are_dark_and_lit_rays_closer(method, lit_bound):
     unbounded = np.abs(render(_slab_scene(1e-3), False)[0] - want).sum() / want.sum()
     assert rel < min(lit_bound, unbounded)
     assert render(roof, True)[0].max() == 0.0
-    assert render(roof, False)[0].mean() > 2e-5 * want.mean()
+    assert render(roof, False)[0].mean() > 1.5e-5 * want.mean()
 
 
 #: every quantized storage mode: (method, setting, bits per texel)
