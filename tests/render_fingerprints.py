@@ -46,6 +46,15 @@ def _cases() -> dict[str, tuple[str, list[str]]]:
     add("spot/raymarch-fixed", "spot.yaml", f"{sc}.jitter=fixed", f"{sc}.steps=16")
     add("window/nosurf", "window.yaml", "render.surfaces.enabled=false", f"{sc}.steps=16")
     add("gate/isotropic", "gate.yaml", "medium.phase={type: isotropic}", f"{sc}.steps=16", "medium.sigma_t=0")
+    # ---- translucent casters and coloured media in every scattering method ----
+    coloured = ["medium.sigma_t=[0.03,0.06,0.12]", "medium.albedo=[0.95,0.8,0.6]"]
+    for method in ("raymarch", "fourier", "moments6", "epipolar"):
+        add(f"gate_translucent/{method}", "gate_soft_shadows.yaml", f"{sc}.method={method}", f"{sc}.steps=16",
+            f"{sc}.shadow_map.resolution=256")
+        add(f"quickstart/coloured-{method}", "quickstart.yaml", f"{sc}.method={method}", f"{sc}.steps=16",
+            f"{sc}.shadow_map.resolution=256", *coloured)
+    add("quickstart/coloured-projective", "quickstart.yaml", f"{sc}.method=fourier", *coloured,
+        f"{sc}.shadow_map.resolution=256", f"{sc}.prefiltered.rectification=projective")
     # ---- prefiltered methods on three scenes, every rectification ----
     for scene in ("colonnade", "window", "canopy", "gate"):
         for method in ("fourier", "moments4", "moments6"):

@@ -98,7 +98,7 @@ def chart_fidelity(report: BenchReport, path: Path) -> Path | None:
     cases = list(report.meta.get("cases", {}))
     if not cases:
         return None
-    fig, ax = plt.subplots(figsize=(max(8.0, 0.9 * len(cases)), 4.6))
+    fig, ax = plt.subplots(figsize=(max(8.0, 1.1 * len(cases)), 4.6))
     x = range(len(cases))
     data = report.meta["cases"]
     marcher = [data[c][MARCHER]["rel_l1"] for c in cases]
@@ -108,7 +108,7 @@ def chart_fidelity(report: BenchReport, path: Path) -> Path | None:
     for n, (label, marker) in enumerate(markers.items()):
         ax.plot([i + 0.08 * (n - 1.5) for i in x], [data[c][label]["rel_l1"] for c in cases], marker, markersize=6,
                 linestyle="none", label=label)
-    ax.set_xticks(list(x), [c.replace(", ", "\n") for c in cases], fontsize=7)
+    ax.set_xticks(list(x), [c.replace("_", " ").replace(", ", "\n") for c in cases], fontsize=7)
     ax.set_yscale("log")
     ax.set_ylabel("rel. L1 vs exact reference")
     ax.set_title(f"warpscatter bench fidelity {report.meta.get('size', '')}, map {report.meta.get('map', '')}")
