@@ -9,6 +9,7 @@ slab as opaque (L_scat 0 under it: a relative error of 1).
 
 import numpy as np
 import pytest
+import warp as wp
 from conftest import quad, render_method
 
 from warpscatter.gbuffer import gbuffer_raycast
@@ -17,6 +18,10 @@ from warpscatter.scene.camera import Camera
 from warpscatter.scene.lights import DirectionalLight
 from warpscatter.scene.medium import Medium
 from warpscatter.shadows.shadow_map import render_shadow_map
+from warpscatter.shadows.surface import SurfaceShadows, surface_visibility
+from warpscatter.wpinit import module_options
+
+module_options()
 
 SIZE = 400.0
 
@@ -88,3 +93,27 @@ def test_every_method_passes_the_translucent_slabs_light(method, keys, bound):
     want = (1.0 - opacity) * _closed_form(scene, gb.distance.numpy())
     rel = np.abs(got - want).sum() / want.sum()
     assert rel < bound, rel
+
+
+@wp.kernel
+def _surface_visibility_kernel(sh: SurfaceShadows, points: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
+    k = wp.tid()
+    zero = wp.vec3(0.0, 0.0, 0.0)
+    out[k] = surface_visibility(sh, points[k], wp.vec3(0.0, 1.0, 0.0), zero, zero)
+
+
+@pytest.mark.parametrize("opacity, two_sided, want", [(0.5, False, 0.5), (0.4, True, 0.36), (1.0, False, 0.0)])
+def test_pcf_surface_shadows_pass_the_translucent_casters_light(opacity, two_sided, want):
+    """``pcf`` surface shadows read the same translucent layer: the ground under a slab gets 1 - opacity per face
+    the light crosses (before, every translucent caster shadowed surfaces like an opaque one)."""
+    from warpscatter.shadows.settings import ShadowsSettings
+    from warpscatter.shadows.surface import prepare_shadows
+
+    scene = _slab_scene(opacity, two_sided)
+    sh, _ = prepare_shadows(scene, render_shadow_map(scene, 128), ShadowsSettings(method="pcf"))
+    rng = np.random.default_rng(0)
+    # ground points in the view (the map covers the view frustum)
+    pts = np.stack([rng.uniform(-0.5, 0.5, 64), np.zeros(64), rng.uniform(-3, -2, 64)], axis=1).astype(np.float32)
+    out = wp.empty(64, dtype=wp.vec3)
+    wp.launch(_surface_visibility_kernel, 64, [sh, wp.array(pts, dtype=wp.vec3), out])
+    np.testing.assert_allclose(out.numpy(), want, atol=1e-6)

@@ -167,9 +167,8 @@ class Material(SettingsModel):
 
     albedo: Albedo = Field((0.5, 0.5, 0.5), description="diffuse (Lambert) albedo, linear RGB in [0, 1]")
     opacity: Annotated[Float, Field(gt=0.0, le=1.0, description="opacity (< 1: a translucent occluder that passes "
-                                                                "1 - opacity, in every scattering method and the "
-                                                                "msm / msm_soft surface shadows; pcf shades it like "
-                                                                "an opaque one)")] = 1.0
+                                                                "1 - opacity, in every scattering and surface-shadow "
+                                                                "method; below 0.01 it casts nothing)")] = 1.0
     brdf: Optional[BRDFConfig] = Field(None, description="lighting methods only: a glossy phong or lafortune BRDF "
                                                          "beside the Lambert term")
 

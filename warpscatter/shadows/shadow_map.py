@@ -15,8 +15,9 @@ map's xy footprint is lit (no caster was rasterized there).
 Translucent casters (material opacity < 1): the map then also keeps, per texel, the depth of the nearest OPAQUE caster
 and the transmittance T of the translucent casters in front of it (:mod:`.translucency`), and
 :func:`shadow_transmittance_at` returns 1 before the nearest caster, T up to the opaque one and 0 behind it. The
-volumetric methods read it; ``pcf`` surface shadows compare against the nearest caster of any kind (translucent casters
-shadow surfaces like opaque ones there: ``msm`` filters them properly).
+volumetric methods read it, and so does ``pcf`` (:class:`TranslucentShadowDepths`: each texel of the box passes T
+where the receiver lies between its nearest and its opaque caster). The PCF look-ups take either the plain depth array
+or that struct (a generic ``depth_map``; the plain array keeps the opaque-only code).
 
 Surfaces at a contact on the map's silhouette (:func:`shadow_pcf_surface`): where a receiver meets its occluder
 along the outline of everything the light sees — the floor and walls of a closed room, whose creases are that
@@ -31,6 +32,7 @@ depth) and needs only a small fraction of the bias. Elsewhere nothing changes.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import warp as wp
@@ -101,6 +103,13 @@ class ShadowMap:
 
     def device_depth(self, device=None) -> wp.array:
         return wp.array(self.depth, dtype=wp.float32, device=default_device(device))
+
+    def pcf_depths(self, device=None) -> TranslucentShadowDepths:
+        """The :class:`TranslucentShadowDepths` of a map with translucent casters (:attr:`translucent`)."""
+        t = TranslucentShadowDepths()
+        t.depth = self.device_depth(device)
+        t.opaque, t.transmittance = self.device_translucency(device)
+        return t
 
     def device_translucency(self, device=None) -> tuple[wp.array, wp.array]:
         """(opaque depth, transmittance) as Warp arrays; 1x1 placeholders (+inf, 1) without translucent casters."""
@@ -232,14 +241,71 @@ def shadow_coords(sm: ShadowMapParams, x: wp.vec3) -> wp.vec3:
     return wp.vec3(0.5 * c[0] / w + 0.5, 0.5 - 0.5 * c[1] / w, -pv[2])
 
 
+@wp.struct
+class TranslucentShadowDepths:
+    """A shadow map with translucent casters as the PCF look-ups read it (:meth:`ShadowMap.pcf_depths`)."""
+
+    depth: wp.array2d(dtype=wp.float32)  # linear depth of the nearest caster
+    opaque: wp.array2d(dtype=wp.float32)  # of the nearest opaque caster
+    transmittance: wp.array2d(dtype=wp.float32)  # of the translucent casters in front of it
+
+
 @wp.func
-def shadow_texel_lit(depth_map: wp.array2d(dtype=wp.float32), i: int, j: int, d: float, bias: float) -> float:
-    """1 if depth d is not behind the caster stored in texel (i, j) (out-of-map texels are lit)."""
-    if i < 0 or j < 0 or i >= depth_map.shape[1] or j >= depth_map.shape[0]:
-        return 1.0
-    if d <= depth_map[j, i] + bias:
-        return 1.0
+def map_width(depth_map: wp.array2d(dtype=wp.float32)) -> int:
+    """Texel columns of a shadow map's depths (plain array or :class:`TranslucentShadowDepths`)."""
+    return depth_map.shape[1]
+
+
+@wp.func
+def map_width(depth_map: TranslucentShadowDepths) -> int:  # noqa: F811
+    return depth_map.depth.shape[1]
+
+
+@wp.func
+def map_height(depth_map: wp.array2d(dtype=wp.float32)) -> int:
+    """Texel rows of a shadow map's depths."""
+    return depth_map.shape[0]
+
+
+@wp.func
+def map_height(depth_map: TranslucentShadowDepths) -> int:  # noqa: F811
+    return depth_map.depth.shape[0]
+
+
+@wp.func
+def texel_depth(depth_map: wp.array2d(dtype=wp.float32), j: int, i: int) -> float:
+    """Linear depth of the nearest caster in texel (i, j) (+inf: empty)."""
+    return depth_map[j, i]
+
+
+@wp.func
+def texel_depth(depth_map: TranslucentShadowDepths, j: int, i: int) -> float:  # noqa: F811
+    return depth_map.depth[j, i]
+
+
+@wp.func
+def texel_blocked(depth_map: wp.array2d(dtype=wp.float32), j: int, i: int, d: float, bias: float) -> float:
+    """Light reaching depth d behind the nearest caster of texel (i, j): 0 for a plain map."""
     return 0.0
+
+
+@wp.func
+def texel_blocked(depth_map: TranslucentShadowDepths, j: int, i: int, d: float, bias: float) -> float:  # noqa: F811
+    # with translucent casters: their transmittance up to the opaque caster
+    if d <= depth_map.opaque[j, i] + bias:
+        return depth_map.transmittance[j, i]
+    return 0.0
+
+
+@wp.func
+def shadow_texel_lit(depth_map: Any, i: int, j: int, d: float, bias: float) -> float:
+    """1 if depth d is not behind the caster stored in texel (i, j) (out-of-map texels are lit); behind it 0, or the
+    translucent casters' transmittance (``depth_map`` a :class:`TranslucentShadowDepths`)."""
+    if i < 0 or j < 0 or i >= map_width(depth_map) or j >= map_height(depth_map):
+        return 1.0
+    if d <= texel_depth(depth_map, j, i) + bias:
+        return 1.0
+    return texel_blocked(depth_map, j, i, d, bias)
 
 
 @wp.func
@@ -302,8 +368,7 @@ def box_tap_weight(d: int, lo: int, hi: int, frac: float) -> float:
 
 
 @wp.func
-def shadow_pcf(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float32), x: wp.vec3, bias: float,
-               filter_px: int) -> float:
+def shadow_pcf(sm: ShadowMapParams, depth_map: Any, x: wp.vec3, bias: float, filter_px: int) -> float:
     """Percentage-closer filtering over a filter_px x filter_px texel box, bilinearly weighted; 1 = lit."""
     c = shadow_coords(sm, x)
     fx = c[0] * float(sm.width) - 0.5
@@ -356,23 +421,23 @@ def receiver_plane_gradient(sm: ShadowMapParams, x: wp.vec3, n: wp.vec3, c: wp.v
 
 
 @wp.func
-def near_map_silhouette(depth_map: wp.array2d(dtype=wp.float32), i0: int, j0: int, lo: int, hi: int) -> bool:
+def near_map_silhouette(depth_map: Any, i0: int, j0: int, lo: int, hi: int) -> bool:
     """True when a texel (i0 + di, j0 + dj), di and dj in [lo, hi], inside the map is empty (+inf): the box reaches
     past the outline of everything the light sees."""
     for dj in range(lo, hi + 1):
         j = j0 + dj
-        if j >= 0 and j < depth_map.shape[0]:
+        if j >= 0 and j < map_height(depth_map):
             for di in range(lo, hi + 1):
                 i = i0 + di
-                if i >= 0 and i < depth_map.shape[1]:
-                    if not wp.isfinite(depth_map[j, i]):
+                if i >= 0 and i < map_width(depth_map):
+                    if not wp.isfinite(texel_depth(depth_map, j, i)):
                         return True
     return False
 
 
 @wp.func
-def shadow_pcf_contact(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float32), x: wp.vec3, n: wp.vec3,
-                       bias: float, filter_px: int) -> float:
+def shadow_pcf_contact(sm: ShadowMapParams, depth_map: Any, x: wp.vec3, n: wp.vec3, bias: float,
+                       filter_px: int) -> float:
     """PCF of surface point x (unit normal n facing the light) that is itself a caster, for contacts on the map's
     silhouette: the box of :func:`shadow_pcf` around x, empty and out-of-map texels left out (the receiver does not
     reach there, or nothing is known there), each texel compared against the receiver's plane at that texel (depth
@@ -394,15 +459,15 @@ def shadow_pcf_contact(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float
         for di in range(lo, hi + 1):
             wx = box_tap_weight(di, lo, hi, ax)
             i = i0 + di
-            if i < 0 or j < 0 or i >= depth_map.shape[1] or j >= depth_map.shape[0]:
+            if i < 0 or j < 0 or i >= map_width(depth_map) or j >= map_height(depth_map):
                 continue  # outside the map: nothing known about the receiver there
-            s = depth_map[j, i]
+            s = texel_depth(depth_map, j, i)
             if not wp.isfinite(s):
                 continue  # empty: past the receiver's own outline
             lit = float(1.0)
             d = c[2] + g[0] * (float(i) - c[0]) + g[1] * (float(j) - c[1])
             if d > s + bias:
-                lit = 0.0
+                lit = texel_blocked(depth_map, j, i, d, bias)
             wgt = wx * wy
             total += wgt * lit
             wsum += wgt
@@ -412,8 +477,8 @@ def shadow_pcf_contact(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float
 
 
 @wp.func
-def shadow_pcf_surface(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float32), x: wp.vec3, n: wp.vec3,
-                       normal_offset: float, bias: float, filter_px: int, contact: int) -> float:
+def shadow_pcf_surface(sm: ShadowMapParams, depth_map: Any, x: wp.vec3, n: wp.vec3, normal_offset: float,
+                       bias: float, filter_px: int, contact: int) -> float:
     """PCF visibility of surface point x with unit normal n facing the light; 1 = lit.
 
     :func:`shadow_pcf` of x moved ``normal_offset`` (world units) along n, with depth bias ``bias`` (both for a

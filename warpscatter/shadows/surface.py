@@ -23,7 +23,7 @@ from ..stages import StageTimer
 from ..wpinit import default_device, module_options
 from . import msm, soft
 from .settings import ShadowsSettings
-from .shadow_map import ShadowMapParams, shadow_pcf_surface
+from .shadow_map import ShadowMapParams, TranslucentShadowDepths, shadow_pcf_surface
 
 module_options()
 
@@ -45,6 +45,8 @@ class SurfaceShadows:
     mode: int  # SHADOW_*
     sm: ShadowMapParams  # the light's shadow map (pcf, pcss)
     sm_depth: wp.array2d(dtype=wp.float32)
+    sm_translucent: int  # pcf: 1 when the map has translucent casters (then read sm_layers)
+    sm_layers: TranslucentShadowDepths  # pcf with translucent casters (placeholders otherwise)
     sm_bias: float  # depth bias (scene units)
     filter_px: int  # PCF box width (texels)
     contact: int  # 1: every receiver casts (no receiver_only material): contact PCF on the map's silhouette
@@ -61,6 +63,9 @@ def surface_visibility(sh: SurfaceShadows, x: wp.vec3, n: wp.vec3, dx: wp.vec3, 
     to the neighbouring pixels' hits on x's tangent plane, read by mip-mapped ``msm``)."""
     if sh.mode == SHADOW_PCF:
         # normal offset of one texel keeps lit surfaces out of their own shadow
+        if sh.sm_translucent != 0:
+            return wp.vec3(shadow_pcf_surface(sh.sm, sh.sm_layers, x, n, sh.sm.texel_world, sh.sm_bias,
+                                              sh.filter_px, sh.contact))
         return wp.vec3(shadow_pcf_surface(sh.sm, sh.sm_depth, x, n, sh.sm.texel_world, sh.sm_bias, sh.filter_px,
                                           sh.contact))
     if sh.mode == SHADOW_MSM:
@@ -102,6 +107,12 @@ def prepare_shadows(scene, shadow_map, settings: ShadowsSettings, *, bias_texels
     else:
         sh.sm, sh.sm_depth, bias = ShadowMapParams(), wp.zeros((1, 1), dtype=wp.float32, device=device), 0.0
         sh.sm.width = sh.sm.height = 1
+    sh.sm_translucent = int(shadow_map is not None and shadow_map.translucent and mode == SHADOW_PCF)
+    if sh.sm_translucent:
+        sh.sm_layers = shadow_map.pcf_depths(device)
+    else:
+        sh.sm_layers = TranslucentShadowDepths()
+        sh.sm_layers.depth = sh.sm_layers.opaque = sh.sm_layers.transmittance = sh.sm_depth
     sh.sm_bias = float(bias)
     sh.filter_px = int(settings.filter_px)
     # receiver_only receivers are not in the map: an empty texel next to them may be lit ground, not their outline
