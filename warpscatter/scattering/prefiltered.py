@@ -366,7 +366,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
                     [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, channels, bounds,
                      int(wrap_rows(rect)), beta, light_params(scene.light, device), scene.medium.params(), out],
                     device=device)
-    regions = epipole_regions(cam, scene.light.direction, p.epipole_angle_deg, p.epipole_block)
+    regions = (epipole_regions(cam, scene.light.direction, p.epipole_angle_deg, p.epipole_block)
+               if settings.marches_epipole else [])
     if regions:
         with stage("epipole"):
             march_epipole_regions(scene, gbuffer, shadow_map, regions, out, steps=p.epipole_steps, seed=settings.seed,
