@@ -113,19 +113,22 @@ class DepthBounds:
 def bounded_visibility(db: DepthBounds, u_end: float, v: float, z_r: float, wrap_rows: int) -> float:
     """1 when every texel a look-up ending at (u_end, v) reads lies behind depth z_r (the ray is wholly lit), 0 when
     every one lies in front of it (wholly shadowed), else -1 (reconstruct). Both bilinear rows count (those of
-    non-zero weight) and the prefix through the right column of the footprint: a superset of what the look-up reads,
-    so the answer is exact for hard visibility."""
+    non-zero weight) and the prefix through the footprint's left column: every whole texel the look-up reads. The
+    partial texel after it (weight ax) is left out: it is the last one before the look-up's end, where the surface
+    the ray ends on is its own blocker (``end_offset``'s zone); counting it let that surface's depths, a hair
+    behind the ray's, keep rays on a shadowed ceiling from the exact answer (bench fidelity, dark room: fourier
+    24.4 -> 16.7 %, moments6 35.9 -> 21.2 %; no case worse)."""
     if db.enabled == 0:
         return -1.0
     j0, j1, ay, i0, i1, ax = texel_footprint(db.bounds.shape[0], db.bounds.shape[1], u_end, v, wrap_rows)
     lo = float(1.0e30)
     hi = float(-1.0e30)
     if ay < 1.0:
-        b = db.bounds[j0, i1]
+        b = db.bounds[j0, i0]
         lo = b[0]
         hi = b[1]
     if ay > 0.0:
-        b = db.bounds[j1, i1]
+        b = db.bounds[j1, i0]
         lo = wp.min(lo, b[0])
         hi = wp.max(hi, b[1])
     if z_r >= hi:
