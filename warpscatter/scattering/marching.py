@@ -69,9 +69,9 @@ from ..scene.medium import (
 )
 from ..shadows.shadow_map import (
     ShadowMapParams,
+    TranslucentShadowDepths,
     orthographic_ray_coords,
     shadow_coords,
-    shadow_transmittance_at,
     shadow_visibility_at,
 )
 from ..wpinit import default_device, module_options
@@ -98,8 +98,7 @@ class Visibility:
     transmittance: wp.array(dtype=wp.float32)  # exact: 1 - opacity per caster triangle (the BVH's face order)
     sm: ShadowMapParams  # shadow_map: the map's transform (a 1x1 placeholder for exact)
     sm_depth: wp.array2d(dtype=wp.float32)  # shadow_map: linear depth of the nearest caster per texel
-    sm_opaque: wp.array2d(dtype=wp.float32)  # shadow_map, translucent: linear depth of the nearest opaque caster
-    sm_transmittance: wp.array2d(dtype=wp.float32)  # shadow_map, translucent: transmittance in front of it
+    sm_layers: TranslucentShadowDepths  # shadow_map, translucent: sm_depth with the opaque depths and transmittances
     sm_bias: float  # shadow_map: depth bias (scene units)
 
 
@@ -159,7 +158,7 @@ def exact_transmittance(vis: Visibility, x: wp.vec3, omega_l: wp.vec3, dist: flo
 def map_visibility_at(vis: Visibility, c: wp.vec3) -> float:
     """Shadow-map V at map coordinates c = (u, v, depth): hard, or the translucent casters' transmittance."""
     if vis.translucent != 0:
-        return shadow_transmittance_at(vis.sm, vis.sm_depth, vis.sm_opaque, vis.sm_transmittance, c, vis.sm_bias)
+        return shadow_visibility_at(vis.sm, vis.sm_layers, c, vis.sm_bias)
     return shadow_visibility_at(vis.sm, vis.sm_depth, c, vis.sm_bias)
 
 
@@ -393,7 +392,9 @@ def visibility_params(scene, visibility: str, geometry=None, shadow_map=None, sh
         _BVH_OWNERS[v] = geometry
         v.sm = ShadowMapParams()
         v.sm.width = v.sm.height = 1
-        v.sm_depth = v.sm_opaque = v.sm_transmittance = wp.zeros((1, 1), dtype=wp.float32, device=device)
+        v.sm_depth = wp.zeros((1, 1), dtype=wp.float32, device=device)
+        v.sm_layers = TranslucentShadowDepths()
+        v.sm_layers.depth = v.sm_layers.opaque = v.sm_layers.transmittance = v.sm_depth
         v.sm_bias = 0.0
         return v
     if shadow_map is None:
@@ -404,7 +405,7 @@ def visibility_params(scene, visibility: str, geometry=None, shadow_map=None, sh
     v.transmittance = wp.zeros(1, dtype=wp.float32, device=device)
     v.sm = shadow_map.params()
     v.sm_depth = shadow_map.device_depth(device)
-    v.sm_opaque, v.sm_transmittance = shadow_map.device_translucency(device)
+    v.sm_layers = shadow_map.device_layers(v.sm_depth, device)
     v.sm_bias = float(shadow_bias_texels * shadow_map.texel_world)
     return v
 

@@ -97,40 +97,38 @@ module_options()
 
 
 @wp.func
-def map_visibility(texels: FilteredBasisArrays, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, wrap: int,
-                   beta: float, light_direction: wp.vec3, view_direction: wp.vec3) -> float:
-    """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a Fourier texture (Klehm 2014
-    Listing 4), its texels weighted as ``weights`` says (:mod:`.ray_weights`), those beyond the map lit; a ray
-    wholly lit or wholly shadowed by the ``bounds`` is answered without the series; ``beta`` and the directions
+def representation_visibility(texels: FilteredBasisArrays, weights: RayWeights, u: float, v: float, z_r: float,
+                              wrap: int, beta: float, light_direction: wp.vec3, view_direction: wp.vec3) -> float:
+    """The look-up's reconstruction from a Fourier texture (Klehm 2014 Listing 4); ``beta`` and the directions
     unused."""
+    return fourier_visibility(texels, weights, u, v, z_r, wrap)
+
+
+@wp.func
+def representation_visibility(texels: FilteredMomentArrays, weights: RayWeights, u: float, v: float,  # noqa: F811
+                              z_r: float, wrap: int, beta: float, light_direction: wp.vec3,
+                              view_direction: wp.vec3) -> float:
+    """The look-up's reconstruction from a moment map (Peters 2017 D.5); ``beta`` < 0: the adaptive overestimation
+    weight of the light and view directions (Sec. 5.3.1)."""
+    b = beta
+    if b < 0.0:
+        b = mm.adaptive_overestimation_weight(light_direction, view_direction)
+    return moments_visibility(texels, weights, u, v, z_r, wrap, b)
+
+
+@wp.func
+def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, wrap: int, beta: float,
+                   light_direction: wp.vec3, view_direction: wp.vec3) -> float:
+    """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a Fourier texture or a moment map
+    (:func:`representation_visibility`), its texels weighted as ``weights`` says (:mod:`.ray_weights`), those beyond
+    the map lit; a ray wholly lit or wholly shadowed by the ``bounds`` is answered without the reconstruction."""
     inside = inside_map_fraction(weights, c[0], c[2])
     u = c[0]
     if inside < 1.0:
         u = 1.0 + weights.end_offset / float(weights.cols)  # the look-up through the whole map
     f = bounded_visibility(bounds, u - weights.end_offset / float(bounds.bounds.shape[1]), c[1], c[2], wrap)
     if f < 0.0:
-        f = fourier_visibility(texels, weights, u, c[1], c[2], wrap)
-    if inside < 1.0:
-        return inside * f + (1.0 - inside)
-    return f
-
-
-@wp.func
-def map_visibility(texels: FilteredMomentArrays, weights: RayWeights, bounds: DepthBounds,  # noqa: F811
-                   c: wp.vec3, wrap: int, beta: float, light_direction: wp.vec3, view_direction: wp.vec3) -> float:
-    """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a moment map (Peters 2017 D.5);
-    ``beta`` < 0: the adaptive overestimation weight of the light and view directions (Sec. 5.3.1); ``bounds`` as
-    for the Fourier texture."""
-    inside = inside_map_fraction(weights, c[0], c[2])
-    u = c[0]
-    if inside < 1.0:  # as for the Fourier texture
-        u = 1.0 + weights.end_offset / float(weights.cols)
-    f = bounded_visibility(bounds, u - weights.end_offset / float(bounds.bounds.shape[1]), c[1], c[2], wrap)
-    if f < 0.0:
-        b = beta
-        if b < 0.0:
-            b = mm.adaptive_overestimation_weight(light_direction, view_direction)
-        f = moments_visibility(texels, weights, u, c[1], c[2], wrap, b)
+        f = representation_visibility(texels, weights, u, c[1], c[2], wrap, beta, light_direction, view_direction)
     if inside < 1.0:
         return inside * f + (1.0 - inside)
     return f
@@ -420,6 +418,7 @@ def _map_depth(rectified) -> np.ndarray:
 __all__ = [
     "evaluate_prefiltered_kernel",
     "map_visibility",
+    "representation_visibility",
     "pixel_coords",
     "pixel_coords_kernel",
     "render",

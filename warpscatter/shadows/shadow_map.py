@@ -13,11 +13,11 @@ Texel (i, j) has j from the TOP (NDC y = +1), as every image in warpscatter. A l
 map's xy footprint is lit (no caster was rasterized there).
 
 Translucent casters (material opacity < 1): the map then also keeps, per texel, the depth of the nearest OPAQUE caster
-and the transmittance T of the translucent casters in front of it (:mod:`.translucency`), and
-:func:`shadow_transmittance_at` returns 1 before the nearest caster, T up to the opaque one and 0 behind it. The
-volumetric methods read it, and so does ``pcf`` (:class:`TranslucentShadowDepths`: each texel of the box passes T
-where the receiver lies between its nearest and its opaque caster). The PCF look-ups take either the plain depth array
-or that struct (a generic ``depth_map``; the plain array keeps the opaque-only code).
+and the transmittance T of the translucent casters in front of it (:mod:`.translucency`); kernels read the three as
+one :class:`TranslucentShadowDepths` (:meth:`ShadowMap.device_layers`), and a texel look-up (:func:`shadow_texel_lit`)
+returns 1 before the nearest caster, T up to the opaque one and 0 behind it. The marchers' hard look-ups and the PCF
+filters take either the plain depth array or that struct (a generic ``depth_map``; the plain array keeps the
+opaque-only code).
 
 Surfaces at a contact on the map's silhouette (:func:`shadow_pcf_surface`): where a receiver meets its occluder
 along the outline of everything the light sees — the floor and walls of a closed room, whose creases are that
@@ -104,21 +104,18 @@ class ShadowMap:
     def device_depth(self, device=None) -> wp.array:
         return wp.array(self.depth, dtype=wp.float32, device=default_device(device))
 
-    def pcf_depths(self, device=None) -> TranslucentShadowDepths:
-        """The :class:`TranslucentShadowDepths` of a map with translucent casters (:attr:`translucent`)."""
-        t = TranslucentShadowDepths()
-        t.depth = self.device_depth(device)
-        t.opaque, t.transmittance = self.device_translucency(device)
-        return t
-
-    def device_translucency(self, device=None) -> tuple[wp.array, wp.array]:
-        """(opaque depth, transmittance) as Warp arrays; 1x1 placeholders (+inf, 1) without translucent casters."""
+    def device_layers(self, depth: wp.array | None = None, device=None) -> TranslucentShadowDepths:
+        """The :class:`TranslucentShadowDepths` kernels read (``depth``: the map's :meth:`device_depth` if already
+        uploaded). Without translucent casters ``opaque`` and ``transmittance`` are 1x1 placeholders, never read."""
         device = default_device(device)
-        if not self.translucent:
-            return (wp.full((1, 1), np.inf, dtype=wp.float32, device=device),
-                    wp.ones((1, 1), dtype=wp.float32, device=device))
-        return (wp.array(self.opaque_depth, dtype=wp.float32, device=device),
-                wp.array(self.transmittance, dtype=wp.float32, device=device))
+        t = TranslucentShadowDepths()
+        t.depth = depth if depth is not None else self.device_depth(device)
+        if self.translucent:
+            t.opaque = wp.array(self.opaque_depth, dtype=wp.float32, device=device)
+            t.transmittance = wp.array(self.transmittance, dtype=wp.float32, device=device)
+        else:
+            t.opaque = t.transmittance = wp.ones((1, 1), dtype=wp.float32, device=device)
+        return t
 
 
 def _box_corners(lo, hi) -> np.ndarray:
@@ -243,7 +240,7 @@ def shadow_coords(sm: ShadowMapParams, x: wp.vec3) -> wp.vec3:
 
 @wp.struct
 class TranslucentShadowDepths:
-    """A shadow map with translucent casters as the PCF look-ups read it (:meth:`ShadowMap.pcf_depths`)."""
+    """A shadow map with translucent casters as the look-ups read it (:meth:`ShadowMap.device_layers`)."""
 
     depth: wp.array2d(dtype=wp.float32)  # linear depth of the nearest caster
     opaque: wp.array2d(dtype=wp.float32)  # of the nearest opaque caster
@@ -309,8 +306,7 @@ def shadow_texel_lit(depth_map: Any, i: int, j: int, d: float, bias: float) -> f
 
 
 @wp.func
-def shadow_visibility_at(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float32), c: wp.vec3,
-                         bias: float) -> float:
+def shadow_visibility_at(sm: ShadowMapParams, depth_map: Any, c: wp.vec3, bias: float) -> float:
     """Hard shadow-map visibility at map coordinates c = (u, v, depth) of :func:`shadow_coords` (nearest texel;
     outside the map: lit); 1 = lit. ``bias`` in world units."""
     if c[0] < 0.0 or c[0] >= 1.0 or c[1] < 0.0 or c[1] >= 1.0:
@@ -318,24 +314,6 @@ def shadow_visibility_at(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.flo
     i = int(c[0] * float(sm.width))
     j = int(c[1] * float(sm.height))
     return shadow_texel_lit(depth_map, i, j, c[2], bias)
-
-
-@wp.func
-def shadow_transmittance_at(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float32),
-                            opaque_depth: wp.array2d(dtype=wp.float32), transmittance: wp.array2d(dtype=wp.float32),
-                            c: wp.vec3, bias: float) -> float:
-    """:func:`shadow_visibility_at` of a map with translucent casters (``ShadowMap.opaque_depth`` and
-    ``transmittance``): 1 in front of the nearest caster, the texel's transmittance up to its opaque caster, 0
-    behind that (nearest texel; outside the map: lit)."""
-    if c[0] < 0.0 or c[0] >= 1.0 or c[1] < 0.0 or c[1] >= 1.0:
-        return 1.0
-    i = int(c[0] * float(sm.width))
-    j = int(c[1] * float(sm.height))
-    if c[2] <= depth_map[j, i] + bias:
-        return 1.0
-    if c[2] > opaque_depth[j, i] + bias:
-        return 0.0
-    return transmittance[j, i]
 
 
 @wp.func

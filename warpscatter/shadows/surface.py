@@ -109,7 +109,7 @@ def prepare_shadows(scene, shadow_map, settings: ShadowsSettings, *, bias_texels
         sh.sm.width = sh.sm.height = 1
     sh.sm_translucent = int(shadow_map is not None and shadow_map.translucent and mode == SHADOW_PCF)
     if sh.sm_translucent:
-        sh.sm_layers = shadow_map.pcf_depths(device)
+        sh.sm_layers = shadow_map.device_layers(sh.sm_depth, device)
     else:
         sh.sm_layers = TranslucentShadowDepths()
         sh.sm_layers.depth = sh.sm_layers.opaque = sh.sm_layers.transmittance = sh.sm_depth
