@@ -164,6 +164,20 @@ def rectified_blocker_depth(rect: NonlinearRectParams, u: float, z_b: float) -> 
 
 
 @wp.func
+def nearest_map_texel(texels: wp.array2d(dtype=wp.float32), c: wp.vec4):
+    """(inside the map, column, row) of the shadow-map texel nearest to clip coordinates c (row 0 = NDC y = +1)."""
+    sx = (0.5 * c[0] + 0.5) * float(texels.shape[1])
+    sy = (0.5 - 0.5 * c[1]) * float(texels.shape[0])
+    inside = sx >= 0.0 and sy >= 0.0 and sx < float(texels.shape[1]) and sy < float(texels.shape[0])
+    x = int(0)
+    y = int(0)
+    if inside:
+        x = int(sx)
+        y = int(sy)
+    return inside, x, y
+
+
+@wp.func
 def stored_blocker_depth(
     rect: NonlinearRectParams,
     shadow_depth: wp.array2d(dtype=wp.float32),
@@ -175,11 +189,10 @@ def stored_blocker_depth(
 ) -> float:
     """Rectified blocker depth of the light ray of column coordinate u through the point p0 at clip coordinates c:
     the nearest shadow-map texel's caster placed on the same light ray (1: no caster, or off the map)."""
-    sx = (0.5 * c[0] + 0.5) * float(shadow_depth.shape[1])
-    sy = (0.5 - 0.5 * c[1]) * float(shadow_depth.shape[0])
+    inside, x, y = nearest_map_texel(shadow_depth, c)
     result = float(1.0)  # no caster: the blocker lies at the far end
-    if sx >= 0.0 and sy >= 0.0 and sx < float(shadow_depth.shape[1]) and sy < float(shadow_depth.shape[0]):
-        stored = shadow_depth[int(sy), int(sx)]
+    if inside:
+        stored = shadow_depth[y, x]
         if wp.isfinite(stored) and stored < empty_depth:
             # blocker on this light ray: light-view z (distance along the light from p0)
             z_b = (stored - p0_depth) / depth_per_unit
@@ -191,10 +204,9 @@ def stored_blocker_depth(
 def stored_transmittance(transmittance: wp.array2d(dtype=wp.float32), c: wp.vec4) -> float:
     """Transmittance of the translucent casters in the nearest shadow-map texel of clip coordinates c (the texel of
     :func:`stored_blocker_depth`; 1 off the map)."""
-    sx = (0.5 * c[0] + 0.5) * float(transmittance.shape[1])
-    sy = (0.5 - 0.5 * c[1]) * float(transmittance.shape[0])
-    if sx >= 0.0 and sy >= 0.0 and sx < float(transmittance.shape[1]) and sy < float(transmittance.shape[0]):
-        return transmittance[int(sy), int(sx)]
+    inside, x, y = nearest_map_texel(transmittance, c)
+    if inside:
+        return transmittance[y, x]
     return 1.0
 
 
