@@ -98,7 +98,7 @@ class Medium:
             p.sigma_s = float(np.mean(self.sigma_s_rgb))
         else:
             p.sigma_t = self.sigma_t_rgb[0]
-            p.sigma_s = self.sigma_s_rgb[0] if np.ndim(self.sigma_s) else float(self.sigma_s)
+            p.sigma_s = self.sigma_s_rgb[0]
         p.sigma_t_rgb = wp.vec3(*self.sigma_t_rgb)
         p.sigma_s_rgb = wp.vec3(*self.sigma_s_rgb)
         p.phase_id = int(self.phase_id)
