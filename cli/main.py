@@ -1,17 +1,23 @@
-"""``warpscatter`` command line: render, validate and bench, thin over the library.
+"""``warpscatter`` command line: render, validate, bench, precompute and schema, thin over the library.
 
 Exit codes: 0 success, 1 a failure while rendering or benchmarking, 2 an invalid config, override,
 suite name or command line (nothing is written then), 130 interrupted.
 
-Progress goes to stderr (one updating line on a terminal, one line per stage otherwise); results
-(the per-stage timing table, statistics and the written files) go to stdout.
+Every command takes ``-v/--verbose`` (repeatable), ``-q/--quiet`` and ``--debug``; the commands that run kernels
+also take ``--device`` and ``--threads``. Progress goes to stderr (a bar with the elapsed time and an ETA on a
+terminal, a line per stage and then every few seconds otherwise); results (the per-stage timing table,
+statistics and the written files) go to stdout. Warp's own messages (its start-up banner, module loads, the
+warning of a machine without a CUDA driver) are shown with ``-v`` only.
 """
 
 from __future__ import annotations
 
 import importlib
 import inspect
+import json
+import logging
 import math
+import os
 import sys
 import time
 import traceback
@@ -30,71 +36,84 @@ EXIT_FAILURE = 1
 EXIT_INVALID = 2
 EXIT_INTERRUPTED = 130
 
+#: The suite ``warpscatter bench`` runs without a SUITE argument (the default of ``warpscatter.bench.run``; a test
+#: checks that they agree) and its duration on two cores.
+DEFAULT_SUITE = "reference"
+DEFAULT_SUITE_DURATION = "about 2 minutes on two cores"
+
+#: Seconds between progress lines when stderr is not a terminal (logs, CI).
+PLAIN_PROGRESS_INTERVAL = 10.0
+
+log = logging.getLogger("warpscatter")
+
 _set_option = click.option(
     "--set",
     "overrides",
     multiple=True,
     metavar="KEY=VALUE",
     help="Override a config value, e.g. --set camera.fov_y=40 --set scene.meshes.0.material.opacity=0.5 "
-    "(VALUE is parsed as YAML; repeatable).",
+    "(VALUE is parsed as YAML; repeatable; relative paths resolve against the config file's folder, as in the "
+    "config itself).",
 )
-_debug_option = click.option("--debug", is_flag=True, help="Show the full traceback of an error.")
+
+
+def _common_options(kernels: bool):
+    """-v / -q / --debug for every command; --device and --threads for those that run kernels."""
+
+    def decorate(f):
+        options = [
+            click.option("-v", "--verbose", count=True, help="More messages on stderr: -v info and Warp's own "
+                         "messages (module loads), -vv debug."),
+            click.option("-q", "--quiet", is_flag=True, help="No progress, tables or notes: only errors and the "
+                         "written files."),
+            click.option("--debug", is_flag=True, help="Show the full traceback of an error."),
+        ]
+        if kernels:
+            options += [
+                click.option("--device", metavar="NAME", default=None, help="Warp device to run on: cpu (the "
+                             "default, also WARPSCATTER_DEVICE) or cuda:0 ..."),
+                click.option("--threads", type=click.IntRange(min=1), default=None, help="Threads for the "
+                             "split CPU launches [default: WARPSCATTER_THREADS, else every usable core]."),
+            ]
+        for option in reversed(options):
+            f = option(f)
+        return f
+
+    return decorate
+
+
+def _setup(verbose: int, quiet: bool, device: str | None = None, threads: int | None = None,
+           kernels: bool = False) -> str | None:
+    """Configure logging and, for commands that run kernels, Warp (its log level, start-up messages, the device and
+    thread count); return the device name. Exits 2 for a device Warp does not have."""
+    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    if not log.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
+        log.addHandler(handler)
+        log.propagate = False
+    log.setLevel(level)
+    if threads is not None:
+        os.environ["WARPSCATTER_THREADS"] = str(threads)
+    if not kernels:
+        return None
+    import warp as wp
+
+    from warpscatter.wpinit import init
+
+    wp.config.log_level = wp.LOG_INFO if verbose else wp.LOG_WARNING  # this process is ours: Warp quiet by default
+    init(quiet_native=verbose < 2)
+    name = device or os.environ.get("WARPSCATTER_DEVICE") or "cpu"
+    try:
+        wp.get_device(name)
+    except Exception:
+        names = ", ".join(str(d) for d in wp.get_devices())
+        _fail(f"--device {name}: not a device of this machine (available: {names})", EXIT_INVALID)
+    os.environ["WARPSCATTER_DEVICE"] = name  # the bench and precompute resolve the device through it
+    return name
 
 
 # ---- output helpers --------------------------------------------------------------------------------
-
-
-class ProgressDisplay:
-    """``progress(stage, fraction)`` callback drawing on stderr.
-
-    On a terminal: one line redrawn in place (at most ~10 times a second) with the stage, a bar and
-    the elapsed time. Otherwise: one plain line when a stage starts. Disabled: does nothing.
-    """
-
-    BAR = 24
-
-    def __init__(self, enabled: bool = True, stream=None):
-        self.stream = stream if stream is not None else sys.stderr
-        self.enabled = enabled
-        self.tty = enabled and _isatty(self.stream)
-        self.stage: str | None = None
-        self.start = time.perf_counter()
-        self.last_draw = 0.0
-        self.drawn = False
-
-    def __call__(self, stage: str, fraction: float) -> None:
-        if not self.enabled:
-            return
-        try:
-            self._update(str(stage), float(fraction))
-        except Exception:  # a display problem must never break a render
-            self.enabled = False
-
-    def _update(self, stage: str, fraction: float) -> None:
-        now = time.perf_counter()
-        new_stage = stage != self.stage
-        self.stage = stage
-        if not self.tty:
-            if new_stage:
-                self.stream.write(f"[{now - self.start:7.2f}s] {stage}\n")
-                self.stream.flush()
-            return
-        if not (new_stage or fraction >= 1.0 or now - self.last_draw >= 0.1):
-            return
-        f = min(max(fraction, 0.0), 1.0) if math.isfinite(fraction) else 0.0
-        filled = int(round(f * self.BAR))
-        bar = "#" * filled + "-" * (self.BAR - filled)
-        self.stream.write(f"\r\x1b[K{stage:<28.28} [{bar}] {100 * f:5.1f}%  {now - self.start:7.2f}s")
-        self.stream.flush()
-        self.last_draw = now
-        self.drawn = True
-
-    def close(self) -> None:
-        """Clear the updating line (terminal only)."""
-        if self.tty and self.drawn:
-            self.stream.write("\r\x1b[K")
-            self.stream.flush()
-            self.drawn = False
 
 
 def _isatty(stream) -> bool:
@@ -102,6 +121,70 @@ def _isatty(stream) -> bool:
         return bool(stream.isatty())
     except (AttributeError, ValueError):
         return False
+
+
+class ProgressDisplay:
+    """``progress(stage, fraction)`` callback drawing on stderr.
+
+    On a terminal: a tqdm bar per stage (percentage, elapsed time and ETA; ``prefix`` in front, e.g. ``[2/3]`` of
+    several configs). Otherwise: a line when a stage starts and, for long stages, one every ``interval`` seconds
+    with the percentage and the ETA. Disabled: does nothing.
+    """
+
+    def __init__(self, enabled: bool = True, stream=None, interval: float = PLAIN_PROGRESS_INTERVAL,
+                 prefix: str = ""):
+        self.stream = stream if stream is not None else sys.stderr
+        self.enabled = enabled
+        self.tty = enabled and _isatty(self.stream)
+        self.interval = interval
+        self.prefix = prefix
+        self.stage: str | None = None
+        self.start = time.perf_counter()
+        self.stage_start = self.start
+        self.last_line = self.start
+        self.bar = None
+
+    def __call__(self, stage: str, fraction: float) -> None:
+        if not self.enabled:
+            return
+        try:
+            f = min(max(float(fraction), 0.0), 1.0) if math.isfinite(float(fraction)) else 0.0
+            self._update(str(stage), f)
+        except Exception:  # a display problem must never break a render
+            self.enabled = False
+
+    def _update(self, stage: str, fraction: float) -> None:
+        now = time.perf_counter()
+        if stage != self.stage:
+            self._close_bar()
+            self.stage, self.stage_start, self.last_line = stage, now, now
+            if self.tty:
+                from tqdm import tqdm
+
+                self.bar = tqdm(total=1000, desc=f"{self.prefix}{stage}"[:32], file=self.stream, leave=False,
+                                dynamic_ncols=True, mininterval=0.1,
+                                bar_format="{desc:<32} {percentage:5.1f}% |{bar:24}| {elapsed} < {remaining}")
+            else:
+                self.stream.write(f"[{now - self.start:7.2f}s] {self.prefix}{stage}\n")
+                self.stream.flush()
+        if self.bar is not None:
+            self.bar.update(int(round(fraction * 1000)) - self.bar.n)
+        elif now - self.last_line >= self.interval and 0.0 < fraction < 1.0:
+            elapsed = now - self.stage_start
+            eta = elapsed * (1.0 - fraction) / fraction
+            self.stream.write(f"[{now - self.start:7.2f}s] {self.prefix}{stage} {100 * fraction:3.0f}% "
+                              f"(ETA {eta:.0f} s)\n")
+            self.stream.flush()
+            self.last_line = now
+
+    def _close_bar(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+
+    def close(self) -> None:
+        """Remove the bar (terminal only)."""
+        self._close_bar()
 
 
 def _format_seconds(s: float) -> str:
@@ -134,6 +217,39 @@ def _format_value(v) -> str:
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_format_value(x) for x in v) + "]"
     return str(v)
+
+
+def _format_bytes(n: int) -> str:
+    for unit, size in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n >= size:
+            return f"{n / size:.1f} {unit}"
+    return f"{n} B"
+
+
+#: Statistics that are (width, height) sizes.
+_SIZE_STATS = ("resolution", "shadow_map", "rectified_map")
+
+
+def stats_lines(stats) -> list[str]:
+    """A render's statistics as ``key: value`` lines: entries without a value left out, byte counts in KiB / MiB /
+    GiB, sizes as ``W x H``, nested statistics indented."""
+    lines = []
+    for key, value in dict(stats or {}).items():
+        if value is None:
+            continue
+        if isinstance(value, dict):
+            inner = stats_lines(value)
+            if inner:
+                lines += [f"{key}:"] + [f"  {line}" for line in inner]
+            continue
+        if str(key).endswith("_bytes") and isinstance(value, int) and not isinstance(value, bool):
+            text = _format_bytes(value)
+        elif str(key) in _SIZE_STATS and isinstance(value, (list, tuple)) and len(value) == 2:
+            text = f"{value[0]} x {value[1]}"
+        else:
+            text = _format_value(value)
+        lines.append(f"{key}: {text}")
+    return lines
 
 
 def _fail(message: str, code: int, debug: bool = False) -> None:
@@ -214,11 +330,11 @@ def _summary(config: Config) -> list[str]:
         f"  camera:  {cam.width}x{cam.height}, fov_y {cam.fov_y:g} deg, {_format_value(cam.position)} -> "
         f"{_format_value(cam.look_at)}, near {cam.near:g}, far {cam.far:g}",
         f"  light:   {light_text}",
-        f"  medium:  sigma_t {med.sigma_t:g}, albedo {med.albedo:g}, phase {phase}",
+        f"  medium:  sigma_t {_format_value(med.sigma_t)}, albedo {_format_value(med.albedo)}, phase {phase}",
         f"  method:  {sc.method} (visibility {sc.visibility}, {sc.steps} steps)" if lt.method is None else
         f"  method:  lighting {lt.method} ({lt.samples} strata x {lt.passes} passes, filter {lt.filter}"
         f"{', CSM file ' + str(lt.csm.file) if lt.csm.file else ''})",
-        f"  output:  {out.dir / out.name}.exr/.png" + (f" + {', '.join(extra)}" if extra else ""),
+        f"  output:  {out.dir / config.output_name}.exr/.png/.json" + (f" + {', '.join(extra)}" if extra else ""),
     ]
 
 
@@ -230,6 +346,11 @@ def _default_suite(run) -> str | None:
     return default if isinstance(default, str) else None
 
 
+def _interrupted(progress: ProgressDisplay) -> None:
+    progress.close()
+    _fail("interrupted", EXIT_INTERRUPTED)
+
+
 # ---- commands --------------------------------------------------------------------------------------
 
 
@@ -238,83 +359,168 @@ def _default_suite(run) -> str | None:
 @click.option("--debug", "debug", is_flag=True, help="Show full tracebacks of errors (any command).")
 @click.pass_context
 def main(ctx: click.Context, debug: bool) -> None:
-    """Shadows and single scattering in participating media, as NVIDIA Warp kernels."""
+    """Shadows and single scattering in participating media, as NVIDIA Warp kernels.
+
+    Every command takes -v/-q/--debug; render, bench and precompute also --device and --threads.
+    Exit codes: 0 done, 1 a failure while working, 2 invalid input (nothing written), 130 interrupted.
+    """
     ctx.obj = {"debug": debug}
 
 
+def _render_config(path: Path, overrides, method: str | None, name: str | None, seed: int | None,
+                   debug: bool) -> Config:
+    """One config of ``render``, loaded with its overrides, --method, --name and --seed (exit 2 when invalid).
+
+    Where --method changes the method, the name is the config's own (neither --name nor --set output.name) and it
+    does not hold ``{method}``, ``_{method}`` is appended to it: the render does not overwrite the config's own
+    outputs."""
+    from warpscatter.api import load_config as load_any
+
+    config = _load(path, overrides, debug)
+    extra: dict[str, object] = {}
+    if method:
+        section = "lighting" if method in methods.LIGHTING else "scattering"
+        extra[f"render.{section}.method"] = method
+    template = name or config.output.name
+    named = name is not None or any(o.partition("=")[0].strip() == "output.name" for o in overrides)
+    if method and method != config.method and not named and "{method}" not in template:
+        template += "_{method}"
+    if template != config.output.name:
+        extra["output.name"] = template
+    if seed is not None:
+        lighting = extra.get("render.lighting.method", config.render.lighting.method)
+        extra["render.lighting.seed" if lighting else "render.scattering.seed"] = seed
+    if not extra:
+        return config
+    try:
+        return load_any(config, extra)
+    except ConfigError as exc:
+        _fail(str(ConfigError(exc.problems, path)), EXIT_INVALID)
+
+
 @main.command()
-@click.argument("config_path", metavar="CONFIG", type=click.Path(dir_okay=False, path_type=Path))
-@click.option(
-    "-o",
-    "--output-dir",
-    "output_dir",
-    type=click.Path(path_type=Path),
-    help="Write outputs here (relative to the current folder) instead of output.dir.",
-)
+@click.argument("config_paths", metavar="CONFIG...", nargs=-1, required=True,
+                type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output-dir", "output_dir", type=click.Path(path_type=Path),
+              help="Write outputs here (relative to the current folder) instead of output.dir (relative to the "
+                   "config file).")
 @_set_option
 @click.option("--method", metavar="NAME", help="Scattering method (same as --set render.scattering.method=NAME), or "
-              "a lighting method csm / raytrace (same as --set render.lighting.method=NAME).")
-@click.option("-q", "--quiet", is_flag=True, help="No progress or tables; print only the written files.")
-@_debug_option
+              "a lighting method csm / raytrace (same as --set render.lighting.method=NAME); appends _NAME to the "
+              "config's output name unless its method is NAME, the name holds {method} or --name is given.")
+@click.option("--name", "name", metavar="TEMPLATE", help="Output file stem (output.name), a template: {config} the "
+              "config file's stem, {method} the method, e.g. --name '{config}_{method}'.")
+@click.option("--seed", type=int, default=None, help="Seed of the jitter / Monte-Carlo patterns (render.scattering."
+              "seed, or render.lighting.seed for csm / raytrace); the same seed gives the same image.")
+@_common_options(kernels=True)
 @click.pass_context
-def render(ctx, config_path: Path, output_dir, overrides, method, quiet: bool, debug: bool) -> None:
-    """Render the pipeline described by CONFIG (a YAML file).
+def render(ctx, config_paths, output_dir, overrides, method, name, seed, verbose, quiet, debug, device, threads):
+    """Render the pipelines described by one or more CONFIG files (YAML).
 
-    Writes NAME.exr, NAME.png and the AOVs of output.aovs (NAME.scattering.exr, NAME.surface.exr,
-    NAME.depth.exr) into output.dir or -o DIR, then prints the per-stage timings.
+    Writes, per config, NAME.exr, NAME.png, the AOVs of output.aovs (NAME.scattering.exr, NAME.surface.exr,
+    NAME.depth.exr) and NAME.json (what made them: the resolved config, versions, timings, statistics) into
+    output.dir or -o DIR, then prints the per-stage timings. Every config is checked before the first render.
     """
     debug = debug or ctx.obj.get("debug", False)
-    section = "lighting" if method in methods.LIGHTING else "scattering"
-    overrides = list(overrides) + ([f"render.{section}.method={method}"] if method else [])
-    config = _load(config_path, overrides, debug)
+    _setup(verbose, quiet)
     out_dir = _out_dir(output_dir)
+    configs = [_render_config(p, overrides, method, name, seed, debug) for p in config_paths]
     if out_dir is not None:
-        config.output.dir = out_dir
+        for config in configs:  # the sidecar then records where the files went
+            config.output.dir = out_dir
+    targets: dict[Path, Path] = {}
+    for path, config in zip(config_paths, configs, strict=True):
+        target = (out_dir or config.output.dir) / config.output_name
+        if target in targets:
+            _fail(f"{targets[target]} and {path} would both write {target}.*: give them different output.name "
+                  f"values (e.g. --name '{{config}}_{{method}}')", EXIT_INVALID)
+        targets[target] = path
+    device = _setup(verbose, quiet, device, threads, kernels=True)
 
-    progress = ProgressDisplay(enabled=not quiet)
-    try:
-        pipeline = importlib.import_module("warpscatter.pipeline")
-        result = pipeline.render(config, out_dir=out_dir, progress=progress)
-    except KeyboardInterrupt:
+    pipeline = importlib.import_module("warpscatter.pipeline")
+    failures = []
+    for k, (path, config) in enumerate(zip(config_paths, configs, strict=True)):
+        prefix = f"[{k + 1}/{len(configs)}] " if len(configs) > 1 else ""
+        progress = ProgressDisplay(enabled=not quiet, prefix=prefix)
+        try:
+            result = pipeline.render(config, out_dir=out_dir, progress=progress, device=device)
+        except KeyboardInterrupt:
+            _interrupted(progress)
+        except Exception as exc:
+            progress.close()
+            if len(configs) == 1:
+                _fail_error(exc, debug)
+            if debug:
+                traceback.print_exc(file=sys.stderr)
+            click.echo(f"error: {path}: {_error_text(exc)}", err=True)
+            failures.append(exc.exit_code if isinstance(exc, WarpscatterError) else EXIT_FAILURE)
+            continue
         progress.close()
-        _fail("interrupted", EXIT_INTERRUPTED)
-    except Exception as exc:
-        progress.close()
-        _fail_error(exc, debug)
-    progress.close()
-
-    files = [Path(f) for f in getattr(result, "files", [])]
-    if not quiet:
-        click.echo(timing_table(getattr(result, "timings", {})))
-        stats = dict(getattr(result, "stats", {}) or {})
-        if stats:
-            click.echo("stats:")
-            for k, v in stats.items():
-                click.echo(f"  {k}: {_format_value(v)}")
-        click.echo("wrote:")
-    for f in files:
-        click.echo(f"  {f}" if not quiet else str(f))
+        files = [Path(f) for f in getattr(result, "files", [])]
+        if not quiet:
+            if len(configs) > 1:
+                click.echo(f"{prefix}{path}")
+            click.echo(timing_table(getattr(result, "timings", {})))
+            lines = stats_lines(getattr(result, "stats", {}))
+            if lines:
+                click.echo("stats:")
+                for line in lines:
+                    click.echo(f"  {line}")
+            click.echo("wrote:")
+        for f in files:
+            click.echo(f"  {f}" if not quiet else str(f))
+    if failures:
+        _fail(f"{len(failures)} of {len(configs)} configs failed", failures[0])
 
 
 @main.command()
 @click.argument("config_path", metavar="CONFIG", type=click.Path(dir_okay=False, path_type=Path))
 @_set_option
 @click.option("--dump", is_flag=True, help="Print the whole resolved config (defaults, absolute paths) as YAML.")
-@_debug_option
+@_common_options(kernels=False)
 @click.pass_context
-def validate(ctx, config_path: Path, overrides, dump: bool, debug: bool) -> None:
+def validate(ctx, config_path: Path, overrides, dump: bool, verbose, quiet, debug: bool) -> None:
     """Check CONFIG (and --set overrides) without rendering; print a summary or every problem."""
+    _setup(verbose, quiet)
     config = _load(config_path, overrides, debug or ctx.obj.get("debug", False))
     if dump:
         click.echo(config.model_dump_yaml(), nl=False)
         return
     click.echo(f"ok: {config.source or config_path}")
-    for line in _summary(config):
-        click.echo(line)
+    if not quiet:
+        for line in _summary(config):
+            click.echo(line)
+
+
+@main.command()
+@click.option("-o", "--output", "output", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write the schema to this file instead of stdout.")
+@_common_options(kernels=False)
+def schema(output, verbose, quiet, debug) -> None:
+    """Print the JSON schema of a config (every key with its type, range, default and description).
+
+    Point an editor's YAML language server at it for completion and checks, e.g. a first line
+    `# yaml-language-server: $schema=warpscatter.schema.json`.
+    """
+    _setup(verbose, quiet)
+    text = json.dumps(Config.model_json_schema(), indent=2) + "\n"
+    if output is None:
+        click.echo(text, nl=False)
+        return
+    try:
+        output.parent.mkdir(parents=True, exist_ok=True)
+        tmp = output.with_name(f".{output.name}.tmp-{os.getpid()}")
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, output)
+    except OSError as exc:
+        _fail(f"-o {output}: {exc}", EXIT_FAILURE, debug)
+    if not quiet:
+        click.echo(f"wrote:\n  {output}")
 
 
 @main.command()
 @click.argument("suite", required=False)
+@click.argument("reports", nargs=-1, type=click.Path(dir_okay=False, exists=True, path_type=Path))
 @click.option("--repeats", type=click.IntRange(min=1), default=5, show_default=True, help="Timed runs per case.")
 @click.option("--warmup", type=click.IntRange(min=0), default=1, show_default=True, help="Untimed runs first.")
 @click.option(
@@ -322,18 +528,36 @@ def validate(ctx, config_path: Path, overrides, dump: bool, debug: bool) -> None
     "--output-dir",
     "output_dir",
     type=click.Path(path_type=Path),
-    help="Folder for the JSON report (and PNG chart); default: the bench module's (bench-out).",
+    help="Folder for the reports (JSON, CSV, PNG charts); default: bench-out in the current folder.",
 )
 @click.option("--quick", is_flag=True, help="Smaller sizes and fewer cases (a smoke run).")
 @click.option("--list", "list_suites", is_flag=True, help="List the suites and exit.")
-@_debug_option
+@_common_options(kernels=True)
 @click.pass_context
-def bench(ctx, suite, repeats: int, warmup: int, output_dir: Path, quick: bool, list_suites: bool, debug: bool):
-    """Run benchmark SUITE (or "all"): per-stage median times, memory and error against the ray marcher.
+def bench(ctx, suite, reports, repeats: int, warmup: int, output_dir: Path, quick: bool, list_suites: bool,
+          verbose, quiet, debug: bool, device, threads):
+    """Run benchmark SUITE (or "all"): per-stage times (median and spread of the repeats), memory, and the error
+    against the exact reference; writes JSON, CSV and charts.
 
-    Without SUITE, runs the bench module's default suite. --list shows the suites.
+    Without SUITE: the reference suite (ray marching at 1920x1080, about 2 minutes on two cores). --list shows
+    every suite with what it measures. "bench compare A.json B.json" compares two reports case by case.
     """
     debug = debug or ctx.obj.get("debug", False)
+    _setup(verbose, quiet)
+    if suite == "compare":
+        if len(reports) != 2:
+            _fail("bench compare: give two report files (bench compare A.json B.json)", EXIT_INVALID)
+        from warpscatter.bench.compare import compare_reports
+
+        try:
+            click.echo(compare_reports(*reports))
+        except ValueError as exc:
+            _fail(str(exc), EXIT_INVALID, debug)
+        return
+    if reports:
+        _fail(f"unexpected arguments {' '.join(map(str, reports))} (report files go with: bench compare A B)",
+              EXIT_INVALID)
+    device = _setup(verbose, quiet, device, threads, kernels=True)
     try:
         bench_module = importlib.import_module("warpscatter.bench")
         suites = dict(bench_module.SUITES)
@@ -341,34 +565,34 @@ def bench(ctx, suite, repeats: int, warmup: int, output_dir: Path, quick: bool, 
         _fail(_error_text(exc), EXIT_FAILURE, debug)
     if list_suites:
         width = max((len(n) for n in suites), default=0)
-        for name, suite_record in suites.items():
-            click.echo(f"{name:<{width}}  {suite_record.description}")
+        for suite_name, suite_record in suites.items():
+            click.echo(f"{suite_name:<{width}}  {suite_record.description}")
         return
     if suite is None:
         suite = _default_suite(bench_module.run) or next(iter(suites), None)
+        if not quiet:
+            click.echo(f"running the default suite {suite!r} ({DEFAULT_SUITE_DURATION}; warpscatter bench --list "
+                       f"shows the others)", err=True)
     if suite not in suites and suite != "all":
-        _fail(f"unknown suite {suite!r} (choose from: {', '.join([*suites, 'all'])})", EXIT_INVALID)
+        _fail(f"unknown suite {suite!r} (choose from: {', '.join([*suites, 'all', 'compare'])})", EXIT_INVALID)
     out_dir = _out_dir(output_dir)
 
-    progress = ProgressDisplay(enabled=True)
+    progress = ProgressDisplay(enabled=not quiet)
     try:
         report = bench_module.run(
             suite, repeats=repeats, warmup=warmup, out_dir=out_dir, quick=quick, progress=progress
         )
     except KeyboardInterrupt:
-        progress.close()
-        _fail("interrupted", EXIT_INTERRUPTED)
+        _interrupted(progress)
     except Exception as exc:
         progress.close()
         _fail(_error_text(exc), EXIT_FAILURE, debug)
     progress.close()
-    click.echo(report.table())
-    files = list(getattr(report, "files", []))
-    if files:
+    if not quiet:
+        click.echo(report.table())
         click.echo("wrote:")
-        for f in files:
-            click.echo(f"  {f}")
-
+    for f in list(getattr(report, "files", [])):
+        click.echo(f"  {f}" if not quiet else str(f))
 
 
 def _grid(text: str | None, option: str) -> tuple[int, int] | None:
@@ -395,7 +619,8 @@ def _default(name: str) -> str:
 @main.command()
 @click.argument("source", type=click.Path(path_type=Path))
 @click.option("-o", "--output", "output", type=click.Path(path_type=Path), required=True,
-              help="The .npz file to write (written to a temporary name, then renamed).")
+              help="The .npz file to write, or a folder to write SOURCE_STEM.csm.npz into (written to a temporary "
+                   "name, then renamed).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Config overrides (SOURCE = config).")
 @click.option("--maps", default=None, metavar="N1xN2",
               help=f"Lat-long grid of map directions (azimuth x polar cells) [default: the config's "
@@ -417,10 +642,10 @@ def _default(name: str) -> str:
 @click.option("--light-samples", "light_samples", default=None, metavar="N1xN2",
               help=f"Config with an area / linear light: depth cube maps at N1xN2 points of the light (N1 for "
                    f"linear) [default: the config's, else {_default('light_samples')}].")
-@_debug_option
+@_common_options(kernels=True)
 @click.pass_context
 def precompute(ctx, source: Path, output: Path, overrides, maps, resolution, enumeration, layers, far, batch,
-               light_samples, debug: bool):
+               light_samples, verbose, quiet, debug: bool, device, threads):
     """Build and save a coherent shadow map (Ritschel 2007) for SOURCE: a mesh file, or a config's scene.
 
     From a config, the CSM holds the scene's occluders (meshes not marked receiver_only) in world space, ready
@@ -431,8 +656,11 @@ def precompute(ctx, source: Path, output: Path, overrides, maps, resolution, enu
     debug = debug or ctx.obj.get("debug", False)
     given = {"maps": _grid(maps, "--maps"), "light_samples": _grid(light_samples, "--light-samples"),
              "resolution": resolution, "enumeration": enumeration, "layers": layers, "far": far, "batch": batch}
+    _setup(verbose, quiet, device, threads, kernels=True)
+    if output.is_dir() or str(output).endswith(("/", os.sep)):
+        output = output / f"{source.stem}.csm.npz"
     if output.suffix != ".npz":
-        _fail(f"-o: the CSM file must end in .npz, got {output}", EXIT_INVALID)
+        _fail(f"-o: the CSM file must end in .npz (or be a folder), got {output}", EXIT_INVALID)
     if not source.is_file():
         _fail(f"{source}: file not found", EXIT_INVALID)
     light, base = None, csm_settings.CSMBuildSettings()
@@ -466,7 +694,7 @@ def precompute(ctx, source: Path, output: Path, overrides, maps, resolution, enu
     from warpscatter.csm.compress import KIND_CUBE
     from warpscatter.csm.occluders import prepare_csm
 
-    progress = ProgressDisplay(enabled=True)
+    progress = ProgressDisplay(enabled=not quiet)
     try:
         t0 = time.perf_counter()
         csm = prepare_csm(light, settings, vertices, triangles,
@@ -483,13 +711,15 @@ def precompute(ctx, source: Path, output: Path, overrides, maps, resolution, enu
     st = csm.stats
     what = (f"6 x {csm.n1}x{csm.n2} cube maps of the {light.kind} light" if csm.kind == KIND_CUBE
             else f"{csm.n1}x{csm.n2} maps")
-    click.echo(f"coherent shadow map: {len(triangles)} triangles, N = {what} of {csm.resolution}^2, "
-               f"{settings.enumeration}")
-    click.echo(f"  segments {st.num_segments} ({st.segments_per_texel:.1f} per texel), "
-               f"{st.compressed_bytes / 2**20:.1f} MiB, ratio {st.ratio:.1f}:1 against float32 maps")
-    click.echo(f"  render {st.seconds_render:.1f} s, compress {st.seconds_compress:.1f} s, "
-               f"total {time.perf_counter() - t0:.1f} s, peak working memory {st.peak_working_bytes / 2**20:.1f} MiB")
-    click.echo(f"wrote:\n  {output}")
+    if not quiet:
+        click.echo(f"coherent shadow map: {len(triangles)} triangles, N = {what} of {csm.resolution}^2, "
+                   f"{settings.enumeration}")
+        click.echo(f"  segments {st.num_segments} ({st.segments_per_texel:.1f} per texel), "
+                   f"{st.compressed_bytes / 2**20:.1f} MiB, ratio {st.ratio:.1f}:1 against float32 maps")
+        click.echo(f"  render {st.seconds_render:.1f} s, compress {st.seconds_compress:.1f} s, "
+                   f"total {time.perf_counter() - t0:.1f} s, peak working memory "
+                   f"{_format_bytes(st.peak_working_bytes)}")
+    click.echo(str(output) if quiet else f"wrote:\n  {output}")
 
 
 if __name__ == "__main__":

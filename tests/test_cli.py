@@ -1,6 +1,7 @@
 """The click application (warpscatter.cli.main) with fake pipeline/bench modules: no Warp compile."""
 
 import io
+import json
 import sys
 import types
 from pathlib import Path
@@ -37,8 +38,8 @@ def fake_pipeline(monkeypatch):
     calls = []
     module = types.ModuleType("warpscatter.pipeline")
 
-    def render(config, out_dir=None, progress=None):
-        calls.append({"config": config, "out_dir": out_dir})
+    def render(config, out_dir=None, progress=None, device=None):
+        calls.append({"config": config, "out_dir": out_dir, "device": device})
         for stage in ("scene", "raymarch", "write"):
             progress(stage, 0.0)
             progress(stage, 0.5)
@@ -128,6 +129,63 @@ def test_render_set_and_method_apply(config_file, tmp_path, fake_pipeline):
     assert cfg.camera.fov_y == 40 and cfg.camera.width == 6 and cfg.render.scattering.steps == 7
     assert cfg.render.scattering.method == "raymarch"
     assert "steps: 7" in result.stdout
+
+
+def test_render_method_override_names_the_outputs(config_file, tmp_path, fake_pipeline):
+    result = invoke("render", config_file, "-o", tmp_path / "o", "--method", "fourier", "--seed", "5")
+    assert result.exit_code == 0, result.output
+    cfg = fake_pipeline[0]["config"]
+    assert cfg.render.scattering.method == "fourier" and cfg.render.scattering.seed == 5
+    assert cfg.output_name == "shot_fourier"  # never the file names of the config's own method
+    assert invoke("render", config_file, "-o", tmp_path / "p", "--method", "fourier", "--name",
+                  "{config}-{method}").exit_code == 0
+    assert fake_pipeline[1]["config"].output_name == "scene-fourier"
+    assert invoke("render", config_file, "-o", tmp_path / "p", "--method", "fourier", "--name", "x").exit_code == 0
+    assert fake_pipeline[2]["config"].output_name == "x"  # a name given is taken as it is
+    assert invoke("render", config_file, "-o", tmp_path / "q", "--method", "csm").exit_code == 2  # needs its light
+
+
+def test_render_several_configs(config_file, tmp_path, fake_pipeline):
+    other = tmp_path / "other.yaml"
+    other.write_text(yaml.safe_dump({**CONFIG, "output": {**CONFIG["output"], "name": "{config}"}}))
+    result = invoke("render", config_file, other, "-o", tmp_path / "o")
+    assert result.exit_code == 0, result.output
+    assert [c["config"].output_name for c in fake_pipeline] == ["shot", "other"]
+    assert "[1/2] scene" in result.stderr and "[2/2] scene" in result.stderr
+    clash = invoke("render", config_file, config_file, "-o", tmp_path / "c")
+    assert clash.exit_code == 2 and "would both write" in clash.stderr and len(fake_pipeline) == 2
+
+
+def test_render_device_and_threads(config_file, tmp_path, fake_pipeline, monkeypatch):
+    monkeypatch.delenv("WARPSCATTER_THREADS", raising=False)
+    monkeypatch.delenv("WARPSCATTER_DEVICE", raising=False)
+    bad = invoke("render", config_file, "-o", tmp_path / "o", "--device", "cuda:9")
+    assert bad.exit_code == 2 and "--device cuda:9: not a device of this machine (available: cpu" in bad.stderr
+    assert not fake_pipeline
+    assert invoke("render", config_file, "-o", tmp_path / "o", "--device", "cpu", "--threads", "1").exit_code == 0
+    import os
+
+    assert fake_pipeline[0]["device"] == "cpu" and os.environ["WARPSCATTER_THREADS"] == "1"
+
+
+def test_schema_prints_the_json_schema(tmp_path):
+    result = invoke("schema")
+    assert result.exit_code == 0
+    schema = json.loads(result.stdout)
+    camera = schema["$defs"]["CameraConfig"]["properties"]
+    assert "vertical field of view" in camera["fov_y"]["description"].lower()
+    assert invoke("schema", "-o", tmp_path / "s.json", "-q").exit_code == 0
+    assert json.loads((tmp_path / "s.json").read_text()) == schema
+
+
+def test_bench_default_suite_is_the_one_help_names():
+    import inspect
+
+    from warpscatter.bench import run
+    from warpscatter.cli.main import DEFAULT_SUITE
+
+    assert inspect.signature(run).parameters["suite"].default == DEFAULT_SUITE
+    assert f"the {DEFAULT_SUITE} suite" in invoke("bench", "--help").stdout
 
 
 def test_render_quiet_prints_only_files(config_file, tmp_path, fake_pipeline):
@@ -243,7 +301,7 @@ def test_bench_default_suite_from_run_signature(fake_bench):
 def test_bench_unknown_suite(fake_bench):
     result = invoke("bench", "warp9")
     assert result.exit_code == 2
-    assert "unknown suite 'warp9' (choose from: raster, reference, all)" in result.stderr
+    assert "unknown suite 'warp9' (choose from: raster, reference, all, compare)" in result.stderr
     assert fake_bench == []
     assert invoke("bench", "raster", "--repeats", 0).exit_code == 2  # click range check
 
@@ -256,17 +314,17 @@ class _Tty(io.StringIO):
         return True
 
 
-def test_progress_on_a_terminal_redraws_one_line():
+def test_progress_on_a_terminal_draws_a_bar_and_clears_it():
     stream = _Tty()
-    show = ProgressDisplay(stream=stream)
+    show = ProgressDisplay(stream=stream, prefix="[1/2] ")
     show("raymarch", 0.0)
-    show("raymarch", 0.5)  # within 0.1 s of the last draw: skipped
-    show("raymarch", 1.0)
+    show("raymarch", 0.5)
+    show("shading", 0.0)  # a new stage: the previous bar is removed
     show.close()
     text = stream.getvalue()
-    assert "\n" not in text
-    assert text.count("\r\x1b[K") == 3  # two draws (start, 100 %) and the final clear
-    assert "[------------------------]   0.0%" in text and "[########################] 100.0%" in text
+    assert "\n" not in text  # one line redrawn in place
+    assert "[1/2] raymarch" in text and "[1/2] shading" in text and "0.0% |" in text
+    assert text.endswith("\r")  # the last bar is cleared
 
 
 def test_progress_plain_lines_and_disabled():
@@ -275,6 +333,11 @@ def test_progress_plain_lines_and_disabled():
     for stage, f in [("scene", 0.0), ("scene", 1.0), ("raster", 0.3), ("raster", float("nan"))]:
         show(stage, f)
     assert [line.split("] ")[1] for line in stream.getvalue().splitlines()] == ["scene", "raster"]
+    slow = io.StringIO()
+    show = ProgressDisplay(stream=slow, interval=0.0)  # a long stage: a line with the percentage and the ETA
+    show("scattering", 0.0)
+    show("scattering", 0.25)
+    assert slow.getvalue().splitlines()[1].split("] ")[1].startswith("scattering  25% (ETA ")
     quiet = io.StringIO()
     ProgressDisplay(enabled=False, stream=quiet)("scene", 0.5)
     assert quiet.getvalue() == ""

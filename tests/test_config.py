@@ -50,7 +50,8 @@ def test_minimal_config_fills_defaults(tmp_path):
     assert c.render.scattering.method == "raymarch" and c.render.scattering.steps == 128
     assert c.render.scattering.visibility == "exact" and c.render.scattering.shadow_map.size == (1024, 1024)
     assert c.render.shadows.method == "pcf" and c.render.surfaces.enabled is True
-    assert c.output.aovs == ["color", "scattering", "surface", "depth"] and c.output.name == "render"
+    assert c.output.aovs == ["color", "scattering", "surface", "depth"] and c.output.name == "{config}"
+    assert c.output_name == "scene"  # the file's stem
 
 
 def test_relative_paths_resolve_against_config_folder(tmp_path, monkeypatch):

@@ -33,11 +33,12 @@ def test_quickstart_renders_through_the_cli(tmp_path, method):
     result = CliRunner().invoke(main, ["render", str(ROOT / "configs" / "quickstart.yaml"), "-o", str(tmp_path),
                                        "--method", method, *SMALL])
     assert result.exit_code == 0, result.output
-    for name in ("quickstart.exr", "quickstart.png", "quickstart.scattering.exr", "quickstart.depth.exr"):
-        assert (tmp_path / name).is_file()
-    color = read_image(tmp_path / "quickstart.exr")
+    stem = "quickstart" if method == "raymarch" else f"quickstart_{method}"  # the config's method is raymarch
+    for name in ("exr", "png", "scattering.exr", "depth.exr", "json"):
+        assert (tmp_path / f"{stem}.{name}").is_file()
+    color = read_image(tmp_path / f"{stem}.exr")
     assert color.shape == (36, 64, 3) and np.isfinite(color).all() and color.max() > 0
-    assert read_image(tmp_path / "quickstart.png").shape[:2] == (36, 64)
+    assert read_image(tmp_path / f"{stem}.png").shape[:2] == (36, 64)
     assert re.search(r"scattering|prefilter", result.output)  # the per-stage timing table
 
 

@@ -36,12 +36,14 @@ def test_readme_kernel_example_runs(tmp_path, monkeypatch):
 
 def test_readme_python_api_examples_run(tmp_path, monkeypatch):
     # the README's render / method / Marcher examples, in order, as one module (smaller image, output in tmp)
-    code = "\n".join(_block(m) for m in ("result = render(", "methods.get(", "def my_rays"))
+    code = "\n".join(_block(m) for m in ("warpscatter.render(", "methods.get(", "def my_rays"))
     code = code.replace('"configs/quickstart.yaml"', repr(str(ROOT / "configs" / "quickstart.yaml")))
-    code = code.replace('"camera.width=640", "camera.height=360"', '"camera.width=64", "camera.height=36"')
+    code = code.replace('{"camera.width": 640, "camera.height": 360}', '{"camera.width": 64, "camera.height": 36}')
+    code = code.replace('"width": 640, "height": 360', '"width": 64, "height": 36')
     code = code.replace('out_dir="out"', f"out_dir={str(tmp_path / 'out')!r}")
     ns = _import_blocks(tmp_path, monkeypatch, "readme_api", code)
-    assert ns["result"].images["color"].shape == (36, 64, 3) and (tmp_path / "out" / "quickstart.exr").is_file()
+    assert ns["result"].images["color"].shape == (36, 64, 3) and ns["result"].stats["method"] == "fourier"
+    assert (tmp_path / "out" / "render.exr").is_file() and (tmp_path / "out" / "render.json").is_file()
     assert np.isfinite(ns["l_scat"].numpy()).all() and ns["info"]["epipolar_raymarched_fraction"] > 0
     # the user kernel marches with the library's estimator: every camera pixel's ray, with ray k the random stream
     # of pixel k, against the method's marcher (the directions differ by float rounding only)

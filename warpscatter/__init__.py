@@ -1,9 +1,40 @@
 """warpscatter: real-time shadows and single scattering in participating media as NVIDIA Warp kernels.
 
-The library is importable without the CLI. Kernel modules expose their ``@wp.func`` building blocks
-as public API so that user kernels can call them (see the README's map of the code); the settings
-models (``warpscatter.config`` and each technique's ``settings`` module) and the method registry
-(``warpscatter.methods``) import no Warp.
+The Python API (:mod:`warpscatter.api`)::
+
+    import warpscatter
+
+    result = warpscatter.render("configs/quickstart.yaml", overrides={"camera.width": 640})
+    result.images["color"], result.timings, result.stats
+
+The library is importable without the CLI and importing it changes none of Warp's settings. Kernel modules expose
+their ``@wp.func`` building blocks as public API so that user kernels can call them (see the README's map of the
+code); the settings models (``warpscatter.config`` and each technique's ``settings`` module) and the method registry
+(``warpscatter.methods``) import no Warp, and ``import warpscatter`` imports nothing heavy until
+:func:`render` or :func:`load_config` is used.
 """
 
 __version__ = "0.1.0"
+
+_LAZY = {
+    "render": "warpscatter.api",
+    "load_config": "warpscatter.api",
+    "Config": "warpscatter.config",
+    "ConfigError": "warpscatter.errors",
+    "RenderResult": "warpscatter.pipeline",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'warpscatter' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted([*globals(), *_LAZY])
+
+
+__all__ = ["Config", "ConfigError", "RenderResult", "__version__", "load_config", "render"]

@@ -21,7 +21,9 @@ from __future__ import annotations
 import inspect
 import math
 import re
+import string
 import typing
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
@@ -84,8 +86,11 @@ __all__ = [
     "SpotLightConfig",
     "SurfacesSettings",
     "Transform",
+    "apply_overrides",
+    "validated_config",
     "load_config",
     "parse_override",
+    "read_config_data",
 ]
 
 #: Image outputs a render writes by default (``output.aovs``); ``color`` is always written.
@@ -460,12 +465,17 @@ class RenderSettings(SettingsModel):
 EXR_COMPRESSIONS = ("none", "rle", "zips", "zip", "piz")
 
 
+#: The fields of the ``output.name`` template: the config file's stem and the method that renders.
+NAME_FIELDS = ("config", "method")
+
+
 class OutputConfig(SettingsModel):
     """Where results go: ``dir`` (relative to the config file), file stem ``name``, ``aovs``, PNG ``exposure``,
     EXR ``compression``."""
 
     dir: PathStr = Field(Path("out"), description="output folder, relative to the config file")
-    name: str = Field("render", description="file stem of the outputs")
+    name: str = Field("{config}", description="file stem of the outputs, a template: {config} is the config file's "
+                      "stem (render for a config built from a dict), {method} the scattering or lighting method")
     aovs: list[Literal[AOV_NAMES]] = Field(  # type: ignore[valid-type]
         default_factory=lambda: list(STANDARD_AOVS), description="images to write besides NAME.exr/.png; the "
         "debug outputs " + ", ".join(DEBUG_AOVS) + " need a method that makes them (the prefiltered ones)")
@@ -473,6 +483,9 @@ class OutputConfig(SettingsModel):
     compression: Literal[EXR_COMPRESSIONS] = Field(  # type: ignore[valid-type]
         "none", description="EXR compression, all lossless: none is the fastest to write; rle makes the files a "
                             "third smaller for 1.3-2x the time, zips, zip and piz 34-44 % smaller for 2-8x")
+
+    layered: Bool = Field(False, description="true: one multi-layer NAME.exr holds the colour and every image-sized "
+                          "output of aovs (channels R, G, B, scattering.R ..., depth.Z) instead of one EXR each")
 
     @field_validator("dir")
     @classmethod
@@ -487,6 +500,14 @@ class OutputConfig(SettingsModel):
     def _plain_stem(cls, v: str) -> str:
         if not v or v in (".", "..") or v != v.strip() or any(c in v for c in '/\\:*?"<>|\0'):
             raise ValueError(f"must be a plain file stem (no folders or special characters), got {v!r}")
+        try:
+            fields = {f for _, f, _, _ in string.Formatter().parse(v) if f is not None}
+        except ValueError as exc:
+            raise ValueError(f"not a valid template ({exc}): write {{{{ and }}}} for literal braces") from None
+        unknown = sorted(fields - set(NAME_FIELDS))
+        if unknown:
+            raise ValueError(f"unknown template field(s) {', '.join('{' + f + '}' for f in unknown)} "
+                             f"(use {', '.join('{' + f + '}' for f in NAME_FIELDS)})")
         return v
 
     @field_validator("aovs")
@@ -596,6 +617,39 @@ class Config(SettingsModel):
         """The config file this was loaded from (None when built from a dict)."""
         return self._source
 
+    @property
+    def method(self) -> str:
+        """The method that renders: ``render.lighting.method`` when set, else ``render.scattering.method``."""
+        return self.render.lighting.method or self.render.scattering.method
+
+    @property
+    def output_name(self) -> str:
+        """The file stem of the outputs: ``output.name`` with its template fields filled in (``{config}``: the
+        config file's stem, ``render`` for a config built from a dict; ``{method}``: :attr:`method`)."""
+        stem = self._source.stem if self._source is not None else "render"
+        return self.output.name.format(config=stem, method=self.method)
+
+    def model_copy(self, *, update: dict[str, Any] | None = None, deep: bool = False) -> Config:
+        """A copy; with ``update`` (top-level keys, e.g. ``{"camera": {...}}``) the result is validated like a
+        loaded config (pydantic's own ``model_copy`` would skip validation).
+
+        Raises:
+            ConfigError: listing every problem of the updated config as ``key.path: reason``.
+        """
+        if not update:
+            return super().model_copy(deep=deep)
+        data = {**self.model_dump(), **update}
+        return validated_config(data, self._config_dir, self._source)
+
+    def revalidated(self) -> Config:
+        """This config validated again as a whole (after fields were assigned in place, which pydantic does not
+        check); returns a new, valid config.
+
+        Raises:
+            ConfigError: listing every problem as ``key.path: reason``.
+        """
+        return validated_config(self.model_dump(), self._config_dir, self._source)
+
     @classmethod
     def from_dict(cls, data: dict, config_dir: str | Path | None = None) -> Config:
         """Validate a plain dict; relative paths resolve against ``config_dir`` (default: cwd).
@@ -603,14 +657,25 @@ class Config(SettingsModel):
         Raises:
             ConfigError: listing every problem as ``key.path: reason``.
         """
-        try:
-            return cls.model_validate(data, context={"config_dir": config_dir})
-        except ValidationError as exc:
-            raise ConfigError(format_validation_errors(exc, cls)) from None
+        return validated_config(data, config_dir)
 
     def model_dump_yaml(self) -> str:
         """The resolved config (absolute paths, defaults filled in, directions normalised) as YAML."""
         return yaml.safe_dump(self.model_dump(mode="json", exclude_none=True), sort_keys=False, default_flow_style=None)
+
+
+def validated_config(data: Any, config_dir: str | Path | None, source: Path | None = None,
+                     key_lines: dict[tuple, int] | None = None, overridden: tuple = (),
+                     named: Path | None = None) -> Config:
+    """Validate config data; relative paths resolve against ``config_dir`` (default: cwd).
+
+    Raises:
+        ConfigError: listing every problem as ``key.path: reason`` (with YAML line numbers where given).
+    """
+    try:
+        return Config.model_validate(data, context={"config_dir": config_dir, "source": source})
+    except ValidationError as exc:
+        raise ConfigError(format_validation_errors(exc, Config, key_lines, overridden), named or source) from None
 
 
 # ---- YAML ----------------------------------------------------------------------------------------
@@ -736,20 +801,44 @@ def _list_index(node: list, seg, where: str) -> int:
 # ---- loading -------------------------------------------------------------------------------------
 
 
-def load_config(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> Config:
-    """Read, override and validate a YAML config file.
+def apply_overrides(data: dict, overrides: Iterable[str] | Mapping[str, Any] = (),
+                    source: str | Path | None = None) -> tuple[tuple, ...]:
+    """Apply overrides to config data in place, in order, and return their key paths.
 
     Args:
-        path: the YAML file; relative paths inside it resolve against its folder.
-        overrides: ``KEY=VALUE`` strings applied in order before validation
-            (``camera.position=[0,1,2]``, ``scene.meshes.0.material.opacity=0.5``).
-
-    Returns:
-        The validated :class:`Config`, with absolute paths and ``config_dir`` set.
+        data: the config as plain data (a dict of dicts and lists).
+        overrides: ``KEY=VALUE`` strings (the value parsed as YAML: ``camera.position=[0,1,2]``), or a mapping of
+            dotted keys to values (``{"camera.width": 64, "scene.meshes.0.material.opacity": 0.5}``).
+        source: the config file, named in errors.
 
     Raises:
-        ConfigError: the file cannot be read or parsed, an override is malformed, or the config is
-            invalid; the message names the file and lists every problem as ``key.path: reason``.
+        ConfigError: every malformed override, as ``--set KEY=VALUE: reason`` lines.
+    """
+    if isinstance(overrides, str):
+        overrides = [overrides]
+    items = overrides.items() if isinstance(overrides, Mapping) else ((o, None) for o in overrides)
+    problems, overridden = [], []
+    for item, value in items:
+        text = f"{item}={value!r}" if isinstance(overrides, Mapping) else str(item)
+        try:
+            if isinstance(overrides, Mapping):
+                key_path, _ = parse_override(f"{item}=")
+            else:
+                key_path, value = parse_override(item)
+            _apply_override(data, key_path, value)
+            overridden.append(key_path)
+        except ValueError as exc:
+            problems.append(f"--set {text}: {exc}")
+    if problems:
+        raise ConfigError(problems, source)
+    return tuple(overridden)
+
+
+def read_config_data(path: str | Path) -> tuple[dict, str]:
+    """Read a YAML config file as plain data (duplicate keys refused), with its text (for line numbers).
+
+    Raises:
+        ConfigError: the file cannot be read, is not YAML or is not a mapping at the top level.
     """
     path = Path(path)
     try:
@@ -766,20 +855,26 @@ def load_config(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(f"config: expected a mapping at the top level, got {type(data).__name__}", path)
+    return data, text
 
-    problems, overridden = [], []
-    for text_override in overrides:
-        try:
-            key_path, value = parse_override(text_override)
-            _apply_override(data, key_path, value)
-            overridden.append(key_path)
-        except ValueError as exc:
-            problems.append(f"--set {text_override}: {exc}")
-    if problems:
-        raise ConfigError(problems, path)
 
-    config_dir = path.resolve().parent
-    try:
-        return Config.model_validate(data, context={"config_dir": config_dir, "source": path.resolve()})
-    except ValidationError as exc:
-        raise ConfigError(format_validation_errors(exc, Config, _key_lines(text), tuple(overridden)), path) from None
+def load_config(path: str | Path, overrides: Iterable[str] | Mapping[str, Any] = ()) -> Config:
+    """Read, override and validate a YAML config file.
+
+    Args:
+        path: the YAML file; relative paths inside it resolve against its folder.
+        overrides: ``KEY=VALUE`` strings applied in order before validation
+            (``camera.position=[0,1,2]``, ``scene.meshes.0.material.opacity=0.5``), or a mapping of dotted keys
+            to values; relative paths in them resolve against the config file's folder too.
+
+    Returns:
+        The validated :class:`Config`, with absolute paths and ``config_dir`` set.
+
+    Raises:
+        ConfigError: the file cannot be read or parsed, an override is malformed, or the config is
+            invalid; the message names the file and lists every problem as ``key.path: reason``.
+    """
+    path = Path(path)
+    data, text = read_config_data(path)
+    overridden = apply_overrides(data, overrides, path)
+    return validated_config(data, path.resolve().parent, path.resolve(), _key_lines(text), overridden, named=path)

@@ -17,6 +17,7 @@ refused: the renderer must never produce NaN or Inf.
 from __future__ import annotations
 
 import functools
+import json
 import os
 import secrets
 from collections.abc import Callable, Iterable, Mapping
@@ -30,10 +31,12 @@ from . import __version__
 
 __all__ = [
     "AOV_CHANNELS",
+    "AOV_CHANNEL_NAMES",
     "OWN_SIZE_AOVS",
     "DEFAULT_EXR_COMPRESSION",
     "EXR_COMPRESSIONS",
     "ImageWriteError",
+    "json_ready",
     "read_image",
     "srgb_decode",
     "srgb_encode",
@@ -69,6 +72,9 @@ DEFAULT_EXR_COMPRESSION = "none"
 _PNG_ATTRIBUTES = {"png:compressionLevel": 1, "png:filter": 0x10}
 
 _CHANNEL_NAMES = {1: ("Y",), 2: ("Y", "A"), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
+#: Channel names of the outputs that differ from the default by channel count: depth is ``Z`` (OpenEXR's and
+#: compositors' depth channel), the rectified map's two channels are its depth and the culled-texel mask.
+AOV_CHANNEL_NAMES = {"depth": ("Z",), "rectified": ("u", "v", "z"), "rectified_map": ("depth", "culled")}
 _INTEGER_BASETYPES = {oiio.UINT8, oiio.INT8, oiio.UINT16, oiio.INT16, oiio.UINT32, oiio.INT32}
 
 
@@ -186,23 +192,42 @@ def _temp_name(path: Path) -> Path:
     return path.with_name(f".{path.stem}.tmp-{os.getpid()}-{secrets.token_hex(3)}{path.suffix}")
 
 
+def _header_attribute(spec: oiio.ImageSpec, key: str, value) -> None:
+    """Store one metadata value in a file header: a 4x4 matrix (numpy, row-vector convention as OpenEXR's Imath
+    matrices), a number, or text (anything else is written as its ``str``)."""
+    if isinstance(value, np.ndarray) and value.shape == (4, 4):
+        spec.attribute(key, oiio.TypeDesc("matrix"), tuple(float(x) for x in value.reshape(-1)))
+    elif isinstance(value, (bool, np.bool_)):
+        spec.attribute(key, str(bool(value)).lower())
+    elif isinstance(value, (int, np.integer)):
+        spec.attribute(key, int(value))
+    elif isinstance(value, (float, np.floating)):
+        spec.attribute(key, float(value))
+    else:
+        spec.attribute(key, str(value))
+
+
 def _write_oiio(path: Path, pixels: np.ndarray, pixel_type: str, compression: str | None = None,
-                attributes: Mapping[str, object] | None = None) -> None:
+                attributes: Mapping[str, object] | None = None, channel_names: tuple[str, ...] | None = None,
+                metadata: Mapping[str, object] | None = None) -> None:
     """Write an (H, W, C) array to ``path`` with OpenImageIO (format from the extension); ``attributes`` are
-    writer settings (not stored in the file)."""
+    writer settings (not stored in the file), ``metadata`` header attributes stored in it (:func:`_header_attribute`),
+    ``channel_names`` override the default names by channel count."""
     h, w, c = pixels.shape
     out = oiio.ImageOutput.create(str(path))
     if out is None:
         raise ImageWriteError(oiio.geterror() or f"no writer for {path.suffix!r} files")
     spec = oiio.ImageSpec(w, h, c, pixel_type)
-    spec.channelnames = _CHANNEL_NAMES[c]
-    if c in (2, 4):
+    spec.channelnames = channel_names or _CHANNEL_NAMES[c]
+    if channel_names is None and c in (2, 4):
         spec.alpha_channel = c - 1
     spec.attribute("Software", f"warpscatter {__version__}")
     if compression:
         spec.attribute("compression", compression)
     for key, value in (attributes or {}).items():
         spec.attribute(key, value)
+    for key, value in (metadata or {}).items():
+        _header_attribute(spec, key, value)
     if not out.open(str(path), spec):
         raise ImageWriteError(out.geterror() or oiio.geterror() or "open failed")
     ok = False
@@ -227,8 +252,39 @@ def _check_compression(compression: str) -> str:
     return compression
 
 
-def _exr_writer(pixels: np.ndarray, compression: str) -> Callable[[Path], None]:
-    return lambda p: _write_oiio(p, pixels, "float", compression)
+def _exr_writer(pixels: np.ndarray, compression: str, channel_names: tuple[str, ...] | None = None,
+                metadata: Mapping[str, object] | None = None) -> Callable[[Path], None]:
+    return lambda p: _write_oiio(p, pixels, "float", compression, channel_names=channel_names, metadata=metadata)
+
+
+def _text_writer(text: str) -> Callable[[Path], None]:
+    return lambda p: p.write_text(text, encoding="utf-8")
+
+
+def json_ready(value):
+    """Plain JSON data of what sidecars hold: numpy scalars and arrays become numbers and lists, paths strings,
+    tuples lists, non-finite floats ``null``; anything else unknown becomes its ``str``."""
+    if isinstance(value, Mapping):
+        return {str(k): json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, set, frozenset)):
+        return [json_ready(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return json_ready(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float):
+        return value if np.isfinite(value) else None
+    if value is None or isinstance(value, (bool, int, str)):
+        return value
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    return str(value)
+
+
+def _layer_channels(aov: str, channels: int) -> tuple[str, ...]:
+    """Channel names of an output inside the layered EXR: ``R, G, B`` for the colour, ``LAYER.NAME`` otherwise."""
+    names = AOV_CHANNEL_NAMES.get(aov, _CHANNEL_NAMES[channels])
+    return names if aov == "color" else tuple(f"{aov}.{n}" for n in names)
 
 
 def _png_pixels(pixels: np.ndarray, exposure: float) -> np.ndarray:
@@ -352,13 +408,19 @@ def write_outputs(
     aovs: Iterable[str] = ("color",),
     exposure: float = 1.0,
     compression: str = DEFAULT_EXR_COMPRESSION,
+    *,
+    metadata: Mapping[str, object] | None = None,
+    sidecar: Mapping[str, object] | None = None,
+    layered: bool = False,
 ) -> list[Path]:
     """Write a render's output set (CONVENTIONS.md "Config and output contract"), all or nothing.
 
     Files, in this order: ``NAME.exr`` (linear RGB) and ``NAME.png`` (preview) always, then
-    ``NAME.scattering.exr``, ``NAME.surface.exr`` (linear RGB), ``NAME.depth.exr`` (one channel) and the debug
-    outputs (``NAME.rectified.exr`` ...) for the AOVs requested. The files are written concurrently, to temporary
-    names that are renamed once all of them succeeded.
+    ``NAME.scattering.exr``, ``NAME.surface.exr`` (linear RGB), ``NAME.depth.exr`` (channel ``Z``) and the debug
+    outputs (``NAME.rectified.exr`` ...) for the AOVs requested, then ``NAME.json`` when a sidecar is given. With
+    ``layered``, the image-sized AOVs are layers of ``NAME.exr`` instead (channels ``R, G, B``,
+    ``scattering.R`` ..., ``depth.Z``); outputs of their own size (:data:`OWN_SIZE_AOVS`) stay files. The files are
+    written concurrently, to temporary names that are renamed once all of them succeeded.
 
     Args:
         out_dir: output folder (created if missing).
@@ -368,6 +430,10 @@ def write_outputs(
         aovs: requested AOV names out of :data:`AOV_CHANNELS` (each written as ``NAME.<aov>.exr``).
         exposure: PNG preview exposure (> 0).
         compression: EXR compression, one of :data:`EXR_COMPRESSIONS` (all lossless).
+        metadata: header attributes of every EXR (e.g. ``worldToCamera``: a 4x4 numpy matrix; text; numbers);
+            each EXR also gets ``warpscatter:aov``, its output's name.
+        sidecar: plain data written as ``NAME.json`` with the set (numpy values and paths converted).
+        layered: one multi-layer ``NAME.exr`` instead of one file per AOV.
 
     Returns:
         The written paths.
@@ -401,13 +467,25 @@ def write_outputs(
     except OSError as exc:
         raise ImageWriteError(f"cannot create output folder {out_dir}: {exc}") from exc
 
-    jobs = [
-        (out_dir / f"{name}.exr", _exr_writer(checked["color"], compression)),
-        (out_dir / f"{name}.png", _png_writer(checked["color"], exposure)),
-    ]
-    for aov, pixels in checked.items():
-        if aov != "color":
-            jobs.append((out_dir / f"{name}.{aov}.exr", _exr_writer(pixels, compression)))
+    def exr_meta(aov: str) -> dict:
+        return {**(metadata or {}), "warpscatter:aov": aov}
+
+    separate = [a for a in checked if a != "color" and (not layered or a in OWN_SIZE_AOVS)]
+    if layered:
+        layers = [a for a in checked if a not in separate]
+        stacked = np.concatenate([checked[a] for a in layers], axis=2)
+        channels = sum((_layer_channels(a, checked[a].shape[2]) for a in layers), ())
+        color_job = _exr_writer(stacked, compression, channels, {**exr_meta("color"), "warpscatter:layers":
+                                                                 ",".join(layers)})
+    else:
+        color_job = _exr_writer(checked["color"], compression, metadata=exr_meta("color"))
+    jobs = [(out_dir / f"{name}.exr", color_job), (out_dir / f"{name}.png", _png_writer(checked["color"], exposure))]
+    for aov in separate:
+        jobs.append((out_dir / f"{name}.{aov}.exr",
+                     _exr_writer(checked[aov], compression, AOV_CHANNEL_NAMES.get(aov), exr_meta(aov))))
+    if sidecar is not None:
+        text = json.dumps(json_ready(sidecar), indent=2) + "\n"
+        jobs.append((out_dir / f"{name}.json", _text_writer(text)))
     return _write_all(jobs)
 
 

@@ -58,6 +58,8 @@ def _nonzero_unit(v: tuple[float, float, float]) -> tuple[float, float, float]:
     n = math.sqrt(sum(x * x for x in v))
     if n == 0.0:
         raise ValueError("must be non-zero")
+    if abs(n - 1.0) <= 4e-16 * 3:  # already unit (a validated config validated again): keep it bit for bit
+        return tuple(v)
     return tuple(x / n for x in v)
 
 

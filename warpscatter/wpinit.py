@@ -2,14 +2,25 @@
 
 Every kernel module of warpscatter calls :func:`module_options` at import time so all of them
 share one set of module options (backward passes off: nothing here is differentiated, and
-compiles are ~2.5x faster). Warp's own log is kept quiet unless ``WARPSCATTER_VERBOSE`` is set.
+compiles are ~2.5x faster). Importing warpscatter changes none of Warp's global settings: Warp's
+log level and messages stay the user's (the CLI quiets them, see ``warpscatter --help``);
+``WARPSCATTER_KERNEL_CACHE``, when set, moves Warp's kernel cache.
+
+The default device follows Warp's: :func:`default_device` returns the device given, else
+``WARPSCATTER_DEVICE``, else ``wp.get_device()`` (so ``wp.ScopedDevice`` and ``wp.set_device`` apply).
 """
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
+import sys
+import tempfile
 
 import warp as wp
+
+log = logging.getLogger("warpscatter")
 
 _initialised = False
 
@@ -19,8 +30,6 @@ MODULE_OPTIONS = {"enable_backward": False}
 
 def _configure() -> None:
     """Settings that must precede ``wp.init()`` (applied when this module is first imported)."""
-    if not os.environ.get("WARPSCATTER_VERBOSE"):
-        wp.config.log_level = wp.LOG_WARNING
     cache = os.environ.get("WARPSCATTER_KERNEL_CACHE")
     if cache:
         wp.config.kernel_cache_dir = cache
@@ -29,12 +38,44 @@ def _configure() -> None:
 _configure()
 
 
-def init() -> None:
-    """Initialise Warp once (quiet logging and ``WARPSCATTER_KERNEL_CACHE`` are applied at import)."""
+@contextlib.contextmanager
+def _native_stderr_to_log():
+    """Route what native code writes to file descriptor 2 (Warp's "CUDA driver not found" warning on a machine
+    without a GPU) to the ``warpscatter`` logger at DEBUG level instead of the terminal."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no real stderr (embedded interpreters): nothing to redirect
+        yield
+        return
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            text = sink.read().decode("utf-8", "replace").strip()
+            if text:
+                log.debug("Warp (native): %s", text)
+
+
+def init(quiet_native: bool = False) -> None:
+    """Initialise Warp once.
+
+    Args:
+        quiet_native: route Warp's native start-up messages on stderr (the CUDA-driver warning of a CPU-only
+            machine) to the ``warpscatter`` logger at DEBUG level; the CLI does this unless ``-v`` is given.
+    """
     global _initialised
     if _initialised:
         return
-    wp.init()
+    if quiet_native:
+        with _native_stderr_to_log():
+            wp.init()
+    else:
+        wp.init()
     _initialised = True
 
 
@@ -46,7 +87,11 @@ def module_options() -> None:
     wp.set_module_options(MODULE_OPTIONS, module=frame.f_globals["__name__"])
 
 
-def default_device(device: str | None = None) -> str:
-    """Return the device to launch on: the argument, ``WARPSCATTER_DEVICE``, or ``"cpu"``."""
+def default_device(device=None) -> str:
+    """The device to launch on, as a Warp device name: ``device`` (a name or a ``wp.context.Device``), else
+    ``WARPSCATTER_DEVICE``, else Warp's current device (``wp.get_device()``: ``"cpu"`` on a machine without a GPU,
+    whatever ``wp.ScopedDevice`` / ``wp.set_device`` chose otherwise)."""
     init()
-    return device or os.environ.get("WARPSCATTER_DEVICE", "cpu")
+    if device is not None:
+        return str(device) if not isinstance(device, str) else device
+    return os.environ.get("WARPSCATTER_DEVICE") or str(wp.get_device())

@@ -8,13 +8,7 @@ place that reads the config; each stage is a library function taking arrays and 
 the CLI's timing table, in ``bench`` and in logs: ``scene`` (load/generate meshes), ``compile``, then the
 pipeline's stages (:mod:`.classic`, :mod:`.lighting`), and ``write`` (EXR/PNG files).
 
-Example::
-
-    from warpscatter.config import load_config
-    from warpscatter.pipeline import render
-
-    result = render(load_config("configs/quickstart.yaml"), out_dir="out")
-    result.images["color"], result.timings, result.stats
+The Python API over it is :func:`warpscatter.render` (:mod:`warpscatter.api`), which also takes a file or a dict.
 """
 
 from __future__ import annotations
@@ -25,9 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import __version__
+from ..config import Config
 from ..errors import ConfigError
+from ..imageio import OWN_SIZE_AOVS
 from ..stages import ProgressFn, StageTimer
-from ..wpinit import init
+from ..wpinit import default_device
 from .classic import render_images
 from .common import check_finite, compile_kernels
 from .frame import Frame
@@ -36,62 +33,108 @@ from .lighting import render_lighting
 
 @dataclass
 class RenderResult:
-    """What a render produced: images (name -> float32 array), written files, stage timings (s), stats."""
+    """What a render produced.
+
+    Attributes:
+        images: output name -> float32 numpy array, row 0 = top (``color``, ``surface``, ``depth``, and
+            ``scattering`` for the scattering methods; debug outputs when asked).
+        files: the written files (empty when nothing was written).
+        timings: stage -> seconds, in order.
+        stats: the method's statistics (sizes, counts).
+        config: the validated config that was rendered.
+        device: the Warp device it ran on.
+    """
 
     images: dict[str, np.ndarray]
     files: list[Path] = field(default_factory=list)
     timings: OrderedDict[str, float] = field(default_factory=OrderedDict)
     stats: dict = field(default_factory=dict)
+    config: Config | None = None
+    device: str | None = None
 
 
-def render(config, out_dir: Path | None = None, progress: ProgressFn | None = None, device=None,
+def sidecar(config: Config, device: str, timings: dict, stats: dict, files: list[str]) -> dict:
+    """The ``NAME.json`` written beside a render's images: what made them (the resolved config, the method, the
+    seed, device and thread count, versions, machine, source commit, command line, time) and what it measured
+    (per-stage timings in seconds, without the ``write`` stage that is running then; statistics)."""
+    from ..parallel import thread_count
+    from ..provenance import provenance
+
+    lighting = config.render.lighting
+    seed = lighting.seed if lighting.method is not None else config.render.scattering.seed
+    return {"name": config.output_name, "method": config.method, "config_file": config.source, **provenance(),
+            "device": device, "threads": thread_count(), "seed": seed, "files": files,
+            "timings_s": {k: v for k, v in timings.items() if k != "write"}, "stats": stats,
+            "config": config.model_dump(mode="json")}
+
+
+def exr_metadata(config: Config, camera) -> dict:
+    """Header attributes of a render's EXRs: OpenEXR's camera matrices (``worldToCamera``, ``worldToNDC``), the
+    method, the version and the resolved config (YAML)."""
+    return {**camera.exr_matrices(), "warpscatter:method": config.method,
+            "warpscatter:config": config.model_dump_yaml(), "warpscatter:version": __version__}
+
+
+def render(config: Config, out_dir: Path | None = None, progress: ProgressFn | None = None, device=None,
            write: bool = True) -> RenderResult:
-    """Render a validated :class:`~warpscatter.config.Config` and write its images.
+    """Render a :class:`~warpscatter.config.Config` (validated again first) and write its outputs.
 
     Args:
-        config: the validated config.
+        config: the config.
         out_dir: output folder (default ``config.output.dir``).
         progress: optional ``progress(stage, fraction)`` callback.
-        device: Warp device (default: ``WARPSCATTER_DEVICE`` or cpu).
+        device: Warp device (default: ``WARPSCATTER_DEVICE``, else Warp's current device).
         write: False skips the ``write`` stage (images are still returned).
 
     Returns:
-        :class:`RenderResult` with images, written files, per-stage timings and stats.
+        :class:`RenderResult` with images, written files, per-stage timings and stats. The files are
+        ``NAME.exr``, ``NAME.png``, the AOVs of ``output.aovs`` (the lighting methods make no ``scattering``)
+        and the ``NAME.json`` sidecar, ``NAME`` being :attr:`Config.output_name`.
 
     Raises:
-        ConfigError: a file the config names does not fit (a CSM file of other occluders, say).
+        ConfigError: the config is invalid, or a file it names does not fit (a CSM file of other occluders, say).
         NonFiniteImageError: an image with NaN or infinite pixels (a bug).
     """
     from ..csm.compress import CSMFileError
     from ..imageio import write_outputs
     from ..scene import build_scene
 
-    init()
+    config = config.revalidated()
+    device = default_device(device)
     timer = StageTimer(progress)
     with timer("scene"):
         scene = build_scene(config)
     out = Path(out_dir) if out_dir is not None else Path(config.output.dir)
-    if config.render.lighting.method is not None:  # Monte-Carlo direct lighting (csm / raytrace), progressive
+    name, output = config.output_name, config.output
+    lighting = config.render.lighting.method is not None
+    aovs = [a for a in output.aovs if not (lighting and a == "scattering")]  # no in-scattering: no all-zero file
+    metadata = exr_metadata(config, scene.camera)
+
+    def write_files(images, stats) -> list[Path]:
+        files = [f"{name}.exr", f"{name}.png"]  # the names the sidecar lists (written with it, all or nothing)
+        files += [f"{name}.{a}.exr" for a in aovs if a != "color" and (not output.layered or a in OWN_SIZE_AOVS)]
+        files += [f"{name}.json"]
+        with timer("write"):
+            return write_outputs(out, name, {k: v for k, v in images.items() if k in aovs or k == "color"}, aovs,
+                                 output.exposure, compression=output.compression, metadata=metadata,
+                                 sidecar=sidecar(config, device, timer.timings, stats, files), layered=output.layered)
+
+    if lighting:  # Monte-Carlo direct lighting (csm / raytrace), progressive
 
         def on_pass(images, done, total):  # rewrite the outputs as the image converges
             if write:
-                with timer("write"):
-                    write_outputs(out, config.output.name, images, config.output.aovs, config.output.exposure,
-                                  compression=config.output.compression)
+                write_files(images, {"passes_done": done})
 
         try:
             images, stats = render_lighting(scene, config.render.lighting, timer, on_pass, device=device)
         except CSMFileError as exc:
             raise ConfigError(f"render.lighting.csm.file: {exc}") from None
+        images.pop("scattering", None)
     else:
-        images, stats = render_images(scene, config.render, timer=timer, device=device, aovs=config.output.aovs)
-    files: list[Path] = []
-    if write:
-        with timer("write"):
-            files = write_outputs(out, config.output.name, images, config.output.aovs, config.output.exposure,
-                                  compression=config.output.compression)
-    return RenderResult(images=images, files=files, timings=timer.timings, stats=stats)
+        images, stats = render_images(scene, config.render, timer=timer, device=device, aovs=output.aovs)
+    files = write_files(images, stats) if write else []
+    return RenderResult(images=images, files=files, timings=timer.timings, stats=stats, config=config, device=device)
 
 
 __all__ = ["Frame", "RenderResult", "StageTimer", "check_finite", "compile_kernels", "render", "render_images",
-           "render_lighting"]
+           "render_lighting", "sidecar"]

@@ -124,6 +124,29 @@ class Camera:
         """World -> clip matrix; pixel (i, j) rasterizes at the centre of its CONVENTIONS ray."""
         return self.projection() @ self.view()
 
+    def exr_matrices(self) -> dict[str, np.ndarray]:
+        """The OpenEXR standard attributes ``worldToCamera`` and ``worldToNDC`` of this camera (float64 4x4, stored
+        TRANSPOSED as OpenEXR's Imath matrices are: a world point p maps as [p, 1] @ M).
+
+        OpenEXR's camera space is left-handed: +x right, +y up, +z along the view direction (points in front have
+        z > 0). Its NDC has (0, 0) at the image's top-left corner and (1, 1) at the bottom-right, so pixel (i, j)'s
+        centre (CONVENTIONS) projects to ((i + 0.5) / width, (j + 0.5) / height) after the divide by w; NDC z is
+        the view depth mapped to [0, 1] between near and far.
+        """
+        right, up, forward = self.basis
+        to_camera = np.eye(4)
+        to_camera[0, :3], to_camera[1, :3], to_camera[2, :3] = right, up, forward
+        to_camera[:3, 3] = -to_camera[:3, :3] @ self.position
+        t = np.tan(np.radians(self.fov_y) / 2.0)
+        n, f = self.near, self.far
+        projection = np.array([  # x, y: 0.5 +- 0.5 x / (z t a); z: (z - n) f / ((f - n) z); w = z
+            [0.5 / (t * self.aspect), 0.0, 0.5, 0.0],
+            [0.0, -0.5 / t, 0.5, 0.0],
+            [0.0, 0.0, f / (f - n), -n * f / (f - n)],
+            [0.0, 0.0, 1.0, 0.0],
+        ])
+        return {"worldToCamera": to_camera.T.copy(), "worldToNDC": (projection @ to_camera).T.copy()}
+
     # ---- rays -----------------------------------------------------------------------------------
     def ray_directions(self, stride: int = 1) -> np.ndarray:
         """Unit ray directions of the pixels, shape (height, width, 3), row 0 = top (float64).

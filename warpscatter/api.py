@@ -1,0 +1,89 @@
+"""The Python API: render a config given as a file, a dict or a :class:`~warpscatter.config.Config`.
+
+::
+
+    import warpscatter
+
+    result = warpscatter.render("configs/quickstart.yaml", overrides={"camera.width": 640, "camera.height": 360})
+    result.images["color"]      # (H, W, 3) float32, linear RGB, row 0 = top
+    result.timings, result.stats
+
+    cfg = warpscatter.load_config({"scene": {...}, "camera": {...}, "light": {...}})
+    result = warpscatter.render(cfg, out_dir="out")   # also writes NAME.exr, NAME.png, the AOVs and NAME.json
+
+Every path into a render validates: a dict or a file is validated on loading, a :class:`Config` (possibly changed
+in place, which pydantic does not check) is validated again before any work. The device follows Warp's:
+``device`` when given, else ``WARPSCATTER_DEVICE``, else ``wp.get_device()`` (``wp.ScopedDevice`` applies).
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from .config import Config, apply_overrides, validated_config
+from .config import load_config as _load_file
+
+ConfigSource = str | Path | Mapping[str, Any] | Config
+Overrides = Iterable[str] | Mapping[str, Any]
+
+
+def load_config(source: ConfigSource, overrides: Overrides = (), *, config_dir: str | Path | None = None) -> Config:
+    """A validated config from a YAML file, a dict or a :class:`Config`, with overrides applied.
+
+    Args:
+        source: a YAML file path, a plain dict (as the YAML would read), or a config.
+        overrides: ``KEY=VALUE`` strings (``"camera.fov_y=40"``, the value parsed as YAML) or a mapping of dotted
+            keys to values (``{"camera.fov_y": 40, "scene.meshes.0.material.opacity": 0.5}``), applied in order.
+        config_dir: the folder relative paths of a dict resolve against (default: the current folder; a file's
+            own folder for a file, the original folder for a config).
+
+    Returns:
+        A new validated :class:`Config`.
+
+    Raises:
+        ConfigError: every problem as a ``key.path: reason`` line (exit code 2 in the CLI).
+    """
+    if isinstance(source, (str, Path)):
+        return _load_file(source, overrides)
+    if isinstance(source, Config):
+        data, base, origin = source.model_dump(), config_dir or source.config_dir, source.source
+    elif isinstance(source, Mapping):
+        data, base, origin = copy.deepcopy(dict(source)), config_dir, None
+    else:
+        raise TypeError(f"config: expected a file path, a dict or a Config, got {type(source).__name__}")
+    apply_overrides(data, overrides, origin)
+    return validated_config(data, base, origin)
+
+
+def render(config: ConfigSource, overrides: Overrides = (), *, out_dir: str | Path | None = None, device=None,
+           progress=None):
+    """Render a config and return its images; write the output files only when ``out_dir`` is given.
+
+    Args:
+        config: a YAML file path, a plain dict or a :class:`Config` (validated again: see the module docstring).
+        overrides: as in :func:`load_config`.
+        out_dir: write ``NAME.exr``, ``NAME.png``, the AOVs of ``output.aovs`` and the ``NAME.json`` sidecar here
+            (``NAME`` is :attr:`Config.output_name`); None (default) writes nothing.
+        device: a Warp device or its name; None follows Warp (``wp.get_device()``) unless ``WARPSCATTER_DEVICE``
+            is set.
+        progress: optional ``progress(stage, fraction)`` callback.
+
+    Returns:
+        :class:`~warpscatter.pipeline.RenderResult`: ``images`` (name -> float32 numpy array: ``color``,
+        ``scattering``, ``surface``, ``depth`` ...), ``timings`` (stage -> seconds), ``stats``, ``files``, the
+        validated ``config`` and the ``device`` it ran on.
+
+    Raises:
+        ConfigError: an invalid config or override (nothing is rendered).
+        ImageWriteError: an output file could not be written (the previous files are left as they were).
+    """
+    from .pipeline import render as render_config
+
+    cfg = config.revalidated() if isinstance(config, Config) and not overrides else load_config(config, overrides)
+    return render_config(cfg, out_dir=out_dir, progress=progress, device=device, write=out_dir is not None)
+
+
+__all__ = ["ConfigSource", "Overrides", "load_config", "render"]
