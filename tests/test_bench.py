@@ -14,13 +14,15 @@ from warpscatter import bench
 
 def test_every_suite_runs_quick_and_writes_finite_rows(tmp_path):
     report = bench.run("all", repeats=1, warmup=0, quick=True, out_dir=tmp_path)
-    written = {p.name for p in tmp_path.glob("bench-*.json")}
-    assert written == {f"bench-{s}.json" for s in bench.SUITES}
+    written = {p.name for p in tmp_path.glob("bench-*") if p.suffix in (".json", ".csv")}
+    assert written == {f"bench-{s}.{ext}" for s in bench.SUITES for ext in ("json", "csv")}
     for suite in bench.SUITES:
         data = json.loads((tmp_path / f"bench-{suite}.json").read_text())
         assert data["rows"], suite
+        assert data["meta"]["suite"] == suite and data["meta"]["timestamp"] and data["meta"]["cpu"], suite
         for row in data["rows"]:
             assert row["median_ms"] is None or row["median_ms"] >= 0.0, (suite, row["name"])
+            assert row["case"] and "total" in row["timing"], (suite, row["name"])
             for key in ("rel_l1", "rmse", "speedup"):
                 if row.get(key) is not None:
                     assert math.isfinite(row[key]), (suite, row["name"], key)

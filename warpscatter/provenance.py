@@ -23,11 +23,7 @@ DISTRIBUTIONS = ("warp-lang", "numpy", "OpenImageIO", "trimesh", "pydantic", "Py
 def versions() -> dict[str, str | None]:
     """Versions of Python, warpscatter and its main dependencies (``None`` where not installed)."""
     out: dict[str, str | None] = {"python": platform.python_version(), "warpscatter": __version__}
-    for name in DISTRIBUTIONS:
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = None
+    out.update({name: package_version(name) for name in DISTRIBUTIONS})
     return out
 
 
@@ -44,21 +40,37 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine() or "unknown"
 
 
-@functools.lru_cache(maxsize=1)
-def source_commit() -> str | None:
-    """The git commit of warpscatter's source tree (with ``+dirty`` when it has changes), or None when it is not
-    a git checkout (an installed wheel) or git is unavailable."""
-    root = Path(__file__).resolve().parent.parent
-    if not (root / ".git").exists():
-        return None
+def _git(root: Path, *args: str) -> str | None:
+    """``git args`` in ``root`` (stdout stripped), None on any failure or after 2 s."""
     try:
-        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
-                              timeout=5, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=5, check=True).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
+        done = subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, timeout=2.0, check=False)
+    except (OSError, subprocess.SubprocessError, ValueError):
         return None
-    return head + ("+dirty" if dirty else "") if head else None
+    return done.stdout.strip() if done.returncode == 0 else None
+
+
+@functools.lru_cache(maxsize=1)
+def source_commit() -> tuple[str | None, bool | None]:
+    """(HEAD commit, whether tracked files differ from it) of the git checkout warpscatter is imported from, or
+    (None, None) when it is not one (an installed wheel: a site-packages inside another repository never counts)."""
+    root = Path(__file__).resolve().parent.parent
+    top = _git(root, "rev-parse", "--show-toplevel")
+    if top is None or Path(top).resolve() != root:
+        return None, None
+    status = _git(root, "status", "--porcelain", "--untracked-files=no")
+    return _git(root, "rev-parse", "HEAD"), None if status is None else bool(status)
+
+
+def package_version(dist: str, module: str | None = None) -> str | None:
+    """The installed version of distribution ``dist`` (else ``module.__version__``), None when missing."""
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        pass
+    try:
+        return getattr(__import__(module or dist), "__version__", None)
+    except ImportError:
+        return None
 
 
 def machine() -> dict[str, object]:
@@ -76,9 +88,12 @@ def timestamp() -> str:
 
 
 def provenance() -> dict[str, object]:
-    """Everything above in one mapping: ``created``, ``command``, ``versions``, ``machine``, ``commit``."""
+    """Everything above in one mapping: ``created``, ``command``, ``versions``, ``machine``, ``commit``,
+    ``git_dirty``."""
+    commit, dirty = source_commit()
     return {"created": timestamp(), "command": list(sys.argv), "versions": versions(), "machine": machine(),
-            "commit": source_commit()}
+            "commit": commit, "git_dirty": dirty}
 
 
-__all__ = ["DISTRIBUTIONS", "cpu_model", "machine", "provenance", "source_commit", "timestamp", "versions"]
+__all__ = ["DISTRIBUTIONS", "cpu_model", "machine", "package_version", "provenance", "source_commit", "timestamp",
+           "versions"]

@@ -6,8 +6,10 @@ Each case is rendered once per run. Rows carry the error against the exact refer
 L1 = sum|a - b| / sum|b| and RMSE over all pixels and channels) and the speed-up over the brute-force ray marcher
 measured in the SAME run. Scenes are the bundled configs (``configs/*.yaml``, :mod:`.scenes`) at bench sizes.
 
-Output: a terminal table (:meth:`BenchReport.table`), ``bench-<suite>.json`` and, when matplotlib is installed
-(the ``plot`` extra), ``bench-<suite>.png``.
+Output: a terminal table (:meth:`BenchReport.table`), ``bench-<suite>.json`` (every repeat's time, spread, machine,
+versions, commit, time stamp) and ``bench-<suite>.csv`` (layouts: :mod:`.report`) and, when matplotlib is installed
+(the ``plot`` extra), ``bench-<suite>.png`` and, for suites with errors, ``bench-<suite>-error-time.png``.
+:func:`compare_reports` (:mod:`.compare`) sets two bench JSONs side by side.
 
 Suites (:data:`SUITES`, one record each): ``raster``, ``reference``, ``parallel`` (:mod:`.suites_core`),
 ``prefiltered``, ``moments``, ``epipolar`` (:mod:`.suites_scattering`), ``csm`` (:mod:`.suites_csm`), ``fidelity``
@@ -18,12 +20,14 @@ Suites (:data:`SUITES`, one record each): ``raster``, ``reference``, ``parallel`
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 from ..stages import ProgressFn
 from ..wpinit import init
+from .compare import compare_reports, load_bench_json
 from .report import BenchReport, errors, machine_meta, measure, thread_limit
 from .scenes import bench_light_texture, bench_scene_config, render_timed, scattering_rows
 from .suites_core import suite_parallel, suite_raster, suite_reference
@@ -73,7 +77,8 @@ SUITES: dict[str, Suite] = {s.name: s for s in (
 
 def run(suite: str = "reference", *, repeats: int = 5, warmup: int = 1, out_dir: Path | None = None,
         quick: bool = False, progress: ProgressFn | None = None) -> BenchReport:
-    """Run one suite (or ``"all"``) and write its JSON/PNG into ``out_dir`` (default ``bench-out``).
+    """Run one suite (or ``"all"``: each) and write its JSON, CSV and charts into ``out_dir`` (default
+    ``bench-out``); returns the report (``"all"``: the rows of every suite, names prefixed with the suite).
 
     Raises:
         ValueError: unknown suite name, or repeats < 1 / warmup < 0.
@@ -88,18 +93,20 @@ def run(suite: str = "reference", *, repeats: int = 5, warmup: int = 1, out_dir:
     out_dir = Path(out_dir) if out_dir is not None else Path("bench-out")
     reports = []
     for s in names:
-        report = BenchReport(suite=s, meta={**machine_meta(), "repeats": repeats, "warmup": warmup, "quick": quick})
+        report = BenchReport(suite=s, meta={**machine_meta(), "suite": s, "repeats": repeats, "warmup": warmup,
+                                            "quick": quick, "argv": list(sys.argv)})
         SUITES[s].run(report, repeats, warmup, quick, progress)
         report.write(out_dir)
         reports.append(report)
     if len(reports) == 1:
         return reports[0]
-    merged = BenchReport(suite="all", meta=reports[0].meta)
+    merged = BenchReport(suite="all", meta={**reports[0].meta, "suite": "all"})
     for r in reports:
         merged.rows += [{**row, "name": f"{r.suite}: {row['name']}"} for row in r.rows]
         merged.files += r.files
     return merged
 
 
-__all__ = ["SUITES", "BenchReport", "Suite", "bench_light_texture", "bench_scene_config", "errors", "machine_meta",
-           "measure", "render_timed", "run", "scattering_rows", "thread_limit"]
+__all__ = ["SUITES", "BenchReport", "Suite", "bench_light_texture", "bench_scene_config", "compare_reports",
+           "errors", "load_bench_json", "machine_meta", "measure", "render_timed", "run", "scattering_rows",
+           "thread_limit"]

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import statistics
 import time
 from pathlib import Path
 
@@ -13,7 +12,7 @@ from .. import methods
 from ..pipeline import StageTimer, compile_kernels, render_images
 from ..resources import bundled_asset, bundled_config
 from ..scene import build_scene
-from .report import errors
+from .report import errors, stage_medians
 
 #: Bench scene name -> the bundled config it loads (``colonnade_spot``: the colonnade under a textured spot light).
 SCENES = {"colonnade": "colonnade", "canopy": "canopy", "window": "window", "colonnade_spot": "colonnade",
@@ -130,8 +129,7 @@ def render_timed(cfg, repeats, warmup, device=None):
 
 def median_stages(runs: list[dict], names=None) -> dict:
     """Per-stage median (ms) over the timings of several runs (``names``: those stages only; compile excluded)."""
-    return {n: 1e3 * statistics.median(r[n] for r in runs) for n in runs[0]
-            if n != "compile" and (names is None or n in names)}
+    return stage_medians(runs, names)  # the same medians; every repeat is recorded for the report
 
 
 def scattering_rows(report, name, cfg_kw, params, repeats, warmup, reference=None, extra=None):

@@ -14,7 +14,8 @@ the camera, the anti-solar epipole ahead). Per case:
   the 128-step shadow-map marcher's, whichever is larger"; today's figures are in the issue notes), and its time
   against the marcher's.
 
-The chart (``bench-fidelity.png``) shows each method's error per case next to the marcher's doubled error.
+The charts: ``bench-fidelity.png`` shows each method's error per case next to the marcher's doubled error,
+``bench-fidelity-error-time.png`` error against time per case.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..stages import ProgressFn
-from .report import BenchReport, pyplot, save_figure
+from .report import BenchReport, chart_title, log_ticks, pyplot, save_figure
 from .scenes import bench_scene_config, render_timed
 from .suites_pareto import REFERENCE_SEEDS, exact_reference, rel_l1, technique_ms
 
@@ -98,7 +99,7 @@ def chart_fidelity(report: BenchReport, path: Path) -> Path | None:
     cases = list(report.meta.get("cases", {}))
     if not cases:
         return None
-    fig, ax = plt.subplots(figsize=(max(8.0, 1.1 * len(cases)), 4.6))
+    fig, ax = plt.subplots(figsize=(max(8.0, 1.1 * len(cases)) + 2.5, 4.6))
     x = range(len(cases))
     data = report.meta["cases"]
     marcher = [data[c][MARCHER]["rel_l1"] for c in cases]
@@ -110,10 +111,13 @@ def chart_fidelity(report: BenchReport, path: Path) -> Path | None:
                 linestyle="none", label=label)
     ax.set_xticks(list(x), [c.replace("_", " ").replace(", ", "\n") for c in cases], fontsize=7)
     ax.set_yscale("log")
+    shown = [data[c][m]["rel_l1"] for c in cases for m in (MARCHER, *markers)]
+    log_ticks(ax.yaxis, [v for v in shown if v > 0.0] + [2.0 * e for e in marcher if e > 0.0] or [1.0])
     ax.set_ylabel("rel. L1 vs exact reference")
-    ax.set_title(f"warpscatter bench fidelity {report.meta.get('size', '')}, map {report.meta.get('map', '')}")
+    ax.set_title(chart_title(report, f"error per case at {report.meta.get('size', '')}, map "
+                                     f"{report.meta.get('map', '')}"), fontsize=9)
     ax.grid(True, axis="y", which="both", alpha=0.3)
-    ax.legend(fontsize=7, ncol=3)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)  # beside the data
     return save_figure(fig, path)
 
 

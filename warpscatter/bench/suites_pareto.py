@@ -19,7 +19,8 @@ lower envelope of both step patterns: the faster marcher at that error), divided
 more accurate than the 256-step marcher gets a lower bound (``>=``, the 256-step time), one less accurate than the
 8-step marcher an upper bound (``<=``, the 8-step time).
 
-The chart (``bench-pareto.png``, the ``plot`` extra) draws error against time per scene on log-log axes.
+The charts (the ``plot`` extra): ``bench-pareto-error-time.png`` draws error against time per scene on log-log axes
+(the marcher's curves and the methods' points), ``bench-pareto.png`` the equal-error speed-ups.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..stages import ProgressFn
-from .report import BenchReport, pyplot, save_figure
+from .report import BenchReport, hbar_chart
 from .scenes import bench_scene_config, render_timed
 
 #: The scenes (bundled configs) and the fast methods at their defaults.
@@ -220,38 +221,13 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
 
 
 def chart_pareto(report: BenchReport, path: Path) -> Path | None:
-    """Error against time per scene (log-log): the marcher's two curves and the fast methods' points."""
-    plt = pyplot()
-    if plt is None:
-        return None
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
-
-    fig, axes = plt.subplots(1, len(SCENES), figsize=(5.2 * len(SCENES), 4.2), squeeze=False)
-    markers = {"fourier": "o", "moments4": "s", "moments6": "D", "epipolar": "^", "moments6 with disc": "d"}
-    for ax, scene_name in zip(axes[0], SCENES, strict=True):
-        for jitter, style in zip(JITTERS, ("-", "--"), strict=True):
-            rows = [r for r in report.rows if r["name"] == f"{scene_name}: marcher shadow_map {jitter}"]
-            ax.plot([r["median_ms"] for r in rows], [r["rel_l1"] for r in rows], style, marker=".", color="0.4",
-                    label=f"shadow-map marcher ({jitter})")
-            for r in rows:
-                ax.annotate(str(r["params"]["steps"]), (r["median_ms"], r["rel_l1"]), fontsize=6, color="0.4")
-        for label, marker in markers.items():
-            rows = [r for r in report.rows if r["name"] == f"{scene_name}: {label}"]
-            for r in rows:
-                ax.plot(r["median_ms"], r["rel_l1"], marker, markersize=7,
-                        label=f"{label} ({r['extra']['speedup_bound'].replace('=', '')}{r['speedup']:.1f}x)")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        for axis in (ax.xaxis, ax.yaxis):  # plain numbers at 1, 2, 5 x 10^k (the default labels collide)
-            axis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
-            axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-            axis.set_minor_formatter(NullFormatter())
-        ax.set_xlabel("time (ms): G-buffer + maps + scattering")
-        ax.set_ylabel("rel. L1 vs exact reference")
-        ax.set_title(f"{scene_name} {report.meta.get('size', '')}")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-    return save_figure(fig, path)
+    """Each fast method's equal-error speed-up over the shadow-map marcher per scene, as horizontal bars (the bound
+    ``>=`` / ``<=`` written beside it; 1x dashed). Error against time is ``bench-pareto-error-time.png``."""
+    rows = [r for r in report.rows if "speedup_bound" in (r.get("extra") or {}) and r.get("speedup")]
+    bounds = {"=": "", ">=": "≥", "<=": "≤"}
+    texts = [f"{bounds.get(r['extra']['speedup_bound'], '')}{r['speedup']:.2f}x" for r in rows]
+    return hbar_chart(report, path, rows, [r["speedup"] for r in rows], "equal-error speed-up over the marcher",
+                      "speed-up: the marcher's time at the method's error / the method's time", texts=texts, line=1.0)
 
 
 __all__ = ["chart_pareto", "equal_error_time", "exact_reference", "rel_l1", "suite_pareto", "technique_ms"]
