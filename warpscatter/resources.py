@@ -1,27 +1,51 @@
 """The bundled configs and assets (``configs/*.yaml``, ``assets/*``): where they are, with a clear error where not.
 
-They live in the top-level ``configs/`` and ``assets/`` folders of the source tree, which the bench suites and the
-README's examples use. An installed package that does not ship them reports which file is missing and why.
+Two layouts hold them, side by side in both so that the configs' relative paths (``../assets/gate.obj``) resolve:
+
+- a source checkout or an editable install (``pip install -e .``): the top-level ``configs/`` and ``assets/`` folders
+  of the source tree, beside the ``warpscatter/`` package folder;
+- a wheel (``pip install warpscatter``, ``pip install .``): inside the package, as ``warpscatter/configs/`` and
+  ``warpscatter/assets/`` (package data, see ``[tool.setuptools]`` in ``pyproject.toml``).
+
+:data:`ROOT` is the folder that holds both. The bundled configs write to ``output.dir: ../out``, relative to the
+config; in a wheel install that is inside the installed package, so render them with ``-o DIR`` (or ``out_dir=``);
+:func:`in_package` tells whether a path lies there.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-#: The source tree's root (the folder holding ``configs/`` and ``assets/``).
-ROOT = Path(__file__).resolve().parent.parent
+#: The installed (or checked-out) ``warpscatter`` package folder.
+PACKAGE_DIR = Path(__file__).resolve().parent
+
+
+def _find_root() -> Path:
+    if (PACKAGE_DIR / "configs").is_dir():  # a wheel install: package data inside the package
+        return PACKAGE_DIR
+    return PACKAGE_DIR.parent  # a source checkout / editable install: the top-level folders of the source tree
+
+
+#: The folder holding ``configs/`` and ``assets/``: the package folder of a wheel install, else the source tree's root.
+ROOT = _find_root()
 
 
 def _bundled(folder: str, name: str) -> Path:
     path = ROOT / folder / name
     if not path.is_file():
-        raise FileNotFoundError(f"bundled file not found: {path} (the {folder}/ folder of the warpscatter source tree; "
-                                f"run from a checkout: git clone + pip install -e .)")
+        where = (f"the {folder}/ folder of the installed package ({ROOT / folder})" if ROOT == PACKAGE_DIR else
+                 f"the {folder}/ folder of the warpscatter source tree ({ROOT / folder})")
+        if (ROOT / folder).is_dir():
+            names = sorted(p.name for p in (ROOT / folder).iterdir() if p.is_file() and not p.name.startswith("."))
+            hint = f"it holds: {', '.join(names)}"
+        else:
+            hint = "this install holds no such folder: reinstall warpscatter from its wheel, or run from a checkout"
+        raise FileNotFoundError(f"bundled file not found: {path} (looked in {where}; {hint})")
     return path
 
 
 def bundled_config(name: str) -> Path:
-    """``configs/NAME.yaml`` of the source tree.
+    """``configs/NAME.yaml`` (``NAME`` with or without ``.yaml``) of the source tree or the installed package.
 
     Raises:
         FileNotFoundError: naming the path, when this install does not hold it.
@@ -30,7 +54,7 @@ def bundled_config(name: str) -> Path:
 
 
 def bundled_asset(name: str) -> Path:
-    """``assets/NAME`` of the source tree (meshes, light textures, environment maps).
+    """``assets/NAME`` (meshes, light textures, environment maps) of the source tree or the installed package.
 
     Raises:
         FileNotFoundError: naming the path, when this install does not hold it.
@@ -38,4 +62,15 @@ def bundled_asset(name: str) -> Path:
     return _bundled("assets", name)
 
 
-__all__ = ["ROOT", "bundled_asset", "bundled_config"]
+def in_package(path: str | Path) -> bool:
+    """Whether ``path`` lies inside the installed ``warpscatter`` package folder (site-packages for a wheel install),
+    where nothing should be written unless the user asked: e.g. a bundled config's default ``output.dir``
+    (``../out``) in a wheel install. In a source checkout the top-level ``out/`` is outside the package: False."""
+    try:
+        Path(path).expanduser().resolve().relative_to(PACKAGE_DIR)
+    except ValueError:
+        return False
+    return True
+
+
+__all__ = ["PACKAGE_DIR", "ROOT", "bundled_asset", "bundled_config", "in_package"]

@@ -1,6 +1,6 @@
 """Pinhole camera following CONVENTIONS.md, and the 4x4 matrices shared by every rasterizing stage.
 
-Conventions (see ``../shared/CONVENTIONS.md``):
+Conventions (see ``docs/conventions.md``):
 
 * pixel (i, j): column i from the left, row j from the TOP;
 * ray of pixel (i, j): from ``position`` through the pixel centre, with t = tan(fov_y/2),
