@@ -30,6 +30,7 @@ from warpscatter import __version__, methods
 from warpscatter.config import AOV_NAMES, Config, load_config
 from warpscatter.csm import settings as csm_settings
 from warpscatter.errors import ConfigError, WarpscatterError
+from warpscatter.resources import bundled_config, in_package
 from warpscatter.schema import format_validation_errors
 
 EXIT_FAILURE = 1
@@ -80,6 +81,38 @@ def _common_options(kernels: bool):
         return f
 
     return decorate
+
+
+def _executor_options(f):
+    """--executor / --workers / --address of the commands that run many renders (animations, sweeps)."""
+    from warpscatter.jobs import EXECUTORS
+
+    options = [
+        click.option("--executor", type=click.Choice(EXECUTORS), default="local", show_default=True,
+                     help="Where frames and sweep cases render: inline (this process, one after the other), local "
+                          "(worker processes), dask (Dask distributed: a LocalCluster, or --address)."),
+        click.option("--workers", type=click.IntRange(min=1), default=None,
+                     help="Worker processes of local / a dask LocalCluster [default: the usable cores]."),
+        click.option("--address", metavar="ADDR", default=None,
+                     help="Scheduler of a running Dask cluster (tcp://host:8786); needs --executor dask."),
+    ]
+    for option in reversed(options):
+        f = option(f)
+    return f
+
+
+def _make_executor(kind: str, workers: int | None, address: str | None, tasks: int, debug: bool):
+    from warpscatter.jobs import make_executor
+    from warpscatter.parallel import thread_count
+
+    if workers is None and kind != "inline" and not address:
+        workers = max(1, min(thread_count(), tasks))
+    try:
+        return make_executor(kind, workers, address)
+    except (ValueError, ImportError) as exc:
+        _fail(str(exc), EXIT_INVALID, debug)
+    except OSError as exc:  # the scheduler cannot be reached
+        _fail(f"--address {address}: {exc}", EXIT_FAILURE, debug)
 
 
 def _setup(verbose: int, quiet: bool, device: str | None = None, threads: int | None = None,
@@ -259,6 +292,17 @@ def _fail(message: str, code: int, debug: bool = False) -> None:
     sys.exit(code)
 
 
+def _config_file(path: Path) -> Path:
+    """A config file, or the name of a bundled config (``quickstart``: configs/quickstart.yaml of the checkout or of
+    the installed package) when no such file exists here."""
+    if path.exists() or path.suffix or len(path.parts) != 1:
+        return path
+    try:
+        return bundled_config(path.name)
+    except FileNotFoundError:
+        return path
+
+
 def _load(config_path: Path, overrides, debug: bool) -> Config:
     try:
         return load_config(config_path, list(overrides))
@@ -365,6 +409,20 @@ def main(ctx: click.Context, debug: bool) -> None:
     Exit codes: 0 done, 1 a failure while working, 2 invalid input (nothing written), 130 interrupted.
     """
     ctx.obj = {"debug": debug}
+    _terminate_like_interrupt()
+
+
+def _terminate_like_interrupt() -> None:
+    """SIGTERM (a job scheduler, ``kill``) stops a command as Ctrl-C does: temporaries removed, previous outputs
+    kept, exit code 130."""
+    import signal
+    import threading
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, interrupt)
 
 
 def _render_config(path: Path, overrides, method: str | None, name: str | None, seed: int | None,
@@ -376,7 +434,7 @@ def _render_config(path: Path, overrides, method: str | None, name: str | None, 
     outputs."""
     from warpscatter.api import load_config as load_any
 
-    config = _load(path, overrides, debug)
+    config = _load(_config_file(path), overrides, debug)
     extra: dict[str, object] = {}
     if method:
         section = "lighting" if method in methods.LIGHTING else "scattering"
@@ -412,21 +470,38 @@ def _render_config(path: Path, overrides, method: str | None, name: str | None, 
               "config file's stem, {method} the method, e.g. --name '{config}_{method}'.")
 @click.option("--seed", type=int, default=None, help="Seed of the jitter / Monte-Carlo patterns (render.scattering."
               "seed, or render.lighting.seed for csm / raytrace); the same seed gives the same image.")
+@click.option("--frames", metavar="A:B", default=None, help="Animated configs: the frames to render (A:B inclusive, "
+              "A:B:STEP or A,B,C) [default: all].")
+@click.option("--force", is_flag=True, help="Animated configs: render frames again even where their files exist "
+              "from the same config (by default a run resumes).")
+@click.option("--preview", type=click.Choice(("auto", "mp4", "gif", "none")), default=None,
+              help="Animated configs: the preview movie [default: animation.preview].")
+@_executor_options
 @_common_options(kernels=True)
 @click.pass_context
-def render(ctx, config_paths, output_dir, overrides, method, name, seed, verbose, quiet, debug, device, threads):
-    """Render the pipelines described by one or more CONFIG files (YAML).
+def render(ctx, config_paths, output_dir, overrides, method, name, seed, frames, force, preview, executor, workers,
+           address, verbose, quiet, debug, device, threads):
+    """Render the pipelines described by one or more CONFIG files (YAML; or the name of a bundled config, e.g.
+    quickstart).
 
     Writes, per config, NAME.exr, NAME.png, the AOVs of output.aovs (NAME.scattering.exr, NAME.surface.exr,
     NAME.depth.exr) and NAME.json (what made them: the resolved config, versions, timings, statistics) into
     output.dir or -o DIR, then prints the per-stage timings. Every config is checked before the first render.
+
+    A config with an animation section renders its frames (NAME.0001.exr ...) through --executor, skipping the
+    frames already rendered from the same config, then writes a preview (NAME.mp4 or NAME.gif).
     """
     debug = debug or ctx.obj.get("debug", False)
     _setup(verbose, quiet)
     out_dir = _out_dir(output_dir)
     configs = [_render_config(p, overrides, method, name, seed, debug) for p in config_paths]
-    if out_dir is not None:
-        for config in configs:  # the sidecar then records where the files went
+    for path, config in zip(config_paths, configs, strict=True):
+        if out_dir is None and in_package(config.output.dir):  # a bundled config of a wheel install
+            config.output.dir = Path.cwd() / "out"
+            if not quiet:
+                click.echo(f"note: {path} is bundled inside the installed package: writing to {config.output.dir} "
+                           f"(give -o DIR to choose)", err=True)
+        elif out_dir is not None:  # the sidecar then records where the files went
             config.output.dir = out_dir
     targets: dict[Path, Path] = {}
     for path, config in zip(config_paths, configs, strict=True):
@@ -437,11 +512,33 @@ def render(ctx, config_paths, output_dir, overrides, method, name, seed, verbose
         targets[target] = path
     device = _setup(verbose, quiet, device, threads, kernels=True)
 
+    frame_lists = {}
+    for path, config in zip(config_paths, configs, strict=True):
+        if config.animation is not None:
+            from warpscatter.sequence import parse_frames
+
+            try:
+                frame_lists[path] = parse_frames(frames, *config.animation.frame_range)
+                for f in frame_lists[path]:  # every frame's config is checked before the first render
+                    config.at_frame(f)
+            except ValueError as exc:
+                _fail(f"{path}: {exc}", EXIT_INVALID)
+            except ConfigError as exc:
+                _fail(str(ConfigError(exc.problems, path)), EXIT_INVALID)
+    if frames and not frame_lists:
+        _fail("--frames: none of the configs has an animation section", EXIT_INVALID)
+
     pipeline = importlib.import_module("warpscatter.pipeline")
     failures = []
     for k, (path, config) in enumerate(zip(config_paths, configs, strict=True)):
         prefix = f"[{k + 1}/{len(configs)}] " if len(configs) > 1 else ""
         progress = ProgressDisplay(enabled=not quiet, prefix=prefix)
+        if path in frame_lists:
+            code = _render_animation(config, frame_lists[path], out_dir, progress, quiet, debug, force, preview,
+                                     (executor, workers, address))
+            if code:
+                failures.append(code)
+            continue
         try:
             result = pipeline.render(config, out_dir=out_dir, progress=progress, device=device)
         except KeyboardInterrupt:
@@ -473,6 +570,97 @@ def render(ctx, config_paths, output_dir, overrides, method, name, seed, verbose
         _fail(f"{len(failures)} of {len(configs)} configs failed", failures[0])
 
 
+def _render_animation(config, frames, out_dir, progress, quiet, debug, force, preview, executor_args) -> int:
+    """Render one animated config's frames; print what was rendered, skipped and failed; return an exit code."""
+    from warpscatter.sequence import render_animation
+
+    kind, workers, address = executor_args
+    executor = _make_executor(kind, workers, address, len(frames), debug)
+    try:
+        with executor:
+            result = render_animation(config, out_dir, frames=frames, executor=executor, resume=not force,
+                                      preview=preview, progress=progress)
+    except KeyboardInterrupt:
+        _interrupted(progress)
+    progress.close()
+    rendered = result.rendered
+    if not quiet:
+        fps = len(rendered) / result.seconds if rendered and result.seconds > 0 else 0.0
+        click.echo(f"{config.output_name}: {len(rendered)} frame(s) rendered, {len(result.skipped)} already done, "
+                   f"{len(result.failed)} failed; {result.seconds:.1f} s ({fps:.2f} frames/s) on {result.executor}")
+        if rendered:
+            per_frame = sorted(sum(r.timings.values()) for r in rendered)
+            click.echo(f"  render time per frame: median {per_frame[len(per_frame) // 2] * 1e3:.1f} ms")
+        for note in result.notes:
+            click.echo(f"  note: {note}")
+    for r in result.failed:
+        click.echo(f"error: frame {r.label}: {r.error}", err=True)
+        if debug and r.details:
+            click.echo(r.details, err=True)
+    files = [f for r in rendered for f in r.files] + ([str(result.preview)] if result.preview else [])
+    if not quiet and files:
+        click.echo("wrote:")
+    for f in files:
+        click.echo(f"  {f}" if not quiet else str(f))
+    return EXIT_FAILURE if result.failed else 0
+
+
+@main.command()
+@click.argument("sweep_path", metavar="SWEEP", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output-dir", "output_dir", type=click.Path(path_type=Path), default=Path("sweep-out"),
+              show_default=True, help="Folder for NAME.json, NAME.csv, the chart and (images: true) the images.")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+              help="Override a config value in every case and reference (added to the sweep's set; repeatable).")
+@_executor_options
+@_common_options(kernels=True)
+@click.pass_context
+def sweep(ctx, sweep_path, output_dir, overrides, executor, workers, address, verbose, quiet, debug, device,
+          threads):
+    """Render every case of a SWEEP file (configs x a grid of overrides), time each, compare it with the sweep's
+    reference, and write one table (NAME.json, NAME.csv) and the error-vs-time chart.
+
+    A failed case is reported with its error; the others go on (exit 1 when any failed).
+    """
+    from warpscatter.config import parse_override
+    from warpscatter.sweep import load_sweep, rows_table, run_sweep, sweep_cases
+
+    debug = debug or ctx.obj.get("debug", False)
+    _setup(verbose, quiet)
+    extra = {}
+    for text in overrides:
+        try:
+            key, value = parse_override(text)
+        except ValueError as exc:
+            _fail(f"--set {text}: {exc}", EXIT_INVALID)
+        extra[".".join(map(str, key))] = value
+    try:
+        settings = load_sweep(sweep_path, extra)
+        cases, _ = sweep_cases(settings)
+    except ConfigError as exc:
+        _fail(str(ConfigError(exc.problems, sweep_path)), EXIT_INVALID)
+    out_dir = _out_dir(output_dir)
+    _setup(verbose, quiet, device, threads, kernels=True)
+    pool = _make_executor(executor, workers, address, len(cases), debug)
+    progress = ProgressDisplay(enabled=not quiet)
+    try:
+        with pool:
+            result = run_sweep(settings, out_dir, executor=pool, progress=progress)
+    except KeyboardInterrupt:
+        _interrupted(progress)
+    except Exception as exc:
+        progress.close()
+        _fail_error(exc, debug)
+    progress.close()
+    if not quiet:
+        click.echo(f"{len(result.rows)} case(s) on {pool.describe()}")
+        click.echo(rows_table(result.rows))
+        click.echo("wrote:")
+    for f in result.files:
+        click.echo(f"  {f}" if not quiet else str(f))
+    if result.failed:
+        _fail(f"{len(result.failed)} of {len(result.rows)} cases failed", EXIT_FAILURE)
+
+
 @main.command()
 @click.argument("config_path", metavar="CONFIG", type=click.Path(dir_okay=False, path_type=Path))
 @_set_option
@@ -482,7 +670,7 @@ def render(ctx, config_paths, output_dir, overrides, method, name, seed, verbose
 def validate(ctx, config_path: Path, overrides, dump: bool, verbose, quiet, debug: bool) -> None:
     """Check CONFIG (and --set overrides) without rendering; print a summary or every problem."""
     _setup(verbose, quiet)
-    config = _load(config_path, overrides, debug or ctx.obj.get("debug", False))
+    config = _load(_config_file(config_path), overrides, debug or ctx.obj.get("debug", False))
     if dump:
         click.echo(config.model_dump_yaml(), nl=False)
         return

@@ -573,7 +573,7 @@ def test_debug_outputs_show_the_lookups_the_epipole_region_and_the_map(tmp_path)
     result = render(cfg, out_dir=tmp_path)
     names = sorted(p.name for p in result.files)
     assert names == sorted(f"canopy_moments.{n}" for n in ("exr", "png", "rectified.exr", "epipole_mask.exr",
-                                                           "rectified_map.exr"))
+                                                           "rectified_map.exr", "json"))
     img, stats = result.images, result.stats
     assert img["rectified"].shape == (90, 160, 3) and img["rectified_map"].shape == (256, 256, 2)
     u, v, z = np.moveaxis(img["rectified"], -1, 0)

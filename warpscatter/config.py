@@ -1,6 +1,6 @@
 """Typed pipeline configuration: YAML loading, ``--set`` overrides, validation and clear errors.
 
-A config file (schema in ``CONVENTIONS.md`` and the README) is read with PyYAML, patched with
+A config file (schema in ``docs/conventions.md`` and the README) is read with PyYAML, patched with
 ``KEY=VALUE`` overrides (``camera.fov_y=40``, ``scene.meshes.0.material.opacity=0.5``), and
 validated by the pydantic v2 models below. Every model forbids unknown keys. Relative paths (mesh
 files, spot-light textures, ``output.dir``) are resolved against the config file's folder into
@@ -18,6 +18,7 @@ This module does not import Warp: validating a config is fast.
 
 from __future__ import annotations
 
+import copy
 import inspect
 import math
 import re
@@ -31,6 +32,7 @@ import yaml
 from pydantic import Field, PrivateAttr, ValidationError, ValidationInfo, field_validator, model_validator
 
 from . import methods
+from .animation import AnimationSettings, frame_name
 from .csm.settings import LightingSettings
 from .errors import ConfigError
 from .scattering.settings import ScatteringSettings
@@ -532,6 +534,9 @@ class Config(SettingsModel):
     medium: MediumConfig = Field(default_factory=dict, description="the homogeneous medium")
     render: RenderSettings = Field(default_factory=dict, description="the methods and their settings")
     output: OutputConfig = Field(default_factory=dict, description="where and what to write")
+    animation: Optional[AnimationSettings] = Field(
+        None, description="a sequence: frame range, rate and keyframed tracks over config keys "
+                          "(warpscatter.animation)")
 
     _config_dir: Path = PrivateAttr(default_factory=Path.cwd)
     _source: Path | None = PrivateAttr(default=None)
@@ -600,6 +605,45 @@ class Config(SettingsModel):
             raise ValueError(f"render.scattering.method {method!r} needs a {' or '.join(lights)} light (light.type is "
                              f"{self.light.type!r})")
         return self
+
+    @model_validator(mode="after")
+    def _tracks_fit(self) -> Config:
+        """Every keyframe of every track gives a valid config (the frames between them interpolate valid values;
+        integer keys round)."""
+        if self.animation is None:
+            return self
+        base = self.model_dump(exclude={"animation"})
+        problems = []
+        for key, track in self.animation.tracks.items():
+            for frame, value in track.keys.items():
+                data = copy.deepcopy(base)
+                try:
+                    apply_overrides(data, {key: value})
+                    Config.model_validate(data, context={"config_dir": self._config_dir})
+                except ConfigError as exc:
+                    problems += [f"animation.tracks.{key} (frame {frame}): {p.removeprefix('--set ')}"
+                                 for p in exc.problems]
+                except ValidationError as exc:
+                    problems += [f"animation.tracks.{key} (frame {frame}): {p}"
+                                 for p in format_validation_errors(exc, Config)]
+        if problems:
+            raise ValueError("\n".join(problems))
+        return self
+
+    def at_frame(self, frame: int) -> Config:
+        """The config of one frame of the animation: every track's value at ``frame`` applied, no ``animation``
+        section, and the output name ``NAME.FFFF`` (:func:`warpscatter.animation.frame_name`).
+
+        Raises:
+            ValueError: the config has no ``animation``.
+            ConfigError: the frame's values make an invalid config.
+        """
+        if self.animation is None:
+            raise ValueError("at_frame: the config has no animation section")
+        data = self.model_dump(exclude={"animation"})
+        apply_overrides(data, self.animation.values_at(frame), self._source)
+        data["output"]["name"] = frame_name(self.output_name, frame).replace("{", "{{").replace("}", "}}")
+        return validated_config(data, self._config_dir, self._source)
 
     @model_validator(mode="after")
     def _remember_dir(self, info: ValidationInfo) -> Config:

@@ -10,15 +10,18 @@ Every write is atomic: the image goes to a hidden temporary file in the target f
 extension kept last so OpenImageIO picks the format), then :func:`os.replace` moves it into place.
 :func:`write_outputs` extends this to a whole set of render outputs: all files are written to
 temporaries first (concurrently, one thread per file: OpenImageIO encodes without the GIL) and
-renamed only when every one succeeded, so a failure leaves no output file. Non-finite pixels are
-refused: the renderer must never produce NaN or Inf.
+renamed only when every one succeeded, so a failure leaves no output file. Temporaries that a killed process
+(SIGKILL) left behind are removed by the next write into the folder (:func:`remove_stale_temporaries`).
+Non-finite pixels are refused: the renderer must never produce NaN or Inf.
 """
 
 from __future__ import annotations
 
 import functools
 import json
+import logging
 import os
+import re
 import secrets
 from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor, wait
@@ -38,6 +41,7 @@ __all__ = [
     "ImageWriteError",
     "json_ready",
     "read_image",
+    "remove_stale_temporaries",
     "srgb_decode",
     "srgb_encode",
     "write_exr",
@@ -76,6 +80,9 @@ _CHANNEL_NAMES = {1: ("Y",), 2: ("Y", "A"), 3: ("R", "G", "B"), 4: ("R", "G", "B
 #: compositors' depth channel), the rectified map's two channels are its depth and the culled-texel mask.
 AOV_CHANNEL_NAMES = {"depth": ("Z",), "rectified": ("u", "v", "z"), "rectified_map": ("depth", "culled")}
 _INTEGER_BASETYPES = {oiio.UINT8, oiio.INT8, oiio.UINT16, oiio.INT16, oiio.UINT32, oiio.INT32}
+
+
+log = logging.getLogger("warpscatter")
 
 
 class ImageWriteError(OSError):
@@ -190,6 +197,42 @@ def _as_image(name: str, image, channels: Iterable[int] = (1, 2, 3, 4)) -> np.nd
 def _temp_name(path: Path) -> Path:
     """Hidden temporary sibling of ``path`` that keeps the real extension last (``.name.tmp-PID-XXXX.exr``)."""
     return path.with_name(f".{path.stem}.tmp-{os.getpid()}-{secrets.token_hex(3)}{path.suffix}")
+
+
+_TEMP_PATTERN = re.compile(r"^\..+\.tmp-(\d+)-[0-9a-f]{6}\.[A-Za-z0-9]+$")
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, owned by another user
+        return True
+    return True
+
+
+def remove_stale_temporaries(folder: str | Path) -> list[Path]:
+    """Remove the temporary files (``.NAME.tmp-PID-XXXXXX.ext``) that writers of processes no longer running left in
+    ``folder`` (a render killed with SIGKILL, a power cut); return them. Temporaries of running processes on this
+    machine are left alone (a folder shared by several machines: the PID is checked on this one only)."""
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for entry in entries:
+        m = _TEMP_PATTERN.match(entry.name)
+        if m and entry.is_file(follow_symlinks=False) and int(m.group(1)) != os.getpid() \
+                and not _process_alive(int(m.group(1))):
+            try:
+                os.unlink(entry.path)
+                removed.append(Path(entry.path))
+            except OSError:
+                pass
+    if removed:
+        log.info("removed %d temporary file(s) of a killed run in %s", len(removed), folder)
+    return removed
 
 
 def _header_attribute(spec: oiio.ImageSpec, key: str, value) -> None:
@@ -466,6 +509,7 @@ def write_outputs(
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ImageWriteError(f"cannot create output folder {out_dir}: {exc}") from exc
+    remove_stale_temporaries(out_dir)
 
     def exr_meta(aov: str) -> dict:
         return {**(metadata or {}), "warpscatter:aov": aov}

@@ -209,6 +209,8 @@ def config_reference() -> str:
                 parts.append(f"`render.{sub}` — {sub_field.description}\n\n"
                              + settings_table(_constraints(sub_field.annotation)[0], f"render.{sub}"))
             continue
+        if not _is_model(tp):  # an optional section (animation): its model
+            tp = next(a for a in typing.get_args(tp) if _is_model(a))
         parts.append(f"`{name}` — {summary(tp)}\n\n" + settings_table(tp, name))
     return "\n\n".join(parts)
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import re
 import types
 import typing
 from pathlib import Path
@@ -310,8 +311,10 @@ def format_validation_errors(
                 if loc[:n] in key_lines:
                     where = f" (line {key_lines[loc[:n]]})"
                     break
-        key = dotted(loc) or "config"
+        key = dotted(loc)
         for line in reason.splitlines() or [""]:
-            problems.append(f"{key}: {line}{where}")
+            # a check of the whole config names its keys itself ("render.scattering.method 'x' needs ...")
+            named = not key and re.match(r"[a-z_]+(\.[\w]+)+[: ]", line)
+            problems.append(f"{line}{where}" if named else f"{key or 'config'}: {line}{where}")
     return problems
 

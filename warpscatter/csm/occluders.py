@@ -9,6 +9,7 @@ them with the same functions.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import replace
 
 import numpy as np
@@ -106,9 +107,27 @@ def prepare_csm(light, settings: CSMBuildSettings, vertices, triangles, *, progr
         return csm
     common = {"resolution": settings.resolution, "enumeration": settings.enumeration, "depth_layers": settings.layers,
               "far": settings.far, "batch_maps": settings.batch, "progress": progress, "device": device}
-    if csm_kind_for(light, settings.local_lights) == KIND_LATLONG:
-        return build_csm(vertices, triangles, n1=settings.maps[0], n2=settings.maps[1], **common)
-    return build_cube_csm(vertices, triangles, light.sample_points(*settings.light_samples), **common)
+    latlong = csm_kind_for(light, settings.local_lights) == KIND_LATLONG
+    points = None if latlong else np.asarray(light.sample_points(*settings.light_samples), np.float64)
+    key = (geometry_digest(vertices, triangles), settings.model_dump_json(exclude={"file"}), str(device),
+           None if points is None else points.tobytes())
+    csm = _BUILT.pop(key, None)
+    if csm is None:
+        csm = (build_csm(vertices, triangles, n1=settings.maps[0], n2=settings.maps[1], **common) if latlong else
+               build_cube_csm(vertices, triangles, points, **common))
+    elif progress is not None:
+        progress(1.0)
+    _BUILT[key] = csm  # most recently used last
+    while len(_BUILT) > BUILT_CACHE_SIZE:
+        _BUILT.popitem(last=False)
+    return csm
+
+
+#: CSMs this process built, by (occluder geometry, settings, device, light sample points): a render of the same
+#: occluders (the frames of an animation whose occluders do not move, a sweep over other settings) reuses them.
+_BUILT: OrderedDict = OrderedDict()
+#: How many built CSMs the process keeps (each up to tens of MB).
+BUILT_CACHE_SIZE = 2
 
 
 def texel_size(csm: CoherentShadowMap) -> float:
