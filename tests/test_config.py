@@ -326,7 +326,7 @@ def test_render_section(tmp_path):
         {
             "render": {
                 "scattering": {"method": "moonlight", "steps": 0, "visibility": "bvh", "shadow_map": {"resolution": 8}},
-                "shadows": {"method": "vsm", "filter_px": 0},
+                "shadows": {"method": "esm", "filter_px": 0},
             }
         },
     )
@@ -335,7 +335,8 @@ def test_render_section(tmp_path):
     assert "render.scattering.steps: must be >= 1" in msg
     assert "render.scattering.visibility: must be one of 'exact' or 'shadow_map'" in msg
     assert "render.scattering.shadow_map.resolution: each side must lie in [16," in msg
-    assert "render.shadows.method: must be one of 'pcf', 'msm', 'msm_soft', 'pcss' or 'none'" in msg
+    assert "render.shadows.method: must be one of 'pcf', 'msm', 'msm_soft', 'pcss', 'msm2015', 'vsm', 'evsm' or " \
+           "'none'" in msg
     assert "render.shadows.filter_px: must be >= 1" in msg
 
 

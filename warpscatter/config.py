@@ -724,16 +724,110 @@ def validated_config(data: Any, config_dir: str | Path | None, source: Path | No
 
 # ---- YAML ----------------------------------------------------------------------------------------
 
+#: The most nodes a YAML document (a config, a sweep file, a ``--set`` value) may hold once its aliases are
+#: expanded: every scalar, list and mapping counts, each ``*alias`` as the whole node it refers to. The bundled
+#: configs hold 100-200; the limit stops alias bombs ("billion laughs": nine levels of ten aliases each expand a
+#: few hundred bytes to 10^9 nodes) while composing, before anything is built, validated or copied.
+MAX_YAML_NODES = 100_000
+
+_NAME_TAGS = ("tag:yaml.org,2002:str", "tag:yaml.org,2002:merge")
+
+
+class _YAMLKeyError(yaml.MarkedYAMLError):
+    """A mapping key the config cannot use, found after composing; ``key_path`` is where it is."""
+
+    def __init__(self, key_path: tuple, problem: str, mark):
+        super().__init__(problem=problem, problem_mark=mark)
+        self.key_path = key_path
+
 
 class _Loader(yaml.SafeLoader):
-    """SafeLoader that rejects duplicate keys and reads ``1e-3`` as a float (as YAML 1.2 does)."""
+    """SafeLoader that rejects duplicate keys, reads ``1e-3`` as a float (as YAML 1.2 does), and refuses documents
+    that cannot be plain config data.
+
+    Alias bombs: while composing, every node's expanded size (itself plus, recursively, everything below it, an
+    alias counting as the whole node it refers to) is computed once, so a running total of the document's expanded
+    size costs O(1) per node and alias; the document is refused as soon as the total passes
+    :data:`MAX_YAML_NODES` (a ``ComposerError`` at the alias or node that passed it), and so are recursive aliases
+    (an alias inside the node it refers to). A budget on the expanded size, rather than a limit on alias depth,
+    bounds exactly what costs time and memory later (building the data, validating it, copying it, walking it for
+    line numbers) and keeps aliases usable for what they are for: sharing a material or a transform between entries.
+
+    Keys: a list or a mapping as a mapping key (``{[1, 2]: 3}``) is refused with its key path (``_YAMLKeyError``);
+    with ``string_keys_at_top`` (config and sweep files) so is a top-level key that is not a string (``1: x``).
+    Numbers stay allowed as keys below the top level (animation keyframes are ``frame: value``).
+    """
+
+    string_keys_at_top = False
+
+    def compose_document(self):
+        self._sizes: dict[int, int] = {}
+        self._expanded = 0
+        node = super().compose_document()
+        self._sizes = {}
+        if node is not None:
+            self._check_keys(node)
+        return node
+
+    def compose_node(self, parent, index):
+        alias = self.peek_event() if self.check_event(yaml.AliasEvent) else None
+        node = super().compose_node(parent, index)
+        if alias is not None:
+            size = self._sizes.get(id(node))
+            if size is None:
+                raise yaml.composer.ComposerError(
+                    None, None, f"alias *{alias.anchor} is inside the node it refers to (a recursive structure)",
+                    alias.start_mark)
+            mark = alias.start_mark
+        else:
+            if isinstance(node, yaml.MappingNode):
+                size = 1 + sum(self._sizes[id(k)] + self._sizes[id(v)] for k, v in node.value)
+            elif isinstance(node, yaml.SequenceNode):
+                size = 1 + sum(self._sizes[id(v)] for v in node.value)
+            else:
+                size = 1
+            self._sizes[id(node)] = size
+            mark = node.start_mark
+        self._expanded += size if alias is not None else 1
+        if self._expanded > MAX_YAML_NODES:
+            what = f"alias *{alias.anchor} ({size} nodes)" if alias is not None else "this node"
+            raise yaml.composer.ComposerError(
+                None, None, f"the document holds more than {MAX_YAML_NODES} nodes with its aliases expanded (at "
+                f"{what}); refusing it (an alias bomb?)", mark)
+        return node
+
+    def _check_keys(self, root) -> None:
+        """Refuse collection keys (anywhere) and non-string top-level keys, naming the key path."""
+        seen: set[int] = set()
+        stack = [(root, ())]
+        while stack:
+            node, path = stack.pop()
+            if id(node) in seen:
+                continue
+            seen.add(id(node))
+            if isinstance(node, yaml.SequenceNode):
+                stack.extend((v, (*path, i)) for i, v in reversed(list(enumerate(node.value))))
+            elif isinstance(node, yaml.MappingNode):
+                children = []
+                for k, v in node.value:
+                    if not isinstance(k, yaml.ScalarNode):
+                        kind = "list" if isinstance(k, yaml.SequenceNode) else "mapping"
+                        raise _YAMLKeyError((*path, "[key]"), f"a key must be a name, not a {kind}", k.start_mark)
+                    if not path and self.string_keys_at_top and k.tag not in _NAME_TAGS:
+                        raise _YAMLKeyError((k.value,), f"a top-level key must be a section name (a string), got "
+                                            f"{k.value}", k.start_mark)
+                    children.append((v, (*path, k.value)))
+                stack.extend(reversed(children))
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):
             seen = set()
             for key_node, _ in node.value:
                 key = self.construct_object(key_node, deep=True)
-                if isinstance(key, typing.Hashable) and key in seen:
+                if not isinstance(key, typing.Hashable):
+                    raise yaml.constructor.ConstructorError(None, None, f"a key must be a name, not {key!r}",
+                                                            key_node.start_mark)
+                if key in seen:
                     raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", key_node.start_mark)
                 seen.add(key)
         return super().construct_mapping(node, deep=deep)
@@ -746,9 +840,19 @@ _Loader.add_implicit_resolver(
 )
 
 
+class _ConfigLoader(_Loader):
+    """:class:`_Loader` of whole config and sweep files: top-level keys are section names."""
+
+    string_keys_at_top = True
+
+
+
 def _yaml_problem(exc: yaml.YAMLError) -> str:
     mark = getattr(exc, "problem_mark", None)
     what = " ".join(str(x) for x in (getattr(exc, "context", None), getattr(exc, "problem", None)) if x) or str(exc)
+    if isinstance(exc, _YAMLKeyError):
+        line = f" (line {mark.line + 1})" if mark is not None else ""
+        return f"{dotted(exc.key_path) if exc.key_path else 'config'}: {what}{line}"
     if mark is not None:
         return f"line {mark.line + 1}, column {mark.column + 1}: YAML error: {what}"
     return f"YAML error: {what}"
@@ -785,10 +889,11 @@ def parse_override(text: str) -> tuple[tuple[str | int, ...], Any]:
 
     Digits in the key select list items; the index one past the end appends an item
     (``scene.meshes.1.procedural=colonnade`` adds a second mesh). The value is parsed as YAML (``0.5`` -> float,
-    ``[0, 1, 2]`` -> list, ``raymarch`` -> str, ``true`` -> bool).
+    ``[0, 1, 2]`` -> list, ``raymarch`` -> str, ``true`` -> bool), by the loader of config files (:class:`_Loader`:
+    duplicate keys, lists or mappings as keys and alias bombs beyond :data:`MAX_YAML_NODES` are refused).
 
     Raises:
-        ValueError: when the text is not ``KEY=VALUE`` or the value is not valid YAML.
+        ValueError: when the text is not ``KEY=VALUE`` or the value is not valid YAML or not plain config data.
     """
     key, sep, raw = text.partition("=")
     key = key.strip()
@@ -800,6 +905,8 @@ def parse_override(text: str) -> tuple[tuple[str | int, ...], Any]:
     path = tuple(int(p) if p.isdigit() else p for p in parts)
     try:
         value = yaml.load(raw, Loader=_Loader) if raw.strip() else None
+    except _YAMLKeyError as exc:
+        raise ValueError(f"{dotted(path + exc.key_path)}: {exc.problem}") from None
     except yaml.YAMLError as exc:
         raise ValueError(f"value is not valid YAML ({_yaml_problem(exc)})") from None
     return path, value
@@ -879,10 +986,15 @@ def apply_overrides(data: dict, overrides: Iterable[str] | Mapping[str, Any] = (
 
 
 def read_config_data(path: str | Path) -> tuple[dict, str]:
-    """Read a YAML config file as plain data (duplicate keys refused), with its text (for line numbers).
+    """Read a YAML config file as plain data, with its text (for line numbers).
+
+    The loader (:class:`_ConfigLoader`) refuses duplicate keys, lists or mappings as keys, top-level keys that are
+    not strings, recursive aliases and documents of more than :data:`MAX_YAML_NODES` nodes with their aliases
+    expanded (alias bombs), the last while composing: a refused document costs time in proportion to its text.
 
     Raises:
-        ConfigError: the file cannot be read, is not YAML or is not a mapping at the top level.
+        ConfigError: the file cannot be read, is not YAML, is refused by the loader (file and line named) or is
+            not a mapping at the top level.
     """
     path = Path(path)
     try:
@@ -892,7 +1004,7 @@ def read_config_data(path: str | Path) -> tuple[dict, str]:
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"cannot read config: {exc}", path) from None
     try:
-        data = yaml.load(text, Loader=_Loader)
+        data = yaml.load(text, Loader=_ConfigLoader)
     except yaml.YAMLError as exc:
         raise ConfigError(_yaml_problem(exc), path) from None
     if data is None:

@@ -39,10 +39,38 @@ class ConfigError(WarpscatterError):
 
 
 class InputFileError(WarpscatterError, ValueError):
-    """An input file (a precomputed coherent shadow map, say) that cannot be read or does not fit the scene; the
-    message names the file and the reason. The CLI treats it like an invalid config (exit code 2)."""
+    """An input file (a mesh, a light texture, an environment map, a precomputed coherent shadow map) that cannot be
+    read, is not valid data (empty, unparsable, NaN, negative radiance, declared sizes beyond the file or a limit)
+    or does not fit the scene; the message names the file and the reason. The CLI treats it like an invalid config
+    (exit code 2).
+
+    Attributes:
+        message: the reason, naming the file.
+        path: the file, where known.
+        key: the config key that named the file (``scene.meshes.1.path``), where known: the message is then
+            ``key: message``. Loaders that do not know it leave it to their caller (:meth:`at`).
+    """
 
     exit_code = 2
+
+    def __init__(self, message: str, *, path: str | Path | None = None, key: str | None = None):
+        self.message = str(message)
+        self.path = Path(path) if path is not None else None
+        self.key = key
+        super().__init__(self.message)
+
+    def at(self, key: str) -> InputFileError:
+        """This error, reported at config key ``key`` unless it already names one; returns it, for
+        ``raise exc.at("scene.meshes.1.path")``."""
+        if self.key is None:
+            self.key = key
+        return self
+
+    def __str__(self) -> str:
+        return f"{self.key}: {self.message}" if self.key else self.message
+
+    def __reduce__(self):  # keep path and key through pickling (process executors)
+        return self.__class__, (self.message,), {"path": self.path, "key": self.key}
 
 
 class NonFiniteImageError(WarpscatterError, FloatingPointError):

@@ -7,22 +7,30 @@ write; ``rle`` makes files a third smaller, see the table there). PNG previews a
 clamped to [0, 1] and sRGB-encoded to 8 bits; reading an 8/16-bit file decodes sRGB back to linear.
 
 Every write is atomic: the image goes to a hidden temporary file in the target folder (the real
-extension kept last so OpenImageIO picks the format), then :func:`os.replace` moves it into place.
-:func:`write_outputs` extends this to a whole set of render outputs: all files are written to
-temporaries first (concurrently, one thread per file: OpenImageIO encodes without the GIL) and
-renamed only when every one succeeded, so a failure leaves no output file. Temporaries that a killed process
-(SIGKILL) left behind are removed by the next write into the folder (:func:`remove_stale_temporaries`).
-Non-finite pixels are refused: the renderer must never produce NaN or Inf.
+extension kept last so OpenImageIO picks the format), is flushed to disk (``fsync``), then :func:`os.replace` moves
+it into place. :func:`write_outputs` extends this to a whole set of render outputs, all or nothing: all files are
+written to temporaries first (concurrently, one thread per file: OpenImageIO encodes without the GIL) and fsynced;
+then, target by target, the existing file (if any) is kept as a hidden backup (``.NAME.bak-PID-XXXXXX.ext``, a hard
+link, so the target never disappears; a rename where the file system has no hard links) and the temporary is renamed
+in. Any failure on the way (a write or rename error, a full disk, a directory squatting on a target, an exception or
+KeyboardInterrupt / SIGTERM) rolls back: the new files renamed in so far are removed and every backup is moved back,
+so the previous set survives byte for byte; on success the backups are deleted. Temporaries and backups that a
+killed process (SIGKILL) left behind are cleaned up by the next write into the folder
+(:func:`remove_stale_temporaries`: temporaries removed, backups moved back). Non-finite pixels are refused: the
+renderer must never produce NaN or Inf.
 """
 
 from __future__ import annotations
 
+import errno
 import functools
 import json
 import logging
 import os
 import re
 import secrets
+import stat
+import threading
 from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor, wait
 from pathlib import Path
@@ -31,6 +39,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 from . import __version__
+from .errors import InputFileError
 
 __all__ = [
     "AOV_CHANNELS",
@@ -41,6 +50,7 @@ __all__ = [
     "ImageWriteError",
     "json_ready",
     "read_image",
+    "read_radiance_image",
     "remove_stale_temporaries",
     "srgb_decode",
     "srgb_encode",
@@ -199,7 +209,16 @@ def _temp_name(path: Path) -> Path:
     return path.with_name(f".{path.stem}.tmp-{os.getpid()}-{secrets.token_hex(3)}{path.suffix}")
 
 
-_TEMP_PATTERN = re.compile(r"^\..+\.tmp-(\d+)-[0-9a-f]{6}\.[A-Za-z0-9]+$")
+def _backup_name(path: Path) -> Path:
+    """Hidden sibling of ``path`` keeping the previous file while a set is renamed in (``.name.bak-PID-XXXX.exr``)."""
+    return path.with_name(f".{path.stem}.bak-{os.getpid()}-{secrets.token_hex(3)}{path.suffix}")
+
+
+_TEMP_PATTERN = re.compile(r"^\.(?P<stem>.+)\.(?P<kind>tmp|bak)-(?P<pid>\d+)-[0-9a-f]{6}(?P<suffix>\.[A-Za-z0-9]+)$")
+
+#: Temporaries and backups of this process's writes in progress (:func:`remove_stale_temporaries` leaves them).
+_active: set[Path] = set()
+_active_lock = threading.Lock()
 
 
 def _process_alive(pid: int) -> bool:
@@ -213,25 +232,44 @@ def _process_alive(pid: int) -> bool:
 
 
 def remove_stale_temporaries(folder: str | Path) -> list[Path]:
-    """Remove the temporary files (``.NAME.tmp-PID-XXXXXX.ext``) that writers of processes no longer running left in
-    ``folder`` (a render killed with SIGKILL, a power cut); return them. Temporaries of running processes on this
-    machine are left alone (a folder shared by several machines: the PID is checked on this one only)."""
+    """Clean up after writers that did not finish: return the temporaries removed and the backups restored.
+
+    Temporary files (``.NAME.tmp-PID-XXXXXX.ext``) of processes no longer running (a render killed with SIGKILL, a
+    power cut) are removed, and so are this process's own temporaries that no write in progress uses (a rollback in a
+    folder that had turned read-only could not remove them). Backups (``.NAME.bak-PID-XXXXXX.ext``, the previous file
+    of a target kept while :func:`write_outputs` renames a set in) of such writers are moved back onto their target:
+    a writer killed while renaming leaves the previous files. Files of running processes on this machine are left
+    alone (a folder shared by several machines: the PID is checked on this one only).
+    """
     removed = []
     try:
         entries = list(os.scandir(folder))
     except OSError:
         return removed
+    with _active_lock:
+        active = set(_active)
     for entry in entries:
         m = _TEMP_PATTERN.match(entry.name)
-        if m and entry.is_file(follow_symlinks=False) and int(m.group(1)) != os.getpid() \
-                and not _process_alive(int(m.group(1))):
-            try:
+        if not m or entry.is_dir(follow_symlinks=False):
+            continue
+        pid = int(m.group("pid"))
+        if Path(entry.path) in active or (pid != os.getpid() and _process_alive(pid)):
+            continue
+        try:
+            if m.group("kind") == "bak":
+                target = os.path.join(os.path.dirname(entry.path), m.group("stem") + m.group("suffix"))
+                if os.path.isdir(target) and not os.path.islink(target):
+                    continue
+                os.replace(entry.path, target)
+                if os.path.lexists(entry.path):  # a hard link of the target itself: the rename did nothing
+                    os.unlink(entry.path)
+            else:
                 os.unlink(entry.path)
-                removed.append(Path(entry.path))
-            except OSError:
-                pass
+            removed.append(Path(entry.path))
+        except OSError:
+            pass
     if removed:
-        log.info("removed %d temporary file(s) of a killed run in %s", len(removed), folder)
+        log.info("cleaned up %d temporary or backup file(s) of an unfinished write in %s", len(removed), folder)
     return removed
 
 
@@ -375,27 +413,126 @@ def _run_writers(jobs: list[tuple[Path, Callable[[Path], None]]],
     return None
 
 
-def _write_all(jobs: list[tuple[Path, Callable[[Path], None]]]) -> list[Path]:
-    """Write every job to a temporary file, then rename all; on any failure leave none of the targets."""
-    temps = [_temp_name(final) for final, _ in jobs]
-    done: list[Path] = []
-    current = jobs[0][0]
+def _fsync(path: Path) -> None:
+    """Flush a written file to disk (its data and size) before it is renamed over a previous file."""
+    fd = os.open(path, os.O_RDWR if os.name == "nt" else os.O_RDONLY)
     try:
-        failure = _run_writers(jobs, temps)
-        if failure is not None:
-            current, error = failure
-            raise error
-        for (final, _), tmp in zip(jobs, temps, strict=True):
-            current = final
-            os.replace(tmp, final)
-            done.append(final)
-    except BaseException as exc:
-        for p in temps + done:
-            _remove_quietly(p)
-        if not isinstance(exc, Exception):
-            raise
-        raise ImageWriteError(f"cannot write {current}: {exc}") from exc
-    return done
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Flush a folder's entries (the renames) to disk; a no-op where folders cannot be opened (Windows)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _synced(writer: Callable[[Path], None]) -> Callable[[Path], None]:
+    def write_and_sync(path: Path) -> None:
+        writer(path)
+        _fsync(path)
+
+    return write_and_sync
+
+
+def _set_aside(final: Path, backup: Path) -> bool:
+    """Keep the file at ``final`` (if any) as ``backup``: a hard link (``final`` stays in place until the new file
+    replaces it), a rename where hard links fail. Returns whether there was a file; a directory raises."""
+    try:
+        st = os.lstat(final)
+    except FileNotFoundError:
+        return False
+    if stat.S_ISDIR(st.st_mode):
+        raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(final))
+    try:
+        os.link(final, backup, follow_symlinks=False)
+    except OSError:
+        os.rename(final, backup)
+    return True
+
+
+def _roll_back(commits: list[tuple[Path, Path, Path]], temps: list[Path]) -> list[str]:
+    """Undo a partly renamed set: every target gets its backup back (or, with no previous file, loses the new one);
+    every temporary is removed. The state is read from the files, so an interruption anywhere in the renaming is
+    undone. Returns what could not be undone (empty when the previous set is back)."""
+    problems = []
+    for final, tmp, backup in reversed(commits):
+        try:
+            if os.path.lexists(backup):
+                os.replace(backup, final)
+                if os.path.lexists(backup):  # still the same file as final (the new one was not renamed in)
+                    os.unlink(backup)
+            elif not os.path.lexists(tmp) and os.path.lexists(final):  # renamed in, no previous file
+                os.unlink(final)
+        except OSError as exc:
+            problems.append(f"{final}: {exc}" + (f" (the previous file is kept as {backup})"
+                                                 if os.path.lexists(backup) else ""))
+    for tmp in temps:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        except OSError as exc:
+            problems.append(f"temporary {tmp} left behind: {exc}")
+    return problems
+
+
+def _write_all(jobs: list[tuple[Path, Callable[[Path], None]]]) -> list[Path]:
+    """Write every job to a temporary file (concurrently) and fsync it, then rename all into place, all or nothing.
+
+    Renaming keeps each existing target as a backup first (:func:`_set_aside`); on any failure or interruption
+    :func:`_roll_back` restores the previous files and removes the new ones and the temporaries, so either the
+    complete new set or the complete previous set is there. On success the backups are deleted.
+    """
+    temps = [_temp_name(final) for final, _ in jobs]
+    backups = [_backup_name(final) for final, _ in jobs]
+    commits: list[tuple[Path, Path, Path]] = []
+    current = jobs[0][0]
+    with _active_lock:
+        _active.update(temps + backups)
+    try:
+        try:
+            failure = _run_writers([(final, _synced(writer)) for final, writer in jobs], temps)
+            if failure is not None:
+                current, error = failure
+                raise error
+            for (final, _), tmp, backup in zip(jobs, temps, backups, strict=True):
+                current = final
+                commits.append((final, tmp, backup))  # before any change: an interruption is rolled back
+                _set_aside(final, backup)
+                os.replace(tmp, final)
+        except BaseException as exc:
+            problems = _roll_back(commits, temps)
+            if problems:
+                log.error("could not restore the previous outputs: %s", "; ".join(problems))
+            if not isinstance(exc, Exception):
+                raise
+            text = f"cannot write {current}: {exc}"
+            if problems:
+                text += "; the rollback failed too: " + "; ".join(problems)
+            raise ImageWriteError(text) from exc
+        for backup in backups:
+            try:
+                os.unlink(backup)
+            except FileNotFoundError:
+                pass
+            except OSError as exc:
+                log.warning("cannot remove the backup %s: %s", backup, exc)
+        for folder in dict.fromkeys(final.parent for final, _ in jobs):
+            _fsync_folder(folder)
+    finally:
+        with _active_lock:
+            _active.difference_update(temps + backups)
+    return [final for final, _ in jobs]
 
 
 def write_exr(path: str | Path, image: np.ndarray, compression: str = DEFAULT_EXR_COMPRESSION) -> Path:
@@ -462,8 +599,13 @@ def write_outputs(
     ``NAME.scattering.exr``, ``NAME.surface.exr`` (linear RGB), ``NAME.depth.exr`` (channel ``Z``) and the debug
     outputs (``NAME.rectified.exr`` ...) for the AOVs requested, then ``NAME.json`` when a sidecar is given. With
     ``layered``, the image-sized AOVs are layers of ``NAME.exr`` instead (channels ``R, G, B``,
-    ``scattering.R`` ..., ``depth.Z``); outputs of their own size (:data:`OWN_SIZE_AOVS`) stay files. The files are
-    written concurrently, to temporary names that are renamed once all of them succeeded.
+    ``scattering.R`` ..., ``depth.Z``); outputs of their own size (:data:`OWN_SIZE_AOVS`) stay files.
+
+    The set is replaced all or nothing: the files are written concurrently to temporary names and flushed to disk,
+    then renamed in one after the other, each target's previous file kept as a backup until all are in; any failure
+    or interruption (KeyboardInterrupt, SIGTERM) rolls back to the previous files (module docstring). Files of a
+    previous set that this set does not write (``NAME.depth.exr`` of a render that asked for depth, when this one
+    does not) are left alone: the set is what this call writes, and the sidecar lists it.
 
     Args:
         out_dir: output folder (created if missing).
@@ -484,7 +626,9 @@ def write_outputs(
     Raises:
         ValueError: unknown/missing AOV, mismatched shapes, non-finite pixels, bad exposure, compression
             or name.
-        ImageWriteError: a file could not be written; then none of the output files exists.
+        ImageWriteError: a file could not be written or renamed in; then the folder holds the previous files as
+            they were (none of the new ones), unless the rollback itself failed (a folder turned read-only: the
+            message says which previous files are kept under which backup name).
     """
     if not name or "/" in name or "\\" in name or name in (".", ".."):
         raise ValueError(f"name: must be a plain file stem, got {name!r}")
@@ -564,3 +708,32 @@ def read_image(path: str | Path) -> np.ndarray:
         colour = [i for i in range(spec.nchannels) if i != spec.alpha_channel][:3]
         pixels[:, :, colour] = srgb_decode(pixels[:, :, colour])
     return np.ascontiguousarray(pixels)
+
+
+def read_radiance_image(path: str | Path, key: str | None = None) -> np.ndarray:
+    """Read an image of radiance values (a light texture, an environment map) as linear float32 (H, W, 3), checked.
+
+    One channel (grey) or two (grey and alpha) become RGB; a fourth channel (alpha) is dropped. Every value must be
+    finite and >= 0: a light emits no negative or infinite radiance, and a NaN would spread through the render.
+
+    Args:
+        path: the image file (any format :func:`read_image` reads).
+        key: the config key that named it (``light.texture``), put in front of the message.
+
+    Raises:
+        InputFileError: the file cannot be read, or holds non-finite or negative values (the message names the file,
+            the count and the first texel).
+    """
+    path = Path(path)
+    try:
+        image = read_image(path)
+    except OSError as exc:
+        raise InputFileError(str(exc), path=path, key=key) from None
+    colour = image[:, :, :1] if image.shape[2] <= 2 else image[:, :, :3]
+    for bad, what in ((~np.isfinite(colour), "non-finite (NaN or infinite)"), (colour < 0.0, "negative")):
+        if bad.any():
+            r, c, ch = np.argwhere(bad)[0]
+            raise InputFileError(
+                f"{path}: {int(bad.sum())} {what} value(s), first at row {r}, column {c}, channel {ch} "
+                f"({float(colour[r, c, ch])}); radiance must be finite and >= 0", path=path, key=key)
+    return np.ascontiguousarray(np.repeat(colour, 3, axis=2) if colour.shape[2] == 1 else colour)

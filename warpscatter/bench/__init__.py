@@ -13,7 +13,8 @@ versions, commit, time stamp) and ``bench-<suite>.csv`` (layouts: :mod:`.report`
 
 Suites (:data:`SUITES`, one record each): ``raster``, ``reference``, ``parallel`` (:mod:`.suites_core`),
 ``prefiltered``, ``moments``, ``epipolar`` (:mod:`.suites_scattering`), ``csm`` (:mod:`.suites_csm`), ``fidelity``
-(:mod:`.suites_fidelity`), ``pareto`` (:mod:`.suites_pareto`), ``scaleout`` (:mod:`.suites_scaleout`).
+(:mod:`.suites_fidelity`), ``pareto`` (:mod:`.suites_pareto`), ``filterable`` (:mod:`.suites_shadows`), ``scaleout``
+(:mod:`.suites_scaleout`).
 
 ``quick=True`` shrinks every size (for smoke tests and CI); figures for notes come from full runs.
 """
@@ -36,6 +37,7 @@ from .suites_fidelity import suite_fidelity
 from .suites_pareto import suite_pareto
 from .suites_scaleout import suite_scaleout
 from .suites_scattering import suite_epipolar, suite_moments, suite_prefiltered
+from .suites_shadows import suite_filterable
 
 
 @dataclass(frozen=True)
@@ -73,6 +75,9 @@ SUITES: dict[str, Suite] = {s.name: s for s in (
     Suite("pareto", "quality per time at 1920x1080: the shadow-map marcher's error/time curve (8-256 steps, both "
                     "step patterns) against the exact reference, and each fast method's equal-error speed-up over "
                     "it, on colonnade, canopy and window (takes long: ~15 min)", suite_pareto),
+    Suite("filterable", "light leaking of the filterable shadow maps (msm, msm2015, vsm, evsm at their storages) "
+                        "against PCF on a fence / wall / sign scene after Peters 2017 Fig. 4 (~1 min)",
+          suite_filterable),
     Suite("scaleout", "a 60-frame 640x360 animation (colonnade_sunset) through each executor: plain loop, 1 and 2 "
                       "local worker processes, a 2-worker Dask LocalCluster: frames/s, overhead per task (~4 min)",
           suite_scaleout),

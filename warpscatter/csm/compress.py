@@ -39,11 +39,13 @@ import time
 import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from struct import error as struct_error
 
 import numpy as np
 import warp as wp
 
 from .. import parallel
+from ..errors import InputFileError
 from ..wpinit import default_device, module_options
 from .depthmaps import DEPTH_LAYERS, FAR_MODES, CubeMapSet, LatLongMapSet, latlong_frames
 from .enumeration import ENUMERATIONS, enumerate_grid, sequence_index
@@ -58,8 +60,15 @@ KIND_CUBE = "cube"
 KINDS = (KIND_LATLONG, KIND_CUBE)
 
 
-class CSMFileError(ValueError):
-    """A CSM file cannot be read or does not hold a consistent CSM; the message names the file and the reason."""
+#: The most array data (bytes, all arrays together, as the ``.npz`` entries' headers declare them) :func:`load_csm`
+#: reads: checked before anything is allocated. A 64 x 32 x 128^2 CSM of a few hundred triangles holds ~100 MB.
+MAX_CSM_BYTES = 4 * 2**30
+
+
+class CSMFileError(InputFileError):
+    """A CSM file cannot be read or does not hold a consistent CSM; the message names the file and the reason.
+
+    An :class:`~warpscatter.errors.InputFileError` (and so a ValueError): a user error, CLI exit code 2."""
 
 
 def geometry_digest(vertices, triangles) -> str:
@@ -634,7 +643,7 @@ def save_csm(csm: CoherentShadowMap, path: str | os.PathLike) -> None:
 
 
 def _fail(path: str, reason: str) -> CSMFileError:
-    return CSMFileError(f"{path}: {reason}")
+    return CSMFileError(f"{path}: {reason}", path=path)
 
 
 def _load_params(path: str, data) -> dict:
@@ -673,18 +682,61 @@ def _load_params(path: str, data) -> dict:
     return out
 
 
+def _check_declared_sizes(path: str) -> None:
+    """Check every array of a ``.npz`` before it is read: its ``.npy`` header's shape and dtype (read without
+    allocating the data) must account exactly for the bytes of its zip entry, an entry stored uncompressed must lie
+    inside the file, and all arrays together must stay within :data:`MAX_CSM_BYTES`. A crafted header declaring a
+    huge shape would otherwise make numpy allocate that much before finding the data missing."""
+    file_size = os.path.getsize(path)
+    total = 0
+    with zipfile.ZipFile(path) as zf:
+        for info in zf.infolist():
+            if not info.filename.endswith(".npy"):
+                continue
+            name = info.filename[:-4]
+            if info.compress_size > file_size or (info.compress_type == zipfile.ZIP_STORED
+                                                  and info.file_size != info.compress_size):
+                raise _fail(path, f"array {name!r}: its zip entry declares {info.file_size} bytes, more than the "
+                                  f"file holds ({file_size} bytes)")
+            with zf.open(info) as f:
+                try:
+                    version = np.lib.format.read_magic(f)
+                    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                                   else np.lib.format.read_array_header_2_0)
+                    shape, _, dtype = read_header(f)
+                except (ValueError, TypeError, SyntaxError, struct_error) as exc:
+                    raise _fail(path, f"array {name!r} has no valid .npy header ({exc})") from exc
+                header_bytes = f.tell()
+            if dtype.hasobject:
+                raise _fail(path, f"array {name!r} holds Python objects (dtype {dtype}), not numbers")
+            declared = int(np.prod(shape, dtype=object)) * dtype.itemsize
+            if declared != info.file_size - header_bytes:
+                raise _fail(path, f"array {name!r} declares shape {tuple(shape)} of {dtype} ({declared} bytes) but "
+                                  f"its entry holds {info.file_size - header_bytes} bytes of data")
+            total += declared
+            if total > MAX_CSM_BYTES:
+                raise _fail(path, f"the arrays hold more than {MAX_CSM_BYTES} bytes (array {name!r}: shape "
+                                  f"{tuple(shape)} of {dtype}), the limit of a CSM file "
+                                  f"(warpscatter.csm.compress.MAX_CSM_BYTES)")
+
+
 def load_csm(path: str | os.PathLike) -> CoherentShadowMap:
     """Read a CSM written by :func:`save_csm`, checking it completely.
 
+    The arrays' declared sizes are checked against the file and :data:`MAX_CSM_BYTES` before any is read
+    (:func:`_check_declared_sizes`).
+
     Raises:
-        CSMFileError: missing or unreadable file, wrong format version, missing arrays, wrong dtypes or
-            sizes, a lookup texture that does not partition the segments, segment ends that are not
-            ascending per texel or do not end at N - 1, or an enumeration table that is not a bijection.
+        CSMFileError: missing or unreadable file, array sizes that the file does not hold or beyond the limit,
+            wrong format version, missing arrays, wrong dtypes or sizes, a lookup texture that does not partition
+            the segments, segment ends that are not ascending per texel or do not end at N - 1, or an enumeration
+            table that is not a bijection.
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise _fail(path, "no such file")
     try:
+        _check_declared_sizes(path)
         with np.load(path, allow_pickle=False) as data:
             missing = [k for k in _ARRAYS if k not in data.files]
             if missing:
@@ -696,7 +748,7 @@ def load_csm(path: str | os.PathLike) -> CoherentShadowMap:
             arrays = {k: np.asarray(data[k]) for k in names}
     except CSMFileError:
         raise
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as exc:
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError, NotImplementedError) as exc:
         raise _fail(path, f"not a readable .npz file ({exc})") from exc
     n1, n2, m = p["n1"], p["n2"], p["resolution"]
     cube = p["kind"] == KIND_CUBE

@@ -114,33 +114,27 @@ def light_from_config(c) -> Light:
     """The host light of a validated ``light`` section.
 
     Raises:
-        ConfigError: a texture or environment map that cannot be read or is not a valid radiance map.
+        InputFileError: a texture or environment map that cannot be read or holds values that are not radiance
+            (NaN, infinite, negative), at key ``light.texture`` / ``light.map``
+            (:func:`~warpscatter.imageio.read_radiance_image`).
+        ConfigError: an environment map that is not a valid radiance map once scaled.
     """
     from ..errors import ConfigError
-    from ..imageio import read_image
+    from ..imageio import read_radiance_image
     from .lights import AreaLight, DirectionalLight, EnvironmentLight, LinearLight, SpotLight
 
     if c.type == "directional":
         return DirectionalLight(direction=c.direction, irradiance=c.irradiance)
     if c.type == "spot":
-        texture = None
-        if c.texture is not None:
-            texture = read_image(c.texture)[..., :3].astype(np.float32)
-            if texture.shape[-1] == 1:
-                texture = np.repeat(texture, 3, axis=-1)
+        texture = None if c.texture is None else read_radiance_image(c.texture, key="light.texture")
         return SpotLight(position=c.position, direction=c.direction, cone_deg=c.cone_deg, intensity=c.intensity,
                          texture=texture)
     if c.type == "environment":
         from .environment_map import EnvironmentMap
 
+        image = read_radiance_image(c.map, key="light.map")
         try:
-            image = read_image(c.map)
-        except OSError as exc:
-            raise ConfigError(f"light.map: {exc}") from None
-        if image.ndim == 3 and image.shape[2] == 1:
-            image = np.repeat(image, 3, axis=2)
-        try:
-            return EnvironmentLight(EnvironmentMap(np.asarray(image)[..., :3] * np.float32(c.scale)))
+            return EnvironmentLight(EnvironmentMap(image * np.float32(c.scale)))
         except ValueError as exc:
             raise ConfigError(f"light.map: {c.map}: {exc}") from None
     if c.type == "area":

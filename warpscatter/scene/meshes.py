@@ -6,8 +6,9 @@ Rasterizers and BVH builders take these arrays as they are; nothing here launche
 
 :func:`load_mesh` reads OBJ, PLY, STL, GLB/glTF and OFF with trimesh. Files holding a scene (GLB/glTF node
 graphs, OBJ files with several objects) are flattened with their node transforms applied; quads and polygons
-arrive triangulated. Files that cannot be read, or hold no triangles (empty, points or lines only), raise
-:class:`MeshLoadError` naming the file and the reason.
+arrive triangulated. Files that cannot be read, are larger than :data:`MAX_MESH_FILE_BYTES`, cannot be parsed, or
+hold no triangles (empty, points or lines only) or non-finite vertices raise :class:`MeshLoadError` naming the file
+and the reason: an :class:`~warpscatter.errors.InputFileError`, a user error (CLI exit code 2).
 
 Transforms follow CONVENTIONS.md: scale first, then the rotations about X, Y and Z (in that order, about the
 mesh origin, angles in degrees), then the translation, i.e. ``M = T @ Rz @ Ry @ Rx @ S`` acting on column
@@ -21,7 +22,9 @@ transform). Cached meshes hold read-only arrays: nobody can change the cache's c
 
 from __future__ import annotations
 
+import io
 import os
+import struct
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Sequence
@@ -29,11 +32,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputFileError
+
 SUPPORTED_EXTENSIONS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
+#: The largest mesh file :func:`load_mesh` reads (bytes): trimesh holds the whole file and its parsed arrays in
+#: memory, several times the file's size. 2 GiB is some 40 million triangles of binary STL.
+MAX_MESH_FILE_BYTES = 2 * 2**30
+#: Formats that are text (all of it: OBJ, OFF, glTF's JSON) and read as UTF-8, or Latin-1 where it is not UTF-8.
+_TEXT_FORMATS = (".obj", ".off", ".gltf")
 
 
-class MeshLoadError(ValueError):
-    """A mesh file could not be read or holds no triangles; the message names the file and the reason."""
+class MeshLoadError(InputFileError):
+    """A mesh file could not be read or holds no (valid) triangles; the message names the file and the reason.
+
+    An :class:`~warpscatter.errors.InputFileError` (and so a ValueError): the CLI exits with code 2; the scene builder
+    adds the config key that named the file (``scene.meshes.1.path``)."""
 
 
 # ---------------------------------------------------------------------------------------------------------------------
@@ -178,28 +191,47 @@ def load_mesh(path: str | os.PathLike) -> TriangleMesh:
         The flattened mesh, all triangles of all objects in file order.
 
     Raises:
-        MeshLoadError: (a ValueError) when the file is missing, has an unsupported extension, cannot be parsed,
-            or holds no triangles; the message names the file and the reason.
+        MeshLoadError: (an InputFileError, a ValueError) when the file is missing, has an unsupported extension, is
+            larger than :data:`MAX_MESH_FILE_BYTES`, cannot be parsed, holds no triangles or invalid ones (NaN
+            vertices); the message names the file and the reason.
     """
     import trimesh
 
     path = os.fspath(path)
     ext = os.path.splitext(path)[1].lower()
+
+    def fail(reason: str) -> MeshLoadError:
+        return MeshLoadError(f"mesh file {path!r}: {reason}", path=path)
+
     if not os.path.isfile(path):
-        raise MeshLoadError(f"mesh file {path!r}: no such file")
+        raise fail("no such file")
     if ext not in SUPPORTED_EXTENSIONS:
-        raise MeshLoadError(
-            f"mesh file {path!r}: unsupported extension {ext!r} (supported: {', '.join(SUPPORTED_EXTENSIONS)})"
-        )
-    if os.path.getsize(path) == 0:
-        raise MeshLoadError(f"mesh file {path!r}: the file is empty")
+        raise fail(f"unsupported extension {ext!r} (supported: {', '.join(SUPPORTED_EXTENSIONS)})")
     try:
-        scene = trimesh.load_scene(path, process=False)
+        size = os.path.getsize(path)
+        if size > MAX_MESH_FILE_BYTES:
+            raise fail(f"the file is {size / 2**30:.1f} GiB, more than the {MAX_MESH_FILE_BYTES / 2**30:g} GiB "
+                       f"a mesh file may have (warpscatter.scene.meshes.MAX_MESH_FILE_BYTES)")
+        with open(path, "rb") as f:
+            data = f.read(MAX_MESH_FILE_BYTES + 1)
+    except OSError as exc:
+        raise fail(f"cannot be read ({exc.strerror or exc})") from exc
+    if not data:
+        raise fail("the file is empty")
+    if len(data) > MAX_MESH_FILE_BYTES:  # grew since it was measured
+        raise fail(f"the file is more than the {MAX_MESH_FILE_BYTES / 2**30:g} GiB a mesh file may have")
+    kind = ext[1:].upper()
+    if ext in _TEXT_FORMATS and _looks_binary(data):
+        raise fail(f"cannot be parsed as {kind} (binary data: {kind} files are text)")
+    try:
+        scene = trimesh.load_scene(io.BytesIO(_readable_text(data, ext)), file_type=ext[1:],
+                                   resolver=trimesh.resolvers.FilePathResolver(path), process=False)
         geometries = scene.dump()
+    except ImportError as exc:  # an optional module of trimesh's (text encoding detection, say) on this path
+        raise fail(f"cannot be parsed as {kind} (trimesh would need the module {exc.name!r} for this file, "
+                   f"which is not installed: text that is not UTF-8 in a binary format?)") from exc
     except Exception as exc:  # trimesh raises many types (IndexError, KeyError, struct.error, ...) on bad files
-        raise MeshLoadError(
-            f"mesh file {path!r}: cannot be parsed as {ext[1:].upper()} ({type(exc).__name__}: {exc})"
-        ) from exc
+        raise fail(f"cannot be parsed as {kind} ({type(exc).__name__}: {exc})") from exc
 
     parts, skipped = [], []
     for g in geometries:
@@ -210,14 +242,43 @@ def load_mesh(path: str | os.PathLike) -> TriangleMesh:
             skipped.append(type(g).__name__)
     if not parts:
         what = f"only {', '.join(sorted(set(skipped)))} geometry" if skipped else "no geometry"
-        raise MeshLoadError(f"mesh file {path!r}: contains no triangles ({what})")
+        raise fail(f"contains no triangles ({what})")
     meshes = []
     for k, (v, f) in enumerate(parts):
         try:
             meshes.append(TriangleMesh(v, f))
         except ValueError as exc:
-            raise MeshLoadError(f"mesh file {path!r}: object {k} is invalid ({exc})") from exc
-    return TriangleMesh.concatenate(meshes)[0]
+            raise fail(f"object {k} is invalid ({exc})") from exc
+    try:
+        return TriangleMesh.concatenate(meshes)[0]
+    except ValueError as exc:
+        raise fail(str(exc)) from exc
+
+
+_CONTROL_BYTES = bytes(b for b in range(32) if b not in b"\t\n\r\f\v") + b"\x7f"
+
+
+def _looks_binary(data: bytes) -> bool:
+    """Whether the start of a file is not text: a NUL byte, or more than 1 % control characters in its first 64 kB."""
+    sample = data[:65536]
+    if b"\x00" in sample:
+        return True
+    return len(sample) - len(sample.translate(None, _CONTROL_BYTES)) > 0.01 * len(sample)
+
+
+def _readable_text(data: bytes, ext: str) -> bytes:
+    """``data`` with the text trimesh decodes made UTF-8, so that trimesh never falls back to guessing the encoding
+    (its guess needs the optional module charset_normalizer): whole text formats and ASCII STL that are not UTF-8 are
+    taken as Latin-1 (every byte a character; OBJ/OFF/glTF syntax is ASCII) and re-encoded, and the 80-byte header of
+    a binary STL (free text, often not UTF-8) has its non-ASCII bytes replaced by ``?``."""
+    if ext == ".stl" and len(data) >= 84 and len(data) == 84 + 50 * struct.unpack_from("<I", data, 80)[0]:
+        return bytes(b if b < 0x80 else 0x3F for b in data[:80]) + data[80:]
+    if ext in _TEXT_FORMATS or ext == ".stl":
+        try:
+            data.decode("utf-8")
+        except UnicodeDecodeError:
+            return data.decode("latin-1").encode("utf-8")
+    return data
 
 
 # ---------------------------------------------------------------------------------------------------------------------

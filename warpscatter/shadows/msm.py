@@ -61,6 +61,7 @@ from ..parallel import launch_rows
 from ..raster import MAX_RESOLUTION, linearize_depth, ndc_to_view_depth, rasterize
 from ..stages import StageTimer
 from ..wpinit import default_device, module_options
+from . import filterable
 from . import moments as mm
 from .msm_texels import (  # noqa: F401 (the texel operations are part of this module's API)
     _MIN_ROWS,
@@ -84,10 +85,6 @@ from .translucency import ALPHA_TEST, OPAQUE_ALPHA, peel_row_bands
 
 module_options()
 
-#: Bits per texel -> 4-moment storage mode of :mod:`.moments`.
-STORAGE_OF_BITS = {64: int(mm.STORAGE4_UNORM16), 128: int(mm.STORAGE4_FLOAT32)}
-
-
 @wp.struct
 class MomentShadowParams:
     """A moment shadow map's geometry and lookup settings as kernels see them."""
@@ -98,7 +95,8 @@ class MomentShadowParams:
     near: float  # linear depth of the near plane (z = -1), scene units
     texel_x: float  # world size of a texel along map x (orthographic), or at unit depth (perspective)
     texel_y: float  # same along map y
-    storage: int  # mm.STORAGE4_UNORM16 (64 bits) or mm.STORAGE4_FLOAT32 (128 bits)
+    storage: int  # the format (filterable.FORMAT_*: msm 64/128 are mm.STORAGE4_UNORM16 / STORAGE4_FLOAT32)
+    exponents: wp.vec2  # EVSM (c+, c-); unused by the other formats
     depth_bias: float  # depth bias in scene units, subtracted from the fragment depth
     normal_offset: float  # receiver offset along its normal, in texels at the receiver's depth
     overdarkening: float  # shadow intensity divisor (0.98, Sec. 2.6; <= 0 disables)
@@ -155,15 +153,6 @@ def signed_depth_from_ndc(z_ndc: float, proj: wp.vec4, depth_scale: float, depth
 
 
 @wp.func
-def encode_texel(b: wp.vec4, storage: int) -> wp.vec4:
-    """Canonical moments -> texel space before rounding: Theta_4*(b) (64 bits) or b itself (128 bits)."""
-    # Peters 2017, Eq. (3) / Sec. 2.3
-    if storage == mm.STORAGE4_UNORM16:
-        return mm.quantization_transform4(b)
-    return b
-
-
-@wp.func
 def blend_over(dst: wp.vec4, src: wp.vec4, alpha: float) -> wp.vec4:
     """Over operator on texel values: alpha src + (1 - alpha) dst (back-to-front translucent blending)."""
     # Peters 2017, Sec. 3.2 / D.3
@@ -214,10 +203,9 @@ def inside_map(c: wp.vec3) -> bool:
 
 @wp.func
 def moment_shadow_intensity(p: MomentShadowParams, texel: wp.vec4, z_f: float) -> float:
-    """Filtered texel -> over-darkened 4-moment shadow intensity at fragment depth z_f (already depth-biased)."""
-    # Peters 2017, D.2: revert Theta_4*, bias (Sec. 2.5), Algorithm 1 lower bound (Eq. 1), divide by 0.98 and clamp
-    b = mm.load_biased_moments4(texel, p.storage)
-    return mm.scale_shadow_intensity(mm.msm4_shadow_intensity(b, z_f), p.overdarkening)
+    """Filtered texel -> over-darkened shadow intensity at fragment depth z_f (already depth-biased), in the map's
+    format (:func:`.filterable.shadow_intensity`; 4-moment maps: Peters 2017 D.2, Algorithm 1)."""
+    return filterable.shadow_intensity(texel, z_f, p.storage, p.exponents, p.overdarkening)
 
 
 @wp.func
@@ -283,7 +271,8 @@ def _generate_kernel(
     band: TranslucentBand,
     s: int,  # supersampling factor per axis
     depth: LightDepthMapping,
-    storage: int,
+    storage: int,  # the format (filterable.FORMAT_*)
+    exponents: wp.vec2,  # EVSM (c+, c-)
     texels: wp.array3d(dtype=wp.vec4),  # out: (C, H, W)
     offset: int,
 ):
@@ -291,14 +280,14 @@ def _generate_kernel(
     j += offset + band.row0
     y0 = band.row0 * s  # first sample row of the band arrays
     for c in range(texels.shape[0]):
-        acc = wp.vec4(0.0, 0.0, 0.0, 0.0)  # sum of per-sample canonical moments
+        acc = wp.vec4(0.0, 0.0, 0.0, 0.0)  # sum of per-sample b(z) (canonical moments for msm)
         for sj in range(s):
             y = j * s + sj
             for si in range(s):
                 xs = i * s + si
                 # ---- opaque moments (D.1) ----
                 z_o = signed_depth_from_ndc(opaque_ndc[0, y, xs], depth.proj, depth.depth_scale, depth.depth_offset)
-                b = mm.moments4_from_depth(z_o)
+                b = filterable.texel_from_depth(z_o, storage, exponents)
                 # ---- translucent layers, back to front, over operator (Sec. 3.2) ----
                 blended = bool(False)
                 q = wp.vec4(0.0, 0.0, 0.0, 0.0)  # the render target's stored value once blending starts
@@ -311,15 +300,15 @@ def _generate_kernel(
                         alpha = band.trans_alpha[t, c]
                         if z_t < z_o and alpha >= ALPHA_TEST:  # depth test against the opaque surface; alpha test
                             if not blended:
-                                q = mm.store_moments4(b, storage)
+                                q = filterable.store_texel(b, storage)
                                 blended = True
-                            q = round_texel(blend_over(q, encode_texel(mm.moments4_from_depth(z_t), storage), alpha),
-                                            storage)
+                            src = filterable.encode_texel(filterable.texel_from_depth(z_t, storage, exponents), storage)
+                            q = round_texel(blend_over(q, src, alpha), storage)
                 if blended:
-                    b = mm.load_moments4(q, storage)
+                    b = filterable.load_texel(q, storage)
                 acc += b
-        # the resolve: average, then one quantization transform and rounding (Theta_4* is affine)
-        texels[c, j, i] = mm.store_moments4(acc / float(s * s), storage)
+        # the resolve: average, then one quantization transform and rounding (the transforms are affine)
+        texels[c, j, i] = filterable.store_texel(acc / float(s * s), storage)
 
 
 @wp.kernel
@@ -378,12 +367,15 @@ def map_geometry(shadow_map: ShadowMap) -> MapGeometry:
 
 def moment_params(shadow_map: ShadowMap, *, storage: int = int(mm.STORAGE4_FLOAT32), channels: int = 1,
                   depth_bias: float = 0.0, normal_offset_texels: float = 1.0,
-                  overdarkening: float = float(mm.OVERDARKENING_DIVISOR)) -> MomentShadowParams:
+                  overdarkening: float = float(mm.OVERDARKENING_DIVISOR),
+                  exponents: tuple[float, float] = (0.0, 0.0)) -> MomentShadowParams:
     """Kernel parameters for lookups in a map with ``shadow_map``'s geometry.
 
     Args:
         shadow_map: the light's :class:`ShadowMap` (transforms and resolution).
-        storage: ``mm.STORAGE4_UNORM16`` or ``mm.STORAGE4_FLOAT32``.
+        storage: the format, one of :data:`.filterable.FORMATS` (``mm.STORAGE4_UNORM16`` / ``STORAGE4_FLOAT32``:
+            the 64- and 128-bit moment shadow maps).
+        exponents: EVSM (c+, c-) (:func:`.filterable.evsm_exponents`).
         channels: 1 or 3.
         depth_bias: scene units (>= 0) subtracted from the receiver's light-space depth.
         normal_offset_texels: receivers move this many texels (at their depth) along their normal (>= 0).
@@ -396,8 +388,8 @@ def moment_params(shadow_map: ShadowMap, *, storage: int = int(mm.STORAGE4_FLOAT
     _check_nonneg(normal_offset_texels, "normal_offset_texels")
     if not (np.isfinite(overdarkening) and 0.0 <= overdarkening <= 1.0):
         raise ValueError(f"overdarkening: must lie in [0, 1] (0 disables it), got {overdarkening!r}")
-    if int(storage) not in STORAGE_OF_BITS.values():
-        raise ValueError(f"storage: expected STORAGE4_UNORM16 or STORAGE4_FLOAT32, got {storage!r}")
+    if int(storage) not in filterable.FORMATS.values():
+        raise ValueError(f"storage: expected a format of filterable.FORMATS, got {storage!r}")
     if channels not in (1, 3):
         raise ValueError(f"channels: expected 1 or 3, got {channels!r}")
     g = map_geometry(shadow_map)
@@ -409,6 +401,7 @@ def moment_params(shadow_map: ShadowMap, *, storage: int = int(mm.STORAGE4_FLOAT
     p.texel_x = float(g.texel_x)
     p.texel_y = float(g.texel_y)
     p.storage = int(storage)
+    p.exponents = wp.vec2(float(exponents[0]), float(exponents[1]))
     p.depth_bias = float(depth_bias)
     p.normal_offset = float(normal_offset_texels)
     p.overdarkening = float(overdarkening)
@@ -419,12 +412,13 @@ def moment_params(shadow_map: ShadowMap, *, storage: int = int(mm.STORAGE4_FLOAT
 
 @dataclass
 class MomentShadowMap:
-    """A 4-moment shadow map (Peters 2017) on a device.
+    """A filterable shadow map on a device: a 4-moment shadow map (Peters 2017), or another format of
+    :mod:`.filterable` (``method``: msm2015, vsm, evsm) through the same generation, filtering and look-ups.
 
     Attributes:
-        texels: (C, H, W) ``wp.vec4`` stored texel values (Theta_4* in 16-bit steps for 64 bits, canonical moments
-            for 128 bits); C = 1, or 3 for coloured translucency (R, G, B).
-        bits: 64 or 128.
+        texels: (C, H, W) ``wp.vec4`` stored texel values (msm: Theta_4* in 16-bit steps for 64 bits, canonical
+            moments for 128 bits; the other formats: :mod:`.filterable`); C = 1, or 3 for coloured translucency.
+        bits: bits per texel and channel (msm: 64 or 128; :data:`.filterable.BITS_OF_METHOD`).
         shadow_map: the plain :class:`ShadowMap` whose transforms (and resolution) this map shares.
         geometry: its :class:`MapGeometry`.
         supersampling: samples per texel per axis used in generation.
@@ -444,10 +438,13 @@ class MomentShadowMap:
     filter_px: int = 1
     mips: wp.array | None = None
     mip_levels: int = 0
+    method: str = "msm"
+    exponents: tuple[float, float] = (0.0, 0.0)  # EVSM (c+, c-)
 
     @property
     def storage(self) -> int:
-        return STORAGE_OF_BITS[self.bits]
+        """The format (:data:`.filterable.FORMATS`)."""
+        return filterable.format_of(self.method, self.bits)
 
     @property
     def channels(self) -> int:
@@ -473,7 +470,8 @@ class MomentShadowMap:
         """Kernel parameters for :func:`msm_visibility_rgb` (arguments as in :func:`moment_params`); ``mip_levels``
         is set when the map has a mip chain (trilinear look-ups in :func:`msm_visibility_rgb_footprint`)."""
         p = moment_params(self.shadow_map, storage=self.storage, channels=self.channels, depth_bias=depth_bias,
-                          normal_offset_texels=normal_offset_texels, overdarkening=overdarkening)
+                          normal_offset_texels=normal_offset_texels, overdarkening=overdarkening,
+                          exponents=self.exponents)
         p.mip_levels = int(self.mip_levels)
         return p
 
@@ -542,8 +540,8 @@ def _translucent_band(trans_ndc: wp.array, trans_tri: wp.array, n_layers: int, r
 
 
 def generate_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: int = 2, bits: int = 64,
-                               coloured: bool = False, max_translucent_layers: int = 16,
-                               device=None) -> MomentShadowMap:
+                               coloured: bool = False, max_translucent_layers: int = 16, method: str = "msm",
+                               evsm_exponents=None, device=None) -> MomentShadowMap:
     """Moment shadow map of ``scene``'s casters in ``shadow_map``'s light view (D.1, D.3), unfiltered.
 
     Args:
@@ -552,12 +550,15 @@ def generate_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: i
             projection and resolution define the moment map.
         supersampling: s >= 1: the light view is rasterized at s x s times the resolution and the moments of each
             s x s block are averaged.
-        bits: 64 (Theta_4* in 4 x 16-bit unorm, Sec. 2.4) or 128 (canonical float32 moments, Sec. 2.3).
+        bits: 64 (Theta_4* in 4 x 16-bit unorm, Sec. 2.4) or 128 (canonical float32 moments, Sec. 2.3); the other
+            methods: :data:`.filterable.BITS_OF_METHOD`.
         coloured: one map per colour channel (module docstring); otherwise one monochrome map.
         max_translucent_layers: most translucent fragments blended per sample (depth peeling passes); exact while
             no sample of the supersampled view lies behind more translucent fragments; beyond, the farthest are
             dropped. The peeled layers are processed in row bands of bounded memory
             (:func:`~.translucency.peel_row_bands`).
+        method: ``msm`` (Peters 2017), or the baselines ``msm2015``, ``vsm``, ``evsm`` (:mod:`.filterable`).
+        evsm_exponents: EVSM (c+, c-); None: Peters 2017 Fig. 4's for the storage.
         device: Warp device.
 
     Returns:
@@ -567,11 +568,10 @@ def generate_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: i
         ValueError: unknown ``bits``, bad supersampling or layer count, opacities outside [0, 1].
     """
     device = default_device(device)
-    if bits not in STORAGE_OF_BITS:
-        raise ValueError(f"bits: expected 64 or 128, got {bits!r}")
+    storage = filterable.format_of(method, bits)
+    exponents = filterable.evsm_exponents(bits, evsm_exponents) if method == "evsm" else (0.0, 0.0)
     s = _check_int(supersampling, "supersampling", 1, MAX_SUPERSAMPLING)
     max_layers = _check_int(max_translucent_layers, "max_translucent_layers", 1)
-    storage = STORAGE_OF_BITS[bits]
     h, w = shadow_map.shape
     if s * max(h, w) > MAX_RESOLUTION:
         raise ValueError(f"supersampling: {s} x {max(h, w)} texels exceeds the rasterizer's {MAX_RESOLUTION}")
@@ -602,9 +602,10 @@ def generate_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: i
     depth = _light_depth_mapping(shadow_map, geom)
     if not np.any(translucent):
         band = _translucent_band(dummy_ndc, dummy_tri, 0, 0, wp.zeros((1, channels), dtype=wp.float32, device=device))
-        launch_rows(_generate_kernel, (h, w), [opaque_ndc, band, s, depth, int(storage), texels], device=device,
-                    min_chunk=_MIN_ROWS)
-        return MomentShadowMap(texels=texels, bits=bits, shadow_map=shadow_map, geometry=geom, supersampling=s)
+        launch_rows(_generate_kernel, (h, w), [opaque_ndc, band, s, depth, int(storage), wp.vec2(*exponents), texels],
+                    device=device, min_chunk=_MIN_ROWS)
+        return MomentShadowMap(texels=texels, bits=bits, shadow_map=shadow_map, geometry=geom, supersampling=s,
+                               method=method, exponents=exponents)
     tris = scene.triangles[translucent]
     trans_alpha = wp.array(np.ascontiguousarray(tri_alpha[translucent]), dtype=wp.float32, device=device)
     layers = 0
@@ -613,10 +614,11 @@ def generate_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: i
         layers = max(layers, k)
         trans_ndc, trans_tri = (dummy_ndc, dummy_tri) if r is None else (r.device_ndc_depth, r.device_tri_id)
         band = _translucent_band(trans_ndc, trans_tri, k, y0 // s, trans_alpha)
-        launch_rows(_generate_kernel, ((y1 - y0) // s, w), [opaque_ndc, band, s, depth, int(storage), texels],
-                    device=device, min_chunk=_MIN_ROWS)
+        launch_rows(_generate_kernel, ((y1 - y0) // s, w),
+                    [opaque_ndc, band, s, depth, int(storage), wp.vec2(*exponents), texels], device=device,
+                    min_chunk=_MIN_ROWS)
     return MomentShadowMap(texels=texels, bits=bits, shadow_map=shadow_map, geometry=geom, supersampling=s,
-                           translucent_layers=layers)
+                           translucent_layers=layers, method=method, exponents=exponents)
 
 
 def filter_moment_shadow_map(msm: MomentShadowMap, filter_px: int, device=None) -> MomentShadowMap:
@@ -649,7 +651,8 @@ def build_mip_chain(msm: MomentShadowMap, device=None) -> MomentShadowMap:
 
 def render_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: int = 2, bits: int = 64,
                              filter_px: int = 5, coloured: bool = False, max_translucent_layers: int = 16,
-                             mipmap: bool = False, timer: StageTimer | None = None, device=None) -> MomentShadowMap:
+                             mipmap: bool = False, method: str = "msm", evsm_exponents=None,
+                             timer: StageTimer | None = None, device=None) -> MomentShadowMap:
     """Generate (stage ``msm_generate``), filter (stage ``msm_filter``) and optionally mip (stage ``msm_mipmap``) a
     moment shadow map for hard shadows.
 
@@ -660,7 +663,7 @@ def render_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: int
     with stage("msm_generate"):
         msm = generate_moment_shadow_map(scene, shadow_map, supersampling=supersampling, bits=bits,
                                          coloured=coloured, max_translucent_layers=max_translucent_layers,
-                                         device=device)
+                                         method=method, evsm_exponents=evsm_exponents, device=device)
     with stage("msm_filter"):
         msm = filter_moment_shadow_map(msm, filter_px, device=device)
     if not mipmap:

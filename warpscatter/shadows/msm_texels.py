@@ -27,7 +27,7 @@ import warp as wp
 
 from ..parallel import launch_rows
 from ..wpinit import default_device, module_options
-from . import moments as mm
+from . import filterable
 
 module_options()
 
@@ -41,11 +41,10 @@ _MIN_ROWS = 8  # fewest rows per chunk of a split CPU launch
 
 @wp.func
 def round_texel(t: wp.vec4, storage: int) -> wp.vec4:
-    """Write a texel-space value to the storage format: 16-bit unorm rounding (64 bits) or unchanged (128 bits)."""
+    """Write a texel-space value to the storage format (:func:`.filterable.round_texel`: 16-bit unorm rounding for
+    64-bit moment maps, float16 for 32-bit VSM and 64-bit EVSM, unchanged for float32 channels)."""
     # Peters 2017, Sec. 2.4
-    if storage == mm.STORAGE4_UNORM16:
-        return mm.unorm_round4(t, mm.UNORM_BITS_STORAGE4_UNORM16)
-    return t
+    return filterable.round_texel(t, storage)
 
 
 @wp.func

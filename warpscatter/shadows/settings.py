@@ -3,20 +3,27 @@ of ``render.scattering.shadow_map`` and ``render.shadows`` (Warp-free; the only 
 
 * :class:`ShadowMapSettings` — the light's depth map that the shadow-map visibility of every method reads.
 * :class:`ShadowsSettings` — surface shadows: ``pcf``, moment shadow maps ``msm`` (filtered hard shadows,
-  translucent occluders), moment soft shadows ``msm_soft``, their brute-force reference ``pcss``, or ``none``
+  translucent occluders), moment soft shadows ``msm_soft``, their brute-force reference ``pcss``, the filterable
+  baselines Peters 2017 compares with (``msm2015``, ``vsm``, ``evsm``: :mod:`.filterable`), or ``none``
   (Peters et al. 2017 Sec. 2-4).
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Literal, Optional, Union
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from ..schema import MAX_IMAGE_SIDE, Bool, Float, Int, SettingsModel
 
 #: Surface shadow methods (``render.shadows.method``).
-SHADOW_METHODS = ("pcf", "msm", "msm_soft", "pcss", "none")
+SHADOW_METHODS = ("pcf", "msm", "msm_soft", "pcss", "msm2015", "vsm", "evsm", "none")
+#: The filterable shadow maps (one pipeline: generation, translucent blending, Gaussian, mip chain) and the bits per
+#: texel each stores (the same table as :data:`warpscatter.shadows.filterable.BITS_OF_METHOD`, kept here so that
+#: validating needs no Warp).
+FILTERABLE_BITS = {"msm": (64, 128), "msm2015": (64, 128), "vsm": (32, 64), "evsm": (64, 128)}
+#: Largest EVSM exponent per storage: exp(2c) must fit float16 (64 bits) or float32 (128 bits).
+EVSM_MAX_EXPONENT = {64: 5.545, 128: 44.3}
 #: Moment-map look-ups of ``msm`` (``render.shadows.sampling``).
 SHADOW_SAMPLING = ("bilinear", "mipmap")
 #: Smallest shadow-map side (texels).
@@ -70,11 +77,18 @@ class ShadowsSettings(SettingsModel):
 
     method: Literal[SHADOW_METHODS] = Field(  # type: ignore[valid-type]
         "pcf", description="pcf (percentage-closer filtering), msm (4-moment shadow maps, translucent occluders), "
-                           "msm_soft (moment soft shadows), pcss (their brute-force reference) or none")
+                           "msm_soft (moment soft shadows), pcss (their brute-force reference), the filterable "
+                           "baselines msm2015 (Peters and Klein 2015: depth in [0, 1], their quantization), vsm "
+                           "(variance), evsm (exponential variance), or none")
     filter_px: Annotated[Int, Field(ge=1, le=MAX_FILTER_PX,
                                     description="PCF box / MSM Gaussian width (shadow-map texels)")] = 3
-    storage: Literal[64, 128] = Field(64, description="msm bits per texel: 64 (Theta4*, 16-bit fixed point) or 128 "
-                                                      "(float32); msm_soft always uses 128")
+    storage: Literal[32, 64, 128] = Field(
+        64, description="bits per texel of the filterable maps: msm and msm2015 64 (16-bit fixed point) or 128 "
+                        "(float32); vsm 32 (2 x float16) or 64 (2 x float32); evsm 64 (4 x float16) or 128 (4 x "
+                        "float32); msm_soft always uses 128")
+    evsm_exponents: Optional[tuple[Float, Float]] = Field(
+        None, description="evsm: exponents [c+, c-] (> 0; 64 bits: <= 5.545); null: Peters 2017 Fig. 4's, [5.54, "
+                          "5.54] at 64 bits and [40, 5.54] at 128")
     supersampling: Annotated[Int, Field(ge=1, le=MAX_SUPERSAMPLING,
                                         description="depth samples per texel and axis of the moment map")] = 2
     coloured: Bool = Field(False, description="one moment map per RGB channel (tinted translucent occluders)")
@@ -90,8 +104,25 @@ class ShadowsSettings(SettingsModel):
         "bilinear", description="msm look-ups: bilinear (level 0) or mipmap (trilinear in the moment map's mip chain "
                                 "at the level of each pixel's footprint, Peters 2017 D.2)")
 
+    @model_validator(mode="after")
+    def _storage_fits_method(self) -> ShadowsSettings:
+        offered = FILTERABLE_BITS.get(self.method)
+        if offered is not None and self.storage not in offered:
+            raise ValueError(f"storage: {self.method} stores {' or '.join(map(str, offered))} bits per texel, not "
+                             f"{self.storage}")
+        if self.evsm_exponents is not None:
+            if self.method != "evsm":
+                raise ValueError(f"evsm_exponents: used by method evsm only (method is {self.method!r})")
+            limit = EVSM_MAX_EXPONENT[self.storage]
+            if not all(0.0 < c <= limit for c in self.evsm_exponents):
+                raise ValueError(f"evsm_exponents: each must lie in (0, {limit}] at {self.storage} bits (exp(2c) must "
+                                 f"fit the channel), got {list(self.evsm_exponents)}")
+        return self
+
 
 __all__ = [
+    "EVSM_MAX_EXPONENT",
+    "FILTERABLE_BITS",
     "MAX_FILTER_PX",
     "MAX_KERNEL_PX",
     "MAX_SUPERSAMPLING",

@@ -9,6 +9,9 @@ V_shadow(x) (RGB, for tinted translucent occluders) of a surface point from the 
   trilinear in its mip chain at the pixel footprint (D.2);
 * ``msm_soft`` — moment soft shadows from an integer summed-area table (Sec. 4);
 * ``pcss`` — the brute-force soft-shadow reference (blocker search + PCF) for ``msm_soft``;
+* ``msm2015``, ``vsm``, ``evsm`` — the filterable baselines of Peters 2017 Figs. 4 and 5 (original moment shadow
+  maps, variance and exponential variance shadow maps; :mod:`.filterable`), through ``msm``'s pipeline and
+  look-ups (translucent occluders and mip-mapping included);
 * ``none`` — V = 1.
 
 :func:`prepare_shadows` builds the maps a method needs (moment maps and tables get their own stages) into one
@@ -35,7 +38,7 @@ SHADOW_MSM_SOFT = wp.constant(3)
 SHADOW_PCSS = wp.constant(4)
 #: ``render.shadows.method`` -> mode.
 SHADOW_MODES = {"none": SHADOW_NONE, "pcf": SHADOW_PCF, "msm": SHADOW_MSM, "msm_soft": SHADOW_MSM_SOFT,
-                "pcss": SHADOW_PCSS}
+                "pcss": SHADOW_PCSS, "msm2015": SHADOW_MSM, "vsm": SHADOW_MSM, "evsm": SHADOW_MSM}
 
 
 @wp.struct
@@ -129,10 +132,13 @@ def prepare_shadows(scene, shadow_map, settings: ShadowsSettings, *, bias_texels
         m = msm.render_moment_shadow_map(scene, shadow_map, supersampling=settings.supersampling, bits=settings.storage,
                                          filter_px=settings.filter_px, coloured=settings.coloured,
                                          max_translucent_layers=settings.max_translucent_layers,
-                                         mipmap=settings.sampling == "mipmap", timer=timer, device=device)
+                                         mipmap=settings.sampling == "mipmap", method=settings.method,
+                                         evsm_exponents=settings.evsm_exponents, timer=timer, device=device)
         sh.msm, sh.msm_texels, sh.msm_mips = m.params(depth_bias=bias), m.texels, m.mip_arrays(device)
         info.update(msm_bits=m.bits, msm_bytes=m.nbytes, translucent_layers=m.translucent_layers,
                     msm_sampling=settings.sampling)
+        if settings.method == "evsm":
+            info["evsm_exponents"] = list(m.exponents)
     elif mode == SHADOW_MSM_SOFT:
         table = soft.render_soft_shadow_map(scene, shadow_map, supersampling=settings.supersampling,
                                             max_kernel_px=settings.max_kernel_px, coloured=settings.coloured,
