@@ -242,6 +242,9 @@ def test_passes_reuse_one_estimator_setup(monkeypatch):
             csm_uploads.append(str(device))
         return real_upload(csm, device)
 
+    from warpscatter.csm import occluders
+
+    monkeypatch.setattr(occluders, "_BUILT", type(occluders._BUILT)())  # a fresh CSM (no process-cached upload)
     monkeypatch.setattr(lighting_module, "DirectLighting", Counting)
     monkeypatch.setattr(dl, "csm_device_data", counting_upload)
     monkeypatch.setattr(lighting_module, "csm_device_data", counting_upload)

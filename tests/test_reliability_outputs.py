@@ -302,18 +302,33 @@ def _dead_pid() -> int:
     return proc.pid
 
 
-def test_backups_of_a_killed_writer_are_moved_back(sets):
-    # A writer killed (SIGKILL) while renaming: the previous file of one target only survives as its backup.
+def test_backups_of_a_writer_killed_while_renaming_are_moved_back(sets):
+    # A writer killed (SIGKILL) in the middle of renaming: r.exr was replaced (its previous file kept as a hard-link
+    # backup), r.png set aside (renamed: no hard links) with the new one not in yet, the rest still temporaries.
     folder, old, _ = sets
     pid = _dead_pid()
-    (folder / "r.exr").rename(folder / f".r.bak-{pid}-abc123.exr")  # set aside, the new one not renamed in yet
-    os.link(folder / "r.png", folder / f".r.bak-{pid}-def456.png")  # kept as a hard link ...
-    (folder / "r.png").unlink()
-    (folder / "r.png").write_bytes(b"a new file of the killed run")  # ... and replaced by the new file
-    (folder / f".r.surface.tmp-{pid}-0a0b0c.exr").write_bytes(b"partial")
+    os.link(folder / "r.exr", folder / f".r.bak-{pid}-abc123.exr")
+    (folder / f".r.tmp-{pid}-0a0b0c.exr").write_bytes(b"the new colour image")
+    os.replace(folder / f".r.tmp-{pid}-0a0b0c.exr", folder / "r.exr")
+    (folder / "r.png").rename(folder / f".r.bak-{pid}-def456.png")
+    (folder / f".r.tmp-{pid}-1a1b1c.png").write_bytes(b"the new preview")
+    (folder / f".r.scattering.tmp-{pid}-2a2b2c.exr").write_bytes(b"the new scattering")
     cleaned = remove_stale_temporaries(folder)
-    assert len(cleaned) == 3
+    assert len(cleaned) == 4
     assert_previous_set(folder, old)
+
+
+def test_backups_of_a_writer_killed_after_its_last_rename_are_removed(sets):
+    # Killed after every new file was renamed in, before deleting the backups: the new set stays.
+    folder, _, _ = sets
+    pid = _dead_pid()
+    for name in NAMES:
+        stem, dot, ext = name.rpartition(".")
+        os.link(folder / name, folder / f".{stem}.bak-{pid}-abc123.{ext}")
+        (folder / name).unlink()
+        (folder / name).write_bytes(b"new " + name.encode())
+    assert len(remove_stale_temporaries(folder)) == len(NAMES)
+    assert snapshot(folder) == {name: b"new " + name.encode() for name in NAMES}
 
 
 def test_own_temporaries_of_a_write_in_progress_are_kept(tmp_path, monkeypatch):

@@ -560,6 +560,15 @@ class Config(SettingsModel):
         elif all(m.receiver_only for m in self.scene.meshes) and self.render.lighting.csm.file is None \
                 and methods.LIGHTING[lighting].visibility == methods.VISIBILITY_CSM:
             problems.append("render.lighting: every mesh is receiver_only, so there is no occluder to build a CSM of")
+        csm = self.render.lighting.csm
+        if lighting is not None and csm.objects == "per_mesh":
+            if csm.file is not None:
+                problems.append("render.lighting.csm.objects: per_mesh builds one CSM per mesh; a precomputed "
+                                "render.lighting.csm.file holds the whole scene's (remove one of them)")
+            if self.light.type in ("area", "linear") and csm.local_lights == "cube":
+                problems.append("render.lighting.csm.objects: per_mesh needs render.lighting.csm.local_lights: "
+                                "semi_local for an area or linear light (cube maps sit at the light's points in "
+                                "world space, which a moving mesh would invalidate)")
         if lighting is None and all(m.receiver_only for m in self.scene.meshes):
             problems.append("scene.meshes: every mesh is receiver_only, so nothing casts a shadow (drop the flag "
                             "from the casters)")

@@ -216,8 +216,9 @@ def _backup_name(path: Path) -> Path:
 
 _TEMP_PATTERN = re.compile(r"^\.(?P<stem>.+)\.(?P<kind>tmp|bak)-(?P<pid>\d+)-[0-9a-f]{6}(?P<suffix>\.[A-Za-z0-9]+)$")
 
-#: Temporaries and backups of this process's writes in progress (:func:`remove_stale_temporaries` leaves them).
-_active: set[Path] = set()
+#: (real folder path, file name) of the temporaries and backups of this process's writes in progress
+#: (:func:`remove_stale_temporaries` leaves them alone).
+_active: set[tuple[str, str]] = set()
 _active_lock = threading.Lock()
 
 
@@ -232,20 +233,51 @@ def _process_alive(pid: int) -> bool:
 
 
 def remove_stale_temporaries(folder: str | Path) -> list[Path]:
-    """Clean up after writers that did not finish: return the temporaries removed and the backups restored.
+    """Clean up after writers that did not finish; return the temporaries and backups removed or moved back.
 
     Temporary files (``.NAME.tmp-PID-XXXXXX.ext``) of processes no longer running (a render killed with SIGKILL, a
     power cut) are removed, and so are this process's own temporaries that no write in progress uses (a rollback in a
-    folder that had turned read-only could not remove them). Backups (``.NAME.bak-PID-XXXXXX.ext``, the previous file
-    of a target kept while :func:`write_outputs` renames a set in) of such writers are moved back onto their target:
-    a writer killed while renaming leaves the previous files. Files of running processes on this machine are left
+    folder that had turned read-only could not remove them). Backups (``.NAME.bak-PID-XXXXXX.ext``: the previous file
+    of a target, kept while :func:`write_outputs` renames a set in) of such a writer are moved back onto their
+    targets when temporaries of it are left too (it stopped before its last rename: the previous set comes back), and
+    removed otherwise (every new file was in: the new set stays). Files of running processes on this machine are left
     alone (a folder shared by several machines: the PID is checked on this one only).
     """
-    removed = []
+    removed: list[Path] = []
     try:
         entries = list(os.scandir(folder))
+        where = os.path.realpath(folder)
     except OSError:
         return removed
+    with _active_lock:
+        active = {name for parent, name in _active if parent == where}
+    stale: dict[int, list[tuple[os.DirEntry, re.Match]]] = {}
+    for entry in entries:
+        m = _TEMP_PATTERN.match(entry.name)
+        if not m or entry.name in active or entry.is_dir(follow_symlinks=False):
+            continue
+        pid = int(m.group("pid"))
+        if pid == os.getpid() or not _process_alive(pid):
+            stale.setdefault(pid, []).append((entry, m))
+    for files in stale.values():
+        unfinished = any(m.group("kind") == "tmp" for _, m in files)
+        for entry, m in sorted(files, key=lambda f: f[1].group("kind")):  # backups ("bak") before temporaries
+            try:
+                if m.group("kind") == "bak" and unfinished:
+                    target = os.path.join(os.path.dirname(entry.path), m.group("stem") + m.group("suffix"))
+                    if os.path.isdir(target) and not os.path.islink(target):
+                        continue
+                    os.replace(entry.path, target)
+                    if os.path.lexists(entry.path):  # a hard link of the target itself: the rename did nothing
+                        os.unlink(entry.path)
+                else:
+                    os.unlink(entry.path)
+                removed.append(Path(entry.path))
+            except OSError:
+                pass
+    if removed:
+        log.info("cleaned up %d temporary or backup file(s) of an unfinished write in %s", len(removed), folder)
+    return removed
     with _active_lock:
         active = set(_active)
     for entry in entries:
@@ -318,13 +350,6 @@ def _write_oiio(path: Path, pixels: np.ndarray, pixel_type: str, compression: st
         closed = out.close()
     if not (ok and closed):
         raise ImageWriteError(out.geterror() or oiio.geterror() or "write failed")
-
-
-def _remove_quietly(path: Path) -> None:
-    try:
-        path.unlink()
-    except OSError:
-        pass
 
 
 def _check_compression(compression: str) -> str:
@@ -455,7 +480,7 @@ def _set_aside(final: Path, backup: Path) -> bool:
         raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(final))
     try:
         os.link(final, backup, follow_symlinks=False)
-    except OSError:
+    except (OSError, NotImplementedError):  # no hard links here (FAT, some network file systems)
         os.rename(final, backup)
     return True
 
@@ -497,8 +522,9 @@ def _write_all(jobs: list[tuple[Path, Callable[[Path], None]]]) -> list[Path]:
     backups = [_backup_name(final) for final, _ in jobs]
     commits: list[tuple[Path, Path, Path]] = []
     current = jobs[0][0]
+    in_use = {(os.path.realpath(p.parent), p.name) for p in temps + backups}
     with _active_lock:
-        _active.update(temps + backups)
+        _active.update(in_use)
     try:
         try:
             failure = _run_writers([(final, _synced(writer)) for final, writer in jobs], temps)
@@ -531,7 +557,7 @@ def _write_all(jobs: list[tuple[Path, Callable[[Path], None]]]) -> list[Path]:
             _fsync_folder(folder)
     finally:
         with _active_lock:
-            _active.difference_update(temps + backups)
+            _active.difference_update(in_use)
     return [final for final, _ in jobs]
 
 

@@ -9,6 +9,9 @@ per-point jittered pattern (Sec. 5.1 "Random Numbers"). Visibility (:class:`Ligh
   (:func:`~warpscatter.csm.query.csm_visibility_filtered`, Sec. 3.3 / 4.1) or the local light's cube CSM queried
   with the light point's parameters (Sec. 4.2);
 * ``VIS_SEMI_LOCAL`` — a lat-long CSM queried towards a local light's point (semi-local lights, Sec. 4.3);
+* ``VIS_OBJECTS`` — several rigid objects, each with its own lat-long CSM in its object space and its placement
+  T (Sec. 4.6: queried with D' = D T^-1, the visibilities multiplied), towards distant directions or a local
+  light's points (semi-local); moving an object changes T only, never its CSM;
 * ``VIS_MESH`` — a ``wp.Mesh`` shadow ray (the reference);
 * ``VIS_NONE`` — no occlusion.
 
@@ -34,7 +37,7 @@ from ..raycast import occluded
 from ..wpinit import default_device, module_options
 from .brdf import MaterialTable
 from .compress import KIND_LATLONG, CoherentShadowMap
-from .query import FILTERS, CSMData, CubeCSMData, csm_device_data
+from .query import FILTERS, CSMData, CubeCSMData, csm_device_data, csm_visibility_filtered, object_arrays
 
 module_options()
 
@@ -43,6 +46,7 @@ VIS_NONE = wp.constant(0)
 VIS_CSM = wp.constant(1)
 VIS_MESH = wp.constant(2)
 VIS_SEMI_LOCAL = wp.constant(3)
+VIS_OBJECTS = wp.constant(4)
 
 
 @wp.struct
@@ -59,13 +63,28 @@ class SurfacePoints:
 class LightVisibility:
     """The visibility source of an estimator, as kernels see it (:func:`light_visibility`)."""
 
-    mode: int  # VIS_NONE, VIS_CSM, VIS_MESH or VIS_SEMI_LOCAL
+    mode: int  # VIS_NONE, VIS_CSM, VIS_MESH, VIS_SEMI_LOCAL or VIS_OBJECTS
     latlong: CSMData  # VIS_CSM of a distant light, VIS_SEMI_LOCAL: the lat-long CSM (a 1x1 placeholder otherwise)
     cube: CubeCSMData  # VIS_CSM of a local light: its cube CSM (a 1x1 placeholder otherwise)
     filter_mode: int  # FILTER_NEAREST, FILTER_PCF or FILTER_ROULETTE
     bias: float  # CSM depth bias (scene units)
     mesh: wp.uint64  # VIS_MESH: the occluders' BVH
     eps: float  # offset of the query point along the normal (scene units)
+    objects: wp.array(dtype=CSMData)  # VIS_OBJECTS: each object's lat-long CSM (object space)
+    to_object: wp.array(dtype=wp.mat44)  # VIS_OBJECTS: each object's world -> object matrix T^-1
+    object_bias: wp.array(dtype=float)  # VIS_OBJECTS: each object's depth bias (its object-space units)
+
+
+@wp.func(inline=True)
+def objects_visibility(vis: LightVisibility, o: wp.vec3, d: wp.vec3, xi: wp.vec4) -> float:
+    """VIS_OBJECTS: the product over the rigid objects of the filtered visibility from world point ``o`` towards
+    world direction ``d`` (unnormalised), each queried in its object space (Sec. 4.6, D' = D T^-1)."""
+    v = float(1.0)
+    for k in range(vis.objects.shape[0]):
+        po = wp.transform_point(vis.to_object[k], o)
+        do = wp.transform_vector(vis.to_object[k], d)
+        v = v * csm_visibility_filtered(vis.objects[k], po, do, vis.object_bias[k], vis.filter_mode, xi)
+    return v
 
 
 @wp.func(inline=False)
@@ -261,34 +280,46 @@ def check_strata(samples) -> int:
     return strata
 
 
-def check_visibility_source(filter: str, bias, ray_eps, csm, mesh) -> None:
+def check_visibility_source(filter: str, bias, ray_eps, csm, mesh, objects=None) -> None:
     """The checks every shading host function makes of its visibility inputs.
 
     Raises:
-        ValueError: an unknown CSM filter, a negative or non-finite bias / ray_eps, both ``csm`` and ``mesh``, or
-            a ``mesh`` that is not a ``wp.Mesh``.
+        ValueError: an unknown CSM filter, a negative or non-finite bias / ray_eps, more than one of ``csm``,
+            ``mesh`` and ``objects``, or a ``mesh`` that is not a ``wp.Mesh``.
     """
+    if sum(x is not None for x in (csm, mesh, objects)) > 1:
+        raise ValueError("give at most one of csm, mesh and objects as the visibility source")
+    if objects is not None and not list(objects):
+        raise ValueError("objects must hold at least one (csm, transform) pair")
     if filter not in FILTERS:
         raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {filter!r}")
     if not np.isfinite(bias) or bias < 0.0:
         raise ValueError(f"bias must be a finite number >= 0, got {bias!r}")
     if not np.isfinite(ray_eps) or ray_eps < 0.0:
         raise ValueError(f"ray_eps must be a finite number >= 0, got {ray_eps!r}")
-    if csm is not None and mesh is not None:
-        raise ValueError("give at most one of csm and mesh as the visibility source")
     if mesh is not None and not isinstance(mesh, wp.Mesh):
         raise ValueError(f"mesh must be a wp.Mesh, got {type(mesh).__name__}")
 
 
 def light_visibility(csm: CoherentShadowMap | None, mesh: wp.Mesh | None, *, filter: str, bias: float,
-                     ray_eps: float, device: str) -> LightVisibility:
+                     ray_eps: float, device: str, objects=None, object_bias=None) -> LightVisibility:
     """:class:`LightVisibility` of a CSM (lat-long: ``VIS_CSM`` towards distant directions; cube: ``VIS_CSM`` of a
-    local light), a ``wp.Mesh`` (``VIS_MESH``) or neither (``VIS_NONE``). The caller switches a lat-long CSM of a
-    local light to ``VIS_SEMI_LOCAL``."""
+    local light), a ``wp.Mesh`` (``VIS_MESH``), rigid ``objects`` (``VIS_OBJECTS``: ``(csm, transform)`` pairs as
+    :func:`~.query.object_arrays` takes them, with ``object_bias`` per object, default ``bias`` for all) or none
+    (``VIS_NONE``). The caller switches a lat-long CSM of a local light to ``VIS_SEMI_LOCAL``."""
     v = LightVisibility()
     v.latlong, v.cube = placeholder_csms(device)
     v.mode, v.mesh = VIS_NONE, wp.uint64(0)
-    if csm is not None:
+    if objects is None:  # 1-element placeholders (kernels need arrays either way)
+        v.objects = wp.array([v.latlong], dtype=CSMData, device=device)
+        v.to_object = wp.array(np.eye(4, dtype=np.float32)[None], dtype=wp.mat44, device=device)
+    else:
+        v.objects, v.to_object = object_arrays(objects, device)
+    biases = [bias] * len(objects) if objects is not None and object_bias is None else (object_bias or [0.0])
+    v.object_bias = wp.array(np.asarray(biases, np.float32), dtype=float, device=device)
+    if objects is not None:
+        v.mode = VIS_OBJECTS
+    elif csm is not None:
         v.mode = VIS_CSM
         if csm.kind == KIND_LATLONG:
             v.latlong = csm_device_data(csm, device)
@@ -352,7 +383,10 @@ class DirectLighting:
 
     Args:
         points, normals, albedo, light: as :func:`shade_direct`.
-        **options: the keyword arguments of :func:`shade_direct` except ``seed``.
+        **options: the keyword arguments of :func:`shade_direct` except ``seed``; and ``objects``: rigid objects
+            as the visibility source instead of ``csm`` / ``mesh`` (Sec. 4.6): ``(csm, transform)`` pairs of
+            lat-long CSMs in object space and object -> world matrices, with ``object_bias`` (one depth bias per
+            object, in its object-space units; default ``bias``).
 
     Raises:
         ValueError: as :func:`shade_direct`.
@@ -386,6 +420,8 @@ class DirectLighting:
         ray_eps: float = 1.0e-4,
         device: str | None = None,
         threads: int | None = None,
+        objects=None,
+        object_bias=None,
     ):
         from ..scene.environment_map import EnvironmentMap
         from ..scene.lights import AreaLight, EnvironmentLight, LinearLight
@@ -394,7 +430,7 @@ class DirectLighting:
         strata = check_strata(samples)
         p, n, wo, idx, table = surface_inputs(points, normals, albedo, view_dirs=view_dirs, specular=specular,
                                               exponent=exponent, materials=materials, material_index=material_index)
-        check_visibility_source(filter, bias, ray_eps, csm, mesh)
+        check_visibility_source(filter, bias, ray_eps, csm, mesh, objects)
         latlong = isinstance(csm, CoherentShadowMap) and csm.kind == KIND_LATLONG
         if isinstance(light, EnvironmentLight):
             light = light.env
@@ -413,7 +449,8 @@ class DirectLighting:
             light_data = light.device_data()
         else:
             raise ValueError(f"light must be an EnvironmentMap, AreaLight or LinearLight, got {type(light).__name__}")
-        vis = light_visibility(csm, mesh, filter=filter, bias=bias, ray_eps=ray_eps, device=device)
+        vis = light_visibility(csm, mesh, filter=filter, bias=bias, ray_eps=ray_eps, device=device, objects=objects,
+                               object_bias=object_bias)
         if latlong and not isinstance(light, EnvironmentMap):
             vis.mode = VIS_SEMI_LOCAL  # a lat-long CSM queried towards the local light's points
         self.count = int(p.shape[0])
@@ -452,6 +489,8 @@ def shade_direct(
     ray_eps: float = 1.0e-4,
     device: str | None = None,
     threads: int | None = None,
+    objects=None,
+    object_bias=None,
 ) -> np.ndarray:
     """Direct lighting at surface points from any Monte-Carlo light (Ritschel 2007 Sec. 4.2, 5), one pass.
 
@@ -467,8 +506,11 @@ def shade_direct(
             the balance heuristic; linear lights: one light sample).
         csm: a coherent shadow map of the occluders: lat-long (distant lights; semi-local area / linear lights,
             Sec. 4.3) or the local light's cube CSM (Sec. 4.2, :func:`~.local_lights.check_light_csm`).
-        mesh: ``wp.Mesh`` of the occluders for exact shadow rays (the reference). At most one of csm / mesh;
-            neither: no occlusion.
+        mesh: ``wp.Mesh`` of the occluders for exact shadow rays (the reference).
+        objects: rigid objects (Sec. 4.6): ``(csm, transform)`` pairs of lat-long CSMs in object space and 4x4
+            object -> world matrices; their visibilities multiply (distant lights, and area / linear lights
+            semi-locally). At most one of csm / mesh / objects; none: no occlusion.
+        object_bias: one depth bias per object (its object-space units; default ``bias`` for each).
         seed: random seed of this pass (use a different one per progressive pass: it changes every pattern).
         view_dirs: (K, 3) or (3,) unit-ish directions from the point towards the viewer (default: the normal).
         specular: (K, 3) or (3,) Phong reflectance k_s (default 0).
@@ -492,7 +534,8 @@ def shade_direct(
     """
     return DirectLighting(points, normals, albedo, light, samples=samples, csm=csm, mesh=mesh, view_dirs=view_dirs,
                           specular=specular, exponent=exponent, materials=materials, material_index=material_index,
-                          filter=filter, bias=bias, ray_eps=ray_eps, device=device, threads=threads).shade(seed)
+                          filter=filter, bias=bias, ray_eps=ray_eps, device=device, threads=threads,
+                          objects=objects, object_bias=object_bias).shade(seed)
 
 
 __all__ = [
@@ -500,7 +543,9 @@ __all__ = [
     "VIS_CSM",
     "VIS_MESH",
     "VIS_NONE",
+    "VIS_OBJECTS",
     "VIS_SEMI_LOCAL",
+    "objects_visibility",
     "DirectLighting",
     "LightVisibility",
     "ProgressiveAccumulator",

@@ -31,8 +31,10 @@ from .depthmaps import latlong_param
 from .direct_lighting import (
     VIS_CSM,
     VIS_MESH,
+    VIS_OBJECTS,
     LightVisibility,
     SurfacePoints,
+    objects_visibility,
     shade_direct,
     shadow_ray_blocked,
     stratum_random_numbers,
@@ -55,6 +57,8 @@ def distant_visibility_uv(vis: LightVisibility, p: wp.vec3, n: wp.vec3, d: wp.ve
     arrays, which an out-of-line call would copy twice per sample on the CPU."""
     if vis.mode == VIS_CSM:
         return csm_visibility_filtered_uv(vis.latlong, p + vis.eps * n, uv, vis.bias, vis.filter_mode, xi)
+    if vis.mode == VIS_OBJECTS:
+        return objects_visibility(vis, p + vis.eps * n, d, xi)
     if vis.mode == VIS_MESH:
         if shadow_ray_blocked(vis.mesh, p + vis.eps * n, d, 1.0e30):
             return 0.0

@@ -43,9 +43,11 @@ from .compress import KIND_CUBE, CoherentShadowMap
 from .direct_lighting import (
     VIS_CSM,
     VIS_MESH,
+    VIS_OBJECTS,
     VIS_SEMI_LOCAL,
     LightVisibility,
     SurfacePoints,
+    objects_visibility,
     shade_direct,
     shadow_ray_blocked,
     stratum_random_numbers,
@@ -67,6 +69,8 @@ def local_visibility(vis: LightVisibility, x: wp.vec3, n: wp.vec3, y: wp.vec3, s
         return csm_local_visibility_filtered(vis.cube, o, st, vis.bias, vis.filter_mode, xi)
     if vis.mode == VIS_SEMI_LOCAL:
         return csm_visibility_filtered(vis.latlong, o, y - o, vis.bias, vis.filter_mode, xi)
+    if vis.mode == VIS_OBJECTS:
+        return objects_visibility(vis, o, y - o, xi)
     if vis.mode == VIS_MESH:
         w = y - o
         dist = wp.length(w)

@@ -118,16 +118,17 @@ def prepare_csm(light, settings: CSMBuildSettings, vertices, triangles, *, progr
     elif progress is not None:
         progress(1.0)
     _BUILT[key] = csm  # most recently used last
-    while len(_BUILT) > BUILT_CACHE_SIZE:
+    while len(_BUILT) > 1 and sum(c.stats.compressed_bytes for c in _BUILT.values()) > BUILT_CACHE_BYTES:
         _BUILT.popitem(last=False)
     return csm
 
 
 #: CSMs this process built, by (occluder geometry, settings, device, light sample points): a render of the same
-#: occluders (the frames of an animation whose occluders do not move, a sweep over other settings) reuses them.
+#: occluders (the frames of an animation whose occluders do not move or move rigidly with per-mesh CSMs, a sweep
+#: over other settings) reuses them.
 _BUILT: OrderedDict = OrderedDict()
-#: How many built CSMs the process keeps (each up to tens of MB).
-BUILT_CACHE_SIZE = 2
+#: Compressed bytes of built CSMs the process keeps (the least recently used leave first; the last one stays).
+BUILT_CACHE_BYTES = 512 * 2**20
 
 
 def texel_size(csm: CoherentShadowMap) -> float:

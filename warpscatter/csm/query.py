@@ -701,6 +701,31 @@ def csm_visibility_batch(
                       seed=seed, device=device, threads=threads)
 
 
+def object_arrays(objects, device) -> tuple[wp.array, wp.array]:
+    """Device arrays of rigid objects (Sec. 4.6): their lat-long CSMs' :class:`CSMData` and the world -> object
+    matrices T^-1 (as kernels take them: :func:`objects_visibility_kernel`, the estimators' ``VIS_OBJECTS``).
+
+    Args:
+        objects: sequence of ``(csm, transform)``: a lat-long CSM and its 4x4 object -> world matrix T (None:
+            identity).
+
+    Raises:
+        ValueError: a transform that is not a finite, invertible affine 4x4 matrix, or a cube CSM.
+    """
+    datas, invs = [], []
+    for k, (csm, transform) in enumerate(objects):
+        t = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
+        if t.shape != (4, 4) or not np.all(np.isfinite(t)) or not np.allclose(t[3], [0, 0, 0, 1]):
+            raise ValueError(f"objects[{k}] transform must be a finite affine 4x4 matrix")
+        if abs(np.linalg.det(t[:3, :3])) < 1e-12:
+            raise ValueError(f"objects[{k}] transform is singular")
+        _expect_kind(csm, KIND_LATLONG, f"objects[{k}] csm")
+        datas.append(csm_device_data(csm, device))
+        invs.append(np.linalg.inv(t).astype(np.float32))
+    return (wp.array(datas, dtype=CSMData, device=device),
+            wp.array(np.stack(invs), dtype=wp.mat44, device=device))
+
+
 def csm_objects_visibility_batch(
     objects,
     points,
@@ -733,18 +758,7 @@ def csm_objects_visibility_batch(
     p = _vec3_rows(points, "points")
     d = _directions(directions, p.shape[0])
     _check_bias(bias)
-    datas, invs = [], []
-    for k, (csm, transform) in enumerate(objects):
-        t = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
-        if t.shape != (4, 4) or not np.all(np.isfinite(t)) or not np.allclose(t[3], [0, 0, 0, 1]):
-            raise ValueError(f"objects[{k}] transform must be a finite affine 4x4 matrix")
-        if abs(np.linalg.det(t[:3, :3])) < 1e-12:
-            raise ValueError(f"objects[{k}] transform is singular")
-        _expect_kind(csm, KIND_LATLONG, f"objects[{k}] csm")
-        datas.append(csm_device_data(csm, device))
-        invs.append(np.linalg.inv(t).astype(np.float32))
-    csm_inputs = [wp.array(datas, dtype=CSMData, device=device),
-                  wp.array(np.stack(invs), dtype=wp.mat44, device=device)]
+    csm_inputs = list(object_arrays(objects, device))
     return _run_query(objects_visibility_kernel, csm_inputs, p, d, wp.vec3, bias=bias, mode=mode, seed=seed,
                       device=device, threads=threads)
 

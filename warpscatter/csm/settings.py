@@ -38,6 +38,10 @@ MAX_RESOLUTION = 4096
 MAX_BATCH = 4096
 
 
+#: ``render.lighting.csm.objects``: one CSM of the whole scene, or one per casting mesh (rigid objects, Sec. 4.6).
+CSM_OBJECTS = ("scene", "per_mesh")
+
+
 class CSMBuildSettings(SettingsModel):
     """The coherent shadow map of the lighting methods: a ``file`` from ``warpscatter precompute`` (.npz), or built
     on the fly from the scene's occluders with these parameters."""
@@ -61,6 +65,11 @@ class CSMBuildSettings(SettingsModel):
     local_lights: Literal[LOCAL_LIGHT_MODES] = Field(  # type: ignore[valid-type]
         "cube", description="area / linear lights: depth cube maps at the light's samples (Sec. 4.2), or the "
                             "lat-long CSM queried towards each light point (semi-local, Sec. 4.3)")
+    objects: Literal[CSM_OBJECTS] = Field(  # type: ignore[valid-type]
+        "scene", description="scene: one CSM of all occluders in world space; per_mesh: one lat-long CSM per casting "
+                             "mesh in its own object space, placed by the mesh's transform (Sec. 4.6: moving a "
+                             "mesh changes its transform, never its CSM; area / linear lights then need "
+                             "local_lights: semi_local)")
 
     @field_validator("file")
     @classmethod
@@ -111,6 +120,7 @@ class LightingSettings(SettingsModel):
 
 
 __all__ = [
+    "CSM_OBJECTS",
     "DEPTH_LAYERS",
     "ENUMERATIONS",
     "FAR_MODES",

@@ -97,7 +97,7 @@ def render(config: Config, out_dir: Path | None = None, progress: ProgressFn | N
     """
     from ..csm.compress import CSMFileError
     from ..imageio import write_outputs
-    from ..scene import build_scene
+    from ..scene import build_scene, object_meshes
 
     config = config.revalidated()
     device = default_device(device)
@@ -126,7 +126,9 @@ def render(config: Config, out_dir: Path | None = None, progress: ProgressFn | N
                 write_files(images, {"passes_done": done})
 
         try:
-            images, stats = render_lighting(scene, config.render.lighting, timer, on_pass, device=device)
+            objects = object_meshes(config) if config.render.lighting.csm.objects == "per_mesh" else None
+            images, stats = render_lighting(scene, config.render.lighting, timer, on_pass, device=device,
+                                            objects=objects)
         except CSMFileError as exc:
             raise ConfigError(f"render.lighting.csm.file: {exc}") from None
         images.pop("scattering", None)

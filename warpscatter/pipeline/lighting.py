@@ -4,7 +4,9 @@
 Stages (names as in the CLI's timing table):
 
 - ``csm`` (method ``csm``): the coherent shadow map of the scene's occluders (every mesh not marked
-  ``receiver_only``, in world space), loaded from ``render.lighting.csm.file`` (checked against the scene:
+  ``receiver_only``, in world space; with ``render.lighting.csm.objects: per_mesh`` one lat-long CSM per casting
+  mesh in its object space, placed by its transform: Sec. 4.6 rigid objects, built once per process per mesh),
+  loaded from ``render.lighting.csm.file`` (checked against the scene:
   kind, occluder geometry, light samples) or built on the fly with the streaming builder: lat-long maps for an
   environment light, depth cube maps at the light's sample points for an area or linear light
   (:mod:`warpscatter.csm.occluders`), and put on the device.
@@ -95,7 +97,8 @@ def camera_surface(scene, stage: StageTimer | None = None, device=None) -> Camer
 
 
 def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None = None,
-                    on_pass: Callable[[dict, int, int], None] | None = None, *, device=None) -> tuple[dict, dict]:
+                    on_pass: Callable[[dict, int, int], None] | None = None, *, device=None,
+                    objects: list | None = None) -> tuple[dict, dict]:
     """Monte-Carlo direct lighting of a scene (see the module docstring; the registry's call shape of the lighting
     methods, :mod:`warpscatter.methods`).
 
@@ -106,6 +109,9 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
         stage: the :class:`~warpscatter.stages.StageTimer` (created if None).
         on_pass: ``on_pass(images, passes_done, passes)`` every ``write_every`` passes before the last.
         device: Warp device.
+        objects: with ``settings.csm.objects`` ``per_mesh``: the casting meshes as rigid objects, ``(mesh,
+            matrix)`` pairs of :func:`warpscatter.scene.object_meshes` (each gets its own lat-long CSM in object
+            space, built once per process for a given mesh: moving it only changes its matrix).
 
     Returns:
         (images, stats) as :func:`warpscatter.pipeline.render_images`.
@@ -124,8 +130,19 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
     with timer("compile"):
         compile_kernels(methods.LIGHTING_BASE_MODULES + method.modules, device)
     vertices, triangles = scene_occluders(scene)
-    csm = mesh = None
-    if method.visibility == methods.VISIBILITY_CSM:
+    csm = mesh = rigid = None
+    per_mesh = method.visibility == methods.VISIBILITY_CSM and settings.csm.objects == "per_mesh"
+    if per_mesh:
+        if objects is None:
+            raise ValueError("render.lighting.csm.objects per_mesh: pass the scene's objects "
+                             "(warpscatter.scene.object_meshes)")
+        with timer("csm") as s:
+            rigid = [(prepare_csm(light, settings.csm, m.vertices, m.triangles, device=device), t)
+                     for m, t in objects if len(m.triangles)]
+            for c, _ in rigid:
+                csm_device_data(c, device)
+            s.report(1.0)
+    elif method.visibility == methods.VISIBILITY_CSM:
         with timer("csm") as s:
             csm = prepare_csm(light, settings.csm, vertices, triangles, progress=s.report, device=device)
             csm_device_data(csm, device)  # the segment lists on the device, once per render
@@ -136,7 +153,15 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
     cam = scene.camera
     h, w = cam.height, cam.width
     g, dirs, hit, dist = surf.gbuffer, surf.directions, surf.hit, surf.distance
-    if csm is not None:
+    object_bias = None
+    if rigid:  # per object: one texel of its own CSM (its object units), or the bias given (scene units) rescaled
+        scales = [abs(float(np.linalg.det(np.asarray(t, np.float64)[:3, :3]))) ** (1.0 / 3.0) for _, t in rigid]
+        object_bias = [texel_size(c) if settings.bias is None else settings.bias / k
+                       for (c, _), k in zip(rigid, scales, strict=True)]
+        bias = min(b * k for b, k in zip(object_bias, scales, strict=True))
+        offset = 0.25 * min(texel_size(c) * k for (c, _), k in zip(rigid, scales, strict=True)) \
+            if settings.normal_offset is None else settings.normal_offset
+    elif csm is not None:
         texel = texel_size(csm)
         bias = texel if settings.bias is None else settings.bias
         offset = 0.25 * texel if settings.normal_offset is None else settings.normal_offset
@@ -167,7 +192,7 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
         lighting = DirectLighting(surf.points, surf.normals, None, light, samples=settings.samples, csm=csm,
                                   mesh=mesh, view_dirs=surf.view_dirs, materials=surf.materials,
                                   material_index=surf.material_index, filter=settings.filter, bias=float(bias),
-                                  ray_eps=float(offset), device=device)
+                                  ray_eps=float(offset), device=device, objects=rigid, object_bias=object_bias)
     acc = ProgressiveAccumulator()
     pass_seconds = []
     mean = np.zeros((0, 3), np.float32)
@@ -198,6 +223,10 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
         "seconds_per_pass": float(np.median(pass_seconds)),
         "shaded_pixels": int(hit.sum()),
     }
+    if rigid:
+        stats.update(csm_kind="per_mesh", csm_objects=len(rigid), csm_maps=list(settings.csm.maps),
+                     csm_resolution=settings.csm.resolution, csm_segments=sum(c.num_segments for c, _ in rigid),
+                     csm_bias=[round(float(b), 6) for b in object_bias])
     if csm is not None:
         stats.update(csm_kind=csm.kind, csm_maps=[csm.n1, csm.n2], csm_resolution=csm.resolution,
                      csm_segments=csm.num_segments, csm_file=str(settings.csm.file) if settings.csm.file else None,

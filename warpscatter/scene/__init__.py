@@ -153,6 +153,17 @@ def medium_from_config(c) -> Medium:
     return Medium(sigma_t=c.sigma_t, albedo=c.albedo, phase=c.phase.type, g=g)
 
 
+def _entry_source(entry):
+    """(cache key of the untransformed mesh, a function building it) of a ``scene.meshes`` entry: the file (path,
+    size, times) and its loader, or the generator with its exact parameters (key None: not cacheable)."""
+    from .meshes import file_key, load_mesh
+    from .procedural import GENERATORS, generator_key
+
+    if entry.path is not None:
+        return file_key(entry.path), lambda: load_mesh(entry.path)
+    return generator_key(entry.procedural, entry.params), lambda: GENERATORS[entry.procedural](**(entry.params or {}))
+
+
 def load_entry_mesh(entry):
     """Load one ``scene.meshes`` entry (file or generator) with its transform applied.
 
@@ -160,33 +171,52 @@ def load_entry_mesh(entry):
     generator and its exact parameters, and the transform matrix: repeated renders load and generate each mesh
     once. The returned mesh's arrays are read-only (shared with the cache).
     """
-    from .meshes import apply_transform, cached_mesh, file_key, load_mesh, transform_matrix
-    from .procedural import GENERATORS, generator_key
+    from .meshes import apply_transform, cached_mesh, transform_matrix
 
     t = entry.transform
     matrix = transform_matrix(t.translate, t.rotate_deg, t.scale)
-    if entry.path is not None:
-        source = file_key(entry.path)
+    source, make = _entry_source(entry)
+    return cached_mesh(None if source is None else (source, matrix.tobytes()),
+                       lambda: apply_transform(make(), matrix))
 
-        def build():
-            return apply_transform(load_mesh(entry.path), matrix)
-    else:
-        source = generator_key(entry.procedural, entry.params)
 
-        def build():
-            return apply_transform(GENERATORS[entry.procedural](**(entry.params or {})), matrix)
-    return cached_mesh(None if source is None else (source, matrix.tobytes()), build)
+def object_meshes(cfg) -> list:
+    """The casting meshes of a config as rigid objects (Ritschel 2007 Sec. 4.6): for each ``scene.meshes`` entry
+    that casts (not ``receiver_only``, opacity >= :data:`CASTER_ALPHA_TEST`), ``(mesh, matrix)``: its
+    :class:`~.meshes.TriangleMesh` in OBJECT space (as loaded or generated, no transform; cached like
+    :func:`load_entry_mesh`) and its 4x4 object -> world matrix."""
+    from .meshes import cached_mesh, transform_matrix
+
+    out = []
+    for entry in cfg.scene.meshes:
+        if entry.receiver_only or entry.material.opacity < CASTER_ALPHA_TEST:
+            continue
+        t = entry.transform
+        source, make = _entry_source(entry)
+        mesh = cached_mesh(None if source is None else (source, "object space"), make)
+        out.append((mesh, transform_matrix(t.translate, t.rotate_deg, t.scale)))
+    return out
 
 
 def build_scene(cfg) -> Scene:
     """Build a :class:`Scene` from a validated config (meshes loaded and transformed, see :func:`load_entry_mesh`).
 
     The scene's arrays are new (writable) arrays: changing them does not touch the mesh cache.
+
+    Raises:
+        InputFileError: a mesh file that cannot be used (:class:`.meshes.MeshLoadError`), at its key
+            (``scene.meshes.N.path``), or a light texture or environment map (:func:`light_from_config`).
     """
+    from ..errors import InputFileError
+
     verts, tris, mats, albedo, opacity = [], [], [], [], []
     base = 0
     for k, entry in enumerate(cfg.scene.meshes):
-        mesh = load_entry_mesh(entry)  # float32 and int32 already
+        try:
+            mesh = load_entry_mesh(entry)  # float32 and int32 already
+        except InputFileError as exc:  # a mesh file that cannot be used: name the entry's key
+            exc.at(f"scene.meshes.{k}.path" if entry.path is not None else f"scene.meshes.{k}")
+            raise
         verts.append(mesh.vertices)
         tris.append(mesh.triangles + base)
         mats.append(np.full(len(mesh.triangles), k, dtype=np.int32))

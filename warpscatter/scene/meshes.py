@@ -210,8 +210,8 @@ def load_mesh(path: str | os.PathLike) -> TriangleMesh:
     try:
         size = os.path.getsize(path)
         if size > MAX_MESH_FILE_BYTES:
-            raise fail(f"the file is {size / 2**30:.1f} GiB, more than the {MAX_MESH_FILE_BYTES / 2**30:g} GiB "
-                       f"a mesh file may have (warpscatter.scene.meshes.MAX_MESH_FILE_BYTES)")
+            raise fail(f"the file has {size:,} bytes, more than the {MAX_MESH_FILE_BYTES:,} a mesh file may have "
+                       f"(warpscatter.scene.meshes.MAX_MESH_FILE_BYTES)")
         with open(path, "rb") as f:
             data = f.read(MAX_MESH_FILE_BYTES + 1)
     except OSError as exc:
@@ -219,7 +219,8 @@ def load_mesh(path: str | os.PathLike) -> TriangleMesh:
     if not data:
         raise fail("the file is empty")
     if len(data) > MAX_MESH_FILE_BYTES:  # grew since it was measured
-        raise fail(f"the file is more than the {MAX_MESH_FILE_BYTES / 2**30:g} GiB a mesh file may have")
+        raise fail(f"the file has more than the {MAX_MESH_FILE_BYTES:,} bytes a mesh file may have "
+                   f"(warpscatter.scene.meshes.MAX_MESH_FILE_BYTES)")
     kind = ext[1:].upper()
     if ext in _TEXT_FORMATS and _looks_binary(data):
         raise fail(f"cannot be parsed as {kind} (binary data: {kind} files are text)")
