@@ -83,12 +83,16 @@ def _common_options(kernels: bool):
     return decorate
 
 
-def _executor_options(f):
-    """--executor / --workers / --address of the commands that run many renders (animations, sweeps)."""
+def _executor_options(default: str):
+    """--executor (``default``) / --workers / --address of the commands that run many renders."""
+    return lambda f: _add_executor_options(f, default)
+
+
+def _add_executor_options(f, default: str):
     from warpscatter.jobs import EXECUTORS
 
     options = [
-        click.option("--executor", type=click.Choice(EXECUTORS), default="local", show_default=True,
+        click.option("--executor", type=click.Choice(EXECUTORS), default=default, show_default=True,
                      help="Where frames and sweep cases render: inline (this process, one after the other), local "
                           "(worker processes), dask (Dask distributed: a LocalCluster, or --address)."),
         click.option("--workers", type=click.IntRange(min=1), default=None,
@@ -425,35 +429,47 @@ def _terminate_like_interrupt() -> None:
         signal.signal(signal.SIGTERM, interrupt)
 
 
+def _own_method_and_name(path: Path, overrides) -> tuple[str | None, str | None]:
+    """The method and output name a config file (with its --set overrides) asks for itself, or (None, None) when it
+    cannot be read (loading it then reports why)."""
+    from warpscatter.config import OutputConfig, apply_overrides, read_config_data
+    from warpscatter.scattering.settings import ScatteringSettings
+
+    try:
+        data, _ = read_config_data(path)
+        apply_overrides(data, list(overrides))
+    except ConfigError:
+        return None, None
+    render = data.get("render") if isinstance(data.get("render"), dict) else {}
+    section = {k: (v if isinstance(v, dict) else {}) for k, v in render.items()}
+    method = (section.get("lighting", {}).get("method") or section.get("scattering", {}).get("method")
+              or ScatteringSettings.model_fields["method"].default)
+    output = data.get("output") if isinstance(data.get("output"), dict) else {}
+    return str(method), str(output.get("name") or OutputConfig.model_fields["name"].default)
+
+
 def _render_config(path: Path, overrides, method: str | None, name: str | None, seed: int | None,
                    debug: bool) -> Config:
-    """One config of ``render``, loaded with its overrides, --method, --name and --seed (exit 2 when invalid).
+    """One config of ``render``, loaded with its overrides, --method, --name and --seed applied before validation
+    (exit 2 when invalid), as --set would apply them.
 
     Where --method changes the method, the name is the config's own (neither --name nor --set output.name) and it
     does not hold ``{method}``, ``_{method}`` is appended to it: the render does not overwrite the config's own
     outputs."""
-    from warpscatter.api import load_config as load_any
-
-    config = _load(_config_file(path), overrides, debug)
-    extra: dict[str, object] = {}
+    path = _config_file(path)
+    own_method, own_name = _own_method_and_name(path, overrides)
+    extra = []
     if method:
-        section = "lighting" if method in methods.LIGHTING else "scattering"
-        extra[f"render.{section}.method"] = method
-    template = name or config.output.name
+        extra.append(f"render.{'lighting' if method in methods.LIGHTING else 'scattering'}.method={method}")
     named = name is not None or any(o.partition("=")[0].strip() == "output.name" for o in overrides)
-    if method and method != config.method and not named and "{method}" not in template:
-        template += "_{method}"
-    if template != config.output.name:
-        extra["output.name"] = template
+    if name is not None:
+        extra.append(f"output.name={json.dumps(name)}")
+    elif method and own_name and method != own_method and not named and "{method}" not in own_name:
+        extra.append(f"output.name={json.dumps(own_name + '_{method}')}")
     if seed is not None:
-        lighting = extra.get("render.lighting.method", config.render.lighting.method)
-        extra["render.lighting.seed" if lighting else "render.scattering.seed"] = seed
-    if not extra:
-        return config
-    try:
-        return load_any(config, extra)
-    except ConfigError as exc:
-        _fail(str(ConfigError(exc.problems, path)), EXIT_INVALID)
+        lighting = method in methods.LIGHTING if method else own_method in methods.LIGHTING
+        extra.append(f"render.{'lighting' if lighting else 'scattering'}.seed={seed}")
+    return _load(path, [*overrides, *extra], debug)
 
 
 @main.command()
@@ -476,7 +492,7 @@ def _render_config(path: Path, overrides, method: str | None, name: str | None, 
               "from the same config (by default a run resumes).")
 @click.option("--preview", type=click.Choice(("auto", "mp4", "gif", "none")), default=None,
               help="Animated configs: the preview movie [default: animation.preview].")
-@_executor_options
+@_executor_options("local")
 @_common_options(kernels=True)
 @click.pass_context
 def render(ctx, config_paths, output_dir, overrides, method, name, seed, frames, force, preview, executor, workers,
@@ -611,7 +627,7 @@ def _render_animation(config, frames, out_dir, progress, quiet, debug, force, pr
               show_default=True, help="Folder for NAME.json, NAME.csv, the chart and (images: true) the images.")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Override a config value in every case and reference (added to the sweep's set; repeatable).")
-@_executor_options
+@_executor_options("inline")
 @_common_options(kernels=True)
 @click.pass_context
 def sweep(ctx, sweep_path, output_dir, overrides, executor, workers, address, verbose, quiet, debug, device,

@@ -196,6 +196,8 @@ def render_cases(only: str | None, images_dir: Path | None) -> dict:
         t0 = time.perf_counter()
         try:
             cfg = load_config(CONFIGS / config, overrides)
+            if cfg.animation is not None:  # an animated config: its first frame
+                cfg = cfg.at_frame(cfg.animation.frame_numbers[0])
             result = render(cfg, write=False)
             entry = {"images": {n: _hash(a) for n, a in sorted(result.images.items())},
                      "stats": _jsonable(result.stats)}

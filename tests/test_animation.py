@@ -76,7 +76,7 @@ def test_animation_settings_and_frame_configs(animated):
 
 
 @pytest.mark.parametrize("tracks, message", [
-    ({"camera.fov_y": {1: 500}}, r"animation.tracks.camera.fov_y \(frame 1\): camera.fov_y: must be < 180"),
+    ({"camera.fov_y": {1: 500}}, r"animation.tracks.camera.fov_y \(frame 1\): camera.fov_y: must be <"),
     ({"camera.bogus": {1: 1}}, r"animation.tracks.camera.bogus \(frame 1\): camera.bogus: unknown key"),
     ({"camera.width": {1: 10, 2: [1, 2]}}, r"same type and length"),
     ({"camera.width": {}}, r"at least one keyframe"),
@@ -247,3 +247,57 @@ def test_a_csm_of_unmoved_occluders_is_built_once_per_process():
     assert moved is not first and moved.geometry != first.geometry
     other = config.render.lighting.csm.model_copy(update={"resolution": 16})
     assert prepare_csm(scene.light, other, vertices, triangles).resolution == 16
+
+
+# ---- regressions found in review -----------------------------------------------------------------------------------
+
+
+def test_a_progressive_frame_counts_as_done_only_when_complete(animated, tmp_path, monkeypatch):
+    from warpscatter.jobs import finished
+
+    task = task_for(load_config(animated).at_frame(1), "sun.0001", tmp_path)
+    render_animation(load_config(animated), tmp_path, frames=[1], preview="none")
+    assert finished(task)
+    sidecar = tmp_path / "sun.0001.json"
+    data = json.loads(sidecar.read_text())
+    sidecar.write_text(json.dumps({**data, "complete": False}))  # an intermediate pass of a killed csm render
+    assert not finished(task)
+
+
+def test_a_failed_preview_is_a_note_and_leaves_no_temporary(tmp_path):
+    data = {**ANIMATED, "animation": {"frames": 2, "preview": "gif", "tracks": {"camera.width": {1: 24, 2: 32}}}}
+    path = tmp_path / "grow.yaml"
+    path.write_text(yaml.safe_dump(data))
+    result = render_animation(load_config(path), tmp_path / "out")
+    assert len(result.rendered) == 2 and result.preview is None
+    assert "no gif preview" in result.notes[0]
+    assert not [p for p in (tmp_path / "out").iterdir() if p.name.startswith(".")]
+
+
+def test_tasks_carry_the_callers_threads_and_device(animated, monkeypatch):
+    monkeypatch.setenv("WARPSCATTER_THREADS", "1")
+    task = task_for(load_config(animated).at_frame(1), "f", None, device="cpu")
+    assert task.threads == 1 and task.device == "cpu"
+
+
+def test_sweep_cases_that_change_the_scene_get_their_own_reference(tmp_path):
+    sweep = {"configs": [str(ROOT / "configs" / "quickstart.yaml")],
+             "set": {"camera.height": 12, "render.scattering.shadow_map.resolution": 64},
+             "grid": {"camera.width": [20, 24], "render.scattering.method": ["fourier"]},
+             "reference": {"render.scattering.method": "raymarch", "render.scattering.steps": 16}}
+    path = tmp_path / "sweep.yaml"
+    path.write_text(yaml.safe_dump(sweep))
+    from warpscatter.sweep import load_sweep, run_sweep, sweep_cases
+
+    cases, references = sweep_cases(load_sweep(path))
+    assert sorted(references) == ["quickstart reference (width=20)", "quickstart reference (width=24)"]
+    assert [c.reference for c in cases] == sorted(references)
+    rows = run_sweep(load_sweep(path), tmp_path / "out").rows
+    assert all(0 < r["rel_l1"] < 1 and "error" not in r for r in rows)  # each against a reference of its size
+
+
+def test_render_refuses_an_animated_config(animated):
+    import warpscatter
+
+    with pytest.raises(ValueError, match="animation section"):
+        warpscatter.render(animated)

@@ -164,3 +164,9 @@ def test_layered_exr(tmp_path):
     np.testing.assert_array_equal(np.stack([channel[f"scattering.{c}"] for c in "RGB"], axis=2),
                                   result.images["scattering"])
     np.testing.assert_array_equal(np.stack([channel[c] for c in "RGB"], axis=2), result.images["color"])
+
+
+def test_the_sidecar_records_the_folder_written_to(tmp_path):
+    warpscatter.render(QUICKSTART, SMALL, out_dir=tmp_path / "here")
+    side = json.loads((tmp_path / "here" / "quickstart.json").read_text())
+    assert side["config"]["output"]["dir"] == str((tmp_path / "here").resolve()) and side["complete"] is True

@@ -395,3 +395,13 @@ def test_python_dash_m_lists_every_command():
         assert out.returncode == 0, out.stderr
         for command in ("render", "validate", "bench", "precompute"):
             assert command in out.stdout, (module, command)
+
+
+def test_method_applies_before_validation(config_file, tmp_path, fake_pipeline):
+    # an AOV that only the overriding method makes: valid, as with --set render.scattering.method
+    result = invoke("render", config_file, "-o", tmp_path / "o", "--method", "fourier", "--set",
+                    "output.aovs=[color,rectified]")
+    assert "is made by" not in result.stderr and len(fake_pipeline) == 1  # validated and handed to the pipeline
+    cfg = fake_pipeline[0]["config"]
+    assert cfg.render.scattering.method == "fourier" and "rectified" in cfg.output.aovs
+    assert cfg.output_name == "shot_fourier"

@@ -50,6 +50,10 @@ def test_every_bundled_config_renders(config):
                                                   "render.lighting.samples=4", "render.lighting.passes=2",
                                                   "render.lighting.csm.maps=[16,8]",
                                                   "render.lighting.csm.resolution=32"])
+    if cfg.animation is not None:  # an animated config renders frame by frame (warpscatter.sequence)
+        with pytest.raises(ValueError, match="animation section"):
+            render(cfg, write=False)
+        cfg = cfg.at_frame(cfg.animation.frame_numbers[-1])
     result = render(cfg, write=False)
     for name, img in result.images.items():
         assert np.isfinite(img).all(), name

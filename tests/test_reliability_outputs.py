@@ -13,7 +13,7 @@ import OpenImageIO as oiio
 import pytest
 
 from warpscatter import imageio
-from warpscatter.imageio import ImageWriteError, read_image, remove_stale_temporaries, write_outputs
+from warpscatter.imageio import ImageWriteError, _host_tag, read_image, remove_stale_temporaries, write_outputs
 
 AOVS = ["scattering", "surface", "depth"]
 #: The output set in output order: colour EXR, PNG, the AOVs, the sidecar.
@@ -296,6 +296,9 @@ def test_folder_made_read_only_after_the_temporaries_keeps_the_previous_set(sets
     assert_set_of(folder, new)
 
 
+HOST = _host_tag()
+
+
 def _dead_pid() -> int:
     proc = subprocess.Popen([sys.executable, "-c", "pass"])
     proc.wait()
@@ -307,12 +310,12 @@ def test_backups_of_a_writer_killed_while_renaming_are_moved_back(sets):
     # backup), r.png set aside (renamed: no hard links) with the new one not in yet, the rest still temporaries.
     folder, old, _ = sets
     pid = _dead_pid()
-    os.link(folder / "r.exr", folder / f".r.bak-{pid}-abc123.exr")
-    (folder / f".r.tmp-{pid}-0a0b0c.exr").write_bytes(b"the new colour image")
-    os.replace(folder / f".r.tmp-{pid}-0a0b0c.exr", folder / "r.exr")
-    (folder / "r.png").rename(folder / f".r.bak-{pid}-def456.png")
-    (folder / f".r.tmp-{pid}-1a1b1c.png").write_bytes(b"the new preview")
-    (folder / f".r.scattering.tmp-{pid}-2a2b2c.exr").write_bytes(b"the new scattering")
+    os.link(folder / "r.exr", folder / f".r.bak-{HOST}-{pid}-abc123.exr")
+    (folder / f".r.tmp-{HOST}-{pid}-0a0b0c.exr").write_bytes(b"the new colour image")
+    os.replace(folder / f".r.tmp-{HOST}-{pid}-0a0b0c.exr", folder / "r.exr")
+    (folder / "r.png").rename(folder / f".r.bak-{HOST}-{pid}-def456.png")
+    (folder / f".r.tmp-{HOST}-{pid}-1a1b1c.png").write_bytes(b"the new preview")
+    (folder / f".r.scattering.tmp-{HOST}-{pid}-2a2b2c.exr").write_bytes(b"the new scattering")
     cleaned = remove_stale_temporaries(folder)
     assert len(cleaned) == 4
     assert_previous_set(folder, old)
@@ -324,7 +327,7 @@ def test_backups_of_a_writer_killed_after_its_last_rename_are_removed(sets):
     pid = _dead_pid()
     for name in NAMES:
         stem, dot, ext = name.rpartition(".")
-        os.link(folder / name, folder / f".{stem}.bak-{pid}-abc123.{ext}")
+        os.link(folder / name, folder / f".{stem}.bak-{HOST}-{pid}-abc123.{ext}")
         (folder / name).unlink()
         (folder / name).write_bytes(b"new " + name.encode())
     assert len(remove_stale_temporaries(folder)) == len(NAMES)
@@ -345,3 +348,12 @@ def test_own_temporaries_of_a_write_in_progress_are_kept(tmp_path, monkeypatch):
     write(tmp_path, 1)
     assert seen == [[]]
     assert sorted(snapshot(tmp_path)) == sorted(NAMES)
+
+
+def test_temporaries_of_another_machine_are_left_alone(tmp_path):
+    # a folder shared by several machines: a PID dead here may be a writer running there
+    other = tmp_path / ".frame.0007.tmp-othermachine-4000000-a1b2c3.exr"
+    other.write_bytes(b"another machine's frame in progress")
+    mine = tmp_path / f".frame.0008.tmp-{HOST}-{_dead_pid()}-a1b2c3.exr"
+    mine.write_bytes(b"a killed writer's temporary")
+    assert remove_stale_temporaries(tmp_path) == [mine] and other.exists()

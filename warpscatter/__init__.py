@@ -22,6 +22,10 @@ _LAZY = {
     "Config": "warpscatter.config",
     "ConfigError": "warpscatter.errors",
     "RenderResult": "warpscatter.pipeline",
+    "render_animation": "warpscatter.sequence",
+    "load_sweep": "warpscatter.sweep",
+    "run_sweep": "warpscatter.sweep",
+    "make_executor": "warpscatter.jobs",
 }
 
 
@@ -37,4 +41,5 @@ def __dir__():
     return sorted([*globals(), *_LAZY])
 
 
-__all__ = ["Config", "ConfigError", "RenderResult", "__version__", "load_config", "render"]
+__all__ = ["Config", "ConfigError", "RenderResult", "__version__", "load_config", "load_sweep", "make_executor",
+           "render", "render_animation", "run_sweep"]

@@ -27,6 +27,7 @@ import functools
 import json
 import logging
 import os
+import platform
 import re
 import secrets
 import stat
@@ -52,6 +53,8 @@ __all__ = [
     "read_image",
     "read_radiance_image",
     "remove_stale_temporaries",
+    "temp_name",
+    "write_file_atomic",
     "srgb_decode",
     "srgb_encode",
     "write_exr",
@@ -204,17 +207,27 @@ def _as_image(name: str, image, channels: Iterable[int] = (1, 2, 3, 4)) -> np.nd
 # ---- writing ---------------------------------------------------------------------------------------
 
 
-def _temp_name(path: Path) -> Path:
-    """Hidden temporary sibling of ``path`` that keeps the real extension last (``.name.tmp-PID-XXXX.exr``)."""
-    return path.with_name(f".{path.stem}.tmp-{os.getpid()}-{secrets.token_hex(3)}{path.suffix}")
+def _host_tag() -> str:
+    """This machine in temporary names (letters and digits of the host name, at most 16): a folder shared by several
+    machines holds temporaries of processes whose PIDs only their own machine can check."""
+    return re.sub(r"[^A-Za-z0-9]", "", platform.node())[:16] or "host"
+
+
+def temp_name(path: Path) -> Path:
+    """Hidden temporary sibling of ``path`` that keeps the real extension last (``.name.tmp-HOST-PID-XXXXXX.exr``);
+    every atomic writer of warpscatter uses it, so :func:`remove_stale_temporaries` finds what a killed one left."""
+    return path.with_name(f".{path.stem}.tmp-{_host_tag()}-{os.getpid()}-{secrets.token_hex(3)}{path.suffix}")
 
 
 def _backup_name(path: Path) -> Path:
-    """Hidden sibling of ``path`` keeping the previous file while a set is renamed in (``.name.bak-PID-XXXX.exr``)."""
-    return path.with_name(f".{path.stem}.bak-{os.getpid()}-{secrets.token_hex(3)}{path.suffix}")
+    """Hidden sibling of ``path`` keeping the previous file while a set is renamed in
+    (``.name.bak-HOST-PID-XXXXXX.exr``)."""
+    return path.with_name(f".{path.stem}.bak-{_host_tag()}-{os.getpid()}-{secrets.token_hex(3)}{path.suffix}")
 
 
-_TEMP_PATTERN = re.compile(r"^\.(?P<stem>.+)\.(?P<kind>tmp|bak)-(?P<pid>\d+)-[0-9a-f]{6}(?P<suffix>\.[A-Za-z0-9]+)$")
+_temp_name = temp_name
+_TEMP_PATTERN = re.compile(r"^\.(?P<stem>.+)\.(?P<kind>tmp|bak)-(?P<host>[A-Za-z0-9]+)-(?P<pid>\d+)-[0-9a-f]{6}"
+                           r"(?P<suffix>\.[A-Za-z0-9]+)$")
 
 #: (real folder path, file name) of the temporaries and backups of this process's writes in progress
 #: (:func:`remove_stale_temporaries` leaves them alone).
@@ -241,7 +254,7 @@ def remove_stale_temporaries(folder: str | Path) -> list[Path]:
     of a target, kept while :func:`write_outputs` renames a set in) of such a writer are moved back onto their
     targets when temporaries of it are left too (it stopped before its last rename: the previous set comes back), and
     removed otherwise (every new file was in: the new set stays). Files of running processes on this machine are left
-    alone (a folder shared by several machines: the PID is checked on this one only).
+    alone, and so are files of other machines (their names carry the host: a folder shared by several machines).
     """
     removed: list[Path] = []
     try:
@@ -257,6 +270,8 @@ def remove_stale_temporaries(folder: str | Path) -> list[Path]:
         if not m or entry.name in active or entry.is_dir(follow_symlinks=False):
             continue
         pid = int(m.group("pid"))
+        if m.group("host") != _host_tag():  # another machine's writer: only it can tell whether it runs
+            continue
         if pid == os.getpid() or not _process_alive(pid):
             stale.setdefault(pid, []).append((entry, m))
     for files in stale.values():
@@ -275,31 +290,6 @@ def remove_stale_temporaries(folder: str | Path) -> list[Path]:
                 removed.append(Path(entry.path))
             except OSError:
                 pass
-    if removed:
-        log.info("cleaned up %d temporary or backup file(s) of an unfinished write in %s", len(removed), folder)
-    return removed
-    with _active_lock:
-        active = set(_active)
-    for entry in entries:
-        m = _TEMP_PATTERN.match(entry.name)
-        if not m or entry.is_dir(follow_symlinks=False):
-            continue
-        pid = int(m.group("pid"))
-        if Path(entry.path) in active or (pid != os.getpid() and _process_alive(pid)):
-            continue
-        try:
-            if m.group("kind") == "bak":
-                target = os.path.join(os.path.dirname(entry.path), m.group("stem") + m.group("suffix"))
-                if os.path.isdir(target) and not os.path.islink(target):
-                    continue
-                os.replace(entry.path, target)
-                if os.path.lexists(entry.path):  # a hard link of the target itself: the rename did nothing
-                    os.unlink(entry.path)
-            else:
-                os.unlink(entry.path)
-            removed.append(Path(entry.path))
-        except OSError:
-            pass
     if removed:
         log.info("cleaned up %d temporary or backup file(s) of an unfinished write in %s", len(removed), folder)
     return removed
@@ -559,6 +549,17 @@ def _write_all(jobs: list[tuple[Path, Callable[[Path], None]]]) -> list[Path]:
         with _active_lock:
             _active.difference_update(in_use)
     return [final for final, _ in jobs]
+
+
+def write_file_atomic(path: str | Path, write: Callable[[Path], None]) -> Path:
+    """Write one file atomically: ``write(temporary)`` writes a hidden sibling (:func:`temp_name`, the real extension
+    kept last), which then replaces ``path``; on any failure the previous file is left as it was and the temporary is
+    removed. The writer of the JSON reports, CSVs, charts, previews and schema files (images: :func:`write_outputs`).
+
+    Raises:
+        ImageWriteError: the file could not be written (the message names it and the reason).
+    """
+    return _write_all([(Path(path), write)])[0]
 
 
 def write_exr(path: str | Path, image: np.ndarray, compression: str = DEFAULT_EXR_COMPRESSION) -> Path:

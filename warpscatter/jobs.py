@@ -46,8 +46,9 @@ class RenderTask:
         out_dir: write the output set here; None writes nothing.
         return_images: images to send back (e.g. ``("color",)`` for a sweep's error); none by default.
         threads: threads of the split CPU launches in the worker (None: the worker's default).
-        worker_process: True when the task runs in a worker process of its own (not the caller's): Warp's
-            messages are then kept at warnings, as the CLI keeps them.
+        device: the Warp device to render on (None: the worker's default).
+        worker_process: True when the task runs in a worker process this run started (a local pool, a Dask
+            LocalCluster): Warp's messages are then kept at warnings, as the CLI keeps them.
     """
 
     label: str
@@ -57,6 +58,7 @@ class RenderTask:
     out_dir: str | None = None
     return_images: tuple[str, ...] = ()
     threads: int | None = None
+    device: str | None = None
     worker_process: bool = False
 
 
@@ -79,21 +81,26 @@ class TaskResult:
 
 
 def task_for(config, label: str, out_dir: str | Path | None = None, return_images: Iterable[str] = (),
-             threads: int | None = None) -> RenderTask:
+             threads: int | None = None, device: str | None = None) -> RenderTask:
     """The :class:`RenderTask` of a validated :class:`~warpscatter.config.Config` (its ``output.dir`` set to
-    ``out_dir`` when given, so that the sidecar records where the files went)."""
+    ``out_dir`` when given, so that the sidecar records where the files went). ``threads`` defaults to
+    ``WARPSCATTER_THREADS`` when set (a worker then splits its launches as the caller asked)."""
+    if threads is None and os.environ.get("WARPSCATTER_THREADS"):
+        threads = int(os.environ["WARPSCATTER_THREADS"])
     if out_dir is not None:
         config = config.model_copy()
         config.output = config.output.model_copy(update={"dir": Path(out_dir).resolve()})
     return RenderTask(label=label, config=config.model_dump(mode="json"), config_dir=str(config.config_dir),
                       source=str(config.source) if config.source else None,
                       out_dir=str(Path(out_dir).resolve()) if out_dir is not None else None,
-                      return_images=tuple(return_images), threads=threads)
+                      return_images=tuple(return_images), threads=threads,
+                      device=None if device is None else str(device))
 
 
 def finished(task: RenderTask) -> bool:
-    """True when the task's outputs exist from a render of the same config: its sidecar ``NAME.json`` holds the
-    same resolved config and every file it lists exists."""
+    """True when the task's outputs exist from a finished render of the same config: its sidecar ``NAME.json`` is
+    complete (not one of a progressive render's intermediate passes), holds the same resolved config, and every file
+    it lists exists."""
     if task.out_dir is None:
         return False
     from .config import validated_config
@@ -104,7 +111,7 @@ def finished(task: RenderTask) -> bool:
     except Exception:
         return False
     files = sidecar.get("files") or []
-    return sidecar.get("config") == task.config and bool(files) and \
+    return sidecar.get("complete") is True and sidecar.get("config") == task.config and bool(files) and \
         all((Path(task.out_dir) / f).is_file() for f in files)
 
 
@@ -121,7 +128,7 @@ def run_task(task: RenderTask) -> TaskResult:
         from .pipeline import render
 
         config = validated_config(task.config, task.config_dir, Path(task.source) if task.source else None)
-        out = render(config, out_dir=task.out_dir, write=task.out_dir is not None)
+        out = render(config, out_dir=task.out_dir, write=task.out_dir is not None, device=task.device)
         return TaskResult(label=task.label, ok=True, files=[str(f) for f in out.files], timings=dict(out.timings),
                           stats=out.stats, seconds=time.perf_counter() - t0, worker=worker,
                           images={k: out.images[k] for k in task.return_images if k in out.images})
@@ -237,8 +244,9 @@ class DaskExecutor(Executor):
     def run(self, tasks: list[RenderTask]) -> Iterator[TaskResult]:
         from distributed import as_completed as dask_completed
 
-        threads = None if self.address else _worker_threads(self.workers)  # a remote worker knows its own cores
-        futures = self.client.map(run_task, [_for_worker(t, threads) for t in tasks], pure=False,
+        # a remote cluster's workers are not ours: their threads and Warp settings stay as they are
+        ready = [t if self.address else _for_worker(t, _worker_threads(self.workers)) for t in tasks]
+        futures = self.client.map(run_task, ready, pure=False,
                                   key=[f"warpscatter-{t.label}-{os.getpid()}-{time.time_ns()}" for t in tasks])
         labels = {f.key: t.label for f, t in zip(futures, tasks, strict=True)}
         for future in dask_completed(futures):

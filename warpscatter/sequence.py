@@ -13,7 +13,6 @@ a given seed on any thread count).
 from __future__ import annotations
 
 import logging
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -21,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .animation import FRAME_DIGITS
+from .animation import FRAME_DIGITS, frame_name
 from .jobs import Executor, InlineExecutor, TaskResult, run_tasks, task_for
 
 log = logging.getLogger("warpscatter")
@@ -95,36 +94,38 @@ def preview_format(requested: str) -> str:
 
 
 def write_preview(pngs: list[Path], target: Path, fps: float) -> Path:
-    """Write the PNG frames as a movie (``.mp4``: H.264 through imageio-ffmpeg; ``.gif``), atomically.
+    """Write the PNG frames as a movie (``.mp4``: H.264 through imageio-ffmpeg; ``.gif``), atomically
+    (:func:`warpscatter.imageio.write_file_atomic`: a failure leaves no file behind).
 
     Raises:
         ImportError: imageio (and, for mp4, imageio-ffmpeg) is not installed.
+        ImageWriteError: the frames cannot make a movie (e.g. frames of different sizes) or the file cannot be
+            written.
     """
     import imageio.v2 as iio
 
-    tmp = target.with_name(f".{target.stem}.tmp-{os.getpid()}{target.suffix}")
-    try:
-        if target.suffix == ".mp4":
-            import imageio_ffmpeg  # noqa: F401  (a clear ImportError before any work)
+    from .imageio import write_file_atomic
 
+    if target.suffix == ".mp4":
+        import imageio_ffmpeg  # noqa: F401  (a clear ImportError before any work)
+
+        def write(tmp: Path) -> None:
             with iio.get_writer(tmp, fps=fps, codec="libx264", quality=8, macro_block_size=2,
                                 ffmpeg_log_level="error") as writer:
                 for p in pngs:  # H.264 in yuv420p needs even sizes: an odd last row / column is repeated
                     image = iio.imread(p)
                     pad = ((0, image.shape[0] % 2), (0, image.shape[1] % 2)) + ((0, 0),) * (image.ndim - 2)
                     writer.append_data(np.pad(image, pad, mode="edge"))
-        else:
+    else:
+        def write(tmp: Path) -> None:
             iio.mimsave(tmp, [iio.imread(p) for p in pngs], duration=1000.0 / fps, loop=0)
-        os.replace(tmp, target)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return target
+
+    return write_file_atomic(target, write)
 
 
 def render_animation(config, out_dir: str | Path | None = None, *, frames: list[int] | None = None,
                      executor: Executor | None = None, resume: bool = True, preview: str | None = None,
-                     progress: Callable[[str, float], None] | None = None) -> AnimationResult:
+                     progress: Callable[[str, float], None] | None = None, device=None) -> AnimationResult:
     """Render the frames of an animated config and its preview.
 
     Args:
@@ -135,6 +136,7 @@ def render_animation(config, out_dir: str | Path | None = None, *, frames: list[
         resume: skip frames already rendered with the same config (their sidecar says so).
         preview: override ``animation.preview`` (``auto``, ``mp4``, ``gif``, ``none``).
         progress: ``progress(stage, fraction)``, called once per finished frame.
+        device: the Warp device every frame renders on (default: :func:`warpscatter.wpinit.default_device`).
 
     Returns:
         :class:`AnimationResult`; failed frames are in it with their errors (the others render on).
@@ -147,8 +149,11 @@ def render_animation(config, out_dir: str | Path | None = None, *, frames: list[
         raise ValueError("render_animation: the config has no animation section")
     t0 = time.perf_counter()
     out = Path(out_dir) if out_dir is not None else Path(config.output.dir)
-    numbers = frames or config.animation.frame_numbers
-    tasks = [task_for(frame_config, frame_config.output_name, out)
+    from .wpinit import default_device
+
+    numbers = list(dict.fromkeys(frames or config.animation.frame_numbers))  # each frame once
+    device = default_device(device)
+    tasks = [task_for(frame_config, frame_config.output_name, out, device=device)
              for frame_config in (config.at_frame(f) for f in numbers)]
     executor = executor or InlineExecutor()
     results = run_tasks(tasks, executor, skip_finished=resume, progress=progress, stage="frames")
@@ -156,16 +161,19 @@ def render_animation(config, out_dir: str | Path | None = None, *, frames: list[
     kind = preview_format(preview or config.animation.preview)
     all_frames = config.animation.frame_numbers
     name = config.output_name
-    pngs = [out / f"{name}.{f:0{FRAME_DIGITS}d}.png" for f in all_frames]
+    pngs = [out / f"{frame_name(name, f)}.png" for f in all_frames]
     if kind != "none" and not result.failed and all(p.is_file() for p in pngs):
         if progress is not None:
             progress("preview", 0.0)
+        command = (f"ffmpeg -framerate {config.animation.fps:g} -i {out / name}.%0{FRAME_DIGITS}d.png -pix_fmt "
+                   f"yuv420p {out / name}.mp4")
         try:
             result.preview = write_preview(pngs, out / f"{name}.{kind}", config.animation.fps)
         except ImportError as exc:
-            result.notes.append(f"no {kind} preview ({exc}); install the video extra, or run: ffmpeg -framerate "
-                                f"{config.animation.fps:g} -i {out / name}.%0{FRAME_DIGITS}d.png -pix_fmt yuv420p "
-                                f"{out / name}.mp4")
+            result.notes.append(f"no {kind} preview ({exc}); install the video extra, or run: {command}")
+        except Exception as exc:  # the frames are written: a preview that fails is a note, not a failed render
+            result.notes.append(f"no {kind} preview: {exc} (the frames are written; e.g. frames of different sizes "
+                                f"make no movie)")
         if progress is not None:
             progress("preview", 1.0)
     elif kind != "none":

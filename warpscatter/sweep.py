@@ -27,7 +27,7 @@ import csv
 import itertools
 import json
 import math
-import os
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -92,8 +92,8 @@ def load_sweep(path: str | Path, overrides: dict[str, Any] | None = None) -> Swe
     """
     path = Path(path)
     data, _ = read_config_data(path)
-    if overrides:
-        data.setdefault("set", {}).update(overrides)
+    if overrides and isinstance(data.get("set", {}), dict):  # else validation names the bad "set"
+        data["set"] = {**(data.get("set") or {}), **overrides}
     try:
         return SweepSettings.model_validate(data, context={"config_dir": path.resolve().parent})
     except ValidationError as exc:
@@ -110,14 +110,21 @@ def _value_text(v: Any) -> str:
     return json.dumps(v, separators=(",", ":")) if isinstance(v, (list, dict)) else str(v)
 
 
+#: Overrides under this prefix change the technique; all others (scene, camera, light, medium) change what is
+#: rendered, and a case's reference takes them too.
+TECHNIQUE_PREFIX = "render."
+
+
 @dataclass
 class SweepCase:
-    """One case: its label, config file, overrides (``set`` left out: the same for all) and validated config."""
+    """One case: its label, config file, overrides (``set`` left out: the same for all), validated config and the
+    key of its reference (:func:`sweep_cases`)."""
 
     label: str
     config_file: Path
     overrides: dict[str, Any]
     config: Config
+    reference: str | None = None
 
 
 @dataclass
@@ -133,11 +140,13 @@ class SweepResult:
         return [r for r in self.rows if r.get("error")]
 
 
-def sweep_cases(sweep: SweepSettings) -> tuple[list[SweepCase], dict[Path, Config]]:
-    """Every case's validated config, and each config file's reference config (when the sweep has a reference).
+def sweep_cases(sweep: SweepSettings) -> tuple[list[SweepCase], dict[str, Config]]:
+    """Every case's validated config, and the reference configs (when the sweep has a reference): one per config
+    file and set of the cases' scene overrides (the keys outside ``render.``: a case that changes the camera or the
+    medium is compared with a reference of the same camera or medium), keyed as each case's ``reference``.
 
     Raises:
-        ConfigError: listing every case whose config is invalid (``CASE: key.path: reason``).
+        ConfigError: listing every case whose config (or reference) is invalid (``CASE: key.path: reason``).
     """
     sets = sweep.override_sets()
     varied = [k for k in dict.fromkeys(k for s in sets for k in s) if k not in sweep.set or
@@ -149,15 +158,21 @@ def sweep_cases(sweep: SweepSettings) -> tuple[list[SweepCase], dict[Path, Confi
             own = {k: overrides[k] for k in varied if k in overrides}
             label = path.stem + ("/" + ",".join(f"{short[k]}={_value_text(v)}" for k, v in own.items()) if own
                                  else "")
+            scene = {k: v for k, v in overrides.items() if not k.startswith(TECHNIQUE_PREFIX)}
+            ref_key = None
+            if sweep.reference is not None:
+                changed = {k: v for k, v in own.items() if not k.startswith(TECHNIQUE_PREFIX)}
+                ref_key = path.stem + " reference" + ("" if not changed else " (" + ",".join(
+                    f"{short[k]}={_value_text(v)}" for k, v in changed.items()) + ")")
+                if ref_key not in references:
+                    try:
+                        references[ref_key] = load_config(path, {**scene, **sweep.reference})
+                    except ConfigError as exc:
+                        problems += [f"{ref_key}: {p}" for p in exc.problems]
             try:
-                cases.append(SweepCase(label, path, own, load_config(path, overrides)))
+                cases.append(SweepCase(label, path, own, load_config(path, overrides), ref_key))
             except ConfigError as exc:
                 problems += [f"{label}: {p}" for p in exc.problems]
-        if sweep.reference is not None:
-            try:
-                references[path] = load_config(path, {**sweep.set, **sweep.reference})
-            except ConfigError as exc:
-                problems += [f"{path.stem} reference: {p}" for p in exc.problems]
     labels = [c.label for c in cases]
     duplicates = sorted({x for x in labels if labels.count(x) > 1})
     if duplicates:
@@ -167,26 +182,36 @@ def sweep_cases(sweep: SweepSettings) -> tuple[list[SweepCase], dict[Path, Confi
     return cases, references
 
 
+def _file_stem(label: str) -> str:
+    """A case label as a plain file stem: characters other than letters, digits, ``.``, ``_`` and ``-`` become
+    ``_`` (``colonnade/method=fourier`` -> ``colonnade_method-fourier``)."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", label.replace("=", "-")).strip("._") or "case"
+
+
 def run_sweep(sweep: SweepSettings, out_dir: str | Path, *, executor: Executor | None = None,
-              progress: Callable[[str, float], None] | None = None) -> SweepResult:
-    """Render every case (and each config's reference), and write the results.
+              progress: Callable[[str, float], None] | None = None, device=None) -> SweepResult:
+    """Render every case (and each reference), and write the results; a case that fails (or whose image cannot be
+    compared with its reference) is a row with its error, and the results are written in every case.
 
     Args:
         sweep: the validated sweep.
         out_dir: where ``NAME.json``, ``NAME.csv``, the chart and (with ``images``) ``NAME/CASE.*`` go.
         executor: where the renders run (default: this process, one after the other).
         progress: ``progress(stage, fraction)`` per finished render.
+        device: the Warp device of every render (default: :func:`warpscatter.wpinit.default_device`).
 
     Raises:
         ConfigError: an invalid case (before any render).
     """
     from .provenance import provenance
+    from .wpinit import default_device
 
     cases, references = sweep_cases(sweep)
     out = Path(out_dir)
     executor = executor or InlineExecutor()
+    device = default_device(device)
     want = ("color",) if references else ()
-    ref_tasks = [task_for(cfg, f"{path.stem} reference", None, ("color",)) for path, cfg in references.items()]
+    ref_tasks = [task_for(cfg, label, None, ("color",), device=device) for label, cfg in references.items()]
     ref_results = {r.label: r for r in run_tasks(ref_tasks, executor, skip_finished=False, progress=progress,
                                                   stage="references")} if ref_tasks else {}
     images_dir = out / sweep.name
@@ -194,28 +219,12 @@ def run_sweep(sweep: SweepSettings, out_dir: str | Path, *, executor: Executor |
     for k, case in enumerate(cases):
         config = case.config
         if sweep.images:
-            stem = case.label.replace("/", "__").replace("=", "-").replace(",", "_")
             config = config.model_copy(update={"output": {**config.output.model_dump(), "name":
-                                                          stem.replace("{", "{{").replace("}", "}}")}})
-        tasks.append(task_for(config, f"{k:04d} {case.label}", images_dir if sweep.images else None, want))
+                                                          _file_stem(case.label)}})
+        tasks.append(task_for(config, f"{k:04d} {case.label}", images_dir if sweep.images else None, want,
+                              device=device))
     results = run_tasks(tasks, executor, skip_finished=False, progress=progress, stage="cases")
-    rows = []
-    for case, result in zip(cases, results, strict=True):
-        row: dict[str, Any] = {"case": case.label, "config": case.config_file.stem, **{
-            f"set:{k}": v for k, v in case.overrides.items()}, "method": case.config.method}
-        if not result.ok:
-            row["error"] = result.error
-            rows.append(row)
-            continue
-        total = sum(result.timings.values())
-        row["technique_s"] = total - sum(result.timings.get(s, 0.0) for s in OVERHEAD_STAGES)
-        row["total_s"] = total
-        reference = ref_results.get(f"{case.config_file.stem} reference")
-        if reference is not None and reference.ok and "color" in result.images:
-            row.update(errors(result.images["color"], reference.images["color"]))
-        elif reference is not None and not reference.ok:
-            row["error"] = f"reference failed: {reference.error}"
-        rows.append(row)
+    rows = [_row(case, result, ref_results.get(case.reference)) for case, result in zip(cases, results, strict=True)]
     meta = {"sweep": sweep.model_dump(mode="json"), "executor": executor.describe(), **provenance(),
             "references": {label: {"ok": r.ok, "error": r.error, "total_s": sum(r.timings.values())}
                            for label, r in ref_results.items()}}
@@ -224,77 +233,65 @@ def run_sweep(sweep: SweepSettings, out_dir: str | Path, *, executor: Executor |
     return result
 
 
+def _row(case: SweepCase, result: TaskResult, reference: TaskResult | None) -> dict:
+    """A case's row: its overrides, method, times and errors against its reference (or the error that stopped
+    it)."""
+    row: dict[str, Any] = {"case": case.label, "config": case.config_file.stem, **{
+        f"set:{k}": v for k, v in case.overrides.items()}, "method": case.config.method}
+    if not result.ok:
+        row["error"] = result.error
+        return row
+    total = sum(result.timings.values())
+    row["technique_s"] = total - sum(result.timings.get(s, 0.0) for s in OVERHEAD_STAGES)
+    row["total_s"] = total
+    if reference is None:
+        return row
+    if not reference.ok:
+        row["error"] = f"reference failed: {reference.error}"
+    elif "color" in result.images:
+        try:
+            row.update(errors(result.images["color"], reference.images["color"]))
+        except ValueError as exc:  # an image that does not match its reference's shape
+            row["error"] = f"cannot compare with {case.reference}: {exc}"
+    return row
+
+
 def write_results(rows: list[dict], meta: dict, out: Path, name: str) -> list[Path]:
-    """``NAME.json`` (meta + rows), ``NAME.csv`` (one line per case) and, with matplotlib, ``NAME-error-time.png``;
-    each written to a temporary name and renamed."""
-    from .imageio import json_ready
+    """``NAME.json`` (meta + rows), ``NAME.csv`` (one line per case) and, with matplotlib, ``NAME-error-time.png``
+    (:func:`warpscatter.bench.report.chart_error_time`: one panel per config, one marker per method); each written
+    atomically."""
+    from .imageio import json_ready, write_file_atomic
 
     out.mkdir(parents=True, exist_ok=True)
     columns = list(dict.fromkeys(k for r in rows for k in r))
-    files = []
+    files = [write_file_atomic(out / f"{name}.json", lambda tmp: tmp.write_text(
+        json.dumps(json_ready({"meta": meta, "rows": rows}), indent=2), encoding="utf-8"))]
 
-    def put(path: Path, write) -> None:
-        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-        try:
-            with open(tmp, "w", encoding="utf-8", newline="") as f:
-                write(f)
-            os.replace(tmp, path)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
-        files.append(path)
+    def csv_rows(tmp: Path) -> None:
+        with open(tmp, "w", encoding="utf-8", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=columns)
+            writer.writeheader()
+            for r in rows:
+                writer.writerow({k: (_value_text(v) if isinstance(v, (list, dict)) else v) for k, v in r.items()})
 
-    put(out / f"{name}.json", lambda f: json.dump(json_ready({"meta": meta, "rows": rows}), f, indent=2))
-
-    def csv_rows(f):
-        writer = csv.DictWriter(f, fieldnames=columns)
-        writer.writeheader()
-        for r in rows:
-            writer.writerow({k: (_value_text(v) if isinstance(v, (list, dict)) else v) for k, v in r.items()})
-
-    put(out / f"{name}.csv", csv_rows)
-    chart = error_time_chart(rows, out / f"{name}-error-time.png")
+    files.append(write_file_atomic(out / f"{name}.csv", csv_rows))
+    chart = error_time_chart(rows, meta, out / f"{name}-error-time.png")
     if chart is not None:
         files.append(chart)
     return files
 
 
-def error_time_chart(rows: list[dict], path: Path) -> Path | None:
-    """Error against technique time, one panel per config, one marker per method, log-log; None without
-    matplotlib or without rows that have both."""
-    points = [r for r in rows if r.get("rel_l1") and r.get("technique_s")]
-    if not points:
-        return None
-    try:
-        import matplotlib
+def error_time_chart(rows: list[dict], meta: dict, path: Path) -> Path | None:
+    """The bench's error-vs-time chart of the rows (technique time in ms, rel. L1; one panel per config, one marker
+    per method); None without matplotlib or without two comparable rows in a config."""
+    from .bench.report import BenchReport, chart_error_time
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return None
-    configs = list(dict.fromkeys(r["config"] for r in points))
-    methods = list(dict.fromkeys(r["method"] for r in points))
-    markers = "osD^vP*Xh<>"
-    fig, axes = plt.subplots(1, len(configs), figsize=(5.2 * len(configs), 4.4), squeeze=False)
-    for ax, config in zip(axes[0], configs, strict=True):
-        for m, method in enumerate(methods):
-            mine = [r for r in points if r["config"] == config and r["method"] == method]
-            if mine:
-                ax.scatter([1e3 * r["technique_s"] for r in mine], [100 * r["rel_l1"] for r in mine],
-                           marker=markers[m % len(markers)], s=42, label=method)
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_title(config)
-        ax.set_xlabel("technique time (ms)")
-        ax.set_ylabel("relative L1 error (%)")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    report = BenchReport(suite="sweep", meta={k: v for k, v in meta.items() if k in ("created", "machine")})
+    for r in rows:
+        if r.get("rel_l1") and r.get("technique_s"):
+            report.rows.append({"name": f"{r['config']}: {r['case'].split('/', 1)[-1]}", "params": {
+                "scene": r["config"]}, "median_ms": 1e3 * r["technique_s"], "rel_l1": r["rel_l1"]})
+    return chart_error_time(report, path)
 
 
 def rows_table(rows: list[dict]) -> str:

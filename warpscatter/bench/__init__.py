@@ -13,8 +13,8 @@ versions, commit, time stamp) and ``bench-<suite>.csv`` (layouts: :mod:`.report`
 
 Suites (:data:`SUITES`, one record each): ``raster``, ``reference``, ``parallel`` (:mod:`.suites_core`),
 ``prefiltered``, ``moments``, ``epipolar`` (:mod:`.suites_scattering`), ``csm`` (:mod:`.suites_csm`), ``fidelity``
-(:mod:`.suites_fidelity`), ``pareto`` (:mod:`.suites_pareto`), ``filterable`` (:mod:`.suites_shadows`), ``scaleout``
-(:mod:`.suites_scaleout`).
+(:mod:`.suites_fidelity`), ``pareto`` (:mod:`.suites_pareto`), ``papers`` (:mod:`.suites_papers`), ``filterable``
+(:mod:`.suites_shadows`), ``scaleout`` (:mod:`.suites_scaleout`).
 
 ``quick=True`` shrinks every size (for smoke tests and CI); figures for notes come from full runs.
 """
@@ -34,6 +34,7 @@ from .scenes import bench_light_texture, bench_scene_config, render_timed, scatt
 from .suites_core import suite_parallel, suite_raster, suite_reference
 from .suites_csm import suite_csm
 from .suites_fidelity import suite_fidelity
+from .suites_papers import suite_papers
 from .suites_pareto import suite_pareto
 from .suites_scaleout import suite_scaleout
 from .suites_scattering import suite_epipolar, suite_moments, suite_prefiltered
@@ -75,6 +76,9 @@ SUITES: dict[str, Suite] = {s.name: s for s in (
     Suite("pareto", "quality per time at 1920x1080: the shadow-map marcher's error/time curve (8-256 steps, both "
                     "step patterns) against the exact reference, and each fast method's equal-error speed-up over "
                     "it, on colonnade, canopy and window (takes long: ~15 min)", suite_pareto),
+    Suite("papers", "the four papers' checkable claims (Klehm Fig. 3 and Table 1, Peters Sec. 5 and Figs. 19-20, "
+                    "Engelhardt Fig. 10, Ritschel Table 1), each measured and marked holds / does not hold "
+                    "(~10 min)", suite_papers),
     Suite("filterable", "light leaking of the filterable shadow maps (msm, msm2015, vsm, evsm at their storages) "
                         "against PCF on a fence / wall / sign scene after Peters 2017 Fig. 4 (~1 min)",
           suite_filterable),

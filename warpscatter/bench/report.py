@@ -33,7 +33,6 @@ Charts (the ``plot`` extra; skipped without matplotlib): ``bench-<suite>.png`` (
 from __future__ import annotations
 
 import csv
-import datetime
 import json
 import math
 import os
@@ -51,7 +50,7 @@ import numpy as np
 import warp as wp
 
 from ..metrics import errors
-from ..provenance import cpu_model, package_version, source_commit
+from ..provenance import cpu_model, machine, package_version, source_commit, timestamp
 from ..wpinit import default_device
 
 #: The JSON layout's name and version (``format`` key).
@@ -366,11 +365,14 @@ class BenchReport:
 
 
 def _write_atomic(path: Path, write: Callable, newline: str | None = None) -> Path:
-    tmp = path.with_name(".tmp-" + path.name)
-    with open(tmp, "w", encoding="utf-8", newline=newline) as f:
-        write(f)
-    os.replace(tmp, path)
-    return path
+    """Write a text file through ``write(file object)``, atomically (:func:`warpscatter.imageio.write_file_atomic`)."""
+    from ..imageio import write_file_atomic
+
+    def text(tmp: Path) -> None:
+        with open(tmp, "w", encoding="utf-8", newline=newline) as f:
+            write(f)
+
+    return write_file_atomic(path, text)
 
 
 def _json_default(v):
@@ -401,13 +403,14 @@ def save_figure(fig, path: Path, layout: bool = True) -> Path:
     ``layout``: apply ``tight_layout`` first (False: the caller laid the figure out)."""
     import matplotlib.pyplot as plt
 
+    from ..imageio import write_file_atomic
+
     if layout:
         fig.tight_layout()
-    tmp = path.with_name(".tmp-" + path.name)
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    try:
+        return write_file_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110))
+    finally:
+        plt.close(fig)
 
 
 def chart_title(report: BenchReport, what: str) -> str:
@@ -585,11 +588,12 @@ def machine_meta() -> dict:
     from ..parallel import thread_count
 
     commit, dirty = source_commit()
-    return {"cpu": cpu_model(), "cpu_arch": platform.machine(), "cores": os.cpu_count(), "threads": thread_count(),
-            "device": default_device(), "os": platform.platform(), "python": platform.python_version(),
+    host = machine()
+    return {"cpu": host["cpu"], "cpu_arch": platform.machine(), "cores": host["cores"], "threads": thread_count(),
+            "device": default_device(), "os": host["os"], "python": platform.python_version(),
             "warp": wp.__version__, "numpy": np.__version__, "openimageio": package_version("OpenImageIO"),
             "warpscatter": package_version("warpscatter"), "commit": commit, "git_dirty": dirty,
-            "timestamp": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+            "timestamp": timestamp()}
 
 
 __all__ = ["CSV_COLUMNS", "FORMAT", "BenchReport", "case_label", "chart_bars", "chart_error_time", "cpu_model",

@@ -42,7 +42,8 @@ def bench_light_texture() -> Path:
 
 
 def bench_scene_config(name: str, width: int, height: int, leaves: int | None = None,
-                       receiver_only_ground: bool = False, mirror_light: bool = False, **render):
+                       receiver_only_ground: bool = False, mirror_light: bool = False, medium: dict | None = None,
+                       **render):
     """A validated config of a bench scene: the bundled config (:data:`SCENES`) at ``width`` x ``height`` with the
     bench's own ``render`` section.
 
@@ -56,6 +57,7 @@ def bench_scene_config(name: str, width: int, height: int, leaves: int | None = 
             exact image is unchanged; the shadow-map methods no longer see its depths).
         mirror_light: turn a directional light half-way round the vertical (x and z of its direction negated): a
             sun ahead of the camera goes behind it, so the other epipole is the one in or near the view.
+        medium: keys of the ``medium`` section to change (e.g. ``{"sigma_t": 0.3}``).
         **render: the config's ``render`` section (replaces the file's).
 
     Raises:
@@ -78,6 +80,8 @@ def bench_scene_config(name: str, width: int, height: int, leaves: int | None = 
             raise ValueError(f"mirror_light: {name} has no directional light")
         x, y, z = data["light"]["direction"]
         data["light"] = {**data["light"], "direction": [-x, y, -z]}
+    if medium:
+        data["medium"] = {**data.get("medium", {}), **medium}
     data["camera"] = {**data["camera"], "width": width, "height": height}
     data["render"] = render
     data.pop("output", None)

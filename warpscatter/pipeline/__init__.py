@@ -53,16 +53,18 @@ class RenderResult:
     device: str | None = None
 
 
-def sidecar(config: Config, device: str, timings: dict, stats: dict, files: list[str]) -> dict:
+def sidecar(config: Config, device: str, timings: dict, stats: dict, files: list[str], complete: bool = True) -> dict:
     """The ``NAME.json`` written beside a render's images: what made them (the resolved config, the method, the
     seed, device and thread count, versions, machine, source commit, command line, time) and what it measured
-    (per-stage timings in seconds, without the ``write`` stage that is running then; statistics)."""
+    (per-stage timings in seconds, without the ``write`` stage that is running then; statistics). ``complete`` is
+    False for the intermediate outputs of a progressive render (a resumed run renders such a frame again)."""
     from ..parallel import thread_count
     from ..provenance import provenance
 
     lighting = config.render.lighting
     seed = lighting.seed if lighting.method is not None else config.render.scattering.seed
-    return {"name": config.output_name, "method": config.method, "config_file": config.source, **provenance(),
+    return {"name": config.output_name, "complete": complete, "method": config.method, "config_file": config.source,
+            **provenance(),
             "device": device, "threads": thread_count(), "seed": seed, "files": files,
             "timings_s": {k: v for k, v in timings.items() if k != "write"}, "stats": stats,
             "config": config.model_dump(mode="json")}
@@ -100,6 +102,11 @@ def render(config: Config, out_dir: Path | None = None, progress: ProgressFn | N
     from ..scene import build_scene, object_meshes
 
     config = config.revalidated()
+    if config.animation is not None:
+        raise ValueError("the config has an animation section: render its frames with "
+                         "warpscatter.sequence.render_animation(config) (or one frame: config.at_frame(n))")
+    if out_dir is not None:
+        config.output.dir = Path(out_dir).resolve()  # the sidecar records where the files went
     device = default_device(device)
     timer = StageTimer(progress)
     with timer("scene"):
@@ -110,20 +117,21 @@ def render(config: Config, out_dir: Path | None = None, progress: ProgressFn | N
     aovs = [a for a in output.aovs if not (lighting and a == "scattering")]  # no in-scattering: no all-zero file
     metadata = exr_metadata(config, scene.camera)
 
-    def write_files(images, stats) -> list[Path]:
+    def write_files(images, stats, complete: bool = True) -> list[Path]:
         files = [f"{name}.exr", f"{name}.png"]  # the names the sidecar lists (written with it, all or nothing)
         files += [f"{name}.{a}.exr" for a in aovs if a != "color" and (not output.layered or a in OWN_SIZE_AOVS)]
         files += [f"{name}.json"]
         with timer("write"):
             return write_outputs(out, name, {k: v for k, v in images.items() if k in aovs or k == "color"}, aovs,
                                  output.exposure, compression=output.compression, metadata=metadata,
-                                 sidecar=sidecar(config, device, timer.timings, stats, files), layered=output.layered)
+                                 sidecar=sidecar(config, device, timer.timings, stats, files, complete),
+                                 layered=output.layered)
 
     if lighting:  # Monte-Carlo direct lighting (csm / raytrace), progressive
 
         def on_pass(images, done, total):  # rewrite the outputs as the image converges
             if write:
-                write_files(images, {"passes_done": done})
+                write_files(images, {"passes_done": done}, complete=False)
 
         try:
             objects = object_meshes(config) if config.render.lighting.csm.objects == "per_mesh" else None
