@@ -711,11 +711,11 @@ def schema(output, verbose, quiet, debug) -> None:
     if output is None:
         click.echo(text, nl=False)
         return
+    from warpscatter.imageio import write_file_atomic
+
     try:
         output.parent.mkdir(parents=True, exist_ok=True)
-        tmp = output.with_name(f".{output.name}.tmp-{os.getpid()}")
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, output)
+        write_file_atomic(output, lambda tmp: tmp.write_text(text, encoding="utf-8"))
     except OSError as exc:
         _fail(f"-o {output}: {exc}", EXIT_FAILURE, debug)
     if not quiet:

@@ -83,14 +83,15 @@ def load_bench_json(path: str | Path) -> dict:
 
 
 def cases(data: dict) -> dict[tuple[str, str], dict]:
-    """The rows of a bench JSON by (suite, case), a case repeated in the file numbered ``#2``, ``#3``, ..."""
+    """The rows of a bench JSON by ("", case), a case repeated in the file numbered ``#2``, ``#3``, ... (the suite is
+    not part of the key: the same case measured by two suites matches)."""
     out: dict[tuple[str, str], dict] = {}
     for row in data["rows"]:
         case = case_label(row)
-        key, k = (data["suite"], case), 1
+        key, k = ("", case), 1
         while key in out:
             k += 1
-            key = (data["suite"], f"{case} #{k}")
+            key = ("", f"{case} #{k}")
         out[key] = row
     return out
 
@@ -126,7 +127,8 @@ def compare_data(a: dict, b: dict) -> Comparison:
     """Match two loaded bench JSONs (:func:`load_bench_json`) case by case (see the module doc)."""
     out = Comparison(a, b)
     if a["suite"] != b["suite"]:
-        out.warnings.append(f"suites differ: A is {a['suite']!r}, B is {b['suite']!r} (only equal cases match)")
+        out.warnings.append(f"suites differ: A is {a['suite']!r}, B is {b['suite']!r} (cases are matched by name and "
+                            f"parameters)")
     ma, mb = a.get("meta") or {}, b.get("meta") or {}
     differ = [f"{k} {format_value(ma.get(k))!r} vs {format_value(mb.get(k))!r}" for k in MACHINE_KEYS
               if k in ma and k in mb and ma[k] != mb[k]]
