@@ -21,11 +21,9 @@ import warp as wp
 
 from ..config import Config
 from ..parallel import chunks, run_parallel, thread_count
-from ..pipeline import StageTimer, render_images
-from ..scene import build_scene
 from ..stages import ProgressFn
 from .report import BenchReport, errors, measure
-from .scenes import bench_scene_config, median_stages, render_timed, scattering_rows
+from .scenes import bench_scene_config, render_timed, scattering_rows
 
 #: The prefilter's storage modes: (method, storage bits: fourier.storage_bits or moments.storage_bits).
 PREFIX_SUM_MODES = (("fourier", 0), ("fourier", 8), ("moments4", 64), ("moments4", 128), ("moments6", 64),
@@ -271,14 +269,8 @@ def suite_moments(report: BenchReport, repeats: int, warmup: int, quick: bool, p
                                                                 "steps": 1, "shadow_map": {"resolution": smap}},
                                  shadows={"method": method, "light_angle_deg": 2.0})
         cfg = Config.from_dict({**cfg.model_dump(mode="json"), "medium": {"sigma_t": 0.0}})
-        scene = build_scene(cfg)
-        runs = []
-        for k in range(warmup + repeats):
-            timer = StageTimer()
-            img, stats = render_images(scene, cfg.render, timer=timer)
-            if k >= warmup:
-                runs.append(timer.timings)
-        stages = median_stages(runs, ("msm_generate", "msm_sat", "shading"))
+        all_stages, img, _, _, stats = render_timed(cfg, repeats, warmup)
+        stages = {k: v for k, v in all_stages.items() if k in ("msm_generate", "msm_sat", "shading")}
         images[method] = img["surface"]
         report.add(name=f"soft shadows {method}", params={"size": f"{w}x{h}", "map": smap, "light_angle_deg": 2.0},
                    median_ms=sum(stages.values()), stages_ms=stages,

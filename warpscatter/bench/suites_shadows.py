@@ -14,11 +14,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..config import Config
-from ..pipeline import StageTimer, render_images
+from ..pipeline import render_images
 from ..scene import build_scene
 from ..stages import ProgressFn
 from .report import BenchReport, errors
-from .scenes import median_stages
+from .scenes import render_timed
 
 #: (method, bits) of the rows, after PCF.
 FORMAT_CASES = (("msm", 64), ("msm", 128), ("msm2015", 64), ("msm2015", 128), ("vsm", 32), ("vsm", 64),
@@ -63,15 +63,8 @@ def suite_filterable(report: BenchReport, repeats: int, warmup: int, quick: bool
         if progress:
             progress(f"{method} {bits or ''}".strip(), k / len(cases))
         shadows = {"method": method, "filter_px": fpx, **({"storage": bits} if bits else {})}
-        cfg = leaking_scene(w, h, smap, shadows)
-        scene = build_scene(cfg)
-        runs = []
-        for r in range(warmup + repeats):
-            timer = StageTimer()
-            images, stats = render_images(scene, cfg.render, timer=timer)
-            if r >= warmup:
-                runs.append(timer.timings)
-        stages = median_stages(runs, SHADOW_STAGES)
+        all_stages, images, _, _, stats = render_timed(leaking_scene(w, h, smap, shadows), repeats, warmup)
+        stages = {k: v for k, v in all_stages.items() if k in SHADOW_STAGES}
         surfaces[method, bits] = images["surface"]
         label = f"{method} {bits}-bit" if bits else "pcf"
         row = report.add(name=label, params={"method": method, "bits": bits}, median_ms=sum(stages.values()),
