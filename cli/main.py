@@ -409,7 +409,7 @@ def _interrupted(progress: ProgressDisplay) -> None:
 def main(ctx: click.Context, debug: bool) -> None:
     """Shadows and single scattering in participating media, as NVIDIA Warp kernels.
 
-    Every command takes -v/-q/--debug; render, bench and precompute also --device and --threads.
+    Every command takes -v/-q/--debug; render, sweep, bench and precompute also --device and --threads.
     Exit codes: 0 done, 1 a failure while working, 2 invalid input (nothing written), 130 interrupted.
     """
     ctx.obj = {"debug": debug}
