@@ -51,3 +51,14 @@ def render_method(scene, gbuffer, method: str = "raymarch", *, geometry=None, sh
 def march(scene, gbuffer, *, geometry=None, shadow_map=None, **keys):
     """The ``raymarch`` method's L_scat (H, W, 3) numpy (``visibility`` exact needs ``geometry``)."""
     return render_method(scene, gbuffer, "raymarch", geometry=geometry, shadow_map=shadow_map, **keys)[0]
+
+
+# ---- hypothesis profiles -------------------------------------------------------------------------
+# ``pytest --hypothesis-profile=long tests/test_fuzz.py``: the release-time fuzz run (1000 configs, deterministic; see
+# tests/test_fuzz.py). The default profile is hypothesis' own; the fuzz test bounds its count itself.
+from hypothesis import HealthCheck  # noqa: E402
+from hypothesis import settings as _hypothesis_settings  # noqa: E402
+
+_hypothesis_settings.register_profile(
+    "long", max_examples=1000, deadline=None, derandomize=True, database=None, print_blob=True,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

@@ -27,9 +27,9 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import BeforeValidator, Field, field_validator, model_validator
 
-from .schema import Int, SettingsModel, is_number
+from .schema import MAX_FRAME, MAX_FRAMES, Int, SettingsModel, is_number
 
 #: Interpolation between keyframes: ``linear``; ``smooth`` eases in and out at every key (smoothstep of the
 #: linear parameter: zero velocity at the keys, C1 within a segment).
@@ -44,7 +44,8 @@ FRAME_DIGITS = 4
 class Track(SettingsModel):
     """One animated key: its keyframes (frame -> value) and interpolation (None: the animation's default)."""
 
-    keys: dict[int, Any] = Field(description="keyframes, frame number -> value (at least one)")
+    keys: dict[Annotated[int, Field(ge=-MAX_FRAME, le=MAX_FRAME)], Any] = Field(
+        description=f"keyframes, frame number (within [-{MAX_FRAME}, {MAX_FRAME}]) -> value (at least one)")
     interpolation: Literal[INTERPOLATIONS] | None = Field(  # type: ignore[valid-type]
         None, description="linear or smooth; default: animation.interpolation")
 
@@ -74,12 +75,35 @@ def _track(v: Any) -> Any:
     return v
 
 
+_Frame = Annotated[Int, Field(ge=0, le=MAX_FRAME)]
+
+
+def _check_frames(v: Any) -> Any:
+    """``frames``: a count N in [1, MAX_FRAMES] or [start, end], each in [0, MAX_FRAME] (one message for either)."""
+    whole = isinstance(v, int) and not isinstance(v, bool)
+    if whole:
+        if not 1 <= v <= MAX_FRAMES:
+            raise ValueError(f"must lie in [1, {MAX_FRAMES}], got {v}")
+    elif isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(x, int) and not isinstance(x, bool)
+                                                              for x in v):
+        if not all(0 <= x <= MAX_FRAME for x in v):
+            raise ValueError(f"each frame number must lie in [0, {MAX_FRAME}], got {list(v)}")
+    else:
+        raise ValueError(f"expected a frame count N or [start, end], got {v!r}")
+    return v
+
+
+_check_frames.type_text = f"int 1–{MAX_FRAMES} \\| [start, end], each 0–{MAX_FRAME}"
+
+
 class AnimationSettings(SettingsModel):
     """``animation``: frame range, rate, tracks and the preview of a rendered sequence."""
 
-    frames: Annotated[int, Field(ge=1, le=100000)] | tuple[Int, Int] = Field(
-        description="frame count N (frames 1..N), or [start, end] inclusive")
-    fps: Annotated[float, Field(gt=0.0, le=1000.0, description="frames per second (the preview's rate)")] = 24.0
+    frames: Annotated[Annotated[int, Field(ge=1, le=MAX_FRAMES)] | tuple[_Frame, _Frame],
+                      BeforeValidator(_check_frames)] = Field(
+        description=f"frame count N (frames 1..N), or [start, end] inclusive (0 <= start <= end <= {MAX_FRAME}, at "
+                    f"most {MAX_FRAMES} frames)")
+    fps: Annotated[float, Field(ge=0.01, le=1000.0, description="frames per second (the preview's rate)")] = 24.0
     interpolation: Literal[INTERPOLATIONS] = Field(  # type: ignore[valid-type]
         "smooth", description="default interpolation of the tracks: linear, or smooth (ease in and out at every key)")
     tracks: dict[str, Annotated[Track, Field()]] = Field(
@@ -106,6 +130,8 @@ class AnimationSettings(SettingsModel):
         start, end = self.frame_range
         if start < 0 or end < start:
             raise ValueError(f"frames: need 0 <= start <= end, got [{start}, {end}]")
+        if end - start + 1 > MAX_FRAMES:
+            raise ValueError(f"frames: at most {MAX_FRAMES} frames, got [{start}, {end}] ({end - start + 1})")
         return self
 
     @property

@@ -29,7 +29,15 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
 import yaml
-from pydantic import Field, PrivateAttr, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic import (
+    BeforeValidator,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from . import methods
 from .animation import AnimationSettings, frame_name
@@ -37,7 +45,19 @@ from .csm.settings import LightingSettings
 from .errors import ConfigError
 from .scattering.settings import ScatteringSettings
 from .schema import (
+    MAX_COORD,
+    MAX_DEPTH_RATIO,
+    MAX_EMISSION,
+    MAX_FOV_Y_DEG,
+    MAX_GAIN,
+    MAX_HG_G,
     MAX_IMAGE_SIDE,
+    MAX_SCALE,
+    MAX_SIGMA_T,
+    MIN_CONE_DEG,
+    MIN_FOV_DEG,
+    MIN_LENGTH,
+    MIN_SCALE,
     RGB,
     Albedo,
     Bool,
@@ -46,17 +66,22 @@ from .schema import (
     Int,
     NonZeroVec3,
     PathStr,
+    Rotation,
     SettingsModel,
     Vec3,
+    bounded_float,
     context_dir,
     did_you_mean,
     dotted,
     existing_file,
     format_validation_errors,
     is_number,
+    length,
     resolve_path,
-    scalar_or_rgb,
+    scalar_or_rgb_type,
+    unit,
     vec3,
+    vec3_in,
 )
 from .shadows.settings import ShadowMapSettings, ShadowsSettings
 
@@ -112,28 +137,36 @@ MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
 # ---- scene ---------------------------------------------------------------------------------------
 
 
+_ScaleFactor = bounded_float(MIN_SCALE, MAX_SCALE)
+
+
+def _check_scale(v: Any) -> Any:
+    """A scale: one number or [x, y, z], each finite and in [MIN_SCALE, MAX_SCALE]."""
+    if is_number(v):
+        values, out = [float(v)], float(v)
+    elif isinstance(v, (list, tuple)):
+        out = vec3(v)
+        values = list(out)
+    else:
+        raise ValueError(f"expected a number or a list of 3 numbers, got {v!r}")
+    if not all(math.isfinite(x) and x > 0.0 for x in values):
+        raise ValueError(f"must be > 0 (and finite), got {v!r}")
+    if not all(MIN_SCALE <= x <= MAX_SCALE for x in values):
+        raise ValueError(f"must lie in [{MIN_SCALE:g}, {MAX_SCALE:g}], got {v!r}")
+    return out
+
+
+_check_scale.type_text = f"number or [x, y, z], each {MIN_SCALE:g}–{MAX_SCALE:g}"
+
+
 class Transform(SettingsModel):
     """Mesh placement: scale first, then rotation (X, then Y, then Z, degrees), then translation."""
 
     translate: Vec3 = Field((0.0, 0.0, 0.0), description="translation (scene units), applied last")
-    rotate_deg: Vec3 = Field((0.0, 0.0, 0.0), description="rotation about X, then Y, then Z (degrees, about the mesh "
-                                                            "origin)")
-    scale: Union[float, tuple[float, float, float]] = Field(1.0, description="scale, scalar or per axis (> 0), "
-                                                                             "applied first")
-
-    @field_validator("scale", mode="before")
-    @classmethod
-    def _check_scale(cls, v: Any) -> Any:
-        if is_number(v):
-            values, out = [float(v)], float(v)
-        elif isinstance(v, (list, tuple)):
-            out = vec3(v)
-            values = list(out)
-        else:
-            raise ValueError(f"expected a number or a list of 3 numbers, got {v!r}")
-        if not all(math.isfinite(x) and x > 0.0 for x in values):
-            raise ValueError(f"must be > 0 (and finite), got {v!r}")
-        return out
+    rotate_deg: Rotation = Field((0.0, 0.0, 0.0), description="rotation about X, then Y, then Z (degrees, about the "
+                                                                "mesh origin)")
+    scale: Annotated[Union[_ScaleFactor, tuple[_ScaleFactor, _ScaleFactor, _ScaleFactor]],
+                     BeforeValidator(_check_scale)] = Field(1.0, description="scale, scalar or per axis, applied first")
 
     @property
     def scale3(self) -> tuple[float, float, float]:
@@ -150,12 +183,28 @@ class PhongBRDFConfig(SettingsModel):
     exponent: Annotated[Float, Field(ge=0.0, le=1.0e4, description="Phong exponent e")] = 32.0
 
 
+#: Largest |C_i| of a Lafortune lobe.
+MAX_LOBE_COEFFICIENT = 100.0
+_LobeCoefficients = vec3_in(-MAX_LOBE_COEFFICIENT, MAX_LOBE_COEFFICIENT,
+                            f"[x, y, z], each in [-{MAX_LOBE_COEFFICIENT:g}, {MAX_LOBE_COEFFICIENT:g}]")
+_LobeColor = vec3_in(0.0, MAX_GAIN, f"RGB, each 0–{MAX_GAIN:g}", interval=False)
+
+
 class LafortuneLobeConfig(SettingsModel):
     """One Lafortune lobe color [C_x u_x v_x + C_y u_y v_y + C_z u_z v_z]^exponent (local frame, z = normal)."""
 
-    coefficients: Vec3 = Field(description="C_x, C_y, C_z")
+    coefficients: _LobeCoefficients = Field(description="C_x, C_y, C_z (the lobe's peak, the largest abs(C_i) to the "
+                                                        f"power exponent, must be <= {MAX_GAIN:g})")
     exponent: Annotated[Float, Field(ge=0.0, le=1.0e4, description="lobe exponent")]
-    color: RGB = Field((1.0, 1.0, 1.0), description="lobe RGB weight")
+    color: _LobeColor = Field((1.0, 1.0, 1.0), description="lobe RGB weight")
+
+    @model_validator(mode="after")
+    def _finite_peak(self) -> LafortuneLobeConfig:
+        peak = max(abs(c) for c in self.coefficients)
+        if peak > 1.0 and self.exponent * math.log(peak) > math.log(MAX_GAIN):
+            raise ValueError(f"the lobe's peak max(abs(C_i))^exponent = {peak:g}^{self.exponent:g} exceeds "
+                             f"{MAX_GAIN:g} (lower the coefficients or the exponent)")
+        return self
 
 
 class LafortuneBRDFConfig(SettingsModel):
@@ -196,7 +245,9 @@ class MeshEntry(SettingsModel):
                                                    "config file")
     procedural: str | None = Field(None, description="a generator of warpscatter.scene.procedural (ground_plane, "
                                                      "colonnade, fence, canopy, room_window, terrain)")
-    params: dict[str, Any] = Field(default_factory=dict, description="the generator's keyword arguments")
+    params: dict[str, Any] = Field(default_factory=dict, description="the generator's keyword arguments (lengths "
+                                   f"within [-{MAX_COORD:g}, {MAX_COORD:g}] scene units; counts as each generator "
+                                   "states)")
     transform: Transform = Field(default_factory=dict, description="placement: scale, then rotation, then "
                                                                    "translation")
     material: Material = Field(default_factory=dict, description="surface material")
@@ -243,6 +294,17 @@ class MeshEntry(SettingsModel):
                     f"unknown parameter(s) {', '.join(repr(u) for u in unknown)} for generator {name!r}{hint} "
                     f"(accepts: {', '.join(accepted) or 'none'})"
                 )
+        problems = []
+        for key in _length_parameters(_generators()[name]):
+            if key not in v:
+                continue
+            values = v[key] if isinstance(v[key], (list, tuple)) else [v[key]]
+            bad = [x for x in values if is_number(x) and not (math.isfinite(x) and abs(x) <= MAX_COORD)]
+            if bad:
+                problems.append(f"parameter {key!r}: each value must be finite and within [-{MAX_COORD:g}, "
+                                f"{MAX_COORD:g}] (lengths in scene units), got {v[key]!r}")
+        if problems:
+            raise ValueError("\n".join(problems))
         return v
 
     @model_validator(mode="after")
@@ -260,6 +322,22 @@ def _generators() -> dict[str, Any]:
     except ImportError as exc:
         raise ValueError(f"cannot check procedural generators: {exc}") from None
     return GENERATORS
+
+
+def _length_parameters(fn: Any) -> dict[str, Any]:
+    """A generator's parameters whose defaults are floats or lists of floats (lengths in scene units, bounded by
+    MAX_COORD here; the generators check their counts, seeds and lower bounds themselves)."""
+    fn = getattr(fn, "__wrapped__", fn)
+    try:
+        params = inspect.signature(fn).parameters.values()
+    except (TypeError, ValueError):
+        return {}
+    out = {}
+    for p in params:
+        d = p.default
+        if isinstance(d, float) or (isinstance(d, (list, tuple)) and d and all(isinstance(x, float) for x in d)):
+            out[p.name] = d
+    return out
 
 
 def _generator_parameters(fn: Any) -> list[str] | None:
@@ -288,28 +366,35 @@ class CameraConfig(SettingsModel):
     """Pinhole camera (CONVENTIONS.md): lengths in scene units, ``fov_y`` in degrees, size in pixels."""
 
     position: Vec3 = Field(description="camera position (scene units)")
-    look_at: Vec3 = Field(description="point the camera looks at")
-    up: NonZeroVec3 = Field((0.0, 1.0, 0.0), description="up direction (not parallel to the view)")
-    fov_y: Annotated[Float, Field(gt=0.0, lt=180.0, description="vertical field of view (degrees)")] = 45.0
+    look_at: Vec3 = Field(description=f"point the camera looks at (at least {MIN_LENGTH:g} from position)")
+    up: Direction = Field((0.0, 1.0, 0.0), description="up direction (not parallel to the view; normalised on load)")
+    fov_y: Annotated[Float, Field(ge=MIN_FOV_DEG, le=MAX_FOV_Y_DEG, description=(
+        f"vertical field of view (degrees); at most {MAX_FOV_Y_DEG:g}: towards 180, tan(fov_y / 2) and the pixel "
+        "footprint grow without bound"))] = 45.0
     width: Annotated[Int, Field(ge=1, le=MAX_IMAGE_SIDE, description="image width (pixels)")] = 320
     height: Annotated[Int, Field(ge=1, le=MAX_IMAGE_SIDE, description="image height (pixels)")] = 180
-    near: Annotated[Float, Field(gt=0.0, description="near clip distance (scene units), < far")] = 0.1
-    far: Annotated[Float, Field(gt=0.0, description="far clip distance (scene units); rays that hit nothing end "
-                                                    "there")] = 100.0
+    near: Annotated[Float, Field(gt=0.0, le=MAX_COORD, description="near clip distance (scene units), < far, >= "
+                                                                   f"far / {MAX_DEPTH_RATIO:g}")] = 0.1
+    far: Annotated[Float, Field(ge=MIN_LENGTH, le=MAX_COORD, description=(
+        f"far clip distance (scene units); rays that hit nothing end there; far / near <= {MAX_DEPTH_RATIO:g} "
+        "(float32 depth precision)"))] = 100.0
 
     @model_validator(mode="after")
     def _check_geometry(self) -> CameraConfig:
         problems = []
         if not self.near < self.far:
             problems.append(f"near ({self.near}) must be < far ({self.far})")
+        elif self.far / self.near > MAX_DEPTH_RATIO:
+            problems.append(f"far / near = {self.far / self.near:g} must be <= {MAX_DEPTH_RATIO:g} (float32 depths "
+                            f"hold 24 bits): raise near or lower far")
         view = [b - a for a, b in zip(self.position, self.look_at, strict=True)]
-        n_view = math.sqrt(sum(x * x for x in view))
+        n_view = length(view)
         if n_view == 0.0:
             problems.append(f"position and look_at must differ (both {list(self.position)})")
+        elif n_view < MIN_LENGTH:
+            problems.append(f"position and look_at must be at least {MIN_LENGTH:g} apart (they are {n_view:g})")
         else:
-            n_up = math.sqrt(sum(x * x for x in self.up))
-            f = [x / n_view for x in view]
-            u = [x / n_up for x in self.up]
+            f, u = unit(view), unit(self.up)
             cross = (f[1] * u[2] - f[2] * u[1], f[2] * u[0] - f[0] * u[2], f[0] * u[1] - f[1] * u[0])
             if math.sqrt(sum(x * x for x in cross)) < 1e-6:
                 problems.append(f"up {list(self.up)} is parallel to the viewing direction")
@@ -338,7 +423,7 @@ class SpotLightConfig(SettingsModel):
     type: Literal["spot"] = Field(description="spot")
     position: Vec3 = Field(description="light position (scene units)")
     direction: Direction = Field(description="cone axis (normalised on load)")
-    cone_deg: Annotated[Float, Field(gt=0.0, le=89.0, description="cone HALF-angle (degrees)")] = 30.0
+    cone_deg: Annotated[Float, Field(ge=MIN_CONE_DEG, le=89.0, description="cone HALF-angle (degrees)")] = 30.0
     intensity: RGB = Field((1.0, 1.0, 1.0), description="RGB intensity (W/sr); irradiance falls off as 1/d^2")
     texture: PathStr | None = Field(None, description="an image modulating the light over the cone's square")
 
@@ -354,7 +439,7 @@ class EnvironmentLightConfig(SettingsModel):
 
     type: Literal["environment"] = Field(description="environment")
     map: PathStr = Field(description="a lat-long radiance image (row 0 = zenith)")
-    scale: Annotated[Float, Field(ge=0.0, description="factor on the map's radiance")] = 1.0
+    scale: Annotated[Float, Field(ge=0.0, le=MAX_EMISSION, description="factor on the map's radiance")] = 1.0
 
     @field_validator("map")
     @classmethod
@@ -371,19 +456,25 @@ class AreaLightConfig(SettingsModel):
     u: NonZeroVec3 = Field(description="first edge vector")
     v: NonZeroVec3 = Field(description="second edge vector (not parallel to u); the light emits towards u x v")
     radiance: Optional[RGB] = Field(None, description="RGB radiance L_e (null and no power: [1, 1, 1])")
-    power: Optional[RGB] = Field(None, description="RGB power (W) instead of the radiance")
+    power: Optional[RGB] = Field(None, description="RGB power (W) instead of the radiance (the radiance it gives, P / "
+                                                   f"(pi A), must be <= {MAX_EMISSION:g} too)")
     two_sided: Bool = Field(False, description="emit from both sides")
 
     @model_validator(mode="after")
     def _check(self) -> AreaLightConfig:
         cross = (self.u[1] * self.v[2] - self.u[2] * self.v[1], self.u[2] * self.v[0] - self.u[0] * self.v[2],
                  self.u[0] * self.v[1] - self.u[1] * self.v[0])
-        nu = math.sqrt(sum(x * x for x in self.u))
-        nv = math.sqrt(sum(x * x for x in self.v))
-        if math.sqrt(sum(x * x for x in cross)) <= 1e-9 * nu * nv:
+        nu, nv, area = length(self.u), length(self.v), length(cross)
+        # the second test is the scene's (warpscatter.scene.lights.AreaLight): a sliver counts as no area either
+        if area <= 1e-9 * nu * nv or area <= 1e-12 * max(nu, nv) ** 2:
             raise ValueError(f"u {list(self.u)} and v {list(self.v)} are parallel (the light has no area)")
         if self.radiance is not None and self.power is not None:
             raise ValueError("give radiance or power, not both")
+        if self.power is not None:
+            radiance = max(self.power) / ((2.0 if self.two_sided else 1.0) * math.pi * area)
+            if radiance > MAX_EMISSION:
+                raise ValueError(f"power: gives the radiance P / ({'2 ' if self.two_sided else ''}pi A) = "
+                                 f"{radiance:g}, more than {MAX_EMISSION:g} (a larger light or less power)")
         return self
 
 
@@ -393,13 +484,16 @@ class LinearLightConfig(SettingsModel):
 
     type: Literal["linear"] = Field(description="linear")
     start: Vec3 = Field(description="segment start (scene units)")
-    end: Vec3 = Field(description="segment end")
+    end: Vec3 = Field(description=f"segment end (at least {MIN_LENGTH:g} from start)")
     intensity: RGB = Field((1.0, 1.0, 1.0), description="RGB intensity per unit length (W sr^-1 unit^-1)")
 
     @model_validator(mode="after")
     def _check(self) -> LinearLightConfig:
         if self.start == self.end:
             raise ValueError(f"start and end must differ (both {list(self.start)})")
+        d = length([b - a for a, b in zip(self.start, self.end, strict=True)])
+        if d < MIN_LENGTH:
+            raise ValueError(f"start and end must be at least {MIN_LENGTH:g} apart (they are {d:g})")
         return self
 
 
@@ -417,8 +511,9 @@ class PhaseConfig(SettingsModel):
 
     type: Literal["isotropic", "henyey_greenstein"] = Field("isotropic", description="isotropic or "
                                                                                     "henyey_greenstein")
-    g: Annotated[Float, Field(gt=-1.0, lt=1.0, description="Henyey-Greenstein asymmetry; g > 0 scatters "
-                                                           "forward")] = 0.0
+    g: Annotated[Float, Field(ge=-MAX_HG_G, le=MAX_HG_G, description=(
+        f"Henyey-Greenstein asymmetry; g > 0 scatters forward; within +-{MAX_HG_G:g}: beyond, the phase function's "
+        "denominator (1 - g)^2 cancels to 0 in float32"))] = 0.0
 
     @model_validator(mode="after")
     def _g_only_for_hg(self) -> PhaseConfig:
@@ -431,9 +526,10 @@ class MediumConfig(SettingsModel):
     """Homogeneous medium: extinction ``sigma_t`` (1/unit), scattering ``albedo`` rho, ``phase``; either may be RGB
     (coloured fog)."""
 
-    sigma_t: Annotated[Union[float, tuple[float, float, float]], scalar_or_rgb(0.0), Field(
-        description="extinction sigma_t (1/scene unit); [r, g, b] for a coloured medium")] = 0.1
-    albedo: Annotated[Union[float, tuple[float, float, float]], scalar_or_rgb(0.0, 1.0), Field(
+    sigma_t: Annotated[scalar_or_rgb_type(0.0, MAX_SIGMA_T), Field(description=(
+        f"extinction sigma_t (1/scene unit); [r, g, b] for a coloured medium; at most {MAX_SIGMA_T:g} (a mean free "
+        "path of 1e-4 units; sigma_t times any distance stays finite in float32)"))] = 0.1
+    albedo: Annotated[scalar_or_rgb_type(0.0, 1.0), Field(
         description="scattering albedo rho (sigma_s = rho sigma_t, per channel)")] = 1.0
     phase: PhaseConfig = Field(default_factory=dict, description="phase function")
 
@@ -481,7 +577,7 @@ class OutputConfig(SettingsModel):
     aovs: list[Literal[AOV_NAMES]] = Field(  # type: ignore[valid-type]
         default_factory=lambda: list(STANDARD_AOVS), description="images to write besides NAME.exr/.png; the "
         "debug outputs " + ", ".join(DEBUG_AOVS) + " need a method that makes them (the prefiltered ones)")
-    exposure: Annotated[Float, Field(gt=0.0, description="PNG preview exposure (linear factor)")] = 1.0
+    exposure: Annotated[Float, Field(gt=0.0, le=MAX_GAIN, description="PNG preview exposure (linear factor)")] = 1.0
     compression: Literal[EXR_COMPRESSIONS] = Field(  # type: ignore[valid-type]
         "none", description="EXR compression, all lossless: none is the fastest to write; rle makes the files a "
                             "third smaller for 1.3-2x the time, zips, zip and piz 34-44 % smaller for 2-8x")
@@ -543,9 +639,19 @@ class Config(SettingsModel):
 
     @model_validator(mode="after")
     def _lighting_fits_light(self) -> Config:
+        from .scene import CASTER_ALPHA_TEST  # numpy only, no Warp
+
         lighting = self.render.lighting.method
         monte_carlo = methods.MONTE_CARLO_LIGHTS
         problems = []
+        # the casters of every visibility method: not receiver_only and opaque enough for the alpha test
+        all_receivers = all(m.receiver_only for m in self.scene.meshes)
+        no_caster = ""
+        if all_receivers:
+            no_caster = "every mesh is receiver_only"
+        elif all(m.receiver_only or m.material.opacity < CASTER_ALPHA_TEST for m in self.scene.meshes):
+            no_caster = (f"every mesh is receiver_only or has an opacity below {CASTER_ALPHA_TEST:g} (the alpha test: "
+                         "it casts nothing)")
         if lighting is None:
             if self.light.type in monte_carlo:
                 problems.append(f"light.type {self.light.type!r} needs render.lighting.method "
@@ -557,9 +663,9 @@ class Config(SettingsModel):
         elif self.light.type not in methods.LIGHTING[lighting].lights:
             problems.append(f"render.lighting.method {lighting!r} lights {', '.join(methods.LIGHTING[lighting].lights)}"
                             f" lights (light.type is {self.light.type!r}; use render.scattering for it)")
-        elif all(m.receiver_only for m in self.scene.meshes) and self.render.lighting.csm.file is None \
+        elif no_caster and self.render.lighting.csm.file is None \
                 and methods.LIGHTING[lighting].visibility == methods.VISIBILITY_CSM:
-            problems.append("render.lighting: every mesh is receiver_only, so there is no occluder to build a CSM of")
+            problems.append(f"render.lighting: {no_caster}, so there is no occluder to build a CSM of")
         csm = self.render.lighting.csm
         if lighting is not None and csm.objects == "per_mesh":
             if csm.file is not None:
@@ -569,9 +675,9 @@ class Config(SettingsModel):
                 problems.append("render.lighting.csm.objects: per_mesh needs render.lighting.csm.local_lights: "
                                 "semi_local for an area or linear light (cube maps sit at the light's points in "
                                 "world space, which a moving mesh would invalidate)")
-        if lighting is None and all(m.receiver_only for m in self.scene.meshes):
-            problems.append("scene.meshes: every mesh is receiver_only, so nothing casts a shadow (drop the flag "
-                            "from the casters)")
+        if lighting is None and no_caster:
+            problems.append(f"scene.meshes: {no_caster}, so nothing casts a shadow (drop the flag from the casters"
+                            f"{'' if all_receivers else ' or raise their opacity'})")
         if problems:
             raise ValueError("\n".join(problems))
         return self

@@ -8,6 +8,17 @@ key's range in its type and its meaning in ``Field(description=...)``, so the JS
 
 :func:`format_validation_errors` turns a pydantic error into ``key.path: reason`` lines.
 
+Ranges: every numeric key has a lower and an upper bound, checked when the config is validated (before any work).
+The bounds the models share are the constants below (:data:`MAX_COORD` ... :data:`MAX_FRAMES`); a technique's own
+limits live beside its settings model. They are chosen so that what the renderer computes in float32 (largest
+3.4e38, 24-bit mantissa) stays finite and meaningful: coordinates and lengths within 1e6 scene units, extinction
+at most 1e4 per unit (so sigma_t times any distance, at most 1e10, and exp(-sigma_t d) stay finite), light
+quantities at most 1e6 per channel (images stay below ~1e12 after the phase function, the BRDFs and the integrals),
+far at least 1e-6 and far / near at most 1e7, fov_y at most 170 degrees (tan(fov_y / 2) = 11.4; at 180 the image
+plane and the pixel footprint are infinite), Henyey-Greenstein |g| at most 0.99 (1 + g^2 - 2 g cos cancels to 0 in
+float32 beyond ~0.999), seeds 0..2^31-1. Vectors are checked per component; directions are normalised on load
+without overflow (scaled first), so tiny ones work too.
+
 This module does not import Warp.
 """
 
@@ -36,6 +47,45 @@ from pydantic import (
 #: Largest accepted image / shadow-map side, in pixels (guards against typos such as 19200).
 MAX_IMAGE_SIDE = 16384
 
+# ---- ranges shared by the settings models (one place; see the module docstring) --------------------------------
+
+#: Largest |component| of a point or an edge vector and the largest length, in scene units (positions, look-at
+#: points, translations, light corners, edges and segment ends, the far plane, procedural lengths, offsets). Twice
+#: that squared (4e12) and its products with :data:`MAX_SIGMA_T` stay far inside float32.
+MAX_COORD = 1.0e6
+#: Smallest positive length in scene units (the near plane, a light's size, an edge, a segment, the distance from
+#: the camera to the point it looks at): squares of shorter ones approach float32's smallest normal numbers.
+MIN_LENGTH = 1.0e-6
+#: Largest camera far / near: float32 depths hold 24 bits, so a larger ratio cannot order surfaces near far.
+MAX_DEPTH_RATIO = 1.0e7
+#: Field of view limits (degrees): tan(fov_y / 2) and the pixel footprint grow without bound towards 180 (at
+#: 179.9999 a pixel spans 1e6 units at unit distance); below 0.01 degrees tan(fov / 2) approaches float32's step.
+MIN_FOV_DEG = 0.01
+MAX_FOV_Y_DEG = 170.0
+#: Smallest cone half-angle of a spot light (degrees): its projection divides by tan(cone_deg).
+MIN_CONE_DEG = 0.01
+#: Largest extinction sigma_t (1 / scene unit): a mean free path of 1e-4 units; sigma_t x MAX_COORD = 1e10.
+MAX_SIGMA_T = 1.0e4
+#: Largest |g| of the Henyey-Greenstein phase function: its denominator 1 + g^2 - 2 g cos(theta) is (1 - g)^2 in the
+#: forward direction and cancels to 0 in float32 from |g| ~ 0.9999 (0.999 errs 10 %, 0.99 0.1 %).
+MAX_HG_G = 0.99
+#: Largest component of a light's irradiance, intensity, radiance or power, and of an environment map's scale.
+MAX_EMISSION = 1.0e6
+#: Largest dimensionless factor (PNG exposure, a Lafortune lobe's colour and peak).
+MAX_GAIN = 1.0e6
+#: Largest |rotation angle| of a transform (degrees): 27.7 turns.
+MAX_ROTATION_DEG = 1.0e4
+#: Mesh scale factors (per axis).
+MIN_SCALE = 1.0e-6
+MAX_SCALE = 1.0e6
+#: Random seeds: 0 .. 2^31 - 1 (the kernels' 32-bit seeds).
+MAX_SEED = 2**31 - 1
+#: Most ray-march steps per ray.
+MAX_STEPS = 65536
+#: Largest frame number of an animation (frames and keyframes); at most :data:`MAX_FRAMES` frames.
+MAX_FRAME = 1_000_000
+MAX_FRAMES = 100_000
+
 
 # ---- field types ---------------------------------------------------------------------------------
 
@@ -55,8 +105,23 @@ def vec3(v: Any) -> tuple[float, float, float]:
     raise ValueError(f"expected a list of 3 numbers [x, y, z], got {v!r}")
 
 
-def _nonzero_unit(v: tuple[float, float, float]) -> tuple[float, float, float]:
+def length(v) -> float:
+    """|v| without overflow or underflow (``math.hypot`` scales; plain sqrt(sum x^2) where that is exact enough,
+    so that results stay bit for bit what they were)."""
     n = math.sqrt(sum(x * x for x in v))
+    return n if 1e-150 < n < 1e150 else math.hypot(*v)
+
+
+def unit(v) -> tuple[float, ...]:
+    """``v / |v|`` for any finite non-zero ``v`` (however large or small its components); ValueError for zero."""
+    n = length(v)
+    if n == 0.0:
+        raise ValueError("must be non-zero")
+    return tuple(x / n for x in v)
+
+
+def _nonzero_unit(v: tuple[float, float, float]) -> tuple[float, float, float]:
+    n = length(v)
     if n == 0.0:
         raise ValueError("must be non-zero")
     if abs(n - 1.0) <= 4e-16 * 3:  # already unit (a validated config validated again): keep it bit for bit
@@ -67,6 +132,12 @@ def _nonzero_unit(v: tuple[float, float, float]) -> tuple[float, float, float]:
 def _nonzero(v: tuple[float, float, float]) -> tuple[float, float, float]:
     if not any(v):
         raise ValueError("must be non-zero")
+    return v
+
+
+def _min_length(v: tuple[float, float, float]) -> tuple[float, float, float]:
+    if 0.0 < length(v) < MIN_LENGTH:
+        raise ValueError(f"must be at least {MIN_LENGTH:g} long, got {list(v)}")
     return v
 
 
@@ -114,13 +185,67 @@ def scalar_or_rgb(lo: float, hi: float | None = None, what: str = "number"):
     return BeforeValidator(check)
 
 
-Vec3 = Annotated[tuple[float, float, float], BeforeValidator(vec3)]
-Direction = Annotated[Vec3, AfterValidator(_nonzero_unit)]  # normalised on load
-NonZeroVec3 = Annotated[Vec3, AfterValidator(_nonzero)]
-RGB = Annotated[Vec3, AfterValidator(_nonnegative)]
-Albedo = Annotated[Vec3, AfterValidator(_unit_interval)]
+def scalar_or_rgb_type(lo: float, hi: float, what: str = "number") -> Any:
+    """The type of one number or a list of 3 [r, g, b], each in [lo, hi] (:func:`scalar_or_rgb`); its JSON
+    schema states the bounds."""
+    item = bounded_float(lo, hi)
+    return Annotated[Union[item, tuple[item, item, item]], scalar_or_rgb(lo, hi, what)]
+
+
+def bounded_float(lo: float, hi: float) -> Any:
+    """A float in [lo, hi] (its JSON schema states the bounds)."""
+    return Annotated[float, Field(ge=lo, le=hi)]
+
+
+def vec3_in(lo: float, hi: float, type_text: str, *after: Any, interval: bool = True) -> Any:
+    """The type of a list of 3 finite numbers [x, y, z], each in [lo, hi], then ``after`` validators.
+
+    Out-of-range input is reported for the whole vector (``key: every component must lie in [lo, hi], got [...]``;
+    with ``interval`` False as ``must be >= lo`` / ``must be <= hi``); the components' JSON schema states the
+    bounds, and ``type_text`` is what the config reference shows."""
+
+    def check(v: Any) -> tuple[float, float, float]:
+        out = vec3(v)
+        if interval and (min(out) < lo or max(out) > hi):
+            raise ValueError(f"every component must lie in [{lo:g}, {hi:g}], got {_short(list(v))}")
+        if min(out) < lo:
+            raise ValueError(f"every component must be >= {lo:g}, got {_short(list(v))}")
+        if max(out) > hi:
+            raise ValueError(f"every component must be <= {hi:g}, got {_short(list(v))}")
+        return out
+
+    check.type_text = type_text
+    item = bounded_float(lo, hi)
+    return Annotated[(tuple[item, item, item], BeforeValidator(check), *after)]
+
+
+_C = f"{MAX_COORD:g}"
+#: A point, a translation (scene units): each component within +-MAX_COORD.
+Vec3 = vec3_in(-MAX_COORD, MAX_COORD, f"[x, y, z], each in [-{_C}, {_C}]")
+#: A direction, normalised on load (without overflow); components within +-MAX_COORD.
+Direction = vec3_in(-MAX_COORD, MAX_COORD, f"direction [x, y, z] (normalised), each in [-{_C}, {_C}]",
+                    AfterValidator(_nonzero_unit))
+#: An edge vector (scene units): non-zero, at least MIN_LENGTH long, components within +-MAX_COORD.
+NonZeroVec3 = vec3_in(-MAX_COORD, MAX_COORD, f"[x, y, z], non-zero, each in [-{_C}, {_C}]",
+                      AfterValidator(_nonzero), AfterValidator(_min_length))
+#: Rotation angles about X, Y, Z (degrees).
+Rotation = vec3_in(-MAX_ROTATION_DEG, MAX_ROTATION_DEG,
+                   f"[x, y, z] degrees, each in [-{MAX_ROTATION_DEG:g}, {MAX_ROTATION_DEG:g}]")
+#: A light's RGB irradiance, intensity, radiance or power: each in [0, MAX_EMISSION].
+RGB = vec3_in(0.0, MAX_EMISSION, f"RGB, each 0–{MAX_EMISSION:g}", interval=False)
+#: A reflectance: RGB in [0, 1].
+Albedo = vec3_in(0.0, 1.0, "RGB in [0, 1]")
 Float = Annotated[float, Strict(), Field(allow_inf_nan=False)]
 Int = Annotated[int, Strict()]
+
+
+def _seed(v: Any) -> Any:
+    return v  # the bounds are the Field's; this names them for the config reference
+
+
+_seed.type_text = f"int 0–{MAX_SEED} (2^31 - 1)"
+#: A random seed, 0 .. MAX_SEED.
+Seed = Annotated[Int, Field(ge=0, le=MAX_SEED), BeforeValidator(_seed)]
 Bool = Annotated[bool, Strict()]
 PathStr = Annotated[Path, BeforeValidator(_path_string)]
 
@@ -202,13 +327,17 @@ def unwrap(tp):
             return tp
 
 
-def _display_loc(loc: tuple, root: type[BaseModel]) -> tuple[tuple, type | None]:
-    """Drop discriminated-union tag segments from a pydantic error location under model ``root``.
+def _display_loc(loc: tuple, root: type[BaseModel]) -> tuple[tuple, type | None, bool]:
+    """Drop union segments from a pydantic error location under model ``root``: the tags of discriminated unions and
+    the member names pydantic gives the alternatives of a plain union (``literal['adaptive']``, ``constrained-float``,
+    ``bool``).
 
-    Returns the user-facing key path and the model class at its end (None when not a model).
+    Returns the user-facing key path, the model class at its end (None when not a model) and whether the error is
+    one alternative of a plain union (its siblings are the other alternatives' errors at the same key).
     """
     out: list = []
     tp: Any = root
+    alternative = False
     for seg in loc:
         tp = unwrap(tp)
         if typing.get_origin(tp) in (Union, types.UnionType):
@@ -221,6 +350,9 @@ def _display_loc(loc: tuple, root: type[BaseModel]) -> tuple[tuple, type | None]
             if seg in members:  # a union tag, not a key the user wrote
                 tp = members[seg]
                 continue
+            if not members and isinstance(seg, str):  # the name of an alternative of a plain union: not a key
+                tp, alternative = None, True
+                continue
             tp = None
         out.append(seg)
         if isinstance(tp, type) and issubclass(tp, BaseModel) and isinstance(seg, str) and seg in tp.model_fields:
@@ -230,7 +362,16 @@ def _display_loc(loc: tuple, root: type[BaseModel]) -> tuple[tuple, type | None]
         else:
             tp = None
     tp = unwrap(tp) if tp is not None else None
-    return tuple(out), tp if isinstance(tp, type) and issubclass(tp, BaseModel) else None
+    return tuple(out), tp if isinstance(tp, type) and issubclass(tp, BaseModel) else None, alternative
+
+
+def _merge_alternatives(reasons: list[str]) -> str:
+    """One reason for the errors of a plain union's alternatives: ``must be one of 'adaptive' or must be <= 1 (got
+    1.5)``."""
+    got = {m.group(1) for r in reasons if (m := re.search(r" \(got (.*)\)$", r))}
+    if len(got) == 1 and all(re.search(r" \(got .*\)$", r) for r in reasons):
+        return " or ".join(re.sub(r" \(got .*\)$", "", r) for r in reasons) + f" (got {got.pop()})"
+    return " or ".join(reasons)
 
 
 def _short(value: Any) -> str:
@@ -295,10 +436,20 @@ def format_validation_errors(
     """
     key_lines = key_lines or {}
     problems: list[str] = []
+    errors, alternatives = [], {}
     for err in exc.errors(include_url=False):
-        loc, _ = _display_loc(tuple(err["loc"]), root)
-        _, parent_model = _display_loc(tuple(err["loc"])[:-1], root)
-        reason = _reason(err)
+        loc, _, alternative = _display_loc(tuple(err["loc"]), root)
+        if alternative and err["type"] not in ("union_tag_invalid", "union_tag_not_found"):
+            if loc not in alternatives:
+                alternatives[loc] = []
+                errors.append((err, loc))
+            alternatives[loc].append(_reason(err))
+        else:
+            errors.append((err, None))
+    for err, merged in errors:
+        loc, _, _ = _display_loc(tuple(err["loc"]), root)
+        _, parent_model, _ = _display_loc(tuple(err["loc"])[:-1], root)
+        reason = _reason(err) if merged is None else _merge_alternatives(alternatives[merged])
         if err["type"] in ("union_tag_invalid", "union_tag_not_found"):
             loc = (*loc, "type")
         if err["type"] == "extra_forbidden" and parent_model is not None:

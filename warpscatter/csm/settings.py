@@ -17,7 +17,7 @@ from typing import Annotated, Literal, Optional
 from pydantic import Field, ValidationInfo, field_validator
 
 from .. import methods
-from ..schema import Bool, Float, Int, PathStr, SettingsModel, existing_file, resolve_path
+from ..schema import MAX_COORD, Bool, Float, Int, PathStr, Seed, SettingsModel, existing_file, resolve_path
 
 #: Orders of the map grid along the compressed sequence (:mod:`.enumeration`).
 ENUMERATIONS = ("scanline", "zigzag", "hilbert")
@@ -92,17 +92,17 @@ class LightingSettings(SettingsModel):
     samples: Annotated[Int, Field(ge=1, le=65536, description="strata per pixel and pass, a perfect square (each: one "
                                                               "light and one BRDF sample)")] = 16
     passes: Annotated[Int, Field(ge=1, le=100000, description="progressive passes, averaged")] = 8
-    seed: Int = Field(0, description="base seed; pass k draws its own patterns")
+    seed: Seed = Field(0, description="base seed; pass k draws its own patterns")
     filter: Literal[FILTERS] = Field(  # type: ignore[valid-type]
         "roulette", description="CSM filter: nearest, pcf (4 maps x 4 texels) or roulette (one of those 16 picked "
                                 "with its PCF weight, Sec. 4.5)")
-    bias: Optional[Annotated[Float, Field(ge=0.0)]] = Field(
+    bias: Optional[Annotated[Float, Field(ge=0.0, le=MAX_COORD)]] = Field(
         None, description="CSM depth bias (scene units); null: one texel 2R/M of the occluders' bounding sphere")
-    normal_offset: Optional[Annotated[Float, Field(ge=0.0)]] = Field(
+    normal_offset: Optional[Annotated[Float, Field(ge=0.0, le=MAX_COORD)]] = Field(
         None, description="offset of the query point along the normal (scene units); null: R/(2M) for csm, 1e-4 x the "
                           "scene's diagonal for raytrace")
-    write_every: Annotated[Int, Field(ge=0, description="rewrite the outputs every this many passes (0: at the end "
-                                                        "only)")] = 1
+    write_every: Annotated[Int, Field(ge=0, le=100000, description="rewrite the outputs every this many passes (0: "
+                                                                   "at the end only)")] = 1
     background: Bool = Field(True, description="show the environment map where nothing is hit")
     csm: CSMBuildSettings = Field(default_factory=dict, description="the coherent shadow map")
 

@@ -18,7 +18,7 @@ from typing import Annotated, Literal, Optional, Union
 from pydantic import Field, field_validator, model_validator
 
 from .. import methods
-from ..schema import Bool, Float, Int, SettingsModel
+from ..schema import MAX_IMAGE_SIDE, MAX_STEPS, Bool, Float, Int, Seed, SettingsModel
 from ..shadows.settings import ShadowMapSettings
 
 # ---- limits and defaults (one home; the technique modules import them) ---------------------------
@@ -107,6 +107,16 @@ MAX_END_OFFSET = 8.0
 LINE_SPACING_PX = 4
 #: Radial basis functions of the epipolar bilateral filter (Engelhardt 2010 Sec. 4.3).
 EPIPOLAR_KERNELS = ("gaussian", "shepard", "threshold")
+#: Largest ``prefiltered.epipole_margin`` (half image heights): far beyond it ``auto`` always picks non-linear.
+MAX_EPIPOLE_MARGIN = 1000.0
+#: Most texels per epipolar line (twice the largest image side: more than any image diagonal).
+MAX_SAMPLES_PER_LINE = 2 * MAX_IMAGE_SIDE
+#: Bounds of the epipolar filter's relative depth thresholds and of its distance fall-off.
+MIN_RELATIVE_DEPTH = 1.0e-6
+MAX_RELATIVE_DEPTH = 1000.0
+MAX_DISTANCE_FALLOFF = 1000.0
+#: Largest ``epipolar.max_epipole_distance`` (image diagonals).
+MAX_EPIPOLE_DISTANCE = 1.0e6
 
 
 class PrefilteredSettings(SettingsModel):
@@ -146,7 +156,8 @@ class PrefilteredSettings(SettingsModel):
                             "is epipole_angle_deg / epipole_block); auto: for fourier only (Peters 2017 Sec. 6: the "
                             "moment methods need no separate branch; measured, the disc moves their error by -0.2 to "
                             "+0.4 % and costs 50-70 ms at 1080p)")
-    epipole_block: Annotated[Int, Field(ge=0, description="the least ray-marched region around an epipole in view: "
+    epipole_block: Annotated[Int, Field(ge=0, le=MAX_IMAGE_SIDE, description="the least ray-marched region around "
+                                                                             "an epipole in view: "
                                                           "Klehm's block side in pixels (its half side as an angle at "
                                                           "the image centre is the least radius)")] = 32
     epipole_angle_deg: Annotated[Float, Field(ge=0.0, le=MAX_EPIPOLE_ANGLE_DEG, description=(
@@ -154,12 +165,14 @@ class PrefilteredSettings(SettingsModel):
         "(shadow-map visibility, `epipole_steps` strata of equal transmittance weight, `jitter`), blended with the "
         "prefiltered result over a further 25 % of the angle (Klehm 2014 Sec. 5, Fig. 8); this and epipole_block 0: "
         "off"))] = EPIPOLE_ANGLE_DEG
-    epipole_steps: Annotated[Int, Field(ge=1, description="ray-march steps of the epipole region (strata of equal "
+    epipole_steps: Annotated[Int, Field(ge=1, le=MAX_STEPS, description="ray-march steps of the epipole region "
+                                                                         "(strata of equal "
                                                           "transmittance weight)")] = EPIPOLE_STEPS
     rectification: Literal["auto", "projective", "nonlinear"] = Field(
         "auto", description="Klehm's projective map (Sec. 4.2) unless an epipole lies within epipole_margin half "
                             "image heights of the view (then Peters' non-linear map), or one of them always")
-    epipole_margin: Annotated[Float, Field(ge=0.0, description="auto: the projective map needs every epipole this many "
+    epipole_margin: Annotated[Float, Field(ge=0.0, le=MAX_EPIPOLE_MARGIN, description="auto: the projective map "
+                                                                                       "needs every epipole this many "
                                                                "half image heights outside the image")] = EPIPOLE_MARGIN
     regions: Annotated[Int, Field(ge=1, le=MAX_REGIONS, description="light-frustum regions of the projective map along "
                                                                     "x (Klehm 2014 Sec. 4.2; 1 = one matrix)")] = 8
@@ -245,18 +258,18 @@ class EpipolarSettings(SettingsModel):
                           " border pixels (1504 at 1920x1080, 496 at 640x360, 248 at 320x180)")
     initial_samples: Annotated[Int, Field(ge=2, le=1024, description="initial ray-marching samples per line "
                                                                      "(Sec. 4.1)")] = 16
-    samples_per_line: Optional[Annotated[Int, Field(ge=2)]] = Field(
+    samples_per_line: Optional[Annotated[Int, Field(ge=2, le=MAX_SAMPLES_PER_LINE)]] = Field(
         None, description="texels per line (the most samples); null: the image diagonal in pixels")
-    depth_threshold: Annotated[Float, Field(gt=0.0, description="relative camera-depth jump that is a "
-                                                                "discontinuity")] = 0.05
+    depth_threshold: Annotated[Float, Field(ge=MIN_RELATIVE_DEPTH, le=MAX_RELATIVE_DEPTH, description=(
+        "relative camera-depth jump that is a discontinuity"))] = 0.05
     kernel: Literal[EPIPOLAR_KERNELS] = Field(  # type: ignore[valid-type]
         "gaussian", description="bilateral weight: gaussian exp(-x^2), shepard 1/(1+x^2), threshold (depth only: "
                                 "x <= 1; distance weight 1)")
     taps: Annotated[Int, Field(ge=3, le=5, description="taps per line of the bilateral filter")] = 3
-    distance_falloff: Annotated[Float, Field(ge=0.0, description="a of the distance weight, x^2 = a (offset / "
-                                                                 "delta)^2")] = 0.5
-    depth_sigma: Annotated[Float, Field(gt=0.0, description="relative depth difference at which the depth x = "
-                                                            "1")] = 0.1
+    distance_falloff: Annotated[Float, Field(ge=0.0, le=MAX_DISTANCE_FALLOFF, description=(
+        "a of the distance weight, x^2 = a (offset / delta)^2"))] = 0.5
+    depth_sigma: Annotated[Float, Field(ge=MIN_RELATIVE_DEPTH, le=MAX_RELATIVE_DEPTH, description=(
+        "relative depth difference at which the depth x = 1"))] = 0.1
     min_weight: Annotated[Float, Field(gt=0.0, le=1.0, description="taps whose depth weight is below this are "
                                                                    "invalid")] = 0.05
     outer_lines: Annotated[Int, Field(ge=0, le=64, description="outer lines tried per side when a side has no valid "
@@ -265,8 +278,8 @@ class EpipolarSettings(SettingsModel):
                                                              "(Sec. 6)")
     fallback_stride: Annotated[Int, Field(ge=1, le=256, description="grid spacing (pixels) of the degenerate-case "
                                                                     "screen-space subsampling")] = 4
-    max_epipole_distance: Annotated[Float, Field(gt=0.0, description="epipoles farther than this many image diagonals "
-                                                                     "count as at infinity")] = 1000.0
+    max_epipole_distance: Annotated[Float, Field(gt=0.0, le=MAX_EPIPOLE_DISTANCE, description=(
+        "epipoles farther than this many image diagonals count as at infinity"))] = 1000.0
 
     def lines_for(self, width: int, height: int) -> int:
         """Epipolar lines for a width x height image: ``lines``, or one per :data:`LINE_SPACING_PX` pixels of the
@@ -290,9 +303,10 @@ class ScatteringSettings(SettingsModel):
         "raymarch", description="the single-scattering method (see the method table)")
     visibility: Literal[VISIBILITY_MODES] = Field(  # type: ignore[valid-type]
         "exact", description="raymarch, epipolar: exact (ray-cast shadow rays, the reference) or shadow_map")
-    steps: Annotated[Int, Field(ge=1, description="ray-march steps per ray (raymarch, epipolar; the prefiltered "
-                                                  "methods' epipole region has prefiltered.epipole_steps)")] = 128
-    seed: Int = Field(0, description="jitter seed (same seed, same image)")
+    steps: Annotated[Int, Field(ge=1, le=MAX_STEPS, description="ray-march steps per ray (raymarch, epipolar; the "
+                                                                "prefiltered methods' epipole region has "
+                                                                "prefiltered.epipole_steps)")] = 128
+    seed: Seed = Field(0, description="jitter seed (same seed, same image)")
     jitter: Literal[JITTERS] = Field(  # type: ignore[valid-type]
         "per_pixel", description="raymarch, epipolar (and the prefiltered methods' epipole disc) step pattern: "
                                  "per_pixel (stratified jitter per ray) or fixed (one offset per frame, the paper's "
@@ -361,6 +375,12 @@ __all__ = [
     "EPIPOLE_MARGIN",
     "JITTERS",
     "MAX_COEFFICIENTS",
+    "MAX_DISTANCE_FALLOFF",
+    "MAX_EPIPOLE_DISTANCE",
+    "MAX_EPIPOLE_MARGIN",
+    "MAX_RELATIVE_DEPTH",
+    "MAX_SAMPLES_PER_LINE",
+    "MIN_RELATIVE_DEPTH",
     "MAX_REGIONS",
     "MAX_RESAMPLE_FILTER_PX",
     "MAX_SPLITS",

@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal, Optional, Union
 
 from pydantic import Field, field_validator, model_validator
 
-from ..schema import MAX_IMAGE_SIDE, Bool, Float, Int, SettingsModel
+from ..schema import MAX_COORD, MAX_IMAGE_SIDE, MIN_LENGTH, Bool, Float, Int, SettingsModel
 
 #: Surface shadow methods (``render.shadows.method``).
 SHADOW_METHODS = ("pcf", "msm", "msm_soft", "pcss", "msm2015", "vsm", "evsm", "none")
@@ -39,6 +39,13 @@ REFERENCE_KERNEL_PX = 28
 #: Soft shadows: smallest and largest region side (texels).
 MIN_KERNEL_PX = 4
 MAX_KERNEL_PX = 256
+#: Largest shadow-map depth bias (texel sizes).
+MAX_BIAS_TEXELS = 1000.0
+#: Soft shadows, directional light: smallest angular size (degrees; the sun's is 0.53).
+MIN_LIGHT_ANGLE_DEG = 1.0e-3
+
+_MapSide = Annotated[int, Field(ge=MIN_SHADOW_MAP_SIDE, le=MAX_IMAGE_SIDE)]
+_EVSMExponent = Annotated[Float, Field(gt=0.0, le=max(EVSM_MAX_EXPONENT.values()))]
 
 
 class ShadowMapSettings(SettingsModel):
@@ -48,12 +55,12 @@ class ShadowMapSettings(SettingsModel):
     world size of one texel.
     """
 
-    resolution: Union[int, tuple[int, int]] = Field(
+    resolution: Union[_MapSide, tuple[_MapSide, _MapSide]] = Field(
         1024, description=f"side of the light's shadow map in texels, or [width, height] (each "
                           f"{MIN_SHADOW_MAP_SIDE} to {MAX_IMAGE_SIDE}); for the prefiltered methods also the rectified "
                           f"map (columns x rows)")
-    bias: Annotated[Float, Field(ge=0.0, description="depth bias in texel sizes (world units = bias x texel "
-                                                     "size)")] = 1.0
+    bias: Annotated[Float, Field(ge=0.0, le=MAX_BIAS_TEXELS, description="depth bias in texel sizes (world units = "
+                                                                         "bias x texel size)")] = 1.0
 
     @field_validator("resolution", mode="before")
     @classmethod
@@ -86,7 +93,7 @@ class ShadowsSettings(SettingsModel):
         64, description="bits per texel of the filterable maps: msm and msm2015 64 (16-bit fixed point) or 128 "
                         "(float32); vsm 32 (2 x float16) or 64 (2 x float32); evsm 64 (4 x float16) or 128 (4 x "
                         "float32); msm_soft always uses 128")
-    evsm_exponents: Optional[tuple[Float, Float]] = Field(
+    evsm_exponents: Optional[tuple[_EVSMExponent, _EVSMExponent]] = Field(
         None, description="evsm: exponents [c+, c-] (> 0; 64 bits: <= 5.545); null: Peters 2017 Fig. 4's, [5.54, "
                           "5.54] at 64 bits and [40, 5.54] at 128")
     supersampling: Annotated[Int, Field(ge=1, le=MAX_SUPERSAMPLING,
@@ -94,9 +101,10 @@ class ShadowsSettings(SettingsModel):
     coloured: Bool = Field(False, description="one moment map per RGB channel (tinted translucent occluders)")
     max_translucent_layers: Annotated[Int, Field(ge=1, le=MAX_TRANSLUCENT_LAYERS,
                                                  description="translucent layers peeled into the moment map")] = 16
-    light_angle_deg: Annotated[Float, Field(gt=0.0, lt=180.0, description="soft methods, directional light: its "
-                                                                           "angular size (full angle, degrees)")] = 1.0
-    light_size: Annotated[Float, Field(gt=0.0, description="soft methods, spot light: its size (scene units)")] = 0.5
+    light_angle_deg: Annotated[Float, Field(ge=MIN_LIGHT_ANGLE_DEG, lt=180.0, description=(
+        "soft methods, directional light: its angular size (full angle, degrees)"))] = 1.0
+    light_size: Annotated[Float, Field(ge=MIN_LENGTH, le=MAX_COORD, description="soft methods, spot light: its size "
+                                                                                "(scene units)")] = 0.5
     max_kernel_px: Annotated[Int, Field(ge=MIN_KERNEL_PX, le=MAX_KERNEL_PX,
                                         description="soft methods: widest region side (texels; n_t = side^2)")] = (
         REFERENCE_KERNEL_PX)
@@ -123,11 +131,13 @@ class ShadowsSettings(SettingsModel):
 __all__ = [
     "EVSM_MAX_EXPONENT",
     "FILTERABLE_BITS",
+    "MAX_BIAS_TEXELS",
     "MAX_FILTER_PX",
     "MAX_KERNEL_PX",
     "MAX_SUPERSAMPLING",
     "MAX_TRANSLUCENT_LAYERS",
     "MIN_KERNEL_PX",
+    "MIN_LIGHT_ANGLE_DEG",
     "MIN_SHADOW_MAP_SIDE",
     "REFERENCE_KERNEL_PX",
     "SHADOW_METHODS",
