@@ -1,5 +1,7 @@
 """Shared test helpers: scenes built directly (no config), small sizes."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -62,3 +64,18 @@ from hypothesis import settings as _hypothesis_settings  # noqa: E402
 _hypothesis_settings.register_profile(
     "long", max_examples=1000, deadline=None, derandomize=True, database=None, print_blob=True,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+
+
+# ---- the CLI's process settings ------------------------------------------------------------------
+@pytest.fixture(autouse=True)
+def _restore_cli_environment():
+    """The CLI sets WARPSCATTER_THREADS / WARPSCATTER_DEVICE for its process (--threads, --device); in-process CLI
+    tests must not leave them to later tests (which would then run single-threaded, or with a fixed device)."""
+    keys = ("WARPSCATTER_THREADS", "WARPSCATTER_DEVICE")
+    saved = {k: os.environ.get(k) for k in keys}
+    yield
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v

@@ -55,9 +55,9 @@ def test_track_interpolation():
     smooth = [track_value(lin, f, "smooth") for f in (1, 3.5, 6, 8.5, 11)]
     assert smooth[0] == 0.0 and smooth[2] == 5.0 and smooth[4] == 10.0
     assert smooth[1] == pytest.approx(10 * 0.15625) and smooth[3] == pytest.approx(10 * 0.84375)  # 3t^2 - 2t^3
-    vec = Track(keys={0: [0, 0, 1], 4: [4, 8, 1]})
-    assert track_value(vec, 1) == [1, 2, 1]  # integer keyframes interpolate to integers
-    assert track_value(Track(keys={0: [0.0, 1.0], 4: [4.0, 1.0]}), 1) == [1.0, 1.0]
+    vec = Track(keys={0: [0, 0, 1], 4: [4, 9, 1]})
+    assert track_value(vec, 1) == [1.0, 2.25, 1.0]  # whole-number keyframes of a float key stay floats
+    assert track_value(vec, 1, integer=True) == [1, 2, 1]  # an integer key rounds
     assert track_value(Track(keys={1: "fourier", 5: "moments6"}), 4) == "fourier"  # held until the next key
     with pytest.raises(ValueError, match="same type and length"):
         Track(keys={1: [0, 1, 2], 2: 3})
@@ -73,6 +73,14 @@ def test_animation_settings_and_frame_configs(animated):
     assert [f.camera.fov_y for f in frames] == [50, 45, 40]
     assert frames[1].light.direction == pytest.approx((0.0, -0.4 / np.hypot(0.4, 1.0), 1.0 / np.hypot(0.4, 1.0)))
     assert frames[0].animation is None
+    # whole-number positions move evenly (not rounded), an integer key (the image width) rounds
+    data = {**ANIMATED, "animation": {"frames": 5, "interpolation": "linear", "tracks": {
+        "camera.position": {1: [0, 2, -14], 5: [0, 2, -8]}, "camera.width": {1: 24, 5: 31}}}}
+    path = animated.with_name("even.yaml")
+    path.write_text(yaml.safe_dump(data))
+    even = load_config(path)
+    assert [even.at_frame(f).camera.position[2] for f in range(1, 6)] == [-14.0, -12.5, -11.0, -9.5, -8.0]
+    assert [even.at_frame(f).camera.width for f in range(1, 6)] == [24, 26, 28, 29, 31]
 
 
 @pytest.mark.parametrize("tracks, message", [
@@ -299,5 +307,5 @@ def test_sweep_cases_that_change_the_scene_get_their_own_reference(tmp_path):
 def test_render_refuses_an_animated_config(animated):
     import warpscatter
 
-    with pytest.raises(ValueError, match="animation section"):
+    with pytest.raises(ConfigError, match="animation: the config is a sequence"):
         warpscatter.render(animated)

@@ -10,7 +10,7 @@ from click.testing import CliRunner
 from conftest import make_scene, quad
 
 from warpscatter.cli.main import main
-from warpscatter.config import load_config
+from warpscatter.config import ConfigError, load_config
 from warpscatter.gbuffer import gbuffer_raster
 from warpscatter.imageio import read_image
 from warpscatter.pipeline import render, render_images
@@ -51,7 +51,7 @@ def test_every_bundled_config_renders(config):
                                                   "render.lighting.csm.maps=[16,8]",
                                                   "render.lighting.csm.resolution=32"])
     if cfg.animation is not None:  # an animated config renders frame by frame (warpscatter.sequence)
-        with pytest.raises(ValueError, match="animation section"):
+        with pytest.raises(ConfigError, match="animation: the config is a sequence"):
             render(cfg, write=False)
         cfg = cfg.at_frame(cfg.animation.frame_numbers[-1])
     result = render(cfg, write=False)
@@ -249,3 +249,11 @@ def test_pcf_offsets_follow_the_spot_lights_texel_size():
     visibility = shadowed[lit] / unshadowed[lit]
     assert lit.sum() > 1000  # measured 3849
     assert (visibility < 0.5).mean() < 0.1  # measured 0.033; offsets for unit depth: 0.347
+
+
+def test_generator_parameters_out_of_range_are_a_config_error(tmp_path):
+    # the generator refuses the parameter while the scene is built: exit 2 at the entry's params key
+    result = CliRunner().invoke(main, ["render", str(ROOT / "configs" / "quickstart.yaml"), "-o", str(tmp_path),
+                                       "--set", "scene.meshes.1.params.pillars=100000", *SMALL])
+    assert result.exit_code == 2 and "scene.meshes.1.params: parameter 'pillars' must be in" in result.stderr
+    assert not list(tmp_path.iterdir())

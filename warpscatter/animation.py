@@ -14,7 +14,8 @@ A config with an ``animation`` section renders a sequence. Each track animates o
         scene.meshes.1.transform.rotate_deg: {1: [0, 0, 0], 60: [0, 90, 0]}
 
 Values: numbers and lists of numbers interpolate per component (a direction is normalised when the frame's config
-is validated: normalised linear interpolation); values of integer-only keys round to integers; anything else
+is validated: normalised linear interpolation); values of integer keys (``camera.width``) round to integers, whole
+numbers given for a float key do not; anything else
 (strings, booleans) holds the value of the last key at or before the frame. Before the first key and after the last
 a track holds its end value. Any key of the config can be animated: camera (position, look_at, fov_y), light
 (direction, position, cone_deg, intensity, irradiance), medium (sigma_t, albedo, phase.g), mesh transforms; each
@@ -25,7 +26,7 @@ This module imports no Warp.
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, Union
 
 from pydantic import BeforeValidator, Field, field_validator, model_validator
 
@@ -106,7 +107,7 @@ class AnimationSettings(SettingsModel):
     fps: Annotated[float, Field(ge=0.01, le=1000.0, description="frames per second (the preview's rate)")] = 24.0
     interpolation: Literal[INTERPOLATIONS] = Field(  # type: ignore[valid-type]
         "smooth", description="default interpolation of the tracks: linear, or smooth (ease in and out at every key)")
-    tracks: dict[str, Annotated[Track, Field()]] = Field(
+    tracks: dict[str, Union[Track, dict[Annotated[int, Field(ge=-MAX_FRAME, le=MAX_FRAME)], Any]]] = Field(
         default_factory=dict, description="animated config keys (dotted paths) -> keyframes")
     preview: Literal[PREVIEWS] = Field(  # type: ignore[valid-type]
         "auto", description="a preview of the frames: mp4 (imageio-ffmpeg), gif (imageio), none, or auto (the "
@@ -145,9 +146,9 @@ class AnimationSettings(SettingsModel):
         first, last = self.frame_range
         return list(range(first, last + 1))
 
-    def values_at(self, frame: float) -> dict[str, Any]:
+    def values_at(self, frame: float, integer_keys: frozenset[str] = frozenset()) -> dict[str, Any]:
         """Every track's value at ``frame``: dotted key -> value (:func:`warpscatter.config.apply_overrides`)."""
-        return {key: track_value(track, frame, track.interpolation or self.interpolation)
+        return {key: track_value(track, frame, track.interpolation or self.interpolation, key in integer_keys)
                 for key, track in self.tracks.items()}
 
 
@@ -155,15 +156,10 @@ def _ease(t: float, interpolation: str) -> float:
     return t * t * (3.0 - 2.0 * t) if interpolation == "smooth" else t
 
 
-def _integral(values: list[Any]) -> bool:
-    def whole(x):
-        return isinstance(x, int) and not isinstance(x, bool)
-
-    return all(whole(v) if not isinstance(v, (list, tuple)) else all(whole(x) for x in v) for v in values)
-
-
-def track_value(track: Track, frame: float, interpolation: str = "linear") -> Any:
-    """A track's value at ``frame``: interpolated between the keys around it (see the module docstring)."""
+def track_value(track: Track, frame: float, interpolation: str = "linear", integer: bool = False) -> Any:
+    """A track's value at ``frame``: interpolated between the keys around it (see the module docstring); with
+    ``integer`` (the animated key is an integer field, e.g. ``camera.width``) interpolated values round to integers.
+    Whole-number keyframes of a float key (``[0, 2, -14]``) interpolate as floats."""
     frames = list(track.keys)
     values = list(track.keys.values())
     if frame <= frames[0]:
@@ -174,11 +170,10 @@ def track_value(track: Track, frame: float, interpolation: str = "linear") -> An
     a, b = values[k], values[k + 1]
     if _shape(a) == _shape(b) and (is_number(a) or isinstance(a, (list, tuple))) and _shape(a) != "list":
         t = _ease((frame - frames[k]) / (frames[k + 1] - frames[k]), interpolation)
-        whole = _integral([a, b])
 
         def mix(x, y):
             v = x + (y - x) * t
-            return int(round(v)) if whole else float(v)
+            return int(round(v)) if integer else float(v)
 
         return mix(a, b) if is_number(a) else [mix(x, y) for x, y in zip(a, b, strict=True)]
     return a

@@ -722,11 +722,12 @@ class Config(SettingsModel):
         return self
 
     @model_validator(mode="after")
-    def _tracks_fit(self) -> Config:
-        """Every keyframe of every track gives a valid config (the frames between them interpolate valid values;
-        integer keys round)."""
+    def _tracks_fit(self, info: ValidationInfo) -> Config:
+        """Every keyframe of every track gives a valid config (relative paths against the config's folder; the
+        frames between keys are validated when rendered: :meth:`at_frame`, every frame before the first render)."""
         if self.animation is None:
             return self
+        config_dir = context_dir(info)
         base = self.model_dump(exclude={"animation"})
         problems = []
         for key, track in self.animation.tracks.items():
@@ -734,7 +735,7 @@ class Config(SettingsModel):
                 data = copy.deepcopy(base)
                 try:
                     apply_overrides(data, {key: value})
-                    Config.model_validate(data, context={"config_dir": self._config_dir})
+                    Config.model_validate(data, context={"config_dir": config_dir})
                 except ConfigError as exc:
                     problems += [f"animation.tracks.{key} (frame {frame}): {p.removeprefix('--set ')}"
                                  for p in exc.problems]
@@ -756,7 +757,8 @@ class Config(SettingsModel):
         if self.animation is None:
             raise ValueError("at_frame: the config has no animation section")
         data = self.model_dump(exclude={"animation"})
-        apply_overrides(data, self.animation.values_at(frame), self._source)
+        integer = frozenset(k for k in self.animation.tracks if _is_int(_value_at(data, k)))
+        apply_overrides(data, self.animation.values_at(frame, integer), self._source)
         data["output"]["name"] = frame_name(self.output_name, frame).replace("{", "{{").replace("}", "}}")
         return validated_config(data, self._config_dir, self._source)
 
@@ -821,6 +823,26 @@ class Config(SettingsModel):
     def model_dump_yaml(self) -> str:
         """The resolved config (absolute paths, defaults filled in, directions normalised) as YAML."""
         return yaml.safe_dump(self.model_dump(mode="json", exclude_none=True), sort_keys=False, default_flow_style=None)
+
+
+def _value_at(data: Any, dotted_key: str) -> Any:
+    """The value at a dotted key (``scene.meshes.0.transform.scale``) of config data, or None where there is none."""
+    node = data
+    for part in dotted_key.split("."):
+        if isinstance(node, dict):
+            node = node.get(part)
+        elif isinstance(node, list) and part.isdigit() and int(part) < len(node):
+            node = node[int(part)]
+        else:
+            return None
+    return node
+
+
+def _is_int(value: Any) -> bool:
+    """An integer value (not a bool), or a list of them: an integer key that animation tracks round to."""
+    if isinstance(value, (list, tuple)):
+        return bool(value) and all(_is_int(v) for v in value)
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def validated_config(data: Any, config_dir: str | Path | None, source: Path | None = None,

@@ -103,8 +103,8 @@ def render(config: Config, out_dir: Path | None = None, progress: ProgressFn | N
 
     config = config.revalidated()
     if config.animation is not None:
-        raise ValueError("the config has an animation section: render its frames with "
-                         "warpscatter.sequence.render_animation(config) (or one frame: config.at_frame(n))")
+        raise ConfigError("animation: the config is a sequence: render its frames with "
+                          "warpscatter.render_animation(config) (or one frame: config.at_frame(n))", config.source)
     if out_dir is not None:
         config.output.dir = Path(out_dir).resolve()  # the sidecar records where the files went
     device = default_device(device)

@@ -206,8 +206,9 @@ def build_scene(cfg) -> Scene:
     Raises:
         InputFileError: a mesh file that cannot be used (:class:`.meshes.MeshLoadError`), at its key
             (``scene.meshes.N.path``), or a light texture or environment map (:func:`light_from_config`).
+        ConfigError: a generator that refuses its parameters, at ``scene.meshes.N.params``.
     """
-    from ..errors import InputFileError
+    from ..errors import ConfigError, InputFileError
 
     verts, tris, mats, albedo, opacity = [], [], [], [], []
     base = 0
@@ -217,6 +218,10 @@ def build_scene(cfg) -> Scene:
         except InputFileError as exc:  # a mesh file that cannot be used: name the entry's key
             exc.at(f"scene.meshes.{k}.path" if entry.path is not None else f"scene.meshes.{k}")
             raise
+        except ValueError as exc:  # a generator refusing its parameters (pillars=100000): a config error
+            if entry.path is not None:
+                raise
+            raise ConfigError(f"scene.meshes.{k}.params: {exc}", getattr(cfg, "source", None)) from None
         verts.append(mesh.vertices)
         tris.append(mesh.triangles + base)
         mats.append(np.full(len(mesh.triangles), k, dtype=np.int32))
