@@ -309,3 +309,15 @@ def test_render_refuses_an_animated_config(animated):
 
     with pytest.raises(ConfigError, match="animation: the config is a sequence"):
         warpscatter.render(animated)
+
+
+def test_static_geometry_keeps_its_bvh_across_frames(animated):
+    from warpscatter.scene import DeviceGeometry, build_scene
+
+    config = load_config(animated)  # the sun and the field of view move, the geometry stands still
+    first, last = (DeviceGeometry(build_scene(config.at_frame(f))) for f in (1, 3))
+    assert first.mesh is last.mesh and first.shadow_mesh is last.shadow_mesh
+    moved = config.model_copy(update={"scene": {"meshes": [
+        *config.model_dump()["scene"]["meshes"][:1],
+        {**config.model_dump()["scene"]["meshes"][1], "transform": {"translate": [0.5, 0, 3]}}]}})
+    assert DeviceGeometry(build_scene(moved.at_frame(1))).mesh is not first.mesh  # other geometry: its own BVH

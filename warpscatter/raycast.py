@@ -13,6 +13,8 @@ x_ndc = 2 (i + 0.5) / width - 1, y_ndc = 1 - 2 (j + 0.5) / height.
 
 from __future__ import annotations
 
+from collections import OrderedDict
+
 import numpy as np
 import warp as wp
 
@@ -158,6 +160,30 @@ def build_mesh(vertices, triangles, device: str | None = None) -> wp.Mesh:
     if tris.shape[0] == 0:
         raise ValueError("triangles: a mesh needs at least one triangle")
     return wp.Mesh(points=points, indices=tris.flatten())
+
+
+#: BVHs built by :func:`cached_bvh`, by (geometry digest, device); the least recently used leave first.
+_BVHS: OrderedDict = OrderedDict()
+#: How many BVHs :func:`cached_bvh` keeps (each holds its points and indices on the device).
+BVH_CACHE_SIZE = 4
+
+
+def cached_bvh(vertices, triangles, device: str | None = None) -> wp.Mesh:
+    """:func:`build_mesh` of host (numpy) geometry, reused while the same geometry comes back on the same device:
+    the frames of an animation whose geometry does not move, repeated renders of one scene (keyed by the SHA-256 of
+    the float32 vertices and int32 triangles, :func:`warpscatter.csm.compress.geometry_digest`). Nothing refits a
+    BVH in warpscatter, so a shared one is never changed."""
+    from .csm.compress import geometry_digest
+
+    device = default_device(device)
+    key = (geometry_digest(vertices, triangles), str(device))
+    mesh = _BVHS.pop(key, None)
+    if mesh is None:
+        mesh = build_mesh(vertices, triangles, device=device)
+    _BVHS[key] = mesh
+    while len(_BVHS) > BVH_CACHE_SIZE:
+        _BVHS.popitem(last=False)
+    return mesh
 
 
 def _check_mesh(mesh) -> wp.Mesh:

@@ -286,7 +286,9 @@ def error_time_chart(rows: list[dict], meta: dict, path: Path) -> Path | None:
     per method); None without matplotlib or without two comparable rows in a config."""
     from .bench.report import BenchReport, chart_error_time
 
-    report = BenchReport(suite="sweep", meta={k: v for k, v in meta.items() if k in ("created", "machine")})
+    machine = meta.get("machine") or {}
+    report = BenchReport(suite="sweep", meta={"cpu": machine.get("cpu"), "timestamp": meta.get("created"),
+                                              "time": "technique stages (scene, compile, write apart)"})
     for r in rows:
         if r.get("rel_l1") and r.get("technique_s"):
             report.rows.append({"name": f"{r['config']}: {r['case'].split('/', 1)[-1]}", "params": {

@@ -416,8 +416,10 @@ def save_figure(fig, path: Path, layout: bool = True) -> Path:
 def chart_title(report: BenchReport, what: str) -> str:
     """A chart's two-line title: the suite and ``what``, then the machine and run."""
     m = report.meta
-    return (f"warpscatter bench {report.suite}{' --quick' if m.get('quick') else ''}: {what}\n"
-            f"{m.get('cpu')}, {m.get('threads')} threads, {m.get('repeats')} repeats, {m.get('timestamp', '')}")
+    run = [str(m["cpu"]) if m.get("cpu") else "", f"{m['threads']} threads" if m.get("threads") else "",
+           f"{m['repeats']} repeats" if m.get("repeats") else "", str(m.get("timestamp") or "")]
+    return (f"warpscatter {'' if report.suite == 'sweep' else 'bench '}{report.suite}"
+            f"{' --quick' if m.get('quick') else ''}: {what}\n" + ", ".join(x for x in run if x))
 
 
 def scenes(rows: list[dict]) -> list[str]:

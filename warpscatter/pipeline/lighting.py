@@ -47,7 +47,7 @@ from ..csm.occluders import prepare_csm, scene_occluders, texel_size
 from ..csm.query import csm_device_data
 from ..csm.settings import LightingSettings
 from ..gbuffer import gbuffer_raster
-from ..raycast import build_mesh
+from ..raycast import cached_bvh
 from ..scene import DeviceGeometry
 from ..scene.lights import EnvironmentLight
 from ..stages import StageTimer
@@ -148,7 +148,7 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
             csm_device_data(csm, device)  # the segment lists on the device, once per render
     else:
         with timer("bvh"):
-            mesh = build_mesh(vertices, triangles, device=device) if len(triangles) else None
+            mesh = cached_bvh(vertices, triangles, device=device) if len(triangles) else None
     surf = camera_surface(scene, timer, device)
     cam = scene.camera
     h, w = cam.height, cam.width

@@ -224,8 +224,11 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
     info = {"epipolar_lines": line_count, "epipolar_initial_samples": ep.initial_samples}
 
     with stage("lines"):
-        lines, reason = epipolar_lines(cam, light, line_count, ep.initial_samples, ep.samples_per_line,
-                                       ep.max_epipole_distance)
+        if ep.sampling == "screen":  # the naive baseline asked for (Engelhardt 2010 Fig. 9)
+            lines, reason = None, "screen-space sampling asked (epipolar.sampling: screen)"
+        else:
+            lines, reason = epipolar_lines(cam, light, line_count, ep.initial_samples, ep.samples_per_line,
+                                           ep.max_epipole_distance)
         if lines is not None:
             lines = trim_to_cone(lines, cam, light, device)
         level, footprint = (0, 0.0)
@@ -242,8 +245,9 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
 
     if lines is None:
         # ---- degenerate case: plain screen-space subsampling ----
-        logger.warning("epipolar sampling falls back to screen-space subsampling every %d px: %s",
-                       ep.fallback_stride, reason)
+        if ep.sampling != "screen":
+            logger.warning("epipolar sampling falls back to screen-space subsampling every %d px: %s",
+                           ep.fallback_stride, reason)
         stride = ep.fallback_stride
         gw, gh = -(-(w - 1) // stride) + 1, -(-(h - 1) // stride) + 1
         grid = wp.empty((gh, gw), dtype=wp.vec3, device=device)

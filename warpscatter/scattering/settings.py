@@ -276,8 +276,13 @@ class EpipolarSettings(SettingsModel):
                                                                "tap")] = 2
     prefilter_light_texture: Bool = Field(False, description="box-downsample a spot texture to the line spacing "
                                                              "(Sec. 6)")
-    fallback_stride: Annotated[Int, Field(ge=1, le=256, description="grid spacing (pixels) of the degenerate-case "
-                                                                    "screen-space subsampling")] = 4
+    fallback_stride: Annotated[Int, Field(ge=1, le=256, description="grid spacing (pixels) of the screen-space "
+                                                                    "subsampling (the degenerate case, or sampling: "
+                                                                    "screen)")] = 4
+    sampling: Literal["epipolar", "screen"] = Field(
+        "epipolar", description="epipolar lines (the method), or plain screen-space subsampling every fallback_stride "
+                                "pixels with the same ray marching and bilateral upsampling: the naive baseline of "
+                                "Engelhardt 2010 Fig. 9 (bench papers compares them at equal time)")
     max_epipole_distance: Annotated[Float, Field(gt=0.0, le=MAX_EPIPOLE_DISTANCE, description=(
         "epipoles farther than this many image diagonals count as at infinity"))] = 1000.0
 

@@ -39,6 +39,7 @@ class DeviceGeometry:
         self.triangles = wp.array(scene.triangles, dtype=wp.int32, device=self.device)
         self.tri_material = wp.array(scene.tri_material, dtype=wp.int32, device=self.device)
         self._indices = wp.array(scene.triangles.ravel(), dtype=wp.int32, device=self.device)
+        self._host = (scene.vertices, scene.triangles)  # for the BVH cache's key (raycast.cached_bvh)
         self._mesh = None
         casters = scene.casters()
         self._casters = None if casters is scene else casters  # None: every triangle casts
@@ -56,9 +57,12 @@ class DeviceGeometry:
 
     @property
     def mesh(self) -> wp.Mesh:
-        """The BVH (``wp.Mesh``) over the triangles; built once, on first access."""
+        """The BVH (``wp.Mesh``) over the triangles; built on first access, or reused from an earlier render of the
+        same geometry (:func:`warpscatter.raycast.cached_bvh`)."""
         if self._mesh is None:
-            self._mesh = wp.Mesh(points=self.vertices, indices=self._indices)
+            from ..raycast import cached_bvh
+
+            self._mesh = cached_bvh(*self._host, device=self.device)
         return self._mesh
 
     @property
@@ -74,9 +78,9 @@ class DeviceGeometry:
         if self._shadow_mesh is None:
             if self._casters.triangle_count == 0:
                 raise ValueError("scene: every mesh is receiver_only, so nothing casts a shadow")
-            from ..raycast import build_mesh
+            from ..raycast import cached_bvh
 
-            self._shadow_mesh = build_mesh(self._casters.vertices, self._casters.triangles, device=self.device)
+            self._shadow_mesh = cached_bvh(self._casters.vertices, self._casters.triangles, device=self.device)
         return self._shadow_mesh
 
 
