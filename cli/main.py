@@ -19,6 +19,7 @@ import logging
 import math
 import os
 import sys
+import threading
 import time
 import traceback
 from pathlib import Path
@@ -165,7 +166,8 @@ class ProgressDisplay:
 
     On a terminal: a tqdm bar per stage (percentage, elapsed time and ETA; ``prefix`` in front, e.g. ``[2/3]`` of
     several configs). Otherwise: a line when a stage starts and, for long stages, one every ``interval`` seconds
-    with the percentage and the ETA. Disabled: does nothing.
+    with the percentage and the ETA (a background thread writes it also for a stage that reports no progress, e.g.
+    a long compile: ``still running``). Disabled: does nothing.
     """
 
     def __init__(self, enabled: bool = True, stream=None, interval: float = PLAIN_PROGRESS_INTERVAL,
@@ -179,7 +181,11 @@ class ProgressDisplay:
         self.start = time.perf_counter()
         self.stage_start = self.start
         self.last_line = self.start
+        self.fraction = 0.0
         self.bar = None
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._heart: threading.Thread | None = None
 
     def __call__(self, stage: str, fraction: float) -> None:
         if not self.enabled:
@@ -191,7 +197,27 @@ class ProgressDisplay:
             self.enabled = False
 
     def _update(self, stage: str, fraction: float) -> None:
+        with self._lock:
+            self._draw(stage, fraction)
+        if not self.tty and self._heart is None and self.interval > 0:
+            self._heart = threading.Thread(target=self._heartbeat, name="warpscatter-progress", daemon=True)
+            self._heart.start()
+
+    def _heartbeat(self) -> None:
+        """Without a terminal: a line every ``interval`` seconds while a stage runs without reporting."""
+        while not self._stop.wait(min(self.interval, 1.0)):
+            with self._lock:
+                now = time.perf_counter()
+                if self.stage is not None and self.fraction < 1.0 and now - self.last_line >= self.interval:
+                    done = f" {100 * self.fraction:3.0f}%" if self.fraction > 0.0 else ""
+                    self.stream.write(f"[{now - self.start:7.2f}s] {self.prefix}{self.stage}{done} still running "
+                                      f"({now - self.stage_start:.0f} s)\n")
+                    self.stream.flush()
+                    self.last_line = now
+
+    def _draw(self, stage: str, fraction: float) -> None:
         now = time.perf_counter()
+        self.fraction = fraction
         if stage != self.stage:
             self._close_bar()
             self.stage, self.stage_start, self.last_line = stage, now, now
@@ -220,8 +246,11 @@ class ProgressDisplay:
             self.bar = None
 
     def close(self) -> None:
-        """Remove the bar (terminal only)."""
-        self._close_bar()
+        """Remove the bar (terminal only) and stop the background lines."""
+        self._stop.set()
+        with self._lock:
+            self._close_bar()
+            self.stage = None
 
 
 def _format_seconds(s: float) -> str:

@@ -338,6 +338,15 @@ def test_progress_plain_lines_and_disabled():
     show("scattering", 0.0)
     show("scattering", 0.25)
     assert slow.getvalue().splitlines()[1].split("] ")[1].startswith("scattering  25% (ETA ")
+    quiet_stage = io.StringIO()
+    show = ProgressDisplay(stream=quiet_stage, interval=0.05)  # a stage that reports nothing for a while
+    show("compile", 0.0)
+    import time
+
+    time.sleep(0.3)
+    show.close()
+    lines = quiet_stage.getvalue().splitlines()
+    assert lines[0].endswith("] compile") and any("compile still running" in line for line in lines[1:])
     quiet = io.StringIO()
     ProgressDisplay(enabled=False, stream=quiet)("scene", 0.5)
     assert quiet.getvalue() == ""
