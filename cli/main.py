@@ -208,12 +208,17 @@ class ProgressDisplay:
         while not self._stop.wait(min(self.interval, 1.0)):
             with self._lock:
                 now = time.perf_counter()
-                if self.stage is not None and self.fraction < 1.0 and now - self.last_line >= self.interval:
-                    done = f" {100 * self.fraction:3.0f}%" if self.fraction > 0.0 else ""
+                if not self.enabled or self.stage is None or now - self.last_line < self.interval:
+                    continue
+                done = f" {100 * self.fraction:3.0f}%" if 0.0 < self.fraction < 1.0 else ""
+                try:
                     self.stream.write(f"[{now - self.start:7.2f}s] {self.prefix}{self.stage}{done} still running "
                                       f"({now - self.stage_start:.0f} s)\n")
                     self.stream.flush()
-                    self.last_line = now
+                except Exception:  # a closed stream: the display ends, the work goes on
+                    self.enabled = False
+                    return
+                self.last_line = now
 
     def _draw(self, stage: str, fraction: float) -> None:
         now = time.perf_counter()
@@ -627,7 +632,8 @@ def _render_animation(config, frames, out_dir, progress, quiet, debug, force, pr
                                       preview=preview, progress=progress)
     except KeyboardInterrupt:
         _interrupted(progress)
-    progress.close()
+    finally:
+        progress.close()
     rendered = result.rendered
     if not quiet:
         fps = len(rendered) / result.seconds if rendered and result.seconds > 0 else 0.0

@@ -321,3 +321,14 @@ def test_static_geometry_keeps_its_bvh_across_frames(animated):
         *config.model_dump()["scene"]["meshes"][:1],
         {**config.model_dump()["scene"]["meshes"][1], "transform": {"translate": [0.5, 0, 3]}}]}})
     assert DeviceGeometry(build_scene(moved.at_frame(1))).mesh is not first.mesh  # other geometry: its own BVH
+
+
+def test_an_optional_integer_key_interpolates_to_integers(tmp_path):
+    # render.scattering.epipolar.lines defaults to null: the models, not the base value, say it is an integer
+    data = {**ANIMATED, "render": {"scattering": {"method": "epipolar", "visibility": "shadow_map", "steps": 8}},
+            "animation": {"frames": 10, "tracks": {"render.scattering.epipolar.lines": {1: 64, 10: 128}}}}
+    path = tmp_path / "lines.yaml"
+    path.write_text(yaml.safe_dump(data))
+    config = load_config(path)
+    lines = [config.at_frame(f).render.scattering.epipolar.lines for f in range(1, 11)]
+    assert lines[0] == 64 and lines[-1] == 128 and all(isinstance(n, int) for n in lines)

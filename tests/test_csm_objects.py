@@ -62,3 +62,13 @@ def test_objects_as_a_visibility_source_exclude_the_others():
         check_visibility_source("pcf", 0.0, 0.0, object(), None, [(object(), None)])
     with pytest.raises(ValueError, match="at least one"):
         check_visibility_source("pcf", 0.0, 0.0, None, None, [])
+
+
+def test_a_scene_unit_bias_follows_non_uniform_scale():
+    # a bias given in scene units is taken into each object's space along every query (|T^-1 d| / |d|)
+    cfg = load_config(OBJECTS, [*SMALL, "scene.meshes.1.transform.scale=[1, 2.5, 1]",
+                                "render.lighting.bias=0.05"]).at_frame(1)
+    csm = warpscatter.render(cfg)
+    ray = warpscatter.render(cfg, {"render.lighting.method": "raytrace"})
+    assert csm.stats["csm_bias"] == 0.05
+    assert errors(csm.images["surface"], ray.images["surface"])["rel_l1"] < 0.02  # measured 1.66 % (deterministic)

@@ -19,6 +19,7 @@ __version__ = "0.1.0"
 _LAZY = {
     "render": "warpscatter.api",
     "load_config": "warpscatter.api",
+    "clear_caches": "warpscatter.api",
     "Config": "warpscatter.config",
     "ConfigError": "warpscatter.errors",
     "RenderResult": "warpscatter.pipeline",
@@ -41,5 +42,5 @@ def __dir__():
     return sorted([*globals(), *_LAZY])
 
 
-__all__ = ["Config", "ConfigError", "RenderResult", "__version__", "load_config", "load_sweep", "make_executor",
-           "render", "render_animation", "run_sweep"]
+__all__ = ["Config", "ConfigError", "RenderResult", "__version__", "clear_caches", "load_config", "load_sweep",
+           "make_executor", "render", "render_animation", "run_sweep"]

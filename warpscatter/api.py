@@ -86,4 +86,16 @@ def render(config: ConfigSource, overrides: Overrides = (), *, out_dir: str | Pa
     return render_config(cfg, out_dir=out_dir, progress=progress, device=device, write=out_dir is not None)
 
 
-__all__ = ["ConfigSource", "Overrides", "load_config", "render"]
+def clear_caches() -> None:
+    """Drop what this process keeps between renders: loaded and generated meshes, BVHs of exact visibility and
+    built coherent shadow maps (they are rebuilt when needed; a long-lived process calls this to free memory)."""
+    from .csm.occluders import clear_csm_cache
+    from .raycast import clear_bvh_cache
+    from .scene.meshes import clear_mesh_cache
+
+    clear_mesh_cache()
+    clear_bvh_cache()
+    clear_csm_cache()
+
+
+__all__ = ["ConfigSource", "Overrides", "clear_caches", "load_config", "render"]

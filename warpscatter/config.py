@@ -757,7 +757,8 @@ class Config(SettingsModel):
         if self.animation is None:
             raise ValueError("at_frame: the config has no animation section")
         data = self.model_dump(exclude={"animation"})
-        integer = frozenset(k for k in self.animation.tracks if _is_int(_value_at(data, k)))
+        integer = frozenset(k for k in self.animation.tracks
+                            if _integer_field(k) or (_integer_field(k) is None and _is_int(_value_at(data, k))))
         apply_overrides(data, self.animation.values_at(frame, integer), self._source)
         data["output"]["name"] = frame_name(self.output_name, frame).replace("{", "{{").replace("}", "}}")
         return validated_config(data, self._config_dir, self._source)
@@ -836,6 +837,30 @@ def _value_at(data: Any, dotted_key: str) -> Any:
         else:
             return None
     return node
+
+
+def _integer_field(dotted_key: str) -> bool | None:
+    """Whether a dotted config key is an integer field (``camera.width``, ``render.scattering.epipolar.lines``;
+    optional ones too), from the settings models' annotations; None where the models cannot tell (a generator's
+    ``params``, a union of several types)."""
+    from .schema import unwrap
+
+    model: Any = Config
+    tp: Any = None
+    for part in dotted_key.split("."):
+        if part.isdigit() and tp is not None and typing.get_origin(unwrap(tp)) is list:
+            tp = typing.get_args(unwrap(tp))[0]
+            model = unwrap(tp)
+            continue
+        fields = getattr(model, "model_fields", None)
+        if not fields or part not in fields:
+            return None
+        tp = fields[part].annotation
+        model = unwrap(tp)
+    tp = unwrap(tp)
+    if tp is int:
+        return True
+    return False if isinstance(tp, type) or typing.get_origin(tp) is not None else None
 
 
 def _is_int(value: Any) -> bool:

@@ -13,6 +13,7 @@ x_ndc = 2 (i + 0.5) / width - 1, y_ndc = 1 - 2 (j + 0.5) / height.
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 
 import numpy as np
@@ -164,8 +165,9 @@ def build_mesh(vertices, triangles, device: str | None = None) -> wp.Mesh:
 
 #: BVHs built by :func:`cached_bvh`, by (geometry digest, device); the least recently used leave first.
 _BVHS: OrderedDict = OrderedDict()
-#: How many BVHs :func:`cached_bvh` keeps (each holds its points and indices on the device).
+#: How many BVHs :func:`cached_bvh` keeps (each holds its points, indices and tree on the device).
 BVH_CACHE_SIZE = 4
+_BVHS_LOCK = threading.RLock()
 
 
 def cached_bvh(vertices, triangles, device: str | None = None) -> wp.Mesh:
@@ -177,13 +179,20 @@ def cached_bvh(vertices, triangles, device: str | None = None) -> wp.Mesh:
 
     device = default_device(device)
     key = (geometry_digest(vertices, triangles), str(device))
-    mesh = _BVHS.pop(key, None)
-    if mesh is None:
-        mesh = build_mesh(vertices, triangles, device=device)
-    _BVHS[key] = mesh
-    while len(_BVHS) > BVH_CACHE_SIZE:
-        _BVHS.popitem(last=False)
+    with _BVHS_LOCK:  # one build per key, also when several threads render the same scene
+        mesh = _BVHS.pop(key, None)
+        if mesh is None:
+            mesh = build_mesh(vertices, triangles, device=device)
+        _BVHS[key] = mesh
+        while len(_BVHS) > BVH_CACHE_SIZE:
+            _BVHS.popitem(last=False)
     return mesh
+
+
+def clear_bvh_cache() -> None:
+    """Drop the BVHs :func:`cached_bvh` keeps (their device memory is freed when no render holds them)."""
+    with _BVHS_LOCK:
+        _BVHS.clear()
 
 
 def _check_mesh(mesh) -> wp.Mesh:

@@ -13,6 +13,7 @@ a given seed on any thread count).
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -152,7 +153,9 @@ def render_animation(config, out_dir: str | Path | None = None, *, frames: list[
     from .wpinit import default_device
 
     numbers = list(dict.fromkeys(frames or config.animation.frame_numbers))  # each frame once
-    device = default_device(device)
+    # the caller's device travels only when asked for (the argument or WARPSCATTER_DEVICE): a worker otherwise
+    # renders on its own default (a remote GPU worker of a CPU-only client, and the reverse)
+    device = default_device(device) if device is not None or os.environ.get("WARPSCATTER_DEVICE") else None
     tasks = [task_for(frame_config, frame_config.output_name, out, device=device)
              for frame_config in (config.at_frame(f) for f in numbers)]
     executor = executor or InlineExecutor()

@@ -27,6 +27,7 @@ import csv
 import itertools
 import json
 import math
+import os
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -209,7 +210,9 @@ def run_sweep(sweep: SweepSettings, out_dir: str | Path, *, executor: Executor |
     cases, references = sweep_cases(sweep)
     out = Path(out_dir)
     executor = executor or InlineExecutor()
-    device = default_device(device)
+    # the caller's device travels only when asked for (the argument or WARPSCATTER_DEVICE): a worker otherwise
+    # renders on its own default (a remote GPU worker of a CPU-only client, and the reverse)
+    device = default_device(device) if device is not None or os.environ.get("WARPSCATTER_DEVICE") else None
     want = ("color",) if references else ()
     ref_tasks = [task_for(cfg, label, None, ("color",), device=device) for label, cfg in references.items()]
     ref_results = {r.label: r for r in run_tasks(ref_tasks, executor, skip_finished=False, progress=progress,

@@ -73,6 +73,7 @@ class LightVisibility:
     objects: wp.array(dtype=CSMData)  # VIS_OBJECTS: each object's lat-long CSM (object space)
     to_object: wp.array(dtype=wp.mat44)  # VIS_OBJECTS: each object's world -> object matrix T^-1
     object_bias: wp.array(dtype=float)  # VIS_OBJECTS: each object's depth bias (its object-space units)
+    world_bias: float  # VIS_OBJECTS: a depth bias in scene units, taken to each object's space along the query
 
 
 @wp.func(inline=True)
@@ -83,7 +84,9 @@ def objects_visibility(vis: LightVisibility, o: wp.vec3, d: wp.vec3, xi: wp.vec4
     for k in range(vis.objects.shape[0]):
         po = wp.transform_point(vis.to_object[k], o)
         do = wp.transform_vector(vis.to_object[k], d)
-        v = v * csm_visibility_filtered(vis.objects[k], po, do, vis.object_bias[k], vis.filter_mode, xi)
+        # a scene-unit length along d is |T^-1 d| / |d| object units (exact for non-uniform scale too)
+        bias = vis.object_bias[k] + vis.world_bias * wp.length(do) / wp.max(wp.length(d), 1.0e-30)
+        v = v * csm_visibility_filtered(vis.objects[k], po, do, bias, vis.filter_mode, xi)
     return v
 
 
@@ -305,8 +308,9 @@ def light_visibility(csm: CoherentShadowMap | None, mesh: wp.Mesh | None, *, fil
                      ray_eps: float, device: str, objects=None, object_bias=None) -> LightVisibility:
     """:class:`LightVisibility` of a CSM (lat-long: ``VIS_CSM`` towards distant directions; cube: ``VIS_CSM`` of a
     local light), a ``wp.Mesh`` (``VIS_MESH``), rigid ``objects`` (``VIS_OBJECTS``: ``(csm, transform)`` pairs as
-    :func:`~.query.object_arrays` takes them, with ``object_bias`` per object, default ``bias`` for all) or none
-    (``VIS_NONE``). The caller switches a lat-long CSM of a local light to ``VIS_SEMI_LOCAL``."""
+    :func:`~.query.object_arrays` takes them, with ``object_bias`` per object in its object-space units; without
+    it ``bias`` is in scene units and taken into each object's space along every query) or none (``VIS_NONE``).
+    The caller switches a lat-long CSM of a local light to ``VIS_SEMI_LOCAL``."""
     v = LightVisibility()
     v.latlong, v.cube = placeholder_csms(device)
     v.mode, v.mesh = VIS_NONE, wp.uint64(0)
@@ -315,8 +319,10 @@ def light_visibility(csm: CoherentShadowMap | None, mesh: wp.Mesh | None, *, fil
         v.to_object = wp.array(np.eye(4, dtype=np.float32)[None], dtype=wp.mat44, device=device)
     else:
         v.objects, v.to_object = object_arrays(objects, device)
-    biases = [bias] * len(objects) if objects is not None and object_bias is None else (object_bias or [0.0])
+    per_object = object_bias is not None
+    biases = list(object_bias) if per_object else [0.0] * (len(objects) if objects is not None else 1)
     v.object_bias = wp.array(np.asarray(biases, np.float32), dtype=float, device=device)
+    v.world_bias = 0.0 if per_object else float(bias)
     if objects is not None:
         v.mode = VIS_OBJECTS
     elif csm is not None:
@@ -386,7 +392,7 @@ class DirectLighting:
         **options: the keyword arguments of :func:`shade_direct` except ``seed``; and ``objects``: rigid objects
             as the visibility source instead of ``csm`` / ``mesh`` (Sec. 4.6): ``(csm, transform)`` pairs of
             lat-long CSMs in object space and object -> world matrices, with ``object_bias`` (one depth bias per
-            object, in its object-space units; default ``bias``).
+            object, in its object-space units; default: ``bias`` in scene units, converted along each query).
 
     Raises:
         ValueError: as :func:`shade_direct`.
@@ -510,7 +516,8 @@ def shade_direct(
         objects: rigid objects (Sec. 4.6): ``(csm, transform)`` pairs of lat-long CSMs in object space and 4x4
             object -> world matrices; their visibilities multiply (distant lights, and area / linear lights
             semi-locally). At most one of csm / mesh / objects; none: no occlusion.
-        object_bias: one depth bias per object (its object-space units; default ``bias`` for each).
+        object_bias: one depth bias per object (its object-space units); default: ``bias`` in scene units, taken
+            into each object's space along every query.
         seed: random seed of this pass (use a different one per progressive pass: it changes every pattern).
         view_dirs: (K, 3) or (3,) unit-ish directions from the point towards the viewer (default: the normal).
         specular: (K, 3) or (3,) Phong reflectance k_s (default 0).

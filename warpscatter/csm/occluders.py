@@ -9,6 +9,7 @@ them with the same functions.
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 from dataclasses import replace
 
@@ -111,24 +112,38 @@ def prepare_csm(light, settings: CSMBuildSettings, vertices, triangles, *, progr
     points = None if latlong else np.asarray(light.sample_points(*settings.light_samples), np.float64)
     key = (geometry_digest(vertices, triangles), settings.model_dump_json(exclude={"file"}), str(device),
            None if points is None else points.tobytes())
-    csm = _BUILT.pop(key, None)
-    if csm is None:
-        csm = (build_csm(vertices, triangles, n1=settings.maps[0], n2=settings.maps[1], **common) if latlong else
-               build_cube_csm(vertices, triangles, points, **common))
-    elif progress is not None:
-        progress(1.0)
-    _BUILT[key] = csm  # most recently used last
-    while len(_BUILT) > 1 and sum(c.stats.compressed_bytes for c in _BUILT.values()) > BUILT_CACHE_BYTES:
-        _BUILT.popitem(last=False)
+    with _BUILT_LOCK:  # one build per key, also when several threads render the same scene
+        csm = _BUILT.pop(key, None)
+        if csm is None:
+            csm = (build_csm(vertices, triangles, n1=settings.maps[0], n2=settings.maps[1], **common) if latlong else
+                   build_cube_csm(vertices, triangles, points, **common))
+        elif progress is not None:
+            progress(1.0)
+        _BUILT[key] = csm  # most recently used last
+        while len(_BUILT) > 1 and sum(_held_bytes(c) for c in _BUILT.values()) > BUILT_CACHE_BYTES:
+            _BUILT.popitem(last=False)
     return csm
+
+
+def _held_bytes(csm: CoherentShadowMap) -> int:
+    """What a cached CSM holds: its compressed segment lists on the host and once per device it was put on."""
+    return csm.stats.compressed_bytes * (1 + len(getattr(csm, "_device_cache", {}) or {}))
+
+
+def clear_csm_cache() -> None:
+    """Drop the CSMs this process built and kept (:func:`prepare_csm`)."""
+    with _BUILT_LOCK:
+        _BUILT.clear()
 
 
 #: CSMs this process built, by (occluder geometry, settings, device, light sample points): a render of the same
 #: occluders (the frames of an animation whose occluders do not move or move rigidly with per-mesh CSMs, a sweep
 #: over other settings) reuses them.
 _BUILT: OrderedDict = OrderedDict()
-#: Compressed bytes of built CSMs the process keeps (the least recently used leave first; the last one stays).
+#: Bytes of built CSMs the process keeps, host and device copies (the least recently used leave first; the last one
+#: stays).
 BUILT_CACHE_BYTES = 512 * 2**20
+_BUILT_LOCK = threading.RLock()
 
 
 def texel_size(csm: CoherentShadowMap) -> float:

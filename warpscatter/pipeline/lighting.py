@@ -154,11 +154,12 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
     h, w = cam.height, cam.width
     g, dirs, hit, dist = surf.gbuffer, surf.directions, surf.hit, surf.distance
     object_bias = None
-    if rigid:  # per object: one texel of its own CSM (its object units), or the bias given (scene units) rescaled
+    if rigid:  # per object: one texel of its own CSM (object units); a bias given is in scene units, converted
+        # into each object's space along every query (non-uniform scale included)
         scales = [abs(float(np.linalg.det(np.asarray(t, np.float64)[:3, :3]))) ** (1.0 / 3.0) for _, t in rigid]
-        object_bias = [texel_size(c) if settings.bias is None else settings.bias / k
-                       for (c, _), k in zip(rigid, scales, strict=True)]
-        bias = min(b * k for b, k in zip(object_bias, scales, strict=True))
+        object_bias = [texel_size(c) for c, _ in rigid] if settings.bias is None else None
+        bias = min(texel_size(c) * k for (c, _), k in zip(rigid, scales, strict=True)) if settings.bias is None \
+            else settings.bias
         offset = 0.25 * min(texel_size(c) * k for (c, _), k in zip(rigid, scales, strict=True)) \
             if settings.normal_offset is None else settings.normal_offset
     elif csm is not None:
@@ -226,7 +227,7 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
     if rigid:
         stats.update(csm_kind="per_mesh", csm_objects=len(rigid), csm_maps=list(settings.csm.maps),
                      csm_resolution=settings.csm.resolution, csm_segments=sum(c.num_segments for c, _ in rigid),
-                     csm_bias=[round(float(b), 6) for b in object_bias])
+                     csm_bias=[round(float(b), 6) for b in object_bias] if object_bias else float(bias))
     if csm is not None:
         stats.update(csm_kind=csm.kind, csm_maps=[csm.n1, csm.n2], csm_resolution=csm.resolution,
                      csm_segments=csm.num_segments, csm_file=str(settings.csm.file) if settings.csm.file else None,
