@@ -225,7 +225,6 @@ def _backup_name(path: Path) -> Path:
     return path.with_name(f".{path.stem}.bak-{_host_tag()}-{os.getpid()}-{secrets.token_hex(3)}{path.suffix}")
 
 
-_temp_name = temp_name
 _TEMP_PATTERN = re.compile(r"^\.(?P<stem>.+)\.(?P<kind>tmp|bak)-(?P<host>[A-Za-z0-9]+)-(?P<pid>\d+)-[0-9a-f]{6}"
                            r"(?P<suffix>\.[A-Za-z0-9]+)$")
 
@@ -508,7 +507,7 @@ def _write_all(jobs: list[tuple[Path, Callable[[Path], None]]]) -> list[Path]:
     :func:`_roll_back` restores the previous files and removes the new ones and the temporaries, so either the
     complete new set or the complete previous set is there. On success the backups are deleted.
     """
-    temps = [_temp_name(final) for final, _ in jobs]
+    temps = [temp_name(final) for final, _ in jobs]
     backups = [_backup_name(final) for final, _ in jobs]
     commits: list[tuple[Path, Path, Path]] = []
     current = jobs[0][0]

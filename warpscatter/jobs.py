@@ -24,6 +24,7 @@ import json
 import os
 import time
 import traceback
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
@@ -156,19 +157,21 @@ def _worker_threads(workers: int) -> int:
     return max(1, cores // max(1, workers))
 
 
-class Executor:
-    """Runs tasks and yields their results as they complete (:meth:`run`). Use as a context manager."""
+class Executor(ABC):
+    """Runs tasks and yields their results as they complete (:meth:`run`). Use as a context manager. The concrete
+    executors are :class:`InlineExecutor`, :class:`LocalExecutor` and :class:`DaskExecutor`."""
 
     name = "executor"
 
     def __init__(self, workers: int = 1):
         self.workers = max(1, int(workers))
 
+    @abstractmethod
     def run(self, tasks: list[RenderTask]) -> Iterator[TaskResult]:
-        raise NotImplementedError
+        """Run ``tasks``; yield one :class:`TaskResult` per task as each completes (any order)."""
 
-    def close(self) -> None:
-        """Release the workers."""
+    def close(self) -> None:  # noqa: B027 (optional: an executor without workers has nothing to release)
+        """Release the workers (nothing by default)."""
 
     def __enter__(self) -> Executor:
         return self

@@ -49,6 +49,7 @@ from typing import Callable
 import numpy as np
 import warp as wp
 
+from ..imageio import json_ready
 from ..metrics import errors
 from ..provenance import cpu_model, machine, package_version, source_commit, timestamp
 from ..wpinit import default_device
@@ -350,7 +351,7 @@ class BenchReport:
         out_dir.mkdir(parents=True, exist_ok=True)
         stem = out_dir / f"bench-{self.suite}"
         json_path = _write_atomic(stem.with_suffix(".json"),
-                                  lambda f: json.dump(self.to_dict(), f, indent=2, default=_json_default))
+                                  lambda f: json.dump(json_ready(self.to_dict()), f, indent=2))
         csv_path = _write_atomic(stem.with_suffix(".csv"), self._write_csv, newline="")
         self.files = [json_path, csv_path]
         charts = [(self.chart or chart_bars)(self, stem.with_suffix(".png")),
@@ -373,14 +374,6 @@ def _write_atomic(path: Path, write: Callable, newline: str | None = None) -> Pa
             write(f)
 
     return write_file_atomic(path, text)
-
-
-def _json_default(v):
-    if isinstance(v, np.generic):
-        return v.item()
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    return str(v)
 
 
 # ---- charts ---------------------------------------------------------------------------------------------------
