@@ -719,7 +719,28 @@ class Config(SettingsModel):
         if self.light.type not in lights and self.light.type not in methods.MONTE_CARLO_LIGHTS:
             raise ValueError(f"render.scattering.method {method!r} needs a {' or '.join(lights)} light (light.type is "
                              f"{self.light.type!r})")
+        if self.light.type == "spot" and "prefiltered" in methods.SCATTERING[method].sections:
+            self._check_prefiltered_spot(method)
         return self
+
+    def _check_prefiltered_spot(self, method: str) -> None:
+        """What the prefiltered methods cannot do under a spot light (warpscatter.scattering.prefiltered_spot)."""
+        s = self.render.scattering
+        problems = []
+        if s.prefiltered.rectification == "projective":
+            problems.append("render.scattering.prefiltered.rectification: 'projective' needs a directional light; a "
+                            "spot light uses the non-linear rectification (auto or nonlinear)")
+        if s.prefiltered.splits > 1:
+            problems.append("render.scattering.prefiltered.splits: a spot light's look-ups need whole rows (1)")
+        if method != "fourier" and s.moments.overestimation == "adaptive":
+            problems.append("render.scattering.moments.overestimation: 'adaptive' weighs a directional light's "
+                            "direction (Peters 2017 Sec. 5.3.1); give a number for a spot light")
+        gap = math.dist(self.camera.position, self.light.position)
+        if gap <= 1e-6 * max(1.0, math.hypot(*self.camera.position)):
+            problems.append(f"light.position: the spot sits at the camera position, where render.scattering.method "
+                            f"{method!r} has no epipolar planes (move it, or use raymarch or epipolar)")
+        if problems:
+            raise ValueError("\n".join(problems))
 
     @model_validator(mode="after")
     def _tracks_fit(self, info: ValidationInfo) -> Config:

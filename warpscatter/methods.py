@@ -77,10 +77,11 @@ class Method:
         return getattr(importlib.import_module(module), name)
 
 
-_PREFILTERED_MODULES = ("warpscatter.scattering.rectify_nonlinear", "warpscatter.scattering.rectify_projective",
+_PREFILTERED_MODULES = ("warpscatter.scattering.rectify_nonlinear", "warpscatter.scattering.rectify_local",
+                        "warpscatter.scattering.rectify_projective",
                         "warpscatter.scattering.prefix_sums", "warpscatter.scattering.filtered_lookups",
                         "warpscatter.scattering.caster_culling", "warpscatter.scattering.epipole_fallback",
-                        "warpscatter.scattering.prefiltered")
+                        "warpscatter.scattering.prefiltered", "warpscatter.scattering.prefiltered_spot")
 _PREFILTERED_AOVS = ("rectified", "epipole_mask", "rectified_map")
 _LIGHTING_MODULES = ("warpscatter.csm.brdf", "warpscatter.csm.compress", "warpscatter.csm.depthmaps",
                      "warpscatter.csm.query", "warpscatter.csm.environment", "warpscatter.csm.local_lights")
@@ -92,14 +93,14 @@ SCATTERING: dict[str, Method] = {m.name: m for m in (
            modules=("warpscatter.scattering.raymarch",), entry="warpscatter.scattering.raymarch:render"),
     Method("fourier", "scattering", "Klehm et al. 2014, prefiltered single scattering",
            "rectified shadow map, Fourier basis, transmittance-weighted per-row prefix sums",
-           ("directional",), sections=("prefiltered", "fourier"), modules=_PREFILTERED_MODULES,
+           CLASSIC_LIGHTS, sections=("prefiltered", "fourier"), modules=_PREFILTERED_MODULES,
            entry="warpscatter.scattering.prefiltered:render", debug_aovs=_PREFILTERED_AOVS),
     Method("moments4", "scattering", "Peters et al. 2017 Sec. 5, prefiltered single scattering with moments",
-           "the prefiltered pipeline with 4 moments and Algorithm 1", ("directional",),
+           "the prefiltered pipeline with 4 moments and Algorithm 1", CLASSIC_LIGHTS,
            sections=("prefiltered", "moments"), modules=_PREFILTERED_MODULES,
            entry="warpscatter.scattering.prefiltered:render", debug_aovs=_PREFILTERED_AOVS),
     Method("moments6", "scattering", "Peters et al. 2017 Sec. 5, prefiltered single scattering with moments",
-           "the prefiltered pipeline with 6 moments and Algorithm 1", ("directional",),
+           "the prefiltered pipeline with 6 moments and Algorithm 1", CLASSIC_LIGHTS,
            sections=("prefiltered", "moments"), modules=_PREFILTERED_MODULES,
            entry="warpscatter.scattering.prefiltered:render", debug_aovs=_PREFILTERED_AOVS),
     Method("epipolar", "scattering", "Engelhardt & Dachsbacher 2010, epipolar sampling",

@@ -25,8 +25,9 @@ import warp as wp
 
 from ..parallel import launch_rows
 from ..scene.camera import CameraParams, pixel_ray_direction
+from ..scene.lights import LIGHT_SPOT
 from ..wpinit import module_options
-from .marching import Marcher, march_transmittance_strata, marcher_params, visibility_params
+from .marching import Marcher, march_along, march_transmittance_strata, marcher_params, visibility_params
 
 module_options()
 
@@ -55,7 +56,11 @@ def epipole_region_kernel(
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     c = wp.dot(d, axis)
     if c > cos_outer:
-        marched = march_transmittance_strata(marcher, cam.position, d, distance[j, i], j * cam.width + i)
+        marched = wp.vec3(0.0, 0.0, 0.0)
+        if marcher.light.kind == LIGHT_SPOT:  # a spot: the general marcher (the strata need parallel light rays)
+            marched = march_along(marcher, cam.position, d, distance[j, i], j * cam.width + i)
+        else:
+            marched = march_transmittance_strata(marcher, cam.position, d, distance[j, i], j * cam.width + i)
         w = float(1.0)
         if c < cos_inner:
             psi = wp.acos(wp.clamp(c, -1.0, 1.0))

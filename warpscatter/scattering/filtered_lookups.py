@@ -416,6 +416,14 @@ def fourier_segments_visibility(fb: FilteredBasisArrays, texels: Any, weights: R
     ``fb``'s storage: clamp(0.5 + a(z_r) . sum of the weighted filtered-basis vectors, 0, 1)."""
     j0, j1, cut, m, i0, i1, ax, w0, w1 = segment_lookup(weights, texels.shape[0], texels.shape[1], u, v, z_r,
                                                         wrap_rows)
+    return fourier_taps(fb, texels, j0, j1, cut, m, i0, i1, ax, w0, w1, z_r)
+
+
+@wp.func
+def fourier_taps(fb: FilteredBasisArrays, texels: Any, j0: int, j1: int, cut: segment_columns, m: int, i0: int,
+                 i1: int, ax: float, w0: segment_sums, w1: segment_sums, z_r: float) -> float:
+    """clamp(0.5 + a(z_r) . the taps' weighted filtered-basis vectors, 0, 1): the reconstruction of a segment look-up
+    (:func:`segment_lookup`'s outputs) on ``texels``, the array of ``fb``'s storage."""
     rot = wp.vec4(wp.cos(wp.pi * z_r), wp.sin(wp.pi * z_r), wp.cos(2.0 * wp.pi * z_r), wp.sin(2.0 * wp.pi * z_r))
     end0 = wp.vec2(w0[m] * (1.0 - ax), w1[m] * (1.0 - ax))
     end1 = wp.vec2(w0[m] * ax, w1[m] * ax)
@@ -475,6 +483,13 @@ def segment_moments(texels: Any, weights: RayWeights, num: int, u: float, v: flo
     """The ray's own-transmittance combination (:func:`segment_lookup`) of the stored moments of ``texels``."""
     j0, j1, cut, m, i0, i1, ax, w0, w1 = segment_lookup(weights, texels.shape[0], texels.shape[1], u, v, z_r,
                                                         wrap_rows)
+    return moment_taps(texels, num, j0, j1, cut, m, i0, i1, ax, w0, w1)
+
+
+@wp.func
+def moment_taps(texels: Any, num: int, j0: int, j1: int, cut: segment_columns, m: int, i0: int, i1: int, ax: float,
+                w0: segment_sums, w1: segment_sums) -> mm.vec6:
+    """The weighted sum of the stored moments of a segment look-up's taps (:func:`segment_lookup`'s outputs)."""
     t = mm.vec6()
     for k in range(m):
         t += w0[k] * moment_texel_values(texels, j0, cut[k], num) + w1[k] * moment_texel_values(texels, j1, cut[k], num)
@@ -508,7 +523,6 @@ def moments_visibility(filtered: FilteredMomentArrays, weights: RayWeights, u: f
     sharp lower (0) and upper (1) visibility bounds (Peters 2017 Sec. 5.3.1).
     """
     num = filtered.num_moments
-    storage = filtered.storage
     t = mm.vec6()
     if filtered.code_bits == 0:
         t = filtered_moments(filtered.values, weights, num, u, v, z_r, wrap_rows)
@@ -516,11 +530,44 @@ def moments_visibility(filtered: FilteredMomentArrays, weights: RayWeights, u: f
         t = filtered_moments(filtered.codes10, weights, num, u, v, z_r, wrap_rows)
     else:
         t = filtered_moments(filtered.codes16, weights, num, u, v, z_r, wrap_rows)
+    return stored_moments_visibility(filtered, t, z_r, beta)
+
+
+@wp.func
+def stored_moments_visibility(filtered: FilteredMomentArrays, t: mm.vec6, z_r: float, beta: float) -> float:
+    """Visibility at depth z_r from a weighted sum t of a moment map's stored moments: back to canonical moments,
+    biased for the storage mode, then Algorithm 1 (4 moments) or Sec. 5.4 (6 moments) at z_f = 2 z_r - 1 with the
+    overestimation weight ``beta`` (Peters 2017 Sec. 5.3.1)."""
     z_f = 2.0 * z_r - 1.0
-    if num == 4:
-        b = mm.load_biased_moments4(wp.vec4(t[0], t[1], t[2], t[3]), storage)
+    if filtered.num_moments == 4:
+        b = mm.load_biased_moments4(wp.vec4(t[0], t[1], t[2], t[3]), filtered.storage)
         return 1.0 - mm.msm4_interpolated_shadow_intensity(b, z_f, beta)
-    return mm.msm6_visibility(mm.load_biased_moments6(t, storage), z_f, beta)
+    return mm.msm6_visibility(mm.load_biased_moments6(t, filtered.storage), z_f, beta)
+
+
+@wp.func
+def taps_visibility(fb: FilteredBasisArrays, j0: int, j1: int, cut: segment_columns, m: int, i0: int, i1: int,
+                    ax: float, w0: segment_sums, w1: segment_sums, z_r: float, beta: float) -> float:
+    """Visibility of a segment look-up's taps (:func:`segment_lookup`'s outputs) from a Fourier texture in any
+    storage; ``beta`` unused."""
+    if fb.code_bits == 0:
+        return fourier_taps(fb, fb.basis, j0, j1, cut, m, i0, i1, ax, w0, w1, z_r)
+    return fourier_taps(fb, fb.codes, j0, j1, cut, m, i0, i1, ax, w0, w1, z_r)
+
+
+@wp.func
+def taps_visibility(filtered: FilteredMomentArrays, j0: int, j1: int, cut: segment_columns, m: int,  # noqa: F811
+                    i0: int, i1: int, ax: float, w0: segment_sums, w1: segment_sums, z_r: float, beta: float) -> float:
+    """Visibility of a segment look-up's taps from a moment map in any storage (overestimation weight ``beta``)."""
+    num = filtered.num_moments
+    t = mm.vec6()
+    if filtered.code_bits == 0:
+        t = moment_taps(filtered.values, num, j0, j1, cut, m, i0, i1, ax, w0, w1)
+    elif filtered.code_bits == CODE_BITS_UNORM10:
+        t = moment_taps(filtered.codes10, num, j0, j1, cut, m, i0, i1, ax, w0, w1)
+    else:
+        t = moment_taps(filtered.codes16, num, j0, j1, cut, m, i0, i1, ax, w0, w1)
+    return stored_moments_visibility(filtered, t, z_r, beta)
 
 
 # ---- kernels -------------------------------------------------------------------------------------------

@@ -40,7 +40,10 @@ Stages (names as they appear in timings):
    that radius (:mod:`.epipole_fallback`). An angle rather than a pixel count keeps the region the same at every
    resolution; the stats report the fraction of pixels marched (``epipole_raymarched_fraction``).
 
-Directional lights only (both rectifications are built for parallel light rays).
+Directional and spot lights: a spot light (Klehm 2014 Sec. 3.2, local lights) has its own non-linear map with
+angles at the light as columns and its cone and texture as texel weights (:mod:`.rectify_local`,
+:mod:`.prefiltered_spot`); the projective rectification, ``splits`` > 1 and adaptive overestimation need a
+directional light.
 
 Settings: :class:`~warpscatter.scattering.settings.ScatteringSettings` — ``render.scattering.prefiltered`` for
 what the three methods share, ``fourier`` and ``moments`` for the representation, ``prefiltered.epipole_steps`` /
@@ -57,7 +60,7 @@ import warp as wp
 
 from ..parallel import launch_rows
 from ..scene.camera import CameraParams, pixel_ray_direction
-from ..scene.lights import DirectionalLight, LightParams, light_params
+from ..scene.lights import DirectionalLight, LightParams, SpotLight, light_params
 from ..scene.medium import MediumParams, coloured_scattering, phase_eval, transmittance_integral
 from ..shadows import moments as mm
 from ..shadows import translucency
@@ -275,8 +278,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     the registry's call shape, :mod:`warpscatter.methods`).
 
     Args:
-        frame: :class:`~warpscatter.pipeline.frame.Frame` (directional light): the rasterized G-buffer and the
-            light's orthographic shadow map (resampled by the non-linear rectification and ray-marched in the
+        frame: :class:`~warpscatter.pipeline.frame.Frame` (directional or spot light): the rasterized G-buffer and
+            the light's shadow map (resampled by the non-linear rectification and ray-marched in the
             epipole regions).
         settings: :class:`~warpscatter.scattering.settings.ScatteringSettings`; ``method`` selects the basis,
             ``shadow_map.resolution`` is also the rectified map's size (columns: texels along each view ray, rows:
@@ -293,14 +296,18 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         was chosen), the filtered textures and the epipole regions.
 
     Raises:
-        ValueError: for a non-directional light.
+        ValueError: for a light that is neither directional nor spot.
     """
     stage = stage or StageTimer()
     device = default_device(frame.device)
     scene, gbuffer, shadow_map = frame.scene, frame.gbuffer, frame.shadow_map
     p = settings.prefiltered
+    if isinstance(scene.light, SpotLight):
+        from .prefiltered_spot import render_spot
+
+        return render_spot(frame, settings, stage)
     if not isinstance(scene.light, DirectionalLight):
-        raise ValueError(f"the {settings.method} method needs a directional light (render.scattering.method)")
+        raise ValueError(f"the {settings.method} method needs a directional or spot light (render.scattering.method)")
     cam = scene.camera
     cols, rows = settings.shadow_map.size
     with stage("rectify"):
@@ -326,7 +333,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     with stage("pixel_coords"):
         coords = pixel_coords(rect, cam, gbuffer.distance, device=device)
     culled = None
-    map_before_culling = _map_depth(rectified).copy() if "rectified_map" in frame.aovs else None
+    map_before_culling = map_depth(rectified).copy() if "rectified_map" in frame.aovs else None
     if settings.culls_casters:
         with stage("caster_culling"):
             culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device)
@@ -402,14 +409,14 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     if "epipole_mask" in frame.aovs:
         debug["epipole_mask"] = epipole_weights(cam, regions)
     if map_before_culling is not None:
-        depth = _map_depth(rectified)
+        depth = map_depth(rectified)
         debug["rectified_map"] = np.stack([depth, (depth != map_before_culling).astype(np.float32)], axis=-1)
     if debug:
         info["debug_images"] = debug
     return out, info
 
 
-def _map_depth(rectified) -> np.ndarray:
+def map_depth(rectified) -> np.ndarray:
     """(rows, cols) float32 rectified depth of a map (its first depth when it holds two)."""
     depth = rectified.z1 if isinstance(rectified, rectify_nonlinear.SparseRectifiedDepth) else rectified
     return depth.numpy()
@@ -422,6 +429,7 @@ __all__ = [
     "pixel_coords",
     "pixel_coords_kernel",
     "render",
+    "map_depth",
     "resample_filtered",
     "row_weights",
 ]

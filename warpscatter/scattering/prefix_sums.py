@@ -255,6 +255,7 @@ def prefilter_depth_kernel(
     rd: RectifiedTexels,
     optical_step: wp.array(dtype=wp.float32),  # (rows,) tau_j: optical thickness per unit column length (0 = average)
     column_length: wp.array(dtype=wp.float32),  # (cols,) relative column length l_i, or (1,): uniform columns
+    texel_weights: wp.array2d(dtype=wp.float32),  # (rows, cols) given weights (a spot light's), or (1, 1): Eq. 12's
     out: FilteredBasisArrays,  # normalised filtered basis per region (Klehm 2014 Sec. 3.3), weight sums if splits > 1
     offset: int,
 ):
@@ -281,6 +282,8 @@ def prefilter_depth_kernel(
     for i in range(c0, c0 + nc):
         z, z2, w2 = texel_depths(rd, j, i)
         w, transmittance = next_texel_weight(transmittance, uniform, w_first, step, column_length, i, tau)
+        if texel_weights.shape[0] > 1:
+            w = texel_weights[j, i]
         sum_w += w
         alpha = float(0.0)
         if sum_w > 0.0:
@@ -343,6 +346,7 @@ def prefilter_moments_kernel(
     rd: RectifiedTexels,
     optical_step: wp.array(dtype=wp.float32),  # (rows,) tau_j per unit column length (0 = average)
     column_length: wp.array(dtype=wp.float32),  # (cols,) relative column lengths, or (1,): uniform columns
+    texel_weights: wp.array2d(dtype=wp.float32),  # (rows, cols) given weights, or (1, 1): Eq. 12's
     out: FilteredMomentArrays,  # (rows, cols) normalised filtered stored moments in the map's storage mode
     offset: int,
 ):
@@ -358,6 +362,8 @@ def prefilter_moments_kernel(
     sum_w = float(0.0)
     for i in range(cols):
         w, transmittance = next_texel_weight(transmittance, uniform, w_first, step, column_length, i, tau)
+        if texel_weights.shape[0] > 1:
+            w = texel_weights[j, i]
         sum_w += w
         if sum_w > 0.0:
             z1, z2, w2 = texel_depths(rd, j, i)
@@ -512,7 +518,19 @@ def _kernel_lengths(lengths: np.ndarray, device) -> wp.array:
     return wp.array((lengths[:1] if uniform else lengths).astype(np.float32), dtype=wp.float32, device=device)
 
 
+def _texel_weights(weights, rows: int, cols: int, device) -> wp.array:
+    """The kernels' given per-texel weights: a (rows, cols) float32 array, or a (1, 1) placeholder for None."""
+    if weights is None:
+        return wp.zeros((1, 1), dtype=wp.float32, device=device)
+    a = weights if isinstance(weights, wp.array) else wp.array(np.ascontiguousarray(weights, np.float32),
+                                                               dtype=wp.float32, device=device)
+    if tuple(a.shape) != (rows, cols):
+        raise ValueError(f"texel_weights must have the map's shape {(rows, cols)}, got {tuple(a.shape)}")
+    return a
+
+
 def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None, column_length=None, *,
+                       texel_weights=None,
                        splits: int = 1, bits: int = 0, device=None) -> FilteredBasis:
     """Fused basis transform and prefix filter with per-texel weights and split regions (Klehm 2014 Listing 3,
     Eq. 11-12, Sec. 3.3).
@@ -530,6 +548,8 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
             else tau_j per row (scalar or (rows,)), the optical thickness per unit of ``column_length``.
         column_length: None (uniform) or (cols,) relative world lengths l_i > 0 of the columns along the
             reference rays (e.g. Eq. 12's Delta d^i, or the exact lengths of a projective rectification).
+        texel_weights: None, or (rows, cols) weights >= 0 to use instead of Eq. 12's (a spot light's reference
+            rays, :func:`~.rectify_local.spot_texel_weights`).
         splits: regions per row filtered independently (1..MAX_SPLITS); > 1 also stores the weight sums.
         bits: 0 for float32 storage (4 M bytes per texel), 8 for the paper's RGBA8 storage (M bytes per texel:
             uint8 codes, Klehm 2014 App. A).
@@ -562,19 +582,20 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
                         region_weights=wp.array(region, dtype=wp.float32, device=device), splits=splits)
     groups = -(-(m // 2) // PAIRS_PER_THREAD)
     launch_rows(prefilter_depth_kernel, (rows, splits * groups),
-                [rd, tau, _kernel_lengths(lengths, device), out.arrays()], device=device)
+                [rd, tau, _kernel_lengths(lengths, device), _texel_weights(texel_weights, rows, cols, device),
+                 out.arrays()], device=device)
     return out
 
 
 def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, column_length=None, *,
-                      storage_bits: int | None = None, device=None) -> FilteredMoments:
+                      storage_bits: int | None = None, texel_weights=None, device=None) -> FilteredMoments:
     """Transmittance-weighted prefix sums of moments of the rectified depth (Peters 2017 Sec. 5.1.1, 5.3-5.4, D.5).
 
     Args:
         rectified_depth: (rows, cols) float32 depth in [0, 1], or a :class:`~.rectify_nonlinear.SparseRectifiedDepth`
             (two depths per texel: their weighted moment vectors are combined, Sec. 5.2).
         num_moments: 4 or 6.
-        optical_step, column_length: per-row optical steps and per-column lengths as in :func:`prefilter_weighted`.
+        optical_step, column_length, texel_weights: the texel weights as in :func:`prefilter_weighted`.
         storage_bits: bits per texel, 64 or 128 (4 moments) / 64 (60 used), 96 or 192 (6 moments); None: the
             smallest (64) mode. The fixed-point modes store the codes of Theta*(b): 16-bit codes in a uint16 array
             (64 / 96 bits per texel) or six 10-bit codes packed in one uint64 per texel (64 bits).
@@ -596,7 +617,8 @@ def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, colu
     tau = _optical_steps(optical_step, rows, device)
     lengths = _column_lengths(column_length, cols)
     out = moment_texture(rows, cols, num_moments, storage, device)
-    launch_rows(prefilter_moments_kernel, rows, [rd, tau, _kernel_lengths(lengths, device), out.arrays()],
+    launch_rows(prefilter_moments_kernel, rows, [rd, tau, _kernel_lengths(lengths, device),
+                                                 _texel_weights(texel_weights, rows, cols, device), out.arrays()],
                 device=device)
     return out
 

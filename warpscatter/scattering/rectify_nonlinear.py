@@ -76,6 +76,8 @@ class NonlinearRectParams:
     rows: int  # epipolar slices
     cols: int  # texels along a view ray
     full_circle: int  # 1 when phi covers the full circle (rows wrap around)
+    light_distance: float  # local light: camera-light distance D (world units); 0 for a directional light
+    psi_lo: float  # local light: the angle at the light of u = 0 (radians); r_max is then the angle span of u in [0, 1]
 
 
 # ---- kernel-side coordinate transforms ------------------------------------------------------------
@@ -90,7 +92,10 @@ def world_to_rectified(rect: NonlinearRectParams, x: wp.vec3) -> wp.vec3:
     d = fast_atan2(q[1], q[0]) - rect.phi_mid
     d = d - 2.0 * wp.pi * wp.floor((d + wp.pi) / (2.0 * wp.pi))  # wrap into [-pi, pi)
     theta = fast_atan2(r, q[2])
-    return wp.vec3(r / rect.r_max, 0.5 + d / rect.phi_span, (rect.theta_hi - theta) / rect.theta_len)
+    u = r / rect.r_max
+    if rect.light_distance > 0.0:  # local light: the angle at the light from the baseline (rectify_local)
+        u = (fast_atan2(r, q[2] + rect.light_distance) - rect.psi_lo) / rect.r_max
+    return wp.vec3(u, 0.5 + d / rect.phi_span, (rect.theta_hi - theta) / rect.theta_len)
 
 
 @wp.func
@@ -552,6 +557,13 @@ class NonlinearRectification:
     rows: int
     cols: int
     view_radius: float = 0.0
+    light_distance: float = 0.0
+    psi_lo: float = 0.0
+
+    @property
+    def local(self) -> bool:
+        """True for a local (spot) light's rectification (:mod:`.rectify_local`): columns are angles at the light."""
+        return self.light_distance > 0.0
 
     @property
     def column_scale(self) -> float:
@@ -660,6 +672,8 @@ class NonlinearRectification:
         p.rows = int(self.rows)
         p.cols = int(self.cols)
         p.full_circle = 1 if self.full_circle else 0
+        p.light_distance = float(self.light_distance)
+        p.psi_lo = float(self.psi_lo)
         return p
 
     # ---- host coordinate transforms (float64) --------------------------------------------------------
@@ -671,6 +685,8 @@ class NonlinearRectification:
         q = (p - self.position) @ self.to_light.T
         d = np.mod(np.arctan2(q[..., 1], q[..., 0]) - self.phi_mid + math.pi, TWO_PI) - math.pi
         u = np.hypot(q[..., 0], q[..., 1]) / self.r_max
+        if self.local:
+            u = (np.arctan2(np.hypot(q[..., 0], q[..., 1]), q[..., 2] + self.light_distance) - self.psi_lo) / self.r_max
         depth = (self.theta_hi - _inclination(q)) / self.theta_len
         return np.stack([u, 0.5 + d / self.phi_span, depth], axis=-1)
 
@@ -679,9 +695,14 @@ class NonlinearRectification:
         c = np.asarray(coords, dtype=np.float64)
         if c.shape[-1] != 3:
             raise ValueError(f"coords must have shape (..., 3), got {c.shape}")
-        r = c[..., 0] * self.r_max
         phi = self.phi_mid + (c[..., 1] - 0.5) * self.phi_span
         theta = self.theta_hi - c[..., 2] * self.theta_len
+        if self.local:  # the view ray theta meets the light ray psi at t = D sin(psi) / sin(theta - psi)
+            psi = self.psi_lo + c[..., 0] * self.r_max
+            t = self.light_distance * np.sin(psi) / np.maximum(np.sin(theta - psi), 1e-300)
+            r = t * np.sin(theta)
+        else:
+            r = c[..., 0] * self.r_max
         z = r * np.cos(theta) / np.maximum(np.sin(theta), 1e-300)
         q = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
         return self.position + q @ self.to_light

@@ -1,0 +1,405 @@
+"""Prefiltered single scattering under a spot light: the ``fourier``, ``moments4`` and ``moments6`` methods for a local
+light (Klehm 2014 Sec. 3.2, "Local Lights" and "Angular-dependency for Sources").
+
+The map is :mod:`.rectify_local`'s: rows are epipolar planes through the light and the camera, columns the angle psi
+at the light, depth the view ray's inclination theta, and every texel carries the spot's emission filter tau (cone
+and texture). A view ray of inclination theta meets the light ray psi at t = D sin(psi) / sin(theta - psi), at distance
+D sin(theta) / sin(theta - psi) from the light, so its in-scattered radiance is
+
+    L = sigma_s I_peak / (D sin(theta)) integral over psi of f(-cos(theta - psi)) exp(-sigma_t t(psi)) tau V dpsi
+
+(CONVENTIONS: cos = dot(light travel, -view)): the 1 / d^2 fall-off and dt / dpsi cancel, so the weight per column is
+smooth and bounded. It has no closed form:
+
+* each ray integrates its own weight with LOCAL_PANELS 4-point Gauss-Legendre panels (:func:`ray_weight_table`):
+  the unshadowed integral E and the cuts of its ``segments`` look-up segments at equal shares of it;
+* each row's texels are weighted in the prefix sums by the density of the row's reference ray times tau
+  (:func:`~.rectify_local.spot_texel_weights`: the ray of the slice, and its neighbours, with the largest
+  inclination, which decays slowest; its phase function), and ``ref_sums`` / ``filter_sums`` keep the prefix sums
+  of those weights without and with tau;
+* a segment's visibility mean is then the tau-weighted one of the stored prefix means, its weight the ray's own
+  share times the segment's mean tau, r_k Delta D_tau,k with r_k = Delta E_k / Delta D_k (the ray's weight per
+  reference weight, as :mod:`.ray_weights` derives for directional lights); summation by parts gives taps
+  D_tau,k (r_k - r_k+1) / E_tau on the stored prefix means, and the filter factor E_tau / E multiplies the result.
+
+The radiance is sigma_s I_peak / (D sin(theta)) E (E_tau / E) V. A coloured texture has a map (and filter sums) per
+channel; a coloured medium integrates each channel with its own extinction.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from ..parallel import launch_rows
+from ..scene.camera import CameraParams
+from ..scene.lights import LightParams, light_params
+from ..scene.medium import MediumParams, phase_eval
+from ..stages import StageTimer
+from ..wpinit import default_device, module_options
+from .caster_culling import cull_unseen_casters
+from .epipole_fallback import epipole_pixel_fraction, epipole_regions, epipole_weights, march_epipole_regions
+from .filtered_lookups import DepthBounds, bounded_visibility, taps_visibility, texel_footprint
+from .filtered_textures import FilteredBasisArrays, FilteredMomentArrays
+from .prefix_sums import depth_bounds, prefilter_moments, prefilter_weighted
+from .ray_weights import segment_columns, segment_sums
+from .rectify_local import (
+    coloured_emission,
+    emission_peaks,
+    resample_spot_shadow_map,
+    spot_rectification,
+    spot_texel_weights,
+)
+
+module_options()
+
+#: Gauss-Legendre panels of a view ray's own weight table, uniform in psi.
+LOCAL_PANELS = 8
+local_table = wp.types.vector(length=LOCAL_PANELS + 1, dtype=wp.float32)
+#: 4-point Gauss-Legendre nodes and weights on [-1, 1].
+GL_X0, GL_X1 = wp.constant(0.3399810435848563), wp.constant(0.8611363115940526)
+GL_W0, GL_W1 = wp.constant(0.6521451548625461), wp.constant(0.3478548451374538)
+
+
+@wp.struct
+class SpotRays:
+    """How a spot light's look-ups weight a view ray (module doc)."""
+
+    segments: int  # look-up segments per ray
+    end_offset: float  # texels the look-up ends before the ray's end point
+    theta_hi: float  # rectified depth 0 (radians)
+    theta_len: float  # rectified depth range (radians)
+    light_distance: float  # D, camera to light (world units)
+    psi_lo: float  # angle at the light of column coordinate u = 0 (radians)
+    psi_span: float  # angle span of u in [0, 1] (radians)
+    ref_sums: wp.array2d(dtype=wp.float32)  # (rows, cols) the rows' reference weights summed through each column
+    filter_sums: wp.array3d(dtype=wp.float32)  # (maps, rows, cols) the same times each map's filter tau
+
+
+@wp.func
+def ray_density(rays: SpotRays, sigma_t: float, phase_id: int, g: float, theta: float, psi: float) -> float:
+    """The ray theta's in-scattering per radian of psi, in units of sigma_s I / (D sin(theta)) (module doc)."""
+    t = rays.light_distance * wp.sin(psi) / wp.max(wp.sin(theta - psi), 1.0e-12)
+    return phase_eval(phase_id, g, -wp.cos(theta - psi)) * wp.exp(-sigma_t * t)
+
+
+@wp.func
+def ray_weight_table(rays: SpotRays, sigma_t: float, phase_id: int, g: float, theta: float, psi_a: float,
+                     psi_b: float) -> local_table:
+    """The ray theta's own weight from psi_a through the ends of LOCAL_PANELS equal panels up to psi_b (entry 0 is 0,
+    the last the whole integral), 4-point Gauss-Legendre per panel."""
+    h = (psi_b - psi_a) / float(LOCAL_PANELS)
+    table = local_table()
+    for p in range(LOCAL_PANELS):
+        m = psi_a + (float(p) + 0.5) * h
+        r = 0.5 * h
+        table[p + 1] = table[p] + r * (
+            GL_W0 * (ray_density(rays, sigma_t, phase_id, g, theta, m - GL_X0 * r)
+                     + ray_density(rays, sigma_t, phase_id, g, theta, m + GL_X0 * r))
+            + GL_W1 * (ray_density(rays, sigma_t, phase_id, g, theta, m - GL_X1 * r)
+                       + ray_density(rays, sigma_t, phase_id, g, theta, m + GL_X1 * r)))
+    return table
+
+
+@wp.func
+def table_at(table: local_table, q: float) -> float:
+    """The weight table at continuous panel position q in [0, LOCAL_PANELS] (linear inside a panel)."""
+    p = wp.clamp(int(wp.floor(q)), 0, LOCAL_PANELS - 1)
+    return table[p] + wp.clamp(q - float(p), 0.0, 1.0) * (table[p + 1] - table[p])
+
+
+@wp.func
+def table_share(table: local_table, share: float) -> float:
+    """The continuous panel position where the weight table reaches ``share`` of its total."""
+    target = share * table[LOCAL_PANELS]
+    p = int(0)
+    while p < LOCAL_PANELS - 1 and table[p + 1] < target:
+        p += 1
+    return float(p) + wp.clamp((target - table[p]) / wp.max(table[p + 1] - table[p], 1.0e-30), 0.0, 1.0)
+
+
+@wp.func
+def ray_cuts(rays: SpotRays, table: local_table, h: float, cols: int, i0: int):
+    """The look-up's interior cuts at equal shares of the ray's own weight, snapped to whole columns before the end
+    column i0: (cut columns, the ray's weight through each, m); entry m of the sums is the whole ray's."""
+    dpsi = rays.psi_span / float(cols)
+    cut = segment_columns()
+    esum = segment_sums()
+    m = int(0)
+    last = int(-1)
+    for k in range(1, rays.segments):
+        q = table_share(table, float(k) / float(rays.segments))
+        c = int(wp.floor(q * h / dpsi)) - 1
+        if c > last and c < i0:
+            cut[m] = c
+            esum[m] = table_at(table, float(c + 1) * dpsi / h)
+            last = c
+            m += 1
+    esum[m] = table[LOCAL_PANELS]
+    return cut, esum, m
+
+
+@wp.func
+def prefix_at(sums: wp.array2d(dtype=wp.float32), j: int, x: float) -> float:
+    """Row j of per-column prefix sums at continuous prefix column x (linear between whole columns)."""
+    last = sums.shape[1] - 1
+    i = wp.clamp(int(wp.floor(x)), 0, last)
+    a = wp.clamp(x - float(i), 0.0, 1.0)
+    return sums[j, i] + a * (sums[j, wp.min(i + 1, last)] - sums[j, i])
+
+
+@wp.func
+def filter_prefix_at(sums: wp.array3d(dtype=wp.float32), k: int, j: int, x: float) -> float:
+    """:func:`prefix_at` of map k's filter sums."""
+    last = sums.shape[2] - 1
+    i = wp.clamp(int(wp.floor(x)), 0, last)
+    a = wp.clamp(x - float(i), 0.0, 1.0)
+    return sums[k, j, i] + a * (sums[k, j, wp.min(i + 1, last)] - sums[k, j, i])
+
+
+@wp.func
+def spot_row_weights(rays: SpotRays, k: int, j: int, x: float, cut: segment_columns, esum: segment_sums, m: int):
+    """Row j's tap weights of map k for the cuts (and the end at continuous prefix column x), and the row's filter
+    factor E_tau / E (module doc). A row the ray sees no light in gets factor 0 (its weights then read the end)."""
+    w = segment_sums()
+    d_prev = float(0.0)
+    f_prev = float(0.0)
+    e_prev = float(0.0)
+    r_prev = float(0.0)
+    e_tau = float(0.0)
+    for s in range(m + 1):
+        d = float(0.0)
+        f = float(0.0)
+        if s < m:
+            d = prefix_at(rays.ref_sums, j, float(cut[s]))
+            f = filter_prefix_at(rays.filter_sums, k, j, float(cut[s]))
+        else:
+            d = prefix_at(rays.ref_sums, j, x)
+            f = filter_prefix_at(rays.filter_sums, k, j, x)
+        r = (esum[s] - e_prev) / wp.max(d - d_prev, 1.0e-30)
+        e_tau += r * (f - f_prev)
+        if s > 0:
+            w[s - 1] = f_prev * (r_prev - r)
+        r_prev = r
+        d_prev = d
+        f_prev = f
+        e_prev = esum[s]
+    w[m] = f_prev * r_prev
+    if e_tau <= 1.0e-30:
+        w = segment_sums()
+        w[m] = 1.0
+        return w, 0.0
+    return w / e_tau, e_tau / wp.max(esum[m], 1.0e-30)
+
+
+@wp.func
+def spot_visibility(texels: Any, rays: SpotRays, k: int, bounds: DepthBounds, c: wp.vec3, wrap: int, beta: float,
+                    table: local_table, h: float):
+    """(visible share, filter factor) of the view ray ending at rectified c on map k (module doc)."""
+    rows = rays.ref_sums.shape[0]
+    cols = rays.ref_sums.shape[1]
+    u = c[0] - rays.end_offset / float(cols)
+    j0, j1, ay, i0, i1, ax = texel_footprint(rows, cols, u, c[1], wrap)
+    x = float(i0) + ax
+    cut, esum, m = ray_cuts(rays, table, h, cols, i0)
+    w0, f0 = spot_row_weights(rays, k, j0, x, cut, esum, m)
+    w1, f1 = spot_row_weights(rays, k, j1, x, cut, esum, m)
+    tex = (1.0 - ay) * f0 + ay * f1
+    if tex <= 0.0:
+        return float(0.0), float(0.0)
+    v = bounded_visibility(bounds, u, c[1], c[2], wrap)
+    if v < 0.0:
+        v = taps_visibility(texels, j0, j1, cut, m, i0, i1, ax, w0 * ((1.0 - ay) * f0 / tex), w1 * (ay * f1 / tex),
+                            c[2], beta)
+    return v, tex
+
+
+@wp.kernel
+def evaluate_spot_kernel(
+    cam: CameraParams,
+    coords: wp.array2d(dtype=wp.vec3),  # the rectified (u, v, z_r) of every pixel's view-ray end
+    texels_r: Any,  # FilteredBasisArrays or FilteredMomentArrays of map 0
+    texels_g: Any,  # map 1 (a coloured texture) or map 0 again
+    texels_b: Any,
+    maps: int,  # 1 or 3
+    rays: SpotRays,
+    bounds: DepthBounds,
+    wrap: int,
+    beta: float,
+    light: LightParams,  # radiance: the emission peak per channel
+    med: MediumParams,
+    out: wp.array2d(dtype=wp.vec3),
+    offset: int,
+):
+    j, i = wp.tid()
+    j += offset
+    c = coords[j, i]
+    theta = rays.theta_hi - c[2] * rays.theta_len
+    u_end = wp.min(c[0], 1.0)  # past the map's last column the spot's cone has ended
+    psi_end = wp.min(rays.psi_lo + u_end * rays.psi_span, theta - 1.0e-6)
+    result = wp.vec3(0.0, 0.0, 0.0)
+    if psi_end > rays.psi_lo:
+        cl = wp.vec3(u_end, c[1], c[2])
+        h = (psi_end - rays.psi_lo) / float(LOCAL_PANELS)
+        scale = 1.0 / (rays.light_distance * wp.max(wp.sin(theta), 1.0e-6))
+        if med.coloured == 0:
+            table = ray_weight_table(rays, med.sigma_t, med.phase_id, med.g, theta, rays.psi_lo, psi_end)
+            v, tex = spot_visibility(texels_r, rays, 0, bounds, cl, wrap, beta, table, h)
+            e = wp.vec3(v * tex, v * tex, v * tex)
+            if maps == 3:
+                vg, fg = spot_visibility(texels_g, rays, 1, bounds, cl, wrap, beta, table, h)
+                vb, fb = spot_visibility(texels_b, rays, 2, bounds, cl, wrap, beta, table, h)
+                e = wp.vec3(v * tex, vg * fg, vb * fb)
+            result = light.radiance * (med.sigma_s * table[LOCAL_PANELS] * scale)
+            result = wp.cw_mul(result, e)
+        else:  # each channel its own extinction: its own weight table
+            table_r = ray_weight_table(rays, med.sigma_t_rgb[0], med.phase_id, med.g, theta, rays.psi_lo, psi_end)
+            table_g = ray_weight_table(rays, med.sigma_t_rgb[1], med.phase_id, med.g, theta, rays.psi_lo, psi_end)
+            table_b = ray_weight_table(rays, med.sigma_t_rgb[2], med.phase_id, med.g, theta, rays.psi_lo, psi_end)
+            kg = int(0)
+            kb = int(0)
+            if maps == 3:
+                kg = 1
+                kb = 2
+            vr, fr = spot_visibility(texels_r, rays, 0, bounds, cl, wrap, beta, table_r, h)
+            vg, fg = spot_visibility(texels_g, rays, kg, bounds, cl, wrap, beta, table_g, h)
+            vb, fb = spot_visibility(texels_b, rays, kb, bounds, cl, wrap, beta, table_b, h)
+            e = wp.vec3(table_r[LOCAL_PANELS] * vr * fr, table_g[LOCAL_PANELS] * vg * fg,
+                        table_b[LOCAL_PANELS] * vb * fb)
+            result = wp.cw_mul(light.radiance, wp.cw_mul(med.sigma_s_rgb, e)) * scale
+    out[j, i] = result
+
+
+wp.overload(evaluate_spot_kernel, {"texels_r": FilteredBasisArrays, "texels_g": FilteredBasisArrays,
+                                   "texels_b": FilteredBasisArrays})
+wp.overload(evaluate_spot_kernel, {"texels_r": FilteredMomentArrays, "texels_g": FilteredMomentArrays,
+                                   "texels_b": FilteredMomentArrays})
+
+
+def spot_rays(rect, settings, end_offset: float, ref_sums: np.ndarray, filter_sums: np.ndarray, device) -> SpotRays:
+    """Kernel-side :class:`SpotRays`."""
+    r = SpotRays()
+    r.segments = int(settings.segments if settings.segments is not None else SPOT_SEGMENTS)
+    r.end_offset = float(end_offset)
+    r.theta_hi, r.theta_len = float(rect.theta_hi), float(rect.theta_len)
+    r.light_distance, r.psi_lo, r.psi_span = float(rect.light_distance), float(rect.psi_lo), float(rect.r_max)
+    r.ref_sums = wp.array(np.ascontiguousarray(ref_sums, np.float32), dtype=wp.float32, device=device)
+    r.filter_sums = wp.array(np.ascontiguousarray(filter_sums, np.float32), dtype=wp.float32, device=device)
+    return r
+
+
+#: Look-up segments per spot-lit ray when ``prefiltered.segments`` is null.
+SPOT_SEGMENTS = 4
+
+
+def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
+    """The spot-light branch of :func:`.prefiltered.render` (its arguments, results and debug outputs). Stages
+    ``rectify``, ``pixel_coords``, ``caster_culling``, ``prefilter``, ``evaluate``, ``epipole``.
+
+    Raises:
+        ValueError: for ``rectification: projective``, ``splits`` > 1 or ``overestimation: adaptive``, which need
+            a directional light.
+    """
+    from .prefiltered import map_depth, pixel_coords
+
+    device = default_device(frame.device)
+    scene, gbuffer, shadow_map = frame.scene, frame.gbuffer, frame.shadow_map
+    p = settings.prefiltered
+    if p.rectification == "projective":
+        raise ValueError("render.scattering.prefiltered.rectification: 'projective' needs a directional light; a spot "
+                         "light uses the non-linear rectification (auto or nonlinear)")
+    if p.splits > 1:
+        raise ValueError("render.scattering.prefiltered.splits: a spot light's look-ups need whole rows (splits 1)")
+    cam, light = scene.camera, scene.light
+    cols, rows = settings.shadow_map.size
+    lparams = light_params(light, device)
+    with stage("rectify"):
+        rect = spot_rectification(cam, light, rows=rows, cols=cols, guard_band=p.guard_band)
+        rectified, emission = resample_spot_shadow_map(rect, shadow_map, light, lparams, device=device)
+    lparams.radiance = wp.vec3(*emission_peaks(light).astype(np.float32))  # the filter is relative to the peak
+    with stage("pixel_coords"):
+        coords = pixel_coords(rect, cam, gbuffer.distance, device=device)
+    map_before_culling = map_depth(rectified).copy() if "rectified_map" in frame.aovs else None
+    culled = None
+    if settings.culls_casters:
+        with stage("caster_culling"):
+            culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device)
+    maps = 3 if coloured_emission(light) else 1
+    with stage("prefilter"):
+        sigma_ref = float(min(scene.medium.sigma_t_rgb))  # the slowest decay of every channel
+        weights, ref_sums = spot_texel_weights(rect, sigma_ref, scene.medium)
+        filtered = emission[..., :maps].transpose(2, 0, 1) * weights[None]  # (maps, rows, cols)
+        textures = []
+        for k in range(maps):
+            if settings.method == "fourier":
+                textures.append(prefilter_weighted(rectified, settings.fourier.coefficients,
+                                                   bits=settings.fourier.storage_bits, texel_weights=filtered[k],
+                                                   device=device))
+            else:
+                textures.append(prefilter_moments(rectified, settings.num_moments,
+                                                  storage_bits=settings.moment_storage_bits,
+                                                  texel_weights=filtered[k], device=device))
+        bounds = DepthBounds()
+        bounds.enabled = int(p.depth_bounds)
+        bounds.bounds = (depth_bounds(rectified, device=device) if p.depth_bounds else
+                         wp.zeros((1, 1), dtype=wp.vec2, device=device))
+    with stage("evaluate"):
+        overestimation = settings.moments.overestimation
+        beta = -1.0 if overestimation == "adaptive" else float(overestimation)
+        if beta < 0.0:
+            raise ValueError("render.scattering.moments.overestimation: 'adaptive' needs a directional light (Peters "
+                             "2017 Sec. 5.3.1 weighs the light and view directions); give a number for a spot light")
+        rays = spot_rays(rect, p, p.end_offset, ref_sums, np.cumsum(filtered, axis=2, dtype=np.float64), device)
+        out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
+        arrays = [t.arrays() for t in textures]
+        arrays += [arrays[0]] * (3 - len(arrays))
+        launch_rows(evaluate_spot_kernel, (cam.height, cam.width),
+                    [cam.params(), coords, *arrays, maps, rays, bounds, 1 if rect.full_circle else 0, beta, lparams,
+                     scene.medium.params(), out], device=device)
+    regions = (epipole_regions(cam, rect.light_direction, p.epipole_angle_deg, p.epipole_block)
+               if settings.marches_epipole else [])
+    if regions:
+        with stage("epipole"):
+            march_epipole_regions(scene, gbuffer, shadow_map, regions, out, steps=p.epipole_steps, seed=settings.seed,
+                                  shadow_bias_texels=settings.shadow_map.bias, jitter=settings.jitter, device=device)
+    info = {
+        "rectification": "nonlinear",
+        "rectification_reason": "spot light: angles at the light as columns",
+        "rectified_map": [cols, rows],
+        "basis": settings.method,
+        **({"coefficients": settings.fourier.coefficients} if settings.method == "fourier" else
+           {"overestimation": overestimation}),
+        "bits_per_texel": settings.filtered_bits_per_texel,
+        "segments": int(rays.segments),
+        "depth_bounds": p.depth_bounds,
+        "end_offset": p.end_offset,
+        "resample_filter": "nearest",  # a spot's texels read their nearest spot-map texel
+        "caster_culling": culled is not None,
+        **({} if culled is None else {"culled_texel_fraction": round(culled, 4)}),
+        "filtered_map_bytes": sum(t.nbytes for t in textures),
+        "filtered_maps": maps,  # one per colour channel of a coloured spot texture
+        "epipole_blocks": [[*r.rect, r.name] for r in regions],
+        "epipole_angle_deg": round(regions[0].inner_deg, 3) if regions else None,
+        "epipole_raymarched_fraction": round(epipole_pixel_fraction(cam, regions), 4),
+        "full_circle": rect.full_circle,
+        # the angles at the light (from the baseline towards the camera) the columns cover, and the baseline's length
+        "map_angles_deg": [round(math.degrees(rect.psi_lo), 3), round(math.degrees(rect.psi_lo + rect.r_max), 3)],
+        "light_distance": round(rect.light_distance, 4),
+    }
+    debug = {}
+    if "rectified" in frame.aovs:
+        debug["rectified"] = coords.numpy()
+    if "epipole_mask" in frame.aovs:
+        debug["epipole_mask"] = epipole_weights(cam, regions)
+    if map_before_culling is not None:
+        depth = map_depth(rectified)
+        debug["rectified_map"] = np.stack([depth, (depth != map_before_culling).astype(np.float32)], axis=-1)
+    if debug:
+        info["debug_images"] = debug
+    return out, info
+
+
+__all__ = ["SPOT_SEGMENTS", "SpotRays", "evaluate_spot_kernel", "render_spot", "spot_rays"]

@@ -1,0 +1,248 @@
+"""Non-linear rectification of a spot light's shadow map: prefiltered single scattering for local lights (Klehm 2014
+Sec. 3.2, "Local Lights" and "Angular-dependency for Sources").
+
+Peters' spherical coordinates (:mod:`.rectify_nonlinear`) need only that every view ray stays in one row at one
+depth and runs along the columns. With the light at a point L, the epipolar planes are the planes through the
+baseline from L to the camera C; light view space keeps its origin at C with z along the baseline, pointing from
+the light to the camera (the direction light travels along it, as for a directional light), D = |C - L|:
+
+* phi = atan2(y, x), the epipolar plane                                     -> ROW (as for a directional light);
+* theta = atan2(r, z), the inclination seen from the camera                 -> DEPTH (as for a directional light);
+* psi = atan2(r, z + D), the angle at the light between the baseline and the light ray through the point
+  -> COLUMN, u = (psi - psi_lo) / psi_span.
+
+A view ray keeps phi and theta and runs from psi = 0 (the camera) towards psi = theta; along a light ray (fixed phi,
+psi) theta falls monotonically away from the light, so "behind the blocker" is again "larger depth". A directional
+light is the limit D -> infinity with psi D -> r.
+
+The columns cover the angles at the light where light is and the view reaches: psi_lo, psi_hi = the spot cone's
+band around the baseline, [beta - cone, beta + cone] with beta the angle between the spot's axis and the baseline,
+cut to the largest psi of the view frustum (its far plane). Resampling (:func:`resample_spot_shadow_map`): each
+texel is a light ray; it keeps its casters as a directional light's texel does (the nearest spot-map texel; two
+depths with translucent casters), and the spot's emission along it (cone and texture,
+:func:`~warpscatter.scene.lights.light_sample`, averaged over the texel's footprint, relative to its peak) becomes the
+texel's FILTER tau in [0, 1] per colour channel. The filter weights the texel in the prefix sums (Klehm's
+"Angular-dependency for Sources": "each visibility function is simply weighted by the light's contribution"), so
+outside the cone a texel has no weight and inside the texture modulates it; a coloured texture needs one filtered
+map per channel (the paper: "triples storage amount and computation costs").
+
+Per-texel weights of the prefix sums (:func:`spot_texel_weights`) and the per-ray look-ups:
+:mod:`.prefiltered_spot`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import warp as wp
+
+from ..parallel import launch_rows
+from ..scene.lights import LightParams, light_sample
+from ..wpinit import default_device, module_options
+from .rectify_nonlinear import (
+    NonlinearRectification,
+    NonlinearRectParams,
+    TranslucentLayer,
+    _map_array,
+    nearest_map_texel,
+)
+
+module_options()
+
+#: Light rays per side of a texel's footprint whose mean emission is the texel's filter (the cone's edge and the
+#: texture box-filtered over the texel).
+SPOT_FILTER_SAMPLES = wp.constant(3)
+#: Far-plane samples per side for the largest angle at the light that the view reaches.
+FAR_PLANE_SAMPLES = 33
+
+
+def spot_rectification(camera, light, rows: int = 1024, cols: int = 1024,
+                       guard_band: float = 0.1) -> NonlinearRectification:
+    """The rectification of spot ``light`` for ``camera`` (module doc).
+
+    Raises:
+        ValueError: when the light sits at the camera position (no baseline: the epipolar planes are undefined).
+    """
+    c = np.asarray(camera.position, np.float64)
+    baseline = c - np.asarray(light.position, np.float64)
+    d = float(np.linalg.norm(baseline))
+    scale = max(float(np.linalg.norm(c)), float(camera.far), 1.0)
+    if not d > 1e-9 * scale:
+        raise ValueError("the spot light sits at the camera position: its epipolar planes are undefined "
+                         "(move the light or use the ray marcher, render.scattering.method)")
+    base = NonlinearRectification.from_camera(camera, baseline, guard_band=guard_band, rows=rows, cols=cols)
+    ez = base.to_light[2]
+    beta = math.acos(float(np.clip(np.dot(light.direction, ez), -1.0, 1.0)))
+    cone = math.radians(light.cone_deg)
+    psi_lo, psi_hi = max(0.0, beta - cone), min(math.pi, beta + cone)
+    s = np.linspace(0.0, 1.0, FAR_PLANE_SAMPLES)
+    a, b = np.meshgrid(s, s, indexing="ij")
+    q0, q1, q2, q3 = base.far_corners  # cyclic: q0 -> q1 -> q2 -> q3
+    quad = ((1 - a) * (1 - b))[..., None] * q0 + (a * (1 - b))[..., None] * q1 + (a * b)[..., None] * q2 \
+        + ((1 - a) * b)[..., None] * q3
+    view_hi = float(np.max(np.arctan2(np.hypot(quad[..., 0], quad[..., 1]), quad[..., 2] + d)))
+    # the sampled maximum may sit slightly inside the true one: one texel of margin
+    psi_hi = min(psi_hi, view_hi + (view_hi - psi_lo) / cols if view_hi > psi_lo else view_hi)
+    span = max(psi_hi - psi_lo, 1e-9)
+    return dataclasses.replace(base, r_max=span, view_radius=0.0, light_distance=d, psi_lo=psi_lo)
+
+
+@wp.func
+def spot_blocker_depth(rect: NonlinearRectParams, light_pos: wp.vec3, axis: wp.vec3, direction: wp.vec3,
+                       depth: wp.array2d(dtype=wp.float32), c: wp.vec4) -> float:
+    """Rectified depth of the caster in the spot map texel nearest to clip coordinates c on the light ray
+    ``direction`` (unit, world) from ``light_pos``: 1 without one (or off the map). The map stores the caster's
+    distance along the spot's ``axis`` (its view -z)."""
+    inside, x, y = nearest_map_texel(depth, c)
+    result = float(1.0)
+    if inside:
+        stored = depth[y, x]
+        if wp.isfinite(stored):
+            s_b = stored / wp.max(wp.dot(direction, axis), 1.0e-6)
+            q = rect.to_light * (light_pos + direction * s_b - rect.origin)
+            theta = wp.atan2(wp.sqrt(q[0] * q[0] + q[1] * q[1]), q[2])
+            result = wp.clamp((rect.theta_hi - theta) / rect.theta_len, 0.0, 1.0)
+    return result
+
+
+@wp.kernel
+def resample_spot_kernel(
+    rect: NonlinearRectParams,
+    light: LightParams,
+    shadow_depth: wp.array2d(dtype=wp.float32),  # (H, W) the spot map: distance along its axis, +inf empty
+    layer: TranslucentLayer,
+    world_to_clip: wp.mat44,  # the spot's perspective world -> clip
+    inv_peak: wp.vec3,  # 1 / each channel's largest emission at unit distance (0 for a dark channel)
+    out_z1: wp.array2d(dtype=wp.float32),
+    out_z2: wp.array2d(dtype=wp.float32),
+    out_w2: wp.array2d(dtype=wp.float32),
+    out_filter: wp.array2d(dtype=wp.vec3),  # (rows, cols) the emission relative to its peak, per channel
+    offset: int,
+):
+    # one light ray per texel (module doc): its casters, and its emission as a filter
+    j, i = wp.tid()
+    j += offset
+    to_world = wp.transpose(rect.to_light)
+    psi = rect.psi_lo + (float(i) + 0.5) / float(rect.cols) * rect.r_max
+    phi = rect.phi_mid + ((float(j) + 0.5) / float(rect.rows) - 0.5) * rect.phi_span
+    direction = to_world * wp.vec3(wp.sin(psi) * wp.cos(phi), wp.sin(psi) * wp.sin(phi), wp.cos(psi))
+    # the filter is the texel's mean emission: SPOT_FILTER_SAMPLES^2 light rays over its (psi, phi) footprint
+    e_sum = wp.vec3(0.0, 0.0, 0.0)
+    n = SPOT_FILTER_SAMPLES
+    for a in range(n):
+        for b in range(n):
+            psi_s = rect.psi_lo + (float(i) + (float(a) + 0.5) / float(n)) / float(rect.cols) * rect.r_max
+            phi_s = rect.phi_mid + ((float(j) + (float(b) + 0.5) / float(n)) / float(rect.rows) - 0.5) * rect.phi_span
+            ds = to_world * wp.vec3(wp.sin(psi_s) * wp.cos(phi_s), wp.sin(psi_s) * wp.sin(phi_s), wp.cos(psi_s))
+            e, omega, dist = light_sample(light, light.position + ds / wp.length(ds))
+            e_sum += e
+    f = wp.cw_mul(e_sum, inv_peak) / float(n * n)
+    out_filter[j, i] = wp.vec3(wp.clamp(f[0], 0.0, 1.0), wp.clamp(f[1], 0.0, 1.0), wp.clamp(f[2], 0.0, 1.0))
+    p = light.position + direction
+    c = world_to_clip * wp.vec4(p[0], p[1], p[2], 1.0)
+    z1 = float(1.0)
+    z2 = float(1.0)
+    w2 = float(0.0)
+    if c[3] > 0.0:  # in front of the spot (outside its cone the filter is 0 anyway)
+        c = c / c[3]
+        z1 = spot_blocker_depth(rect, light.position, light.direction, direction, shadow_depth, c)
+        z2 = z1
+        if layer.translucent != 0:
+            z2 = spot_blocker_depth(rect, light.position, light.direction, direction, layer.opaque_depth, c)
+            inside, x, y = nearest_map_texel(layer.transmittance, c)
+            if inside:
+                w2 = layer.transmittance[y, x]
+    out_z1[j, i] = z1
+    out_z2[j, i] = z2
+    out_w2[j, i] = w2
+
+
+def emission_peaks(light) -> np.ndarray:
+    """Each colour channel's largest emission at unit distance (W/sr): the intensity times the texture's largest
+    texel of that channel."""
+    intensity = np.asarray(light.intensity, np.float64)
+    if light.texture is None:
+        return intensity
+    return intensity * np.asarray(light.texture, np.float64)[..., :3].reshape(-1, 3).max(axis=0)
+
+
+def coloured_emission(light) -> bool:
+    """True when the spot's texture has colour (its channels differ): one filtered map per channel."""
+    if light.texture is None:
+        return False
+    tex = np.asarray(light.texture, np.float64)[..., :3]
+    return not bool(np.allclose(tex, tex[..., :1], rtol=0.0, atol=1e-6))
+
+
+def resample_spot_shadow_map(rect: NonlinearRectification, shadow_map, light, lparams: LightParams, device=None):
+    """The rectified two-depth map of a spot light's casters and the emission filter of every texel (module doc).
+
+    Args:
+        rect: :func:`spot_rectification`'s rectification.
+        shadow_map: the spot's :class:`~warpscatter.shadows.shadow_map.ShadowMap` (perspective, linear depth).
+        light: the :class:`~warpscatter.scene.lights.SpotLight`.
+        lparams: its :class:`~warpscatter.scene.lights.LightParams` (the texture on ``device``).
+
+    Returns:
+        (:class:`~.rectify_nonlinear.SparseRectifiedDepth`, (rows, cols, 3) float32 numpy filter in [0, 1]).
+    """
+    from .rectify_nonlinear import SparseRectifiedDepth
+
+    device = default_device(device)
+    peak = emission_peaks(light)
+    inv_peak = np.where(peak > 0.0, 1.0 / np.maximum(peak, 1e-300), 0.0)
+    sm = _map_array(shadow_map.depth, "shadow_depth", device)
+    layer = TranslucentLayer()
+    layer.translucent = int(shadow_map.translucent)
+    if shadow_map.translucent:
+        layer.opaque_depth = _map_array(shadow_map.opaque_depth, "opaque depth", device)
+        layer.transmittance = _map_array(shadow_map.transmittance, "transmittance", device)
+    else:
+        layer.opaque_depth = layer.transmittance = wp.ones((1, 1), dtype=wp.float32, device=device)
+    shape = (rect.rows, rect.cols)
+    z1, z2, w2 = (wp.empty(shape, dtype=wp.float32, device=device) for _ in range(3))
+    emission = wp.empty(shape, dtype=wp.vec3, device=device)
+    m = np.asarray(shadow_map.view_projection, np.float64)
+    launch_rows(resample_spot_kernel, shape,
+                [rect.params(), lparams, sm, layer, wp.mat44(*m.astype(np.float32).ravel()),
+                 wp.vec3(*inv_peak.astype(np.float32)), z1, z2, w2, emission], device=device)
+    return SparseRectifiedDepth(z1=z1, z2=z2, w2=w2), emission.numpy()
+
+
+#: Rows on each side whose largest inclination a row's reference ray also covers (a look-up blends two rows).
+REFERENCE_ROW_REACH = 2
+
+
+def spot_texel_weights(rect: NonlinearRectification, sigma_t: float, medium=None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-texel prefilter weights of a spot light's map and their sums through each column (float32, (rows, cols)).
+
+    A texel's weight is the in-scattering density per radian of psi of its row's reference ray, the ray of the
+    row's epipolar slice (and its REFERENCE_ROW_REACH neighbours) with the largest inclination theta_ref:
+    dpsi exp(-sigma_t t_ref(psi)), t_ref = D sin(psi) / sin(theta_ref - psi), 0 for psi >= theta_ref (no ray of the
+    row gets there), times the reference ray's phase function f(-cos(theta_ref - psi)) when ``medium`` is given.
+    Every other ray of the row decays faster along the columns (as the ``least`` reference ray of a directional
+    light); the phase function's shape along the row then follows the reference ray's.
+    """
+    if not (np.isfinite(sigma_t) and sigma_t >= 0.0):
+        raise ValueError(f"sigma_t must be finite and >= 0, got {sigma_t}")
+    _, theta_hi = rect.slice_inclination_range(rect.row_azimuths())
+    reach = REFERENCE_ROW_REACH
+    padded = np.pad(theta_hi, reach, mode="wrap" if rect.full_circle else "edge")
+    theta_ref = np.max(np.lib.stride_tricks.sliding_window_view(padded, 2 * reach + 1), axis=1)
+    theta_ref = np.minimum(theta_ref + 0.5 * rect.guard_band * (rect.theta_max - rect.theta_min), math.pi)
+    dpsi = rect.r_max / rect.cols
+    psi = rect.psi_lo + (np.arange(rect.cols) + 0.5) * dpsi
+    gap = theta_ref[:, None] - psi[None, :]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        t = rect.light_distance * np.sin(psi)[None, :] / np.sin(gap)
+        w = np.where(gap > 1e-9, dpsi * np.exp(-sigma_t * np.where(gap > 1e-9, t, 0.0)), 0.0)
+    if medium is not None:
+        w = w * medium.phase_value(-np.cos(gap))
+    sums = np.cumsum(w, axis=1)
+    return w.astype(np.float32), sums.astype(np.float32)
+
+
+__all__ = ["coloured_emission", "emission_peaks", "resample_spot_kernel", "resample_spot_shadow_map",
+           "spot_rectification", "spot_texel_weights"]
