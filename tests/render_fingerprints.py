@@ -123,6 +123,14 @@ def _cases() -> dict[str, tuple[str, list[str]]]:
     ):
         add(f"spot/epipolar-{label}", "spot_epipolar.yaml", f"{sc}.steps=32", f"{sc}.shadow_map.resolution=256",
             f"{ep}.lines=128", *extra)
+    # ---- prefiltered methods under a spot light (rectify_local, prefiltered_spot) ----
+    for label, extra in (
+        ("fourier", [f"{sc}.method=fourier"]),
+        ("moments4", [f"{sc}.method=moments4", f"{sc}.prefiltered.caster_culling=false"]),
+        ("moments6-grey", [f"{sc}.method=moments6", "light.texture=null", "medium.sigma_t=[0.05, 0.12, 0.3]"]),
+        ("fourier-8bit", [f"{sc}.method=fourier", f"{sc}.fourier.storage_bits=8", f"{sc}.prefiltered.segments=2"]),
+    ):
+        add(f"spot/prefiltered-{label}", "spot_moments.yaml", f"{sc}.shadow_map.resolution=256", *extra)
     # ---- surface shadows ----
     sh = "render.shadows"
     gbase = ["gate_soft_shadows.yaml", f"{sc}.steps=8", f"{sc}.shadow_map.resolution=256"]

@@ -57,7 +57,7 @@ FUZZ_EXAMPLES = (settings.default.max_examples
 
 #: Bundled configs fuzzed: the classic pipeline (directional and spot lights) and the Monte-Carlo lighting methods.
 CLASSIC = ["quickstart", "colonnade", "canopy", "gate", "gate_soft_shadows", "terrain", "window", "spot",
-           "spot_epipolar", "canopy_moments", "colonnade_fourier"]
+           "spot_epipolar", "spot_moments", "canopy_moments", "colonnade_fourier"]
 LIGHTING = ["csm_gate", "csm_area", "csm_objects"]
 BASES = {name: load_config(CONFIGS / f"{name}.yaml") for name in CLASSIC + LIGHTING}
 

@@ -135,11 +135,11 @@ def fence_errors():
     return errors
 
 
-@pytest.mark.parametrize("method, bound, ratio", [("fourier", 0.037, 4.5), ("moments4", 0.034, 2.7),
+@pytest.mark.parametrize("method, bound, ratio", [("fourier", 0.021, 2.6), ("moments4", 0.034, 2.7),
                                                   ("moments6", 0.027, 2.4)])
 def test_textured_spot_fence_against_exact_marcher(fence_errors, method, bound, ratio):
     """The slatted fence under the stained-glass spot (the #16 bar's case). Measured at 160x90, 512^2 maps: spot
-    fourier 3.23 %, moments4 2.98 %, moments6 2.36 %; directional 0.80, 1.26, 1.11 % (ratios 4.0, 2.4, 2.1; the
+    fourier 1.83 %, moments4 2.98 %, moments6 2.36 %; directional 0.80, 1.26, 1.11 % (ratios 2.3, 2.4, 2.1; the
     128-step shadow-map marcher's own ratio is 2.5: the spot's sheets of light are the harder case)."""
     assert fence_errors["spot", method] < bound
     assert fence_errors["spot", method] < ratio * fence_errors["directional", method]
@@ -172,3 +172,11 @@ def test_coloured_medium_is_each_channel_grey():
 def test_what_a_spot_cannot_do_is_refused_naming_the_key(override, key):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
         ws.load_config(SPOT, {"render.scattering.method": "fourier", **override})
+
+
+def test_faint_and_dark_channels_stay_finite():
+    """A spot a hair above zero in one channel and dark in another (the fuzzer's overflow): finite, non-negative,
+    the dark channel exactly 0."""
+    out = _scattering(SPOT, {**SMALL, "render.scattering.method": "fourier", "light.intensity": [1e-38, 0.0, 5.0]})
+    assert np.all(np.isfinite(out)) and np.all(out >= 0.0)
+    assert np.all(out[..., 1] == 0.0) and out[..., 2].max() > 0.0

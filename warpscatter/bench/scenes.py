@@ -16,7 +16,8 @@ from .report import errors, stage_medians
 
 #: Bench scene name -> the bundled config it loads (``colonnade_spot``: the colonnade under a textured spot light).
 SCENES = {"colonnade": "colonnade", "canopy": "canopy", "window": "window", "colonnade_spot": "colonnade",
-          "quickstart": "quickstart", "terrain": "terrain", "gate": "gate", "gate_translucent": "gate_soft_shadows"}
+          "quickstart": "quickstart", "terrain": "terrain", "gate": "gate", "gate_translucent": "gate_soft_shadows",
+          "spot_fence": "spot"}
 #: The textured spot above the colonnade, outside the view (the ``epipolar`` suite's light).
 COLONNADE_SPOT = {"type": "spot", "position": [10.0, 25.0, 14.0], "direction": [-10.0, -22.5, -14.0],
                   "cone_deg": 25.0, "intensity": [2400.0, 2250.0, 2100.0]}

@@ -4,7 +4,8 @@ Issue #13's bar, measured: at 960x540 with 1024^2 maps (``--quick``: 240x135, 25
 directional light and a medium (:data:`SCENES`: the colonnade, canopy, window room, quickstart colonnade, terrain,
 the gate and the 60 %-opaque gate), each twice: with its own light (the sun ahead of the camera in most of them, its
 epipole in or near the view) and with the light turned half-way round the vertical (``mirror_light``: the sun behind
-the camera, the anti-solar epipole ahead). Per case:
+the camera, the anti-solar epipole ahead); and the spot-lit scenes (:data:`SPOT_SCENES`) with their own light. Per
+case:
 
 * the **exact reference**: the marcher with exact visibility, :data:`REFERENCE_STEPS` steps, two seeds, on every
   :data:`REFERENCE_STRIDE`-th pixel (:func:`~.suites_pareto.exact_reference`; its own error is stated);
@@ -29,6 +30,9 @@ from .suites_pareto import REFERENCE_SEEDS, exact_reference, rel_l1, technique_m
 
 #: The bundled sunlit scenes (:data:`~.scenes.SCENES` keys).
 SCENES = ("colonnade", "canopy", "window", "quickstart", "terrain", "gate", "gate_translucent")
+#: The spot-lit scenes (their own light only): the fence under the stained-glass spot with the light in view, and the
+#: colonnade under a textured spot outside the view.
+SPOT_SCENES = ("spot_fence", "colonnade_spot")
 #: The light variants: the config's own, and turned half-way round the vertical.
 LIGHTS = {"own light": False, "mirrored light": True}
 #: The methods at their defaults; the first is the bar's baseline.
@@ -52,7 +56,8 @@ def suite_fidelity(report: BenchReport, repeats: int, warmup: int, quick: bool, 
     stride = 2 if quick else REFERENCE_STRIDE
     first = stride // 2
     scenes = SCENES[:2] if quick else SCENES
-    cases = [(s, light) for s in scenes for light in LIGHTS]
+    spots = SPOT_SCENES[:1] if quick else SPOT_SCENES
+    cases = [(s, light) for s in scenes for light in LIGHTS] + [(s, "own light") for s in spots]
     report.meta.update(size=f"{w}x{h}", map=smap, reference_steps=ref_steps, reference_seeds=list(REFERENCE_SEEDS),
                        reference_stride=stride, time="G-buffer + maps + scattering (compile, scene, write apart)")
     summary: dict = {}
@@ -121,4 +126,4 @@ def chart_fidelity(report: BenchReport, path: Path) -> Path | None:
     return save_figure(fig, path)
 
 
-__all__ = ["LIGHTS", "METHODS", "SCENES", "chart_fidelity", "suite_fidelity"]
+__all__ = ["LIGHTS", "METHODS", "SCENES", "SPOT_SCENES", "chart_fidelity", "suite_fidelity"]

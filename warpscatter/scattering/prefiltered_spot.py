@@ -53,6 +53,7 @@ from .rectify_local import (
     spot_rectification,
     spot_texel_weights,
 )
+from .settings import SPOT_SEGMENTS
 
 module_options()
 
@@ -291,10 +292,6 @@ def spot_rays(rect, settings, end_offset: float, ref_sums: np.ndarray, filter_su
     return r
 
 
-#: Look-up segments per spot-lit ray when ``prefiltered.segments`` is null.
-SPOT_SEGMENTS = 4
-
-
 def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
     """The spot-light branch of :func:`.prefiltered.render` (its arguments, results and debug outputs). Stages
     ``rectify``, ``pixel_coords``, ``caster_culling``, ``prefilter``, ``evaluate``, ``epipole``.
@@ -359,8 +356,9 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         launch_rows(evaluate_spot_kernel, (cam.height, cam.width),
                     [cam.params(), coords, *arrays, maps, rays, bounds, 1 if rect.full_circle else 0, beta, lparams,
                      scene.medium.params(), out], device=device)
+    # auto marches no disc under a spot (settings: its light's 1/d^2 peak made the marched disc the noisier part)
     regions = (epipole_regions(cam, rect.light_direction, p.epipole_angle_deg, p.epipole_block)
-               if settings.marches_epipole else [])
+               if p.epipole_fallback is True else [])
     if regions:
         with stage("epipole"):
             march_epipole_regions(scene, gbuffer, shadow_map, regions, out, steps=p.epipole_steps, seed=settings.seed,
@@ -402,4 +400,4 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
     return out, info
 
 
-__all__ = ["SPOT_SEGMENTS", "SpotRays", "evaluate_spot_kernel", "render_spot", "spot_rays"]
+__all__ = ["SpotRays", "evaluate_spot_kernel", "render_spot", "spot_rays"]

@@ -114,7 +114,7 @@ def resample_spot_kernel(
     shadow_depth: wp.array2d(dtype=wp.float32),  # (H, W) the spot map: distance along its axis, +inf empty
     layer: TranslucentLayer,
     world_to_clip: wp.mat44,  # the spot's perspective world -> clip
-    inv_peak: wp.vec3,  # 1 / each channel's largest emission at unit distance (0 for a dark channel)
+    peak: wp.vec3,  # each channel's largest emission at unit distance (0: a dark channel)
     out_z1: wp.array2d(dtype=wp.float32),
     out_z2: wp.array2d(dtype=wp.float32),
     out_w2: wp.array2d(dtype=wp.float32),
@@ -138,8 +138,11 @@ def resample_spot_kernel(
             ds = to_world * wp.vec3(wp.sin(psi_s) * wp.cos(phi_s), wp.sin(psi_s) * wp.sin(phi_s), wp.cos(psi_s))
             e, omega, dist = light_sample(light, light.position + ds / wp.length(ds))
             e_sum += e
-    f = wp.cw_mul(e_sum, inv_peak) / float(n * n)
-    out_filter[j, i] = wp.vec3(wp.clamp(f[0], 0.0, 1.0), wp.clamp(f[1], 0.0, 1.0), wp.clamp(f[2], 0.0, 1.0))
+    f = wp.vec3(0.0, 0.0, 0.0)
+    for k in range(3):
+        if peak[k] > 0.0:
+            f[k] = wp.clamp(e_sum[k] / (float(n * n) * peak[k]), 0.0, 1.0)
+    out_filter[j, i] = f
     p = light.position + direction
     c = world_to_clip * wp.vec4(p[0], p[1], p[2], 1.0)
     z1 = float(1.0)
@@ -191,8 +194,7 @@ def resample_spot_shadow_map(rect: NonlinearRectification, shadow_map, light, lp
     from .rectify_nonlinear import SparseRectifiedDepth
 
     device = default_device(device)
-    peak = emission_peaks(light)
-    inv_peak = np.where(peak > 0.0, 1.0 / np.maximum(peak, 1e-300), 0.0)
+    peak = emission_peaks(light).astype(np.float32)
     sm = _map_array(shadow_map.depth, "shadow_depth", device)
     layer = TranslucentLayer()
     layer.translucent = int(shadow_map.translucent)
@@ -207,7 +209,7 @@ def resample_spot_shadow_map(rect: NonlinearRectification, shadow_map, light, lp
     m = np.asarray(shadow_map.view_projection, np.float64)
     launch_rows(resample_spot_kernel, shape,
                 [rect.params(), lparams, sm, layer, wp.mat44(*m.astype(np.float32).ravel()),
-                 wp.vec3(*inv_peak.astype(np.float32)), z1, z2, w2, emission], device=device)
+                 wp.vec3(*peak), z1, z2, w2, emission], device=device)
     return SparseRectifiedDepth(z1=z1, z2=z2, w2=w2), emission.numpy()
 
 
