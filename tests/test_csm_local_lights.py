@@ -1,6 +1,6 @@
 """Area and linear lights of the CSM renderer (Ritschel 2007 Sec. 4.2, 5.1): irradiance against the analytic
-rectangle form factor and numpy quadratures, one- and two-sided emission, power, and cube-CSM visibility against
-wp.Mesh shadow rays."""
+rectangle form factor and numpy quadratures, one- and two-sided emission, power, textured lights sampled by
+radiance, and cube-CSM visibility against wp.Mesh shadow rays."""
 
 import numpy as np
 import pytest
@@ -160,3 +160,69 @@ def test_one_setup_shades_every_pass_like_shade_local_light(occluded_scene, kind
             got = lighting.shade(seed)
             assert np.array_equal(got, shade_local_light(pts, nrm, [0.6] * 3, light, seed=seed, **kw))
             assert np.array_equal(got, single.shade(seed)) and got.mean() > 0.0
+
+
+def _bilinear_texture(tex, s, t):
+    """numpy twin of the kernels' bilinear look-up at (s, 1 - t): row 0 = the edge t = 1, clamped."""
+    h, w = tex.shape[:2]
+    x = np.clip(s * w - 0.5, 0.0, w - 1)
+    y = np.clip((1.0 - t) * h - 0.5, 0.0, h - 1)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx, fy = (x - x0)[..., None], (y - y0)[..., None]
+    top = tex[y0, x0] * (1 - fx) + tex[y0, x1] * fx
+    return top * (1 - fy) + (tex[y1, x0] * (1 - fx) + tex[y1, x1] * fx) * fy
+
+
+def test_textured_area_light_matches_quadrature_and_keeps_its_power():
+    """Ritschel 2007's "varying intensity": a 4 x 6 RGB texture (a black band) over a tilted two-sided light, sampled
+    by radiance, against a midpoint quadrature of L_e tex(s, t) cos cos / d^2 (the kernels' bilinear look-up in
+    numpy); from_power divides by the texture's mean, so the emitted power stays P."""
+    rng = np.random.default_rng(5)
+    tex = rng.uniform(0.0, 1.0, (4, 6, 3)).astype(np.float32)
+    tex[:, :2] = 0.0  # a black band: no light from there
+    light = AreaLight([-0.7, 1.2, -0.3], [1.2, 0.5, 0.0], [0.2, -0.1, 0.9], [1.0, 2.0, 0.5], two_sided=True,
+                      texture=tex)
+    pts = np.stack([rng.uniform(-2, 2, 48), np.zeros(48), rng.uniform(-2, 2, 48)], 1)
+    nrm = np.tile(UP, (48, 1))
+    got = np.mean([shade_local_light(pts, nrm, [0.5, 0.5, 0.5], light, samples=64, seed=s) for s in range(16)], 0)
+    n = 400
+    s = (np.arange(n) + 0.5) / n
+    S, T = np.meshgrid(s, s)
+    y = light.corner + S[..., None] * light.u + T[..., None] * light.v
+    lt = _bilinear_texture(tex, S, T) * light.radiance
+    want = []
+    for p in pts:
+        w = y - p
+        d2 = (w * w).sum(-1)
+        d = np.sqrt(d2)
+        g = np.maximum(w[..., 1] / d, 0.0) * np.abs(w @ light.normal) / d / d2
+        want.append(0.5 / np.pi * (g[..., None] * lt).reshape(-1, 3).mean(0) * light.area)
+    want = np.array(want)
+    assert np.abs(got - want).max() / want.max() < 0.02  # measured 0.0073 (16 passes x 64 strata; 0.0061 with 48)
+    assert abs(got.sum() / want.sum() - 1.0) < 5e-3  # measured 1.9e-3 (0.87e-3 with 48 passes: no bias)
+    p = AreaLight.from_power([0, 0, 0], [2, 0, 0], [0, 0, 1], [6.0, 6.0, 6.0], texture=tex)
+    mean = tex.reshape(-1, 3).mean(0)
+    assert np.allclose(p.radiance * mean, 6.0 / (np.pi * 2.0))
+    with pytest.raises(ValueError, match="black"):
+        AreaLight([0, 0, 0], [1, 0, 0], [0, 0, 1], [1, 1, 1], texture=np.zeros((2, 2, 3)))
+
+
+def test_sampling_by_radiance_lowers_the_noise_of_a_sparse_texture():
+    """One bright texel in a dark 8 x 8 texture: sampled by radiance, the per-point spread of the estimates is far
+    below uniform sampling's (same light, same budget), and both agree on the mean."""
+    tex = np.full((8, 8, 3), 1e-3, np.float32)
+    tex[2, 5] = 50.0
+    light = AreaLight([-1.0, 1.5, -1.0], [2.0, 0.0, 0.0], [0.0, 0.0, 2.0], [1.0, 1.0, 1.0], two_sided=True,
+                      texture=tex)
+    pts = np.zeros((4000, 3))
+    nrm = np.tile(UP, (4000, 1))
+    by_radiance = shade_local_light(pts, nrm, [0.5] * 3, light, samples=4, seed=3)[:, 0]
+    light_uniform = AreaLight(light.corner, light.u, light.v, light.radiance, True, texture=tex)
+    uniform_tables = (np.array([0.0, 1.0], np.float32), np.array([[0.0, 1.0]], np.float32),
+                      np.ones((1, 1), np.float32))
+    object.__setattr__(light_uniform, "sampling_tables", lambda: uniform_tables)
+    uniform = shade_local_light(pts, nrm, [0.5] * 3, light_uniform, samples=4, seed=3)[:, 0]
+    assert by_radiance.std() < 0.6 * uniform.std()  # measured ratio 0.40 (0.147 against 0.372)
+    se = np.hypot(by_radiance.std(), uniform.std()) / np.sqrt(len(pts))
+    assert abs(by_radiance.mean() - uniform.mean()) < 5.0 * se

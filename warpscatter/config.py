@@ -459,6 +459,14 @@ class AreaLightConfig(SettingsModel):
     power: Optional[RGB] = Field(None, description="RGB power (W) instead of the radiance (the radiance it gives, P / "
                                                    f"(pi A), must be <= {MAX_EMISSION:g} too)")
     two_sided: Bool = Field(False, description="emit from both sides")
+    texture: PathStr | None = Field(None, description="an image modulating the radiance over the parallelogram "
+                                                      "(row 0 = the edge at v, columns along u; with power: "
+                                                      "divided by its mean)")
+
+    @field_validator("texture")
+    @classmethod
+    def _check_texture(cls, v: Path | None, info: ValidationInfo) -> Path | None:
+        return None if v is None else existing_file(resolve_path(v, info))
 
     @model_validator(mode="after")
     def _check(self) -> AreaLightConfig:

@@ -452,7 +452,7 @@ class DirectLighting:
 
             if csm is not None and not latlong:
                 check_light_csm(csm, light)
-            light_data = light.device_data()
+            light_data = light.device_data(device)
         else:
             raise ValueError(f"light must be an EnvironmentMap, AreaLight or LinearLight, got {type(light).__name__}")
         vis = light_visibility(csm, mesh, filter=filter, bias=bias, ray_eps=ray_eps, device=device, objects=objects,

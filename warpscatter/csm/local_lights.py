@@ -2,11 +2,14 @@
 (Ritschel 2007, Sec. 4.2 and 5.1).
 
 Lights (:class:`~warpscatter.scene.lights.AreaLight`, :class:`~warpscatter.scene.lights.LinearLight`; scene
-units, radiometric quantities in linear RGB): a parallelogram y(s, t) = corner + s u + t v of constant radiance L_e,
+units, radiometric quantities in linear RGB): a parallelogram y(s, t) = corner + s u + t v of radiance L_e (times
+its texture at (s, t), if any),
 or a segment y(s) of intensity I per unit length (no area: BRDF samples never hit it, only light sampling
 contributes).
 
-Sampling "by radiance" (Sec. 5.1): with constant emission that is uniform in (s, t) (area) or s (linear); the
+Sampling "by radiance" (Sec. 5.1): with constant emission that is uniform in (s, t) (area) or s (linear); a
+textured area light is sampled by its texels' emission (:func:`~warpscatter.scene.lights.area_light_sample_st`; the
+cube CSM's samples stay indexed by (s, t)); the
 S = s^2 strata of the per-point jittered pattern stratify (s, t), and S strata stratify s of a linear light.
 The area light's solid-angle density of a light sample y seen from x is d^2 / (A |cos theta_l|).
 
@@ -36,6 +39,7 @@ from ..scene.lights import (
     area_light_pdf,
     area_light_point,
     area_light_radiance,
+    area_light_sample_st,
 )
 from ..wpinit import module_options
 from .brdf import MaterialData, shading_eval, shading_pdf, shading_point, shading_sample
@@ -119,15 +123,15 @@ def shade_local_light_kernel(
                         total += wp.cw_mul(f, light.emission) * (v * c * light.size / d2)
         else:
             # ---- area light sample (uniform in (s, t)), balance heuristic ----
-            st = stratum_sample(s, strata, j_light)
+            st = area_light_sample_st(light, stratum_sample(s, strata, j_light))
             y = area_light_point(light, st)
             w = y - x
             d2 = wp.dot(w, w)
             if d2 > 0.0:
                 d = w / wp.sqrt(d2)
                 c = wp.dot(n, d)
-                pl = area_light_pdf(light, x, y)
-                le = area_light_radiance(light, -d)
+                pl = area_light_pdf(light, x, y, st)
+                le = area_light_radiance(light, -d, st)
                 if c > 0.0 and pl > 0.0 and wp.length_sq(le) > 0.0:
                     f = shading_eval(sp, d)
                     if wp.length_sq(f) > 0.0:
@@ -140,12 +144,12 @@ def shade_local_light_kernel(
                 pb = shading_pdf(sp, wi)
                 r, sth = area_light_intersect(light, x, wi)
                 if pb > 0.0 and r > 0.0:
-                    le = area_light_radiance(light, -wi)
+                    le = area_light_radiance(light, -wi, sth)
                     yh = x + r * wi
                     f = shading_eval(sp, wi)
                     if wp.length_sq(le) > 0.0 and wp.length_sq(f) > 0.0:
                         v = local_visibility(vis, x, n, yh, sth, xi_brdf)
-                        total += wp.cw_mul(f, le) * (v * c / (pb + area_light_pdf(light, x, yh)))
+                        total += wp.cw_mul(f, le) * (v * c / (pb + area_light_pdf(light, x, yh, sth)))
     out[k] = total / float(count)
 
 

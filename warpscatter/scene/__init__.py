@@ -117,7 +117,8 @@ def light_from_config(c) -> Light:
         InputFileError: a texture or environment map that cannot be read or holds values that are not radiance
             (NaN, infinite, negative), at key ``light.texture`` / ``light.map``
             (:func:`~warpscatter.imageio.read_radiance_image`).
-        ConfigError: an environment map that is not a valid radiance map once scaled.
+        ConfigError: an environment map that is not a valid radiance map once scaled; an area light's texture that
+            is black (where it should emit).
     """
     from ..errors import ConfigError
     from ..imageio import read_radiance_image
@@ -138,10 +139,14 @@ def light_from_config(c) -> Light:
         except ValueError as exc:
             raise ConfigError(f"light.map: {c.map}: {exc}") from None
     if c.type == "area":
-        if c.power is not None:
-            return AreaLight.from_power(c.position, c.u, c.v, c.power, c.two_sided)
-        return AreaLight(c.position, c.u, c.v, c.radiance if c.radiance is not None else (1.0, 1.0, 1.0),
-                         c.two_sided)
+        texture = None if c.texture is None else read_radiance_image(c.texture, key="light.texture")
+        try:
+            if c.power is not None:
+                return AreaLight.from_power(c.position, c.u, c.v, c.power, c.two_sided, texture)
+            return AreaLight(c.position, c.u, c.v, c.radiance if c.radiance is not None else (1.0, 1.0, 1.0),
+                             c.two_sided, texture)
+        except ValueError as exc:
+            raise ConfigError(f"light.texture: {c.texture}: {exc}") from None
     return LinearLight(c.start, c.end, c.intensity)
 
 

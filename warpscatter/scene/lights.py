@@ -15,8 +15,10 @@ Monte-Carlo lights (``render.lighting``, Ritschel et al. 2007 Sec. 5; their esti
 * Environment: a distant lat-long radiance map with importance-sampling tables
   (:class:`~warpscatter.scene.environment_map.EnvironmentMap`).
 * Area: the parallelogram y(s, t) = corner + s u + t v, (s, t) in [0, 1]^2, area A = |u x v|, unit normal
-  n_l = (u x v) / A, constant radiance L_e from its front side (or both sides when ``two_sided``); a light given
-  by its power P has L_e = P / (pi A) (one-sided) or P / (2 pi A).
+  n_l = (u x v) / A, radiance L_e from its front side (or both sides when ``two_sided``), times an optional texture
+  over (s, t) (Ritschel 2007: "area lights of arbitrary shape, varying intensity"; row 0 = the edge t = 1, as an
+  image of the light seen from its front with u to the right); a light given by its power P has L_e = P / (pi A)
+  (one-sided) or P / (2 pi A), divided by the texture's mean.
 * Linear: the segment y(s) = start + s (end - start) of length l, an isotropic line emitter of intensity I per
   unit length (W sr^-1 unit^-1): dE = I cos(theta_x) / d^2 dl.
 
@@ -36,7 +38,7 @@ import warp as wp
 
 from ..wpinit import default_device, module_options
 from .camera import look_at_basis, normalize, perspective_matrix, view_matrix
-from .environment_map import EnvironmentMap
+from .environment_map import EnvironmentMap, cdf_search, cdf_search_row
 
 module_options()
 
@@ -130,6 +132,7 @@ class AreaLight:
     v: np.ndarray
     radiance: np.ndarray
     two_sided: bool = False
+    texture: np.ndarray | None = None
 
     kind = "area"
 
@@ -140,14 +143,28 @@ class AreaLight:
             raise ValueError("radiance must be >= 0")
         if not self.area > 1e-12 * max(np.dot(self.u, self.u), np.dot(self.v, self.v), 1e-30):
             raise ValueError("u and v must span a parallelogram (non-zero and not parallel)")
+        if self.texture is not None:
+            tex = np.asarray(self.texture, np.float32)
+            if tex.ndim != 3 or tex.shape[2] < 3 or not np.all(np.isfinite(tex[..., :3])) or np.any(tex[..., :3] < 0):
+                raise ValueError("texture must be an (H, W, 3) image of finite values >= 0")
+            if not tex[..., :3].max() > 0.0:
+                raise ValueError("texture is black: the light would emit nothing")
+            object.__setattr__(self, "texture", np.ascontiguousarray(tex[..., :3]))
 
     @classmethod
-    def from_power(cls, corner, u, v, power, two_sided: bool = False) -> AreaLight:
-        """The light emitting RGB ``power`` (W): L_e = P / (pi A), or P / (2 pi A) when two-sided."""
+    def from_power(cls, corner, u, v, power, two_sided: bool = False, texture=None) -> AreaLight:
+        """The light emitting RGB ``power`` (W): L_e = P / (pi A), or P / (2 pi A) when two-sided; with a texture
+        divided by the texture's mean per channel (so that the light still emits P)."""
         a = float(np.linalg.norm(np.cross(_vec(u, "u"), _vec(v, "v"))))
         if not a > 0.0:
             raise ValueError("u and v must span a parallelogram (non-zero and not parallel)")
-        return cls(corner, u, v, _vec(power, "power") / ((2.0 if two_sided else 1.0) * np.pi * a), two_sided)
+        radiance = _vec(power, "power") / ((2.0 if two_sided else 1.0) * np.pi * a)
+        if texture is not None:
+            mean = np.asarray(texture, np.float64)[..., :3].reshape(-1, 3).mean(axis=0)
+            if np.any((mean <= 0.0) & (radiance > 0.0)):
+                raise ValueError("texture: a channel with power is black all over")
+            radiance = np.where(mean > 0.0, radiance / np.maximum(mean, 1e-300), 0.0)
+        return cls(corner, u, v, radiance, two_sided, texture)
 
     @property
     def area(self) -> float:
@@ -166,7 +183,7 @@ class AreaLight:
 
         return parallelogram_light_samples(self.corner, self.u, self.v, n1, n2)
 
-    def device_data(self) -> LocalLightData:
+    def device_data(self, device=None) -> LocalLightData:
         """The light as kernels see it (:class:`LocalLightData`)."""
         d = LocalLightData()
         d.kind = LOCAL_LIGHT_AREA
@@ -175,7 +192,32 @@ class AreaLight:
         d.size = self.area
         d.emission = wp.vec3(*map(float, self.radiance))
         d.two_sided = int(bool(self.two_sided))
+        d.has_texture = int(self.texture is not None)
+        d.texture = light_texture_array(self, device)
+        marginal, conditional, texel_pdf = self.sampling_tables()
+        d.marginal_cdf = wp.array(marginal, dtype=wp.float32, device=default_device(device))
+        d.conditional_cdf = wp.array(conditional, dtype=wp.float32, device=default_device(device))
+        d.texel_pdf = wp.array(texel_pdf, dtype=wp.float32, device=default_device(device))
         return d
+
+    def sampling_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sampling by radiance of a textured light (Ritschel 2007 Sec. 5.1): the rows' CDF (H + 1,), each row's
+        CDF over its columns (H, W + 1) and each texel's density over (s, t) relative to uniform (H, W), float32.
+        A texel's weight is the largest emission (summed over channels) in its 3 x 3 neighbourhood: the bilinear
+        look-up lets a texel's light reach into its neighbours, so every point that emits can be sampled.
+        Without a texture: (1, 1) tables of uniform sampling."""
+        if self.texture is None:
+            return np.array([0.0, 1.0], np.float32), np.array([[0.0, 1.0]], np.float32), np.ones((1, 1), np.float32)
+        emit = (np.asarray(self.texture, np.float64) * self.radiance).sum(axis=-1)
+        padded = np.pad(emit, 1, mode="edge")
+        h, w = emit.shape
+        weight = np.max([padded[a:a + h, b:b + w] for a in range(3) for b in range(3)], axis=0)
+        rows = weight.sum(axis=1)
+        marginal = np.concatenate([[0.0], np.cumsum(rows)]) / rows.sum()
+        conditional = np.concatenate([np.zeros((h, 1)), np.cumsum(weight, axis=1)], axis=1)
+        conditional /= np.maximum(conditional[:, -1:], 1e-300)
+        texel_pdf = weight / weight.mean()
+        return marginal.astype(np.float32), conditional.astype(np.float32), texel_pdf.astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -206,9 +248,14 @@ class LinearLight:
 
         return segment_light_samples(self.start, self.end, n1)
 
-    def device_data(self) -> LocalLightData:
+    def device_data(self, device=None) -> LocalLightData:
         """The light as kernels see it (:class:`LocalLightData`)."""
         d = LocalLightData()
+        d.has_texture = 0
+        d.texture = light_texture_array(self, device)
+        d.marginal_cdf = wp.array([0.0, 1.0], dtype=wp.float32, device=default_device(device))
+        d.conditional_cdf = wp.array([[0.0, 1.0]], dtype=wp.float32, device=default_device(device))
+        d.texel_pdf = wp.ones((1, 1), dtype=wp.float32, device=default_device(device))
         d.kind = LOCAL_LIGHT_LINEAR
         d.origin = wp.vec3(*map(float, self.start))
         d.edge_u = wp.vec3(*map(float, self.end - self.start))
@@ -240,6 +287,12 @@ class LocalLightData:
     size: float  # area A (area) or length l (linear)
     emission: wp.vec3  # area: radiance L_e; linear: intensity per unit length I
     two_sided: int  # area: 1 emits from both sides
+    has_texture: int  # area: 1 when ``texture`` modulates L_e over (s, t)
+    texture: wp.array2d(dtype=wp.vec3)  # area: row 0 = the edge t = 1, columns s = 0 -> 1; 1x1 white without one
+    # sampling by radiance of a textured light (Ritschel 2007 Sec. 5.1): the texels' CDFs, rows first
+    marginal_cdf: wp.array(dtype=wp.float32)  # (H + 1,)
+    conditional_cdf: wp.array2d(dtype=wp.float32)  # (H, W + 1)
+    texel_pdf: wp.array2d(dtype=wp.float32)  # (H, W) density over (s, t) relative to uniform
 
 
 @wp.func
@@ -249,24 +302,58 @@ def area_light_point(light: LocalLightData, st: wp.vec2) -> wp.vec3:
 
 
 @wp.func
-def area_light_radiance(light: LocalLightData, w: wp.vec3) -> wp.vec3:
-    """Radiance L_e leaving the light along the unit direction ``w`` (from the light towards the receiver);
-    0 behind a one-sided light."""
+def area_light_radiance(light: LocalLightData, w: wp.vec3, st: wp.vec2) -> wp.vec3:
+    """Radiance leaving the light's point (s, t) along the unit direction ``w`` (from the light towards the
+    receiver): L_e, times the texture there (bilinear); 0 behind a one-sided light."""
     if light.two_sided == 0 and wp.dot(light.normal, w) <= 0.0:
         return wp.vec3(0.0)
+    if light.has_texture != 0:
+        return wp.cw_mul(light.emission, sample_bilinear_rgb(light.texture, st[0], 1.0 - st[1]))
     return light.emission
 
 
 @wp.func
-def area_light_pdf(light: LocalLightData, x: wp.vec3, y: wp.vec3) -> float:
-    """Solid-angle density (1/sr) of uniform area sampling seen from ``x``: d^2 / (A |cos theta_l|); 0 when
+def area_light_texel(light: LocalLightData, st: wp.vec2) -> wp.vec2i:
+    """(row, column) of the texture texel holding the light's point (s, t) (row 0 = the edge t = 1)."""
+    h = light.texel_pdf.shape[0]
+    w = light.texel_pdf.shape[1]
+    return wp.vec2i(wp.clamp(int((1.0 - st[1]) * float(h)), 0, h - 1), wp.clamp(int(st[0] * float(w)), 0, w - 1))
+
+
+@wp.func
+def area_light_sample_st(light: LocalLightData, xi: wp.vec2) -> wp.vec2:
+    """The light's parameters (s, t) for uniform ``xi`` in [0, 1)^2: ``xi`` itself, or for a textured light
+    sampled by radiance through its texels' CDFs (rows, then the column within the row; uniform inside a texel)."""
+    if light.has_texture == 0:
+        return xi
+    h = light.texel_pdf.shape[0]
+    w = light.texel_pdf.shape[1]
+    x0 = wp.clamp(xi[0], 0.0, 0.99999994)
+    x1 = wp.clamp(xi[1], 0.0, 0.99999994)
+    j = cdf_search(light.marginal_cdf, h, x1)
+    dv = wp.clamp((x1 - light.marginal_cdf[j]) / wp.max(light.marginal_cdf[j + 1] - light.marginal_cdf[j], 1.0e-30),
+                  0.0, 1.0)
+    i = cdf_search_row(light.conditional_cdf, j, w, x0)
+    r0 = light.conditional_cdf[j, i]
+    du = wp.clamp((x0 - r0) / wp.max(light.conditional_cdf[j, i + 1] - r0, 1.0e-30), 0.0, 1.0)
+    return wp.vec2((float(i) + du) / float(w), 1.0 - (float(j) + dv) / float(h))
+
+
+@wp.func
+def area_light_pdf(light: LocalLightData, x: wp.vec3, y: wp.vec3, st: wp.vec2) -> float:
+    """Solid-angle density (1/sr), seen from ``x``, of sampling the light's point y = y(s, t) as
+    :func:`area_light_sample_st` does: p(s, t) d^2 / (A |cos theta_l|) (p = 1 for uniform sampling); 0 when
     grazing."""
     w = y - x
     d2 = wp.dot(w, w)
     c = wp.abs(wp.dot(light.normal, w)) / wp.sqrt(d2)
     if not (c > 1.0e-7) or not (light.size > 0.0):
         return 0.0
-    return d2 / (light.size * c)
+    p = float(1.0)
+    if light.has_texture != 0:
+        k = area_light_texel(light, st)
+        p = light.texel_pdf[k[0], k[1]]
+    return p * d2 / (light.size * c)
 
 
 @wp.func
