@@ -505,8 +505,38 @@ class LinearLightConfig(SettingsModel):
         return self
 
 
+class VolumeLightConfig(SettingsModel):
+    """Parallelepiped light ``position`` + s ``u`` + t ``v`` + r ``w`` (s, t, r in [0, 1]), an isotropic emitter of
+    ``intensity`` RGB per unit volume (W sr^-1 unit^-3) or of ``power`` W (Ritschel 2007's volumetric lights);
+    lighting methods only, its visibility semi-local or ray-cast."""
+
+    type: Literal["volume"] = Field(description="volume")
+    position: Vec3 = Field(description="the corner y(0, 0, 0) (scene units)")
+    u: NonZeroVec3 = Field(description="first edge vector")
+    v: NonZeroVec3 = Field(description="second edge vector")
+    w: NonZeroVec3 = Field(description="third edge vector (u, v, w not coplanar)")
+    intensity: Optional[RGB] = Field(None, description="RGB intensity per unit volume (null and no power: [1, 1, 1])")
+    power: Optional[RGB] = Field(None, description="RGB power (W) instead: intensity = P / (4 pi V), at most "
+                                                   f"{MAX_EMISSION:g}")
+
+    @model_validator(mode="after")
+    def _check(self) -> VolumeLightConfig:
+        u, v, w = self.u, self.v, self.w
+        vol = abs(u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
+                  + u[2] * (v[0] * w[1] - v[1] * w[0]))
+        if vol <= 1e-9 * length(u) * length(v) * length(w):
+            raise ValueError(f"u {list(u)}, v {list(v)} and w {list(w)} are coplanar (the light has no volume)")
+        if self.intensity is not None and self.power is not None:
+            raise ValueError("give intensity or power, not both")
+        if self.power is not None and max(self.power) / (4.0 * math.pi * vol) > MAX_EMISSION:
+            raise ValueError(f"power: gives the intensity P / (4 pi V) = {max(self.power) / (4.0 * math.pi * vol):g}, "
+                             f"more than {MAX_EMISSION:g}")
+        return self
+
+
 LightConfig = Annotated[
-    Union[DirectionalLightConfig, SpotLightConfig, EnvironmentLightConfig, AreaLightConfig, LinearLightConfig],
+    Union[DirectionalLightConfig, SpotLightConfig, EnvironmentLightConfig, AreaLightConfig, LinearLightConfig,
+          VolumeLightConfig],
     Field(discriminator="type"),
 ]
 
@@ -634,7 +664,7 @@ class Config(SettingsModel):
 
     scene: SceneConfig = Field(description="the meshes")
     camera: CameraConfig = Field(description="the pinhole camera")
-    light: LightConfig = Field(description="the light: directional, spot, environment, area or linear")
+    light: LightConfig = Field(description="the light: directional, spot, environment, area, linear or volume")
     medium: MediumConfig = Field(default_factory=dict, description="the homogeneous medium")
     render: RenderSettings = Field(default_factory=dict, description="the methods and their settings")
     output: OutputConfig = Field(default_factory=dict, description="where and what to write")

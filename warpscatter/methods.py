@@ -27,7 +27,7 @@ from typing import Callable
 
 #: Light types of the classic pipeline (``render.scattering``) and of the Monte-Carlo lighting methods.
 CLASSIC_LIGHTS = ("directional", "spot")
-MONTE_CARLO_LIGHTS = ("environment", "area", "linear")
+MONTE_CARLO_LIGHTS = ("environment", "area", "linear", "volume")
 
 #: Visibility sources a method can use.
 VISIBILITY_CONFIGURABLE = "configurable"  # render.scattering.visibility: exact (BVH) or shadow_map

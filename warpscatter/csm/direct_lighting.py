@@ -430,7 +430,7 @@ class DirectLighting:
         object_bias=None,
     ):
         from ..scene.environment_map import EnvironmentMap
-        from ..scene.lights import AreaLight, EnvironmentLight, LinearLight
+        from ..scene.lights import AreaLight, EnvironmentLight, LinearLight, VolumeLight
 
         device = default_device(device)
         strata = check_strata(samples)
@@ -446,15 +446,19 @@ class DirectLighting:
             if csm is not None and not latlong:
                 raise ValueError("csm must be a lat-long CoherentShadowMap (build_csm)")
             light_data = light.device_data(device)
-        elif isinstance(light, (AreaLight, LinearLight)):
+        elif isinstance(light, (AreaLight, LinearLight, VolumeLight)):
             from .local_lights import check_light_csm
             from .local_lights import shade_local_light_kernel as kernel
 
             if csm is not None and not latlong:
+                if isinstance(light, VolumeLight):
+                    raise ValueError("a volume light's visibility is semi-local: csm must be a lat-long "
+                                     "CoherentShadowMap of the occluders (build_csm), not a cube CSM")
                 check_light_csm(csm, light)
             light_data = light.device_data(device)
         else:
-            raise ValueError(f"light must be an EnvironmentMap, AreaLight or LinearLight, got {type(light).__name__}")
+            raise ValueError(f"light must be an EnvironmentMap, AreaLight, LinearLight or VolumeLight, got "
+                             f"{type(light).__name__}")
         vis = light_visibility(csm, mesh, filter=filter, bias=bias, ray_eps=ray_eps, device=device, objects=objects,
                                object_bias=object_bias)
         if latlong and not isinstance(light, EnvironmentMap):

@@ -4,8 +4,10 @@
 Lights (:class:`~warpscatter.scene.lights.AreaLight`, :class:`~warpscatter.scene.lights.LinearLight`; scene
 units, radiometric quantities in linear RGB): a parallelogram y(s, t) = corner + s u + t v of radiance L_e (times
 its texture at (s, t), if any),
-or a segment y(s) of intensity I per unit length (no area: BRDF samples never hit it, only light sampling
-contributes).
+or a segment y(s) of intensity I per unit length, or a parallelepiped y(s, t, r) of intensity I per unit volume
+(Sec. 4.2's d = 3; neither has a surface: BRDF samples never hit them, only light sampling contributes; a volume light
+is stratified in (s, t), r drawn per stratum, and its visibility is semi-local or ray-cast: the cube CSM's samples
+are indexed by a surface's (s, t)).
 
 Sampling "by radiance" (Sec. 5.1): with constant emission that is uniform in (s, t) (area) or s (linear); a
 textured area light is sampled by its texels' emission (:func:`~warpscatter.scene.lights.area_light_sample_st`; the
@@ -32,9 +34,11 @@ import warp as wp
 
 from ..scene.lights import (
     LOCAL_LIGHT_LINEAR,
+    LOCAL_LIGHT_VOLUME,
     AreaLight,
     LinearLight,
     LocalLightData,
+    VolumeLight,
     area_light_intersect,
     area_light_pdf,
     area_light_point,
@@ -107,7 +111,21 @@ def shade_local_light_kernel(
     count = strata * strata
     for s in range(count):
         j_light, j_brdf, choice, xi_light, xi_brdf, rng = stratum_random_numbers(rng)
-        if light.kind == LOCAL_LIGHT_LINEAR:
+        if light.kind == LOCAL_LIGHT_VOLUME:
+            # ---- volume light: stratified in (s, t), r from the stratum's third number; light sampling only ----
+            st = stratum_sample(s, strata, j_light)
+            y = light.origin + st[0] * light.edge_u + st[1] * light.edge_v + choice * light.normal
+            w = y - x
+            d2 = wp.dot(w, w)
+            if d2 > 0.0:
+                d = w / wp.sqrt(d2)
+                c = wp.dot(n, d)
+                if c > 0.0:
+                    f = shading_eval(sp, d)
+                    if wp.length_sq(f) > 0.0:
+                        v = local_visibility(vis, x, n, y, st, xi_light)
+                        total += wp.cw_mul(f, light.emission) * (v * c * light.size / d2)
+        elif light.kind == LOCAL_LIGHT_LINEAR:
             # ---- linear light: stratified in s, light sampling only (zero area) ----
             sl = (float(s) + j_light[0]) / float(count)
             y = light.origin + sl * light.edge_u
@@ -156,7 +174,7 @@ def shade_local_light_kernel(
 # ---- host side -------------------------------------------------------------------------------------
 
 
-def shade_local_light(points, normals, albedo, light: AreaLight | LinearLight, **options) -> np.ndarray:
+def shade_local_light(points, normals, albedo, light: AreaLight | LinearLight | VolumeLight, **options) -> np.ndarray:
     """Direct lighting from an area or linear light at surface points (Ritschel 2007 Sec. 4.2, 5), one pass:
     :func:`~warpscatter.csm.direct_lighting.shade_direct` with ``light`` (area: one light and one BRDF sample per
     stratum; linear: one light sample). ``csm`` is the light's ``"cube"`` CSM
@@ -167,8 +185,8 @@ def shade_local_light(points, normals, albedo, light: AreaLight | LinearLight, *
         ValueError: ``light`` is not an :class:`~warpscatter.scene.lights.AreaLight` or
             :class:`~warpscatter.scene.lights.LinearLight`, or as :func:`~warpscatter.csm.direct_lighting.shade_direct`.
     """
-    if not isinstance(light, (AreaLight, LinearLight)):
-        raise ValueError(f"light must be an AreaLight or LinearLight, got {type(light).__name__}")
+    if not isinstance(light, (AreaLight, LinearLight, VolumeLight)):
+        raise ValueError(f"light must be an AreaLight, LinearLight or VolumeLight, got {type(light).__name__}")
     return shade_direct(points, normals, albedo, light, **options)
 
 

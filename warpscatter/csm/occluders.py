@@ -43,8 +43,8 @@ def scene_occluders(scene, receiver_only=None) -> tuple[np.ndarray, np.ndarray]:
 
 def csm_kind_for(light, local_lights: str = "cube") -> str:
     """The CSM kind a light needs: depth cube maps at the samples of an area or linear light with ``local_lights``
-    ``cube`` (Sec. 4.2), else lat-long maps (environment and semi-local lights, Sec. 4.3, or no light at all: they
-    serve any distant or semi-local light)."""
+    ``cube`` (Sec. 4.2), else lat-long maps (environment and semi-local lights, Sec. 4.3, a volume light always, or
+    no light at all: they serve any distant or semi-local light)."""
     if getattr(light, "kind", None) in ("area", "linear") and local_lights == "cube":
         return KIND_CUBE
     return KIND_LATLONG

@@ -64,7 +64,8 @@ class CSMBuildSettings(SettingsModel):
                                                                 "x batch)")] = 64
     local_lights: Literal[LOCAL_LIGHT_MODES] = Field(  # type: ignore[valid-type]
         "cube", description="area / linear lights: depth cube maps at the light's samples (Sec. 4.2), or the "
-                            "lat-long CSM queried towards each light point (semi-local, Sec. 4.3)")
+                            "lat-long CSM queried towards each light point (semi-local, Sec. 4.3); a volume light is "
+                            "always semi-local")
     objects: Literal[CSM_OBJECTS] = Field(  # type: ignore[valid-type]
         "scene", description="scene: one CSM of all occluders in world space; per_mesh: one lat-long CSM per casting "
                              "mesh in its own object space, placed by the mesh's transform (Sec. 4.6: moving a "

@@ -122,7 +122,7 @@ def light_from_config(c) -> Light:
     """
     from ..errors import ConfigError
     from ..imageio import read_radiance_image
-    from .lights import AreaLight, DirectionalLight, EnvironmentLight, LinearLight, SpotLight
+    from .lights import AreaLight, DirectionalLight, EnvironmentLight, LinearLight, SpotLight, VolumeLight
 
     if c.type == "directional":
         return DirectionalLight(direction=c.direction, irradiance=c.irradiance)
@@ -147,6 +147,10 @@ def light_from_config(c) -> Light:
                              c.two_sided, texture)
         except ValueError as exc:
             raise ConfigError(f"light.texture: {c.texture}: {exc}") from None
+    if c.type == "volume":
+        if c.power is not None:
+            return VolumeLight.from_power(c.position, c.u, c.v, c.w, c.power)
+        return VolumeLight(c.position, c.u, c.v, c.w, c.intensity if c.intensity is not None else (1.0, 1.0, 1.0))
     return LinearLight(c.start, c.end, c.intensity)
 
 

@@ -21,6 +21,9 @@ Monte-Carlo lights (``render.lighting``, Ritschel et al. 2007 Sec. 5; their esti
   (one-sided) or P / (2 pi A), divided by the texture's mean.
 * Linear: the segment y(s) = start + s (end - start) of length l, an isotropic line emitter of intensity I per
   unit length (W sr^-1 unit^-1): dE = I cos(theta_x) / d^2 dl.
+* Volume: the parallelepiped y(s, t, r) = corner + s u + t v + r w, (s, t, r) in [0, 1]^3, volume
+  V = |u . (v x w)|, an isotropic emitter of intensity I per unit volume (W sr^-1 unit^-3): dE = I cos(theta_x) /
+  d^2 dV (Ritschel 2007 Sec. 4.2: "volumetric lights (d = 3)"; a light given by its power P has I = P / (4 pi V)).
 
 ``LightParams`` is a single struct for both classic types so kernels need one code path (it holds the spot's
 texture array); :func:`light_sample` returns, for a world point, the incident irradiance, the unit direction the
@@ -48,6 +51,7 @@ LIGHT_SPOT = wp.constant(1)
 #: ``LocalLightData.kind`` of the Monte-Carlo local lights.
 LOCAL_LIGHT_AREA = wp.constant(0)
 LOCAL_LIGHT_LINEAR = wp.constant(1)
+LOCAL_LIGHT_VOLUME = wp.constant(2)
 
 
 # ---- host classes ---------------------------------------------------------------------------------
@@ -267,8 +271,53 @@ class LinearLight:
         return d
 
 
+@dataclass(frozen=True)
+class VolumeLight:
+    """Parallelepiped light corner + s u + t v + r w, isotropic, RGB ``intensity`` per unit volume
+    (W sr^-1 unit^-3; see the module docstring)."""
+
+    corner: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    w: np.ndarray
+    intensity: np.ndarray
+
+    kind = "volume"
+
+    def __post_init__(self):
+        for name in ("corner", "u", "v", "w", "intensity"):
+            object.__setattr__(self, name, _vec(getattr(self, name), name))
+        if np.any(self.intensity < 0.0):
+            raise ValueError("intensity must be >= 0")
+        scale = float(np.linalg.norm(self.u) * np.linalg.norm(self.v) * np.linalg.norm(self.w))
+        if not self.volume > 1e-9 * scale:
+            raise ValueError("u, v and w must span a volume (non-zero and not coplanar)")
+
+    @classmethod
+    def from_power(cls, corner, u, v, w, power) -> VolumeLight:
+        """The light emitting RGB ``power`` (W): I = P / (4 pi V)."""
+        vol = abs(float(np.dot(_vec(u, "u"), np.cross(_vec(v, "v"), _vec(w, "w")))))
+        if not vol > 0.0:
+            raise ValueError("u, v and w must span a volume (non-zero and not coplanar)")
+        return cls(corner, u, v, w, _vec(power, "power") / (4.0 * np.pi * vol))
+
+    @property
+    def volume(self) -> float:
+        """V = |u . (v x w)|."""
+        return abs(float(np.dot(self.u, np.cross(self.v, self.w))))
+
+    def device_data(self, device=None) -> LocalLightData:
+        """The light as kernels see it (:class:`LocalLightData`; ``normal`` holds the third edge w)."""
+        d = LinearLight.device_data(LinearLight(self.corner, self.corner + self.u, self.intensity), device)
+        d.kind = LOCAL_LIGHT_VOLUME
+        d.edge_v = wp.vec3(*map(float, self.v))
+        d.normal = wp.vec3(*map(float, self.w))
+        d.size = self.volume
+        return d
+
+
 #: Any light of a :class:`~warpscatter.scene.Scene`.
-Light = Union[DirectionalLight, SpotLight, EnvironmentLight, AreaLight, LinearLight]
+Light = Union[DirectionalLight, SpotLight, EnvironmentLight, AreaLight, LinearLight, VolumeLight]
 
 
 # ---- kernel views ---------------------------------------------------------------------------------
@@ -276,16 +325,15 @@ Light = Union[DirectionalLight, SpotLight, EnvironmentLight, AreaLight, LinearLi
 
 @wp.struct
 class LocalLightData:
-    """An area or linear light as kernels see it (build with :meth:`AreaLight.device_data` /
-    :meth:`LinearLight.device_data`)."""
+    """An area, linear or volume light as kernels see it (build with the lights' ``device_data``)."""
 
-    kind: int  # LOCAL_LIGHT_AREA or LOCAL_LIGHT_LINEAR
-    origin: wp.vec3  # area: corner y(0, 0); linear: start
-    edge_u: wp.vec3  # area: u; linear: end - start
-    edge_v: wp.vec3  # area: v; linear: unused (0)
-    normal: wp.vec3  # area: unit n_l = (u x v) / A
-    size: float  # area A (area) or length l (linear)
-    emission: wp.vec3  # area: radiance L_e; linear: intensity per unit length I
+    kind: int  # LOCAL_LIGHT_AREA, LOCAL_LIGHT_LINEAR or LOCAL_LIGHT_VOLUME
+    origin: wp.vec3  # area, volume: corner y(0, 0[, 0]); linear: start
+    edge_u: wp.vec3  # area, volume: u; linear: end - start
+    edge_v: wp.vec3  # area, volume: v; linear: unused (0)
+    normal: wp.vec3  # area: unit n_l = (u x v) / A; volume: the third edge w
+    size: float  # area A (area), length l (linear) or volume V (volume)
+    emission: wp.vec3  # area: radiance L_e; linear, volume: intensity per unit length / volume I
     two_sided: int  # area: 1 emits from both sides
     has_texture: int  # area: 1 when ``texture`` modulates L_e over (s, t)
     texture: wp.array2d(dtype=wp.vec3)  # area: row 0 = the edge t = 1, columns s = 0 -> 1; 1x1 white without one
