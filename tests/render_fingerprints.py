@@ -131,6 +131,11 @@ def _cases() -> dict[str, tuple[str, list[str]]]:
         ("fourier-8bit", [f"{sc}.method=fourier", f"{sc}.fourier.storage_bits=8", f"{sc}.prefiltered.segments=2"]),
     ):
         add(f"spot/prefiltered-{label}", "spot_moments.yaml", f"{sc}.shadow_map.resolution=256", *extra)
+    point = "light={type: point, position: [-0.5, 2.2, 4.0], intensity: [30, 30, 30]}"
+    for label, extra in (("marcher", [f"{sc}.method=raymarch", f"{sc}.visibility=shadow_map", f"{sc}.steps=32"]),
+                         ("exact", [f"{sc}.method=raymarch", f"{sc}.steps=32"]),
+                         ("moments6", [f"{sc}.method=moments6"])):
+        add(f"point/{label}", "spot_moments.yaml", f"{sc}.shadow_map.resolution=256", point, *extra)
     # ---- surface shadows ----
     sh = "render.shadows"
     gbase = ["gate_soft_shadows.yaml", f"{sc}.steps=8", f"{sc}.shadow_map.resolution=256"]

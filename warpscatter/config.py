@@ -433,6 +433,15 @@ class SpotLightConfig(SettingsModel):
         return None if v is None else existing_file(resolve_path(v, info))
 
 
+class PointLightConfig(SettingsModel):
+    """Point light at ``position`` shining ``intensity`` W/sr in every direction (rendered as six 90-degree spots,
+    one per cube face, each with its own shadow map)."""
+
+    type: Literal["point"] = Field(description="point")
+    position: Vec3 = Field(description="light position (scene units)")
+    intensity: RGB = Field((1.0, 1.0, 1.0), description="RGB intensity (W/sr); irradiance falls off as 1/d^2")
+
+
 class EnvironmentLightConfig(SettingsModel):
     """Distant lat-long environment map (``map``: an image file, row 0 = zenith, see assets/README.md) whose texels
     are radiance, times ``scale``; lighting methods only."""
@@ -535,8 +544,8 @@ class VolumeLightConfig(SettingsModel):
 
 
 LightConfig = Annotated[
-    Union[DirectionalLightConfig, SpotLightConfig, EnvironmentLightConfig, AreaLightConfig, LinearLightConfig,
-          VolumeLightConfig],
+    Union[DirectionalLightConfig, SpotLightConfig, PointLightConfig, EnvironmentLightConfig, AreaLightConfig,
+          LinearLightConfig, VolumeLightConfig],
     Field(discriminator="type"),
 ]
 
@@ -664,7 +673,8 @@ class Config(SettingsModel):
 
     scene: SceneConfig = Field(description="the meshes")
     camera: CameraConfig = Field(description="the pinhole camera")
-    light: LightConfig = Field(description="the light: directional, spot, environment, area, linear or volume")
+    light: LightConfig = Field(description="the light: directional, spot, point, environment, area, linear or "
+                                           "volume")
     medium: MediumConfig = Field(default_factory=dict, description="the homogeneous medium")
     render: RenderSettings = Field(default_factory=dict, description="the methods and their settings")
     output: OutputConfig = Field(default_factory=dict, description="where and what to write")
@@ -757,12 +767,13 @@ class Config(SettingsModel):
         if self.light.type not in lights and self.light.type not in methods.MONTE_CARLO_LIGHTS:
             raise ValueError(f"render.scattering.method {method!r} needs a {' or '.join(lights)} light (light.type is "
                              f"{self.light.type!r})")
-        if self.light.type == "spot" and "prefiltered" in methods.SCATTERING[method].sections:
+        if self.light.type in ("spot", "point") and "prefiltered" in methods.SCATTERING[method].sections:
             self._check_prefiltered_spot(method)
         return self
 
     def _check_prefiltered_spot(self, method: str) -> None:
-        """What the prefiltered methods cannot do under a spot light (warpscatter.scattering.prefiltered_spot)."""
+        """What the prefiltered methods cannot do under a spot or point light (warpscatter.scattering.prefiltered_spot;
+        a point light is six spots)."""
         s = self.render.scattering
         problems = []
         if s.prefiltered.rectification == "projective":
@@ -775,7 +786,7 @@ class Config(SettingsModel):
                             "direction (Peters 2017 Sec. 5.3.1); give a number for a spot light")
         gap = math.dist(self.camera.position, self.light.position)
         if gap <= 1e-6 * max(1.0, math.hypot(*self.camera.position)):
-            problems.append(f"light.position: the spot sits at the camera position, where render.scattering.method "
+            problems.append(f"light.position: the light sits at the camera position, where render.scattering.method "
                             f"{method!r} has no epipolar planes (move it, or use raymarch or epipolar)")
         if problems:
             raise ValueError("\n".join(problems))

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 #: Light types of the classic pipeline (``render.scattering``) and of the Monte-Carlo lighting methods.
-CLASSIC_LIGHTS = ("directional", "spot")
+CLASSIC_LIGHTS = ("directional", "spot", "point")
 MONTE_CARLO_LIGHTS = ("environment", "area", "linear", "volume")
 
 #: Visibility sources a method can use.
@@ -104,7 +104,8 @@ SCATTERING: dict[str, Method] = {m.name: m for m in (
            sections=("prefiltered", "moments"), modules=_PREFILTERED_MODULES,
            entry="warpscatter.scattering.prefiltered:render", debug_aovs=_PREFILTERED_AOVS),
     Method("epipolar", "scattering", "Engelhardt & Dachsbacher 2010, epipolar sampling",
-           "ray marching at a few percent of the pixels on epipolar lines, bilateral upsampling", CLASSIC_LIGHTS,
+           "ray marching at a few percent of the pixels on epipolar lines, bilateral upsampling",
+           ("directional", "spot"),
            sections=("epipolar",), visibility=VISIBILITY_CONFIGURABLE,
            modules=("warpscatter.scattering.epipolar_textures", "warpscatter.scattering.epipolar_upsampling",
                     "warpscatter.scattering.epipolar"), entry="warpscatter.scattering.epipolar:render"),

@@ -14,6 +14,8 @@ composition).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from .. import methods
 from ..gbuffer import gbuffer_raster, gbuffer_raycast
 from ..scene import DeviceGeometry
@@ -25,13 +27,18 @@ from ..wpinit import default_device
 from .common import check_finite, compile_kernels
 from .frame import Frame
 
+#: The images that add up over a point light's faces (radiance, linear in the light); the rest (depth ...) are the
+#: first face's, the same for all.
+ADDITIVE_IMAGES = ("color", "scattering", "surface")
+
 
 def render_images(scene, settings, *, timer: StageTimer | None = None, device=None,
                   aovs: tuple[str, ...] | list[str] = ()) -> tuple[dict, dict]:
     """Run the classic render stages for a built scene.
 
     Args:
-        scene: a :class:`~warpscatter.scene.Scene` (directional or spot light).
+        scene: a :class:`~warpscatter.scene.Scene` (directional, spot or point light; a point light runs the light
+            stages once per cube face and adds the faces' images).
         settings: the validated ``render`` section (:class:`~warpscatter.config.RenderSettings`: scattering,
             surfaces, shadows).
         timer: a :class:`~warpscatter.stages.StageTimer` (created if None).
@@ -74,22 +81,34 @@ def render_images(scene, settings, *, timer: StageTimer | None = None, device=No
             gbuf = gbuffer_raycast(scene, geometry, device)
         else:
             gbuf = gbuffer_raster(scene, geometry, device)
-    shadow_map = None
-    if need_shadow_map:
-        with timer("shadow_map"):
-            shadow_map = render_shadow_map(scene, sc.shadow_map.resolution, device=device)
-    frame = Frame(scene, gbuf, geometry=geometry if marches_exact else None, shadow_map=shadow_map, device=device,
-                  aovs=tuple(aovs))
-    l_scat, info = method.load()(frame, sc, timer)
-    debug_images = info.pop("debug_images", {})
-    shadows = None
-    if shadows_on:
-        shadows, shadow_info = prepare_shadows(scene, shadow_map, settings.shadows, bias_texels=sc.shadow_map.bias,
-                                               timer=timer, device=device)
-        info.update(shadow_info)
-    with timer("shading"):
-        images = shade_and_compose(scene, gbuf, l_scat, shadows=shadows, surfaces=settings.surfaces.enabled,
-                                   device=device)
+    # a point light is six square spots, one per cube face, whose images add up (Klehm 2014 Sec. 3.2); the debug
+    # outputs and the method's stats are the first face's (+X)
+    faces = [replace(scene, light=face) for face in scene.light.faces()] if scene.light.kind == "point" else [scene]
+    images, info, debug_images, shadow_map = {}, {}, {}, None
+    for k, lit in enumerate(faces):
+        if need_shadow_map:
+            with timer("shadow_map"):
+                shadow_map = render_shadow_map(lit, sc.shadow_map.resolution, device=device)
+        frame = Frame(lit, gbuf, geometry=geometry if marches_exact else None, shadow_map=shadow_map, device=device,
+                      aovs=tuple(aovs))
+        l_scat, face_info = method.load()(frame, sc, timer)
+        face_debug = face_info.pop("debug_images", {})
+        shadows = None
+        if shadows_on:
+            shadows, shadow_info = prepare_shadows(lit, shadow_map, settings.shadows, bias_texels=sc.shadow_map.bias,
+                                                   timer=timer, device=device)
+            face_info.update(shadow_info)
+        with timer("shading"):
+            face_images = shade_and_compose(lit, gbuf, l_scat, shadows=shadows, surfaces=settings.surfaces.enabled,
+                                            device=device)
+        if k == 0:
+            images, info, debug_images = face_images, face_info, face_debug
+        else:
+            for name in ADDITIVE_IMAGES:
+                if name in images:
+                    images[name] = images[name] + face_images[name]
+    if len(faces) > 1:
+        info["light_faces"] = len(faces)
     images.update(debug_images)
     stats = {
         "triangles": scene.triangle_count,

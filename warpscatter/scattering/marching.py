@@ -188,10 +188,45 @@ def inscatter_sample(m: Marcher, x: wp.vec3, d: wp.vec3) -> wp.vec3:
 
 
 @wp.func
+def square_lit_interval(light: LightParams, w: wp.vec3d, dd: wp.vec3d, s: float):
+    """:func:`lit_interval` of a square spot (a point light's cube face): the ray w + t dd (apex-relative, float64)
+    clipped by the pyramid's four planes |dot(x, right)| <= tan dot(x, forward), |dot(x, up)| <= tan dot(x, forward)
+    (convex: one interval), widened as :func:`lit_interval` widens the cone's."""
+    t = wp.float64(light.tan_cone)
+    f = wp.vec3d(wp.float64(light.direction[0]), wp.float64(light.direction[1]), wp.float64(light.direction[2]))
+    r = wp.vec3d(wp.float64(light.right[0]), wp.float64(light.right[1]), wp.float64(light.right[2]))
+    u = wp.vec3d(wp.float64(light.up[0]), wp.float64(light.up[1]), wp.float64(light.up[2]))
+    zero = wp.float64(0.0)
+    lo = zero
+    hi = wp.float64(s)
+    empty = bool(False)
+    for k in range(4):
+        side = r
+        if k >= 2:
+            side = u
+        if k % 2 == 1:
+            side = -side
+        n = side - t * f  # the half-space dot(x, n) <= 0
+        g0 = wp.dot(w, n)
+        g1 = wp.dot(dd, n)
+        if g1 > zero:
+            hi = wp.min(hi, -g0 / g1)
+        elif g1 < zero:
+            lo = wp.max(lo, -g0 / g1)
+        elif g0 > zero:
+            empty = True
+    if empty or lo > hi:
+        return float(0.0), float(0.0)
+    pad = wp.float64(1.0e-5) * (wp.length(w) + wp.float64(s))
+    return float(wp.max(lo - pad, zero)), float(wp.min(hi + pad, wp.float64(s)))
+
+
+@wp.func
 def lit_interval(light: LightParams, origin: wp.vec3, d: wp.vec3, s: float):
     """Part [t_lo, t_hi] of the ray origin + t d (unit d), t in [0, s], where the light can reach the medium.
 
-    Directional lights: the whole [0, s]. Spot lights: the chord of the ray inside the forward cone
+    Directional lights: the whole [0, s]. Square spots: :func:`square_lit_interval`. Spot lights: the chord of the
+    ray inside the forward cone
     {x: dot(normalize(x - position), direction) >= cos_cone} of :func:`~warpscatter.scene.lights.light_sample`,
     clipped to [0, s]; the cone (half-angle < 90 deg) is convex, so the chord is one interval. Solved in float64
     (the quadratic dot(w + t d, a)^2 = cos^2 |w + t d|^2, w = origin - apex, restricted to the forward half-space
@@ -207,6 +242,8 @@ def lit_interval(light: LightParams, origin: wp.vec3, d: wp.vec3, s: float):
                  wp.float64(origin[2] - light.position[2]))
     dd = wp.vec3d(wp.float64(d[0]), wp.float64(d[1]), wp.float64(d[2]))
     dd = dd / wp.length(dd)
+    if light.square != 0:
+        return square_lit_interval(light, w, dd, s)
     a = wp.vec3d(wp.float64(light.direction[0]), wp.float64(light.direction[1]), wp.float64(light.direction[2]))
     a = a / wp.length(a)
     c2 = wp.float64(light.cos_cone) * wp.float64(light.cos_cone)

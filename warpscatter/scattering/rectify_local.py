@@ -75,7 +75,7 @@ def spot_rectification(camera, light, rows: int = 1024, cols: int = 1024,
     base = NonlinearRectification.from_camera(camera, baseline, guard_band=guard_band, rows=rows, cols=cols)
     ez = base.to_light[2]
     beta = math.acos(float(np.clip(np.dot(light.direction, ez), -1.0, 1.0)))
-    cone = math.radians(light.cone_deg)
+    cone = math.radians(light.outer_cone_deg)  # a square spot (a point light's face): its corners
     psi_lo, psi_hi = max(0.0, beta - cone), min(math.pi, beta + cone)
     s = np.linspace(0.0, 1.0, FAR_PLANE_SAMPLES)
     a, b = np.meshgrid(s, s, indexing="ij")

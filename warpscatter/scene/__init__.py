@@ -122,7 +122,7 @@ def light_from_config(c) -> Light:
     """
     from ..errors import ConfigError
     from ..imageio import read_radiance_image
-    from .lights import AreaLight, DirectionalLight, EnvironmentLight, LinearLight, SpotLight, VolumeLight
+    from .lights import AreaLight, DirectionalLight, EnvironmentLight, LinearLight, PointLight, SpotLight, VolumeLight
 
     if c.type == "directional":
         return DirectionalLight(direction=c.direction, irradiance=c.irradiance)
@@ -130,6 +130,8 @@ def light_from_config(c) -> Light:
         texture = None if c.texture is None else read_radiance_image(c.texture, key="light.texture")
         return SpotLight(position=c.position, direction=c.direction, cone_deg=c.cone_deg, intensity=c.intensity,
                          texture=texture)
+    if c.type == "point":
+        return PointLight(position=c.position, intensity=c.intensity)
     if c.type == "environment":
         from .environment_map import EnvironmentMap
 

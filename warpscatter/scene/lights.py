@@ -4,6 +4,7 @@ Classic lights (the scattering methods and surface shading, :class:`LightParams`
 
 * Directional: ``direction`` is the unit direction light TRAVELS; ``irradiance`` RGB on a plane
   perpendicular to it. The light is at infinity: every point of the medium receives the same E.
+* Point: ``position``, ``intensity`` RGB (W/sr) in every direction; rendered as six square spots (cube faces).
 * Spot: ``position``, unit axis ``direction``, ``cone_deg`` the HALF-angle of the cone (degrees),
   ``intensity`` RGB (W/sr). Irradiance at x is intensity / d^2 times the light texture, if any, for
   points inside the cone and 0 outside. The texture spans the square [-1,1]^2 of the spot's
@@ -33,6 +34,7 @@ reach kernels as :class:`LocalLightData`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Union
 
@@ -83,6 +85,7 @@ class SpotLight:
     cone_deg: float
     intensity: np.ndarray
     texture: np.ndarray | None = None
+    square: bool = False  # the cone is the square pyramid of its shadow map's frustum (a point light's cube face)
 
     kind = "spot"
 
@@ -103,6 +106,44 @@ class SpotLight:
     def view_projection(self, near: float, far: float) -> np.ndarray:
         """World -> clip matrix of the spot's square frustum (fov = 2 * cone_deg)."""
         return perspective_matrix(2.0 * self.cone_deg, 1.0, near, far) @ view_matrix(self.position, *self.basis())
+
+    @property
+    def outer_cone_deg(self) -> float:
+        """Half-angle of the smallest circular cone holding every lit direction: ``cone_deg``, or for a ``square``
+        spot the pyramid's corner, atan(sqrt(2) tan(cone_deg))."""
+        if not self.square:
+            return float(self.cone_deg)
+        return math.degrees(math.atan(math.sqrt(2.0) * math.tan(math.radians(self.cone_deg))))
+
+
+#: A point light's six cube faces: the axes its square spots look along.
+CUBE_FACES = ((1.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, -1.0))
+
+
+@dataclass(frozen=True)
+class PointLight:
+    """Omnidirectional light at ``position``, RGB ``intensity`` (W/sr) in every direction.
+
+    The classic pipeline renders it as six square spots, one per cube face (:meth:`faces`; Klehm 2014 Sec. 3.2:
+    "six independent spotlights for each directional sector, corresponding to the face of a cube map. The
+    different contributions of these sources are simply added"), each with its own 90-degree shadow map.
+    """
+
+    position: np.ndarray
+    intensity: np.ndarray
+
+    kind = "point"
+
+    def __post_init__(self):
+        object.__setattr__(self, "position", _vec(self.position, "position"))
+        object.__setattr__(self, "intensity", _vec(self.intensity, "intensity"))
+        if np.any(self.intensity < 0.0):
+            raise ValueError("intensity must be >= 0")
+
+    def faces(self) -> tuple[SpotLight, ...]:
+        """The six square 90-degree spots (cone_deg 45, axis-aligned frusta) that tile every direction."""
+        return tuple(SpotLight(self.position, np.array(axis), 45.0, self.intensity, square=True)
+                     for axis in CUBE_FACES)
 
 
 @dataclass(frozen=True)
@@ -317,7 +358,7 @@ class VolumeLight:
 
 
 #: Any light of a :class:`~warpscatter.scene.Scene`.
-Light = Union[DirectionalLight, SpotLight, EnvironmentLight, AreaLight, LinearLight, VolumeLight]
+Light = Union[DirectionalLight, SpotLight, PointLight, EnvironmentLight, AreaLight, LinearLight, VolumeLight]
 
 
 # ---- kernel views ---------------------------------------------------------------------------------
@@ -439,7 +480,8 @@ class LightParams:
     right: wp.vec3  # spot frame, for the texture lookup
     up: wp.vec3
     tan_cone: float  # tan(cone half-angle)
-    cos_cone: float  # cos(cone half-angle)
+    cos_cone: float  # cos(cone half-angle); a square spot: of its outer cone (SpotLight.outer_cone_deg)
+    square: int  # 1: the lit directions are the square pyramid |right|, |up| <= tan_cone * forward
     has_texture: int
     texture: wp.array2d(dtype=wp.vec3)  # spot light texture, row 0 = top (+v); a 1x1 white texel without one
 
@@ -463,6 +505,7 @@ def light_params(light, device=None, texture: wp.array | None = None) -> LightPa
         p.up = wp.vec3(0.0, 1.0, 0.0)
         p.tan_cone = 0.0
         p.cos_cone = -1.0
+        p.square = 0
         p.has_texture = 0
     else:
         right, up, _ = light.basis()
@@ -472,7 +515,8 @@ def light_params(light, device=None, texture: wp.array | None = None) -> LightPa
         p.right = wp.vec3(*right)
         p.up = wp.vec3(*up)
         p.tan_cone = float(np.tan(np.radians(light.cone_deg)))
-        p.cos_cone = float(np.cos(np.radians(light.cone_deg)))
+        p.cos_cone = float(np.cos(np.radians(light.outer_cone_deg)))
+        p.square = int(bool(light.square))
         p.has_texture = int(light.texture is not None)
     p.texture = texture if texture is not None else light_texture_array(light, device)
     return p
@@ -521,7 +565,11 @@ def light_sample(light: LightParams, x: wp.vec3):
     omega = to_x / d
     c = wp.dot(omega, light.direction)
     e = wp.vec3(0.0, 0.0, 0.0)
-    if c > light.cos_cone and c > 0.0:
+    inside = c > light.cos_cone and c > 0.0
+    if light.square != 0:
+        reach = c * light.tan_cone
+        inside = c > 0.0 and wp.abs(wp.dot(omega, light.right)) <= reach and wp.abs(wp.dot(omega, light.up)) <= reach
+    if inside:
         e = light.radiance / d2
         if light.has_texture != 0:
             # project onto the spot's image plane at unit distance: [-1,1]^2 spans the cone's square
