@@ -204,9 +204,11 @@ def test_light_errors_have_no_union_tag_noise(tmp_path):
     assert "light.direction: must be non-zero" in msg
     assert "light.irradiance: every component must be >= 0" in msg
     assert "directional" not in msg  # pydantic's union tag is not part of the user's key path
+    msg = problems(tmp_path, {"light": {"type": "sun", "direction": [0, -1, 0]}})
+    assert ("light.type: unknown type 'sun' (choose from 'directional', 'spot', 'point', 'environment', 'area', "
+            "'linear', 'volume')" in msg)
     msg = problems(tmp_path, {"light": {"type": "point", "direction": [0, -1, 0]}})
-    assert ("light.type: unknown type 'point' (choose from 'directional', 'spot', 'environment', 'area', 'linear')"
-            in msg)
+    assert "light.position: required key missing" in msg and "light.direction: unknown key" in msg
     text = write(tmp_path).read_text().replace("type: directional", "kind: directional")
     assert "light.type: required key missing" in problems(tmp_path, text=text)
 

@@ -103,11 +103,11 @@ def test_surfaces_follow_the_inverse_square_law():
     assert hit.mean() > 0.3 and rel < 1e-5  # measured 1.6e-7
 
 
-@pytest.mark.parametrize("method, bound", [("fourier", 0.016), ("moments6", 0.019)])
-def test_prefiltered_methods_under_a_point_light(method, bound):
-    """The fence under a point light in view: fourier and moments6 (six rectified maps, one per face) against the
-    1024-step exact marcher. Measured at 160x90 (512^2 maps): fourier 1.03 %, moments6 1.28 %; the 128-step
-    shadow-map marcher 0.75 %."""
+@pytest.mark.parametrize("method, bound", [("fourier", 0.016), ("moments6", 0.019), ("epipolar", 0.018)])
+def test_fast_methods_under_a_point_light(method, bound):
+    """The fence under a point light in view: fourier and moments6 (six rectified maps, one per face) and epipolar
+    (six line layouts) against the 1024-step exact marcher. Measured at 160x90 (512^2 maps): fourier 1.03 %,
+    moments6 1.28 %, epipolar 1.20 %; the 128-step shadow-map marcher 0.75 %."""
     ref = ws.render(SPOT, {**SMALL, **POINT, "render.surfaces.enabled": False, "render.scattering.steps": 1024})
     out = ws.render(SPOT, {**SMALL, **POINT, "render.surfaces.enabled": False, "render.scattering.method": method})
     a, b = out.images["scattering"].astype(np.float64), ref.images["scattering"].astype(np.float64)
@@ -115,6 +115,19 @@ def test_prefiltered_methods_under_a_point_light(method, bound):
     assert np.abs(a - b).sum() / b.sum() < bound
 
 
-def test_epipolar_refuses_a_point_light():
-    with pytest.raises(ConfigError, match="render.scattering.method 'epipolar' needs a directional or spot light"):
-        ws.load_config(SPOT, {**POINT, "render.scattering.method": "epipolar"})
+def test_epipolar_spot_aimed_at_the_camera():
+    """A spot in view aimed at the camera: in-scattering falls off like the inverse distance to the light's image,
+    so every line texel within LOCAL_DENSE_RADIUS pixels of it is ray-marched (linear interpolation between the
+    initial samples returned 387 where the reference peaks at 11.6: 888 % rel. L1 at 320x180, now 0.86 %)."""
+    facing = {"light": {"type": "spot", "position": [-0.5, 2.2, 4.0], "direction": [0, 0, -1], "cone_deg": 45,
+                        "intensity": [30, 30, 30]}, "render.surfaces.enabled": False}
+    ref = ws.render(SPOT, {**SMALL, **facing, "render.scattering.steps": 1024}).images["scattering"]
+    out = ws.render(SPOT, {**SMALL, **facing, "render.scattering.method": "epipolar"}).images["scattering"]
+    assert out.max() < 1.5 * ref.max()
+    assert np.abs(out - ref).sum() / ref.sum() < 0.018  # measured 1.23 % at 160x90
+
+
+def test_a_point_light_at_the_camera_is_refused_by_the_prefiltered_methods():
+    with pytest.raises(ConfigError, match="light.position: the light sits at the camera position"):
+        ws.load_config(SPOT, {"light": {"type": "point", "position": [5.0, 1.2, -5.0]},
+                              "render.scattering.method": "moments6"})

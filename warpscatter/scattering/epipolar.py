@@ -57,6 +57,7 @@ import warp as wp
 
 from ..parallel import launch_rows
 from ..scene.camera import CameraParams
+from ..scene.lights import LIGHT_SPOT
 from ..stages import StageTimer
 from ..wpinit import default_device, module_options
 from .epipolar_lines import epipolar_lines, light_texture_level
@@ -88,6 +89,13 @@ logger = logging.getLogger("warpscatter")
 # ---- kernels ---------------------------------------------------------------------------------------
 
 
+#: Pixels around a spot light's epipole (its screen position, where in-scattering falls off like the inverse distance)
+#: in which every line texel is ray-marched.
+LOCAL_DENSE_RADIUS = 24.0
+#: Pixels off a spot light's epipole at which the samples nearer to it are marched.
+LOCAL_EPIPOLE_OFFSET = wp.constant(0.5)
+
+
 @wp.kernel
 def raymarch_samples_kernel(
     indices: wp.array(dtype=wp.int32),
@@ -104,6 +112,14 @@ def raymarch_samples_kernel(
     k = flat // geo.samples
     x = flat - k * geo.samples
     p = coords[k, x]
+    if marcher.light.kind == LIGHT_SPOT and x + 1 < geo.samples:
+        # a spot's epipole is the light itself, where in-scattering diverges: a sample closer than
+        # LOCAL_EPIPOLE_OFFSET pixels marches a ray that far out along its line (as a pixel centre's ray passes it)
+        out = p - geo.epipole
+        if wp.length(out) < LOCAL_EPIPOLE_OFFSET:
+            along = coords[k, x + 1] - p
+            if wp.length(along) > 0.0:
+                p = geo.epipole + wp.normalize(along) * LOCAL_EPIPOLE_OFFSET
     radiance[k, x] = march_screen_point(cam, p[0], p[1], line_depth[k, x], marcher)
 
 
@@ -264,7 +280,9 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
     else:
         geo = geometry_params(lines)
         with stage("discontinuities"):
-            classify_samples(lines, tex, ep.depth_threshold, device)
+            # a spot in front of the camera: dense samples around its image (classify_samples)
+            dense = LOCAL_DENSE_RADIUS if scene.light.kind == "spot" and not lines.light_behind else 0.0
+            classify_samples(lines, tex, ep.depth_threshold, device, dense_radius=dense)
             sample_idx, marched_samples = tex.samples, tex.sample_count
         with stage("raymarch"):
             if marched_samples:

@@ -293,6 +293,8 @@ def discontinuity_kernel(
     valid: wp.array(dtype=wp.int32),
     line_depth: wp.array2d(dtype=wp.float32),
     threshold: float,
+    coords: wp.array2d(dtype=wp.vec2),  # the texels' screen positions
+    dense_radius: float,  # texels within this many pixels of the epipole are all ray-marching samples (0: none)
     interp: wp.array2d(dtype=wp.vec2i),  # out: interpolation texture (left, right source texels)
     march: wp.array(dtype=wp.int32),  # out: 1 for ray-marching samples, flat index line * samples + texel
     marched: wp.array2d(dtype=wp.int32),  # out: the line's ray-marching texels in order (the first count[k])
@@ -323,6 +325,9 @@ def discontinuity_kernel(
             if not cut:
                 d_next = line_depth[k, x + 1]
                 cut = depth_discontinuity(d, d_next, threshold)
+                if dense_radius > 0.0 and (wp.length(coords[k, x] - geo.epipole) < dense_radius
+                                           or wp.length(coords[k, x + 1] - geo.epipole) < dense_radius):
+                    cut = True  # around a spot's own image: every texel its own run (see classify_samples)
             if cut:  # the run [a, x] ends here
                 for y in range(a, wp.min(x + 1, end)):
                     interp[k, y] = wp.vec2i(a, x)
@@ -504,8 +509,14 @@ def line_samples(lines: EpipolarLines, distance: wp.array, depth_threshold: floa
     return tex
 
 
-def classify_samples(lines: EpipolarLines, tex: LineTextures, depth_threshold: float, device=None) -> LineTextures:
+def classify_samples(lines: EpipolarLines, tex: LineTextures, depth_threshold: float, device=None,
+                     dense_radius: float = 0.0) -> LineTextures:
     """Discontinuity search and classification into ray-marching / interpolation samples (Sec. 5.2).
+
+    ``dense_radius`` (pixels): every texel that close to the epipole is a ray-marching sample. A spot light in front
+    of the camera is its own epipole, and in-scattering there falls off like the inverse distance to the light:
+    linear interpolation between the initial samples overshoots it by orders of magnitude (warpscatter's; the paper
+    refines at depth discontinuities only).
 
     Fills ``tex.interp`` (left, right sources per texel), ``tex.march`` (flat ray-marching flags) and
     ``tex.samples`` / ``tex.sample_count`` (the flat indices of the ray-marching samples, in flat order: the
@@ -519,7 +530,8 @@ def classify_samples(lines: EpipolarLines, tex: LineTextures, depth_threshold: f
     count = wp.empty(n, dtype=wp.int32, device=device)
     geo = geometry_params(lines)
     launch_rows(discontinuity_kernel, n,
-                [geo, tex.valid, tex.depth, float(depth_threshold), tex.interp, tex.march, marched, count],
+                [geo, tex.valid, tex.depth, float(depth_threshold), tex.coords, float(dense_radius), tex.interp,
+                 tex.march, marched, count],
                 device=device)
     tex.samples, tex.sample_count = gather_rows(marched, count, device)
     return tex
