@@ -77,6 +77,9 @@ CASES = [
     ("moments6", {"prefiltered": {"rectification": "nonlinear", "resample_filter": "moments"}}, 1e-3),  # 1.5e-5
     ("moments6", {"prefiltered": {"rectification": "projective"}}, 1e-3),  # measured 4.1e-5
     ("moments4", {"prefiltered": {"rectification": "nonlinear"}}, 5e-3),  # measured 6.0e-4
+    # the depth warp (Klehm Sec. 5) moves the representations' resolution, not the hard visibility
+    ("moments6", {"prefiltered": {"rectification": "nonlinear", "depth_warp": -3.0}}, 1e-3),  # measured 1.7e-4
+    ("fourier", {"prefiltered": {"rectification": "nonlinear", "depth_warp": -1.0}}, 0.015),  # measured 5.9e-3
 ]
 
 
@@ -117,3 +120,22 @@ def test_pcf_surface_shadows_pass_the_translucent_casters_light(opacity, two_sid
     out = wp.empty(64, dtype=wp.vec3)
     wp.launch(_surface_visibility_kernel, 64, [sh, wp.array(pts, dtype=wp.vec3), out])
     np.testing.assert_allclose(out.numpy(), want, atol=1e-6)
+
+
+def test_warped_depth_is_a_monotone_map_of_the_unit_interval():
+    from warpscatter.scattering.filtered_textures import check_depth_warp, warped_depth
+
+    @wp.kernel
+    def warp_kernel(z: wp.array(dtype=float), c: float, out: wp.array(dtype=float)):
+        i = wp.tid()
+        out[i] = warped_depth(z[i], c)
+
+    z = np.linspace(0.0, 1.0, 101, dtype=np.float32)
+    for c in (-6.0, -1.0, 0.5, 4.0):
+        out = wp.empty(101, dtype=float)
+        wp.launch(warp_kernel, 101, [wp.array(z), c, out])
+        w = out.numpy()
+        assert abs(w[0]) < 1e-6 and abs(w[-1] - 1.0) < 1e-5 and np.all(np.diff(w) > 0.0)
+        np.testing.assert_allclose(w, np.expm1(c * z) / np.expm1(c), rtol=2e-4, atol=1e-6)
+    with pytest.raises(ValueError, match="depth_warp"):
+        check_depth_warp(float("nan"))

@@ -40,6 +40,7 @@ from .filtered_textures import (
     basis_arrays,
     basis_value,
     moment_texel_values,
+    warped_depth,
 )
 from .prefix_sums import (
     split_columns,
@@ -423,8 +424,12 @@ def fourier_segments_visibility(fb: FilteredBasisArrays, texels: Any, weights: R
 def fourier_taps(fb: FilteredBasisArrays, texels: Any, j0: int, j1: int, cut: segment_columns, m: int, i0: int,
                  i1: int, ax: float, w0: segment_sums, w1: segment_sums, z_r: float) -> float:
     """clamp(0.5 + a(z_r) . the taps' weighted filtered-basis vectors, 0, 1): the reconstruction of a segment look-up
-    (:func:`segment_lookup`'s outputs) on ``texels``, the array of ``fb``'s storage."""
-    rot = wp.vec4(wp.cos(wp.pi * z_r), wp.sin(wp.pi * z_r), wp.cos(2.0 * wp.pi * z_r), wp.sin(2.0 * wp.pi * z_r))
+    (:func:`segment_lookup`'s outputs) on ``texels``, the array of ``fb``'s storage; z_r is warped as the texture's
+    depths are (``fb.depth_warp``)."""
+    z = z_r
+    if fb.depth_warp != 0.0:
+        z = warped_depth(z_r, fb.depth_warp)
+    rot = wp.vec4(wp.cos(wp.pi * z), wp.sin(wp.pi * z), wp.cos(2.0 * wp.pi * z), wp.sin(2.0 * wp.pi * z))
     end0 = wp.vec2(w0[m] * (1.0 - ax), w1[m] * (1.0 - ax))
     end1 = wp.vec2(w0[m] * ax, w1[m] * ax)
     # the end and the first two cuts in one pass, further cuts four per pass (an absent cut reads column i0 with
@@ -454,7 +459,10 @@ def fourier_visibility(fb: FilteredBasisArrays, weights: RayWeights, u: float, v
         cols = fb.codes.shape[1]
     u_end = u - weights.end_offset / float(cols)
     if weights.segments <= 1 or fb.splits > 1:
-        return prefiltered_visibility_split(fb, u_end, v, z_r, wrap_rows)
+        z = z_r
+        if fb.depth_warp != 0.0:
+            z = warped_depth(z_r, fb.depth_warp)
+        return prefiltered_visibility_split(fb, u_end, v, z, wrap_rows)
     if fb.code_bits == 0:
         return fourier_segments_visibility(fb, fb.basis, weights, u_end, v, z_r, wrap_rows)
     return fourier_segments_visibility(fb, fb.codes, weights, u_end, v, z_r, wrap_rows)
@@ -537,8 +545,11 @@ def moments_visibility(filtered: FilteredMomentArrays, weights: RayWeights, u: f
 def stored_moments_visibility(filtered: FilteredMomentArrays, t: mm.vec6, z_r: float, beta: float) -> float:
     """Visibility at depth z_r from a weighted sum t of a moment map's stored moments: back to canonical moments,
     biased for the storage mode, then Algorithm 1 (4 moments) or Sec. 5.4 (6 moments) at z_f = 2 z_r - 1 with the
-    overestimation weight ``beta`` (Peters 2017 Sec. 5.3.1)."""
-    z_f = 2.0 * z_r - 1.0
+    overestimation weight ``beta`` (Peters 2017 Sec. 5.3.1); z_r is warped as the map's depths are."""
+    z = z_r
+    if filtered.depth_warp != 0.0:
+        z = warped_depth(z_r, filtered.depth_warp)
+    z_f = 2.0 * z - 1.0
     if filtered.num_moments == 4:
         b = mm.load_biased_moments4(wp.vec4(t[0], t[1], t[2], t[3]), filtered.storage)
         return 1.0 - mm.msm4_interpolated_shadow_intensity(b, z_f, beta)

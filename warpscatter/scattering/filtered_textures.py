@@ -16,6 +16,7 @@ Fourier basis (0-based index k, pair m = k // 2, c = pi (2 m + 1)):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,7 +26,7 @@ from ..parallel import launch_rows
 from ..shadows import moment_storage as ms
 from ..shadows import moments as mm
 from ..wpinit import default_device, module_options
-from .settings import MAX_COEFFICIENTS
+from .settings import MAX_COEFFICIENTS, MAX_DEPTH_WARP
 
 module_options()
 
@@ -108,6 +109,24 @@ class FourierTables:
     pair_scales: wp.array(dtype=wp.float32)  # (MAX_COEFFICIENTS / 2,) 2 / c of pair m, c = pi (2 m + 1) (Eq. 8)
 
 
+@wp.func
+def warped_depth(z: float, c: float) -> float:
+    """The exponential depth warp (Klehm 2014 Sec. 5: "a depth warp ... which basically stretches the rays"):
+    (e^(c z) - 1) / (e^c - 1), monotone and mapping [0, 1] onto itself; c < 0 stretches the small depths (the end
+    of the map towards the light, where rays near the epipole and their blockers crowd), c > 0 the large ones; c = 0
+    is the identity (the callers skip it). The stored depths and the look-ups' ray depth are warped alike, so hard
+    visibility is unchanged and only the representations' resolution moves."""
+    return (wp.exp(c * z) - 1.0) / (wp.exp(c) - 1.0)
+
+
+def check_depth_warp(c) -> float:
+    """``c`` as a float, or ValueError unless finite with |c| <= MAX_DEPTH_WARP."""
+    c = float(c)
+    if not (math.isfinite(c) and abs(c) <= MAX_DEPTH_WARP):
+        raise ValueError(f"depth_warp must be finite with |c| <= {MAX_DEPTH_WARP:g}, got {c}")
+    return c
+
+
 @wp.struct
 class FilteredBasisArrays:
     """A Fourier basis texture as the kernels write and read it (:meth:`FilteredBasis.arrays`): the normalised
@@ -121,6 +140,7 @@ class FilteredBasisArrays:
     weight_sums: wp.array2d(dtype=wp.float32)  # (rows, cols) region-local running weight sums (splits > 1)
     region_weights: wp.array2d(dtype=wp.float32)  # (rows, splits) reference-ray transmittance at region starts
     splits: int  # regions per row (1 = the plain filter)
+    depth_warp: float  # the depth warp c of the stored depths (warped_depth; 0: none): look-ups warp z_r alike
 
 
 @wp.func
@@ -200,6 +220,7 @@ class FilteredMomentArrays:
     code_bits: int  # which array holds the texels: 0 (float32), CODE_BITS_UNORM16 or CODE_BITS_UNORM10
     num_moments: int  # 4 or 6
     storage: int  # moments.STORAGE4_* / STORAGE6_*: what the values mean (Theta*, moment bias)
+    depth_warp: float  # the depth warp c of the stored depths (warped_depth; 0: none): look-ups warp z_r alike
 
 
 @wp.func
@@ -349,6 +370,7 @@ class FilteredBasis:
     weight_sums: wp.array
     region_weights: wp.array
     splits: int
+    depth_warp: float = 0.0
 
     @property
     def bits(self) -> int:
@@ -364,6 +386,7 @@ class FilteredBasis:
         else:
             a.basis = self.basis
         a.weight_sums, a.region_weights, a.splits = self.weight_sums, self.region_weights, int(self.splits)
+        a.depth_warp = float(self.depth_warp)
         return a
 
     @property
@@ -411,6 +434,7 @@ class FilteredMoments:
     texels: wp.array
     num_moments: int
     storage: int
+    depth_warp: float = 0.0
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -431,6 +455,7 @@ class FilteredMoments:
         """The texture as the kernels read it (:class:`FilteredMomentArrays`)."""
         a = FilteredMomentArrays()
         a.num_moments, a.storage = int(self.num_moments), int(self.storage)
+        a.depth_warp = float(self.depth_warp)
         packed = MOMENT_TEXEL_LAYOUT[(a.num_moments, a.storage)][0]
         if self.texels.dtype == wp.float32:
             a.values, a.code_bits = self.texels, 0

@@ -344,10 +344,10 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         if settings.method == "fourier":
             fb: FilteredBasis | FilteredMoments = prefilter_weighted(
                 rectified, settings.fourier.coefficients, tau, lengths, splits=p.splits,
-                bits=settings.fourier.storage_bits, device=device)
+                bits=settings.fourier.storage_bits, depth_warp=p.depth_warp, device=device)
         else:
             fb = prefilter_moments(rectified, settings.num_moments, tau, lengths,
-                                   storage_bits=settings.moment_storage_bits, device=device)
+                                   storage_bits=settings.moment_storage_bits, depth_warp=p.depth_warp, device=device)
         bounds = DepthBounds()
         bounds.enabled = int(p.depth_bounds)
         bounds.bounds = (depth_bounds(rectified, device=device) if p.depth_bounds else
@@ -388,6 +388,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         "bits_per_texel": settings.filtered_bits_per_texel,
         "segments": segments,
         "depth_bounds": p.depth_bounds,
+        "depth_warp": p.depth_warp,
         "end_offset": p.end_offset,
         **resample_info,
         "caster_culling": culled is not None,

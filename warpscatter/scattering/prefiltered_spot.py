@@ -334,11 +334,11 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
             if settings.method == "fourier":
                 textures.append(prefilter_weighted(rectified, settings.fourier.coefficients,
                                                    bits=settings.fourier.storage_bits, texel_weights=filtered[k],
-                                                   device=device))
+                                                   depth_warp=p.depth_warp, device=device))
             else:
                 textures.append(prefilter_moments(rectified, settings.num_moments,
                                                   storage_bits=settings.moment_storage_bits,
-                                                  texel_weights=filtered[k], device=device))
+                                                  texel_weights=filtered[k], depth_warp=p.depth_warp, device=device))
         bounds = DepthBounds()
         bounds.enabled = int(p.depth_bounds)
         bounds.bounds = (depth_bounds(rectified, device=device) if p.depth_bounds else
@@ -373,6 +373,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         "bits_per_texel": settings.filtered_bits_per_texel,
         "segments": int(rays.segments),
         "depth_bounds": p.depth_bounds,
+        "depth_warp": p.depth_warp,
         "end_offset": p.end_offset,
         "resample_filter": "nearest",  # a spot's texels read their nearest spot-map texel
         "caster_culling": culled is not None,

@@ -84,11 +84,13 @@ from .filtered_textures import (
     basis_shape,
     basis_texel,
     basis_texture,
+    check_depth_warp,
     fourier_basis,
     fourier_frequency,
     moment_texture,
     store_basis,
     store_moment_texel,
+    warped_depth,
 )
 from .rectify_nonlinear import SparseRectifiedDepth
 from .settings import MAX_COEFFICIENTS, MAX_SPLITS, MIN_COEFFICIENTS
@@ -167,6 +169,7 @@ class RectifiedTexels:
     depth2: wp.array2d(dtype=wp.float32)  # (rows, cols) second depth z_2 (two_depths != 0), else a 1x1 placeholder
     weight2: wp.array2d(dtype=wp.float32)  # (rows, cols) weight w_2 of z_2 (two_depths != 0), else a placeholder
     two_depths: int
+    depth_warp: float  # the representations' depth warp c (filtered_textures.warped_depth; 0: none)
 
 
 @wp.func
@@ -281,6 +284,9 @@ def prefilter_depth_kernel(
     sum_w = float(0.0)
     for i in range(c0, c0 + nc):
         z, z2, w2 = texel_depths(rd, j, i)
+        if rd.depth_warp != 0.0:
+            z = warped_depth(z, rd.depth_warp)
+            z2 = warped_depth(z2, rd.depth_warp)
         w, transmittance = next_texel_weight(transmittance, uniform, w_first, step, column_length, i, tau)
         if texel_weights.shape[0] > 1:
             w = texel_weights[j, i]
@@ -367,6 +373,9 @@ def prefilter_moments_kernel(
         sum_w += w
         if sum_w > 0.0:
             z1, z2, w2 = texel_depths(rd, j, i)
+            if rd.depth_warp != 0.0:
+                z1 = warped_depth(z1, rd.depth_warp)
+                z2 = warped_depth(z2, rd.depth_warp)
             state = state + (w / sum_w) * (stored_moments(z1, z2, w2, out.num_moments, out.storage) - state)
         store_moment_texel(out, j, i, state)  # fixed point: rounded once more, as the emulation requantize_moments
 
@@ -395,10 +404,12 @@ def _pairs_per_thread(bases_per_thread) -> int:
     return int(bases_per_thread) // 2
 
 
-def rectified_texels(rectified_depth, device=None) -> RectifiedTexels:
-    """:class:`RectifiedTexels` of a (rows, cols) depth map (numpy or Warp) or a :class:`SparseRectifiedDepth`."""
+def rectified_texels(rectified_depth, device=None, depth_warp: float = 0.0) -> RectifiedTexels:
+    """:class:`RectifiedTexels` of a (rows, cols) depth map (numpy or Warp) or a :class:`SparseRectifiedDepth`; the
+    prefilters warp its depths by ``depth_warp`` (:func:`~.filtered_textures.warped_depth`)."""
     device = default_device(device)
     rd = RectifiedTexels()
+    rd.depth_warp = check_depth_warp(depth_warp)
     if isinstance(rectified_depth, SparseRectifiedDepth):
         arrs = [as_device_array(a, wp.float32, 2, f"rectified_depth.{n}", device)
                 for a, n in ((rectified_depth.z1, "z1"), (rectified_depth.z2, "z2"), (rectified_depth.w2, "w2"))]
@@ -530,7 +541,7 @@ def _texel_weights(weights, rows: int, cols: int, device) -> wp.array:
 
 
 def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None, column_length=None, *,
-                       texel_weights=None,
+                       texel_weights=None, depth_warp: float = 0.0,
                        splits: int = 1, bits: int = 0, device=None) -> FilteredBasis:
     """Fused basis transform and prefix filter with per-texel weights and split regions (Klehm 2014 Listing 3,
     Eq. 11-12, Sec. 3.3).
@@ -550,6 +561,8 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
             reference rays (e.g. Eq. 12's Delta d^i, or the exact lengths of a projective rectification).
         texel_weights: None, or (rows, cols) weights >= 0 to use instead of Eq. 12's (a spot light's reference
             rays, :func:`~.rectify_local.spot_texel_weights`).
+        depth_warp: the depth warp c the basis sees (:func:`~.filtered_textures.warped_depth`; 0: none); the
+            texture records it and its look-ups warp the ray depth alike.
         splits: regions per row filtered independently (1..MAX_SPLITS); > 1 also stores the weight sums.
         bits: 0 for float32 storage (4 M bytes per texel), 8 for the paper's RGBA8 storage (M bytes per texel:
             uint8 codes, Klehm 2014 App. A).
@@ -563,7 +576,7 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
     """
     device = default_device(device)
     m = _check_coefficients(num_coefficients)
-    rd = rectified_texels(rectified_depth, device)
+    rd = rectified_texels(rectified_depth, device, depth_warp)
     rows, cols = rd.depth.shape
     splits = _check_splits(splits, cols)
     bits = _check_bits(bits)
@@ -579,7 +592,8 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
         sums = wp.zeros((1, 1), dtype=wp.float32, device=device)
         region = np.ones((rows, 1), np.float32)
     out = FilteredBasis(basis=basis_texture(rows, cols, m, bits, device), weight_sums=sums,
-                        region_weights=wp.array(region, dtype=wp.float32, device=device), splits=splits)
+                        region_weights=wp.array(region, dtype=wp.float32, device=device), splits=splits,
+                        depth_warp=rd.depth_warp)
     groups = -(-(m // 2) // PAIRS_PER_THREAD)
     launch_rows(prefilter_depth_kernel, (rows, splits * groups),
                 [rd, tau, _kernel_lengths(lengths, device), _texel_weights(texel_weights, rows, cols, device),
@@ -588,7 +602,8 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
 
 
 def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, column_length=None, *,
-                      storage_bits: int | None = None, texel_weights=None, device=None) -> FilteredMoments:
+                      storage_bits: int | None = None, texel_weights=None, depth_warp: float = 0.0,
+                      device=None) -> FilteredMoments:
     """Transmittance-weighted prefix sums of moments of the rectified depth (Peters 2017 Sec. 5.1.1, 5.3-5.4, D.5).
 
     Args:
@@ -596,6 +611,7 @@ def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, colu
             (two depths per texel: their weighted moment vectors are combined, Sec. 5.2).
         num_moments: 4 or 6.
         optical_step, column_length, texel_weights: the texel weights as in :func:`prefilter_weighted`.
+        depth_warp: as in :func:`prefilter_weighted`.
         storage_bits: bits per texel, 64 or 128 (4 moments) / 64 (60 used), 96 or 192 (6 moments); None: the
             smallest (64) mode. The fixed-point modes store the codes of Theta*(b): 16-bit codes in a uint16 array
             (64 / 96 bits per texel) or six 10-bit codes packed in one uint64 per texel (64 bits).
@@ -612,11 +628,12 @@ def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, colu
         raise ValueError(f"storage_bits for {num_moments} moments must be one of "
                          f"{sorted(MOMENT_STORAGE[num_moments])}, got {storage_bits}")
     storage = MOMENT_STORAGE[num_moments][bits]
-    rd = rectified_texels(rectified_depth, device)
+    rd = rectified_texels(rectified_depth, device, depth_warp)
     rows, cols = rd.depth.shape
     tau = _optical_steps(optical_step, rows, device)
     lengths = _column_lengths(column_length, cols)
     out = moment_texture(rows, cols, num_moments, storage, device)
+    out.depth_warp = rd.depth_warp
     launch_rows(prefilter_moments_kernel, rows, [rd, tau, _kernel_lengths(lengths, device),
                                                  _texel_weights(texel_weights, rows, cols, device), out.arrays()],
                 device=device)

@@ -101,6 +101,8 @@ OVERESTIMATION = 0.25
 #: their own blockers: half a texel of each lit ray-end lights the dark room).
 END_OFFSET = 1.0
 MAX_END_OFFSET = 8.0
+#: Largest |c| of the exponential depth warp (prefiltered.depth_warp, filtered_textures.warped_depth).
+MAX_DEPTH_WARP = 16.0
 #: Border pixels per epipolar line by default (``epipolar.lines: null``): the line count follows the image size (1024
 #: lines at 320x180 meet nearly every border pixel and ray-march 58-67 % of the pixels). Measured with exact visibility,
 #: rel. L1 against the 512-step exact marcher and the share of pixels ray-marched (colonnade / canopy / window):
@@ -146,6 +148,10 @@ class PrefilteredSettings(SettingsModel):
         "texels the look-up ends before the ray's end point (texels of a map reaching the view: with map_radius "
         "casters, as many more as the columns are finer): the surface a ray ends on is its own blocker and lights or "
         "shadows the ray's last texel by chance"))] = END_OFFSET
+    depth_warp: Annotated[Float, Field(ge=-MAX_DEPTH_WARP, le=MAX_DEPTH_WARP, description=(
+        "exponential warp c of the depths the representations store and look up, (e^(c z) - 1) / (e^c - 1) (Klehm "
+        "2014 Sec. 5: against light bleeding near the epipole); 0: none; < 0 stretches the depths towards the "
+        "light"))] = 0.0
     depth_bounds: Bool = Field(True, description="per-row prefix bounds of the rectified depths (8 bytes per texel): a "
                                                  "view ray whose texels all lie behind its end is lit, all in front "
                                                  "shadowed, exactly, without the basis' ringing or leaking "
