@@ -111,10 +111,14 @@ def shade_local_light_kernel(
     count = strata * strata
     for s in range(count):
         j_light, j_brdf, choice, xi_light, xi_brdf, rng = stratum_random_numbers(rng)
-        if light.kind == LOCAL_LIGHT_VOLUME:
-            # ---- volume light: stratified in (s, t), r from the stratum's third number; light sampling only ----
+        if light.kind == LOCAL_LIGHT_VOLUME or light.kind == LOCAL_LIGHT_LINEAR:
+            # ---- no surface to hit: light sampling only. Volume: stratified in (s, t), r from the stratum's third
+            # number; linear: stratified in s (zero area) ----
             st = stratum_sample(s, strata, j_light)
             y = light.origin + st[0] * light.edge_u + st[1] * light.edge_v + choice * light.normal
+            if light.kind == LOCAL_LIGHT_LINEAR:
+                st = wp.vec2((float(s) + j_light[0]) / float(count), 0.5)
+                y = light.origin + st[0] * light.edge_u
             w = y - x
             d2 = wp.dot(w, w)
             if d2 > 0.0:
@@ -124,20 +128,6 @@ def shade_local_light_kernel(
                     f = shading_eval(sp, d)
                     if wp.length_sq(f) > 0.0:
                         v = local_visibility(vis, x, n, y, st, xi_light)
-                        total += wp.cw_mul(f, light.emission) * (v * c * light.size / d2)
-        elif light.kind == LOCAL_LIGHT_LINEAR:
-            # ---- linear light: stratified in s, light sampling only (zero area) ----
-            sl = (float(s) + j_light[0]) / float(count)
-            y = light.origin + sl * light.edge_u
-            w = y - x
-            d2 = wp.dot(w, w)
-            if d2 > 0.0:
-                d = w / wp.sqrt(d2)
-                c = wp.dot(n, d)
-                if c > 0.0:
-                    f = shading_eval(sp, d)
-                    if wp.length_sq(f) > 0.0:
-                        v = local_visibility(vis, x, n, y, wp.vec2(sl, 0.5), xi_light)
                         total += wp.cw_mul(f, light.emission) * (v * c * light.size / d2)
         else:
             # ---- area light sample (uniform in (s, t)), balance heuristic ----

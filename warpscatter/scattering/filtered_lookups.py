@@ -43,6 +43,7 @@ from .filtered_textures import (
     warped_depth,
 )
 from .prefix_sums import (
+    depth_bounds,
     split_columns,
 )
 from .ray_weights import (
@@ -108,6 +109,16 @@ class DepthBounds:
 
     bounds: wp.array2d(dtype=wp.vec2)
     enabled: int
+
+
+def depth_bounds_of(rectified, enabled: bool, device=None) -> DepthBounds:
+    """The look-ups' :class:`DepthBounds` of a rectified map (:func:`~.prefix_sums.depth_bounds`), or the disabled
+    placeholder."""
+    b = DepthBounds()
+    b.enabled = int(bool(enabled))
+    b.bounds = (depth_bounds(rectified, device=device) if enabled else
+                wp.zeros((1, 1), dtype=wp.vec2, device=default_device(device)))
+    return b
 
 
 @wp.func

@@ -69,7 +69,7 @@ from ..wpinit import default_device, module_options
 from . import rectify_nonlinear
 from .caster_culling import cull_unseen_casters
 from .epipole_fallback import epipole_pixel_fraction, epipole_regions, epipole_weights, march_epipole_regions
-from .filtered_lookups import DepthBounds, bounded_visibility, fourier_visibility, moments_visibility
+from .filtered_lookups import DepthBounds, bounded_visibility, depth_bounds_of, fourier_visibility, moments_visibility
 from .filtered_textures import (
     FilteredBasis,
     FilteredBasisArrays,
@@ -77,7 +77,6 @@ from .filtered_textures import (
     FilteredMoments,
 )
 from .prefix_sums import (
-    depth_bounds,
     prefilter_moments,
     prefilter_weighted,
 )
@@ -348,10 +347,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         else:
             fb = prefilter_moments(rectified, settings.num_moments, tau, lengths,
                                    storage_bits=settings.moment_storage_bits, depth_warp=p.depth_warp, device=device)
-        bounds = DepthBounds()
-        bounds.enabled = int(p.depth_bounds)
-        bounds.bounds = (depth_bounds(rectified, device=device) if p.depth_bounds else
-                         wp.zeros((1, 1), dtype=wp.vec2, device=device))
+        bounds = depth_bounds_of(rectified, p.depth_bounds, device)
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
         beta = -1.0 if overestimation == "adaptive" else float(overestimation)
@@ -404,17 +400,24 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     else:
         info["full_circle"] = rect.full_circle
         info["map_radius"] = round(rect.r_max, 4)  # world units from the camera's light axis covered by the columns
+    add_debug_images(info, frame, coords, regions, rectified, map_before_culling)
+    return out, info
+
+
+def add_debug_images(info: dict, frame, coords: wp.array, regions, rectified, map_before_culling) -> None:
+    """The debug outputs a frame asked for, into ``info["debug_images"]``: ``rectified`` the (H, W, 3) look-up
+    coordinates, ``epipole_mask`` the ray-marched epipole regions' weight, ``rectified_map`` the (rows, cols, 2) map
+    the prefilter read and 1 where caster culling emptied a texel (``map_before_culling``: its depths before)."""
     debug = {}
     if "rectified" in frame.aovs:
         debug["rectified"] = coords.numpy()
     if "epipole_mask" in frame.aovs:
-        debug["epipole_mask"] = epipole_weights(cam, regions)
+        debug["epipole_mask"] = epipole_weights(frame.scene.camera, regions)
     if map_before_culling is not None:
         depth = map_depth(rectified)
         debug["rectified_map"] = np.stack([depth, (depth != map_before_culling).astype(np.float32)], axis=-1)
     if debug:
         info["debug_images"] = debug
-    return out, info
 
 
 def map_depth(rectified) -> np.ndarray:
@@ -424,6 +427,7 @@ def map_depth(rectified) -> np.ndarray:
 
 
 __all__ = [
+    "add_debug_images",
     "evaluate_prefiltered_kernel",
     "map_visibility",
     "representation_visibility",

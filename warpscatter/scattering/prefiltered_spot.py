@@ -41,10 +41,10 @@ from ..scene.medium import MediumParams, phase_eval
 from ..stages import StageTimer
 from ..wpinit import default_device, module_options
 from .caster_culling import cull_unseen_casters
-from .epipole_fallback import epipole_pixel_fraction, epipole_regions, epipole_weights, march_epipole_regions
-from .filtered_lookups import DepthBounds, bounded_visibility, taps_visibility, texel_footprint
+from .epipole_fallback import epipole_pixel_fraction, epipole_regions, march_epipole_regions
+from .filtered_lookups import DepthBounds, bounded_visibility, depth_bounds_of, taps_visibility, texel_footprint
 from .filtered_textures import FilteredBasisArrays, FilteredMomentArrays
-from .prefix_sums import depth_bounds, prefilter_moments, prefilter_weighted
+from .prefix_sums import prefilter_moments, prefilter_weighted
 from .ray_weights import segment_columns, segment_sums
 from .rectify_local import (
     coloured_emission,
@@ -300,7 +300,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         ValueError: for ``rectification: projective``, ``splits`` > 1 or ``overestimation: adaptive``, which need
             a directional light.
     """
-    from .prefiltered import map_depth, pixel_coords
+    from .prefiltered import add_debug_images, map_depth, pixel_coords
 
     device = default_device(frame.device)
     scene, gbuffer, shadow_map = frame.scene, frame.gbuffer, frame.shadow_map
@@ -339,10 +339,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
                 textures.append(prefilter_moments(rectified, settings.num_moments,
                                                   storage_bits=settings.moment_storage_bits,
                                                   texel_weights=filtered[k], depth_warp=p.depth_warp, device=device))
-        bounds = DepthBounds()
-        bounds.enabled = int(p.depth_bounds)
-        bounds.bounds = (depth_bounds(rectified, device=device) if p.depth_bounds else
-                         wp.zeros((1, 1), dtype=wp.vec2, device=device))
+        bounds = depth_bounds_of(rectified, p.depth_bounds, device)
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
         beta = -1.0 if overestimation == "adaptive" else float(overestimation)
@@ -388,16 +385,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         "map_angles_deg": [round(math.degrees(rect.psi_lo), 3), round(math.degrees(rect.psi_lo + rect.r_max), 3)],
         "light_distance": round(rect.light_distance, 4),
     }
-    debug = {}
-    if "rectified" in frame.aovs:
-        debug["rectified"] = coords.numpy()
-    if "epipole_mask" in frame.aovs:
-        debug["epipole_mask"] = epipole_weights(cam, regions)
-    if map_before_culling is not None:
-        depth = map_depth(rectified)
-        debug["rectified_map"] = np.stack([depth, (depth != map_before_culling).astype(np.float32)], axis=-1)
-    if debug:
-        info["debug_images"] = debug
+    add_debug_images(info, frame, coords, regions, rectified, map_before_culling)
     return out, info
 
 
