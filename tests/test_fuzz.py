@@ -194,6 +194,8 @@ def light(draw, name, base, hostile: bool) -> dict:
             pos = draw(vector(30.0))
         if where != "keep":
             out["light.position"] = pos
+        if draw(st.integers(0, 3)) == 0:  # the same place as a point light (six cube-face spots)
+            return {"light": {"type": "point", "position": pos, "intensity": draw(rgb(1e6, hostile))}}
 
         to_cam = [c - p for c, p in zip(cam, pos, strict=True)]
         d = _direction(draw, hostile, {"into_camera": to_cam if any(to_cam) else [0.0, 0.0, 1.0],
@@ -207,8 +209,9 @@ def light(draw, name, base, hostile: bool) -> dict:
     elif kind == "environment":
         if draw(st.booleans()):
             out["light.scale"] = draw(number(0.0, 1e6, hostile, wild=(-1.0,)))
-    else:  # area (csm_area): itself, resized, degenerate, or a linear light
-        shape = draw(st.sampled_from(["keep", "resize", "tiny", "linear"] + (["parallel"] if hostile else [])))
+    else:  # area (csm_area): itself, resized, degenerate, textured, or a linear or volume light
+        shape = draw(st.sampled_from(["keep", "resize", "tiny", "linear", "volume", "textured"]
+                                     + (["parallel"] if hostile else [])))
         if shape == "resize":
             out["light.u"] = draw(vector(10.0))
             out["light.v"] = draw(vector(10.0))
@@ -222,7 +225,14 @@ def light(draw, name, base, hostile: bool) -> dict:
                             "end": [start[0] + draw(st.sampled_from([1e-6, 1.0, 6.0] + ([0.0, 1e-9] if hostile
                                                                                        else []))), start[1], start[2]],
                             "intensity": draw(rgb(1e6, hostile))}
-        if shape != "linear" and draw(st.booleans()):
+        elif shape == "volume":
+            out["light"] = {"type": "volume", "position": list(base.light.position), "u": [2.0, 0.0, 0.0],
+                            "v": [0.0, 1.0, 0.0],
+                            "w": [0.0, 0.0, draw(st.sampled_from([1e-6, 1.0] + ([0.0, 1e-12] if hostile else [])))],
+                            "intensity": draw(rgb(1e6, hostile))}
+        elif shape == "textured":
+            out["light.texture"] = "../assets/light_cookie.png"
+        if shape not in ("linear", "volume") and draw(st.booleans()):
             out["light.power"] = draw(rgb(1e6, hostile))
     return out
 

@@ -342,7 +342,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         bounds = depth_bounds_of(rectified, p.depth_bounds, device)
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
-        beta = -1.0 if overestimation == "adaptive" else float(overestimation)
+        beta = 0.0 if settings.method == "fourier" else -1.0 if overestimation == "adaptive" else float(overestimation)
         if beta < 0.0:
             raise ValueError("render.scattering.moments.overestimation: 'adaptive' needs a directional light (Peters "
                              "2017 Sec. 5.3.1 weighs the light and view directions); give a number for a spot light")
