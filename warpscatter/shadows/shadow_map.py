@@ -454,6 +454,10 @@ def shadow_pcf_contact(sm: ShadowMapParams, depth_map: Any, x: wp.vec3, n: wp.ve
     return total / wsum
 
 
+#: Largest factor of the slope-scaled normal offset on perspective maps (:func:`shadow_pcf_surface`).
+SLOPE_OFFSET_MAX = wp.constant(4.0)
+
+
 @wp.func
 def shadow_pcf_surface(sm: ShadowMapParams, depth_map: Any, x: wp.vec3, n: wp.vec3, normal_offset: float,
                        bias: float, filter_px: int, contact: int) -> float:
@@ -461,7 +465,8 @@ def shadow_pcf_surface(sm: ShadowMapParams, depth_map: Any, x: wp.vec3, n: wp.ve
 
     :func:`shadow_pcf` of x moved ``normal_offset`` (world units) along n, with depth bias ``bias`` (both for a
     texel at unit depth on perspective maps, where they grow with the receiver's depth like the texels, as the
-    moment maps' normal offset does); where ``contact`` is set (every receiver is also a caster, so it is in the map
+    moment maps' normal offset does, and the offset also with 1 / cos of the incidence, at most
+    :data:`SLOPE_OFFSET_MAX` times); where ``contact`` is set (every receiver is also a caster, so it is in the map
     itself) and the PCF box around x, grown by :data:`CONTACT_RING` texels, reaches an empty texel,
     :func:`shadow_pcf_contact` with :data:`CONTACT_BIAS_FRACTION` of the bias instead (see the module docstring)."""
     offset = normal_offset
@@ -470,6 +475,12 @@ def shadow_pcf_surface(sm: ShadowMapParams, depth_map: Any, x: wp.vec3, n: wp.ve
         z = wp.max(shadow_coords(sm, x)[2], 0.0)
         offset = normal_offset * z
         depth_bias = bias * z
+        # slope scale: at incidence angle a a texel spans 1 / cos(a) of the surface, and the surface's own depths
+        # behind the texel centre run that much further (acne rings on a ground lit at a grazing angle)
+        p = wp.transform_point(sm.view, x)
+        nv = wp.transform_vector(sm.view, n)
+        cos_in = -wp.dot(nv, p) / wp.max(wp.length(p), 1.0e-30)
+        offset = offset * wp.clamp(1.0 / wp.max(cos_in, 1.0e-6), 1.0, SLOPE_OFFSET_MAX)
     if contact != 0:
         c = shadow_texel_coords(sm, x)
         if wp.isfinite(c[0]) and wp.isfinite(c[1]) and wp.abs(c[0]) < 1.0e6 and wp.abs(c[1]) < 1.0e6:
