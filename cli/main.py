@@ -391,7 +391,16 @@ def _summary(config: Config) -> list[str]:
         emit = f"power {_format_value(light.power)}" if light.power is not None else \
             f"radiance {_format_value(light.radiance or (1.0, 1.0, 1.0))}"
         light_text = (f"area at {_format_value(light.position)}, edges {_format_value(light.u)} x "
-                      f"{_format_value(light.v)}, {emit}" + (", two-sided" if light.two_sided else ""))
+                      f"{_format_value(light.v)}, {emit}" + (", two-sided" if light.two_sided else "")
+                      + (f", texture {light.texture}" if light.texture else ""))
+    elif light.type == "volume":
+        emit = (f"power {_format_value(light.power)}" if light.power is not None else
+                f"intensity {_format_value(light.intensity or (1.0, 1.0, 1.0))} per unit volume")
+        light_text = (f"volume at {_format_value(light.position)}, edges {_format_value(light.u)} x "
+                      f"{_format_value(light.v)} x {_format_value(light.w)}, {emit}")
+    elif light.type == "point":
+        light_text = (f"point at {_format_value(light.position)}, intensity {_format_value(light.intensity)} (six "
+                      f"cube-face spots)")
     elif light.type == "linear":
         light_text = (f"linear {_format_value(light.start)} -> {_format_value(light.end)}, intensity "
                       f"{_format_value(light.intensity)} per unit length")

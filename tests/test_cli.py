@@ -254,6 +254,16 @@ def test_validate_summary(config_file):
     assert "directional, direction [0, -1, 0]" in result.stdout and "method:  raymarch" in result.stdout
 
 
+@pytest.mark.parametrize("light, text", [
+    ("{type: point, position: [0, 2, 3], intensity: [5, 5, 5]}", "point at [0, 2, 3], intensity [5, 5, 5]"),
+    ("{type: spot, position: [0, 2, 3], direction: [0, -1, 0], cone_deg: 20}", "spot at [0, 2, 3]"),
+])
+def test_validate_summary_names_every_classic_light(config_file, light, text):
+    result = invoke("validate", config_file, "--set", f"light={light}")
+    assert result.exit_code == 0, result.output
+    assert f"light:   {text}" in result.stdout
+
+
 def test_validate_dump_is_resolved_yaml(config_file, tmp_path):
     result = invoke("validate", config_file, "--dump")
     assert result.exit_code == 0

@@ -204,6 +204,11 @@ def test_validate_summarises_the_lighting_configs():
     assert result.exit_code == 0 and "environment map" in result.output and "lighting csm" in result.output
     result = invoke("validate", GATE, "--set", AREA)
     assert result.exit_code == 0 and "area at" in result.output
+    result = invoke("validate", GATE, "--set", AREA, "--set", "light.texture=../assets/light_cookie.png")
+    assert result.exit_code == 0 and "texture" in result.output and "light_cookie.png" in result.output
+    volume = "light={type: volume, position: [0, 5, 0], u: [1, 0, 0], v: [0, 1, 0], w: [0, 0, 1]}"
+    result = invoke("validate", GATE, "--set", volume)
+    assert result.exit_code == 0 and "volume at [0, 5, 0], edges [1, 0, 0] x [0, 1, 0] x [0, 0, 1]" in result.output
 
 
 def test_precompute_takes_the_configs_csm_settings_and_their_limits(tmp_path):
