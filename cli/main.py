@@ -373,6 +373,19 @@ def _out_dir(path: Path | None) -> Path | None:
     return out
 
 
+
+def _scattering_summary(sc) -> str:
+    """What the scattering method of a ``render.scattering`` section marches with or stores."""
+    from warpscatter import methods
+
+    method = methods.get("scattering", sc.method)
+    if method.visibility == methods.VISIBILITY_CONFIGURABLE:
+        return f"visibility {sc.visibility}, {sc.steps} steps"
+    if sc.method == "fourier":
+        return f"{sc.fourier.coefficients} coefficients, {sc.shadow_map.resolution}^2 maps"
+    return f"{sc.num_moments} moments, {sc.filtered_bits_per_texel} bits per texel, {sc.shadow_map.resolution}^2 maps"
+
+
 def _summary(config: Config) -> list[str]:
     meshes = config.scene.meshes
     procedural = [m.procedural for m in meshes if m.procedural]
@@ -422,7 +435,7 @@ def _summary(config: Config) -> list[str]:
         f"{_format_value(cam.look_at)}, near {cam.near:g}, far {cam.far:g}",
         f"  light:   {light_text}",
         f"  medium:  sigma_t {_format_value(med.sigma_t)}, albedo {_format_value(med.albedo)}, phase {phase}",
-        f"  method:  {sc.method} (visibility {sc.visibility}, {sc.steps} steps)" if lt.method is None else
+        f"  method:  {sc.method} ({_scattering_summary(sc)})" if lt.method is None else
         f"  method:  lighting {lt.method} ({lt.samples} strata x {lt.passes} passes, filter {lt.filter}"
         f"{', CSM file ' + str(lt.csm.file) if lt.csm.file else ''})",
         f"  output:  {out.dir / config.output_name}.exr/.png/.json" + (f" + {', '.join(extra)}" if extra else ""),
