@@ -180,3 +180,14 @@ def test_faint_and_dark_channels_stay_finite():
     out = _scattering(SPOT, {**SMALL, "render.scattering.method": "fourier", "light.intensity": [1e-38, 0.0, 5.0]})
     assert np.all(np.isfinite(out)) and np.all(out >= 0.0)
     assert np.all(out[..., 1] == 0.0) and out[..., 2].max() > 0.0
+
+
+def test_translucent_fence_under_the_spot():
+    """A 50 %-opaque fence under the textured spot: the spot map's translucent layer reaches the rectified map (two
+    depths per tap, as for a directional light). Against the exact marcher (transmittance along its shadow rays):
+    fourier 1.54 %, moments6 2.00 %, where treating the fence as opaque would err 7.4 %."""
+    half = {**SMALL, "scene.meshes.1.material.opacity": 0.5}
+    ref = _scattering(SPOT, {**half, "render.scattering.steps": 1024})
+    for method, bound in (("fourier", 0.022), ("moments6", 0.028)):
+        out = _scattering(SPOT, {**half, "render.scattering.method": method})
+        assert _rel_l1(out, ref) < bound

@@ -372,7 +372,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         "depth_bounds": p.depth_bounds,
         "depth_warp": p.depth_warp,
         "end_offset": p.end_offset,
-        "resample_filter": "nearest",  # a spot's texels read their nearest spot-map texel
+        "resample_filter": "supersample",  # a spot's texels: bilinear spot-map taps along psi (rectify_local)
         "caster_culling": culled is not None,
         **({} if culled is None else {"culled_texel_fraction": round(culled, 4)}),
         "filtered_map_bytes": sum(t.nbytes for t in textures),

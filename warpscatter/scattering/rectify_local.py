@@ -18,13 +18,14 @@ light is the limit D -> infinity with psi D -> r.
 The columns cover the angles at the light where light is and the view reaches: psi_lo, psi_hi = the spot cone's
 band around the baseline, [beta - cone, beta + cone] with beta the angle between the spot's axis and the baseline,
 cut to the largest psi of the view frustum (its far plane). Resampling (:func:`resample_spot_shadow_map`): each
-texel is a light ray; it keeps its casters as a directional light's texel does (the nearest spot-map texel; two
-depths with translucent casters), and the spot's emission along it (cone and texture,
-:func:`~warpscatter.scene.lights.light_sample`, averaged over the texel's footprint, relative to its peak) becomes the
-texel's FILTER tau in [0, 1] per colour channel. The filter weights the texel in the prefix sums (Klehm's
-"Angular-dependency for Sources": "each visibility function is simply weighted by the light's contribution"), so
-outside the cone a texel has no weight and inside the texture modulates it; a coloured texture needs one filtered
-map per channel (the paper: "triples storage amount and computation costs").
+texel is a light ray; it keeps its casters as a directional light's supersampled texel does (light rays over its
+psi extent, four bilinear spot-map taps each, condensed to two depths; translucent casters split each tap), and
+the spot's emission along it (cone and texture, :func:`~warpscatter.scene.lights.light_sample`, averaged over the
+texel's footprint, relative to its peak) becomes the texel's FILTER tau in [0, 1] per colour channel. The filter
+weights the texel in the prefix sums (Klehm's "Angular-dependency for Sources": "each visibility function is simply
+weighted by the light's contribution"), so outside the cone a texel has no weight and inside the texture modulates
+it; a coloured texture needs one filtered map per channel (the paper: "triples storage amount and computation
+costs").
 
 Per-texel weights of the prefix sums (:func:`spot_texel_weights`) and the per-ray look-ups:
 :mod:`.prefiltered_spot`.
@@ -42,11 +43,13 @@ from ..parallel import launch_rows
 from ..scene.lights import LightParams, light_sample
 from ..wpinit import default_device, module_options
 from .rectify_nonlinear import (
+    MAX_RADIAL_SAMPLES,
     NonlinearRectification,
     NonlinearRectParams,
     TranslucentLayer,
     _map_array,
-    nearest_map_texel,
+    radial_taps,
+    split_taps,
 )
 
 module_options()
@@ -90,21 +93,36 @@ def spot_rectification(camera, light, rows: int = 1024, cols: int = 1024,
 
 
 @wp.func
-def spot_blocker_depth(rect: NonlinearRectParams, light_pos: wp.vec3, axis: wp.vec3, direction: wp.vec3,
-                       depth: wp.array2d(dtype=wp.float32), c: wp.vec4) -> float:
-    """Rectified depth of the caster in the spot map texel nearest to clip coordinates c on the light ray
-    ``direction`` (unit, world) from ``light_pos``: 1 without one (or off the map). The map stores the caster's
-    distance along the spot's ``axis`` (its view -z)."""
-    inside, x, y = nearest_map_texel(depth, c)
-    result = float(1.0)
-    if inside:
+def spot_tap(rect: NonlinearRectParams, light_pos: wp.vec3, axis: wp.vec3, direction: wp.vec3,
+             depth: wp.array2d(dtype=wp.float32), c: wp.vec4, t: int, weight: float):
+    """Tap t (0..3) of the bilinear footprint of clip coordinates c (w = 1) in a spot map that stores the casters'
+    distance along the spot's ``axis``, for the light ray ``direction`` (unit, world) from ``light_pos``: (the tap
+    caster's rectified depth, its bilinear weight times ``weight``, 1 if the texel holds a caster else 0, x, y)."""
+    fx = (0.5 * c[0] + 0.5) * float(depth.shape[1]) - 0.5
+    fy = (0.5 - 0.5 * c[1]) * float(depth.shape[0]) - 0.5
+    x = int(wp.floor(fx))
+    y = int(wp.floor(fy))
+    wx = fx - float(x)
+    wy = fy - float(y)
+    if t % 2 == 0:
+        wx = 1.0 - wx
+    else:
+        x += 1
+    if t < 2:
+        wy = 1.0 - wy
+    else:
+        y += 1
+    z = float(1.0)
+    caster = float(0.0)
+    if x >= 0 and y >= 0 and x < depth.shape[1] and y < depth.shape[0]:
         stored = depth[y, x]
         if wp.isfinite(stored):
             s_b = stored / wp.max(wp.dot(direction, axis), 1.0e-6)
             q = rect.to_light * (light_pos + direction * s_b - rect.origin)
             theta = wp.atan2(wp.sqrt(q[0] * q[0] + q[1] * q[1]), q[2])
-            result = wp.clamp((rect.theta_hi - theta) / rect.theta_len, 0.0, 1.0)
-    return result
+            z = wp.clamp((rect.theta_hi - theta) / rect.theta_len, 0.0, 1.0)
+            caster = 1.0
+    return z, weight * wx * wy, caster, x, y
 
 
 @wp.kernel
@@ -115,6 +133,7 @@ def resample_spot_kernel(
     layer: TranslucentLayer,
     world_to_clip: wp.mat44,  # the spot's perspective world -> clip
     peak: wp.vec3,  # each channel's largest emission at unit distance (0: a dark channel)
+    samples: int,  # light rays per texel along psi for its casters (1..MAX_RADIAL_SAMPLES)
     out_z1: wp.array2d(dtype=wp.float32),
     out_z2: wp.array2d(dtype=wp.float32),
     out_w2: wp.array2d(dtype=wp.float32),
@@ -125,38 +144,86 @@ def resample_spot_kernel(
     j, i = wp.tid()
     j += offset
     to_world = wp.transpose(rect.to_light)
-    psi = rect.psi_lo + (float(i) + 0.5) / float(rect.cols) * rect.r_max
     phi = rect.phi_mid + ((float(j) + 0.5) / float(rect.rows) - 0.5) * rect.phi_span
-    direction = to_world * wp.vec3(wp.sin(psi) * wp.cos(phi), wp.sin(psi) * wp.sin(phi), wp.cos(psi))
     # the filter is the texel's mean emission: SPOT_FILTER_SAMPLES^2 light rays over its (psi, phi) footprint
     e_sum = wp.vec3(0.0, 0.0, 0.0)
-    n = SPOT_FILTER_SAMPLES
-    for a in range(n):
-        for b in range(n):
-            psi_s = rect.psi_lo + (float(i) + (float(a) + 0.5) / float(n)) / float(rect.cols) * rect.r_max
-            phi_s = rect.phi_mid + ((float(j) + (float(b) + 0.5) / float(n)) / float(rect.rows) - 0.5) * rect.phi_span
+    nf = SPOT_FILTER_SAMPLES
+    for a in range(nf):
+        for b in range(nf):
+            psi_s = rect.psi_lo + (float(i) + (float(a) + 0.5) / float(nf)) / float(rect.cols) * rect.r_max
+            phi_s = rect.phi_mid + ((float(j) + (float(b) + 0.5) / float(nf)) / float(rect.rows) - 0.5) * rect.phi_span
             ds = to_world * wp.vec3(wp.sin(psi_s) * wp.cos(phi_s), wp.sin(psi_s) * wp.sin(phi_s), wp.cos(psi_s))
             e, omega, dist = light_sample(light, light.position + ds / wp.length(ds))
             e_sum += e
     f = wp.vec3(0.0, 0.0, 0.0)
     for k in range(3):
         if peak[k] > 0.0:
-            f[k] = wp.clamp(e_sum[k] / (float(n * n) * peak[k]), 0.0, 1.0)
+            f[k] = wp.clamp(e_sum[k] / (float(nf * nf) * peak[k]), 0.0, 1.0)
     out_filter[j, i] = f
-    p = light.position + direction
-    c = world_to_clip * wp.vec4(p[0], p[1], p[2], 1.0)
+    # its casters: ``samples`` light rays over the texel's psi extent, each reading its four nearest spot-map texels
+    # with bilinear weights (two entries per tap with translucent casters: the nearest caster with 1 - T, the
+    # nearest opaque one with T), condensed to two depths as a directional light's supersampled texel is
+    # (rectify_nonlinear.split_taps); one nearest texel per rectified texel streaked along the epipolar slices
+    inv = 1.0 / float(samples)
+    lo = float(1.0e30)
+    hi = float(-1.0e30)
+    w_caster = float(0.0)
+    w_empty = float(0.0)
+    tap_z = radial_taps()
+    tap_w = radial_taps()
+    n = int(0)
+    for k in range(samples):
+        psi_k = rect.psi_lo + (float(i) + (float(k) + 0.5) * inv) / float(rect.cols) * rect.r_max
+        dk = to_world * wp.vec3(wp.sin(psi_k) * wp.cos(phi), wp.sin(psi_k) * wp.sin(phi), wp.cos(psi_k))
+        p = light.position + dk
+        c = world_to_clip * wp.vec4(p[0], p[1], p[2], 1.0)
+        if c[3] <= 0.0:  # behind the spot: no light there anyway (its filter is 0)
+            w_empty += inv
+        else:
+            c = c / c[3]
+        for t in range(4 * int(c[3] > 0.0)):
+            z_n, w_tap, caster_n, x, y = spot_tap(rect, light.position, light.direction, dk, shadow_depth, c, t, inv)
+            passed = float(0.0)
+            z_o = float(1.0)
+            caster_o = float(0.0)
+            if layer.translucent != 0:
+                z_o, w_o, caster_o, xo, yo = spot_tap(rect, light.position, light.direction, dk, layer.opaque_depth,
+                                                      c, t, inv)
+                if x >= 0 and y >= 0 and x < layer.transmittance.shape[1] and y < layer.transmittance.shape[0]:
+                    passed = layer.transmittance[y, x]
+            for part in range(2):
+                if part == 0 or passed > 0.0:
+                    z_b = z_n
+                    w = w_tap * (1.0 - passed)
+                    caster = caster_n
+                    if part == 1:
+                        z_b = z_o
+                        w = w_tap * passed
+                        caster = caster_o
+                    if caster > 0.0:
+                        if w > 0.0:
+                            lo = wp.min(lo, z_b)
+                            hi = wp.max(hi, z_b)
+                        w_caster += w
+                        tap_z[n] = z_b
+                        tap_w[n] = w
+                    else:
+                        w_empty += w
+                    n += 1
     z1 = float(1.0)
     z2 = float(1.0)
     w2 = float(0.0)
-    if c[3] > 0.0:  # in front of the spot (outside its cone the filter is 0 anyway)
-        c = c / c[3]
-        z1 = spot_blocker_depth(rect, light.position, light.direction, direction, shadow_depth, c)
-        z2 = z1
-        if layer.translucent != 0:
-            z2 = spot_blocker_depth(rect, light.position, light.direction, direction, layer.opaque_depth, c)
-            inside, x, y = nearest_map_texel(layer.transmittance, c)
-            if inside:
-                w2 = layer.transmittance[y, x]
+    if w_caster > 0.0:
+        m1, wa, m2, wb = split_taps(tap_z, tap_w, n, lo, hi, w_empty)
+        if wa > 0.0:
+            z1 = m1
+        if wb > 0.0:
+            z2 = m2
+            w2 = wb / (wa + wb)
+        else:
+            w2 = w_empty / (w_caster + w_empty)
+            if w2 <= 0.0:
+                z2 = z1
     out_z1[j, i] = z1
     out_z2[j, i] = z2
     out_w2[j, i] = w2
@@ -207,9 +274,12 @@ def resample_spot_shadow_map(rect: NonlinearRectification, shadow_map, light, lp
     z1, z2, w2 = (wp.empty(shape, dtype=wp.float32, device=device) for _ in range(3))
     emission = wp.empty(shape, dtype=wp.vec3, device=device)
     m = np.asarray(shadow_map.view_projection, np.float64)
+    # one light ray per spot-map texel the rectified texel spans along psi (the spot map's texel angle at its axis)
+    texel_angle = 2.0 * math.tan(math.radians(light.cone_deg)) / shadow_map.depth.shape[1]
+    samples = int(np.clip(math.ceil(rect.r_max / rect.cols / texel_angle - 1e-6), 1, MAX_RADIAL_SAMPLES))
     launch_rows(resample_spot_kernel, shape,
                 [rect.params(), lparams, sm, layer, wp.mat44(*m.astype(np.float32).ravel()),
-                 wp.vec3(*peak), z1, z2, w2, emission], device=device)
+                 wp.vec3(*peak), samples, z1, z2, w2, emission], device=device)
     return SparseRectifiedDepth(z1=z1, z2=z2, w2=w2), emission.numpy()
 
 

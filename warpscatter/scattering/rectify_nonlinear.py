@@ -322,6 +322,39 @@ def translucent_tap(layer: TranslucentLayer, x: int, y: int, d: float, depth_per
     return layer.transmittance[y, x], float(0.0), float(0.0)
 
 
+@wp.func
+def split_taps(tap_z: radial_taps, tap_w: radial_taps, n: int, lo: float, hi: float, w_empty: float):
+    """Condense a texel's n caster taps (depth, weight; depths within [lo, hi]) to two depths: split at the middle
+    of their range when no tap is empty (else one depth: the empty taps are the other), each part's weighted mean.
+
+    Returns:
+        (mean depth of the nearer part, its weight, of the farther part, its weight); a part without taps has
+        weight 0 (and mean 0).
+    """
+    two = w_empty <= 0.0 and hi > lo
+    mid = 0.5 * (lo + hi)
+    s1 = float(0.0)
+    s2 = float(0.0)
+    w1 = float(0.0)
+    w2 = float(0.0)
+    for k in range(n):
+        z_b = tap_z[k]
+        w = tap_w[k]
+        if two and z_b > mid:
+            s2 += w * z_b
+            w2 += w
+        else:
+            s1 += w * z_b
+            w1 += w
+    m1 = float(0.0)
+    m2 = float(0.0)
+    if w1 > 0.0:
+        m1 = s1 / w1
+    if w2 > 0.0:
+        m2 = s2 / w2
+    return m1, w1, m2, w2
+
+
 @wp.kernel
 def resample_radial_kernel(
     rect: NonlinearRectParams,
@@ -393,25 +426,11 @@ def resample_radial_kernel(
     z2 = float(1.0)
     share = float(0.0)
     if w_caster > 0.0:
-        two = w_empty <= 0.0 and hi > lo
-        mid = 0.5 * (lo + hi)
-        s1 = float(0.0)
-        s2 = float(0.0)
-        w1 = float(0.0)
-        w2 = float(0.0)
-        for k in range(n):
-            z_b = tap_z[k]
-            w = tap_w[k]
-            if two and z_b > mid:
-                s2 += w * z_b
-                w2 += w
-            else:
-                s1 += w * z_b
-                w1 += w
+        m1, w1, m2, w2 = split_taps(tap_z, tap_w, n, lo, hi, w_empty)
         if w1 > 0.0:
-            z1 = rectified_blocker_depth(rect, u_mid, s1 / w1)
+            z1 = rectified_blocker_depth(rect, u_mid, m1)
         if w2 > 0.0:  # two caster depths
-            z2 = rectified_blocker_depth(rect, u_mid, s2 / w2)
+            z2 = rectified_blocker_depth(rect, u_mid, m2)
             share = w2 / (w1 + w2)
         else:  # the casters' depth, and the empty taps at depth 1
             share = w_empty / (w_caster + w_empty)
