@@ -48,6 +48,8 @@ from .rectify_nonlinear import (
     NonlinearRectParams,
     TranslucentLayer,
     _map_array,
+    add_tap_parts,
+    bilinear_tap,
     radial_taps,
     split_taps,
 )
@@ -98,20 +100,7 @@ def spot_tap(rect: NonlinearRectParams, light_pos: wp.vec3, axis: wp.vec3, direc
     """Tap t (0..3) of the bilinear footprint of clip coordinates c (w = 1) in a spot map that stores the casters'
     distance along the spot's ``axis``, for the light ray ``direction`` (unit, world) from ``light_pos``: (the tap
     caster's rectified depth, its bilinear weight times ``weight``, 1 if the texel holds a caster else 0, x, y)."""
-    fx = (0.5 * c[0] + 0.5) * float(depth.shape[1]) - 0.5
-    fy = (0.5 - 0.5 * c[1]) * float(depth.shape[0]) - 0.5
-    x = int(wp.floor(fx))
-    y = int(wp.floor(fy))
-    wx = fx - float(x)
-    wy = fy - float(y)
-    if t % 2 == 0:
-        wx = 1.0 - wx
-    else:
-        x += 1
-    if t < 2:
-        wy = 1.0 - wy
-    else:
-        y += 1
+    x, y, wx, wy = bilinear_tap(depth, c, t)
     z = float(1.0)
     caster = float(0.0)
     if x >= 0 and y >= 0 and x < depth.shape[1] and y < depth.shape[0]:
@@ -191,25 +180,8 @@ def resample_spot_kernel(
                                                       c, t, inv)
                 if x >= 0 and y >= 0 and x < layer.transmittance.shape[1] and y < layer.transmittance.shape[0]:
                     passed = layer.transmittance[y, x]
-            for part in range(2):
-                if part == 0 or passed > 0.0:
-                    z_b = z_n
-                    w = w_tap * (1.0 - passed)
-                    caster = caster_n
-                    if part == 1:
-                        z_b = z_o
-                        w = w_tap * passed
-                        caster = caster_o
-                    if caster > 0.0:
-                        if w > 0.0:
-                            lo = wp.min(lo, z_b)
-                            hi = wp.max(hi, z_b)
-                        w_caster += w
-                        tap_z[n] = z_b
-                        tap_w[n] = w
-                    else:
-                        w_empty += w
-                    n += 1
+            tap_z, tap_w, n, lo, hi, w_caster, w_empty = add_tap_parts(
+                tap_z, tap_w, n, lo, hi, w_caster, w_empty, z_n, caster_n, z_o, caster_o, w_tap, passed)
     z1 = float(1.0)
     z2 = float(1.0)
     w2 = float(0.0)

@@ -278,14 +278,11 @@ radial_taps = wp.types.vector(length=8 * MAX_RADIAL_SAMPLES, dtype=wp.float32)
 
 
 @wp.func
-def radial_tap(shadow_depth: wp.array2d(dtype=wp.float32), c0: wp.vec4, ca: wp.vec4, d0: float, da: float,
-               depth_per_unit: float, empty_depth: float, u: float, t: int, weight: float):
-    """Tap t (0..3) of the bilinear footprint at column coordinate u of :func:`resample_radial_kernel`'s light rays:
-    (its caster's distance z_b along the light from the ray's point, its bilinear weight times ``weight``, 1 if the
-    texel holds a caster else 0, the texel's column and row)."""
-    c = c0 + ca * u
-    fx = (0.5 * c[0] + 0.5) * float(shadow_depth.shape[1]) - 0.5
-    fy = (0.5 - 0.5 * c[1]) * float(shadow_depth.shape[0]) - 0.5
+def bilinear_tap(texels: wp.array2d(dtype=wp.float32), c: wp.vec4, t: int):
+    """Texel (x, y) and bilinear weights (wx, wy) of tap t (0..3) of the footprint of clip coordinates c in a map
+    (row 0 = NDC y = +1); the texel may lie off the map."""
+    fx = (0.5 * c[0] + 0.5) * float(texels.shape[1]) - 0.5
+    fy = (0.5 - 0.5 * c[1]) * float(texels.shape[0]) - 0.5
     x = int(wp.floor(fx))
     y = int(wp.floor(fy))
     wx = fx - float(x)
@@ -298,6 +295,16 @@ def radial_tap(shadow_depth: wp.array2d(dtype=wp.float32), c0: wp.vec4, ca: wp.v
         wy = 1.0 - wy
     else:
         y += 1
+    return x, y, wx, wy
+
+
+@wp.func
+def radial_tap(shadow_depth: wp.array2d(dtype=wp.float32), c0: wp.vec4, ca: wp.vec4, d0: float, da: float,
+               depth_per_unit: float, empty_depth: float, u: float, t: int, weight: float):
+    """Tap t (0..3) of the bilinear footprint at column coordinate u of :func:`resample_radial_kernel`'s light rays:
+    (its caster's distance z_b along the light from the ray's point, its bilinear weight times ``weight``, 1 if the
+    texel holds a caster else 0, the texel's column and row)."""
+    x, y, wx, wy = bilinear_tap(shadow_depth, c0 + ca * u, t)
     z_b = float(0.0)
     caster = float(0.0)
     if x >= 0 and y >= 0 and x < shadow_depth.shape[1] and y < shadow_depth.shape[0]:
@@ -320,6 +327,43 @@ def translucent_tap(layer: TranslucentLayer, x: int, y: int, d: float, depth_per
     if wp.isfinite(stored) and stored < empty_depth:
         return layer.transmittance[y, x], (stored - d) / depth_per_unit, float(1.0)
     return layer.transmittance[y, x], float(0.0), float(0.0)
+
+
+@wp.func
+def add_tap_parts(tap_z: radial_taps, tap_w: radial_taps, n: int, lo: float, hi: float, w_caster: float,
+                  w_empty: float, z_n: float, caster_n: float, z_o: float, caster_o: float, w_tap: float,
+                  passed: float):
+    """Add one bilinear tap of weight ``w_tap`` to a texel's taps: its nearest caster (depth z_n, 1 in caster_n if
+    there is one) with weight (1 - passed), and where translucent casters pass light (``passed`` = T > 0) its
+    nearest opaque caster (z_o, caster_o) with weight T. Caster entries extend [lo, hi] and w_caster, an empty one
+    (no caster) adds to w_empty. Returns the updated (tap_z, tap_w, n, lo, hi, w_caster, w_empty)."""
+    zs = tap_z
+    ws_ = tap_w
+    m = n
+    low = lo
+    high = hi
+    wc = w_caster
+    we = w_empty
+    for part in range(2):
+        if part == 0 or passed > 0.0:
+            z_b = z_n
+            w = w_tap * (1.0 - passed)
+            caster = caster_n
+            if part == 1:
+                z_b = z_o
+                w = w_tap * passed
+                caster = caster_o
+            if caster > 0.0:
+                if w > 0.0:
+                    low = wp.min(low, z_b)
+                    high = wp.max(high, z_b)
+                wc += w
+                zs[m] = z_b
+                ws_[m] = w
+            else:
+                we += w
+            m += 1
+    return zs, ws_, m, low, high, wc, we
 
 
 @wp.func
@@ -402,25 +446,8 @@ def resample_radial_kernel(
             z_n, w_tap, caster_n, x, y = radial_tap(shadow_depth, c0, ca, d0, da, depth_per_unit, empty_depth, u, t,
                                                     inv)
             passed, z_o, caster_o = translucent_tap(layer, x, y, d0 + da * u, depth_per_unit, empty_depth)
-            for part in range(2):
-                if part == 0 or passed > 0.0:
-                    z_b = z_n
-                    w = w_tap * (1.0 - passed)
-                    caster = caster_n
-                    if part == 1:
-                        z_b = z_o
-                        w = w_tap * passed
-                        caster = caster_o
-                    if caster > 0.0:
-                        if w > 0.0:
-                            lo = wp.min(lo, z_b)
-                            hi = wp.max(hi, z_b)
-                        w_caster += w
-                        tap_z[n] = z_b
-                        tap_w[n] = w
-                    else:
-                        w_empty += w
-                    n += 1
+            tap_z, tap_w, n, lo, hi, w_caster, w_empty = add_tap_parts(
+                tap_z, tap_w, n, lo, hi, w_caster, w_empty, z_n, caster_n, z_o, caster_o, w_tap, passed)
     u_mid = (float(i) + 0.5) / float(rect.cols)
     z1 = float(1.0)
     z2 = float(1.0)
