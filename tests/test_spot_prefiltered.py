@@ -70,8 +70,7 @@ def test_ray_weight_table_matches_quadrature_of_the_ray():
     dist, sigma, g = 10.0, 0.12, 0.4
     rays = SpotRays()
     rays.light_distance = dist
-    rays.ref_sums = wp.zeros((1, 1), dtype=wp.float32)
-    rays.filter_sums = wp.zeros((1, 1, 1), dtype=wp.float32)
+    rays.sums = wp.zeros((1, 1, 1), dtype=wp.float32)
     theta = np.array([0.5, 1.0, 2.0, 2.9], np.float32)
     ends = np.array([50.0, 20.0, 30.0, 5.0])
     psi_end = np.arctan2(ends * np.sin(theta), dist + ends * np.cos(theta)).astype(np.float32)
@@ -102,12 +101,13 @@ def test_ray_weight_table_matches_quadrature_of_the_ray():
 
 def test_texel_weights_decay_along_rows(spot_scene):
     """Every row's reference weights are positive up to its reference inclination and fall along the row in an
-    extinguishing medium; their sums are the running sums."""
+    extinguishing medium; without extinction they are the plain column width."""
     rect = spot_rectification(spot_scene.camera, spot_scene.light, rows=64, cols=128)
-    w, sums = spot_texel_weights(rect, 0.3)
+    w = spot_texel_weights(rect, 0.3)
     assert w.shape == (64, 128) and np.all(w >= 0.0) and np.all(w[:, 0] > 0.0)
     assert np.all(np.diff(w, axis=1) <= 1e-12)  # isotropic: transmittance only, decaying
-    np.testing.assert_allclose(sums, np.cumsum(w, axis=1), rtol=1e-5)
+    flat = spot_texel_weights(rect, 0.0)
+    np.testing.assert_allclose(flat[flat > 0.0], rect.r_max / rect.cols, rtol=1e-12)
 
 
 @pytest.mark.parametrize("method, bound", [("fourier", 0.016), ("moments6", 0.0095)])

@@ -15,7 +15,7 @@ smooth and bounded. It has no closed form:
   the unshadowed integral E and the cuts of its ``segments`` look-up segments at equal shares of it;
 * each row's texels are weighted in the prefix sums by the density of the row's reference ray times tau
   (:func:`~.rectify_local.spot_texel_weights`: the ray of the slice, and its neighbours, with the largest
-  inclination, which decays slowest; its phase function), and ``ref_sums`` / ``filter_sums`` keep the prefix sums
+  inclination, which decays slowest; its phase function), and ``sums`` keeps the prefix sums
   of those weights without and with tau;
 * a segment's visibility mean is then the tau-weighted one of the stored prefix means, its weight the ray's own
   share times the segment's mean tau, r_k Delta D_tau,k with r_k = Delta E_k / Delta D_k (the ray's weight per
@@ -76,8 +76,9 @@ class SpotRays:
     light_distance: float  # D, camera to light (world units)
     psi_lo: float  # angle at the light of column coordinate u = 0 (radians)
     psi_span: float  # angle span of u in [0, 1] (radians)
-    ref_sums: wp.array2d(dtype=wp.float32)  # (rows, cols) the rows' reference weights summed through each column
-    filter_sums: wp.array3d(dtype=wp.float32)  # (maps, rows, cols) the same times each map's filter tau
+    # (1 + maps, rows, cols) the rows' reference weights summed through each column: layer 0 plain, layer 1 + k times
+    # map k's filter tau
+    sums: wp.array3d(dtype=wp.float32)
 
 
 @wp.func
@@ -144,21 +145,12 @@ def ray_cuts(rays: SpotRays, table: local_table, h: float, cols: int, i0: int):
 
 
 @wp.func
-def prefix_at(sums: wp.array2d(dtype=wp.float32), j: int, x: float) -> float:
-    """Row j of per-column prefix sums at continuous prefix column x (linear between whole columns)."""
-    last = sums.shape[1] - 1
-    i = wp.clamp(int(wp.floor(x)), 0, last)
-    a = wp.clamp(x - float(i), 0.0, 1.0)
-    return sums[j, i] + a * (sums[j, wp.min(i + 1, last)] - sums[j, i])
-
-
-@wp.func
-def filter_prefix_at(sums: wp.array3d(dtype=wp.float32), k: int, j: int, x: float) -> float:
-    """:func:`prefix_at` of map k's filter sums."""
+def prefix_at(sums: wp.array3d(dtype=wp.float32), layer: int, j: int, x: float) -> float:
+    """Row j of a layer of per-column prefix sums at continuous prefix column x (linear between whole columns)."""
     last = sums.shape[2] - 1
     i = wp.clamp(int(wp.floor(x)), 0, last)
     a = wp.clamp(x - float(i), 0.0, 1.0)
-    return sums[k, j, i] + a * (sums[k, j, wp.min(i + 1, last)] - sums[k, j, i])
+    return sums[layer, j, i] + a * (sums[layer, j, wp.min(i + 1, last)] - sums[layer, j, i])
 
 
 @wp.func
@@ -175,11 +167,11 @@ def spot_row_weights(rays: SpotRays, k: int, j: int, x: float, cut: segment_colu
         d = float(0.0)
         f = float(0.0)
         if s < m:
-            d = prefix_at(rays.ref_sums, j, float(cut[s]))
-            f = filter_prefix_at(rays.filter_sums, k, j, float(cut[s]))
+            d = prefix_at(rays.sums, 0, j, float(cut[s]))
+            f = prefix_at(rays.sums, 1 + k, j, float(cut[s]))
         else:
-            d = prefix_at(rays.ref_sums, j, x)
-            f = filter_prefix_at(rays.filter_sums, k, j, x)
+            d = prefix_at(rays.sums, 0, j, x)
+            f = prefix_at(rays.sums, 1 + k, j, x)
         r = (esum[s] - e_prev) / wp.max(d - d_prev, 1.0e-30)
         e_tau += r * (f - f_prev)
         if s > 0:
@@ -197,24 +189,31 @@ def spot_row_weights(rays: SpotRays, k: int, j: int, x: float, cut: segment_colu
 
 
 @wp.func
-def spot_visibility(texels: Any, rays: SpotRays, k: int, bounds: DepthBounds, c: wp.vec3, wrap: int, beta: float,
-                    table: local_table, h: float):
-    """(visible share, filter factor) of the view ray ending at rectified c on map k (module doc)."""
-    rows = rays.ref_sums.shape[0]
-    cols = rays.ref_sums.shape[1]
+def spot_lookup(rays: SpotRays, bounds: DepthBounds, c: wp.vec3, wrap: int, table: local_table, h: float):
+    """What every map's look-up of the view ray ending at rectified c shares: the bilinear footprint (j0, j1, ay,
+    i0, i1, ax), the end's continuous prefix column x, the cuts (cut, esum, m) and the depth bounds' answer (0 or 1,
+    -1: reconstruct)."""
+    cols = rays.sums.shape[2]
     u = c[0] - rays.end_offset / float(cols)
-    j0, j1, ay, i0, i1, ax = texel_footprint(rows, cols, u, c[1], wrap)
-    x = float(i0) + ax
+    j0, j1, ay, i0, i1, ax = texel_footprint(rays.sums.shape[1], cols, u, c[1], wrap)
     cut, esum, m = ray_cuts(rays, table, h, cols, i0)
+    return j0, j1, ay, i0, i1, ax, float(i0) + ax, cut, esum, m, bounded_visibility(bounds, u, c[1], c[2], wrap)
+
+
+@wp.func
+def spot_visibility(texels: Any, rays: SpotRays, k: int, j0: int, j1: int, ay: float, i0: int, i1: int, ax: float,
+                    x: float, cut: segment_columns, esum: segment_sums, m: int, bounded: float, z_r: float,
+                    beta: float):
+    """(visible share, filter factor) of a look-up (:func:`spot_lookup`) on map k (module doc)."""
     w0, f0 = spot_row_weights(rays, k, j0, x, cut, esum, m)
     w1, f1 = spot_row_weights(rays, k, j1, x, cut, esum, m)
     tex = (1.0 - ay) * f0 + ay * f1
     if tex <= 0.0:
         return float(0.0), float(0.0)
-    v = bounded_visibility(bounds, u, c[1], c[2], wrap)
+    v = bounded
     if v < 0.0:
         v = taps_visibility(texels, j0, j1, cut, m, i0, i1, ax, w0 * ((1.0 - ay) * f0 / tex), w1 * (ay * f1 / tex),
-                            c[2], beta)
+                            z_r, beta)
     return v, tex
 
 
@@ -248,28 +247,37 @@ def evaluate_spot_kernel(
         scale = 1.0 / (rays.light_distance * wp.max(wp.sin(theta), 1.0e-6))
         if med.coloured == 0:
             table = ray_weight_table(rays, med.sigma_t, med.phase_id, med.g, theta, rays.psi_lo, psi_end)
-            v, tex = spot_visibility(texels_r, rays, 0, bounds, cl, wrap, beta, table, h)
+            j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd = spot_lookup(rays, bounds, cl, wrap, table, h)
+            v, tex = spot_visibility(texels_r, rays, 0, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, c[2], beta)
             e = wp.vec3(v * tex, v * tex, v * tex)
             if maps == 3:
-                vg, fg = spot_visibility(texels_g, rays, 1, bounds, cl, wrap, beta, table, h)
-                vb, fb = spot_visibility(texels_b, rays, 2, bounds, cl, wrap, beta, table, h)
+                vg, fg = spot_visibility(texels_g, rays, 1, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, c[2], beta)
+                vb, fb = spot_visibility(texels_b, rays, 2, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, c[2], beta)
                 e = wp.vec3(v * tex, vg * fg, vb * fb)
             result = light.radiance * (med.sigma_s * table[LOCAL_PANELS] * scale)
             result = wp.cw_mul(result, e)
-        else:  # each channel its own extinction: its own weight table
-            table_r = ray_weight_table(rays, med.sigma_t_rgb[0], med.phase_id, med.g, theta, rays.psi_lo, psi_end)
-            table_g = ray_weight_table(rays, med.sigma_t_rgb[1], med.phase_id, med.g, theta, rays.psi_lo, psi_end)
-            table_b = ray_weight_table(rays, med.sigma_t_rgb[2], med.phase_id, med.g, theta, rays.psi_lo, psi_end)
+        else:  # each channel its own extinction: its own weight table and cuts
             kg = int(0)
             kb = int(0)
             if maps == 3:
                 kg = 1
                 kb = 2
-            vr, fr = spot_visibility(texels_r, rays, 0, bounds, cl, wrap, beta, table_r, h)
-            vg, fg = spot_visibility(texels_g, rays, kg, bounds, cl, wrap, beta, table_g, h)
-            vb, fb = spot_visibility(texels_b, rays, kb, bounds, cl, wrap, beta, table_b, h)
-            e = wp.vec3(table_r[LOCAL_PANELS] * vr * fr, table_g[LOCAL_PANELS] * vg * fg,
-                        table_b[LOCAL_PANELS] * vb * fb)
+            e = wp.vec3(0.0, 0.0, 0.0)
+            for ch in range(3):
+                table = ray_weight_table(rays, med.sigma_t_rgb[ch], med.phase_id, med.g, theta, rays.psi_lo,
+                                         psi_end)
+                j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd = spot_lookup(rays, bounds, cl, wrap, table, h)
+                v = float(0.0)
+                f = float(0.0)
+                if ch == 0:
+                    v, f = spot_visibility(texels_r, rays, 0, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, c[2], beta)
+                elif ch == 1:
+                    v, f = spot_visibility(texels_g, rays, kg, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, c[2],
+                                           beta)
+                else:
+                    v, f = spot_visibility(texels_b, rays, kb, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, c[2],
+                                           beta)
+                e[ch] = table[LOCAL_PANELS] * v * f
             result = wp.cw_mul(light.radiance, wp.cw_mul(med.sigma_s_rgb, e)) * scale
     out[j, i] = result
 
@@ -280,15 +288,15 @@ wp.overload(evaluate_spot_kernel, {"texels_r": FilteredMomentArrays, "texels_g":
                                    "texels_b": FilteredMomentArrays})
 
 
-def spot_rays(rect, settings, end_offset: float, ref_sums: np.ndarray, filter_sums: np.ndarray, device) -> SpotRays:
-    """Kernel-side :class:`SpotRays`."""
+def spot_rays(rect, settings, sums: np.ndarray, device) -> SpotRays:
+    """Kernel-side :class:`SpotRays` of a rectification, the ``prefiltered`` settings and the (1 + maps, rows, cols)
+    prefix sums of the texel weights (layer 0 plain, then times each map's filter)."""
     r = SpotRays()
     r.segments = int(settings.segments if settings.segments is not None else SPOT_SEGMENTS)
-    r.end_offset = float(end_offset)
+    r.end_offset = float(settings.end_offset)
     r.theta_hi, r.theta_len = float(rect.theta_hi), float(rect.theta_len)
     r.light_distance, r.psi_lo, r.psi_span = float(rect.light_distance), float(rect.psi_lo), float(rect.r_max)
-    r.ref_sums = wp.array(np.ascontiguousarray(ref_sums, np.float32), dtype=wp.float32, device=device)
-    r.filter_sums = wp.array(np.ascontiguousarray(filter_sums, np.float32), dtype=wp.float32, device=device)
+    r.sums = wp.array(np.ascontiguousarray(sums, np.float32), dtype=wp.float32, device=device)
     return r
 
 
@@ -327,7 +335,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
     maps = 3 if coloured_emission(light) else 1
     with stage("prefilter"):
         sigma_ref = float(min(scene.medium.sigma_t_rgb))  # the slowest decay of every channel
-        weights, ref_sums = spot_texel_weights(rect, sigma_ref, scene.medium)
+        weights = spot_texel_weights(rect, sigma_ref, scene.medium)
         filtered = emission[..., :maps].transpose(2, 0, 1) * weights[None]  # (maps, rows, cols)
         textures = []
         for k in range(maps):
@@ -346,7 +354,8 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         if beta < 0.0:
             raise ValueError("render.scattering.moments.overestimation: 'adaptive' needs a directional light (Peters "
                              "2017 Sec. 5.3.1 weighs the light and view directions); give a number for a spot light")
-        rays = spot_rays(rect, p, p.end_offset, ref_sums, np.cumsum(filtered, axis=2, dtype=np.float64), device)
+        rays = spot_rays(rect, p, np.cumsum(np.concatenate([weights[None], filtered]), axis=2, dtype=np.float64),
+                         device)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         arrays = [t.arrays() for t in textures]
         arrays += [arrays[0]] * (3 - len(arrays))

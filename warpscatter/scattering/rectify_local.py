@@ -259,8 +259,8 @@ def resample_spot_shadow_map(rect: NonlinearRectification, shadow_map, light, lp
 REFERENCE_ROW_REACH = 2
 
 
-def spot_texel_weights(rect: NonlinearRectification, sigma_t: float, medium=None) -> tuple[np.ndarray, np.ndarray]:
-    """Per-texel prefilter weights of a spot light's map and their sums through each column (float32, (rows, cols)).
+def spot_texel_weights(rect: NonlinearRectification, sigma_t: float, medium=None) -> np.ndarray:
+    """Per-texel prefilter weights of a spot light's map, (rows, cols) float64.
 
     A texel's weight is the in-scattering density per radian of psi of its row's reference ray, the ray of the
     row's epipolar slice (and its REFERENCE_ROW_REACH neighbours) with the largest inclination theta_ref:
@@ -284,8 +284,7 @@ def spot_texel_weights(rect: NonlinearRectification, sigma_t: float, medium=None
         w = np.where(gap > 1e-9, dpsi * np.exp(-sigma_t * np.where(gap > 1e-9, t, 0.0)), 0.0)
     if medium is not None:
         w = w * medium.phase_value(-np.cos(gap))
-    sums = np.cumsum(w, axis=1)
-    return w.astype(np.float32), sums.astype(np.float32)
+    return w
 
 
 __all__ = ["coloured_emission", "emission_peaks", "resample_spot_kernel", "resample_spot_shadow_map",
