@@ -348,8 +348,8 @@ def test_output_section(tmp_path):
     assert c.output.aovs == ["depth", "color"]
     msg = problems(tmp_path, {"output": {"name": "a/b", "aovs": ["normals"], "exposure": 0}})
     assert "output.name: must be a plain file stem" in msg
-    assert ("output.aovs.0: must be one of 'color', 'scattering', 'surface', 'depth', 'rectified', 'epipole_mask' or "
-            "'rectified_map' (got 'normals')") in msg
+    assert ("output.aovs.0: must be one of 'color', 'scattering', 'surface', 'depth', 'rectified', 'epipole_mask', "
+            "'rectified_map' or 'mip_level' (got 'normals')") in msg
     assert "output.exposure: must be > 0" in msg
 
 

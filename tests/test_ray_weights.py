@@ -19,7 +19,7 @@ def lookup_kernel(weights: RayWeights, coords: wp.array(dtype=wp.vec3), wrap: in
                   rows_out: wp.array2d(dtype=wp.int32)):
     n = wp.tid()
     c = coords[n]
-    j0, j1, cut, m, i0, i1, ax, w0, w1 = fl.segment_lookup(weights, ROWS, COLS, c[0], c[1], c[2], wrap)
+    j0, j1, cut, m, i0, i1, ax, w0, w1 = fl.segment_lookup(weights, fl.whole_rows(ROWS, wrap), COLS, c[0], c[1], c[2])
     rows_out[n, 0] = j0
     rows_out[n, 1] = j1
     for k in range(wp.static(MAX_SEGMENTS + 2)):

@@ -126,8 +126,9 @@ STANDARD_AOVS = ("color", "scattering", "surface", "depth")
 #: the scattering methods that list it (:attr:`warpscatter.methods.Method.debug_aovs`): ``rectified`` the per-pixel
 #: rectified look-up coordinates (u, v, z_r), ``epipole_mask`` the weight of the ray-marched epipole region per pixel
 #: (1: marched, 0: prefiltered), ``rectified_map`` the rectified depth map and the texels caster culling emptied
-#: (map-sized, 2 channels).
-DEBUG_AOVS = ("rectified", "epipole_mask", "rectified_map")
+#: (map-sized, 2 channels), ``mip_level`` the row mip level each pixel's look-up reads (level + the share of the next;
+#: ``prefiltered.mip_levels``).
+DEBUG_AOVS = ("rectified", "epipole_mask", "rectified_map", "mip_level")
 #: Image outputs a render can write (``output.aovs``).
 AOV_NAMES = STANDARD_AOVS + DEBUG_AOVS
 #: Mesh file suffixes accepted in ``scene.meshes.N.path`` (loaded with trimesh).
@@ -781,6 +782,9 @@ class Config(SettingsModel):
                             "spot light uses the non-linear rectification (auto or nonlinear)")
         if s.prefiltered.splits > 1:
             problems.append("render.scattering.prefiltered.splits: a spot light's look-ups need whole rows (1)")
+        if s.prefiltered.mip_levels > 1:
+            problems.append("render.scattering.prefiltered.mip_levels: row mips are implemented for directional "
+                            "lights; a spot light's rows carry per-row ray weights (1)")
         if method != "fourier" and s.moments.overestimation == "adaptive":
             problems.append("render.scattering.moments.overestimation: 'adaptive' weighs a directional light's "
                             "direction (Peters 2017 Sec. 5.3.1); give a number for a spot light")

@@ -20,6 +20,7 @@ from ..wpinit import default_device, module_options
 from . import rectify_nonlinear
 from .filtered_lookups import texel_footprint
 from .rectification import wrap_rows
+from .row_mips import RowMips, level_rows, level_window, pixel_mip_level
 
 module_options()
 
@@ -35,17 +36,33 @@ def cull_depth_bin(z: float) -> int:
     return wp.clamp(int(wp.floor(z * float(CULL_DEPTH_BINS))), 0, CULL_DEPTH_BINS - 1)
 
 
+@wp.func
+def mark_level_row(table: wp.array2d(dtype=wp.int32), level: int, row: int, b: int, i1: int):
+    """Mark the level-0 rows that row ``row`` of mip level ``level`` averages as read through column i1."""
+    span = int(1) << level
+    for r in range(row * span, row * span + span):
+        wp.atomic_max(table, r, b, i1)
+
+
 @wp.kernel
-def reader_table_kernel(coords: wp.array2d(dtype=wp.vec3), rows: int, cols: int, wrap: int,
+def reader_table_kernel(coords: wp.array2d(dtype=wp.vec3), mips: RowMips, cols: int,
                         table: wp.array2d(dtype=wp.int32)):
     # one launch (CPU atomics are exact within a launch): table[row, bin] = last prefix column a pixel of that depth
-    # bin reads in that row (its look-up footprint, as the evaluation's)
+    # bin reads in that row (its look-up footprint, as the evaluation's; with row mips, every level-0 row the rows of
+    # its levels average)
     j, i = wp.tid()
     c = coords[j, i]
-    j0, j1, ay, i0, i1, ax = texel_footprint(rows, cols, c[0], c[1], wrap)
     b = cull_depth_bin(c[2])
-    wp.atomic_max(table, j0, b, i1)
-    wp.atomic_max(table, j1, b, i1)
+    lv = pixel_mip_level(mips, coords, j, i)
+    level = int(lv[0])
+    top = level
+    if lv[1] > 0.0:
+        top = level + 1
+    for k in range(level, top + 1):
+        w = level_window(mips, k)
+        j0, j1, ay, i0, i1, ax = texel_footprint(w[1], cols, c[0], c[1], w[2])
+        mark_level_row(table, k, j0, b, i1)
+        mark_level_row(table, k, j1, b, i1)
 
 
 @wp.kernel
@@ -82,7 +99,8 @@ def cull_casters_kernel(
         depth2[j, i] = 1.0
 
 
-def cull_unseen_casters(rectified, rect, coords: wp.array, bias: float = 0.0, device=None) -> float:
+def cull_unseen_casters(rectified, rect, coords: wp.array, bias: float = 0.0, device=None,
+                        mip_levels: int = 1) -> float:
     """Empty, in place, every texel of a rectified map whose blocker shadows no pixel's look-up.
 
     A texel is kept when some pixel's look-up (:func:`~.filtered_lookups.texel_footprint`: its two rows, prefix
@@ -96,6 +114,8 @@ def cull_unseen_casters(rectified, rect, coords: wp.array, bias: float = 0.0, de
         rect: its NonlinearRectification or ProjectiveRectification.
         coords: (H, W) vec3 rectified coordinates of the pixels' view-ray ends (:func:`pixel_coords`).
         bias: tolerance in rectified depth (a fraction of the depth range), >= 0.
+        mip_levels: the row mip levels the look-ups will read (:mod:`.row_mips`): a texel averaged into a level a
+            pixel reads is read.
 
     Returns:
         The fraction of texels emptied (of the first depth).
@@ -108,8 +128,9 @@ def cull_unseen_casters(rectified, rect, coords: wp.array, bias: float = 0.0, de
     depth = rectified.z1 if two else rectified
     rows, cols = int(depth.shape[0]), int(depth.shape[1])
     table = wp.full((rows, CULL_DEPTH_BINS), -1, dtype=wp.int32, device=device)
-    wrap = int(wrap_rows(rect))
-    wp.launch(reader_table_kernel, dim=coords.shape, inputs=[coords, rows, cols, wrap, table], device=device)
+    mips = RowMips()
+    mips.rows, mips.levels, mips.wrap = rows, len(level_rows(rows, mip_levels)), int(wrap_rows(rect))
+    wp.launch(reader_table_kernel, dim=coords.shape, inputs=[coords, mips, cols, table], device=device)
     launch_rows(reader_suffix_kernel, rows, [table], device=device)
     culled = wp.zeros(rows, dtype=wp.int32, device=device)
     launch_rows(cull_casters_kernel, (rows, cols),

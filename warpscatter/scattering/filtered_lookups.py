@@ -38,6 +38,7 @@ from .filtered_textures import (
     FilteredMoments,
     FourierTables,
     basis_arrays,
+    basis_shape,
     basis_value,
     moment_texel_values,
     warped_depth,
@@ -102,6 +103,20 @@ def texel_footprint(rows: int, cols: int, u: float, v: float, wrap_rows: int):
     return j0, j1, ay, i0, i1, ax
 
 
+@wp.func
+def window_footprint(window: wp.vec3i, cols: int, u: float, v: float):
+    """:func:`texel_footprint` in a row window (first row, rows, wrap) of a texture: a level of its row mips
+    (:func:`~.row_mips.level_window`), or (0, rows, wrap) for the whole texture. Rows come back as texture rows."""
+    j0, j1, ay, i0, i1, ax = texel_footprint(window[1], cols, u, v, window[2])
+    return j0 + window[0], j1 + window[0], ay, i0, i1, ax
+
+
+@wp.func
+def whole_rows(rows: int, wrap_rows: int) -> wp.vec3i:
+    """The row window of a texture without mips: all its ``rows`` (wrapping when ``wrap_rows`` != 0)."""
+    return wp.vec3i(0, rows, wrap_rows)
+
+
 @wp.struct
 class DepthBounds:
     """Per-row prefix bounds of the rectified depths (:func:`~.prefix_sums.depth_bounds`); ``enabled`` 0: none (a
@@ -122,7 +137,7 @@ def depth_bounds_of(rectified, enabled: bool, device=None) -> DepthBounds:
 
 
 @wp.func
-def bounded_visibility(db: DepthBounds, u_end: float, v: float, z_r: float, wrap_rows: int) -> float:
+def bounded_visibility(db: DepthBounds, u_end: float, v: float, z_r: float, window: wp.vec3i) -> float:
     """1 when every texel a look-up ending at (u_end, v) reads lies behind depth z_r (the ray is wholly lit), 0 when
     every one lies in front of it (wholly shadowed), else -1 (reconstruct). Both bilinear rows count (those of
     non-zero weight) and the prefix through the footprint's left column: every whole texel the look-up reads. The
@@ -132,7 +147,7 @@ def bounded_visibility(db: DepthBounds, u_end: float, v: float, z_r: float, wrap
     24.4 -> 16.7 %, moments6 35.9 -> 21.2 %; no case worse)."""
     if db.enabled == 0:
         return -1.0
-    j0, j1, ay, i0, i1, ax = texel_footprint(db.bounds.shape[0], db.bounds.shape[1], u_end, v, wrap_rows)
+    j0, j1, ay, i0, i1, ax = window_footprint(window, db.bounds.shape[1], u_end, v)
     lo = float(1.0e30)
     hi = float(-1.0e30)
     if ay < 1.0:
@@ -181,7 +196,7 @@ def fourier_taps_visibility(filtered_basis: Any, tables: FourierTables, tap_row:
 
 @wp.func
 def prefiltered_visibility(filtered_basis: Any, tables: FourierTables, u: float, v: float, z_r: float,
-                           wrap_rows: int) -> float:
+                           window: wp.vec3i) -> float:
     """Visible fraction of the view ray ending at rectified (u, v) with depth z_r (Klehm 2014 Listing 4, App. A).
 
     Bilinear fetch of the normalised filtered-basis vector, dot product with a(z_r), + 0.5, clamped to
@@ -196,13 +211,14 @@ def prefiltered_visibility(filtered_basis: Any, tables: FourierTables, u: float,
         u: column coordinate of the ray's end point in [0, 1] (texel i centre at (i + 0.5) / cols).
         v: row coordinate in [0, 1].
         z_r: rectified depth of the view ray.
-        wrap_rows: 1 when rows wrap around (full azimuth circle), else 0 (clamp).
+        window: the rows read (:func:`window_footprint`): (first row, rows, 1 when they wrap around the full
+            azimuth circle, else 0: clamp).
     """
     # the four-tap case of fourier_taps_visibility written out: 1.5x faster on the CPU (measured). Per row the two
     # columns i0, i1 are one contiguous run of 2 M values; the row and column offsets are loop invariants the
     # compiler hoists (an explicit flat index into a 1-D view measured 1.5x slower), and 2 / c comes from a table
     # (no division per pair)
-    j0, j1, ay, i0, i1, ax = texel_footprint(filtered_basis.shape[0], filtered_basis.shape[1], u, v, wrap_rows)
+    j0, j1, ay, i0, i1, ax = window_footprint(window, filtered_basis.shape[1], u, v)
     num = filtered_basis.shape[2]
     w00 = (1.0 - ax) * (1.0 - ay)
     w01 = ax * (1.0 - ay)
@@ -293,11 +309,12 @@ def add_split_row_taps(fb: FilteredBasisArrays, j: int, i0: int, i1: int, ax: fl
 
 
 @wp.func
-def split_visibility(fb: FilteredBasisArrays, texels: Any, u: float, v: float, z_r: float, wrap_rows: int) -> float:
+def split_visibility(fb: FilteredBasisArrays, texels: Any, u: float, v: float, z_r: float,
+                     window: wp.vec3i) -> float:
     """:func:`prefiltered_visibility_split` on ``texels``, the array of ``fb``'s storage (float32 or uint8)."""
     if fb.splits <= 1:
-        return prefiltered_visibility(texels, fb.tables, u, v, z_r, wrap_rows)
-    j0, j1, ay, i0, i1, ax = texel_footprint(texels.shape[0], texels.shape[1], u, v, wrap_rows)
+        return prefiltered_visibility(texels, fb.tables, u, v, z_r, window)
+    j0, j1, ay, i0, i1, ax = window_footprint(window, texels.shape[1], u, v)
     rows = tap_indices()
     cols = tap_indices()
     w = tap_weights()
@@ -307,12 +324,13 @@ def split_visibility(fb: FilteredBasisArrays, texels: Any, u: float, v: float, z
 
 
 @wp.func
-def prefiltered_visibility_split(fb: FilteredBasisArrays, u: float, v: float, z_r: float, wrap_rows: int) -> float:
+def prefiltered_visibility_split(fb: FilteredBasisArrays, u: float, v: float, z_r: float,
+                                 window: wp.vec3i) -> float:
     """:func:`prefiltered_visibility` of a Fourier texture in either storage, its rows filtered in ``fb.splits``
-    independent regions (Klehm 2014 Sec. 3.3; ``u, v, z_r, wrap_rows`` as there)."""
+    independent regions (Klehm 2014 Sec. 3.3; ``u, v, z_r, window`` as there)."""
     if fb.code_bits == 0:
-        return split_visibility(fb, fb.basis, u, v, z_r, wrap_rows)
-    return split_visibility(fb, fb.codes, u, v, z_r, wrap_rows)
+        return split_visibility(fb, fb.basis, u, v, z_r, window)
+    return split_visibility(fb, fb.codes, u, v, z_r, window)
 
 
 @wp.func
@@ -346,7 +364,7 @@ def segment_row_weights(weights: RayWeights, j: int, x: float, tau_ray: float, c
 
 
 @wp.func
-def segment_lookup(weights: RayWeights, rows: int, cols: int, u: float, v: float, z_r: float, wrap_rows: int):
+def segment_lookup(weights: RayWeights, window: wp.vec3i, cols: int, u: float, v: float, z_r: float):
     """The look-up of the view ray ending at rectified (u, v) with depth z_r weighted by its own transmittance: rows
     j0, j1; the m interior cuts (columns shared by both rows) and the end's columns i0, i1 (weight of i1: ax); each
     row's weights (:func:`segment_row_weights`, bilinear row weight included).
@@ -354,7 +372,7 @@ def segment_lookup(weights: RayWeights, rows: int, cols: int, u: float, v: float
     Returns:
         (j0, j1, cut, m, i0, i1, ax, w0, w1).
     """
-    j0, j1, ay, i0, i1, ax = texel_footprint(rows, cols, u, v, wrap_rows)
+    j0, j1, ay, i0, i1, ax = window_footprint(window, cols, u, v)
     x = float(i0) + ax
     tau_ray = ray_optical_step(weights, z_r)
     cut = segment_columns()
@@ -423,11 +441,10 @@ def segment_slot(cut: segment_columns, w0: segment_sums, w1: segment_sums, k: in
 
 @wp.func
 def fourier_segments_visibility(fb: FilteredBasisArrays, texels: Any, weights: RayWeights, u: float, v: float,
-                                z_r: float, wrap_rows: int) -> float:
+                                z_r: float, window: wp.vec3i) -> float:
     """Visible fraction of the ray's own-transmittance look-up (:func:`segment_lookup`) on ``texels``, the array of
     ``fb``'s storage: clamp(0.5 + a(z_r) . sum of the weighted filtered-basis vectors, 0, 1)."""
-    j0, j1, cut, m, i0, i1, ax, w0, w1 = segment_lookup(weights, texels.shape[0], texels.shape[1], u, v, z_r,
-                                                        wrap_rows)
+    j0, j1, cut, m, i0, i1, ax, w0, w1 = segment_lookup(weights, window, texels.shape[1], u, v, z_r)
     return fourier_taps(fb, texels, j0, j1, cut, m, i0, i1, ax, w0, w1, z_r)
 
 
@@ -459,7 +476,7 @@ def fourier_taps(fb: FilteredBasisArrays, texels: Any, j0: int, j1: int, cut: se
 
 @wp.func
 def fourier_visibility(fb: FilteredBasisArrays, weights: RayWeights, u: float, v: float, z_r: float,
-                       wrap_rows: int) -> float:
+                       window: wp.vec3i) -> float:
     """Visible fraction of the view ray ending at rectified (u, v) with depth z_r from a Fourier texture, its texels
     weighted as ``weights`` says (one segment: the reference ray's weights, :func:`prefiltered_visibility_split`;
     split regions always use those). ``weights.end_offset`` moves the end of the look-up towards the camera."""
@@ -473,18 +490,18 @@ def fourier_visibility(fb: FilteredBasisArrays, weights: RayWeights, u: float, v
         z = z_r
         if fb.depth_warp != 0.0:
             z = warped_depth(z_r, fb.depth_warp)
-        return prefiltered_visibility_split(fb, u_end, v, z, wrap_rows)
+        return prefiltered_visibility_split(fb, u_end, v, z, window)
     if fb.code_bits == 0:
-        return fourier_segments_visibility(fb, fb.basis, weights, u_end, v, z_r, wrap_rows)
-    return fourier_segments_visibility(fb, fb.codes, weights, u_end, v, z_r, wrap_rows)
+        return fourier_segments_visibility(fb, fb.basis, weights, u_end, v, z_r, window)
+    return fourier_segments_visibility(fb, fb.codes, weights, u_end, v, z_r, window)
 
 
 @wp.func
-def bilinear_moments(texels: Any, num: int, u: float, v: float, wrap_rows: int) -> mm.vec6:
+def bilinear_moments(texels: Any, num: int, u: float, v: float, window: wp.vec3i) -> mm.vec6:
     """Bilinear fetch of the filtered stored moments (slots 0..num-1) at rectified (u, v) from the array of a
     moment map's storage (float32, uint16 codes or uint64 packed 10-bit codes): each of the four texels is read
     and decoded once (:func:`~.filtered_textures.moment_texel_values`)."""
-    j0, j1, ay, i0, i1, ax = texel_footprint(texels.shape[0], texels.shape[1], u, v, wrap_rows)
+    j0, j1, ay, i0, i1, ax = window_footprint(window, texels.shape[1], u, v)
     w00 = (1.0 - ax) * (1.0 - ay)
     w01 = ax * (1.0 - ay)
     w10 = (1.0 - ax) * ay
@@ -498,10 +515,9 @@ def bilinear_moments(texels: Any, num: int, u: float, v: float, wrap_rows: int) 
 
 @wp.func
 def segment_moments(texels: Any, weights: RayWeights, num: int, u: float, v: float, z_r: float,
-                    wrap_rows: int) -> mm.vec6:
+                    window: wp.vec3i) -> mm.vec6:
     """The ray's own-transmittance combination (:func:`segment_lookup`) of the stored moments of ``texels``."""
-    j0, j1, cut, m, i0, i1, ax, w0, w1 = segment_lookup(weights, texels.shape[0], texels.shape[1], u, v, z_r,
-                                                        wrap_rows)
+    j0, j1, cut, m, i0, i1, ax, w0, w1 = segment_lookup(weights, window, texels.shape[1], u, v, z_r)
     return moment_taps(texels, num, j0, j1, cut, m, i0, i1, ax, w0, w1)
 
 
@@ -522,18 +538,18 @@ def moment_taps(texels: Any, num: int, j0: int, j1: int, cut: segment_columns, m
 
 @wp.func
 def filtered_moments(texels: Any, weights: RayWeights, num: int, u: float, v: float, z_r: float,
-                     wrap_rows: int) -> mm.vec6:
+                     window: wp.vec3i) -> mm.vec6:
     """Stored moments of the view ray ending at (u, v) (``weights.end_offset`` texels towards the camera): the
     bilinear fetch (one segment, Peters 2017 D.5) or the ray's own-transmittance combination."""
     u_end = u - weights.end_offset / float(texels.shape[1])
     if weights.segments <= 1:
-        return bilinear_moments(texels, num, u_end, v, wrap_rows)
-    return segment_moments(texels, weights, num, u_end, v, z_r, wrap_rows)
+        return bilinear_moments(texels, num, u_end, v, window)
+    return segment_moments(texels, weights, num, u_end, v, z_r, window)
 
 
 @wp.func
 def moments_visibility(filtered: FilteredMomentArrays, weights: RayWeights, u: float, v: float, z_r: float,
-                       wrap_rows: int, beta: float) -> float:
+                       window: wp.vec3i, beta: float) -> float:
     """Visible fraction of the view ray ending at rectified (u, v) with depth z_r from prefiltered moments.
 
     The filtered stored moments (decoded from the storage mode's codes; texels weighted as ``weights`` says,
@@ -544,11 +560,11 @@ def moments_visibility(filtered: FilteredMomentArrays, weights: RayWeights, u: f
     num = filtered.num_moments
     t = mm.vec6()
     if filtered.code_bits == 0:
-        t = filtered_moments(filtered.values, weights, num, u, v, z_r, wrap_rows)
+        t = filtered_moments(filtered.values, weights, num, u, v, z_r, window)
     elif filtered.code_bits == CODE_BITS_UNORM10:
-        t = filtered_moments(filtered.codes10, weights, num, u, v, z_r, wrap_rows)
+        t = filtered_moments(filtered.codes10, weights, num, u, v, z_r, window)
     else:
-        t = filtered_moments(filtered.codes16, weights, num, u, v, z_r, wrap_rows)
+        t = filtered_moments(filtered.codes16, weights, num, u, v, z_r, window)
     return stored_moments_visibility(filtered, t, z_r, beta)
 
 
@@ -605,7 +621,8 @@ def evaluate_coords_kernel(
 ):
     n = wp.tid() + offset
     c = coords[n]
-    out[n] = prefiltered_visibility_split(fb, c[0], c[1], c[2], wrap_rows)
+    rows, cols, num = basis_shape(fb)
+    out[n] = prefiltered_visibility_split(fb, c[0], c[1], c[2], whole_rows(rows, wrap_rows))
 
 
 @wp.kernel
@@ -621,7 +638,8 @@ def evaluate_points_kernel(
     n = wp.tid() + offset
     x = points[n]
     c = world_to_rectified(rect, x)
-    f = prefiltered_visibility_split(filtered_basis, c[0], c[1], c[2], rect.full_circle)
+    rows, cols, num = basis_shape(filtered_basis)
+    f = prefiltered_visibility_split(filtered_basis, c[0], c[1], c[2], whole_rows(rows, rect.full_circle))
     fraction[n] = f
     integral[n] = f * transmittance_integral(sigma_t, 0.0, wp.length(x - rect.origin))
 
@@ -714,4 +732,6 @@ __all__ = [
     "prefiltered_visibility_split",
     "split_visibility",
     "texel_footprint",
+    "whole_rows",
+    "window_footprint",
 ]

@@ -90,6 +90,7 @@ from .rectify_projective import (
     rasterize_rectified,
     reference_rays,
 )
+from .row_mips import RowMips, level_window, pixel_mip_level, pixel_mip_levels, row_mip_chain
 from .settings import MAX_RESAMPLE_FILTER_PX, PrefilteredSettings, ScatteringSettings
 
 module_options()
@@ -100,39 +101,55 @@ module_options()
 
 @wp.func
 def representation_visibility(texels: FilteredBasisArrays, weights: RayWeights, u: float, v: float, z_r: float,
-                              wrap: int, beta: float, light_direction: wp.vec3, view_direction: wp.vec3) -> float:
-    """The look-up's reconstruction from a Fourier texture (Klehm 2014 Listing 4); ``beta`` and the directions
-    unused."""
-    return fourier_visibility(texels, weights, u, v, z_r, wrap)
+                              window: wp.vec3i, beta: float, light_direction: wp.vec3,
+                              view_direction: wp.vec3) -> float:
+    """The look-up's reconstruction from a Fourier texture (Klehm 2014 Listing 4) in the row ``window``; ``beta`` and
+    the directions unused."""
+    return fourier_visibility(texels, weights, u, v, z_r, window)
 
 
 @wp.func
 def representation_visibility(texels: FilteredMomentArrays, weights: RayWeights, u: float, v: float,  # noqa: F811
-                              z_r: float, wrap: int, beta: float, light_direction: wp.vec3,
+                              z_r: float, window: wp.vec3i, beta: float, light_direction: wp.vec3,
                               view_direction: wp.vec3) -> float:
     """The look-up's reconstruction from a moment map (Peters 2017 D.5); ``beta`` < 0: the adaptive overestimation
     weight of the light and view directions (Sec. 5.3.1)."""
     b = beta
     if b < 0.0:
         b = mm.adaptive_overestimation_weight(light_direction, view_direction)
-    return moments_visibility(texels, weights, u, v, z_r, wrap, b)
+    return moments_visibility(texels, weights, u, v, z_r, window, b)
 
 
 @wp.func
-def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, wrap: int, beta: float,
+def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, window: wp.vec3i, beta: float,
                    light_direction: wp.vec3, view_direction: wp.vec3) -> float:
     """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a Fourier texture or a moment map
-    (:func:`representation_visibility`), its texels weighted as ``weights`` says (:mod:`.ray_weights`), those beyond
-    the map lit; a ray wholly lit or wholly shadowed by the ``bounds`` is answered without the reconstruction."""
+    (:func:`representation_visibility`) read in the row ``window`` (a mip level, :func:`~.row_mips.level_window`),
+    its texels weighted as ``weights`` says (:mod:`.ray_weights`), those beyond the map lit; a ray wholly lit or
+    wholly shadowed by the ``bounds`` is answered without the reconstruction."""
     inside = inside_map_fraction(weights, c[0], c[2])
     u = c[0]
     if inside < 1.0:
         u = 1.0 + weights.end_offset / float(weights.cols)  # the look-up through the whole map
-    f = bounded_visibility(bounds, u - weights.end_offset / float(bounds.bounds.shape[1]), c[1], c[2], wrap)
+    f = bounded_visibility(bounds, u - weights.end_offset / float(bounds.bounds.shape[1]), c[1], c[2], window)
     if f < 0.0:
-        f = representation_visibility(texels, weights, u, c[1], c[2], wrap, beta, light_direction, view_direction)
+        f = representation_visibility(texels, weights, u, c[1], c[2], window, beta, light_direction, view_direction)
     if inside < 1.0:
         return inside * f + (1.0 - inside)
+    return f
+
+
+@wp.func
+def mipped_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, mips: RowMips, level: wp.vec2,
+                      c: wp.vec3, beta: float, light_direction: wp.vec3, view_direction: wp.vec3) -> float:
+    """:func:`map_visibility` at a pixel's mip ``level`` (:func:`~.row_mips.pixel_mip_level`: level, share of the
+    next): the two levels' visibilities blended (trilinear filtering, Peters 2017 D.5; :mod:`.row_mips`)."""
+    lv = int(level[0])
+    f = map_visibility(texels, weights, bounds, c, level_window(mips, lv), beta, light_direction, view_direction)
+    if level[1] > 0.0:
+        f1 = map_visibility(texels, weights, bounds, c, level_window(mips, lv + 1), beta, light_direction,
+                            view_direction)
+        f = f + level[1] * (f1 - f)
     return f
 
 
@@ -164,7 +181,7 @@ def evaluate_prefiltered_kernel(
     weights: RayWeights,  # how a ray weights its texels (reference ray or per-ray segments)
     channel_weights: ChannelRayWeights,  # coloured media: each channel's own (grey: unused)
     bounds: DepthBounds,  # per-row prefix depth bounds: wholly lit / shadowed rays skip the reconstruction
-    wrap: int,  # 1: the rows wrap around (wrap_rows)
+    mips: RowMips,  # the texture's row mip levels and whether its rows wrap around (wrap_rows)
     beta: float,  # moment overestimation weight in [0, 1], or < 0: adaptive (Peters 2017 Sec. 5.3.1)
     light: LightParams,
     med: MediumParams,
@@ -177,14 +194,15 @@ def evaluate_prefiltered_kernel(
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     s = distance[j, i]
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
+    lv = pixel_mip_level(mips, coords, j, i)
+    c = coords[j, i]
     if med.coloured == 0:
-        f = map_visibility(texels, weights, bounds, coords[j, i], wrap, beta, light.direction, d)
+        f = mipped_visibility(texels, weights, bounds, mips, lv, c, beta, light.direction, d)
         out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
     else:  # one look-up per channel, each with the channel's own ray weights (module doc)
-        c = coords[j, i]
-        f_rgb = wp.vec3(map_visibility(texels, channel_weights.r, bounds, c, wrap, beta, light.direction, d),
-                        map_visibility(texels, channel_weights.g, bounds, c, wrap, beta, light.direction, d),
-                        map_visibility(texels, channel_weights.b, bounds, c, wrap, beta, light.direction, d))
+        f_rgb = wp.vec3(mipped_visibility(texels, channel_weights.r, bounds, mips, lv, c, beta, light.direction, d),
+                        mipped_visibility(texels, channel_weights.g, bounds, mips, lv, c, beta, light.direction, d),
+                        mipped_visibility(texels, channel_weights.b, bounds, mips, lv, c, beta, light.direction, d))
         out[j, i] = wp.cw_mul(coloured_scattering(med, light.radiance, 0.0, s), f_rgb) * phase
 
 
@@ -335,7 +353,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     map_before_culling = map_depth(rectified).copy() if "rectified_map" in frame.aovs else None
     if settings.culls_casters:
         with stage("caster_culling"):
-            culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device)
+            culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device,
+                                         mip_levels=p.mip_levels)
     segments = p.segments_for(isinstance(rect, NonlinearRectification), scene.medium.coloured)
     with stage("prefilter"):
         sigma_ref = weights_extinction(scene.medium, segments)
@@ -348,6 +367,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
             fb = prefilter_moments(rectified, settings.num_moments, tau, lengths,
                                    storage_bits=settings.moment_storage_bits, depth_warp=p.depth_warp, device=device)
         bounds = depth_bounds_of(rectified, p.depth_bounds, device)
+        chain = row_mip_chain(fb, tau, bounds.bounds, p.mip_levels, device)
+        fb, bounds.bounds = chain.texture, chain.bounds
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
         beta = -1.0 if overestimation == "adaptive" else float(overestimation)
@@ -355,17 +376,19 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         # ray ends on is its own blocker over a stretch set by the depth precision, not by the column width)
         end_offset = p.end_offset * (rect.column_scale if isinstance(rect, NonlinearRectification) else 1.0)
         nonlinear = rect if isinstance(rect, NonlinearRectification) else None
-        weights = ray_weights(segments, tau, nonlinear, sigma_ref, end_offset, device=device, cols=cols)
+        weights = ray_weights(segments, chain.optical_step, nonlinear, sigma_ref, end_offset, device=device,
+                              cols=cols)
         channels = ChannelRayWeights()
         channels.r = channels.g = channels.b = weights
         if scene.medium.coloured and segments > 1:
-            channels.r, channels.g, channels.b = (ray_weights(segments, tau, nonlinear, sigma, end_offset,
-                                                              device=device, cols=cols)
+            channels.r, channels.g, channels.b = (ray_weights(segments, chain.optical_step, nonlinear, sigma,
+                                                              end_offset, device=device, cols=cols)
                                                   for sigma in scene.medium.sigma_t_rgb)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
                     [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, channels, bounds,
-                     int(wrap_rows(rect)), beta, light_params(scene.light, device), scene.medium.params(), out],
+                     chain.params(wrap_rows(rect)), beta, light_params(scene.light, device), scene.medium.params(),
+                     out],
                     device=device)
     regions = (epipole_regions(cam, scene.light.direction, p.epipole_angle_deg, p.epipole_block)
                if settings.marches_epipole else [])
@@ -385,6 +408,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         "segments": segments,
         "depth_bounds": p.depth_bounds,
         "depth_warp": p.depth_warp,
+        "mip_levels": chain.levels,
         "end_offset": p.end_offset,
         **resample_info,
         "caster_culling": culled is not None,
@@ -400,15 +424,20 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     else:
         info["full_circle"] = rect.full_circle
         info["map_radius"] = round(rect.r_max, 4)  # world units from the camera's light axis covered by the columns
-    add_debug_images(info, frame, coords, regions, rectified, map_before_culling)
+    add_debug_images(info, frame, coords, regions, rectified, map_before_culling, chain.params(wrap_rows(rect)))
     return out, info
 
 
-def add_debug_images(info: dict, frame, coords: wp.array, regions, rectified, map_before_culling) -> None:
+def add_debug_images(info: dict, frame, coords: wp.array, regions, rectified, map_before_culling,
+                     mips: RowMips | None = None) -> None:
     """The debug outputs a frame asked for, into ``info["debug_images"]``: ``rectified`` the (H, W, 3) look-up
     coordinates, ``epipole_mask`` the ray-marched epipole regions' weight, ``rectified_map`` the (rows, cols, 2) map
-    the prefilter read and 1 where caster culling emptied a texel (``map_before_culling``: its depths before)."""
+    the prefilter read and 1 where caster culling emptied a texel (``map_before_culling``: its depths before),
+    ``mip_level`` the row mip level of each pixel's look-up (``mips``; None: level 0 everywhere)."""
     debug = {}
+    if "mip_level" in frame.aovs:
+        debug["mip_level"] = (pixel_mip_levels(mips, coords) if mips is not None else
+                              np.zeros(coords.shape, np.float32))
     if "rectified" in frame.aovs:
         debug["rectified"] = coords.numpy()
     if "epipole_mask" in frame.aovs:

@@ -42,7 +42,14 @@ from ..stages import StageTimer
 from ..wpinit import default_device, module_options
 from .caster_culling import cull_unseen_casters
 from .epipole_fallback import epipole_pixel_fraction, epipole_regions, march_epipole_regions
-from .filtered_lookups import DepthBounds, bounded_visibility, depth_bounds_of, taps_visibility, texel_footprint
+from .filtered_lookups import (
+    DepthBounds,
+    bounded_visibility,
+    depth_bounds_of,
+    taps_visibility,
+    texel_footprint,
+    whole_rows,
+)
 from .filtered_textures import FilteredBasisArrays, FilteredMomentArrays
 from .prefix_sums import prefilter_moments, prefilter_weighted
 from .ray_weights import segment_columns, segment_sums
@@ -197,7 +204,8 @@ def spot_lookup(rays: SpotRays, bounds: DepthBounds, c: wp.vec3, wrap: int, tabl
     u = c[0] - rays.end_offset / float(cols)
     j0, j1, ay, i0, i1, ax = texel_footprint(rays.sums.shape[1], cols, u, c[1], wrap)
     cut, esum, m = ray_cuts(rays, table, h, cols, i0)
-    return j0, j1, ay, i0, i1, ax, float(i0) + ax, cut, esum, m, bounded_visibility(bounds, u, c[1], c[2], wrap)
+    return j0, j1, ay, i0, i1, ax, float(i0) + ax, cut, esum, m, bounded_visibility(
+        bounds, u, c[1], c[2], whole_rows(rays.sums.shape[1], wrap))
 
 
 @wp.func
@@ -318,6 +326,9 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
                          "light uses the non-linear rectification (auto or nonlinear)")
     if p.splits > 1:
         raise ValueError("render.scattering.prefiltered.splits: a spot light's look-ups need whole rows (splits 1)")
+    if p.mip_levels > 1:
+        raise ValueError("render.scattering.prefiltered.mip_levels: row mips are implemented for directional lights; "
+                         "a spot light's rows carry per-row ray weights (1)")
     cam, light = scene.camera, scene.light
     cols, rows = settings.shadow_map.size
     lparams = light_params(light, device)

@@ -103,6 +103,9 @@ END_OFFSET = 1.0
 MAX_END_OFFSET = 8.0
 #: Largest |c| of the exponential depth warp (prefiltered.depth_warp, filtered_textures.warped_depth).
 MAX_DEPTH_WARP = 16.0
+#: Most row mip levels of a prefiltered texture (prefiltered.mip_levels, row_mips): a pixel spanning up to 2^(8-1)
+#: rows (the epipole's neighbourhood) reads a level whose rows are as wide as it.
+MAX_MIP_LEVELS = 8
 #: Border pixels per epipolar line by default (``epipolar.lines: null``): the line count follows the image size (1024
 #: lines at 320x180 meet nearly every border pixel and ray-march 58-67 % of the pixels). Measured with exact visibility,
 #: rel. L1 against the 512-step exact marcher and the share of pixels ray-marched (colonnade / canopy / window):
@@ -152,6 +155,10 @@ class PrefilteredSettings(SettingsModel):
         "exponential warp c of the depths the representations store and look up, (e^(c z) - 1) / (e^c - 1) (Klehm "
         "2014 Sec. 5: against light bleeding near the epipole); 0: none; < 0 stretches the depths towards the "
         "light"))] = 0.0
+    mip_levels: Annotated[Int, Field(ge=1, le=MAX_MIP_LEVELS, description=(
+        "row mip levels of the prefiltered texture (Peters 2017 D.5: mip-mapped prefix sums), level 0 included: a "
+        "pixel spanning several epipolar slices (around an epipole in view) reads the level as wide as it, blended "
+        "between two levels; 1: level 0 only. Doubles the texture's memory; whole rows only (splits 1)"))] = 1
     depth_bounds: Bool = Field(True, description="per-row prefix bounds of the rectified depths (8 bytes per texel): a "
                                                  "view ray whose texels all lie behind its end is lit, all in front "
                                                  "shadowed, exactly, without the basis' ringing or leaking "
@@ -214,6 +221,9 @@ class PrefilteredSettings(SettingsModel):
         if self.segments is not None and self.segments > 1 and self.splits > 1:
             raise ValueError(f"segments: {self.segments} per-ray segments read whole-row prefix sums; with splits: "
                              f"{self.splits} set segments: 1 (or leave it out)")
+        if self.mip_levels > 1 and self.splits > 1:
+            raise ValueError(f"mip_levels: {self.mip_levels} row mips average whole rows; with splits: {self.splits} "
+                             f"set mip_levels: 1 (or leave it out)")
         return self
 
     def segments_for(self, nonlinear: bool, coloured: bool = False) -> int:
