@@ -13,7 +13,7 @@ from scipy.integrate import quad
 
 import warpscatter as ws
 from warpscatter.errors import ConfigError
-from warpscatter.scattering.prefiltered_spot import SpotRays, ray_weight_table
+from warpscatter.scattering.prefiltered_spot import LOCAL_PANELS, SpotRays, ray_weight_table
 from warpscatter.scattering.rectify_local import spot_rectification, spot_texel_weights
 from warpscatter.scene import build_scene
 
@@ -79,7 +79,7 @@ def test_ray_weight_table_matches_quadrature_of_the_ray():
     def totals(rays: SpotRays, theta: wp.array(dtype=float), psi_end: wp.array(dtype=float),
                out: wp.array(dtype=float)):
         i = wp.tid()
-        out[i] = ray_weight_table(rays, sigma, 1, g, theta[i], 0.0, psi_end[i])[8]
+        out[i] = ray_weight_table(rays, sigma, 1, g, theta[i], 0.0, psi_end[i])[LOCAL_PANELS]
 
     out = wp.zeros(4, dtype=float)
     wp.launch(totals, 4, [rays, wp.array(theta), wp.array(psi_end), out])
@@ -110,10 +110,11 @@ def test_texel_weights_decay_along_rows(spot_scene):
     np.testing.assert_allclose(flat[flat > 0.0], rect.r_max / rect.cols, rtol=1e-12)
 
 
-@pytest.mark.parametrize("method, bound", [("fourier", 0.016), ("moments6", 0.0095)])
+@pytest.mark.parametrize("method, bound", [("fourier", 0.0025), ("moments6", 0.0025)])
 def test_open_spot_matches_exact_marcher(method, bound):
     """No caster in reach: only the cone, the 1 / d^2 fall-off, HG phase and extinction, with the light in view.
-    Measured 1.29 % (fourier) and 0.74 % (moments6) against the 1024-step exact marcher at 160x90."""
+    Measured 0.10 % (fourier and moments6) against the 1024-step exact marcher at 160x90 (1.29 / 0.74 % when the
+    filter factor came from the look-up segments instead of the weight table's panels)."""
     ref = _scattering(SPOT, {**SMALL, **OPEN, "render.scattering.steps": 1024})
     out = _scattering(SPOT, {**SMALL, **OPEN, "render.scattering.method": method})
     assert np.all(np.isfinite(out)) and np.all(out >= 0.0)
@@ -135,11 +136,11 @@ def fence_errors():
     return errors
 
 
-@pytest.mark.parametrize("method, bound, ratio", [("fourier", 0.021, 2.6), ("moments4", 0.034, 2.7),
-                                                  ("moments6", 0.027, 2.4)])
+@pytest.mark.parametrize("method, bound, ratio", [("fourier", 0.015, 1.8), ("moments4", 0.029, 2.2),
+                                                  ("moments6", 0.021, 1.9)])
 def test_textured_spot_fence_against_exact_marcher(fence_errors, method, bound, ratio):
     """The slatted fence under the stained-glass spot (the #16 bar's case). Measured at 160x90, 512^2 maps: spot
-    fourier 1.83 %, moments4 2.98 %, moments6 2.36 %; directional 0.80, 1.26, 1.11 % (ratios 2.3, 2.4, 2.1; the
+    fourier 1.25 %, moments4 2.49 %, moments6 1.82 %; directional 0.80, 1.26, 1.11 % (ratios 1.56, 1.98, 1.64; the
     128-step shadow-map marcher's own ratio is 2.5: the spot's sheets of light are the harder case)."""
     assert fence_errors["spot", method] < bound
     assert fence_errors["spot", method] < ratio * fence_errors["directional", method]

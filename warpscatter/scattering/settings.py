@@ -85,9 +85,11 @@ SEGMENTS = 3
 #: 1.2 / 1.3 % (tests/test_coloured_media.py's scene).
 COLOURED_SEGMENTS = 5
 #: Per-ray segments under a spot light (:mod:`.prefiltered_spot`; it always weights each ray by its own in-scattering).
-#: The fence under the textured spot at 320x180, 1024^2 maps, rel. L1 fourier / moments6: 2 segments 4.2 / 3.3 %,
-#: 3: 3.1 / 2.1 %, 4: 2.8 / 1.7 %, 6: 2.8 / 1.7 %.
-SPOT_SEGMENTS = 4
+#: The fence under the textured spot at 320x180, 1024^2 maps, rel. L1 fourier / moments4 / moments6 (with the filter
+#: factor per panel, prefiltered_spot.filter_factors): 2 segments 1.06 / 2.09 / 1.22 %, 3: 1.04 / 2.11 / 1.27 %,
+#: 4: 0.98 / 2.05 / 1.23 %, 6: 0.92 / 2.02 / 1.15 %, 8: 0.91 / 1.99 / 1.16 %; 4 and 6 cost the same at 1080p
+#: (evaluate ~1.6-1.9 s with a coloured texture's three maps, run to run spread ~15 %).
+SPOT_SEGMENTS = 6
 MAX_SEGMENTS = 8
 #: The moment methods' overestimation weight beta by default. With the depth bounds answering wholly lit and wholly
 #: shadowed rays exactly, beta only weighs the rays that cross shadow edges, and a fixed 0.25 beat Peters' adaptive
