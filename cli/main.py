@@ -381,9 +381,11 @@ def _scattering_summary(sc) -> str:
     method = methods.get("scattering", sc.method)
     if method.visibility == methods.VISIBILITY_CONFIGURABLE:
         return f"visibility {sc.visibility}, {sc.steps} steps"
+    mips = f", {sc.prefiltered.mip_levels} row mip levels" if sc.prefiltered.mip_levels > 1 else ""
     if sc.method == "fourier":
-        return f"{sc.fourier.coefficients} coefficients, {sc.shadow_map.resolution}^2 maps"
-    return f"{sc.num_moments} moments, {sc.filtered_bits_per_texel} bits per texel, {sc.shadow_map.resolution}^2 maps"
+        return f"{sc.fourier.coefficients} coefficients, {sc.shadow_map.resolution}^2 maps{mips}"
+    return (f"{sc.num_moments} moments, {sc.filtered_bits_per_texel} bits per texel, {sc.shadow_map.resolution}^2 "
+            f"maps{mips}")
 
 
 def _summary(config: Config) -> list[str]:

@@ -229,3 +229,16 @@ def test_config_errors_name_the_key():
     with pytest.raises(ConfigError, match="prefiltered.mip_levels"):
         ws.load_config(spot, {"render.scattering.method": "moments6", "render.scattering.moments.overestimation": 0.25,
                               "render.scattering.prefiltered.mip_levels": 4})
+
+
+def test_cli_validate_names_the_mip_levels_and_refuses_them_under_a_spot():
+    from click.testing import CliRunner
+
+    from cli.main import main
+
+    ok = CliRunner().invoke(main, ["validate", "configs/colonnade_fourier.yaml", "--set",
+                                   "render.scattering.prefiltered.mip_levels=4"])
+    assert ok.exit_code == 0 and "4 row mip levels" in ok.output
+    bad = CliRunner().invoke(main, ["validate", "configs/spot_moments.yaml", "--set",
+                                    "render.scattering.prefiltered.mip_levels=4"])
+    assert bad.exit_code != 0 and "render.scattering.prefiltered.mip_levels" in bad.output
