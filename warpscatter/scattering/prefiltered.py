@@ -27,9 +27,11 @@ Stages (names as they appear in timings):
    into ``splits`` regions filtered independently (Sec. 3.3). The texture is stored as configured:
    float32, the paper's RGBA8 (``fourier.storage_bits: 8``, uint8 codes), or the moment storage modes
    (``moments.storage_bits``: 16-bit codes of Theta* in uint16, six 10-bit codes packed in one uint64 per
-   texel, or float32); ``filtered_map_bytes`` in the info dict is the memory really allocated;
+   texel, or float32); with ``mip_levels`` > 1 the texture's row mip levels follow, stacked along its rows
+   (Peters 2017 D.5, :mod:`.row_mips`); ``filtered_map_bytes`` in the info dict is the memory really allocated;
 3. ``evaluate``  — per pixel: the G-buffer hit -> rectified (u, v, z_r) (one @wp.func dispatching on the
-   rectification kind) -> bilinear fetch of the filtered-basis vector (one look-up per split region in
+   rectification kind) -> the row mip level of the pixel's footprint (level 0 without mips) -> bilinear fetch of
+   the filtered-basis vector (one look-up per split region in
    front of the hit plus the hit's own) -> dot with a(z_r) + 0.5, clamped -> times
    sigma_s f E (1 - e^{-sigma_t s}) / sigma_t (Klehm Listing 4); the cost per pixel is constant whatever the scene;
 4. ``epipole``   — when the light (or its flip) projects into the view, the non-linear rectification's
