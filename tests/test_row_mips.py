@@ -224,24 +224,44 @@ def test_config_errors_name_the_key():
         ws.load_config(FENCE_SUN, {"render.scattering.method": "fourier",
                                    "render.scattering.prefiltered.mip_levels": 4,
                                    "render.scattering.prefiltered.splits": 2})
-    spot = {**FENCE_SUN, "light": {"type": "spot", "position": [0, 2, 4], "direction": [0, -0.2, -1],
-                                   "cone_deg": 25, "intensity": [50, 50, 50]}}
-    with pytest.raises(ConfigError, match="prefiltered.mip_levels"):
-        ws.load_config(spot, {"render.scattering.method": "moments6", "render.scattering.moments.overestimation": 0.25,
-                              "render.scattering.prefiltered.mip_levels": 4})
 
 
-def test_cli_validate_names_the_mip_levels_and_refuses_them_under_a_spot():
+def test_cli_validate_names_the_mip_levels_and_the_key_out_of_range():
     from click.testing import CliRunner
 
     from cli.main import main
 
-    ok = CliRunner().invoke(main, ["validate", "configs/colonnade_fourier.yaml", "--set",
+    ok = CliRunner().invoke(main, ["validate", "configs/spot_moments.yaml", "--set",
                                    "render.scattering.prefiltered.mip_levels=4"])
     assert ok.exit_code == 0 and "4 row mip levels" in ok.output
-    bad = CliRunner().invoke(main, ["validate", "configs/spot_moments.yaml", "--set",
-                                    "render.scattering.prefiltered.mip_levels=4"])
+    bad = CliRunner().invoke(main, ["validate", "configs/colonnade_fourier.yaml", "--set",
+                                    "render.scattering.prefiltered.mip_levels=12"])
     assert bad.exit_code != 0 and "render.scattering.prefiltered.mip_levels" in bad.output
+
+
+SPOT = "configs/spot.yaml"
+SPOT_SMALL = {"camera.width": 160, "camera.height": 90, "render.surfaces.enabled": False,
+              "render.scattering.shadow_map.resolution": 512}
+
+
+def test_spot_mips_antialias_the_textured_light():
+    """Under the stained-glass spot in view the rows converge on the light and the texture's detail is finer than
+    the pixels: against a 3x3-supersampled exact render (the pixels' mean) fourier's error falls with 8 levels
+    (measured 6.40 -> 6.03 %, ratio 0.94; at 320x180 with 1024^2 maps 4.28 -> 3.03 %, moments6 4.24 -> 3.12 %, where
+    the exact render at the pixel centres is itself 3.86 % off), while against the pixel centres it grows (1.25 ->
+    4.42 %). Only pixels spanning more than a row change (caster culling off)."""
+    w, h, ss = 160, 90, 3
+    big = ws.render(SPOT, {**SPOT_SMALL, "camera.width": w * ss, "camera.height": h * ss,
+                           "render.scattering.steps": 256}).images["scattering"]
+    mean = big.reshape(h, ss, w, ss, 3).mean(axis=(1, 3))
+    over = {**SPOT_SMALL, "render.scattering.method": "fourier", "output.aovs": ["scattering", "mip_level"]}
+    plain = ws.render(SPOT, over)
+    mipped = ws.render(SPOT, {**over, "render.scattering.prefiltered.mip_levels": 8})
+    assert mipped.stats["mip_levels"] == 8
+    a, b, level = plain.images["scattering"], mipped.images["scattering"], mipped.images["mip_level"]
+    assert np.all(np.isfinite(b)) and np.all(b >= 0.0)
+    np.testing.assert_array_equal(a[level == 0.0], b[level == 0.0])
+    assert _rel_l1(b, mean) < 0.97 * _rel_l1(a, mean)
 
 
 @pytest.mark.parametrize("over", [

@@ -782,9 +782,6 @@ class Config(SettingsModel):
                             "spot light uses the non-linear rectification (auto or nonlinear)")
         if s.prefiltered.splits > 1:
             problems.append("render.scattering.prefiltered.splits: a spot light's look-ups need whole rows (1)")
-        if s.prefiltered.mip_levels > 1:
-            problems.append("render.scattering.prefiltered.mip_levels: row mips are implemented for directional "
-                            "lights; a spot light's rows carry per-row ray weights (1)")
         if method != "fourier" and s.moments.overestimation == "adaptive":
             problems.append("render.scattering.moments.overestimation: 'adaptive' weighs a directional light's "
                             "direction (Peters 2017 Sec. 5.3.1); give a number for a spot light")

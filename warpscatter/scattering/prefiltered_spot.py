@@ -50,8 +50,7 @@ from .filtered_lookups import (
     bounded_visibility,
     depth_bounds_of,
     taps_visibility,
-    texel_footprint,
-    whole_rows,
+    window_footprint,
 )
 from .filtered_textures import FilteredBasisArrays, FilteredMomentArrays
 from .prefix_sums import prefilter_moments, prefilter_weighted
@@ -63,6 +62,7 @@ from .rectify_local import (
     spot_rectification,
     spot_texel_weights,
 )
+from .row_mips import RowMips, level_window, pixel_mip_level, row_mip_chain, stacked_row_means
 from .settings import SPOT_SEGMENTS
 
 module_options()
@@ -245,16 +245,15 @@ def filter_factors(rays: SpotRays, k0: int, maps: int, j: int, table: local_tabl
 
 
 @wp.func
-def spot_lookup(rays: SpotRays, bounds: DepthBounds, c: wp.vec3, wrap: int, table: local_table, h: float):
-    """What every map's look-up of the view ray ending at rectified c shares: the bilinear footprint (j0, j1, ay,
-    i0, i1, ax), the end's continuous prefix column x, the cuts (cut, esum, m) and the depth bounds' answer (0 or 1,
-    -1: reconstruct)."""
+def spot_lookup(rays: SpotRays, bounds: DepthBounds, c: wp.vec3, window: wp.vec3i, table: local_table, h: float):
+    """What every map's look-up of the view ray ending at rectified c shares in the row ``window`` (a mip level,
+    :func:`~.row_mips.level_window`): the bilinear footprint (j0, j1, ay, i0, i1, ax), the end's continuous prefix
+    column x, the cuts (cut, esum, m) and the depth bounds' answer (0 or 1, -1: reconstruct)."""
     cols = rays.sums.shape[1]
     u = c[0] - rays.end_offset / float(cols)
-    j0, j1, ay, i0, i1, ax = texel_footprint(rays.sums.shape[0], cols, u, c[1], wrap)
+    j0, j1, ay, i0, i1, ax = window_footprint(window, cols, u, c[1])
     cut, esum, m = ray_cuts(rays, table, h, cols, i0)
-    return j0, j1, ay, i0, i1, ax, float(i0) + ax, cut, esum, m, bounded_visibility(
-        bounds, u, c[1], c[2], whole_rows(rays.sums.shape[0], wrap))
+    return j0, j1, ay, i0, i1, ax, float(i0) + ax, cut, esum, m, bounded_visibility(bounds, u, c[1], c[2], window)
 
 
 @wp.func
@@ -275,6 +274,53 @@ def spot_visibility(texels: Any, rays: SpotRays, k: int, j0: int, j1: int, ay: f
     return v, tex
 
 
+@wp.func
+def spot_radiance(texels_r: Any, texels_g: Any, texels_b: Any, maps: int, rays: SpotRays, bounds: DepthBounds,
+                  window: wp.vec3i, beta: float, light: LightParams, med: MediumParams, cl: wp.vec3, theta: float,
+                  psi_end: float) -> wp.vec3:
+    """In-scattered radiance of the view ray of inclination theta whose look-up ends at rectified ``cl`` (its psi at
+    ``psi_end``), read in the row ``window`` (module doc; a coloured medium: each channel with its own extinction,
+    weight table and cuts)."""
+    h = (psi_end - rays.psi_lo) / float(LOCAL_PANELS)
+    xe = (psi_end - rays.psi_lo) * float(rays.sums.shape[1]) / rays.psi_span - 1.0  # prefix column of psi_end
+    scale = 1.0 / (rays.light_distance * wp.max(wp.sin(theta), 1.0e-6))
+    z_r = cl[2]
+    if med.coloured == 0:
+        table = ray_weight_table(rays, med.sigma_t, med.phase_id, med.g, theta, rays.psi_lo, psi_end)
+        j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd = spot_lookup(rays, bounds, cl, window, table, h)
+        fac = ((1.0 - ay) * filter_factors(rays, 0, maps, j0, table, h, xe)
+               + ay * filter_factors(rays, 0, maps, j1, table, h, xe))
+        v, tex = spot_visibility(texels_r, rays, 0, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+        e = wp.vec3(v * fac[0], v * fac[0], v * fac[0])
+        if maps == 3:
+            vg, fg = spot_visibility(texels_g, rays, 1, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+            vb, fb = spot_visibility(texels_b, rays, 2, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+            e = wp.vec3(v * fac[0], vg * fac[1], vb * fac[2])
+        return wp.cw_mul(light.radiance * (med.sigma_s * table[LOCAL_PANELS] * scale), e)
+    kg = int(0)
+    kb = int(0)
+    if maps == 3:
+        kg = 1
+        kb = 2
+    e = wp.vec3(0.0, 0.0, 0.0)
+    for ch in range(3):
+        table = ray_weight_table(rays, med.sigma_t_rgb[ch], med.phase_id, med.g, theta, rays.psi_lo, psi_end)
+        j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd = spot_lookup(rays, bounds, cl, window, table, h)
+        v = float(0.0)
+        f = float(0.0)
+        if ch == 0:
+            v, f = spot_visibility(texels_r, rays, 0, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+        elif ch == 1:
+            v, f = spot_visibility(texels_g, rays, kg, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+        else:
+            v, f = spot_visibility(texels_b, rays, kb, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+        k = ch * kg  # this channel's map: its own, or map 0 of a grey texture
+        fc = ((1.0 - ay) * filter_factors(rays, k, 1, j0, table, h, xe)
+              + ay * filter_factors(rays, k, 1, j1, table, h, xe))
+        e[ch] = table[LOCAL_PANELS] * v * fc[0]
+    return wp.cw_mul(light.radiance, wp.cw_mul(med.sigma_s_rgb, e)) * scale
+
+
 @wp.kernel
 def evaluate_spot_kernel(
     cam: CameraParams,
@@ -285,7 +331,7 @@ def evaluate_spot_kernel(
     maps: int,  # 1 or 3
     rays: SpotRays,
     bounds: DepthBounds,
-    wrap: int,
+    mips: RowMips,  # the maps' row mip levels and whether their rows wrap around
     beta: float,
     light: LightParams,  # radiance: the emission peak per channel
     med: MediumParams,
@@ -301,48 +347,14 @@ def evaluate_spot_kernel(
     result = wp.vec3(0.0, 0.0, 0.0)
     if psi_end > rays.psi_lo:
         cl = wp.vec3(u_end, c[1], c[2])
-        h = (psi_end - rays.psi_lo) / float(LOCAL_PANELS)
-        xe = (psi_end - rays.psi_lo) * float(rays.sums.shape[1]) / rays.psi_span - 1.0  # prefix column of psi_end
-        scale = 1.0 / (rays.light_distance * wp.max(wp.sin(theta), 1.0e-6))
-        if med.coloured == 0:
-            table = ray_weight_table(rays, med.sigma_t, med.phase_id, med.g, theta, rays.psi_lo, psi_end)
-            j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd = spot_lookup(rays, bounds, cl, wrap, table, h)
-            fac = ((1.0 - ay) * filter_factors(rays, 0, maps, j0, table, h, xe)
-                   + ay * filter_factors(rays, 0, maps, j1, table, h, xe))
-            v, tex = spot_visibility(texels_r, rays, 0, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, c[2], beta)
-            e = wp.vec3(v * fac[0], v * fac[0], v * fac[0])
-            if maps == 3:
-                vg, fg = spot_visibility(texels_g, rays, 1, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, c[2], beta)
-                vb, fb = spot_visibility(texels_b, rays, 2, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, c[2], beta)
-                e = wp.vec3(v * fac[0], vg * fac[1], vb * fac[2])
-            result = light.radiance * (med.sigma_s * table[LOCAL_PANELS] * scale)
-            result = wp.cw_mul(result, e)
-        else:  # each channel its own extinction: its own weight table and cuts
-            kg = int(0)
-            kb = int(0)
-            if maps == 3:
-                kg = 1
-                kb = 2
-            e = wp.vec3(0.0, 0.0, 0.0)
-            for ch in range(3):
-                table = ray_weight_table(rays, med.sigma_t_rgb[ch], med.phase_id, med.g, theta, rays.psi_lo,
-                                         psi_end)
-                j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd = spot_lookup(rays, bounds, cl, wrap, table, h)
-                v = float(0.0)
-                f = float(0.0)
-                if ch == 0:
-                    v, f = spot_visibility(texels_r, rays, 0, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, c[2], beta)
-                elif ch == 1:
-                    v, f = spot_visibility(texels_g, rays, kg, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, c[2],
-                                           beta)
-                else:
-                    v, f = spot_visibility(texels_b, rays, kb, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, c[2],
-                                           beta)
-                k = ch * kg  # this channel's map: its own, or map 0 of a grey texture
-                fc = ((1.0 - ay) * filter_factors(rays, k, 1, j0, table, h, xe)
-                      + ay * filter_factors(rays, k, 1, j1, table, h, xe))
-                e[ch] = table[LOCAL_PANELS] * v * fc[0]
-            result = wp.cw_mul(light.radiance, wp.cw_mul(med.sigma_s_rgb, e)) * scale
+        lv = pixel_mip_level(mips, coords, j, i)
+        level = int(lv[0])
+        result = spot_radiance(texels_r, texels_g, texels_b, maps, rays, bounds, level_window(mips, level), beta,
+                               light, med, cl, theta, psi_end)
+        if lv[1] > 0.0:  # between two levels: blend (row_mips)
+            upper = spot_radiance(texels_r, texels_g, texels_b, maps, rays, bounds, level_window(mips, level + 1),
+                                  beta, light, med, cl, theta, psi_end)
+            result = result + lv[1] * (upper - result)
     out[j, i] = result
 
 
@@ -383,9 +395,6 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
                          "light uses the non-linear rectification (auto or nonlinear)")
     if p.splits > 1:
         raise ValueError("render.scattering.prefiltered.splits: a spot light's look-ups need whole rows (splits 1)")
-    if p.mip_levels > 1:
-        raise ValueError("render.scattering.prefiltered.mip_levels: row mips are implemented for directional lights; "
-                         "a spot light's rows carry per-row ray weights (1)")
     cam, light = scene.camera, scene.light
     cols, rows = settings.shadow_map.size
     lparams = light_params(light, device)
@@ -399,7 +408,8 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
     culled = None
     if settings.culls_casters:
         with stage("caster_culling"):
-            culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device)
+            culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device,
+                                         mip_levels=p.mip_levels)
     maps = 3 if coloured_emission(light) else 1
     with stage("prefilter"):
         sigma_ref = float(min(scene.medium.sigma_t_rgb))  # the slowest decay of every channel
@@ -416,20 +426,24 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
                                                   storage_bits=settings.moment_storage_bits,
                                                   texel_weights=filtered[k], depth_warp=p.depth_warp, device=device))
         bounds = depth_bounds_of(rectified, p.depth_bounds, device)
+        chains = [row_mip_chain(t, None, bounds.bounds if k == 0 else wp.zeros((1, 1), dtype=wp.vec2, device=device),
+                                p.mip_levels, device) for k, t in enumerate(textures)]
+        textures, bounds.bounds = [ch.texture for ch in chains], chains[0].bounds
+        mips = chains[0].params(rect.full_circle)
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
         beta = 0.0 if settings.method == "fourier" else -1.0 if overestimation == "adaptive" else float(overestimation)
         if beta < 0.0:
             raise ValueError("render.scattering.moments.overestimation: 'adaptive' needs a directional light (Peters "
                              "2017 Sec. 5.3.1 weighs the light and view directions); give a number for a spot light")
-        rays = spot_rays(rect, p, np.cumsum(np.concatenate([weights[None], filtered]), axis=2, dtype=np.float64),
-                         device)
+        sums = np.cumsum(np.concatenate([weights[None], filtered]), axis=2, dtype=np.float64)
+        rays = spot_rays(rect, p, stacked_row_means(sums, mips.levels, axis=1), device)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         arrays = [t.arrays() for t in textures]
         arrays += [arrays[0]] * (3 - len(arrays))
         launch_rows(evaluate_spot_kernel, (cam.height, cam.width),
-                    [cam.params(), coords, *arrays, maps, rays, bounds, 1 if rect.full_circle else 0, beta, lparams,
-                     scene.medium.params(), out], device=device)
+                    [cam.params(), coords, *arrays, maps, rays, bounds, mips, beta, lparams, scene.medium.params(),
+                     out], device=device)
     # auto marches no disc under a spot (settings: its light's 1/d^2 peak made the marched disc the noisier part)
     regions = (epipole_regions(cam, rect.light_direction, p.epipole_angle_deg, p.epipole_block)
                if p.epipole_fallback is True else [])
@@ -448,6 +462,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         "segments": int(rays.segments),
         "depth_bounds": p.depth_bounds,
         "depth_warp": p.depth_warp,
+        "mip_levels": mips.levels,
         "end_offset": p.end_offset,
         "resample_filter": "supersample",  # a spot's texels: bilinear spot-map taps along psi (rectify_local)
         "caster_culling": culled is not None,
@@ -462,7 +477,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         "map_angles_deg": [round(math.degrees(rect.psi_lo), 3), round(math.degrees(rect.psi_lo + rect.r_max), 3)],
         "light_distance": round(rect.light_distance, 4),
     }
-    add_debug_images(info, frame, coords, regions, rectified, map_before_culling)
+    add_debug_images(info, frame, coords, regions, rectified, map_before_culling, mips)
     return out, info
 
 

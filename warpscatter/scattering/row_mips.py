@@ -15,7 +15,8 @@ every look-up kind (segments, bounds, storage), and a mean of visibilities is wh
 Layout: the levels are stacked along the rows of one texture (level 0 first), so every look-up reads the array it
 always read and only its row window moves (:func:`level_window`: first row, rows, wrap). The per-row data of the
 look-ups is stacked alike: the reference optical steps (a merged row gets its pair's mean) and the depth bounds (a
-merged row's least and greatest depths). Levels halve the rows while their count is even (a row pair must be
+merged row's least and greatest depths), and under a spot light the rows' prefix sums of texel weights
+(:mod:`.prefiltered_spot`, pair means). Levels halve the rows while their count is even (a row pair must be
 adjacent slices); rows wrapping around the full azimuth circle pair up the same way. Memory: all levels together
 hold as many rows as level 0 (row-only mips double the texture).
 """
@@ -190,6 +191,17 @@ def level_rows(rows: int, levels: int) -> list[int]:
     return counts
 
 
+def stacked_row_means(a: np.ndarray, levels: int, axis: int = 0) -> np.ndarray:
+    """Per-row data of level 0 (rows along ``axis``) with the row-pair means of each further level stacked after it
+    (:func:`level_rows`), in float64: the look-ups' per-row data of a chain (reference optical steps, a spot's
+    prefix sums of texel weights)."""
+    a = np.moveaxis(np.asarray(a, np.float64), axis, 0)
+    out = [a]
+    for _ in level_rows(a.shape[0], levels)[1:]:
+        out.append(0.5 * (out[-1][0::2] + out[-1][1::2]))
+    return np.moveaxis(np.concatenate(out), 0, axis)
+
+
 def _stacked(a: wp.array, rows_total: int) -> wp.array:
     """A copy of ``a`` with ``rows_total`` rows (its own first; the rest uninitialised)."""
     out = wp.empty((rows_total, *a.shape[1:]), dtype=a.dtype, device=a.device)
@@ -261,7 +273,6 @@ def row_mip_chain(texture, optical_step, bounds: wp.array, levels: int, device=N
     has_bounds = bounds.shape[0] == rows
     if has_bounds:
         bounds = _stacked(bounds, total)
-    taus = [tau.astype(np.float64)]
     first = 0
     for n_src, n_dst in zip(counts[:-1], counts[1:], strict=True):
         dst = first + n_src
@@ -271,9 +282,8 @@ def row_mip_chain(texture, optical_step, bounds: wp.array, levels: int, device=N
             launch_rows(moments_level_kernel, n_dst, [arrays, first, dst, int(texels.shape[1])], device=device)
         if has_bounds:
             launch_rows(bounds_level_kernel, n_dst, [bounds, first, dst], device=device)
-        taus.append(0.5 * (taus[-1][0::2] + taus[-1][1::2]))
         first = dst
-    return RowMipChain(texture, np.concatenate(taus).astype(np.float32), bounds, rows, len(counts))
+    return RowMipChain(texture, stacked_row_means(tau, len(counts)).astype(np.float32), bounds, rows, len(counts))
 
 
 __all__ = [
@@ -290,4 +300,5 @@ __all__ = [
     "pixel_mip_levels",
     "row_distance",
     "row_mip_chain",
+    "stacked_row_means",
 ]

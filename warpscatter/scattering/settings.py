@@ -159,8 +159,9 @@ class PrefilteredSettings(SettingsModel):
         "light"))] = 0.0
     mip_levels: Annotated[Int, Field(ge=1, le=MAX_MIP_LEVELS, description=(
         "row mip levels of the prefiltered texture (Peters 2017 D.5: mip-mapped prefix sums), level 0 included: a "
-        "pixel spanning several epipolar slices (around an epipole in view) reads the level as wide as it, blended "
-        "between two levels; 1: level 0 only. Doubles the texture's memory; whole rows only (splits 1)"))] = 1
+        "pixel spanning several epipolar slices (around an epipole or a spot light in view) reads the level as wide "
+        "as it, blended between two levels; 1: level 0 only. Doubles the texture's memory; whole rows only (splits "
+        "1)"))] = 1
     depth_bounds: Bool = Field(True, description="per-row prefix bounds of the rectified depths (8 bytes per texel): a "
                                                  "view ray whose texels all lie behind its end is lit, all in front "
                                                  "shadowed, exactly, without the basis' ringing or leaking "
