@@ -333,9 +333,11 @@ def technique(draw, name, base, hostile: bool) -> dict:
         out[f"{pf}.weighting"] = draw(st.sampled_from(["transmittance", "average"]))
         out[f"{pf}.map_radius"] = draw(st.sampled_from(["view", "casters"]))
         out[f"{pf}.resample_filter"] = draw(st.sampled_from(["none", "supersample", "moments"]))
+        out[f"{pf}.mip_levels"] = draw(st.sampled_from([1, 2, 8]))
     if draw(st.integers(0, 3)) == 0:
         out[f"{pf}.splits"] = draw(st.integers(1, 4))
         out[f"{pf}.segments"] = 1
+        out[f"{pf}.mip_levels"] = 1
     if draw(st.booleans()):
         out[f"{sh}.coloured"] = draw(st.booleans())
         out[f"{sh}.supersampling"] = draw(st.integers(1, 3))
@@ -352,7 +354,8 @@ def technique(draw, name, base, hostile: bool) -> dict:
         out[f"{ep}.kernel"] = draw(st.sampled_from(["gaussian", "shepard", "threshold"]))
         out[f"{ep}.initial_samples"] = draw(st.sampled_from([2, 4, 16]))
     if draw(st.integers(0, 3)) == 0:
-        out["output.aovs"] = ["color", "scattering", "surface", "depth", "rectified", "epipole_mask", "rectified_map"]
+        out["output.aovs"] = ["color", "scattering", "surface", "depth", "rectified", "epipole_mask", "rectified_map",
+                              "mip_level"]
     return out
 
 
