@@ -54,6 +54,7 @@ from .ray_weights import (
     ray_end,
     ray_optical_step,
     segment_columns,
+    segment_count,
     segment_sums,
     weight_sum,
 )
@@ -380,8 +381,9 @@ def segment_lookup(weights: RayWeights, window: wp.vec3i, cols: int, u: float, v
     e_end, decay_end = ray_end(tau_ray, x)
     m = int(0)
     last = int(-1)
-    for k in range(1, weights.segments):
-        c, e_c = ray_cut(tau_ray, x, float(k) / float(weights.segments), decay_end)
+    count = segment_count(weights, tau_ray, wp.min(weights.optical_step[j0], weights.optical_step[j1]), x)
+    for k in range(1, count):
+        c, e_c = ray_cut(tau_ray, x, float(k) / float(count), decay_end)
         if c > last and c < i0:
             cut[m] = c
             esum[m] = e_c

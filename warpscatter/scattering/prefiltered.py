@@ -357,7 +357,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         with stage("caster_culling"):
             culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device,
                                          mip_levels=p.mip_levels)
-    segments = p.segments_for(isinstance(rect, NonlinearRectification), scene.medium.coloured)
+    segments = p.segments_for(isinstance(rect, NonlinearRectification), scene.medium.coloured, settings.method)
+    segment_depth = p.segment_depth_for(settings.method) if segments > 1 else 0.0
     with stage("prefilter"):
         sigma_ref = weights_extinction(scene.medium, segments)
         tau, lengths, weight_info = row_weights(rect, p, sigma_ref, cam, segments)
@@ -379,12 +380,13 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         end_offset = p.end_offset * (rect.column_scale if isinstance(rect, NonlinearRectification) else 1.0)
         nonlinear = rect if isinstance(rect, NonlinearRectification) else None
         weights = ray_weights(segments, chain.optical_step, nonlinear, sigma_ref, end_offset, device=device,
-                              cols=cols)
+                              cols=cols, segment_depth=segment_depth)
         channels = ChannelRayWeights()
         channels.r = channels.g = channels.b = weights
         if scene.medium.coloured and segments > 1:
             channels.r, channels.g, channels.b = (ray_weights(segments, chain.optical_step, nonlinear, sigma,
-                                                              end_offset, device=device, cols=cols)
+                                                              end_offset, device=device, cols=cols,
+                                                              segment_depth=segment_depth)
                                                   for sigma in scene.medium.sigma_t_rgb)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
@@ -408,6 +410,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
            {"overestimation": overestimation}),
         "bits_per_texel": settings.filtered_bits_per_texel,
         "segments": segments,
+        "segment_depth": segment_depth,
         "depth_bounds": p.depth_bounds,
         "depth_warp": p.depth_warp,
         "mip_levels": chain.levels,

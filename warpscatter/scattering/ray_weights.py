@@ -48,7 +48,9 @@ segment_sums = wp.types.vector(length=MAX_SEGMENTS + 1, dtype=wp.float32)
 class RayWeights:
     """How a look-up weights a view ray's texels (see the module doc).
 
-    segments: K segments per ray (1: the reference ray's weights, Klehm 2014); optical_step: (rows,) the prefilter's
+    segments: K segments per ray (1: the reference ray's weights, Klehm 2014), or with segment_depth > 0 the most a ray
+    uses: it takes one more segment per segment_depth of optical-depth mismatch with its row's reference
+    (:func:`segment_count`); optical_step: (rows,) the prefilter's
     tau_j per column; tau_perp: sigma_t Delta_perp, the optical step of a ray perpendicular to the light;
     theta_hi, theta_len: the non-linear rectification's depth bounds (z_r -> the ray's inclination theta);
     end_offset: texels the look-up ends before the ray's end point (the texel of the surface it ends on is its own
@@ -57,6 +59,7 @@ class RayWeights:
     """
 
     segments: int
+    segment_depth: float
     optical_step: wp.array(dtype=wp.float32)
     tau_perp: float
     theta_hi: float
@@ -73,6 +76,21 @@ class ChannelRayWeights:
     r: RayWeights
     g: RayWeights
     b: RayWeights
+
+
+@wp.func
+def segment_count(weights: RayWeights, tau_ray: float, tau_ref: float, x: float) -> int:
+    """Segments of a ray with optical step tau_ray whose look-up ends at prefix column x, against a row reference of
+    step tau_ref: ``weights.segments``, or with ``segment_depth`` > 0 one plus one per segment_depth of the optical
+    depth by which the ray's decay over its texels exceeds the reference's, (tau_ray - tau_ref)(x + 1), at most
+    ``segments``. Inside a segment the ray's weight per reference weight varies by about that depth; a ray decaying
+    like its reference is exact with one."""
+    if weights.segment_depth <= 0.0:
+        return weights.segments
+    mismatch = (tau_ray - tau_ref) * (x + 1.0)
+    if mismatch <= 0.0:
+        return 1
+    return wp.min(1 + int(mismatch / weights.segment_depth), weights.segments)
 
 
 @wp.func
@@ -143,7 +161,7 @@ def ray_cut(tau: float, x: float, share: float, decay_end: float):
 
 
 def ray_weights(segments: int, optical_step, rect=None, sigma_t: float = 0.0, end_offset: float = 0.0,
-                device=None, cols: int | None = None) -> RayWeights:
+                device=None, cols: int | None = None, segment_depth: float = 0.0) -> RayWeights:
     """Kernel-side :class:`RayWeights`.
 
     Args:
@@ -155,13 +173,18 @@ def ray_weights(segments: int, optical_step, rect=None, sigma_t: float = 0.0, en
         end_offset: texels the look-up ends before the ray's end point (>= 0).
         device: Warp device.
         cols: the map's columns (default ``rect.cols``; without either, no ray reaches past the map).
+        segment_depth: > 0: ``segments`` is the most a ray uses, one per this much optical-depth mismatch with its
+            row's reference (:func:`segment_count`); 0: every ray uses ``segments``.
     """
     if not 1 <= int(segments) <= MAX_SEGMENTS:
         raise ValueError(f"segments must be in [1, {MAX_SEGMENTS}], got {segments}")
     if not (np.isfinite(end_offset) and end_offset >= 0.0):
         raise ValueError(f"end_offset must be finite and >= 0, got {end_offset}")
+    if not (np.isfinite(segment_depth) and segment_depth >= 0.0):
+        raise ValueError(f"segment_depth must be finite and >= 0, got {segment_depth}")
     w = RayWeights()
     w.segments = int(segments)
+    w.segment_depth = float(segment_depth)
     w.end_offset = float(end_offset)
     w.tau_perp, w.theta_hi, w.theta_len = 0.0, 0.0, 1.0
     w.cols = int(cols if cols is not None else (rect.cols if rect is not None else 2**30))
@@ -186,6 +209,7 @@ __all__ = [
     "ray_optical_step",
     "ray_weights",
     "segment_columns",
+    "segment_count",
     "segment_sums",
     "weight_sum",
 ]
