@@ -317,7 +317,7 @@ def test_window_room_does_not_glow():
     old = ["render.scattering.prefiltered.segments=1", "render.scattering.prefiltered.end_offset=0",
            "render.scattering.prefiltered.map_radius=view"]
     glow = lambda img: float(img[dark].mean() / exact[~dark].mean())  # noqa: E731
-    # measured: fourier 0.026 with its adaptive 8 segments (0.099 with 3 fixed; before 0.211), moments6 0.136 (0.196);
+    # measured: fourier 0.027 with its adaptive segments (0.099 with 3 fixed; before 0.211), moments6 0.136 (0.196);
     # the dark room's mean against the lit pixels' 0.00036 (0.0139 with 3 fixed) and 0.0122 (0.0143). (With the
     # per-row pixel-median reference rays unsmoothed, before: 0.375 and 0.246.)
     for method, bound, factor in (("fourier", 0.04, 0.2), ("moments6", 0.16, 0.75)):

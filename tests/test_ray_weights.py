@@ -161,7 +161,7 @@ def test_adaptive_segments_match_the_fixed_count_with_fewer_cuts():
 
 def test_settings_segments_and_reference():
     p = PrefilteredSettings()
-    assert p.segments_for(nonlinear=True, method="fourier") == 8 and p.segment_depth_for("fourier") == 0.15
+    assert p.segments_for(nonlinear=True, method="fourier") == 6 and p.segment_depth_for("fourier") == 0.15
     assert p.segments_for(nonlinear=True, method="moments6") == 3 and p.segment_depth_for("moments6") == 0.0
     assert PrefilteredSettings(segment_depth=0.0).segment_depth_for("fourier") == 0.0
     assert p.segments_for(nonlinear=True) == 3 and p.reference_for(3) == "least"

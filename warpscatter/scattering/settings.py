@@ -82,12 +82,14 @@ SEGMENTS = 3
 #: fourier's per-ray segments by default: adaptive (SEGMENT_DEPTH), at most this many. Measured at 480x270, 1024^2
 #: maps, rel. L1 against the exact marcher on colonnade / canopy / window / quickstart / terrain / gate, each with its
 #: own sun and with the sun behind the camera (12 cases): 3 fixed segments mean 2.69 % (the dark window room 17.6 %),
-#: 6 fixed 1.33 % (4.2 %), 8 fixed 1.33 % (4.1 %), 8 adaptive at 0.15 1.33 % (4.1 %; window 2.94 -> 1.75 %, colonnade
-#: with the sun behind 0.47 -> 0.29 %, canopy 0.24 -> 0.10 %, quickstart 0.43 -> 0.15 %), at 0.25 1.43 %, at 0.05
-#: 1.32 %. 1080p colonnade evaluate: 3 fixed ~345 ms, 6 fixed ~575 ms, 8 adaptive at 0.15 ~245-300 ms (most rays need
-#: fewer than three). The moment methods keep 3 fixed: with 6-8 (fixed or adaptive) the sun-behind cases improve but
-#: their own-light colonnade and window get worse (moments6 4.86 -> 5.31 %, 5.47 -> 7.38 %).
-FOURIER_SEGMENTS = 8
+#: 6 fixed 1.33 % (4.2 %), 8 fixed 1.33 % (4.1 %); adaptive at 0.15: up to 4 1.91 %, up to 6 1.36 % (4.2 %; window
+#: 2.94 -> 1.87 %, colonnade with the sun behind 0.47 -> 0.29 %, canopy 0.24 -> 0.10 %, quickstart 0.43 -> 0.18 %),
+#: up to 8 1.33 %; up to 6 at 0.25 1.45 %. evaluate at 960x540 (gate / terrain / colonnade): 3 fixed 123 / 129 /
+#: 97 ms, adaptive up to 6 178 / 178 / 94 ms, up to 8 197 / 207 / 103 ms (a look-up reads four columns per pass over
+#: the coefficients: up to 6 segments is two passes, 8 three); 6 fixed ~1.7x the 3 fixed. The moment methods keep 3
+#: fixed: with 6-8 (fixed or adaptive) the sun-behind cases improve but their own-light colonnade and window get
+#: worse (moments6 4.86 -> 5.31 %, 5.47 -> 7.38 %).
+FOURIER_SEGMENTS = 6
 #: Optical-depth mismatch per segment of fourier's adaptive per-ray segments by default (ray_weights.segment_count).
 SEGMENT_DEPTH = 0.15
 #: ... in a coloured medium, where each channel weights its rays with its own extinction against prefix sums weighted
