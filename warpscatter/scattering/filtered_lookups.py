@@ -381,7 +381,7 @@ def segment_lookup(weights: RayWeights, window: wp.vec3i, cols: int, u: float, v
     e_end, decay_end = ray_end(tau_ray, x)
     m = int(0)
     last = int(-1)
-    count = segment_count(weights, tau_ray, wp.min(weights.optical_step[j0], weights.optical_step[j1]), x)
+    count = segment_count(weights, tau_ray, j0, j1, x)
     for k in range(1, count):
         c, e_c = ray_cut(tau_ray, x, float(k) / float(count), decay_end)
         if c > last and c < i0:

@@ -259,19 +259,19 @@ def spot_lookup(rays: SpotRays, bounds: DepthBounds, c: wp.vec3, window: wp.vec3
 @wp.func
 def spot_visibility(texels: Any, rays: SpotRays, k: int, j0: int, j1: int, ay: float, i0: int, i1: int, ax: float,
                     x: float, cut: segment_columns, esum: segment_sums, m: int, bounded: float, z_r: float,
-                    beta: float):
-    """(visible share, the segments' filter factor) of a look-up (:func:`spot_lookup`) on map k (module doc); the
-    radiance takes the finer factor of :func:`filter_factors`."""
+                    beta: float) -> float:
+    """Visible share of a look-up (:func:`spot_lookup`) on map k (module doc): its taps weighted by the segments'
+    tau-weighted reference weights, normalised by their sum (the radiance takes the unshadowed share from the finer
+    :func:`filter_factors`); 0 where the segments see no light."""
     w0, f0 = spot_row_weights(rays, k, j0, x, cut, esum, m)
     w1, f1 = spot_row_weights(rays, k, j1, x, cut, esum, m)
     tex = (1.0 - ay) * f0 + ay * f1
     if tex <= 0.0:
-        return float(0.0), float(0.0)
-    v = bounded
-    if v < 0.0:
-        v = taps_visibility(texels, j0, j1, cut, m, i0, i1, ax, w0 * ((1.0 - ay) * f0 / tex), w1 * (ay * f1 / tex),
-                            z_r, beta)
-    return v, tex
+        return float(0.0)
+    if bounded >= 0.0:
+        return bounded
+    return taps_visibility(texels, j0, j1, cut, m, i0, i1, ax, w0 * ((1.0 - ay) * f0 / tex), w1 * (ay * f1 / tex),
+                           z_r, beta)
 
 
 @wp.func
@@ -290,11 +290,11 @@ def spot_radiance(texels_r: Any, texels_g: Any, texels_b: Any, maps: int, rays: 
         j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd = spot_lookup(rays, bounds, cl, window, table, h)
         fac = ((1.0 - ay) * filter_factors(rays, 0, maps, j0, table, h, xe)
                + ay * filter_factors(rays, 0, maps, j1, table, h, xe))
-        v, tex = spot_visibility(texels_r, rays, 0, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+        v = spot_visibility(texels_r, rays, 0, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
         e = wp.vec3(v * fac[0], v * fac[0], v * fac[0])
         if maps == 3:
-            vg, fg = spot_visibility(texels_g, rays, 1, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
-            vb, fb = spot_visibility(texels_b, rays, 2, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+            vg = spot_visibility(texels_g, rays, 1, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+            vb = spot_visibility(texels_b, rays, 2, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
             e = wp.vec3(v * fac[0], vg * fac[1], vb * fac[2])
         return wp.cw_mul(light.radiance * (med.sigma_s * table[LOCAL_PANELS] * scale), e)
     kg = int(0)
@@ -307,13 +307,12 @@ def spot_radiance(texels_r: Any, texels_g: Any, texels_b: Any, maps: int, rays: 
         table = ray_weight_table(rays, med.sigma_t_rgb[ch], med.phase_id, med.g, theta, rays.psi_lo, psi_end)
         j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd = spot_lookup(rays, bounds, cl, window, table, h)
         v = float(0.0)
-        f = float(0.0)
         if ch == 0:
-            v, f = spot_visibility(texels_r, rays, 0, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+            v = spot_visibility(texels_r, rays, 0, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
         elif ch == 1:
-            v, f = spot_visibility(texels_g, rays, kg, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+            v = spot_visibility(texels_g, rays, kg, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
         else:
-            v, f = spot_visibility(texels_b, rays, kb, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+            v = spot_visibility(texels_b, rays, kb, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
         k = ch * kg  # this channel's map: its own, or map 0 of a grey texture
         fc = ((1.0 - ay) * filter_factors(rays, k, 1, j0, table, h, xe)
               + ay * filter_factors(rays, k, 1, j1, table, h, xe))

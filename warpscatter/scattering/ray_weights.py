@@ -79,14 +79,15 @@ class ChannelRayWeights:
 
 
 @wp.func
-def segment_count(weights: RayWeights, tau_ray: float, tau_ref: float, x: float) -> int:
-    """Segments of a ray with optical step tau_ray whose look-up ends at prefix column x, against a row reference of
-    step tau_ref: ``weights.segments``, or with ``segment_depth`` > 0 one plus one per segment_depth of the optical
-    depth by which the ray's decay over its texels exceeds the reference's, (tau_ray - tau_ref)(x + 1), at most
+def segment_count(weights: RayWeights, tau_ray: float, j0: int, j1: int, x: float) -> int:
+    """Segments of a ray with optical step tau_ray whose look-up ends at prefix column x in rows j0, j1:
+    ``weights.segments``, or with ``segment_depth`` > 0 one plus one per segment_depth of the optical depth by which
+    the ray's decay over its texels exceeds the slower-decaying row reference's, (tau_ray - tau_ref)(x + 1), at most
     ``segments``. Inside a segment the ray's weight per reference weight varies by about that depth; a ray decaying
     like its reference is exact with one."""
     if weights.segment_depth <= 0.0:
         return weights.segments
+    tau_ref = wp.min(weights.optical_step[j0], weights.optical_step[j1])
     mismatch = (tau_ray - tau_ref) * (x + 1.0)
     if mismatch <= 0.0:
         return 1

@@ -203,11 +203,14 @@ def level_rows(rows: int, levels: int) -> list[int]:
 
 def stacked_row_means(a: np.ndarray, levels: int, axis: int = 0) -> np.ndarray:
     """Per-row data of level 0 (rows along ``axis``) with the row-pair means of each further level stacked after it
-    (:func:`level_rows`), in float64: the look-ups' per-row data of a chain (reference optical steps, a spot's
-    prefix sums of texel weights)."""
+    (:func:`level_rows`), in float64 (level 0 alone: ``a`` as it is): the look-ups' per-row data of a chain
+    (reference optical steps, a spot's prefix sums of texel weights)."""
+    counts = level_rows(np.shape(a)[axis], levels)
+    if len(counts) == 1:
+        return np.asarray(a)  # level 0 alone: as it is (no float64 copy on the path without mips)
     a = np.moveaxis(np.asarray(a, np.float64), axis, 0)
     out = [a]
-    for _ in level_rows(a.shape[0], levels)[1:]:
+    for _ in counts[1:]:
         out.append(0.5 * (out[-1][0::2] + out[-1][1::2]))
     return np.moveaxis(np.concatenate(out), 0, axis)
 
