@@ -381,11 +381,13 @@ def _scattering_summary(sc) -> str:
     method = methods.get("scattering", sc.method)
     if method.visibility == methods.VISIBILITY_CONFIGURABLE:
         return f"visibility {sc.visibility}, {sc.steps} steps"
-    mips = f", {sc.prefiltered.mip_levels} row mip levels" if sc.prefiltered.mip_levels > 1 else ""
+    options = f", {sc.prefiltered.mip_levels} row mip levels" if sc.prefiltered.mip_levels > 1 else ""
+    warp = sc.prefiltered.depth_warp_for(sc.method, sc.shadow_map.size[0])
+    options += f", depth warp {warp:g}" if warp != 0.0 else ""
     if sc.method == "fourier":
-        return f"{sc.fourier.coefficients} coefficients, {sc.shadow_map.resolution}^2 maps{mips}"
+        return f"{sc.fourier.coefficients} coefficients, {sc.shadow_map.resolution}^2 maps{options}"
     return (f"{sc.num_moments} moments, {sc.filtered_bits_per_texel} bits per texel, {sc.shadow_map.resolution}^2 "
-            f"maps{mips}")
+            f"maps{options}")
 
 
 def _summary(config: Config) -> list[str]:

@@ -254,6 +254,14 @@ def test_validate_summary(config_file):
     assert "directional, direction [0, -1, 0]" in result.stdout and "method:  raymarch" in result.stdout
 
 
+@pytest.mark.parametrize("method, text", [("moments4", "64 bits per texel, 1024^2 maps, depth warp 3)"),
+                                          ("moments6", "96 bits per texel, 1024^2 maps)")])
+def test_validate_summary_names_the_depth_warp_in_use(config_file, method, text):
+    result = invoke("validate", config_file, "--set", f"render.scattering.method={method}")
+    assert result.exit_code == 0, result.output
+    assert text in result.stdout
+
+
 @pytest.mark.parametrize("light, text", [
     ("{type: point, position: [0, 2, 3], intensity: [5, 5, 5]}", "point at [0, 2, 3], intensity [5, 5, 5]"),
     ("{type: spot, position: [0, 2, 3], direction: [0, -1, 0], cone_deg: 20}", "spot at [0, 2, 3]"),

@@ -427,6 +427,34 @@ def test_moment_settings_errors():
                                                            "render.scattering.moments.storage_bits=96"])
 
 
+def test_moments4_depth_warp_default_and_its_gain():
+    """Four moments warp their depths by MOMENTS4_DEPTH_WARP by default (less on maps coarser than
+    MOMENTS4_WARP_COLUMNS; the other methods not at all); on the quickstart scene
+    (sun ahead, 160x90, 1024^2 map) it lowers the error against the exact marcher by about a quarter. Measured rel. L1
+    with c = 3 / none: 4.9 / 6.7 % against the 128-step marcher, its noise included (the sweep: settings.py)."""
+    from warpscatter.scattering.settings import MOMENTS4_DEPTH_WARP
+
+    p = PrefilteredSettings()
+    assert p.depth_warp_for("moments4", 1024) == p.depth_warp_for("moments4", 4096) == MOMENTS4_DEPTH_WARP == 3.0
+    assert p.depth_warp_for("moments4", 512) == 1.5 and p.depth_warp_for("moments4", 256) == 0.75  # coarse maps
+    assert p.depth_warp_for("moments6", 1024) == p.depth_warp_for("fourier", 1024) == 0.0
+    assert PrefilteredSettings(depth_warp=0).depth_warp_for("moments4", 1024) == 0.0
+    assert PrefilteredSettings(depth_warp=-1.5).depth_warp_for("fourier", 256) == -1.5
+
+    def scattering(*over):
+        cfg = load_config(ROOT / "configs" / "quickstart.yaml", ["camera.width=160", "camera.height=90",
+                                                                 "render.surfaces.enabled=false", *over])
+        return render_images(build_scene(cfg), cfg.render)
+    exact, _ = scattering("render.scattering.method=raymarch", "render.scattering.visibility=exact",
+                          "render.scattering.steps=128")
+    rel = lambda a: float(np.abs(a["scattering"] - exact["scattering"]).sum() / np.abs(exact["scattering"]).sum())  # noqa: E731
+    m4 = ["render.scattering.method=moments4", "render.scattering.shadow_map.resolution=1024"]
+    warped, stats = scattering(*m4)
+    flat, flat_stats = scattering(*m4, "render.scattering.prefiltered.depth_warp=0")
+    assert stats["depth_warp"] == 3.0 and flat_stats["depth_warp"] == 0.0
+    assert rel(warped) < 0.06 and rel(warped) < 0.85 * rel(flat)
+
+
 # =================================================================================================================
 # ==== fourier (M = 32) against the exact reference on the bundled scenes ====
 # =================================================================================================================

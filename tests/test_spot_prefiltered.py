@@ -124,26 +124,27 @@ def test_open_spot_matches_exact_marcher(method, bound):
 @pytest.fixture(scope="module")
 def fence_errors():
     """rel. L1 of each method on the bundled textured-spot fence and on the same scene under a directional light
-    along the spot's axis, each against its own 1024-step exact reference (160x90, 512^2 maps)."""
+    along the spot's axis, each against its own 1024-step exact reference (160x90, the default 1024^2 maps)."""
     directional = {"light": {"type": "directional", "direction": [0.0, -0.25, -1.0], "irradiance": [1.0, 1.0, 1.0]}}
     errors = {}
     for name, light in (("spot", {}), ("directional", directional)):
         ref = _scattering(SPOT, {**SMALL, **light, "render.scattering.steps": 1024})
         for method in ("fourier", "moments4", "moments6"):
-            out = _scattering(SPOT, {**SMALL, **light, "render.scattering.method": method})
+            out = _scattering(SPOT, {**SMALL, **light, "render.scattering.method": method,
+                                     "render.scattering.shadow_map.resolution": 1024})
             assert np.all(np.isfinite(out)) and np.all(out >= 0.0)
             errors[name, method] = _rel_l1(out, ref)
     return errors
 
 
-@pytest.mark.parametrize("method, bound, ratio", [("fourier", 0.015, 1.8), ("moments4", 0.029, 2.2),
-                                                  ("moments6", 0.021, 1.9)])
-def test_textured_spot_fence_against_exact_marcher(fence_errors, method, bound, ratio):
-    """The slatted fence under the stained-glass spot (the #16 bar's case). Measured at 160x90, 512^2 maps: spot
-    fourier 1.25 %, moments4 2.49 %, moments6 1.82 %; directional 0.79, 1.26, 1.11 % (ratios 1.58, 1.98, 1.64; the
-    128-step shadow-map marcher's own ratio is 2.5: the spot's sheets of light are the harder case)."""
+@pytest.mark.parametrize("method, bound", [("fourier", 0.0135), ("moments4", 0.022), ("moments6", 0.017)])
+def test_textured_spot_fence_against_exact_marcher(fence_errors, method, bound):
+    """The slatted fence under the stained-glass spot (the #16 bar's case: at most twice the directional error).
+    Measured at 160x90, 1024^2 maps: spot fourier 0.90 %, moments4 1.48 %, moments6 1.11 %; directional 0.56, 0.98,
+    0.79 % (ratios 1.60, 1.52, 1.40; moments4 without its depth warp 1.97 / 1.00 %, 1.98; the 128-step shadow-map
+    marcher's own ratio is 2.5: the spot's sheets of light are the harder case)."""
     assert fence_errors["spot", method] < bound
-    assert fence_errors["spot", method] < ratio * fence_errors["directional", method]
+    assert fence_errors["spot", method] < 1.85 * fence_errors["directional", method]
 
 
 def test_coloured_texture_gets_a_map_per_channel_grey_one():

@@ -359,16 +359,17 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
                                          mip_levels=p.mip_levels)
     segments = p.segments_for(isinstance(rect, NonlinearRectification), scene.medium.coloured, settings.method)
     segment_depth = p.segment_depth_for(settings.method) if segments > 1 else 0.0
+    depth_warp = p.depth_warp_for(settings.method, cols)
     with stage("prefilter"):
         sigma_ref = weights_extinction(scene.medium, segments)
         tau, lengths, weight_info = row_weights(rect, p, sigma_ref, cam, segments)
         if settings.method == "fourier":
             fb: FilteredBasis | FilteredMoments = prefilter_weighted(
                 rectified, settings.fourier.coefficients, tau, lengths, splits=p.splits,
-                bits=settings.fourier.storage_bits, depth_warp=p.depth_warp, device=device)
+                bits=settings.fourier.storage_bits, depth_warp=depth_warp, device=device)
         else:
             fb = prefilter_moments(rectified, settings.num_moments, tau, lengths,
-                                   storage_bits=settings.moment_storage_bits, depth_warp=p.depth_warp, device=device)
+                                   storage_bits=settings.moment_storage_bits, depth_warp=depth_warp, device=device)
         bounds = depth_bounds_of(rectified, p.depth_bounds, device)
         chain = row_mip_chain(fb, tau, bounds.bounds, p.mip_levels, device)
         fb, bounds.bounds = chain.texture, chain.bounds
@@ -412,7 +413,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         "segments": segments,
         "segment_depth": segment_depth,
         "depth_bounds": p.depth_bounds,
-        "depth_warp": p.depth_warp,
+        "depth_warp": depth_warp,
         "mip_levels": chain.levels,
         "end_offset": p.end_offset,
         **resample_info,

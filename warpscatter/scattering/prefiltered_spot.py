@@ -410,6 +410,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
             culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device,
                                          mip_levels=p.mip_levels)
     maps = 3 if coloured_emission(light) else 1
+    depth_warp = p.depth_warp_for(settings.method, cols)
     with stage("prefilter"):
         sigma_ref = float(min(scene.medium.sigma_t_rgb))  # the slowest decay of every channel
         weights = spot_texel_weights(rect, sigma_ref, scene.medium)
@@ -419,11 +420,11 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
             if settings.method == "fourier":
                 textures.append(prefilter_weighted(rectified, settings.fourier.coefficients,
                                                    bits=settings.fourier.storage_bits, texel_weights=filtered[k],
-                                                   depth_warp=p.depth_warp, device=device))
+                                                   depth_warp=depth_warp, device=device))
             else:
                 textures.append(prefilter_moments(rectified, settings.num_moments,
                                                   storage_bits=settings.moment_storage_bits,
-                                                  texel_weights=filtered[k], depth_warp=p.depth_warp, device=device))
+                                                  texel_weights=filtered[k], depth_warp=depth_warp, device=device))
         bounds = depth_bounds_of(rectified, p.depth_bounds, device)
         chains = [row_mip_chain(t, None, bounds.bounds if k == 0 else wp.zeros((1, 1), dtype=wp.vec2, device=device),
                                 p.mip_levels, device) for k, t in enumerate(textures)]
@@ -460,7 +461,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         "bits_per_texel": settings.filtered_bits_per_texel,
         "segments": int(rays.segments),
         "depth_bounds": p.depth_bounds,
-        "depth_warp": p.depth_warp,
+        "depth_warp": depth_warp,
         "mip_levels": mips.levels,
         "end_offset": p.end_offset,
         "resample_filter": "supersample",  # a spot's texels: bilinear spot-map taps along psi (rectify_local)

@@ -116,6 +116,24 @@ OVERESTIMATION = 0.25
 #: their own blockers: half a texel of each lit ray-end lights the dark room).
 END_OFFSET = 1.0
 MAX_END_OFFSET = 8.0
+#: moments4's depth warp c by default (prefiltered.depth_warp; fourier and moments6: none). Four moments leak light
+#: where a ray's depths sit close behind its blockers' in the map; the warp (e^(c z) - 1) / (e^c - 1) with c > 0 spreads
+#: the far depths apart and the leak shrinks. Measured at 480x270, 1024^2 maps, rel. L1 against the exact marcher, c = 0
+#: / 2 / 3 / 4 (sun ahead): colonnade 9.27 / 7.14 / 6.71 / 6.50 %, window room 8.91 / 7.96 / 8.14 / 8.70 %,
+#: quickstart 5.86 / 3.82 / 3.86 / 4.09 %, canopy 1.03 / 0.83 / 0.82 / 0.82 %, terrain 2.49 / 2.02 / 2.15 / 2.41 %,
+#: gate 3.77 / 2.95 / 2.87 / 2.85 %; the textured spot on the fence 2.01 / 1.58 / 1.58 / 1.67 %, on the colonnade
+#: 5.03 / 4.03 / 3.72 / 3.58 %; with the sun behind the camera within 0.01 % (colonnade, canopy, quickstart, terrain,
+#: gate) except the dark window room 23.1 / 27.6 / 26.7 %; c = -2 doubled every error. moments6 gains nothing (c = 1:
+#: window room 5.47 -> 4.95 %, colonnade 4.86 -> 4.89 %; c = 2: spot fence 1.20 -> 1.38 %), fourier loses (README).
+MOMENTS4_DEPTH_WARP = 3.0
+#: Map columns from which moments4 uses all of MOMENTS4_DEPTH_WARP; coarser maps use c in proportion. The warp also
+#: magnifies the depth spread inside a texel at the far end (by up to c e^c / (e^c - 1), 3.2 at c = 3), which grows
+#: as the texels do: with c = 3 at 512 / 256 columns the window room went 9.32 -> 10.13 % / 12.89 -> 15.78 % and the
+#: colonnade with the sun behind 1.45 -> 1.85 % / 2.70 -> 3.31 %; with c = 1.5 / 0.75 8.58 / 12.18 % and 1.64 /
+#: 2.83 %, and every sun-ahead case still gains (colonnade 15.6 -> 14.0 % / 18.8 -> 17.8 %, quickstart 6.89 ->
+#: 4.97 % / 8.95 -> 7.73 %, gate 4.38 -> 3.68 % / 7.40 -> 7.15 %). At 2048 columns c = 3 gains as at 1024
+#: (colonnade 8.80 -> 6.21 %, window room 9.89 -> 8.72 %, quickstart 5.79 -> 3.25 %, gate 3.22 -> 2.32 %).
+MOMENTS4_WARP_COLUMNS = 1024
 #: Largest |c| of the exponential depth warp (prefiltered.depth_warp, filtered_textures.warped_depth).
 MAX_DEPTH_WARP = 16.0
 #: Most row mip levels of a prefiltered texture (prefiltered.mip_levels, row_mips): a pixel spanning up to 2^(8-1)
@@ -174,10 +192,12 @@ class PrefilteredSettings(SettingsModel):
         "texels the look-up ends before the ray's end point (texels of a map reaching the view: with map_radius "
         "casters, as many more as the columns are finer): the surface a ray ends on is its own blocker and lights or "
         "shadows the ray's last texel by chance"))] = END_OFFSET
-    depth_warp: Annotated[Float, Field(ge=-MAX_DEPTH_WARP, le=MAX_DEPTH_WARP, description=(
-        "exponential warp c of the depths the representations store and look up, (e^(c z) - 1) / (e^c - 1) (Klehm "
-        "2014 Sec. 5: against light bleeding near the epipole); 0: none; < 0 stretches the depths towards the "
-        "light"))] = 0.0
+    depth_warp: Optional[Annotated[Float, Field(ge=-MAX_DEPTH_WARP, le=MAX_DEPTH_WARP)]] = Field(
+        None, description="exponential warp c of the depths the representations store and look up, (e^(c z) - 1) / "
+                          "(e^c - 1) (Klehm 2014 Sec. 5: against light bleeding); 0: none; < 0 stretches the depths "
+                          "towards the light, > 0 away from it; null: " + f"{MOMENTS4_DEPTH_WARP:g}" + " for moments4 on "
+                          "maps of " + str(MOMENTS4_WARP_COLUMNS) + " columns or more (in proportion on coarser "
+                          "ones), 0 for fourier and moments6")
     mip_levels: Annotated[Int, Field(ge=1, le=MAX_MIP_LEVELS, description=(
         "row mip levels of the prefiltered texture (Peters 2017 D.5: mip-mapped prefix sums), level 0 included: a "
         "pixel spanning several epipolar slices (around an epipole or a spot light in view) reads the level as wide "
@@ -269,6 +289,16 @@ class PrefilteredSettings(SettingsModel):
         if self.segment_depth is not None:
             return float(self.segment_depth)
         return SEGMENT_DEPTH if method == "fourier" else 0.0
+
+    def depth_warp_for(self, method: str, columns: int) -> float:
+        """The depth warp c the representations of a map with ``columns`` texels per row use (``depth_warp``; null:
+        for moments4 :data:`MOMENTS4_DEPTH_WARP`, scaled down in proportion below :data:`MOMENTS4_WARP_COLUMNS`
+        columns, 0 otherwise)."""
+        if self.depth_warp is not None:
+            return float(self.depth_warp)
+        if method != "moments4":
+            return 0.0
+        return MOMENTS4_DEPTH_WARP * min(1.0, columns / MOMENTS4_WARP_COLUMNS)
 
     def reference_for(self, segments: int) -> str:
         """The reference ray used: ``reference_ray``, or for auto the least optical step with per-ray segments (their
