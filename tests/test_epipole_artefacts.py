@@ -28,7 +28,7 @@ def _march_rays(m: Marcher, origin: wp.vec3, dirs: wp.array(dtype=wp.vec3), s: w
                 out: wp.array(dtype=wp.vec3)):
     k = wp.tid()
     if strata != 0:
-        out[k] = march_transmittance_strata(m, origin, dirs[k], s[k], k)
+        out[k] = march_transmittance_strata(m, origin, dirs[k], s[k], wp.vec3(0.0, 0.0, 0.0), k)
     else:
         out[k] = march_along(m, origin, dirs[k], s[k], k)
 
@@ -123,6 +123,24 @@ def test_colonnade_fourier_epipole_disc_is_not_grainy():
     img, depth, psi, stats = _colonnade_fourier()
     assert stats["epipole_angle_deg"] == 8.0
     assert _pixel_variation(img, (depth > 100.0) & (psi < 8.0)) < 0.025
+
+
+def test_window_room_fourier_disc_has_no_sparkles_under_the_ceiling():
+    """The window room's sun sits behind its ceiling; the disc marched around it ends every ray on the ceiling's
+    underside, and the shadow map's bias lit the last stretch: one stratum of 32 landing there lit a pixel (white
+    sparkles in a black disc). With the G-buffer's normals the marcher shadows what lies just behind a surface facing
+    away from the light. Measured at 160x90: 3.8 % of the disc's pixels lit, its mean 1.1 % of the lit pixels' before;
+    none after (the exact marcher: 4e-5)."""
+    cfg = load_config(ROOT / "configs" / "window.yaml", ["camera.width=160", "camera.height=90",
+                                                         "render.surfaces.enabled=false",
+                                                         "render.scattering.method=fourier",
+                                                         "output.aovs=[scattering, epipole_mask]"])
+    images, stats = render_images(build_scene(cfg), cfg.render, aovs=cfg.output.aovs)
+    img, mask = images["scattering"].astype(np.float64), images["epipole_mask"]
+    disc = (mask[..., 0] if mask.ndim == 3 else mask) > 0.99
+    lit = img.sum(-1) > 0.01 * img.sum(-1).max()
+    assert disc.sum() > 300 and stats["epipole_blocks"]
+    assert img[disc].mean() < 1e-4 * img[lit].mean()
 
 
 def test_colonnade_fourier_has_no_radial_streaks():

@@ -252,7 +252,7 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
         if lines is not None and ep.prefilter_light_texture and texture is not None:
             level, footprint = light_texture_level(lines, cam, light, texture.shape)
         marcher = marcher_params(scene, steps=settings.steps, visibility=vis, seed=settings.seed,
-                                 jitter=settings.jitter, device=device,
+                                 jitter=settings.jitter, end_normals=gbuffer.normal, device=device,
                                  light_texture=prefilter_light_texture(texture, level, device) if level > 0 else None)
         if lines is not None:
             tex = line_samples(lines, gbuffer.distance, ep.depth_threshold, device)

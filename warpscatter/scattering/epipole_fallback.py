@@ -27,7 +27,14 @@ from ..parallel import launch_rows
 from ..scene.camera import CameraParams, pixel_ray_direction
 from ..scene.lights import LIGHT_SPOT
 from ..wpinit import module_options
-from .marching import Marcher, march_along, march_transmittance_strata, marcher_params, visibility_params
+from .marching import (
+    Marcher,
+    march_to_surface,
+    march_transmittance_strata,
+    marcher_params,
+    pixel_end_normal,
+    visibility_params,
+)
 
 module_options()
 
@@ -58,9 +65,11 @@ def epipole_region_kernel(
     if c > cos_outer:
         marched = wp.vec3(0.0, 0.0, 0.0)
         if marcher.light.kind == LIGHT_SPOT:  # a spot: the general marcher (the strata need parallel light rays)
-            marched = march_along(marcher, cam.position, d, distance[j, i], j * cam.width + i)
+            marched = march_to_surface(marcher, cam.position, d, distance[j, i], pixel_end_normal(marcher, i, j),
+                                       j * cam.width + i)
         else:
-            marched = march_transmittance_strata(marcher, cam.position, d, distance[j, i], j * cam.width + i)
+            marched = march_transmittance_strata(marcher, cam.position, d, distance[j, i],
+                                                 pixel_end_normal(marcher, i, j), j * cam.width + i)
         w = float(1.0)
         if c < cos_inner:
             psi = wp.acos(wp.clamp(c, -1.0, 1.0))
@@ -157,7 +166,8 @@ def march_epipole_regions(scene, gbuffer, shadow_map, regions: list[EpipoleRegio
     already in ``out`` over each region's blend band."""
     cam = scene.camera
     vis = visibility_params(scene, "shadow_map", None, shadow_map, shadow_bias_texels, device)
-    marcher = marcher_params(scene, steps=steps, visibility=vis, seed=seed, jitter=jitter, device=device)
+    marcher = marcher_params(scene, steps=steps, visibility=vis, seed=seed, jitter=jitter, end_normals=gbuffer.normal,
+                             device=device)
     for r in regions:
         x0, y0, w, h = r.rect
         launch_rows(epipole_region_kernel, (h, w),

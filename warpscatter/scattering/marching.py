@@ -33,6 +33,16 @@ Visibility V(x) (:class:`Visibility`) is either
   ground truth every fast method is measured against; or
 * ``shadow_map`` — a hard (nearest-texel) lookup in the light's shadow map.
 
+A shadow map's depth bias lights what lies just behind a caster's surface: a ray ending on a surface that faces
+away from the light (the underside of a ceiling seen from the room below) would count its last stretch as lit, and
+a stratum's sample landing there lights a dark pixel by a whole stratum's share (sparkles in dark rooms, a glow on
+average). With the pixels' surface normals (``marcher_params(end_normals=...)``, the G-buffer's) the shadow-map
+marcher knows the surface its ray ends on: when that faces away from the light, a sample behind its plane (along
+the light) whose map texel holds a caster no deeper than the plane there (the surface itself, give or take the bias
+and two texels of slope) is shadowed (:func:`behind_end_surface`); beyond the surface's edge the texel holds something
+deeper and the map decides as before. Rays ending on lit surfaces, exact visibility, translucent casters and rays
+without a normal (a zero normal: sky, or :func:`march_along`) are unchanged.
+
 Translucent casters (material opacity < 1) pass 1 - opacity each in both modes: exact shadow rays multiply the
 transmittances of every caster surface they cross (:func:`exact_transmittance`); the shadow map keeps the
 transmittance of the translucent casters in front of each texel's opaque one (:func:`map_visibility_at`).
@@ -112,6 +122,19 @@ class Marcher:
     seed: int  # jitter seed
     jitter: int  # JITTER_PER_PIXEL or JITTER_FIXED
     vis: Visibility
+    end_normals: wp.array2d(dtype=wp.vec3)  # (H, W) camera-facing unit normal of each pixel's end surface (the
+    # G-buffer's; zero: none), or a 1x1 placeholder: only the shadow-map marcher reads it (module doc)
+
+
+@wp.struct
+class EndSurface:
+    """The surface a ray ends on, as the shadow-map marcher's bias guard sees it (:func:`end_surface`)."""
+
+    active: int  # 1: the ray ends on a surface facing away from the light, and V comes from an opaque shadow map
+    point: wp.vec3  # the end point
+    normal: wp.vec3  # its camera-facing unit normal
+    omega: wp.vec3  # the direction light travels at the end point
+    zone: float  # the map's bias plus two texels at the end point (scene units): depth where the bias may light
 
 
 # ---- building blocks (public @wp.func API) ---------------------------------------------------------
@@ -295,8 +318,49 @@ def lit_interval(light: LightParams, origin: wp.vec3, d: wp.vec3, s: float):
 
 
 @wp.func
+def end_surface(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, n_end: wp.vec3) -> EndSurface:
+    """The bias guard of a ray origin + t d ending at distance s on a surface with camera-facing unit normal n_end
+    (zero: none); inactive unless V comes from an opaque shadow map and the surface faces away from the light (module
+    doc)."""
+    e = EndSurface()
+    e.active = 0
+    if m.vis.mode != VISIBILITY_SHADOW_MAP or m.vis.translucent != 0 or wp.dot(n_end, n_end) < 0.25:
+        return e
+    e.point = origin + d * s
+    lit, omega, dist = light_sample(m.light, e.point)
+    if wp.dot(n_end, omega) <= 0.0:
+        return e  # the side the camera sees faces the light
+    texel = m.vis.sm.texel_world
+    if m.vis.sm.perspective != 0:
+        texel = texel * wp.max(shadow_coords(m.vis.sm, e.point)[2], 0.0)
+    e.active = 1
+    e.normal = n_end
+    e.omega = omega
+    e.zone = m.vis.sm_bias + 2.0 * texel
+    return e
+
+
+@wp.func
+def behind_end_surface(e: EndSurface, vis: Visibility, x: wp.vec3) -> bool:
+    """Whether medium point x lies behind the plane of the ray's end surface (within ``e.zone`` along the light,
+    where the map's bias could call it lit) and x's map texel holds a caster no deeper than the plane there: the
+    surface itself shadows x. Farther behind, the map's own test is right; beyond the surface's edge the texel
+    holds something deeper."""
+    if e.active == 0:
+        return False
+    h = wp.dot(x - e.point, e.normal) / wp.dot(e.omega, e.normal)  # back along the light ray to the plane
+    if h < 0.0 or h > e.zone:
+        return False
+    c = shadow_coords(vis.sm, x)
+    if c[0] < 0.0 or c[0] >= 1.0 or c[1] < 0.0 or c[1] >= 1.0:
+        return False
+    stored = vis.sm_depth[int(c[1] * float(vis.sm.height)), int(c[0] * float(vis.sm.width))]
+    return stored <= shadow_coords(vis.sm, x - e.omega * h)[2] + e.zone  # the plane's depth on x's light ray
+
+
+@wp.func
 def march_directional_shadow_map(m: Marcher, origin: wp.vec3, d: wp.vec3, dt: float, u: float,
-                                 rng: wp.uint32) -> wp.vec3:
+                                 rng: wp.uint32, end: EndSurface) -> wp.vec3:
     """:func:`march_along`'s strata for a directional light and an orthographic shadow map, ray from t = 0.
 
     Along such a ray E, omega_l and the phase term are constant, the map coordinates are affine in t
@@ -317,8 +381,9 @@ def march_directional_shadow_map(m: Marcher, origin: wp.vec3, d: wp.vec3, dt: fl
         t0 = float(k) * dt
         if m.jitter == JITTER_PER_PIXEL and k > 0:
             u = wp.randf(rng)
-        v = map_visibility_at(m.vis, c0 + dc * (t0 + u * dt))
-        if v > 0.0:
+        t = t0 + u * dt
+        v = map_visibility_at(m.vis, c0 + dc * t)
+        if v > 0.0 and not behind_end_surface(end, m.vis, origin + d * t):
             acc += e * (v * stratum)
         stratum *= decay
     return acc
@@ -330,7 +395,17 @@ def march_along(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, stream: int) 
 
     ``m.jitter`` JITTER_PER_PIXEL draws one offset per stratum from the random stream (``m.seed``, ``stream``);
     JITTER_FIXED uses one offset per frame (stream 0 of ``m.seed``) for every stratum of every ray (module doc).
+    Nothing is known of the surface at s: :func:`march_to_surface` with its normal guards the map's bias there.
     """
+    return march_to_surface(m, origin, d, s, wp.vec3(0.0, 0.0, 0.0), stream)
+
+
+@wp.func
+def march_to_surface(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, n_end: wp.vec3, stream: int) -> wp.vec3:
+    """:func:`march_along` for a ray ending on a surface with camera-facing unit normal n_end (zero: none): a
+    shadow-map marcher shadows the samples the map's bias would light behind a surface facing away from the light
+    (:func:`end_surface`)."""
+    end = end_surface(m, origin, d, s, n_end)
     t_lo, t_hi = lit_interval(m.light, origin, d, s)
     acc = wp.vec3(0.0, 0.0, 0.0)
     if t_hi <= t_lo:
@@ -342,12 +417,14 @@ def march_along(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, stream: int) 
     u = wp.randf(rng)
     if (m.light.kind == LIGHT_DIRECTIONAL and m.vis.mode == VISIBILITY_SHADOW_MAP and m.vis.sm.perspective == 0
             and m.medium.coloured == 0):
-        return march_directional_shadow_map(m, origin, d, dt, u, rng)
+        return march_directional_shadow_map(m, origin, d, dt, u, rng, end)
     for k in range(m.steps):
         t0 = t_lo + float(k) * dt
         if m.jitter == JITTER_PER_PIXEL and k > 0:
             u = wp.randf(rng)
         x = origin + d * (t0 + u * dt)
+        if behind_end_surface(end, m.vis, x):
+            continue
         c = inscatter_sample(m, x, d)
         if c[0] + c[1] + c[2] > 0.0:
             if m.medium.coloured != 0:
@@ -359,22 +436,31 @@ def march_along(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, stream: int) 
 
 @wp.func
 def march_ray(cam: CameraParams, i: int, j: int, s: float, m: Marcher) -> wp.vec3:
-    """L_scat of pixel (i, j) whose ray ends at distance s (:func:`march_along` from the camera; see the module doc)."""
+    """L_scat of pixel (i, j) whose ray ends at distance s (:func:`march_to_surface` from the camera with the
+    pixel's ``m.end_normals``; see the module doc)."""
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
-    return march_along(m, cam.position, d, s, j * cam.width + i)
+    return march_to_surface(m, cam.position, d, s, pixel_end_normal(m, i, j), j * cam.width + i)
+
+
+@wp.func
+def pixel_end_normal(m: Marcher, i: int, j: int) -> wp.vec3:
+    """The camera-facing normal of pixel (i, j)'s end surface from ``m.end_normals`` (zero without them)."""
+    if m.end_normals.shape[0] <= j or m.end_normals.shape[1] <= i:
+        return wp.vec3(0.0, 0.0, 0.0)
+    return m.end_normals[j, i]
 
 
 @wp.func
 def march_screen_point(cam: CameraParams, x: float, y: float, s: float, m: Marcher) -> wp.vec3:
     """L_scat along the camera ray through screen point (x, y) (pixels) ending at distance s.
 
-    :func:`march_along` at a sub-pixel position; the random stream is that of the pixel containing (x, y), so a
-    sample at a pixel centre reproduces :func:`march_ray` bit for bit.
+    :func:`march_to_surface` at a sub-pixel position; the random stream and the end surface's normal are those of
+    the pixel containing (x, y), so a sample at a pixel centre reproduces :func:`march_ray` bit for bit.
     """
     d = pixel_ray_direction(cam, x, y)
     pi = wp.clamp(int(wp.floor(x)), 0, cam.width - 1)
     pj = wp.clamp(int(wp.floor(y)), 0, cam.height - 1)
-    return march_along(m, cam.position, d, s, pj * cam.width + pi)
+    return march_to_surface(m, cam.position, d, s, pixel_end_normal(m, pi, pj), pj * cam.width + pi)
 
 
 # ---- host side -------------------------------------------------------------------------------------
@@ -448,7 +534,7 @@ def visibility_params(scene, visibility: str, geometry=None, shadow_map=None, sh
 
 
 def marcher_params(scene, *, steps: int, visibility: Visibility, seed: int = 0, jitter: str = "per_pixel",
-                   light_texture: wp.array | None = None, device=None) -> Marcher:
+                   light_texture: wp.array | None = None, end_normals: wp.array | None = None, device=None) -> Marcher:
     """:class:`Marcher` of a scene's light and medium.
 
     Args:
@@ -458,6 +544,9 @@ def marcher_params(scene, *, steps: int, visibility: Visibility, seed: int = 0, 
         seed: jitter seed.
         jitter: ``"per_pixel"`` or ``"fixed"`` (module doc).
         light_texture: a spot texture to march with instead of the light's own (a prefiltered copy).
+        end_normals: (H, W) vec3 camera-facing unit normals of the pixels' end surfaces (the G-buffer's ``normal``):
+            :func:`march_ray` then guards the shadow map's bias behind surfaces facing away from the light (module
+            doc); None: no guard.
         device: Warp device.
 
     Raises:
@@ -472,13 +561,16 @@ def marcher_params(scene, *, steps: int, visibility: Visibility, seed: int = 0, 
     m.seed = int(seed)
     m.jitter = jitter_mode(jitter)
     m.vis = visibility
+    m.end_normals = end_normals if end_normals is not None else wp.zeros((1, 1), dtype=wp.vec3,
+                                                                         device=default_device(device))
     if visibility in _BVH_OWNERS:
         _BVH_OWNERS[m] = _BVH_OWNERS[visibility]  # the struct is copied into m: m keeps the BVH alive too
     return m
 
 
 @wp.func
-def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, stream: int) -> wp.vec3:
+def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, n_end: wp.vec3,
+                               stream: int) -> wp.vec3:
     """L_scat along origin + t d (unit d), t in [0, s], for a directional light and an orthographic shadow map, with
     ``m.steps`` strata of EQUAL transmittance weight: stratum k holds p in [k / N, (k + 1) / N] of the normalised
     weight p(t) = (1 - exp(-sigma_t t)) / (1 - exp(-sigma_t s)), so a sample sits at t = -ln(1 - p (1 - exp(-sigma_t
@@ -490,7 +582,9 @@ def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float
     ray (optical depth ~10) the first few of 64 strata carry most of the weight, so one shadow-map texel flipping
     in one of them changes the pixel by up to ~17 % (grain against the smooth prefiltered surround). Here no
     stratum carries more than 1 / N. Both estimators are unbiased per pixel (per-pixel jitter) and exact for V = 1.
+    n_end: the camera-facing normal of the surface at s (zero: none), as :func:`march_to_surface` takes it.
     """
+    end = end_surface(m, origin, d, s, n_end)
     acc = wp.vec3(0.0, 0.0, 0.0)
     e = m.light.radiance
     if s <= 0.0 or e[0] + e[1] + e[2] <= 0.0:
@@ -517,6 +611,8 @@ def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float
         if x > 1.0e-3:
             t = -wp.log(wp.max(1.0 - p * a, 1.0e-30)) / sigma
         v = map_visibility_at(m.vis, c0 + dc * wp.min(t, s))
+        if v > 0.0 and behind_end_surface(end, m.vis, origin + d * wp.min(t, s)):
+            v = 0.0
         lit += v
         if m.medium.coloured != 0:
             w = channel_decay(m.medium, wp.min(t, s), sigma)
@@ -542,6 +638,11 @@ __all__ = [
     "lit_interval",
     "map_visibility_at",
     "march_along",
+    "march_to_surface",
+    "behind_end_surface",
+    "end_surface",
+    "EndSurface",
+    "pixel_end_normal",
     "march_ray",
     "march_screen_point",
     "marcher_params",

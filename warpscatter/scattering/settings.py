@@ -195,9 +195,9 @@ class PrefilteredSettings(SettingsModel):
     depth_warp: Optional[Annotated[Float, Field(ge=-MAX_DEPTH_WARP, le=MAX_DEPTH_WARP)]] = Field(
         None, description="exponential warp c of the depths the representations store and look up, (e^(c z) - 1) / "
                           "(e^c - 1) (Klehm 2014 Sec. 5: against light bleeding); 0: none; < 0 stretches the depths "
-                          "towards the light, > 0 away from it; null: " + f"{MOMENTS4_DEPTH_WARP:g}" + " for moments4 on "
-                          "maps of " + str(MOMENTS4_WARP_COLUMNS) + " columns or more (in proportion on coarser "
-                          "ones), 0 for fourier and moments6")
+                          "towards the light, > 0 away from it; null: " + f"{MOMENTS4_DEPTH_WARP:g}" + " for "
+                          "moments4 on maps of " + str(MOMENTS4_WARP_COLUMNS) + " columns or more (in proportion on "
+                          "coarser ones), 0 for fourier and moments6")
     mip_levels: Annotated[Int, Field(ge=1, le=MAX_MIP_LEVELS, description=(
         "row mip levels of the prefiltered texture (Peters 2017 D.5: mip-mapped prefix sums), level 0 included: a "
         "pixel spanning several epipolar slices (around an epipole or a spot light in view) reads the level as wide "
