@@ -12,6 +12,7 @@ import json
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from warpscatter import bench
@@ -229,3 +230,22 @@ def test_no_error_time_chart_without_errors(tmp_path):
     add_render_row(report, "a", runs())
     add_render_row(report, "b", runs(3.0))
     assert {p.name for p in report.write(tmp_path)} == {"bench-plain.json", "bench-plain.csv", "bench-plain.png"}
+
+
+def test_error_images_of_a_comparison(tmp_path):
+    """A suite's comparisons (bench papers: Peters Figs. 15-16's scenes for both bases) become one PNG each: the
+    reference, each method's image and its signed error image."""
+    plt = pytest.importorskip("matplotlib.pyplot")
+    rng = np.random.default_rng(0)
+    ref = rng.uniform(0.1, 1.0, (30, 48, 3))
+    bright = ref * 1.2
+    report = BenchReport("pics", meta={"repeats": 1})
+    add_render_row(report, "a", runs())
+    report.comparisons["colonnade"] = (ref, {"fourier": ref.copy(), "moments6": bright})
+    written = {p.name for p in report.write(tmp_path)}
+    assert "bench-pics-errors-colonnade.png" in written
+    img = plt.imread(tmp_path / "bench-pics-errors-colonnade.png")
+    assert img.shape[0] > 200 and img.shape[1] > 400
+    # the too-bright method's error panel is red (RdBu_r at +20 %), the exact one's white
+    red = img[..., 0] > 0.6
+    assert (red & (img[..., 2] < 0.4)).mean() > 0.02

@@ -27,7 +27,9 @@ Each row: ``name``, ``params``, ``case`` (:func:`case_label`, the key :mod:`.com
 ``rel_l1``, ``rmse`` and ``extra`` (``key=value`` pairs) only on the total line; ``params`` as ``key=value`` pairs.
 
 Charts (the ``plot`` extra; skipped without matplotlib): ``bench-<suite>.png`` (the suite's own chart, else
-:func:`chart_bars`) and ``bench-<suite>-error-time.png`` (:func:`chart_error_time`) where rows have an error.
+:func:`chart_bars`) and ``bench-<suite>-error-time.png`` (:func:`chart_error_time`) where rows have an error; a suite
+that keeps images (:attr:`BenchReport.comparisons`) also gets ``bench-<suite>-errors-<name>.png`` each
+(:func:`chart_error_images`: the reference, each method's image and its signed error image).
 """
 
 from __future__ import annotations
@@ -233,6 +235,9 @@ class BenchReport:
     files: list[Path] = field(default_factory=list)
     #: ``chart(report, path) -> path or None``: a suite's own chart instead of the default bar chart of medians.
     chart: Callable[[BenchReport, Path], Path | None] | None = None
+    #: name -> (reference, {method: image}) linear RGB (H, W, 3) images to compare, each written as
+    #: ``bench-<suite>-errors-<name>.png`` (:func:`chart_error_images`).
+    comparisons: dict[str, tuple[np.ndarray, dict[str, np.ndarray]]] = field(default_factory=dict)
 
     def add(self, **row) -> dict:
         """Add a row (``name``, ``params``, ``median_ms``, ``stages_ms``, ... in ms) with the recorded repeats of its
@@ -356,6 +361,8 @@ class BenchReport:
         self.files = [json_path, csv_path]
         charts = [(self.chart or chart_bars)(self, stem.with_suffix(".png")),
                   chart_error_time(self, out_dir / f"bench-{self.suite}-error-time.png")]
+        charts += [chart_error_images(self, name, reference, images, out_dir / f"bench-{self.suite}-errors-{name}.png")
+                   for name, (reference, images) in self.comparisons.items()]
         self.files += [c for c in charts if c is not None]
         return self.files
 
@@ -574,6 +581,54 @@ def chart_error_time(report: BenchReport, path: Path) -> Path | None:
     fig.suptitle(chart_title(report, "error against time per scene"), fontsize=9)
     fig.tight_layout(rect=(0.0, legend_height / fig.get_figheight(), 1.0, 1.0))
     fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=legend_cols, fontsize=8, frameon=False)
+    return save_figure(fig, path, layout=False)
+
+
+#: Signed error at which the error images saturate, as a fraction of the reference image's mean.
+ERROR_IMAGE_RANGE = 0.25
+
+
+def chart_error_images(report: BenchReport, name: str, reference: np.ndarray, images: dict[str, np.ndarray],
+                       path: Path) -> Path | None:
+    """The reference and each method's image side by side (one exposure: the reference's 99.5th percentile at
+    white, gamma 1/2.2), and below each method its signed error (method - reference, per pixel the mean of the
+    channels, over the reference's mean; red too bright, blue too dark, saturating at +-:data:`ERROR_IMAGE_RANGE`),
+    titled with its rel. L1 (Peters 2017 Figs. 15-16 show such error images). None without matplotlib."""
+    plt = pyplot()
+    if plt is None:
+        return None
+    ref = np.asarray(reference, np.float64)
+    scale = max(float(np.percentile(ref.mean(axis=-1), 99.5)), 1e-30)
+    mean = max(float(ref.mean()), 1e-30)
+    h, w = ref.shape[:2]
+    cols = 1 + len(images)
+    row_in = 2.2  # inches per image row
+    fig, axes = plt.subplots(2, cols, figsize=(row_in * cols * max(w / h, 0.5) + 0.9, 2 * row_in + 0.9),
+                             squeeze=False)
+    fig.subplots_adjust(left=0.01, right=0.93, top=1.0 - 0.75 / (2 * row_in + 0.9), bottom=0.02, wspace=0.04,
+                        hspace=0.16)
+
+    def show(ax, img, title):
+        ax.imshow(np.clip(np.asarray(img, np.float64) / scale, 0.0, 1.0) ** (1.0 / 2.2))
+        ax.set_title(title, fontsize=8)
+
+    show(axes[0, 0], ref, "reference")
+    axes[1, 0].axis("off")
+    axes[1, 0].text(0.0, 0.5, f"signed error / reference mean\nred: too bright, blue: too dark\n"
+                              f"saturates at +-{100 * ERROR_IMAGE_RANGE:.0f} %", fontsize=8, va="center")
+    for k, (method, img) in enumerate(images.items(), start=1):
+        img = np.asarray(img, np.float64)
+        rel = float(np.abs(img - ref).sum() / max(np.abs(ref).sum(), 1e-30))
+        show(axes[0, k], img, method)
+        err = (img - ref).mean(axis=-1) / mean
+        im = axes[1, k].imshow(err, cmap="RdBu_r", vmin=-ERROR_IMAGE_RANGE, vmax=ERROR_IMAGE_RANGE)
+        axes[1, k].set_title(f"{method}: rel. L1 {100 * rel:.2f} %", fontsize=8)
+    for ax in axes.flat:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    if images:
+        fig.colorbar(im, cax=fig.add_axes((0.945, 0.06, 0.012, 0.36)))
+    fig.suptitle(chart_title(report, f"error images, {name}"), fontsize=9)
     return save_figure(fig, path, layout=False)
 
 

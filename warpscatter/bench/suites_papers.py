@@ -47,15 +47,16 @@ class Claims:
 def _scattering_error(report, name, scene, w, h, smap, scattering, reference, stride, repeats, warmup, params=None,
                       **scene_kw):
     """Render ``scene`` with ``scattering`` (surfaces off), add a row with its technique time and rel. L1 against
-    ``reference`` (every ``stride``-th pixel); return (ms, error, stages)."""
+    ``reference`` (every ``stride``-th pixel); return (ms, error, stages, the image on the reference's pixels)."""
     cfg = bench_scene_config(scene, w, h, surfaces={"enabled": False},
                              scattering={**scattering, "shadow_map": {"resolution": smap}}, **scene_kw)
     stages, images, _, _, stats = render_timed(cfg, repeats, warmup)
     total, own = technique_ms(stages)
     first = stride // 2
-    err = rel_l1(images["scattering"][first::stride, first::stride], reference)
+    sub = images["scattering"][first::stride, first::stride]
+    err = rel_l1(sub, reference)
     report.add(name=name, params={"scene": scene, **(params or {})}, median_ms=total, stages_ms=own, rel_l1=err)
-    return total, err, own
+    return total, err, own, sub
 
 
 def suite_papers(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
@@ -83,7 +84,7 @@ def suite_papers(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
         ref = reference("colonnade", medium={"sigma_t": sigma})
         errs = {}
         for weighting in ("transmittance", "average"):
-            _, errs[weighting], _ = _scattering_error(
+            _, errs[weighting], _, _ = _scattering_error(
                 report, f"Klehm Fig. 3: fourier {weighting}", "colonnade", w, h, smap,
                 {"method": "fourier", "prefiltered": {"weighting": weighting}}, ref, stride, repeats, warmup,
                 params={"sigma_t": sigma, "weighting": weighting}, medium={"sigma_t": sigma})
@@ -123,11 +124,13 @@ def suite_papers(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
             for method in ("fourier", "moments4", "moments6"):
                 step(f"Peters Sec. 5: {scene} {method}", 0.35 + 0.1 * k)
                 label = f"Peters Sec. 5: {method}" + ("" if culling else " unculled")
-                ms, err, _ = _scattering_error(
+                ms, err, _, img = _scattering_error(
                     report, label, scene, w, h, smap,
                     {"method": method, "prefiltered": {"caster_culling": culling}}, ref, stride, repeats, warmup,
                     params={"caster_culling": culling})
                 results[scene, method, culling] = (ms, err)
+                if culling:  # Peters Figs. 15-16: the same scene for both bases, with their error images
+                    report.comparisons.setdefault(scene, (ref, {}))[1][method] = img
     for culling in (True, False):
         wins = [s for s in scenes if results[s, "moments6", culling][1] < results[s, "fourier", culling][1]]
         claims.add("Peters 2017 Sec. 5", "moments (moments6) outperform Fourier"
@@ -140,7 +143,7 @@ def suite_papers(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
     bits = {}
     for b in (64, 96):
         step(f"Peters Fig. 19: moments6 {b} bits", 0.7)
-        _, bits[b], _ = _scattering_error(report, "Peters Fig. 19: moments6", "window", w, h, smap,
+        _, bits[b], _, _ = _scattering_error(report, "Peters Fig. 19: moments6", "window", w, h, smap,
                                           {"method": "moments6", "moments": {"storage_bits": b}}, ref, stride,
                                           repeats, warmup, params={"bits": b})
     claims.add("Peters 2017 Fig. 19", "96 bits of moments6 are slightly better than 60 (64) bits in an indoor scene",
