@@ -80,9 +80,11 @@ from ..scene.medium import (
 from ..shadows.shadow_map import (
     ShadowMapParams,
     TranslucentShadowDepths,
+    nearest_texel,
     orthographic_ray_coords,
     shadow_coords,
     shadow_visibility_at,
+    texel_depth,
 )
 from ..wpinit import default_device, module_options
 from .settings import JITTERS, VISIBILITY_MODES
@@ -327,7 +329,7 @@ def end_surface(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, n_end: wp.vec
     if m.vis.mode != VISIBILITY_SHADOW_MAP or m.vis.translucent != 0 or wp.dot(n_end, n_end) < 0.25:
         return e
     e.point = origin + d * s
-    lit, omega, dist = light_sample(m.light, e.point)
+    _radiance, omega, _distance = light_sample(m.light, e.point)
     if wp.dot(n_end, omega) <= 0.0:
         return e  # the side the camera sees faces the light
     texel = m.vis.sm.texel_world
@@ -351,11 +353,11 @@ def behind_end_surface(e: EndSurface, vis: Visibility, x: wp.vec3) -> bool:
     h = wp.dot(x - e.point, e.normal) / wp.dot(e.omega, e.normal)  # back along the light ray to the plane
     if h < 0.0 or h > e.zone:
         return False
-    c = shadow_coords(vis.sm, x)
-    if c[0] < 0.0 or c[0] >= 1.0 or c[1] < 0.0 or c[1] >= 1.0:
+    i, j = nearest_texel(vis.sm, shadow_coords(vis.sm, x))
+    if i < 0:
         return False
-    stored = vis.sm_depth[int(c[1] * float(vis.sm.height)), int(c[0] * float(vis.sm.width))]
-    return stored <= shadow_coords(vis.sm, x - e.omega * h)[2] + e.zone  # the plane's depth on x's light ray
+    plane_depth = shadow_coords(vis.sm, x - e.omega * h)[2]  # the plane's depth on x's light ray
+    return texel_depth(vis.sm_depth, j, i) <= plane_depth + e.zone
 
 
 @wp.func

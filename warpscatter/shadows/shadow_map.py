@@ -306,13 +306,21 @@ def shadow_texel_lit(depth_map: Any, i: int, j: int, d: float, bias: float) -> f
 
 
 @wp.func
+def nearest_texel(sm: ShadowMapParams, c: wp.vec3):
+    """(i, j) of the texel holding map coordinates c = (u, v, depth) of :func:`shadow_coords`, or (-1, -1) outside
+    the map."""
+    if c[0] < 0.0 or c[0] >= 1.0 or c[1] < 0.0 or c[1] >= 1.0:
+        return -1, -1
+    return int(c[0] * float(sm.width)), int(c[1] * float(sm.height))
+
+
+@wp.func
 def shadow_visibility_at(sm: ShadowMapParams, depth_map: Any, c: wp.vec3, bias: float) -> float:
     """Hard shadow-map visibility at map coordinates c = (u, v, depth) of :func:`shadow_coords` (nearest texel;
     outside the map: lit); 1 = lit. ``bias`` in world units."""
-    if c[0] < 0.0 or c[0] >= 1.0 or c[1] < 0.0 or c[1] >= 1.0:
+    i, j = nearest_texel(sm, c)
+    if i < 0:
         return 1.0
-    i = int(c[0] * float(sm.width))
-    j = int(c[1] * float(sm.height))
     return shadow_texel_lit(depth_map, i, j, c[2], bias)
 
 
