@@ -8,6 +8,10 @@ hard-visibility result but takes its depth out of the filtered representation. T
 depths just behind the fragment depth of the rays that end on it, where Fourier series ring and moment bounds are
 loosest (the ``moments4`` / ``moments6`` methods' largest error on grazing grounds; README, *Receivers in the
 rectified map*).
+
+A depth tolerance (``bias``) against discretisation acne empties a lit surface's own depths just in front of the
+rays ending on it; it applies only to rays ending on surfaces that face the light (:func:`end_faces_away`): a
+surface facing away shadows the end of every ray that meets it, with depths just in front of the ray's last texels.
 """
 
 from __future__ import annotations
@@ -16,6 +20,8 @@ import numpy as np
 import warp as wp
 
 from ..parallel import launch_rows
+from ..scene.camera import CameraParams, pixel_ray_direction
+from ..scene.lights import LightParams, faces_away_from_light
 from ..wpinit import default_device, module_options
 from . import rectify_nonlinear
 from .filtered_lookups import texel_footprint
@@ -45,14 +51,26 @@ def mark_level_row(table: wp.array2d(dtype=wp.int32), level: int, row: int, b: i
 
 
 @wp.kernel
-def reader_table_kernel(coords: wp.array2d(dtype=wp.vec3), mips: RowMips, cols: int,
-                        table: wp.array2d(dtype=wp.int32)):
+def end_faces_away_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32),
+                          normal: wp.array2d(dtype=wp.vec3), light: LightParams, out: wp.array2d(dtype=wp.int32),
+                          offset: int):
+    # 1 where pixel (i, j)'s view ray ends on a surface facing away from the light
+    j, i = wp.tid()
+    j += offset
+    x = cam.position + pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5) * distance[j, i]
+    out[j, i] = int(faces_away_from_light(light, x, normal[j, i]))
+
+
+@wp.kernel
+def reader_table_kernel(coords: wp.array2d(dtype=wp.vec3), faces_away: wp.array2d(dtype=wp.int32), bias_bins: int,
+                        mips: RowMips, cols: int, table: wp.array2d(dtype=wp.int32)):
     # one launch (CPU atomics are exact within a launch): table[row, bin] = last prefix column a pixel of that depth
     # bin reads in that row (its look-up footprint, as the evaluation's; with row mips, every level-0 row the rows of
-    # its levels average)
+    # its levels average); a pixel whose ray ends on a surface facing away from the light counts bias_bins deeper,
+    # so the tolerance does not apply to its reads
     j, i = wp.tid()
     c = coords[j, i]
-    b = cull_depth_bin(c[2])
+    b = wp.min(cull_depth_bin(c[2]) + bias_bins * faces_away[j, i], CULL_DEPTH_BINS - 1)
     lv = pixel_mip_level(mips, coords, j, i)
     level = int(lv[0])
     top = level
@@ -99,14 +117,28 @@ def cull_casters_kernel(
         depth2[j, i] = 1.0
 
 
+def end_faces_away(camera, gbuffer, light: LightParams, device=None) -> wp.array:
+    """(H, W) int32 Warp array: 1 where the pixel's view ray ends on a surface facing away from the light (the
+    G-buffer's camera-facing normal against the direction light travels there; 0 on surfaces facing it and where no
+    surface is hit). Such a surface shadows its own side that the camera sees."""
+    device = default_device(device)
+    out = wp.empty((camera.height, camera.width), dtype=wp.int32, device=device)
+    launch_rows(end_faces_away_kernel, (camera.height, camera.width),
+                [camera.params(), gbuffer.distance, gbuffer.normal, light, out], device=device)
+    return out
+
+
 def cull_unseen_casters(rectified, rect, coords: wp.array, bias: float = 0.0, device=None,
-                        mip_levels: int = 1) -> float:
+                        mip_levels: int = 1, faces_away: wp.array | None = None) -> float:
     """Empty, in place, every texel of a rectified map whose blocker shadows no pixel's look-up.
 
     A texel is kept when some pixel's look-up (:func:`~.filtered_lookups.texel_footprint`: its two rows, prefix
     columns up to i1) reads it with a depth z_r of at least the texel's depth + ``bias`` (pixels are binned by z_r into
     ``CULL_DEPTH_BINS`` bins, rounding towards keeping). With ``bias`` 0 no pixel's hard (step-function)
-    visibility changes.
+    visibility changes. The tolerance is for the acne of a lit surface in the map, its own depths a little in front
+    of the rays that end on it; a ray that ends on a surface facing away from the light (``faces_away``) is shadowed
+    by that surface, whose depths lie just in front of the ray's last texels (a floor-wall crease), so its reads keep
+    the texels without it.
 
     Args:
         rectified: (rows, cols) float32 Warp array of rectified depth in [0, 1] (1: no blocker), or a
@@ -116,6 +148,8 @@ def cull_unseen_casters(rectified, rect, coords: wp.array, bias: float = 0.0, de
         bias: tolerance in rectified depth (a fraction of the depth range), >= 0.
         mip_levels: the row mip levels the look-ups will read (:mod:`.row_mips`): a texel averaged into a level a
             pixel reads is read.
+        faces_away: (H, W) int32, 1 where the pixel's ray ends on a surface facing away from the light
+            (:func:`end_faces_away`); None: none does.
 
     Returns:
         The fraction of texels emptied (of the first depth).
@@ -130,7 +164,10 @@ def cull_unseen_casters(rectified, rect, coords: wp.array, bias: float = 0.0, de
     table = wp.full((rows, CULL_DEPTH_BINS), -1, dtype=wp.int32, device=device)
     mips = RowMips()
     mips.rows, mips.levels, mips.wrap = rows, len(level_rows(rows, mip_levels)), int(wrap_rows(rect))
-    wp.launch(reader_table_kernel, dim=coords.shape, inputs=[coords, mips, cols, table], device=device)
+    if faces_away is None:
+        faces_away = wp.zeros(coords.shape, dtype=wp.int32, device=device)
+    wp.launch(reader_table_kernel, dim=coords.shape, inputs=[coords, faces_away, bias_bins, mips, cols, table],
+              device=device)
     launch_rows(reader_suffix_kernel, rows, [table], device=device)
     culled = wp.zeros(rows, dtype=wp.int32, device=device)
     launch_rows(cull_casters_kernel, (rows, cols),
@@ -138,4 +175,4 @@ def cull_unseen_casters(rectified, rect, coords: wp.array, bias: float = 0.0, de
     return float(culled.numpy().sum()) / float(rows * cols)
 
 
-__all__ = ["CULL_DEPTH_BINS", "cull_depth_bin", "cull_unseen_casters", "unread_blocker"]
+__all__ = ["CULL_DEPTH_BINS", "cull_depth_bin", "cull_unseen_casters", "end_faces_away", "unread_blocker"]

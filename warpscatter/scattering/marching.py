@@ -68,7 +68,7 @@ import weakref
 import warp as wp
 
 from ..scene.camera import CameraParams, pixel_ray_direction
-from ..scene.lights import LIGHT_DIRECTIONAL, LightParams, light_params, light_sample
+from ..scene.lights import LIGHT_DIRECTIONAL, LightParams, faces_away_from_light, light_params, light_sample
 from ..scene.medium import (
     MediumParams,
     channel_decay,
@@ -326,12 +326,12 @@ def end_surface(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, n_end: wp.vec
     doc)."""
     e = EndSurface()
     e.active = 0
-    if m.vis.mode != VISIBILITY_SHADOW_MAP or m.vis.translucent != 0 or wp.dot(n_end, n_end) < 0.25:
+    if m.vis.mode != VISIBILITY_SHADOW_MAP or m.vis.translucent != 0:
         return e
     e.point = origin + d * s
+    if not faces_away_from_light(m.light, e.point, n_end):
+        return e  # no surface, or the side the camera sees faces the light
     _radiance, omega, _distance = light_sample(m.light, e.point)
-    if wp.dot(n_end, omega) <= 0.0:
-        return e  # the side the camera sees faces the light
     texel = m.vis.sm.texel_world
     if m.vis.sm.perspective != 0:
         texel = texel * wp.max(shadow_coords(m.vis.sm, e.point)[2], 0.0)

@@ -69,7 +69,7 @@ from ..shadows import translucency
 from ..stages import StageTimer
 from ..wpinit import default_device, module_options
 from . import rectify_nonlinear
-from .caster_culling import cull_unseen_casters
+from .caster_culling import cull_unseen_casters, end_faces_away
 from .epipole_fallback import epipole_pixel_fraction, epipole_regions, epipole_weights, march_epipole_regions
 from .filtered_lookups import DepthBounds, bounded_visibility, depth_bounds_of, fourier_visibility, moments_visibility
 from .filtered_textures import (
@@ -356,7 +356,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     if settings.culls_casters:
         with stage("caster_culling"):
             culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device,
-                                         mip_levels=p.mip_levels)
+                                         mip_levels=p.mip_levels, faces_away=end_faces_away(
+                                             cam, gbuffer, light_params(scene.light, device), device))
     segments = p.segments_for(isinstance(rect, NonlinearRectification), scene.medium.coloured, settings.method)
     segment_depth = p.segment_depth_for(settings.method) if segments > 1 else 0.0
     depth_warp = p.depth_warp_for(settings.method, cols)

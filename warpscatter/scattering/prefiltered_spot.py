@@ -43,7 +43,7 @@ from ..scene.lights import LightParams, light_params
 from ..scene.medium import MediumParams, phase_eval
 from ..stages import StageTimer
 from ..wpinit import default_device, module_options
-from .caster_culling import cull_unseen_casters
+from .caster_culling import cull_unseen_casters, end_faces_away
 from .epipole_fallback import epipole_pixel_fraction, epipole_regions, march_epipole_regions
 from .filtered_lookups import (
     DepthBounds,
@@ -408,7 +408,8 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
     if settings.culls_casters:
         with stage("caster_culling"):
             culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device,
-                                         mip_levels=p.mip_levels)
+                                         mip_levels=p.mip_levels,
+                                         faces_away=end_faces_away(cam, gbuffer, lparams, device))
     maps = 3 if coloured_emission(light) else 1
     depth_warp = p.depth_warp_for(settings.method, cols)
     with stage("prefilter"):

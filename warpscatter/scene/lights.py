@@ -578,3 +578,13 @@ def light_sample(light: LightParams, x: wp.vec3):
             t = sample_bilinear_rgb(light.texture, 0.5 * su + 0.5, 0.5 - 0.5 * sv)
             e = wp.cw_mul(e, t)
     return e, omega, d
+
+
+@wp.func
+def faces_away_from_light(light: LightParams, x: wp.vec3, n: wp.vec3) -> bool:
+    """Whether a surface at world point ``x`` whose unit normal ``n`` faces the viewer faces away from the light:
+    the viewer sees its unlit side, which its own surface shadows (False for a zero normal: no surface)."""
+    if wp.dot(n, n) < 0.25:
+        return False
+    _e, omega, _d = light_sample(light, x)
+    return wp.dot(n, omega) > 0.0
