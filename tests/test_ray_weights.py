@@ -164,6 +164,13 @@ def test_settings_segments_and_reference():
     assert p.segments_for(nonlinear=True, method="fourier") == 6 and p.segment_depth_for("fourier") == 0.15
     assert p.segments_for(nonlinear=True, method="moments6") == 3 and p.segment_depth_for("moments6") == 0.0
     assert PrefilteredSettings(segment_depth=0.0).segment_depth_for("fourier") == 0.0
+    # with the light behind the camera the moment methods take fourier's adaptive segments (grey media)
+    assert p.segments_for(True, method="moments4", light_behind=True) == 6
+    assert p.segment_depth_for("moments4", light_behind=True) == 0.15
+    assert p.segments_for(True, coloured=True, method="moments6", light_behind=True) == 5
+    assert p.segment_depth_for("moments6", light_behind=True, coloured=True) == 0.0
+    assert PrefilteredSettings(segments=3).segments_for(True, method="moments6", light_behind=True) == 3
+    assert PrefilteredSettings(segment_depth=0.0).segment_depth_for("moments6", light_behind=True) == 0.0
     assert p.segments_for(nonlinear=True) == 3 and p.reference_for(3) == "least"
     assert p.segments_for(nonlinear=False) == 1 and p.reference_for(1) == "pixels"
     assert PrefilteredSettings(weighting="average").segments_for(True) == 1

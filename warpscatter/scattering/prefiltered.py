@@ -103,7 +103,7 @@ module_options()
 
 @wp.func
 def representation_visibility(texels: FilteredBasisArrays, weights: RayWeights, u: float, v: float, z_r: float,
-                              window: wp.vec3i, beta: float, light_direction: wp.vec3,
+                              window: wp.vec3i, beta: wp.vec2, light_direction: wp.vec3,
                               view_direction: wp.vec3) -> float:
     """The look-up's reconstruction from a Fourier texture (Klehm 2014 Listing 4) in the row ``window``; ``beta`` and
     the directions unused."""
@@ -112,18 +112,21 @@ def representation_visibility(texels: FilteredBasisArrays, weights: RayWeights, 
 
 @wp.func
 def representation_visibility(texels: FilteredMomentArrays, weights: RayWeights, u: float, v: float,  # noqa: F811
-                              z_r: float, window: wp.vec3i, beta: float, light_direction: wp.vec3,
+                              z_r: float, window: wp.vec3i, beta: wp.vec2, light_direction: wp.vec3,
                               view_direction: wp.vec3) -> float:
-    """The look-up's reconstruction from a moment map (Peters 2017 D.5); ``beta`` < 0: the adaptive overestimation
-    weight of the light and view directions (Sec. 5.3.1)."""
-    b = beta
+    """The look-up's reconstruction from a moment map (Peters 2017 D.5) with the overestimation weight
+    ``beta[0] + (beta[1] - beta[0]) max(0, omega_l . omega_p)`` (:meth:`~.settings.MomentsSettings.beta_range`);
+    ``beta[0]`` < 0: Peters' adaptive weight of the light and view directions (Sec. 5.3.1)."""
+    b = beta[0]
     if b < 0.0:
         b = mm.adaptive_overestimation_weight(light_direction, view_direction)
+    elif beta[1] != beta[0]:
+        b += (beta[1] - beta[0]) * wp.max(wp.dot(light_direction, view_direction), 0.0)
     return moments_visibility(texels, weights, u, v, z_r, window, b)
 
 
 @wp.func
-def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, window: wp.vec3i, beta: float,
+def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, window: wp.vec3i, beta: wp.vec2,
                    light_direction: wp.vec3, view_direction: wp.vec3) -> float:
     """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a Fourier texture or a moment map
     (:func:`representation_visibility`) read in the row ``window`` (a mip level, :func:`~.row_mips.level_window`),
@@ -143,7 +146,7 @@ def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.
 
 @wp.func
 def mipped_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, mips: RowMips, level: wp.vec2,
-                      c: wp.vec3, beta: float, light_direction: wp.vec3, view_direction: wp.vec3) -> float:
+                      c: wp.vec3, beta: wp.vec2, light_direction: wp.vec3, view_direction: wp.vec3) -> float:
     """:func:`map_visibility` at a pixel's mip ``level`` (:func:`~.row_mips.pixel_mip_level`: level, share of the
     next): the two levels' visibilities blended (trilinear filtering, Peters 2017 D.5; :mod:`.row_mips`)."""
     lv = int(level[0])
@@ -184,7 +187,7 @@ def evaluate_prefiltered_kernel(
     channel_weights: ChannelRayWeights,  # coloured media: each channel's own (grey: unused)
     bounds: DepthBounds,  # per-row prefix depth bounds: wholly lit / shadowed rays skip the reconstruction
     mips: RowMips,  # the texture's row mip levels and whether its rows wrap around (wrap_rows)
-    beta: float,  # moment overestimation weight in [0, 1], or < 0: adaptive (Peters 2017 Sec. 5.3.1)
+    beta: wp.vec2,  # moment overestimation weight towards / along the light (beta_range), or < 0: adaptive
     light: LightParams,
     med: MediumParams,
     out: wp.array2d(dtype=wp.vec3),
@@ -358,8 +361,12 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
             culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device,
                                          mip_levels=p.mip_levels, faces_away=end_faces_away(
                                              cam, gbuffer, light_params(scene.light, device), device))
-    segments = p.segments_for(isinstance(rect, NonlinearRectification), scene.medium.coloured, settings.method)
-    segment_depth = p.segment_depth_for(settings.method) if segments > 1 else 0.0
+    # the light travels the way the camera looks (the sun behind it): the moment methods' segments are adaptive
+    light_behind = bool(np.dot(scene.light.direction, cam.forward) > 0.0)
+    segments = p.segments_for(isinstance(rect, NonlinearRectification), scene.medium.coloured, settings.method,
+                              light_behind)
+    segment_depth = (p.segment_depth_for(settings.method, light_behind, scene.medium.coloured) if segments > 1
+                     else 0.0)
     depth_warp = p.depth_warp_for(settings.method, cols)
     with stage("prefilter"):
         sigma_ref = weights_extinction(scene.medium, segments)
@@ -376,7 +383,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         fb, bounds.bounds = chain.texture, chain.bounds
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
-        beta = -1.0 if overestimation == "adaptive" else float(overestimation)
+        beta = wp.vec2(*settings.moments.beta_range())
         # end_offset counts texels of a map reaching the view (a fixed world distance along the rays: the surface a
         # ray ends on is its own blocker over a stretch set by the depth precision, not by the column width)
         end_offset = p.end_offset * (rect.column_scale if isinstance(rect, NonlinearRectification) else 1.0)
@@ -409,7 +416,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         "rectified_map": [cols, rows],
         "basis": settings.method,
         **({"coefficients": settings.fourier.coefficients, "splits": fb.splits} if settings.method == "fourier" else
-           {"overestimation": overestimation}),
+           {"overestimation": overestimation if overestimation is not None else
+            [round(b, 4) for b in settings.moments.beta_range()]}),
         "bits_per_texel": settings.filtered_bits_per_texel,
         "segments": segments,
         "segment_depth": segment_depth,

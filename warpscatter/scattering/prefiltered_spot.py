@@ -433,7 +433,8 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         mips = chains[0].params(rect.full_circle)
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
-        beta = 0.0 if settings.method == "fourier" else -1.0 if overestimation == "adaptive" else float(overestimation)
+        # the view rays' angle to a spot's light varies along them: its overestimation is the towards-the-light one
+        beta = 0.0 if settings.method == "fourier" else settings.moments.beta_range()[0]
         if beta < 0.0:
             raise ValueError("render.scattering.moments.overestimation: 'adaptive' needs a directional light (Peters "
                              "2017 Sec. 5.3.1 weighs the light and view directions); give a number for a spot light")
@@ -458,7 +459,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         "rectified_map": [cols, rows],
         "basis": settings.method,
         **({"coefficients": settings.fourier.coefficients} if settings.method == "fourier" else
-           {"overestimation": overestimation}),
+           {"overestimation": overestimation if overestimation is not None else round(beta, 4)}),
         "bits_per_texel": settings.filtered_bits_per_texel,
         "segments": int(rays.segments),
         "depth_bounds": p.depth_bounds,

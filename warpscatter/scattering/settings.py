@@ -87,11 +87,19 @@ SEGMENTS = 3
 #: up to 8 1.33 %; up to 6 at 0.25 1.45 %. evaluate at 960x540 (gate / terrain / colonnade): 3 fixed 123 / 129 /
 #: 97 ms, adaptive up to 6 178 / 178 / 94 ms, up to 8 197 / 207 / 103 ms (a look-up reads four columns per pass over
 #: the coefficients: up to 6 segments is two passes, 8 three); 6 fixed ~1.7x the 3 fixed. The moment methods keep 3
-#: fixed: with 6-8 (fixed or adaptive) the sun-behind cases improve but their own-light colonnade and window get
-#: worse (moments6 4.86 -> 5.31 %, 5.47 -> 7.38 %).
+#: fixed with the light ahead of the camera: with 6-8 (fixed or adaptive) their own-light colonnade and window get
+#: worse (moments6 4.86 -> 5.31 %, 5.47 -> 7.38 %); with the light behind it they take fourier's adaptive segments
+#: (MOMENT_SEGMENTS_LIGHT_BEHIND).
 FOURIER_SEGMENTS = 6
 #: Optical-depth mismatch per segment of fourier's adaptive per-ray segments by default (ray_weights.segment_count).
 SEGMENT_DEPTH = 0.15
+#: With the light behind the camera (it travels the way the camera looks) the moment methods take these adaptive
+#: segments too (up to FOURIER_SEGMENTS; PrefilteredSettings.segments_for). Measured at 960x540, 1024^2 maps, rel. L1
+#: against the exact reference, the bench's seven scenes with the sun turned behind the camera, moments4 / moments6,
+#: 3 fixed -> adaptive (beta 0.25): colonnade 0.94 -> 0.83 / 0.69 -> 0.59 %, canopy 0.226 -> 0.088 / 0.212 ->
+#: 0.073 %, terrain 0.062 -> 0.031 / 0.061 -> 0.031 %, the dark window room 23.9 -> 10.7 / 19.5 -> 5.9 %, gate 0.163
+#: -> 0.172 / 0.125 -> 0.118 %, quickstart 0.72 -> 0.84 / 0.47 -> 0.54 % (the last two recovered by the
+#: overestimation along the light, OVERESTIMATION_ALONG_LIGHT).
 #: ... in a coloured medium, where each channel weights its rays with its own extinction against prefix sums weighted
 #: with the least one (:func:`~.prefiltered.weights_extinction`): with channel extinctions 4x apart, 3 segments left
 #: the densest channel at 3.1 / 3.3 % rel. L1 (fourier / moments6) where its grey render errs 1.1 / 1.1 %; 5 segments
@@ -111,6 +119,16 @@ MAX_SEGMENTS = 8
 #: 2.90 / 3.07 / 4.12 %, dark room 82 / 28 / 36 / 44 / 56 %; moments4 adaptive / 0.25 / 0.4: colonnade 11.3 / 8.2 /
 #: 6.7 %, window room 10.8 / 9.9 / 16.5 %, quickstart 8.7 / 5.6 / 5.6 %; canopy, terrain, gates within 0.1 %).
 OVERESTIMATION = 0.25
+#: ... and looking along the light (the sun behind the camera): the default beta rises from OVERESTIMATION for view
+#: rays looking towards or across the light to this for rays looking the way light travels, beta = OVERESTIMATION +
+#: (OVERESTIMATION_ALONG_LIGHT - OVERESTIMATION) max(0, omega_l . omega_p) -- Peters 2017 Sec. 5.3.1's observation
+#: (the upper bound fits rays looking away from the light, the lower bound rays looking into it) on a narrower range
+#: than his (1 + omega_l . omega_p) / 2. Rays looking towards the light keep 0.25, so every light-ahead render is
+#: unchanged. Swept with the sun behind the camera (960x540, seven bench scenes, adaptive segments; beta 0.25 / 0.35 /
+#: 0.4 / 0.45 held constant): moments4 quickstart 0.84 / 0.59 / 0.48 / 0.40 %, gate 0.172 / 0.138 / 0.132 / 0.135 %,
+#: the dark window room 10.7 / 14.5 / 16.3 / 18.2 %; moments6 quickstart 0.54 / 0.41 / 0.36 / 0.31 %, window 5.9 /
+#: 7.7 / 8.6 / 9.5 %; colonnade, canopy, terrain and the gates improve or hold to 0.45.
+OVERESTIMATION_ALONG_LIGHT = 0.45
 #: Texels a prefiltered look-up ends before its ray's end point by default. Measured with 3 segments (as above):
 #: fourier 0 texels 3.6 / 1.2 / 16.2 %, 0.5: 3.7 / 1.2 / 12.7 %, 1: 4.0 / 1.2 / 9.8 % (the closed room's surfaces are
 #: their own blockers: half a texel of each lit ray-end lights the dark room).
@@ -187,15 +205,16 @@ class PrefilteredSettings(SettingsModel):
                           "weights alone are the largest error near the epipole and in thick media); 1: the "
                           "reference weights (Klehm 2014); with segment_depth the most a ray takes; null: with "
                           "transmittance weighting, splits 1 and the non-linear rectification " + str(FOURIER_SEGMENTS)
-                          + " for fourier (adaptive), " + str(SEGMENTS) + " for the moment methods (" +
-                          str(COLOURED_SEGMENTS) + " in a coloured medium), else 1; " + str(SPOT_SEGMENTS) + " under a "
-                          "spot light")
+                          + " for fourier and, with the light behind the camera, the moment methods (adaptive), "
+                          + str(SEGMENTS) + " for the moment methods with the light ahead (" + str(COLOURED_SEGMENTS)
+                          + " in a coloured medium), else 1; " + str(SPOT_SEGMENTS) + " under a spot light")
     segment_depth: Optional[Annotated[Float, Field(ge=0.0, le=10.0)]] = Field(
         None, description="adaptive per-ray segments: a ray takes one segment per this much optical depth by which "
                           "its decay exceeds its row reference's, at most `segments` (a ray decaying like the "
                           "reference needs one); 0: every ray takes `segments`; null: " + str(SEGMENT_DEPTH) + " for "
-                          "fourier (with segments up to " + str(FOURIER_SEGMENTS) + "), 0 for the moment methods; "
-                          "spot lights cut their own way")
+                          "fourier and, with the light behind the camera (it travels the way the camera looks), "
+                          "the moment methods (with segments up to " + str(FOURIER_SEGMENTS) + "), else 0; spot "
+                          "lights cut their own way")
     end_offset: Annotated[Float, Field(ge=0.0, le=MAX_END_OFFSET, description=(
         "texels the look-up ends before the ray's end point (texels of a map reaching the view: with map_radius "
         "casters, as many more as the columns are finer): the surface a ray ends on is its own blocker and lights or "
@@ -278,25 +297,36 @@ class PrefilteredSettings(SettingsModel):
                              f"set mip_levels: 1 (or leave it out)")
         return self
 
-    def segments_for(self, nonlinear: bool, coloured: bool = False, method: str = "moments6") -> int:
+    def segments_for(self, nonlinear: bool, coloured: bool = False, method: str = "moments6",
+                     light_behind: bool = False) -> int:
         """Per-ray segments a look-up uses, at most with adaptive segments (``segments``; null:
-        :data:`FOURIER_SEGMENTS` for fourier, else :data:`SEGMENTS`, :data:`COLOURED_SEGMENTS` in a coloured medium,
-        where they apply). They need transmittance weighting, whole rows (splits 1) and the non-linear
-        rectification's uniform columns."""
+        :data:`FOURIER_SEGMENTS` for fourier and for the moment methods with the light behind the camera
+        (``light_behind``, grey media), else :data:`SEGMENTS`, :data:`COLOURED_SEGMENTS` in a coloured medium, where
+        they apply). They need transmittance weighting, whole rows (splits 1) and the non-linear rectification's
+        uniform columns."""
         if self.weighting != "transmittance" or self.splits > 1 or not nonlinear:
             return 1
         if self.segments is not None:
             return self.segments
-        if method == "fourier":
+        if coloured and method != "fourier":
+            return COLOURED_SEGMENTS
+        if self._adaptive_by_default(method, light_behind):
             return FOURIER_SEGMENTS
-        return COLOURED_SEGMENTS if coloured else SEGMENTS
+        return SEGMENTS
 
-    def segment_depth_for(self, method: str) -> float:
+    def segment_depth_for(self, method: str, light_behind: bool = False, coloured: bool = False) -> float:
         """The adaptive segments' optical depth per segment (``segment_depth``; null: :data:`SEGMENT_DEPTH` for
-        fourier, 0 (fixed counts) for the moment methods)."""
+        fourier and, with the light behind the camera in a grey medium, the moment methods; else 0, fixed
+        counts)."""
         if self.segment_depth is not None:
             return float(self.segment_depth)
-        return SEGMENT_DEPTH if method == "fourier" else 0.0
+        if coloured and method != "fourier":
+            return 0.0
+        return SEGMENT_DEPTH if self._adaptive_by_default(method, light_behind) else 0.0
+
+    @staticmethod
+    def _adaptive_by_default(method: str, light_behind: bool) -> bool:
+        return method == "fourier" or light_behind
 
     def depth_warp_for(self, method: str, columns: int) -> float:
         """The depth warp c the representations of a map with ``columns`` texels per row use (``depth_warp``; null:
@@ -339,9 +369,21 @@ class MomentsSettings(SettingsModel):
         None, description="bits per texel: 64 or 128 for four moments; 64 (60 used), 96 or 192 for six (Theta* in "
                           "16- or 10-bit fixed point packed in uint16 / uint64 textures, or float32); null: 64 for "
                           "four, 96 for six moments")
-    overestimation: Union[Literal["adaptive"], Annotated[Float, Field(ge=0.0, le=1.0)]] = Field(
-        OVERESTIMATION, description="beta between the lower (0) and upper (1) visibility bounds: a fixed number, or "
-                                    "adaptive (beta = (1 + omega_l . omega_p) / 2, Peters 2017 Sec. 5.3.1)")
+    overestimation: Optional[Union[Literal["adaptive"], Annotated[Float, Field(ge=0.0, le=1.0)]]] = Field(
+        None, description="beta between the lower (0) and upper (1) visibility bounds: a fixed number, or adaptive "
+                          "(beta = (1 + omega_l . omega_p) / 2, Peters 2017 Sec. 5.3.1); null: "
+                          f"{OVERESTIMATION:g} for view rays looking towards or across a directional light, rising to "
+                          f"{OVERESTIMATION_ALONG_LIGHT:g} for rays looking the way it travels ({OVERESTIMATION:g} "
+                          "under spot and point lights)")
+
+    def beta_range(self) -> tuple[float, float]:
+        """The overestimation weight a look-up uses as (beta towards or across the light, beta along it): beta =
+        b0 + (b1 - b0) max(0, omega_l . omega_p); a fixed ``overestimation`` gives b0 = b1; adaptive (-1, -1)."""
+        if self.overestimation == "adaptive":
+            return -1.0, -1.0
+        if self.overestimation is None:
+            return OVERESTIMATION, OVERESTIMATION_ALONG_LIGHT
+        return float(self.overestimation), float(self.overestimation)
 
 
 class EpipolarSettings(SettingsModel):
@@ -473,6 +515,7 @@ __all__ = [
     "FOURIER_SEGMENTS",
     "SEGMENT_DEPTH",
     "OVERESTIMATION",
+    "OVERESTIMATION_ALONG_LIGHT",
     "EPIPOLAR_KERNELS",
     "EPIPOLE_ANGLE_DEG",
     "EPIPOLE_MARGIN",
