@@ -331,6 +331,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     if not isinstance(scene.light, DirectionalLight):
         raise ValueError(f"the {settings.method} method needs a directional or spot light (render.scattering.method)")
     cam = scene.camera
+    lparams = light_params(scene.light, device)
     cols, rows = settings.shadow_map.size
     with stage("rectify"):
         rect, choice = build_rectification(scene, p, rows, cols)
@@ -359,8 +360,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     if settings.culls_casters:
         with stage("caster_culling"):
             culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device,
-                                         mip_levels=p.mip_levels, faces_away=end_faces_away(
-                                             cam, gbuffer, light_params(scene.light, device), device))
+                                         mip_levels=p.mip_levels,
+                                         faces_away=end_faces_away(cam, gbuffer, lparams, device))
     # the light travels the way the camera looks (the sun behind it): the moment methods' segments are adaptive
     light_behind = bool(np.dot(scene.light.direction, cam.forward) > 0.0)
     segments = p.segments_for(isinstance(rect, NonlinearRectification), scene.medium.coloured, settings.method,
@@ -400,7 +401,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
                     [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, channels, bounds,
-                     chain.params(wrap_rows(rect)), beta, light_params(scene.light, device), scene.medium.params(),
+                     chain.params(wrap_rows(rect)), beta, lparams, scene.medium.params(),
                      out],
                     device=device)
     regions = (epipole_regions(cam, scene.light.direction, p.epipole_angle_deg, p.epipole_block)

@@ -89,10 +89,9 @@ SEGMENTS = 3
 #: the coefficients: up to 6 segments is two passes, 8 three); 6 fixed ~1.7x the 3 fixed. The moment methods keep 3
 #: fixed with the light ahead of the camera: with 6-8 (fixed or adaptive) their own-light colonnade and window get
 #: worse (moments6 4.86 -> 5.31 %, 5.47 -> 7.38 %); with the light behind it they take fourier's adaptive segments
-#: (MOMENT_SEGMENTS_LIGHT_BEHIND).
+#: (SEGMENT_DEPTH).
 FOURIER_SEGMENTS = 6
 #: Optical-depth mismatch per segment of fourier's adaptive per-ray segments by default (ray_weights.segment_count).
-SEGMENT_DEPTH = 0.15
 #: With the light behind the camera (it travels the way the camera looks) the moment methods take these adaptive
 #: segments too (up to FOURIER_SEGMENTS; PrefilteredSettings.segments_for). Measured at 960x540, 1024^2 maps, rel. L1
 #: against the exact reference, the bench's seven scenes with the sun turned behind the camera, moments4 / moments6,
@@ -100,8 +99,10 @@ SEGMENT_DEPTH = 0.15
 #: 0.073 %, terrain 0.062 -> 0.031 / 0.061 -> 0.031 %, the dark window room 23.9 -> 10.7 / 19.5 -> 5.9 %, gate 0.163
 #: -> 0.172 / 0.125 -> 0.118 %, quickstart 0.72 -> 0.84 / 0.47 -> 0.54 % (the last two recovered by the
 #: overestimation along the light, OVERESTIMATION_ALONG_LIGHT).
-#: ... in a coloured medium, where each channel weights its rays with its own extinction against prefix sums weighted
-#: with the least one (:func:`~.prefiltered.weights_extinction`): with channel extinctions 4x apart, 3 segments left
+SEGMENT_DEPTH = 0.15
+#: Per-ray segments of the moment methods in a coloured medium, where each channel weights its rays with its own
+#: extinction against prefix sums weighted with the least one (:func:`~.prefiltered.weights_extinction`): with
+#: channel extinctions 4x apart, 3 segments left
 #: the densest channel at 3.1 / 3.3 % rel. L1 (fourier / moments6) where its grey render errs 1.1 / 1.1 %; 5 segments
 #: 1.2 / 1.3 % (tests/test_coloured_media.py's scene).
 COLOURED_SEGMENTS = 5
@@ -308,11 +309,9 @@ class PrefilteredSettings(SettingsModel):
             return 1
         if self.segments is not None:
             return self.segments
-        if coloured and method != "fourier":
-            return COLOURED_SEGMENTS
-        if self._adaptive_by_default(method, light_behind):
+        if self._adaptive_by_default(method, light_behind, coloured):
             return FOURIER_SEGMENTS
-        return SEGMENTS
+        return COLOURED_SEGMENTS if coloured else SEGMENTS
 
     def segment_depth_for(self, method: str, light_behind: bool = False, coloured: bool = False) -> float:
         """The adaptive segments' optical depth per segment (``segment_depth``; null: :data:`SEGMENT_DEPTH` for
@@ -320,13 +319,13 @@ class PrefilteredSettings(SettingsModel):
         counts)."""
         if self.segment_depth is not None:
             return float(self.segment_depth)
-        if coloured and method != "fourier":
-            return 0.0
-        return SEGMENT_DEPTH if self._adaptive_by_default(method, light_behind) else 0.0
+        return SEGMENT_DEPTH if self._adaptive_by_default(method, light_behind, coloured) else 0.0
 
     @staticmethod
-    def _adaptive_by_default(method: str, light_behind: bool) -> bool:
-        return method == "fourier" or light_behind
+    def _adaptive_by_default(method: str, light_behind: bool, coloured: bool) -> bool:
+        """Whether a method's segments are adaptive by default: fourier's always, the moment methods' with the light
+        behind the camera in a grey medium (a coloured one keeps its fixed :data:`COLOURED_SEGMENTS`)."""
+        return method == "fourier" or (light_behind and not coloured)
 
     def depth_warp_for(self, method: str, columns: int) -> float:
         """The depth warp c the representations of a map with ``columns`` texels per row use (``depth_warp``; null:
