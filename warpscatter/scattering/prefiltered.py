@@ -62,7 +62,14 @@ import warp as wp
 
 from ..parallel import launch_rows
 from ..scene.camera import CameraParams, pixel_ray_direction
-from ..scene.lights import DirectionalLight, LightParams, SpotLight, light_params
+from ..scene.lights import (
+    DirectionalLight,
+    LightParams,
+    SpotLight,
+    faces_away_from_light,
+    light_params,
+    light_sample,
+)
 from ..scene.medium import MediumParams, coloured_scattering, phase_eval, transmittance_integral
 from ..shadows import moments as mm
 from ..shadows import translucency
@@ -78,6 +85,7 @@ from .filtered_textures import (
     FilteredMomentArrays,
     FilteredMoments,
 )
+from .marching import Visibility, point_visibility, visibility_params
 from .prefix_sums import (
     prefilter_moments,
     prefilter_weighted,
@@ -190,6 +198,9 @@ def evaluate_prefiltered_kernel(
     beta: wp.vec2,  # moment overestimation weight towards / along the light (beta_range), or < 0: adaptive
     light: LightParams,
     med: MediumParams,
+    lit_ends: wp.array2d(dtype=wp.int32),  # 1 where the pixel's ray ends lit (lit_ray_ends; read if lit_end_shift)
+    lit_end_shift: float,  # u by which the look-up of a ray ending lit ends later than weights.end_offset says
+    # (end_offsets_for: the difference of the two offsets, in u)
     out: wp.array2d(dtype=wp.vec3),
     offset: int,
 ):
@@ -201,6 +212,9 @@ def evaluate_prefiltered_kernel(
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
     lv = pixel_mip_level(mips, coords, j, i)
     c = coords[j, i]
+    if lit_end_shift != 0.0:
+        if lit_ends[j, i] != 0:
+            c = wp.vec3(c[0] + lit_end_shift, c[1], c[2])
     if med.coloured == 0:
         f = mipped_visibility(texels, weights, bounds, mips, lv, c, beta, light.direction, d)
         out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
@@ -209,6 +223,22 @@ def evaluate_prefiltered_kernel(
                         mipped_visibility(texels, channel_weights.g, bounds, mips, lv, c, beta, light.direction, d),
                         mipped_visibility(texels, channel_weights.b, bounds, mips, lv, c, beta, light.direction, d))
         out[j, i] = wp.cw_mul(coloured_scattering(med, light.radiance, 0.0, s), f_rgb) * phase
+
+
+@wp.kernel
+def lit_ray_ends_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32), normal: wp.array2d(dtype=wp.vec3),
+                        light: LightParams, vis: Visibility, out: wp.array2d(dtype=wp.int32), offset: int):
+    # 1 where pixel (i, j)'s view ray ends lit: on no surface, or on one facing the light whose point, moved one
+    # shadow-map texel off it, the shadow map sees (hard, with the marcher's bias)
+    j, i = wp.tid()
+    j += offset
+    x = cam.position + pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5) * distance[j, i]
+    n = normal[j, i]
+    lit = int(0)
+    if not faces_away_from_light(light, x, n):
+        _e, omega, dist = light_sample(light, x)
+        lit = int(point_visibility(vis, x + n * vis.sm.texel_world, omega, dist) > 0.5)
+    out[j, i] = lit
 
 
 # one kernel per representation: the look-ups of the other would slow a kernel's own (measured 3-5 %)
@@ -222,6 +252,21 @@ def pixel_coords(rect, camera, distance: wp.array, device=None) -> wp.array:
     out = wp.empty((camera.height, camera.width), dtype=wp.vec3, device=device)
     launch_rows(pixel_coords_kernel, (camera.height, camera.width),
                 [camera.params(), distance, rectification_params(rect), out], device=device)
+    return out
+
+
+def lit_ray_ends(scene, gbuffer, shadow_map, bias_texels: float, device=None) -> wp.array:
+    """(H, W) int32 Warp array: 1 where the pixel's view ray ends lit (on no surface, or on a surface facing the light
+    that the shadow map sees, ``bias_texels`` of depth bias), 0 where it ends in shadow. A look-up of a ray ending lit
+    may end nearer its end (``prefiltered.end_offset``, :data:`~.settings.END_OFFSET_LIT`): a lit surface shadows its
+    own ray only through the texel's filtering."""
+    device = default_device(device)
+    cam = scene.camera
+    out = wp.empty((cam.height, cam.width), dtype=wp.int32, device=device)
+    launch_rows(lit_ray_ends_kernel, (cam.height, cam.width),
+                [cam.params(), gbuffer.distance, gbuffer.normal, light_params(scene.light, device),
+                 visibility_params(scene, "shadow_map", shadow_map=shadow_map, shadow_bias_texels=bias_texels,
+                                   device=device), out], device=device)
     return out
 
 
@@ -387,7 +432,14 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         beta = wp.vec2(*settings.moments.beta_range())
         # end_offset counts texels of a map reaching the view (a fixed world distance along the rays: the surface a
         # ray ends on is its own blocker over a stretch set by the depth precision, not by the column width)
-        end_offset = p.end_offset * (rect.column_scale if isinstance(rect, NonlinearRectification) else 1.0)
+        # (rays ending on surfaces facing away from the light, the others); the look-up takes the first, the others
+        # shift their end by the difference
+        end_offsets = p.end_offsets_for(light_behind)
+        column_scale = rect.column_scale if isinstance(rect, NonlinearRectification) else 1.0
+        end_offset = end_offsets[0] * column_scale
+        lit_end_shift = (end_offsets[0] - end_offsets[1]) * column_scale / cols
+        lit_ends = (lit_ray_ends(scene, gbuffer, shadow_map, settings.shadow_map.bias, device) if lit_end_shift != 0.0
+                    else wp.zeros((1, 1), dtype=wp.int32, device=device))
         nonlinear = rect if isinstance(rect, NonlinearRectification) else None
         weights = ray_weights(segments, chain.optical_step, nonlinear, sigma_ref, end_offset, device=device,
                               cols=cols, segment_depth=segment_depth)
@@ -401,8 +453,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
                     [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, channels, bounds,
-                     chain.params(wrap_rows(rect)), beta, lparams, scene.medium.params(),
-                     out],
+                     chain.params(wrap_rows(rect)), beta, lparams, scene.medium.params(), lit_ends,
+                     lit_end_shift, out],
                     device=device)
     regions = (epipole_regions(cam, scene.light.direction, p.epipole_angle_deg, p.epipole_block)
                if settings.marches_epipole else [])
@@ -425,7 +477,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         "depth_bounds": p.depth_bounds,
         "depth_warp": depth_warp,
         "mip_levels": chain.levels,
-        "end_offset": p.end_offset,
+        "end_offset": end_offsets[0],
+        "end_offset_lit": end_offsets[1],
         **resample_info,
         "caster_culling": culled is not None,
         **({} if culled is None else {"culled_texel_fraction": round(culled, 4)}),

@@ -368,7 +368,7 @@ def spot_rays(rect, settings, sums: np.ndarray, device) -> SpotRays:
     prefix sums of the texel weights (layer 0 plain, then times each map's filter)."""
     r = SpotRays()
     r.segments = int(settings.segments if settings.segments is not None else SPOT_SEGMENTS)
-    r.end_offset = float(settings.end_offset)
+    r.end_offset = settings.end_offsets_for(light_behind=False, directional=False)[0]
     r.theta_hi, r.theta_len = float(rect.theta_hi), float(rect.theta_len)
     r.light_distance, r.psi_lo, r.psi_span = float(rect.light_distance), float(rect.psi_lo), float(rect.r_max)
     # (rows, cols, 1 + maps): a column's layers side by side, one cache line per prefix read of every map
@@ -465,7 +465,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         "depth_bounds": p.depth_bounds,
         "depth_warp": depth_warp,
         "mip_levels": mips.levels,
-        "end_offset": p.end_offset,
+        "end_offset": float(rays.end_offset),
         "resample_filter": "supersample",  # a spot's texels: bilinear spot-map taps along psi (rectify_local)
         "caster_culling": culled is not None,
         **({} if culled is None else {"culled_texel_fraction": round(culled, 4)}),

@@ -130,10 +130,29 @@ OVERESTIMATION = 0.25
 #: the dark window room 10.7 / 14.5 / 16.3 / 18.2 %; moments6 quickstart 0.54 / 0.41 / 0.36 / 0.31 %, window 5.9 /
 #: 7.7 / 8.6 / 9.5 %; colonnade, canopy, terrain and the gates improve or hold to 0.45.
 OVERESTIMATION_ALONG_LIGHT = 0.45
-#: Texels a prefiltered look-up ends before its ray's end point by default. Measured with 3 segments (as above):
-#: fourier 0 texels 3.6 / 1.2 / 16.2 %, 0.5: 3.7 / 1.2 / 12.7 %, 1: 4.0 / 1.2 / 9.8 % (the closed room's surfaces are
-#: their own blockers: half a texel of each lit ray-end lights the dark room).
+#: Texels a prefiltered look-up ends before its ray's end point by default: every ray's with the light behind the
+#: camera (it travels the way the camera looks) and under a spot light, else those ending in shadow (END_OFFSET_LIT
+#: for the rays ending lit). Measured with 3 segments (as above): fourier 0 texels
+#: 3.6 / 1.2 / 16.2 %, 0.5: 3.7 / 1.2 / 12.7 %, 1: 4.0 / 1.2 / 9.8 % (the closed room's surfaces are their own
+#: blockers: half a texel of each lit ray-end lights the dark room). With the sun behind the camera it is still the
+#: best (960x540, 1024^2, rel. L1 against the exact reference, 1 / 0.5 / 0.25): fourier's dark window room 3.1 / 6.0 /
+#: 8.7 %, quickstart 0.175 / 0.186 / 0.198 %, gate 0.112 / 0.121 / 0.129 %; moments4 / moments6 dark room 16.0 / 27.1 %,
+#: 8.4 / 15.0 % at 1 / 0.5. Under a spot it hardly matters (fence, colonnade: within 0.01 % from 1 to 0.25).
 END_OFFSET = 1.0
+#: ... and for the rays that end lit (on no surface, or on a surface facing the light that the shadow map sees:
+#: prefiltered.lit_ray_ends) under a directional light ahead of the camera (omega_l . camera forward <= 0). A lit
+#: surface's own depth lies behind the ray's last samples and shadows them only through the texel's filtering, so a
+#: quarter texel keeps its acne out; a shadowed end keeps a whole texel: 0.25 for every ray brought back the window
+#: room's crease dots (5 -> 29 pixels of the dark room brighter than 2 % of the shafts at 320x180; 13 with 0.5, 13
+#: with 0.25 for every surface merely facing the light, 5 with this rule). Measured at 960x540, 1024^2, rel. L1
+#: against the exact reference, end_offset 1 for every ray -> this rule, fourier / moments4 / moments6: window room
+#: 1.71 -> 1.53 %, 7.92 -> 7.57 %, 5.31 -> 4.91 %; colonnade 2.85 -> 2.77 %, 6.79 -> 6.74 %, 4.91 -> 4.86 %;
+#: quickstart 1.80 -> 1.74 %, 3.87 -> 3.81 %, 3.01 -> 2.93 %; terrain 1.24 -> 1.21 %, 2.12 -> 2.09 %, 1.56 -> 1.52 %;
+#: canopy and the gates within 0.02 % (better but for fourier's 60 %-opaque gate, 1.960 -> 1.962 %). 0.25 for every
+#: ray would give more on the colonnade (2.41 / 6.43 / 4.64 %), with the dots. With the light behind the camera
+#: 0.25 for the lit ends was worse for fourier (colonnade 0.287 -> 0.311 %, canopy 0.096 -> 0.123 %), so there every
+#: ray keeps END_OFFSET.
+END_OFFSET_LIT = 0.25
 MAX_END_OFFSET = 8.0
 #: moments4's depth warp c by default (prefiltered.depth_warp; fourier and moments6: none). Four moments leak light
 #: where a ray's depths sit close behind its blockers' in the map; the warp (e^(c z) - 1) / (e^c - 1) with c > 0 spreads
@@ -216,10 +235,13 @@ class PrefilteredSettings(SettingsModel):
                           "fourier and, with the light behind the camera (it travels the way the camera looks), "
                           "the moment methods (with segments up to " + str(FOURIER_SEGMENTS) + "), else 0; spot "
                           "lights cut their own way")
-    end_offset: Annotated[Float, Field(ge=0.0, le=MAX_END_OFFSET, description=(
-        "texels the look-up ends before the ray's end point (texels of a map reaching the view: with map_radius "
-        "casters, as many more as the columns are finer): the surface a ray ends on is its own blocker and lights or "
-        "shadows the ray's last texel by chance"))] = END_OFFSET
+    end_offset: Optional[Annotated[Float, Field(ge=0.0, le=MAX_END_OFFSET)]] = Field(
+        None, description="texels the look-up ends before the ray's end point (texels of a map reaching the view: with "
+                          "map_radius casters, as many more as the columns are finer): the surface a ray ends on is "
+                          "its own blocker and lights or shadows the ray's last texel by chance; null: "
+                          + f"{END_OFFSET:g}" + ", and " + f"{END_OFFSET_LIT:g}" + " for the rays that end lit "
+                          "(on a surface the shadow map sees, or on none) under a directional light ahead of the "
+                          "camera: a lit surface shadows its own ray only through the texel's filtering")
     depth_warp: Optional[Annotated[Float, Field(ge=-MAX_DEPTH_WARP, le=MAX_DEPTH_WARP)]] = Field(
         None, description="exponential warp c of the depths the representations store and look up, (e^(c z) - 1) / "
                           "(e^c - 1) (Klehm 2014 Sec. 5: against light bleeding); 0: none; < 0 stretches the depths "
@@ -312,6 +334,15 @@ class PrefilteredSettings(SettingsModel):
         if self._adaptive_by_default(method, light_behind, coloured):
             return FOURIER_SEGMENTS
         return COLOURED_SEGMENTS if coloured else SEGMENTS
+
+    def end_offsets_for(self, light_behind: bool, directional: bool = True) -> tuple[float, float]:
+        """Texels a look-up ends before its ray's end point: (rays ending in shadow, rays ending lit:
+        :func:`~.prefiltered.lit_ray_ends`). ``end_offset`` for both; null: :data:`END_OFFSET`, and
+        :data:`END_OFFSET_LIT` for the rays ending lit under a directional light ahead of the camera (not
+        ``light_behind``)."""
+        if self.end_offset is not None:
+            return float(self.end_offset), float(self.end_offset)
+        return END_OFFSET, (END_OFFSET_LIT if directional and not light_behind else END_OFFSET)
 
     def segment_depth_for(self, method: str, light_behind: bool = False, coloured: bool = False) -> float:
         """The adaptive segments' optical depth per segment (``segment_depth``; null: :data:`SEGMENT_DEPTH` for
