@@ -51,7 +51,8 @@ def fake_pipeline(monkeypatch):
         out = Path(out_dir) if out_dir is not None else config.output.dir
         files = write_outputs(out, config.output.name, images, config.output.aovs, config.output.exposure)
         timings = {"scene": 0.0125, "raymarch": 1.5, "write": 0.0004}
-        return types.SimpleNamespace(files=files, timings=timings, stats={"steps": config.render.scattering.steps})
+        return types.SimpleNamespace(files=files, timings=timings,
+                                     stats={"steps": config.render.scattering.march_steps})
 
     module.render = render
     monkeypatch.setitem(sys.modules, "warpscatter.pipeline", module)

@@ -47,7 +47,8 @@ def test_minimal_config_fills_defaults(tmp_path):
     assert c.light.direction == (0.0, -1.0, 0.0)  # normalised on load
     assert c.light.irradiance == (1.0, 1.0, 1.0)
     assert (c.medium.sigma_t, c.medium.albedo, c.medium.phase.type) == (0.1, 1.0, "isotropic")
-    assert c.render.scattering.method == "raymarch" and c.render.scattering.steps == 128
+    assert c.render.scattering.method == "raymarch" and c.render.scattering.steps is None
+    assert c.render.scattering.march_steps == 128
     assert c.render.scattering.visibility == "exact" and c.render.scattering.shadow_map.size == (1024, 1024)
     assert c.render.shadows.method == "pcf" and c.render.surfaces.enabled is True
     assert c.output.aovs == ["color", "scattering", "surface", "depth"] and c.output.name == "{config}"
@@ -415,7 +416,7 @@ def test_duplicate_key_rejected(tmp_path):
 
 def test_empty_section_means_defaults(tmp_path):
     c = load_config(write(tmp_path, text=write(tmp_path).read_text() + "medium:\nrender:\n  scattering:\n"))
-    assert c.medium.sigma_t == 0.1 and c.render.scattering.steps == 128
+    assert c.medium.sigma_t == 0.1 and c.render.scattering.march_steps == 128
     assert "scene: expected a mapping (key: value), got None (line 1)" in problems(tmp_path, text="scene:\n")
 
 

@@ -587,3 +587,30 @@ def test_initial_samples_default_follows_smooth_in_scattering():
                                       epipolar={} if n is None else {"initial_samples": n}) - ref).sum() / ref.sum())
            for n in (None, 16)}
     assert rel[None] < 0.0013 and rel[None] < 0.8 * rel[16]
+
+
+def test_epipolar_marches_its_samples_with_more_steps():
+    """epipolar's samples take EPIPOLAR_STEPS (512) ray-march steps by default, raymarch's rays RAYMARCH_STEPS (128); a
+    set ``steps`` serves both. Its samples are a few per cent of the pixels and their marching noise was most of its
+    error: measured at 240x135 with shadow-map visibility against the 1024-step exact marcher, 128 -> 512 steps:
+    window room 2.32 -> 1.89 % (ratio 0.816), gate 4.23 -> 2.64 % (0.623)."""
+    from warpscatter.bench import bench_scene_config
+    from warpscatter.pipeline import render_images
+    from warpscatter.scattering.settings import ScatteringSettings
+
+    assert ScatteringSettings(method="epipolar").march_steps == 512
+    assert ScatteringSettings(method="raymarch").march_steps == 128
+    assert ScatteringSettings(method="epipolar", steps=64).march_steps == 64
+
+    def render(scene, sc):
+        cfg = bench_scene_config(scene, 240, 135, surfaces={"enabled": False}, scattering=sc)
+        images, stats = render_images(build_scene(cfg), cfg.render)
+        return images["scattering"].astype(np.float64), stats
+
+    for scene, ratio in (("window", 0.9), ("gate", 0.75)):
+        ref, _ = render(scene, {"method": "raymarch", "visibility": "exact", "steps": 1024})
+        rel = lambda a: float(np.abs(a - ref).sum() / ref.sum())  # noqa: E731,B023
+        new, stats = render(scene, {"method": "epipolar", "visibility": "shadow_map"})
+        old, _ = render(scene, {"method": "epipolar", "visibility": "shadow_map", "steps": 128})
+        assert stats["steps"] == 512
+        assert rel(new) < ratio * rel(old)

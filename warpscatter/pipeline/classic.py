@@ -115,7 +115,7 @@ def render_images(scene, settings, *, timer: StageTimer | None = None, device=No
         "resolution": [scene.camera.width, scene.camera.height],
         "method": sc.method,
         "visibility": sc.visibility if method.visibility == methods.VISIBILITY_CONFIGURABLE else None,
-        "steps": sc.steps,
+        "steps": sc.march_steps,
         **info,
         "shadow_map": list(shadow_map.shape[::-1]) if shadow_map is not None else None,
     }

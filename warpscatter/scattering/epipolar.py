@@ -209,9 +209,10 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
         frame: :class:`~warpscatter.pipeline.frame.Frame` (directional or spot light, textured or not): the
             G-buffer (its ``distance`` is the camera depth), and the BVH (``visibility: exact``) or the light's
             shadow map (``visibility: shadow_map``).
-        settings: :class:`~warpscatter.scattering.settings.ScatteringSettings`: ``steps``, ``seed``, ``jitter``,
-            ``visibility`` and ``shadow_map.bias`` as the reference marcher's (a sample at a pixel centre
-            reproduces its value), and the ``epipolar`` section.
+        settings: :class:`~warpscatter.scattering.settings.ScatteringSettings`: ``steps`` (by default
+            :data:`~.settings.EPIPOLAR_STEPS`), ``seed``, ``jitter``, ``visibility`` and ``shadow_map.bias`` as the
+            reference marcher's (with the same steps a sample at a pixel centre reproduces its value), and the
+            ``epipolar`` section.
         stage: the :class:`~warpscatter.stages.StageTimer`; stages ``lines``, ``discontinuities``, ``raymarch``,
             ``interpolate``.
 
@@ -251,7 +252,7 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
         texture = getattr(light, "texture", None)
         if lines is not None and ep.prefilter_light_texture and texture is not None:
             level, footprint = light_texture_level(lines, cam, light, texture.shape)
-        marcher = marcher_params(scene, steps=settings.steps, visibility=vis, seed=settings.seed,
+        marcher = marcher_params(scene, steps=settings.march_steps, visibility=vis, seed=settings.seed,
                                  jitter=settings.jitter, end_normals=gbuffer.normal, device=device,
                                  light_texture=prefilter_light_texture(texture, level, device) if level > 0 else None)
         if lines is not None:
