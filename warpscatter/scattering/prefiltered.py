@@ -432,8 +432,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         beta = wp.vec2(*settings.moments.beta_range())
         # end_offset counts texels of a map reaching the view (a fixed world distance along the rays: the surface a
         # ray ends on is its own blocker over a stretch set by the depth precision, not by the column width)
-        # (rays ending on surfaces facing away from the light, the others); the look-up takes the first, the others
-        # shift their end by the difference
+        # (rays ending in shadow, rays ending lit): the look-up takes the first, a ray ending lit (lit_ray_ends) moves
+        # its end by the difference
         end_offsets = p.end_offsets_for(light_behind)
         column_scale = rect.column_scale if isinstance(rect, NonlinearRectification) else 1.0
         end_offset = end_offsets[0] * column_scale
