@@ -62,14 +62,7 @@ import warp as wp
 
 from ..parallel import launch_rows
 from ..scene.camera import CameraParams, pixel_ray_direction
-from ..scene.lights import (
-    DirectionalLight,
-    LightParams,
-    SpotLight,
-    faces_away_from_light,
-    light_params,
-    light_sample,
-)
+from ..scene.lights import DirectionalLight, LightParams, SpotLight, light_params, light_sample
 from ..scene.medium import MediumParams, coloured_scattering, phase_eval, transmittance_integral
 from ..shadows import moments as mm
 from ..shadows import translucency
@@ -227,17 +220,17 @@ def evaluate_prefiltered_kernel(
 
 @wp.kernel
 def lit_ray_ends_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32), normal: wp.array2d(dtype=wp.vec3),
-                        light: LightParams, vis: Visibility, out: wp.array2d(dtype=wp.int32), offset: int):
-    # 1 where pixel (i, j)'s view ray ends lit: on no surface, or on one facing the light whose point, moved one
-    # shadow-map texel off it, the shadow map sees (hard, with the marcher's bias)
+                        faces_away: wp.array2d(dtype=wp.int32), light: LightParams, vis: Visibility,
+                        out: wp.array2d(dtype=wp.int32), offset: int):
+    # 1 where pixel (i, j)'s view ray ends lit: on no surface, or on one facing the light (caster_culling.end_faces_away
+    # 0) whose point, moved one shadow-map texel off it, the shadow map sees (hard, with the marcher's bias)
     j, i = wp.tid()
     j += offset
-    x = cam.position + pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5) * distance[j, i]
-    n = normal[j, i]
     lit = int(0)
-    if not faces_away_from_light(light, x, n):
+    if faces_away[j, i] == 0:
+        x = cam.position + pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5) * distance[j, i]
         _e, omega, dist = light_sample(light, x)
-        lit = int(point_visibility(vis, x + n * vis.sm.texel_world, omega, dist) > 0.5)
+        lit = int(point_visibility(vis, x + normal[j, i] * vis.sm.texel_world, omega, dist) > 0.5)
     out[j, i] = lit
 
 
@@ -255,16 +248,21 @@ def pixel_coords(rect, camera, distance: wp.array, device=None) -> wp.array:
     return out
 
 
-def lit_ray_ends(scene, gbuffer, shadow_map, bias_texels: float, device=None) -> wp.array:
+def lit_ray_ends(scene, gbuffer, shadow_map, bias_texels: float, faces_away: wp.array | None = None,
+                 device=None) -> wp.array:
     """(H, W) int32 Warp array: 1 where the pixel's view ray ends lit (on no surface, or on a surface facing the light
     that the shadow map sees, ``bias_texels`` of depth bias), 0 where it ends in shadow. A look-up of a ray ending lit
     may end nearer its end (``prefiltered.end_offset``, :data:`~.settings.END_OFFSET_LIT`): a lit surface shadows its
-    own ray only through the texel's filtering."""
+    own ray only through the texel's filtering. ``faces_away``: :func:`~.caster_culling.end_faces_away` of the frame
+    if already made (else it is)."""
     device = default_device(device)
     cam = scene.camera
+    light = light_params(scene.light, device)
+    if faces_away is None:
+        faces_away = end_faces_away(cam, gbuffer, light, device)
     out = wp.empty((cam.height, cam.width), dtype=wp.int32, device=device)
     launch_rows(lit_ray_ends_kernel, (cam.height, cam.width),
-                [cam.params(), gbuffer.distance, gbuffer.normal, light_params(scene.light, device),
+                [cam.params(), gbuffer.distance, gbuffer.normal, faces_away, light,
                  visibility_params(scene, "shadow_map", shadow_map=shadow_map, shadow_bias_texels=bias_texels,
                                    device=device), out], device=device)
     return out
@@ -400,13 +398,13 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         rectified, resample_info["resample_filter_px"] = resample_filtered(scene, rect, shadow_map, p, stage, device)
     with stage("pixel_coords"):
         coords = pixel_coords(rect, cam, gbuffer.distance, device=device)
-    culled = None
+    culled, faces_away = None, None
     map_before_culling = map_depth(rectified).copy() if "rectified_map" in frame.aovs else None
     if settings.culls_casters:
         with stage("caster_culling"):
+            faces_away = end_faces_away(cam, gbuffer, lparams, device)  # the lit-end test below reads it too
             culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device,
-                                         mip_levels=p.mip_levels,
-                                         faces_away=end_faces_away(cam, gbuffer, lparams, device))
+                                         mip_levels=p.mip_levels, faces_away=faces_away)
     # the light travels the way the camera looks (the sun behind it): the moment methods' segments are adaptive
     light_behind = bool(np.dot(scene.light.direction, cam.forward) > 0.0)
     segments = p.segments_for(isinstance(rect, NonlinearRectification), scene.medium.coloured, settings.method,
@@ -438,8 +436,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         column_scale = rect.column_scale if isinstance(rect, NonlinearRectification) else 1.0
         end_offset = end_offsets[0] * column_scale
         lit_end_shift = (end_offsets[0] - end_offsets[1]) * column_scale / cols
-        lit_ends = (lit_ray_ends(scene, gbuffer, shadow_map, settings.shadow_map.bias, device) if lit_end_shift != 0.0
-                    else wp.zeros((1, 1), dtype=wp.int32, device=device))
+        lit_ends = (lit_ray_ends(scene, gbuffer, shadow_map, settings.shadow_map.bias, faces_away, device)
+                    if lit_end_shift != 0.0 else wp.zeros((1, 1), dtype=wp.int32, device=device))
         nonlinear = rect if isinstance(rect, NonlinearRectification) else None
         weights = ray_weights(segments, chain.optical_step, nonlinear, sigma_ref, end_offset, device=device,
                               cols=cols, segment_depth=segment_depth)
