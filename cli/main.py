@@ -380,7 +380,7 @@ def _scattering_summary(sc) -> str:
 
     method = methods.get("scattering", sc.method)
     if method.visibility == methods.VISIBILITY_CONFIGURABLE:
-        return f"visibility {sc.visibility}, {sc.march_steps} steps"
+        return f"visibility {sc.visibility}, {sc.march_steps} steps, {sc.march_jitter} jitter"
     options = f", {sc.prefiltered.mip_levels} row mip levels" if sc.prefiltered.mip_levels > 1 else ""
     warp = sc.prefiltered.depth_warp_for(sc.method, sc.shadow_map.size[0])
     options += f", depth warp {warp:g}" if warp != 0.0 else ""

@@ -119,10 +119,11 @@ def test_colonnade_fourier_epipole_disc_is_not_grainy():
     """The ray-marched disc around the sun was grainy against the smooth prefiltered surround: its sky rays' weight
     sat in a few of the reference marcher's equal-length strata. Measured at 320x180, pixel-to-pixel variation of the
     sky inside the disc: 6.0 % before (0.6 % just outside), 1.0 % with strata of equal transmittance weight (the
-    512-step exact marcher's own noise: ~0.8 %)."""
+    512-step exact marcher's own noise: ~0.8 %); on today's code 1.6 % with per-pixel jitter and 0.93 % with the fixed
+    step pattern, the disc's default (0.16 % in the ring just outside it, 9-14 degrees from the sun)."""
     img, depth, psi, stats = _colonnade_fourier()
-    assert stats["epipole_angle_deg"] == 8.0
-    assert _pixel_variation(img, (depth > 100.0) & (psi < 8.0)) < 0.025
+    assert stats["epipole_angle_deg"] == 8.0 and stats["jitter"] == "fixed"
+    assert _pixel_variation(img, (depth > 100.0) & (psi < 8.0)) < 0.012
 
 
 def test_window_room_fourier_disc_has_no_sparkles_under_the_ceiling():

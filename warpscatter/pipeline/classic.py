@@ -116,6 +116,7 @@ def render_images(scene, settings, *, timer: StageTimer | None = None, device=No
         "method": sc.method,
         "visibility": sc.visibility if method.visibility == methods.VISIBILITY_CONFIGURABLE else None,
         "steps": sc.march_steps,
+        "jitter": sc.march_jitter,
         **info,
         "shadow_map": list(shadow_map.shape[::-1]) if shadow_map is not None else None,
     }

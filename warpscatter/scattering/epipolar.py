@@ -16,7 +16,8 @@ lines and interpolated elsewhere. Stages (names as they appear in timings):
    paper's stencil mask).
 3. ``raymarch``        — the ray-marching samples only, with the reference marcher's estimator
    (:func:`~.marching.march_screen_point` = :func:`~.marching.march_ray` at a sub-pixel position; same steps
-   restricted to the lit part of the ray, same jitter pattern and visibility: shadow map or exact), into the
+   restricted to the lit part of the ray, the step pattern ``ScatteringSettings.march_jitter``: fixed by default,
+   and the same visibility: shadow map or exact), into the
    **radiance texture** (which shares one vec4 texture with the texels' camera depth).
 4. ``interpolate``     — linear interpolation along each line between the sources; then per pixel (Sec. 4.3,
    5.3): the two nearest lines from the border arclength of the ray epipole -> pixel (the 1D border lookup,
@@ -253,7 +254,7 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
         if lines is not None and ep.prefilter_light_texture and texture is not None:
             level, footprint = light_texture_level(lines, cam, light, texture.shape)
         marcher = marcher_params(scene, steps=settings.march_steps, visibility=vis, seed=settings.seed,
-                                 jitter=settings.jitter, end_normals=gbuffer.normal, device=device,
+                                 jitter=settings.march_jitter, end_normals=gbuffer.normal, device=device,
                                  light_texture=prefilter_light_texture(texture, level, device) if level > 0 else None)
         if lines is not None:
             tex = line_samples(lines, gbuffer.distance, ep.depth_threshold, device)

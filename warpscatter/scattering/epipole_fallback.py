@@ -13,7 +13,8 @@ transmittance weight, not at equal lengths as the reference marcher (:mod:`.marc
 are sky rays of optical depth ~10, on which a handful of equal-length strata carry most of the weight, and the disc
 came out grainy against the smooth prefiltered surround (per-pixel variation ~6 % against 0.4 % outside,
 colonnade_fourier at 640x360; 0.85 % now, the 512-step reference's own noise). ``jitter`` picks per-pixel or the
-fixed pattern.
+fixed pattern; the render methods pass ``ScatteringSettings.march_jitter``, fixed by default (less grain still: at
+320x180 the disc's pixel-to-pixel variation 1.6 % per-pixel, 0.93 % fixed).
 """
 
 from __future__ import annotations

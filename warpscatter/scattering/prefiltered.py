@@ -459,7 +459,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     if regions:
         with stage("epipole"):
             march_epipole_regions(scene, gbuffer, shadow_map, regions, out, steps=p.epipole_steps, seed=settings.seed,
-                                  shadow_bias_texels=settings.shadow_map.bias, jitter=settings.jitter, device=device)
+                                  shadow_bias_texels=settings.shadow_map.bias, jitter=settings.march_jitter,
+                                  device=device)
     info = {
         "rectification": choice.kind,
         "rectification_reason": choice.reason,

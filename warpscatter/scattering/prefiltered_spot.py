@@ -452,7 +452,8 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
     if regions:
         with stage("epipole"):
             march_epipole_regions(scene, gbuffer, shadow_map, regions, out, steps=p.epipole_steps, seed=settings.seed,
-                                  shadow_bias_texels=settings.shadow_map.bias, jitter=settings.jitter, device=device)
+                                  shadow_bias_texels=settings.shadow_map.bias, jitter=settings.march_jitter,
+                                  device=device)
     info = {
         "rectification": "nonlinear",
         "rectification_reason": "spot light: angles at the light as columns",

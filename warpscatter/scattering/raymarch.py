@@ -119,7 +119,7 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
     vis = visibility_params(scene, settings.visibility, frame.geometry, frame.shadow_map, settings.shadow_map.bias,
                             frame.device)
     marcher = marcher_params(scene, steps=settings.march_steps, visibility=vis, seed=settings.seed,
-                             jitter=settings.jitter, end_normals=frame.gbuffer.normal, device=frame.device)
+                             jitter=settings.march_jitter, end_normals=frame.gbuffer.normal, device=frame.device)
     with stage("scattering") as s:
         out = march_pixels(scene.camera, frame.gbuffer.distance, marcher, report=s.report, device=frame.device)
     return out, {}
