@@ -33,7 +33,9 @@ Stages (names as they appear in timings):
    rectification kind) -> the row mip level of the pixel's footprint (level 0 without mips) -> bilinear fetch of
    the filtered-basis vector (one look-up per split region in
    front of the hit plus the hit's own) -> dot with a(z_r) + 0.5, clamped -> times
-   sigma_s f E (1 - e^{-sigma_t s}) / sigma_t (Klehm Listing 4); the cost per pixel is constant whatever the scene;
+   sigma_s f E (1 - e^{-sigma_t s}) / sigma_t (Klehm Listing 4); the cost per pixel is constant whatever the scene.
+   A ray ending in shadow (:func:`lit_ray_ends`) whose whole extent lies within its end surface's own zone
+   (``end_offset``; looking almost straight into the light) takes that surface's shadow (0) without a look-up;
 4. ``epipole``   — when the light (or its flip) projects into the view, the non-linear rectification's
    slices all meet there and precision is low: light bleeds into a ring around the epipole (Klehm 2014
    Sec. 5, Fig. 8). The pixels whose view ray lies within ``epipole_angle_deg`` of the light direction (or its
@@ -104,7 +106,7 @@ module_options()
 
 @wp.func
 def representation_visibility(texels: FilteredBasisArrays, weights: RayWeights, u: float, v: float, z_r: float,
-                              window: wp.vec3i, beta: wp.vec2, light_direction: wp.vec3,
+                              window: wp.vec3i, beta: wp.vec3, light_direction: wp.vec3,
                               view_direction: wp.vec3) -> float:
     """The look-up's reconstruction from a Fourier texture (Klehm 2014 Listing 4) in the row ``window``; ``beta`` and
     the directions unused."""
@@ -113,21 +115,26 @@ def representation_visibility(texels: FilteredBasisArrays, weights: RayWeights, 
 
 @wp.func
 def representation_visibility(texels: FilteredMomentArrays, weights: RayWeights, u: float, v: float,  # noqa: F811
-                              z_r: float, window: wp.vec3i, beta: wp.vec2, light_direction: wp.vec3,
+                              z_r: float, window: wp.vec3i, beta: wp.vec3, light_direction: wp.vec3,
                               view_direction: wp.vec3) -> float:
     """The look-up's reconstruction from a moment map (Peters 2017 D.5) with the overestimation weight
     ``beta[0] + (beta[1] - beta[0]) max(0, omega_l . omega_p)`` (:meth:`~.settings.MomentsSettings.beta_range`);
-    ``beta[0]`` < 0: Peters' adaptive weight of the light and view directions (Sec. 5.3.1)."""
+    ``beta[0]`` < 0: Peters' adaptive weight of the light and view directions (Sec. 5.3.1). Within the epipole
+    taper (``beta[2]`` = 1 - cos of its angle, > 0) the weight falls to 0 looking straight into the light:
+    times (1 + omega_l . omega_p) / beta[2]."""
+    cos_l = wp.dot(light_direction, view_direction)
     b = beta[0]
     if b < 0.0:
         b = mm.adaptive_overestimation_weight(light_direction, view_direction)
     elif beta[1] != beta[0]:
-        b += (beta[1] - beta[0]) * wp.max(wp.dot(light_direction, view_direction), 0.0)
+        b += (beta[1] - beta[0]) * wp.max(cos_l, 0.0)
+    if 1.0 + cos_l < beta[2]:
+        b *= (1.0 + cos_l) / beta[2]
     return moments_visibility(texels, weights, u, v, z_r, window, b)
 
 
 @wp.func
-def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, window: wp.vec3i, beta: wp.vec2,
+def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, window: wp.vec3i, beta: wp.vec3,
                    light_direction: wp.vec3, view_direction: wp.vec3) -> float:
     """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a Fourier texture or a moment map
     (:func:`representation_visibility`) read in the row ``window`` (a mip level, :func:`~.row_mips.level_window`),
@@ -147,7 +154,7 @@ def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.
 
 @wp.func
 def mipped_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, mips: RowMips, level: wp.vec2,
-                      c: wp.vec3, beta: wp.vec2, light_direction: wp.vec3, view_direction: wp.vec3) -> float:
+                      c: wp.vec3, beta: wp.vec3, light_direction: wp.vec3, view_direction: wp.vec3) -> float:
     """:func:`map_visibility` at a pixel's mip ``level`` (:func:`~.row_mips.pixel_mip_level`: level, share of the
     next): the two levels' visibilities blended (trilinear filtering, Peters 2017 D.5; :mod:`.row_mips`)."""
     lv = int(level[0])
@@ -188,7 +195,8 @@ def evaluate_prefiltered_kernel(
     channel_weights: ChannelRayWeights,  # coloured media: each channel's own (grey: unused)
     bounds: DepthBounds,  # per-row prefix depth bounds: wholly lit / shadowed rays skip the reconstruction
     mips: RowMips,  # the texture's row mip levels and whether its rows wrap around (wrap_rows)
-    beta: wp.vec2,  # moment overestimation weight towards / along the light (beta_range), or < 0: adaptive
+    beta: wp.vec3,  # moment overestimation weight towards / along the light (beta_range), or < 0: adaptive;
+    # and 1 - cos of the epipole taper's angle (MomentsSettings.epipole_taper)
     light: LightParams,
     med: MediumParams,
     lit_ends: wp.array2d(dtype=wp.int32),  # 1 where the pixel's ray ends lit (lit_ray_ends; read if lit_end_shift)
@@ -205,10 +213,17 @@ def evaluate_prefiltered_kernel(
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
     lv = pixel_mip_level(mips, coords, j, i)
     c = coords[j, i]
+    in_end_shadow = False
     if lit_end_shift != 0.0:
         if lit_ends[j, i] != 0:
             c = wp.vec3(c[0] + lit_end_shift, c[1], c[2])
-    if med.coloured == 0:
+        else:
+            # a ray ending in shadow whose whole extent lies within its end surface's own zone (looking almost straight
+            # into the light: every light ray through it meets that surface) is in the surface's shadow
+            in_end_shadow = c[0] * float(weights.cols) <= weights.end_offset
+    if in_end_shadow:
+        out[j, i] = wp.vec3(0.0, 0.0, 0.0)
+    elif med.coloured == 0:
         f = mipped_visibility(texels, weights, bounds, mips, lv, c, beta, light.direction, d)
         out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
     else:  # one look-up per channel, each with the channel's own ray weights (module doc)
@@ -427,7 +442,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         fb, bounds.bounds = chain.texture, chain.bounds
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
-        beta = wp.vec2(*settings.moments.beta_range())
+        beta = wp.vec3(*settings.moments.beta_range(), settings.moments.epipole_taper())
         # end_offset counts texels of a map reaching the view (a fixed world distance along the rays: the surface a
         # ray ends on is its own blocker over a stretch set by the depth precision, not by the column width)
         # (rays ending in shadow, rays ending lit): the look-up takes the first, a ray ending lit (lit_ray_ends) moves
@@ -469,7 +484,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         "basis": settings.method,
         **({"coefficients": settings.fourier.coefficients, "splits": fb.splits} if settings.method == "fourier" else
            {"overestimation": overestimation if overestimation is not None else
-            [round(b, 4) for b in settings.moments.beta_range()]}),
+            [round(b, 4) for b in settings.moments.beta_range()],
+            "epipole_taper_deg": settings.moments.epipole_taper_deg}),
         "bits_per_texel": settings.filtered_bits_per_texel,
         "segments": segments,
         "segment_depth": segment_depth,
