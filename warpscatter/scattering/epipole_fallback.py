@@ -80,6 +80,25 @@ def epipole_region_kernel(
         out[j, i] = marched * w + out[j, i] * (1.0 - w)
 
 
+@wp.kernel
+def march_listed_pixels_kernel(
+    indices: wp.array(dtype=wp.int32),  # flat pixel indices j * width + i
+    cam: CameraParams,
+    distance: wp.array2d(dtype=wp.float32),
+    marcher: Marcher,  # a directional light, shadow-map visibility, ``steps`` strata, ``jitter``
+    out: wp.array2d(dtype=wp.vec3),
+    offset: int,
+):
+    # the disc's estimator (strata of equal transmittance weight) on a list of pixels
+    n = wp.tid() + offset
+    flat = indices[n]
+    j = flat // cam.width
+    i = flat - j * cam.width
+    d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
+    out[j, i] = march_transmittance_strata(marcher, cam.position, d, distance[j, i], pixel_end_normal(marcher, i, j),
+                                           flat)
+
+
 @dataclass(frozen=True)
 class EpipoleRegion:
     """A ray-marched region around an epipole in view (Klehm 2014 Sec. 5, Fig. 8).
@@ -176,6 +195,23 @@ def march_epipole_regions(scene, gbuffer, shadow_map, regions: list[EpipoleRegio
                      float(np.cos(np.radians(r.outer_deg))), marcher, int(x0), int(y0), out], device=device)
 
 
+def march_flagged_pixels(scene, gbuffer, shadow_map, flags: wp.array, out: wp.array, *, steps: int, seed: int,
+                         shadow_bias_texels: float, jitter: str, device=None) -> int:
+    """Ray-march the pixels whose ``flags`` (H, W int32) are non-zero into ``out`` as the disc does (a directional
+    light, shadow-map visibility, ``steps`` strata of equal transmittance weight). Returns how many there were."""
+    from .epipolar_textures import compact
+
+    cam = scene.camera
+    indices, count = compact(flags.reshape((cam.height * cam.width,)), device)
+    if count:
+        vis = visibility_params(scene, "shadow_map", None, shadow_map, shadow_bias_texels, device)
+        marcher = marcher_params(scene, steps=steps, visibility=vis, seed=seed, jitter=jitter,
+                                 end_normals=gbuffer.normal, device=device)
+        launch_rows(march_listed_pixels_kernel, count, [indices, cam.params(), gbuffer.distance, marcher, out],
+                    device=device)
+    return count
+
+
 def epipole_weights(camera, regions: list[EpipoleRegion]) -> np.ndarray:
     """(H, W) float32 weight of the ray-marched result per pixel (1 inside the inner cone, falling linearly in the angle
     to 0 at the outer one, as :func:`epipole_region_kernel` blends): the ``epipole_mask`` debug output."""
@@ -189,4 +225,4 @@ def epipole_weights(camera, regions: list[EpipoleRegion]) -> np.ndarray:
 
 
 __all__ = ["EPIPOLE_BLEND", "EpipoleRegion", "epipole_pixel_fraction", "epipole_region_kernel", "epipole_regions",
-           "epipole_weights", "march_epipole_regions"]
+           "epipole_weights", "march_epipole_regions", "march_flagged_pixels", "march_listed_pixels_kernel"]

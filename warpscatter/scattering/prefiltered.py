@@ -35,7 +35,9 @@ Stages (names as they appear in timings):
    front of the hit plus the hit's own) -> dot with a(z_r) + 0.5, clamped -> times
    sigma_s f E (1 - e^{-sigma_t s}) / sigma_t (Klehm Listing 4); the cost per pixel is constant whatever the scene.
    A ray ending in shadow (:func:`lit_ray_ends`) whose whole extent lies within its end surface's own zone
-   (``end_offset``; looking almost straight into the light) takes that surface's shadow (0) without a look-up;
+   (``end_offset``; looking almost straight into the light) has nothing to look up: its texels are those of the
+   surface it ends on. Such pixels (a few dozen around the sun) are ray-marched as the disc marches (stage
+   ``epipole``, ``epipole_steps`` strata, :func:`~.epipole_fallback.march_flagged_pixels`; stats ``end_zone_pixels``);
 4. ``epipole``   — when the light (or its flip) projects into the view, the non-linear rectification's
    slices all meet there and precision is low: light bleeds into a ring around the epipole (Klehm 2014
    Sec. 5, Fig. 8). The pixels whose view ray lies within ``epipole_angle_deg`` of the light direction (or its
@@ -72,7 +74,13 @@ from ..stages import StageTimer
 from ..wpinit import default_device, module_options
 from . import rectify_nonlinear
 from .caster_culling import cull_unseen_casters, end_faces_away
-from .epipole_fallback import epipole_pixel_fraction, epipole_regions, epipole_weights, march_epipole_regions
+from .epipole_fallback import (
+    epipole_pixel_fraction,
+    epipole_regions,
+    epipole_weights,
+    march_epipole_regions,
+    march_flagged_pixels,
+)
 from .filtered_lookups import DepthBounds, bounded_visibility, depth_bounds_of, fourier_visibility, moments_visibility
 from .filtered_textures import (
     FilteredBasis,
@@ -199,10 +207,12 @@ def evaluate_prefiltered_kernel(
     # and 1 - cos of the epipole taper's angle (MomentsSettings.epipole_taper)
     light: LightParams,
     med: MediumParams,
-    lit_ends: wp.array2d(dtype=wp.int32),  # 1 where the pixel's ray ends lit (lit_ray_ends; read if lit_end_shift)
+    lit_ends: wp.array2d(dtype=wp.int32),  # 1 where the pixel's ray ends lit (lit_ray_ends; read if lit_ends_known)
+    lit_ends_known: int,  # 1: lit_ends holds the test (a directional light ahead of the camera)
     lit_end_shift: float,  # u by which the look-up of a ray ending lit ends later than weights.end_offset says
     # (end_offsets_for: the difference of the two offsets, in u)
     out: wp.array2d(dtype=wp.vec3),
+    end_zone: wp.array2d(dtype=wp.int32),  # out: 1 where the look-up is left to the marcher (module doc), else 0
     offset: int,
 ):
     # Klehm 2014 Listing 4 / Peters 2017 D.5: one filtered look-up and one reconstruction per pixel
@@ -213,15 +223,16 @@ def evaluate_prefiltered_kernel(
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
     lv = pixel_mip_level(mips, coords, j, i)
     c = coords[j, i]
-    in_end_shadow = False
-    if lit_end_shift != 0.0:
+    in_end_zone = int(0)
+    if lit_ends_known != 0:
         if lit_ends[j, i] != 0:
             c = wp.vec3(c[0] + lit_end_shift, c[1], c[2])
-        else:
+        elif c[0] * float(weights.cols) <= weights.end_offset:
             # a ray ending in shadow whose whole extent lies within its end surface's own zone (looking almost straight
-            # into the light: every light ray through it meets that surface) is in the surface's shadow
-            in_end_shadow = c[0] * float(weights.cols) <= weights.end_offset
-    if in_end_shadow:
+            # into the light): the look-up reads nothing; the marcher takes it (march_flagged_pixels)
+            in_end_zone = 1
+    end_zone[j, i] = in_end_zone
+    if in_end_zone != 0:
         out[j, i] = wp.vec3(0.0, 0.0, 0.0)
     elif med.coloured == 0:
         f = mipped_visibility(texels, weights, bounds, mips, lv, c, beta, light.direction, d)
@@ -451,8 +462,10 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         column_scale = rect.column_scale if isinstance(rect, NonlinearRectification) else 1.0
         end_offset = end_offsets[0] * column_scale
         lit_end_shift = (end_offsets[0] - end_offsets[1]) * column_scale / cols
+        # the lit-end test, for the shift and for the rays looking into the light that end in shadow (the kernel)
+        lit_ends_known = not light_behind
         lit_ends = (lit_ray_ends(scene, gbuffer, shadow_map, settings.shadow_map.bias, faces_away, device)
-                    if lit_end_shift != 0.0 else wp.zeros((1, 1), dtype=wp.int32, device=device))
+                    if lit_ends_known else wp.zeros((1, 1), dtype=wp.int32, device=device))
         nonlinear = rect if isinstance(rect, NonlinearRectification) else None
         weights = ray_weights(segments, chain.optical_step, nonlinear, sigma_ref, end_offset, device=device,
                               cols=cols, segment_depth=segment_depth)
@@ -464,11 +477,18 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
                                                               segment_depth=segment_depth)
                                                   for sigma in scene.medium.sigma_t_rgb)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
+        end_zone = wp.empty((cam.height, cam.width), dtype=wp.int32, device=device)
         launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
                     [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, channels, bounds,
                      chain.params(wrap_rows(rect)), beta, lparams, scene.medium.params(), lit_ends,
-                     lit_end_shift, out],
+                     int(lit_ends_known), lit_end_shift, out, end_zone],
                     device=device)
+    end_zone_pixels = 0
+    if lit_ends_known:  # only rays looking into the light can lie wholly within their end zone
+        with stage("epipole"):
+            end_zone_pixels = march_flagged_pixels(scene, gbuffer, shadow_map, end_zone, out, steps=p.epipole_steps,
+                                                   seed=settings.seed, shadow_bias_texels=settings.shadow_map.bias,
+                                                   jitter=settings.march_jitter, device=device)
     regions = (epipole_regions(cam, scene.light.direction, p.epipole_angle_deg, p.epipole_block)
                if settings.marches_epipole else [])
     if regions:
@@ -492,6 +512,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         "depth_bounds": p.depth_bounds,
         "depth_warp": depth_warp,
         "mip_levels": chain.levels,
+        "end_zone_pixels": end_zone_pixels,
         "end_offset": end_offsets[0],
         "end_offset_lit": end_offsets[1],
         **resample_info,
