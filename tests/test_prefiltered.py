@@ -673,8 +673,8 @@ def test_epipole_angle_lowers_the_error_against_the_exact_marcher():
         errs[angle] = np.abs(img - exact).sum() / np.abs(exact).sum()
     # measured: 0.0619, 0.0620, 0.0601 (the 64-step exact marcher's own noise included; with one segment per ray,
     # Klehm's look-up, the map reaching the view and nearest-depth resampling 0.134, 0.103, 0.080: the per-ray weights
-    # and the depth bounds remove most of the bleeding the disc was there for; before rays ending in shadow at the sun
-    # took their end surface's shadow, 0.0644, 0.0625, 0.0611: at 8 degrees the disc now only matches that)
+    # and the depth bounds remove most of the bleeding the disc was there for; before the rays at the sun that end in
+    # shadow were ray-marched (end_zone_pixels), 0.0644, 0.0625, 0.0611: at 8 degrees the disc now only matches that)
     assert errs[16] < errs[0] - 0.001 and errs[16] < errs[8]
     assert errs[8] < errs[0] + 0.001 and errs[8] < 0.075
 

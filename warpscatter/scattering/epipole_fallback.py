@@ -28,6 +28,7 @@ from ..parallel import launch_rows
 from ..scene.camera import CameraParams, pixel_ray_direction
 from ..scene.lights import LIGHT_SPOT
 from ..wpinit import module_options
+from .epipolar_textures import compact
 from .marching import (
     Marcher,
     march_to_surface,
@@ -199,8 +200,6 @@ def march_flagged_pixels(scene, gbuffer, shadow_map, flags: wp.array, out: wp.ar
                          shadow_bias_texels: float, jitter: str, device=None) -> int:
     """Ray-march the pixels whose ``flags`` (H, W int32) are non-zero into ``out`` as the disc does (a directional
     light, shadow-map visibility, ``steps`` strata of equal transmittance weight). Returns how many there were."""
-    from .epipolar_textures import compact
-
     cam = scene.camera
     indices, count = compact(flags.reshape((cam.height * cam.width,)), device)
     if count:
