@@ -81,6 +81,7 @@ from .epipolar_upsampling import (
     upsample_kernel,
 )
 from .marching import Marcher, march_ray, march_screen_point, marcher_params, visibility_params
+from .raymarch import march_listed_pixels
 
 module_options()
 
@@ -122,23 +123,6 @@ def raymarch_samples_kernel(
             if wp.length(along) > 0.0:
                 p = geo.epipole + wp.normalize(along) * LOCAL_EPIPOLE_OFFSET
     radiance[k, x] = march_screen_point(cam, p[0], p[1], line_depth[k, x], marcher)
-
-
-@wp.kernel
-def raymarch_pixels_kernel(
-    indices: wp.array(dtype=wp.int32),
-    cam: CameraParams,
-    distance: wp.array2d(dtype=wp.float32),
-    marcher: Marcher,
-    out: wp.array2d(dtype=wp.vec3),
-    offset: int,
-):
-    # pixels without any valid source: the reference marcher at the pixel centre
-    n = wp.tid() + offset
-    flat = indices[n]
-    j = flat // cam.width
-    i = flat - j * cam.width
-    out[j, i] = march_ray(cam, i, j, distance[j, i], marcher)
 
 
 @wp.kernel
@@ -307,9 +291,7 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
             pixel_idx, marched_pixels = compact(unresolved, device)
         else:
             pixel_idx, marched_pixels = gather_rows(rows, row_count, device)
-        if marched_pixels:
-            launch_rows(raymarch_pixels_kernel, marched_pixels, [pixel_idx, cam_p, gbuffer.distance, marcher, out],
-                        device=device)
+        march_listed_pixels(scene.camera, gbuffer.distance, marcher, pixel_idx, marched_pixels, out, device=device)
     info.update({
         "epipolar_raymarched_samples": int(marched_samples),
         "epipolar_raymarched_pixels": int(marched_pixels),
@@ -321,7 +303,6 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
 __all__ = [
     "grid_raymarch_kernel",
     "prefilter_light_texture",
-    "raymarch_pixels_kernel",
     "raymarch_samples_kernel",
     "render",
 ]

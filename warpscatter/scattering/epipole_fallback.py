@@ -37,6 +37,7 @@ from .marching import (
     pixel_end_normal,
     visibility_params,
 )
+from .raymarch import march_listed_pixels
 
 module_options()
 
@@ -79,25 +80,6 @@ def epipole_region_kernel(
             psi_out = wp.acos(cos_outer)
             w = (psi_out - psi) / wp.max(psi_out - psi_in, 1.0e-12)
         out[j, i] = marched * w + out[j, i] * (1.0 - w)
-
-
-@wp.kernel
-def march_listed_pixels_kernel(
-    indices: wp.array(dtype=wp.int32),  # flat pixel indices j * width + i
-    cam: CameraParams,
-    distance: wp.array2d(dtype=wp.float32),
-    marcher: Marcher,  # a directional light, shadow-map visibility, ``steps`` strata, ``jitter``
-    out: wp.array2d(dtype=wp.vec3),
-    offset: int,
-):
-    # the disc's estimator (strata of equal transmittance weight) on a list of pixels
-    n = wp.tid() + offset
-    flat = indices[n]
-    j = flat // cam.width
-    i = flat - j * cam.width
-    d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
-    out[j, i] = march_transmittance_strata(marcher, cam.position, d, distance[j, i], pixel_end_normal(marcher, i, j),
-                                           flat)
 
 
 @dataclass(frozen=True)
@@ -206,8 +188,8 @@ def march_flagged_pixels(scene, gbuffer, shadow_map, flags: wp.array, out: wp.ar
         vis = visibility_params(scene, "shadow_map", None, shadow_map, shadow_bias_texels, device)
         marcher = marcher_params(scene, steps=steps, visibility=vis, seed=seed, jitter=jitter,
                                  end_normals=gbuffer.normal, device=device)
-        launch_rows(march_listed_pixels_kernel, count, [indices, cam.params(), gbuffer.distance, marcher, out],
-                    device=device)
+        march_listed_pixels(cam, gbuffer.distance, marcher, indices, count, out, equal_weight_strata=True,
+                            device=device)
     return count
 
 
@@ -224,4 +206,4 @@ def epipole_weights(camera, regions: list[EpipoleRegion]) -> np.ndarray:
 
 
 __all__ = ["EPIPOLE_BLEND", "EpipoleRegion", "epipole_pixel_fraction", "epipole_region_kernel", "epipole_regions",
-           "epipole_weights", "march_epipole_regions", "march_flagged_pixels", "march_listed_pixels_kernel"]
+           "epipole_weights", "march_epipole_regions", "march_flagged_pixels"]

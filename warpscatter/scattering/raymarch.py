@@ -14,10 +14,17 @@ from __future__ import annotations
 import warp as wp
 
 from ..parallel import launch_rows
-from ..scene.camera import CameraParams
+from ..scene.camera import CameraParams, pixel_ray_direction
 from ..stages import StageTimer
 from ..wpinit import default_device, module_options
-from .marching import Marcher, march_ray, marcher_params, visibility_params
+from .marching import (
+    Marcher,
+    march_ray,
+    march_transmittance_strata,
+    marcher_params,
+    pixel_end_normal,
+    visibility_params,
+)
 
 module_options()
 
@@ -53,6 +60,39 @@ def raymarch_subset_kernel(
     i = first + si * stride
     j = first + sj * stride
     out[sj, si] = march_ray(cam, i, j, distance[j, i], marcher)
+
+
+@wp.kernel
+def raymarch_listed_kernel(
+    indices: wp.array(dtype=wp.int32),  # flat pixel indices j * width + i
+    cam: CameraParams,
+    distance: wp.array2d(dtype=wp.float32),
+    marcher: Marcher,
+    equal_weight_strata: int,  # 1: strata of equal transmittance weight (march_transmittance_strata), else march_ray
+    out: wp.array2d(dtype=wp.vec3),
+    offset: int,
+):
+    n = wp.tid() + offset
+    flat = indices[n]
+    j = flat // cam.width
+    i = flat - j * cam.width
+    if equal_weight_strata != 0:
+        d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
+        out[j, i] = march_transmittance_strata(marcher, cam.position, d, distance[j, i],
+                                               pixel_end_normal(marcher, i, j), flat)
+    else:
+        out[j, i] = march_ray(cam, i, j, distance[j, i], marcher)
+
+
+def march_listed_pixels(camera, distance: wp.array, marcher: Marcher, indices: wp.array, count: int, out: wp.array, *,
+                        equal_weight_strata: bool = False, device=None) -> None:
+    """Ray-march the first ``count`` pixels of ``indices`` (flat j * width + i) into ``out``: the same values as
+    :func:`march_pixels` there, or with ``equal_weight_strata`` the epipole disc's strata of equal transmittance weight
+    (:func:`~.marching.march_transmittance_strata`; directional lights)."""
+    if count:
+        launch_rows(raymarch_listed_kernel, int(count),
+                    [indices, camera.params(), distance, marcher, int(bool(equal_weight_strata)), out],
+                    device=default_device(device))
 
 
 def march_pixel_subset(camera, distance: wp.array, marcher: Marcher, stride: int, first: int = 0, report=None,
@@ -125,4 +165,5 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
     return out, {}
 
 
-__all__ = ["march_pixel_subset", "march_pixels", "raymarch_kernel", "raymarch_subset_kernel", "render"]
+__all__ = ["march_listed_pixels", "march_pixel_subset", "march_pixels", "raymarch_kernel", "raymarch_listed_kernel",
+           "raymarch_subset_kernel", "render"]
