@@ -213,6 +213,7 @@ def evaluate_prefiltered_kernel(
     # (end_offsets_for: the difference of the two offsets, in u)
     out: wp.array2d(dtype=wp.vec3),
     end_zone: wp.array2d(dtype=wp.int32),  # out: 1 where the look-up is left to the marcher (module doc), else 0
+    end_zone_any: wp.array(dtype=wp.int32),  # out: [0] set to 1 when any pixel is (a plain store: no race to lose)
     offset: int,
 ):
     # Klehm 2014 Listing 4 / Peters 2017 D.5: one filtered look-up and one reconstruction per pixel
@@ -231,6 +232,7 @@ def evaluate_prefiltered_kernel(
             # a ray ending in shadow whose whole extent lies within its end surface's own zone (looking almost straight
             # into the light): the look-up reads nothing; the marcher takes it (march_flagged_pixels)
             in_end_zone = 1
+            end_zone_any[0] = 1
     end_zone[j, i] = in_end_zone
     if in_end_zone != 0:
         out[j, i] = wp.vec3(0.0, 0.0, 0.0)
@@ -478,13 +480,14 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
                                                   for sigma in scene.medium.sigma_t_rgb)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         end_zone = wp.empty((cam.height, cam.width), dtype=wp.int32, device=device)
+        end_zone_any = wp.zeros(1, dtype=wp.int32, device=device)
         launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
                     [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, channels, bounds,
                      chain.params(wrap_rows(rect)), beta, lparams, scene.medium.params(), lit_ends,
-                     int(lit_ends_known), lit_end_shift, out, end_zone],
+                     int(lit_ends_known), lit_end_shift, out, end_zone, end_zone_any],
                     device=device)
     end_zone_pixels = 0
-    if lit_ends_known:  # only rays looking into the light can lie wholly within their end zone
+    if end_zone_any.numpy()[0]:  # rays looking into the light that lie wholly within their end zone (rare)
         with stage("epipole"):
             end_zone_pixels = march_flagged_pixels(scene, gbuffer, shadow_map, end_zone, out, steps=p.epipole_steps,
                                                    seed=settings.seed, shadow_bias_texels=settings.shadow_map.bias,
