@@ -48,10 +48,13 @@ from .rectify_nonlinear import (
     NonlinearRectParams,
     TranslucentLayer,
     _map_array,
-    add_tap_parts,
     bilinear_tap,
-    radial_taps,
-    split_taps,
+    part_mean,
+    split_point,
+    tap_part,
+    tap_parts,
+    tap_range,
+    tap_split,
 )
 
 module_options()
@@ -150,47 +153,61 @@ def resample_spot_kernel(
             f[k] = wp.clamp(e_sum[k] / (float(nf * nf) * peak[k]), 0.0, 1.0)
     out_filter[j, i] = f
     # its casters: ``samples`` light rays over the texel's psi extent, each reading its four nearest spot-map texels
-    # with bilinear weights (two entries per tap with translucent casters: the nearest caster with 1 - T, the
-    # nearest opaque one with T), condensed to two depths as a directional light's supersampled texel is
-    # (rectify_nonlinear.split_taps); one nearest texel per rectified texel streaked along the epipolar slices
+    # with bilinear weights (two parts per tap with translucent casters: the nearest caster with 1 - T, the nearest
+    # opaque one with T), condensed to two depths in the two passes of a directional light's supersampled texel
+    # (rectify_nonlinear.tap_range, tap_split); one nearest texel per rectified texel streaked along the epipolar
+    # slices
     inv = 1.0 / float(samples)
     lo = float(1.0e30)
     hi = float(-1.0e30)
     w_caster = float(0.0)
     w_empty = float(0.0)
-    tap_z = radial_taps()
-    tap_w = radial_taps()
-    n = int(0)
-    for k in range(samples):
-        psi_k = rect.psi_lo + (float(i) + (float(k) + 0.5) * inv) / float(rect.cols) * rect.r_max
-        dk = to_world * wp.vec3(wp.sin(psi_k) * wp.cos(phi), wp.sin(psi_k) * wp.sin(phi), wp.cos(psi_k))
-        p = light.position + dk
-        c = world_to_clip * wp.vec4(p[0], p[1], p[2], 1.0)
-        if c[3] <= 0.0:  # behind the spot: no light there anyway (its filter is 0)
-            w_empty += inv
-        else:
-            c = c / c[3]
-        for t in range(4 * int(c[3] > 0.0)):
-            z_n, w_tap, caster_n, x, y = spot_tap(rect, light.position, light.direction, dk, shadow_depth, c, t, inv)
-            passed = float(0.0)
-            z_o = float(1.0)
-            caster_o = float(0.0)
-            if layer.translucent != 0:
-                z_o, w_o, caster_o, xo, yo = spot_tap(rect, light.position, light.direction, dk, layer.opaque_depth,
-                                                      c, t, inv)
-                if x >= 0 and y >= 0 and x < layer.transmittance.shape[1] and y < layer.transmittance.shape[0]:
-                    passed = layer.transmittance[y, x]
-            tap_z, tap_w, n, lo, hi, w_caster, w_empty = add_tap_parts(
-                tap_z, tap_w, n, lo, hi, w_caster, w_empty, z_n, caster_n, z_o, caster_o, w_tap, passed)
+    s1 = float(0.0)
+    wa = float(0.0)
+    s2 = float(0.0)
+    wb = float(0.0)
+    two = bool(False)
+    mid = float(0.0)
+    for p in range(2):
+        if p == 1:
+            if w_caster <= 0.0:
+                break
+            two, mid = split_point(lo, hi, w_empty)
+        for k in range(samples):
+            psi_k = rect.psi_lo + (float(i) + (float(k) + 0.5) * inv) / float(rect.cols) * rect.r_max
+            dk = to_world * wp.vec3(wp.sin(psi_k) * wp.cos(phi), wp.sin(psi_k) * wp.sin(phi), wp.cos(psi_k))
+            q = light.position + dk
+            c = world_to_clip * wp.vec4(q[0], q[1], q[2], 1.0)
+            if c[3] <= 0.0:  # behind the spot: no light there anyway (its filter is 0)
+                if p == 0:
+                    w_empty += inv
+            else:
+                c = c / c[3]
+            for t in range(4 * int(c[3] > 0.0)):
+                z_n, w_tap, caster_n, x, y = spot_tap(rect, light.position, light.direction, dk, shadow_depth, c, t,
+                                                      inv)
+                passed = float(0.0)
+                z_o = float(1.0)
+                caster_o = float(0.0)
+                if layer.translucent != 0:
+                    z_o, w_o, caster_o, xo, yo = spot_tap(rect, light.position, light.direction, dk,
+                                                          layer.opaque_depth, c, t, inv)
+                    if x >= 0 and y >= 0 and x < layer.transmittance.shape[1] and y < layer.transmittance.shape[0]:
+                        passed = layer.transmittance[y, x]
+                for part in range(tap_parts(passed)):
+                    z_b, w, caster = tap_part(z_n, caster_n, z_o, caster_o, w_tap, passed, part)
+                    if p == 0:
+                        lo, hi, w_caster, w_empty = tap_range(lo, hi, w_caster, w_empty, z_b, w, caster)
+                    else:
+                        s1, wa, s2, wb = tap_split(s1, wa, s2, wb, two, mid, z_b, w, caster)
     z1 = float(1.0)
     z2 = float(1.0)
     w2 = float(0.0)
     if w_caster > 0.0:
-        m1, wa, m2, wb = split_taps(tap_z, tap_w, n, lo, hi, w_empty)
         if wa > 0.0:
-            z1 = m1
+            z1 = part_mean(s1, wa)
         if wb > 0.0:
-            z2 = m2
+            z2 = part_mean(s2, wb)
             w2 = wb / (wa + wb)
         else:
             w2 = w_empty / (w_caster + w_empty)

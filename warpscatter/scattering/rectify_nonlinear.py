@@ -273,8 +273,6 @@ def resample_translucent_kernel(
 #: Most radial sub-samples per rectified texel of the supersampled resampling (``resample_filter: supersample``,
 #: :func:`resample_shadow_map`).
 MAX_RADIAL_SAMPLES = 4
-#: Tap entries of one texel: four bilinear taps per sub-sample, two depths each with translucent casters.
-radial_taps = wp.types.vector(length=8 * MAX_RADIAL_SAMPLES, dtype=wp.float32)
 
 
 @wp.func
@@ -329,74 +327,68 @@ def translucent_tap(layer: TranslucentLayer, x: int, y: int, d: float, depth_per
     return layer.transmittance[y, x], float(0.0), float(0.0)
 
 
-@wp.func
-def add_tap_parts(tap_z: radial_taps, tap_w: radial_taps, n: int, lo: float, hi: float, w_caster: float,
-                  w_empty: float, z_n: float, caster_n: float, z_o: float, caster_o: float, w_tap: float,
-                  passed: float):
-    """Add one bilinear tap of weight ``w_tap`` to a texel's taps: its nearest caster (depth z_n, 1 in caster_n if
-    there is one) with weight (1 - passed), and where translucent casters pass light (``passed`` = T > 0) its
-    nearest opaque caster (z_o, caster_o) with weight T. Caster entries extend [lo, hi] and w_caster, an empty one
-    (no caster) adds to w_empty. Returns the updated (tap_z, tap_w, n, lo, hi, w_caster, w_empty)."""
-    zs = tap_z
-    ws_ = tap_w
-    m = n
-    low = lo
-    high = hi
-    wc = w_caster
-    we = w_empty
-    for part in range(2):
-        if part == 0 or passed > 0.0:
-            z_b = z_n
-            w = w_tap * (1.0 - passed)
-            caster = caster_n
-            if part == 1:
-                z_b = z_o
-                w = w_tap * passed
-                caster = caster_o
-            if caster > 0.0:
-                if w > 0.0:
-                    low = wp.min(low, z_b)
-                    high = wp.max(high, z_b)
-                wc += w
-                zs[m] = z_b
-                ws_[m] = w
-            else:
-                we += w
-            m += 1
-    return zs, ws_, m, low, high, wc, we
+# A supersampled texel condenses its taps to two depths in two passes over the same taps (the kernels recompute
+# them; keeping up to 32 taps per texel in registers was a third slower): the first finds the casters' depth range
+# [lo, hi] and the caster and empty weights (:func:`tap_range`), the second splits the casters at the middle of that
+# range, each part's weighted mean becoming one depth (:func:`tap_split`). A tap is one part, or two with translucent
+# casters (:func:`tap_part`).
 
 
 @wp.func
-def split_taps(tap_z: radial_taps, tap_w: radial_taps, n: int, lo: float, hi: float, w_empty: float):
-    """Condense a texel's n caster taps (depth, weight; depths within [lo, hi]) to two depths: split at the middle
-    of their range when no tap is empty (else one depth: the empty taps are the other), each part's weighted mean.
+def tap_parts(passed: float) -> int:
+    """Parts of a tap: its nearest caster, and where translucent casters pass light (T = ``passed`` > 0) its nearest
+    opaque caster too."""
+    return 1 + int(passed > 0.0)
 
-    Returns:
-        (mean depth of the nearer part, its weight, of the farther part, its weight); a part without taps has
-        weight 0 (and mean 0).
-    """
-    two = w_empty <= 0.0 and hi > lo
-    mid = 0.5 * (lo + hi)
-    s1 = float(0.0)
-    s2 = float(0.0)
-    w1 = float(0.0)
-    w2 = float(0.0)
-    for k in range(n):
-        z_b = tap_z[k]
-        w = tap_w[k]
+
+@wp.func
+def tap_part(z_n: float, caster_n: float, z_o: float, caster_o: float, w_tap: float, passed: float, part: int):
+    """Part ``part`` of a tap of weight ``w_tap``: 0 its nearest caster (depth z_n, 1 in caster_n if there is one)
+    with weight w_tap (1 - T), 1 its nearest opaque caster (z_o, caster_o) with weight w_tap T (T = ``passed``).
+    Returns (depth, weight, 1 if a caster else 0)."""
+    if part == 1:
+        return z_o, w_tap * passed, caster_o
+    return z_n, w_tap * (1.0 - passed), caster_n
+
+
+@wp.func
+def tap_range(lo: float, hi: float, w_caster: float, w_empty: float, z_b: float, w: float, caster: float):
+    """First pass: a tap part (depth z_b, weight w) extends the casters' depth range [lo, hi] (parts of weight 0
+    excepted) and their weight w_caster, or adds to the empty weight w_empty. Returns (lo, hi, w_caster, w_empty)."""
+    if caster > 0.0:
+        if w > 0.0:
+            return wp.min(lo, z_b), wp.max(hi, z_b), w_caster + w, w_empty
+        return lo, hi, w_caster + w, w_empty
+    return lo, hi, w_caster, w_empty + w
+
+
+@wp.func
+def tap_split(s1: float, w1: float, s2: float, w2: float, two: bool, mid: float, z_b: float, w: float,
+              caster: float):
+    """Second pass: a caster tap part (depth z_b, weight w) adds to the farther part's weighted sums (s2, w2) when
+    the casters split in two (``two``) and it lies beyond ``mid``, else to the nearer part's (s1, w1); an empty part
+    adds nothing. Returns (s1, w1, s2, w2)."""
+    if caster > 0.0:
         if two and z_b > mid:
-            s2 += w * z_b
-            w2 += w
-        else:
-            s1 += w * z_b
-            w1 += w
-    m1 = float(0.0)
-    m2 = float(0.0)
-    if w1 > 0.0:
-        m1 = s1 / w1
-    if w2 > 0.0:
-        m2 = s2 / w2
-    return m1, w1, m2, w2
+            return s1, w1, s2 + w * z_b, w2 + w
+        return s1 + w * z_b, w1 + w, s2, w2
+    return s1, w1, s2, w2
+
+
+@wp.func
+def split_point(lo: float, hi: float, w_empty: float):
+    """Where the second pass splits a texel's casters: (whether they split in two, the middle of their range). They
+    split when no tap is empty and the range is not a point; with empty taps the casters form one depth and the empty
+    taps the other."""
+    return w_empty <= 0.0 and hi > lo, 0.5 * (lo + hi)
+
+
+@wp.func
+def part_mean(s: float, w: float) -> float:
+    """The weighted mean depth of a part (0 when it has no weight)."""
+    if w > 0.0:
+        return s / w
+    return 0.0
 
 
 @wp.kernel
@@ -420,8 +412,8 @@ def resample_radial_kernel(
     # their z_b range, each part's weighted mean z_b becoming one rectified depth at the texel's centre column; with
     # empty taps (no caster: depth 1) the casters form one depth and the empty taps the other. The light-ray point
     # is affine in u (p0 = origin + u a), so are its map coordinates and depth: one sin/cos and at most two atan2
-    # per texel; the taps are kept for the split (range, then parts). With translucent casters a tap is two entries,
-    # its nearest caster with weight (1 - T) and its nearest opaque caster (or the empty far end) with weight T
+    # per texel. With translucent casters a tap is two parts, its nearest caster with weight (1 - T) and its
+    # nearest opaque caster (or the empty far end) with weight T. Two passes over the taps (tap_range, tap_split)
     j, i = wp.tid()
     j += offset
     v = (float(j) + 0.5) / float(rect.rows)
@@ -437,27 +429,38 @@ def resample_radial_kernel(
     hi = float(-1.0e30)
     w_caster = float(0.0)
     w_empty = float(0.0)
-    tap_z = radial_taps()  # the caster taps' depths and weights (an empty tap keeps weight 0)
-    tap_w = radial_taps()
-    n = int(0)
-    for k in range(samples):
-        u = (float(i) + (float(k) + 0.5) * inv) / float(rect.cols)
-        for t in range(4):
-            z_n, w_tap, caster_n, x, y = radial_tap(shadow_depth, c0, ca, d0, da, depth_per_unit, empty_depth, u, t,
-                                                    inv)
-            passed, z_o, caster_o = translucent_tap(layer, x, y, d0 + da * u, depth_per_unit, empty_depth)
-            tap_z, tap_w, n, lo, hi, w_caster, w_empty = add_tap_parts(
-                tap_z, tap_w, n, lo, hi, w_caster, w_empty, z_n, caster_n, z_o, caster_o, w_tap, passed)
+    s1 = float(0.0)
+    w1 = float(0.0)
+    s2 = float(0.0)
+    w2 = float(0.0)
+    two = bool(False)
+    mid = float(0.0)
+    for p in range(2):
+        if p == 1:
+            if w_caster <= 0.0:
+                break
+            two, mid = split_point(lo, hi, w_empty)
+        for k in range(samples):
+            u = (float(i) + (float(k) + 0.5) * inv) / float(rect.cols)
+            for t in range(4):
+                z_n, w_tap, caster_n, x, y = radial_tap(shadow_depth, c0, ca, d0, da, depth_per_unit, empty_depth,
+                                                        u, t, inv)
+                passed, z_o, caster_o = translucent_tap(layer, x, y, d0 + da * u, depth_per_unit, empty_depth)
+                for part in range(tap_parts(passed)):
+                    z_b, w, caster = tap_part(z_n, caster_n, z_o, caster_o, w_tap, passed, part)
+                    if p == 0:
+                        lo, hi, w_caster, w_empty = tap_range(lo, hi, w_caster, w_empty, z_b, w, caster)
+                    else:
+                        s1, w1, s2, w2 = tap_split(s1, w1, s2, w2, two, mid, z_b, w, caster)
     u_mid = (float(i) + 0.5) / float(rect.cols)
     z1 = float(1.0)
     z2 = float(1.0)
     share = float(0.0)
     if w_caster > 0.0:
-        m1, w1, m2, w2 = split_taps(tap_z, tap_w, n, lo, hi, w_empty)
         if w1 > 0.0:
-            z1 = rectified_blocker_depth(rect, u_mid, m1)
+            z1 = rectified_blocker_depth(rect, u_mid, part_mean(s1, w1))
         if w2 > 0.0:  # two caster depths
-            z2 = rectified_blocker_depth(rect, u_mid, m2)
+            z2 = rectified_blocker_depth(rect, u_mid, part_mean(s2, w2))
             share = w2 / (w1 + w2)
         else:  # the casters' depth, and the empty taps at depth 1
             share = w_empty / (w_caster + w_empty)
