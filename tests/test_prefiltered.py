@@ -737,6 +737,41 @@ def test_map_fitted_to_the_casters_is_finer_where_the_shadows_are():
     assert errors["casters"] < 0.85 * errors["view"]
 
 
+def test_the_stretch_left_out_before_a_shadowed_end_takes_the_shadow_maps_visibility():
+    """A look-up ends ``end_offset`` texels before a ray's end point (the end surface is its own blocker there); that
+    stretch used to take the look-up's visibility. Near the sun a texel is a long stretch of ray, in the end
+    surface's shadow where the look-up saw lit air before it: colonnade_sunset's last frame showed a bright wedge on
+    the pillar beside the sun. Rays ending in shadow now sample the stretch in the shadow map (``end_samples``).
+    Measured at 320x180 against the 256-step exact marcher, end_samples 0 -> 4: rel. L1 fourier 5.11 -> 4.21 %,
+    moments6 6.47 -> 5.34 % (moments4 6.78 -> 5.55 %); between 10 and 25 degrees of the sun fourier's error
+    5.53 -> 4.21 %, its bias +2.0 -> -0.2 %."""
+    def render(sc, over=("light.direction=[-0.9,-0.18,-1.0]",)):  # the frame's sun
+        cfg = load_config(ROOT / "configs" / "colonnade_sunset.yaml",
+                          ["camera.width=320", "camera.height=180", "render.surfaces.enabled=false", *over,
+                           *(f"render.scattering.{k}={v}" for k, v in sc.items())])
+        scene = build_scene(cfg)
+        images, stats = render_images(scene, cfg.render)
+        return scene, images["scattering"].astype(np.float64).mean(-1), stats
+
+    scene, ref, _ = render({"method": "raymarch", "visibility": "exact", "steps": 256})
+    axis = -np.asarray(scene.light.direction, float)
+    axis /= np.linalg.norm(axis)
+    psi = np.degrees(np.arccos(np.clip(scene.camera.ray_directions().reshape(180, 320, 3) @ axis, -1.0, 1.0)))
+    band = (psi > 10.0) & (psi < 25.0)
+    rel = lambda a, m=None: float(np.abs(a - ref)[m].sum() / ref[m].sum()) if m is not None else \
+        float(np.abs(a - ref).sum() / ref.sum())  # noqa: E731
+    for method in ("fourier", "moments6"):
+        _, before, stats0 = render({"method": method, "prefiltered.end_samples": 0})
+        _, after, stats = render({"method": method})
+        assert stats0["end_samples"] == 0 and stats["end_samples"] == 4
+        assert rel(after) < 0.88 * rel(before)
+        if method == "fourier":
+            assert rel(after, band) < 0.85 * rel(before, band)
+            assert abs(float((after - ref)[band].sum() / ref[band].sum())) < 0.01
+    _, _, behind = render({"method": "fourier"}, over=("light.direction=[0.9,-0.18,1.0]",))  # the sun behind
+    assert behind["end_samples"] == 0
+
+
 def test_rays_into_the_sun_ending_in_shadow_are_marched():
     """The colonnade's sun sits behind the architrave's corner. Rays looking within a degree of it end on that corner
     in shadow; their whole extent lay within the end surface's own zone of the rectified map (``end_offset``), so the

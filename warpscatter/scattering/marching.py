@@ -83,6 +83,7 @@ from ..shadows.shadow_map import (
     nearest_texel,
     orthographic_ray_coords,
     shadow_coords,
+    shadow_pcf,
     shadow_visibility_at,
     texel_depth,
 )
@@ -324,21 +325,27 @@ def end_surface(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, n_end: wp.vec
     """The bias guard of a ray origin + t d ending at distance s on a surface with camera-facing unit normal n_end
     (zero: none); inactive unless V comes from an opaque shadow map and the surface faces away from the light (module
     doc)."""
+    return end_surface_at(m.vis, m.light, origin + d * s, n_end)
+
+
+@wp.func
+def end_surface_at(vis: Visibility, light: LightParams, point: wp.vec3, n_end: wp.vec3) -> EndSurface:
+    """:func:`end_surface` of the end point ``point`` from the visibility and the light alone."""
     e = EndSurface()
     e.active = 0
-    if m.vis.mode != VISIBILITY_SHADOW_MAP or m.vis.translucent != 0:
+    if vis.mode != VISIBILITY_SHADOW_MAP or vis.translucent != 0:
         return e
-    e.point = origin + d * s
-    if not faces_away_from_light(m.light, e.point, n_end):
+    e.point = point
+    if not faces_away_from_light(light, e.point, n_end):
         return e  # no surface, or the side the camera sees faces the light
-    _radiance, omega, _distance = light_sample(m.light, e.point)
-    texel = m.vis.sm.texel_world
-    if m.vis.sm.perspective != 0:
-        texel = texel * wp.max(shadow_coords(m.vis.sm, e.point)[2], 0.0)
+    _radiance, omega, _distance = light_sample(light, e.point)
+    texel = vis.sm.texel_world
+    if vis.sm.perspective != 0:
+        texel = texel * wp.max(shadow_coords(vis.sm, e.point)[2], 0.0)
     e.active = 1
     e.normal = n_end
     e.omega = omega
-    e.zone = m.vis.sm_bias + 2.0 * texel
+    e.zone = vis.sm_bias + 2.0 * texel
     return e
 
 
@@ -358,6 +365,31 @@ def behind_end_surface(e: EndSurface, vis: Visibility, x: wp.vec3) -> bool:
         return False
     plane_depth = shadow_coords(vis.sm, x - e.omega * h)[2]  # the plane's depth on x's light ray
     return texel_depth(vis.sm_depth, j, i) <= plane_depth + e.zone
+
+
+@wp.func
+def stretch_visibility(vis: Visibility, light: LightParams, end: EndSurface, origin: wp.vec3, d: wp.vec3, t0: float,
+                       t1: float, sigma_t: float, max_samples: int) -> float:
+    """Transmittance-weighted mean shadow-map visibility (``vis`` in shadow_map mode) of the stretch [t0, t1] of the
+    ray origin + t d that ends on ``end`` (:func:`end_surface_at`; its bias guard applies): one sample at the middle of
+    each of n equal steps, n the stretch's length in shadow-map texels (1 to ``max_samples``), each read with
+    bilinear percentage-closer filtering (a stretch looking almost along the light stays in one texel, where a
+    caster's silhouette would be all or nothing)."""
+    n = wp.clamp(int(wp.ceil((t1 - t0) / wp.max(vis.sm.texel_world, 1.0e-12))), 1, max_samples)
+    dt = (t1 - t0) / float(n)
+    acc = float(0.0)
+    wsum = float(0.0)
+    for k in range(n):
+        t = t0 + (float(k) + 0.5) * dt
+        x = origin + d * t
+        w = wp.exp(-sigma_t * float(k) * dt)  # relative to the first sample's (1: no underflow in a dense medium)
+        wsum += w
+        if not behind_end_surface(end, vis, x):
+            if vis.translucent != 0:
+                acc += w * shadow_pcf(vis.sm, vis.sm_layers, x, vis.sm_bias, 1)
+            else:
+                acc += w * shadow_pcf(vis.sm, vis.sm_depth, x, vis.sm_bias, 1)
+    return acc / wsum
 
 
 @wp.func
@@ -643,8 +675,10 @@ __all__ = [
     "march_to_surface",
     "behind_end_surface",
     "end_surface",
+    "end_surface_at",
     "EndSurface",
     "pixel_end_normal",
+    "stretch_visibility",
     "march_ray",
     "march_screen_point",
     "marcher_params",

@@ -37,7 +37,13 @@ Stages (names as they appear in timings):
    A ray ending in shadow (:func:`lit_ray_ends`) whose whole extent lies within its end surface's own zone
    (``end_offset``; looking almost straight into the light) has nothing to look up: its texels are those of the
    surface it ends on. Such pixels (a few dozen around the sun) are ray-marched as the disc marches (stage
-   ``epipole``, ``epipole_steps`` strata, :func:`~.epipole_fallback.march_flagged_pixels`; stats ``end_zone_pixels``);
+   ``epipole``, ``epipole_steps`` strata, :func:`~.epipole_fallback.march_flagged_pixels`; stats ``end_zone_pixels``).
+   Any other ray ending in shadow under a directional light ahead of the camera (more than
+   :data:`~.settings.END_SAMPLES_MIN_DEG` from the light) takes the visibility of the stretch its look-up leaves out
+   (its ``end_offset`` texels before the end point, a long stretch near the sun) from the shadow map, sampled along
+   the ray (``end_samples``, :func:`~.marching.stretch_visibility`; the marcher's bias guard behind surfaces facing
+   away from the light), each part weighted by its share of the ray's transmittance weight
+   (:func:`with_left_out_stretch`);
 4. ``epipole``   — when the light (or its flip) projects into the view, the non-linear rectification's
    slices all meet there and precision is low: light bleeds into a ring around the epipole (Klehm 2014
    Sec. 5, Fig. 8). The pixels whose view ray lies within ``epipole_angle_deg`` of the light direction (or its
@@ -88,12 +94,12 @@ from .filtered_textures import (
     FilteredMomentArrays,
     FilteredMoments,
 )
-from .marching import Visibility, point_visibility, visibility_params
+from .marching import Visibility, end_surface_at, point_visibility, stretch_visibility, visibility_params
 from .prefix_sums import (
     prefilter_moments,
     prefilter_weighted,
 )
-from .ray_weights import ChannelRayWeights, RayWeights, inside_map_fraction, ray_weights
+from .ray_weights import ChannelRayWeights, RayWeights, inside_map_fraction, looked_up_share, ray_weights
 from .rectification import RectificationParams, build_rectification, rectification_params, rectified_coords, wrap_rows
 from .rectify_nonlinear import NonlinearRectification, reference_ray, resample_shadow_map
 from .rectify_projective import (
@@ -104,7 +110,7 @@ from .rectify_projective import (
     reference_rays,
 )
 from .row_mips import RowMips, level_window, pixel_mip_level, pixel_mip_levels, row_mip_chain
-from .settings import MAX_RESAMPLE_FILTER_PX, PrefilteredSettings, ScatteringSettings
+from .settings import END_SAMPLES_MIN_DEG, MAX_RESAMPLE_FILTER_PX, PrefilteredSettings, ScatteringSettings
 
 module_options()
 
@@ -193,6 +199,22 @@ def pixel_coords_kernel(
     out[j, i] = rectified_coords(rect, cam.position + d * distance[j, i])
 
 
+
+@wp.func
+def left_out_start(weights: RayWeights, u: float, s: float) -> float:
+    """Distance from the camera at which the look-up of a view ray ending at column coordinate u, distance s, stops:
+    ``end_offset`` texels before its end (a non-linear map's columns are equal steps along a ray)."""
+    return s * wp.max(1.0 - weights.end_offset / (u * float(weights.cols)), 0.0)
+
+
+@wp.func
+def with_left_out_stretch(f: float, weights: RayWeights, c: wp.vec3, v_end: float) -> float:
+    """Visible fraction of the view ray ending at rectified c whose look-up gave f and whose left-out end stretch
+    (:func:`left_out_start`) has visibility v_end: each weighted by its share of the ray's own transmittance weight."""
+    share = looked_up_share(weights, c[0], c[2])
+    return f * share + (1.0 - share) * v_end
+
+
 @wp.kernel
 def evaluate_prefiltered_kernel(
     cam: CameraParams,
@@ -209,6 +231,10 @@ def evaluate_prefiltered_kernel(
     med: MediumParams,
     lit_ends: wp.array2d(dtype=wp.int32),  # 1 where the pixel's ray ends lit (lit_ray_ends; read if lit_ends_known)
     lit_ends_known: int,  # 1: lit_ends holds the test (a directional light ahead of the camera)
+    normal: wp.array2d(dtype=wp.vec3),  # the G-buffer's camera-facing normals (the end surface's bias guard)
+    end_vis: Visibility,  # the light's shadow map: the left-out end stretches' visibility
+    end_samples: int,  # most samples of a left-out end stretch (0: it takes the look-up's visibility)
+    end_cos_max: float,  # ... of the rays whose angle to the light's direction has a cosine below this
     lit_end_shift: float,  # u by which the look-up of a ray ending lit ends later than weights.end_offset says
     # (end_offsets_for: the difference of the two offsets, in u)
     out: wp.array2d(dtype=wp.vec3),
@@ -236,14 +262,31 @@ def evaluate_prefiltered_kernel(
     end_zone[j, i] = in_end_zone
     if in_end_zone != 0:
         out[j, i] = wp.vec3(0.0, 0.0, 0.0)
-    elif med.coloured == 0:
-        f = mipped_visibility(texels, weights, bounds, mips, lv, c, beta, light.direction, d)
-        out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
-    else:  # one look-up per channel, each with the channel's own ray weights (module doc)
-        f_rgb = wp.vec3(mipped_visibility(texels, channel_weights.r, bounds, mips, lv, c, beta, light.direction, d),
-                        mipped_visibility(texels, channel_weights.g, bounds, mips, lv, c, beta, light.direction, d),
-                        mipped_visibility(texels, channel_weights.b, bounds, mips, lv, c, beta, light.direction, d))
-        out[j, i] = wp.cw_mul(coloured_scattering(med, light.radiance, 0.0, s), f_rgb) * phase
+    else:
+        # a ray ending in shadow: the end_offset texels its look-up leaves out (the end surface is its own blocker
+        # there) take the shadow map's visibility, sampled along the ray (module doc)
+        march_end = (end_samples > 0 and lit_ends_known != 0 and lit_ends[j, i] == 0 and c[0] <= 1.0
+                     and weights.end_offset > 0.0 and -wp.dot(light.direction, d) < end_cos_max)
+        v_end = float(0.0)
+        if march_end:
+            end = end_surface_at(end_vis, light, cam.position + d * s, normal[j, i])
+            v_end = stretch_visibility(end_vis, light, end, cam.position, d, left_out_start(weights, c[0], s), s,
+                                       med.sigma_t, end_samples)
+        if med.coloured == 0:
+            f = mipped_visibility(texels, weights, bounds, mips, lv, c, beta, light.direction, d)
+            if march_end:
+                f = with_left_out_stretch(f, weights, c, v_end)
+            out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
+        else:  # one look-up per channel, each with the channel's own ray weights (module doc)
+            f_rgb = wp.vec3(
+                mipped_visibility(texels, channel_weights.r, bounds, mips, lv, c, beta, light.direction, d),
+                mipped_visibility(texels, channel_weights.g, bounds, mips, lv, c, beta, light.direction, d),
+                mipped_visibility(texels, channel_weights.b, bounds, mips, lv, c, beta, light.direction, d))
+            if march_end:
+                f_rgb = wp.vec3(with_left_out_stretch(f_rgb[0], channel_weights.r, c, v_end),
+                                with_left_out_stretch(f_rgb[1], channel_weights.g, c, v_end),
+                                with_left_out_stretch(f_rgb[2], channel_weights.b, c, v_end))
+            out[j, i] = wp.cw_mul(coloured_scattering(med, light.radiance, 0.0, s), f_rgb) * phase
 
 
 @wp.kernel
@@ -469,6 +512,11 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         lit_ends = (lit_ray_ends(scene, gbuffer, shadow_map, settings.shadow_map.bias, faces_away, device)
                     if lit_ends_known else wp.zeros((1, 1), dtype=wp.int32, device=device))
         nonlinear = rect if isinstance(rect, NonlinearRectification) else None
+        # the stretch a look-up leaves out before a ray ending in shadow: sampled in the shadow map (non-linear maps,
+        # whose columns are equal steps along a ray: left_out_start)
+        end_samples = p.end_samples if lit_ends_known and nonlinear is not None else 0
+        end_vis = visibility_params(scene, "shadow_map", shadow_map=shadow_map,
+                                    shadow_bias_texels=settings.shadow_map.bias, device=device)
         weights = ray_weights(segments, chain.optical_step, nonlinear, sigma_ref, end_offset, device=device,
                               cols=cols, segment_depth=segment_depth)
         channels = ChannelRayWeights()
@@ -484,7 +532,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
                     [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, channels, bounds,
                      chain.params(wrap_rows(rect)), beta, lparams, scene.medium.params(), lit_ends,
-                     int(lit_ends_known), lit_end_shift, out, end_zone, end_zone_any],
+                     int(lit_ends_known), gbuffer.normal, end_vis, end_samples,
+                     float(np.cos(np.radians(END_SAMPLES_MIN_DEG))), lit_end_shift, out, end_zone, end_zone_any],
                     device=device)
     end_zone_pixels = 0
     if end_zone_any.numpy()[0]:  # rays looking into the light that lie wholly within their end zone (rare)
@@ -518,6 +567,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         "end_zone_pixels": end_zone_pixels,
         "end_offset": end_offsets[0],
         "end_offset_lit": end_offsets[1],
+        "end_samples": end_samples,
         **resample_info,
         "caster_culling": culled is not None,
         **({} if culled is None else {"culled_texel_fraction": round(culled, 4)}),
@@ -565,6 +615,8 @@ def map_depth(rectified) -> np.ndarray:
 
 __all__ = [
     "add_debug_images",
+    "left_out_start",
+    "with_left_out_stretch",
     "evaluate_prefiltered_kernel",
     "map_visibility",
     "representation_visibility",

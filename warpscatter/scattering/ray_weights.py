@@ -126,6 +126,19 @@ def inside_map_fraction(weights: RayWeights, u: float, z_r: float) -> float:
 
 
 @wp.func
+def looked_up_share(weights: RayWeights, u: float, z_r: float) -> float:
+    """Share of the ray's own transmittance weight that its look-up reads, for a view ray ending at column coordinate
+    u inside the map: its texels through u cols - end_offset of those through u cols (the end_offset texels before its
+    end point are left out); 0 when the look-up reads none."""
+    n_full = u * float(weights.cols)
+    n_cut = n_full - weights.end_offset
+    if n_cut <= 0.0:
+        return 0.0
+    tau = ray_optical_step(weights, z_r)
+    return weight_sum(tau, n_cut) / weight_sum(tau, n_full)
+
+
+@wp.func
 def ray_end(tau: float, x: float):
     """The ray's own weight through continuous prefix column x: (E(x) = (1 - exp(-tau (x + 1))) / tau, its decay
     1 - exp(-tau (x + 1)) = tau E(x)); one exp, shared by the cuts (:func:`ray_cut`)."""
@@ -205,6 +218,7 @@ __all__ = [
     "ChannelRayWeights",
     "RayWeights",
     "inside_map_fraction",
+    "looked_up_share",
     "ray_cut",
     "ray_end",
     "ray_optical_step",
