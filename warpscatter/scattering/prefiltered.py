@@ -39,7 +39,8 @@ Stages (names as they appear in timings):
    surface it ends on. Such pixels (a few dozen around the sun) are ray-marched as the disc marches (stage
    ``epipole``, ``epipole_steps`` strata, :func:`~.epipole_fallback.march_flagged_pixels`; stats ``end_zone_pixels``).
    Any other ray ending in shadow under a directional light ahead of the camera (more than
-   :data:`~.settings.END_SAMPLES_MIN_DEG` from the light) takes the visibility of the stretch its look-up leaves out
+   :data:`~.settings.END_SAMPLES_MIN_DEG` from the light, its stretch carrying at least
+   :data:`~.settings.END_STRETCH_MIN_WEIGHT` of its weight) takes the visibility of the stretch its look-up leaves out
    (its ``end_offset`` texels before the end point, a long stretch near the sun) from the shadow map, sampled along
    the ray (``end_samples``, :func:`~.marching.stretch_visibility`; the marcher's bias guard behind surfaces facing
    away from the light), each part weighted by its share of the ray's transmittance weight
@@ -110,7 +111,13 @@ from .rectify_projective import (
     reference_rays,
 )
 from .row_mips import RowMips, level_window, pixel_mip_level, pixel_mip_levels, row_mip_chain
-from .settings import END_SAMPLES_MIN_DEG, MAX_RESAMPLE_FILTER_PX, PrefilteredSettings, ScatteringSettings
+from .settings import (
+    END_SAMPLES_MIN_DEG,
+    END_STRETCH_MIN_WEIGHT,
+    MAX_RESAMPLE_FILTER_PX,
+    PrefilteredSettings,
+    ScatteringSettings,
+)
 
 module_options()
 
@@ -215,6 +222,11 @@ def with_left_out_stretch(f: float, weights: RayWeights, c: wp.vec3, v_end: floa
     return f * share + (1.0 - share) * v_end
 
 
+
+#: :data:`~.settings.END_STRETCH_MIN_WEIGHT` for the kernel.
+STRETCH_MIN_WEIGHT = wp.constant(END_STRETCH_MIN_WEIGHT)
+
+
 @wp.kernel
 def evaluate_prefiltered_kernel(
     cam: CameraParams,
@@ -268,9 +280,11 @@ def evaluate_prefiltered_kernel(
         march_end = (end_samples > 0 and lit_ends_known != 0 and lit_ends[j, i] == 0 and c[0] <= 1.0
                      and weights.end_offset > 0.0 and -wp.dot(light.direction, d) < end_cos_max)
         v_end = float(0.0)
+        if march_end:  # ... when the stretch carries enough of the ray's weight to matter
+            march_end = looked_up_share(weights, c[0], c[2]) < 1.0 - STRETCH_MIN_WEIGHT
         if march_end:
             end = end_surface_at(end_vis, light, cam.position + d * s, normal[j, i])
-            v_end = stretch_visibility(end_vis, light, end, cam.position, d, left_out_start(weights, c[0], s), s,
+            v_end = stretch_visibility(end_vis, end, cam.position, d, left_out_start(weights, c[0], s), s,
                                        med.sigma_t, end_samples)
         if med.coloured == 0:
             f = mipped_visibility(texels, weights, bounds, mips, lv, c, beta, light.direction, d)

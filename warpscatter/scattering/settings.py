@@ -166,19 +166,20 @@ END_OFFSET = 1.0
 END_OFFSET_LIT = 0.25
 MAX_END_OFFSET = 8.0
 #: Most shadow-map samples of the stretch a prefiltered look-up leaves out before a ray that ends in shadow under a
-#: directional light ahead of the camera (its END_OFFSET texels; one bilinear PCF sample per shadow-map texel of its
-#: length, at most this many). Before, that stretch took the look-up's own visibility: near the sun a texel of the
-#: rectified map is a long stretch of ray (1 / sin of its angle to the light), in the end surface's shadow where the
-#: look-up saw the lit air before it (colonnade_sunset's last frame, fourier 640x360 against the exact marcher:
-#: 4.94 -> 4.00 %; a bright wedge on the pillar beside the sun). Measured at 960x540, 1024^2, rel. L1 against the
-#: exact reference, 0 -> 4 samples, fourier / moments4 / moments6: colonnade 2.744 -> 2.592 % / 6.598 -> 6.345 % /
-#: 4.727 -> 4.746 %; canopy 0.679 -> 0.642 % / 0.757 -> 0.660 % / 0.685 -> 0.628 %; window room 1.530 -> 1.504 % /
-#: 7.565 -> 7.389 % / 4.911 -> 4.750 %; terrain 1.171 -> 1.134 % / 2.086 -> 2.047 % / 1.520 -> 1.490 %; gate 2.305 ->
-#: 2.272 % / 2.480 -> 2.367 % / 2.324 -> 2.257 %; 60 %-opaque gate 1.922 -> 1.916 % / 1.980 -> 1.896 % / 1.866 ->
-#: 1.828 %; quickstart 1.720 -> 1.757 % / 3.795 -> 3.814 % / 2.917 -> 2.964 % (higher: its look-up is too dark
-#: beside the central shafts and the too-bright stretch made up for it; with exact visibility for the stretch it is
-#: 1.757 % too). Hard (nearest-texel) samples: within 0.01 % of these but for a brighter pixel at the colonnade's sun.
-#: 16 samples: within 0.01 % of 4.
+#: directional light ahead of the camera (its END_OFFSET texels; one hard sample per shadow-map texel of its length,
+#: at most this many). Before, that stretch took the look-up's own visibility: near the sun a texel of the rectified
+#: map is a long stretch of ray (1 / sin of its angle to the light), in the end surface's shadow where the look-up saw
+#: the lit air before it (colonnade_sunset's last frame, fourier 640x360 against the exact marcher: 4.94 -> 4.02 %;
+#: a bright wedge on the pillar beside the sun). Measured at 960x540, 1024^2, rel. L1 against the exact reference,
+#: 0 -> 4 samples (with the two rules below), fourier / moments4 / moments6: colonnade 2.744 -> 2.591 % / 6.598 ->
+#: 6.337 % / 4.727 -> 4.735 %; canopy 0.679 -> 0.642 % / 0.757 -> 0.662 % / 0.685 -> 0.630 %; terrain 1.171 ->
+#: 1.151 % / 2.086 -> 2.071 % / 1.520 -> 1.507 %; gate 2.305 -> 2.272 % / 2.480 -> 2.371 % / 2.324 -> 2.260 %;
+#: 60 %-opaque gate 1.922 -> 1.916 % / 1.980 -> 1.897 % / 1.866 -> 1.829 %; window room within 0.004 %; quickstart
+#: 1.720 -> 1.768 % / 3.795 -> 3.826 % / 2.917 -> 2.972 % (higher: its look-up is too dark beside the central shafts
+#: and the too-bright stretch made up for it; with exact visibility for the stretch it is as high). 16 samples or
+#: bilinear PCF samples: within 0.01 % of these. The evaluate stage (1080p, 2 threads, medians of 4 alternating
+#: rounds on a noisy machine): colonnade fourier 590 -> 726 ms, canopy moments6 580 -> 666 ms, window room moments6
+#: 351 -> 372 ms.
 END_SAMPLES = 4
 MAX_END_SAMPLES = 64
 #: ... but for the rays within this many degrees of the light's direction, whose stretch runs along nearly one light
@@ -186,6 +187,11 @@ MAX_END_SAMPLES = 64
 #: colonnade's 320x180 rays within 2 degrees of its sun, rel. abs. error sum against the exact marcher, moments4 /
 #: moments6: 3.19 / 3.38 with the look-up's, 3.70 / 4.00 sampled).
 END_SAMPLES_MIN_DEG = 2.0
+#: ... and for the rays whose left-out stretch carries less than this share of their transmittance weight (it moves
+#: the pixel by less than that share of its value): most rays of a closed room end in shadow, and sampling all of them
+#: cost the window room's 1080p evaluate stage a third more time for 0.02-0.17 % of rel. L1 (moments6 4.91 -> 4.75 %
+#: with every ray, 4.91 % with this rule; the colonnade and the canopy keep their gains).
+END_STRETCH_MIN_WEIGHT = 0.01
 #: moments4's depth warp c by default (prefiltered.depth_warp; fourier and moments6: none). Four moments leak light
 #: where a ray's depths sit close behind its blockers' in the map; the warp (e^(c z) - 1) / (e^c - 1) with c > 0 spreads
 #: the far depths apart and the leak shrinks. Measured at 480x270, 1024^2 maps, rel. L1 against the exact marcher, c = 0
@@ -299,8 +305,9 @@ class PrefilteredSettings(SettingsModel):
     end_samples: Annotated[Int, Field(ge=0, le=MAX_END_SAMPLES, description=(
         "most shadow-map samples of the stretch a look-up leaves out before a ray that ends in shadow (its "
         "end_offset texels, where the surface is its own blocker) under a directional light ahead of the camera, one "
-        "per shadow-map texel of its length (but within " + f"{END_SAMPLES_MIN_DEG:g}" + " degrees of the light); 0: "
-        "that stretch takes the look-up's visibility"))] = END_SAMPLES
+        "per shadow-map texel of its length (not within " + f"{END_SAMPLES_MIN_DEG:g}" + " degrees of the light, nor "
+        "where the stretch carries under " + f"{100 * END_STRETCH_MIN_WEIGHT:g}" + " % of the ray's weight); 0: that "
+        "stretch takes the look-up's visibility"))] = END_SAMPLES
     depth_warp: Optional[Annotated[Float, Field(ge=-MAX_DEPTH_WARP, le=MAX_DEPTH_WARP)]] = Field(
         None, description="exponential warp c of the depths the representations store and look up, (e^(c z) - 1) / "
                           "(e^c - 1) (Klehm 2014 Sec. 5: against light bleeding); 0: none; < 0 stretches the depths "
@@ -636,6 +643,7 @@ __all__ = [
     "EPIPOLAR_KERNELS",
     "END_SAMPLES",
     "END_SAMPLES_MIN_DEG",
+    "END_STRETCH_MIN_WEIGHT",
     "EPIPOLE_ANGLE_DEG",
     "EPIPOLE_MARGIN",
     "JITTERS",
