@@ -206,7 +206,6 @@ def pixel_coords_kernel(
     out[j, i] = rectified_coords(rect, cam.position + d * distance[j, i])
 
 
-
 @wp.func
 def left_out_start(weights: RayWeights, u: float, s: float) -> float:
     """Distance from the camera at which the look-up of a view ray ending at column coordinate u, distance s, stops:
@@ -215,12 +214,11 @@ def left_out_start(weights: RayWeights, u: float, s: float) -> float:
 
 
 @wp.func
-def with_left_out_stretch(f: float, weights: RayWeights, c: wp.vec3, v_end: float) -> float:
-    """Visible fraction of the view ray ending at rectified c whose look-up gave f and whose left-out end stretch
-    (:func:`left_out_start`) has visibility v_end: each weighted by its share of the ray's own transmittance weight."""
-    share = looked_up_share(weights, c[0], c[2])
+def with_left_out_stretch(f: float, share: float, v_end: float) -> float:
+    """Visible fraction of a view ray whose look-up gave f over ``share`` of its own transmittance weight
+    (:func:`~.ray_weights.looked_up_share`) and whose left-out end stretch (:func:`left_out_start`) has visibility
+    v_end."""
     return f * share + (1.0 - share) * v_end
-
 
 
 #: :data:`~.settings.END_STRETCH_MIN_WEIGHT` for the kernel.
@@ -246,7 +244,7 @@ def evaluate_prefiltered_kernel(
     normal: wp.array2d(dtype=wp.vec3),  # the G-buffer's camera-facing normals (the end surface's bias guard)
     end_vis: Visibility,  # the light's shadow map: the left-out end stretches' visibility
     end_samples: int,  # most samples of a left-out end stretch (0: it takes the look-up's visibility)
-    end_cos_max: float,  # ... of the rays whose angle to the light's direction has a cosine below this
+    end_cos_max: float,  # cos END_SAMPLES_MIN_DEG: rays looking closer into the light keep the look-up's
     lit_end_shift: float,  # u by which the look-up of a ray ending lit ends later than weights.end_offset says
     # (end_offsets_for: the difference of the two offsets, in u)
     out: wp.array2d(dtype=wp.vec3),
@@ -280,8 +278,10 @@ def evaluate_prefiltered_kernel(
         march_end = (end_samples > 0 and lit_ends_known != 0 and lit_ends[j, i] == 0 and c[0] <= 1.0
                      and weights.end_offset > 0.0 and -wp.dot(light.direction, d) < end_cos_max)
         v_end = float(0.0)
+        share = float(1.0)
         if march_end:  # ... when the stretch carries enough of the ray's weight to matter
-            march_end = looked_up_share(weights, c[0], c[2]) < 1.0 - STRETCH_MIN_WEIGHT
+            share = looked_up_share(weights, c[0], c[2])
+            march_end = share < 1.0 - STRETCH_MIN_WEIGHT
         if march_end:
             end = end_surface_at(end_vis, light, cam.position + d * s, normal[j, i])
             v_end = stretch_visibility(end_vis, end, cam.position, d, left_out_start(weights, c[0], s), s,
@@ -289,7 +289,7 @@ def evaluate_prefiltered_kernel(
         if med.coloured == 0:
             f = mipped_visibility(texels, weights, bounds, mips, lv, c, beta, light.direction, d)
             if march_end:
-                f = with_left_out_stretch(f, weights, c, v_end)
+                f = with_left_out_stretch(f, share, v_end)
             out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
         else:  # one look-up per channel, each with the channel's own ray weights (module doc)
             f_rgb = wp.vec3(
@@ -297,9 +297,10 @@ def evaluate_prefiltered_kernel(
                 mipped_visibility(texels, channel_weights.g, bounds, mips, lv, c, beta, light.direction, d),
                 mipped_visibility(texels, channel_weights.b, bounds, mips, lv, c, beta, light.direction, d))
             if march_end:
-                f_rgb = wp.vec3(with_left_out_stretch(f_rgb[0], channel_weights.r, c, v_end),
-                                with_left_out_stretch(f_rgb[1], channel_weights.g, c, v_end),
-                                with_left_out_stretch(f_rgb[2], channel_weights.b, c, v_end))
+                f_rgb = wp.vec3(
+                    with_left_out_stretch(f_rgb[0], looked_up_share(channel_weights.r, c[0], c[2]), v_end),
+                    with_left_out_stretch(f_rgb[1], looked_up_share(channel_weights.g, c[0], c[2]), v_end),
+                    with_left_out_stretch(f_rgb[2], looked_up_share(channel_weights.b, c[0], c[2]), v_end))
             out[j, i] = wp.cw_mul(coloured_scattering(med, light.radiance, 0.0, s), f_rgb) * phase
 
 
