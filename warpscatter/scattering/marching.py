@@ -83,6 +83,7 @@ from ..shadows.shadow_map import (
     nearest_texel,
     orthographic_ray_coords,
     shadow_coords,
+    shadow_pcf,
     shadow_visibility_at,
     texel_depth,
 )
@@ -370,22 +371,24 @@ def behind_end_surface(e: EndSurface, vis: Visibility, x: wp.vec3) -> bool:
 def stretch_visibility(vis: Visibility, end: EndSurface, origin: wp.vec3, d: wp.vec3, t0: float, t1: float,
                        sigma_t: float, max_samples: int) -> float:
     """Transmittance-weighted mean visibility of the stretch [t0, t1] of the ray origin + t d that ends on ``end``
-    (:func:`end_surface_at`; its bias guard applies), from an orthographic shadow map (``vis`` in shadow_map mode, a
-    directional light): one hard look-up at the middle of each of n equal steps, n the stretch's length in shadow-map
-    texels (1 to ``max_samples``). The map coordinates are affine along the ray
-    (:func:`~warpscatter.shadows.shadow_map.orthographic_ray_coords`) and the weights a geometric sequence."""
+    (:func:`end_surface_at`; its bias guard applies), from a shadow map (``vis`` in shadow_map mode): one sample at the
+    middle of each of n equal steps, n the stretch's length in shadow-map texels (1 to ``max_samples``), each read
+    with bilinear percentage-closer filtering (hard look-ups drew the map's texel staircase as streaks along the
+    rows: colonnade_fourier's streak energy right of the last pillar 0.15 -> 0.59 %)."""
     n = wp.clamp(int(wp.ceil((t1 - t0) / wp.max(vis.sm.texel_world, 1.0e-12))), 1, max_samples)
     dt = (t1 - t0) / float(n)
-    c0, dc = orthographic_ray_coords(vis.sm, origin, d)
     decay = wp.exp(-sigma_t * dt)
     w = float(1.0)  # relative to the first sample's (no underflow in a dense medium)
     acc = float(0.0)
     wsum = float(0.0)
     for k in range(n):
-        t = t0 + (float(k) + 0.5) * dt
+        x = origin + d * (t0 + (float(k) + 0.5) * dt)
         wsum += w
-        if not behind_end_surface(end, vis, origin + d * t):
-            acc += w * map_visibility_at(vis, c0 + dc * t)
+        if not behind_end_surface(end, vis, x):
+            if vis.translucent != 0:
+                acc += w * shadow_pcf(vis.sm, vis.sm_layers, x, vis.sm_bias, 1)
+            else:
+                acc += w * shadow_pcf(vis.sm, vis.sm_depth, x, vis.sm_bias, 1)
         w *= decay
     return acc / wsum
 

@@ -166,20 +166,20 @@ END_OFFSET = 1.0
 END_OFFSET_LIT = 0.25
 MAX_END_OFFSET = 8.0
 #: Most shadow-map samples of the stretch a prefiltered look-up leaves out before a ray that ends in shadow under a
-#: directional light ahead of the camera (its END_OFFSET texels; one hard sample per shadow-map texel of its length,
-#: at most this many). Before, that stretch took the look-up's own visibility: near the sun a texel of the rectified
-#: map is a long stretch of ray (1 / sin of its angle to the light), in the end surface's shadow where the look-up saw
-#: the lit air before it (colonnade_sunset's last frame, fourier 640x360 against the exact marcher: 4.94 -> 4.02 %;
-#: a bright wedge on the pillar beside the sun). Measured at 960x540, 1024^2, rel. L1 against the exact reference,
-#: 0 -> 4 samples (with the two rules below), fourier / moments4 / moments6: colonnade 2.744 -> 2.591 % / 6.598 ->
-#: 6.337 % / 4.727 -> 4.735 %; canopy 0.679 -> 0.642 % / 0.757 -> 0.662 % / 0.685 -> 0.630 %; terrain 1.171 ->
-#: 1.151 % / 2.086 -> 2.071 % / 1.520 -> 1.507 %; gate 2.305 -> 2.272 % / 2.480 -> 2.371 % / 2.324 -> 2.260 %;
-#: 60 %-opaque gate 1.922 -> 1.916 % / 1.980 -> 1.897 % / 1.866 -> 1.829 %; window room within 0.004 %; quickstart
-#: 1.720 -> 1.768 % / 3.795 -> 3.826 % / 2.917 -> 2.972 % (higher: its look-up is too dark beside the central shafts
-#: and the too-bright stretch made up for it; with exact visibility for the stretch it is as high). 16 samples or
-#: bilinear PCF samples: within 0.01 % of these. The evaluate stage (1080p, 2 threads, medians of 4 alternating
-#: rounds on a noisy machine): colonnade fourier 590 -> 726 ms, canopy moments6 580 -> 666 ms, window room moments6
-#: 351 -> 372 ms.
+#: directional light ahead of the camera (its END_OFFSET texels; one bilinear PCF sample per shadow-map texel of its
+#: length, at most this many). Before, that stretch took the look-up's own visibility: near the sun a texel of the
+#: rectified map is a long stretch of ray (1 / sin of its angle to the light), in the end surface's shadow where the
+#: look-up saw the lit air before it (colonnade_sunset's last frame, fourier 640x360 against the exact marcher: 4.94 ->
+#: 4.02 %; a bright wedge on the pillar beside the sun). Measured at 960x540, 1024^2, rel. L1 against the exact
+#: reference, 0 -> 4 samples (with the two rules below), fourier / moments4 / moments6: colonnade 2.744 -> 2.591 % /
+#: 6.598 -> 6.337 % / 4.727 -> 4.735 %; canopy 0.679 -> 0.642 % / 0.757 -> 0.662 % / 0.685 -> 0.630 %; terrain 1.171 ->
+#: 1.151 % / 2.086 -> 2.071 % / 1.520 -> 1.507 %; gate 2.305 -> 2.272 % / 2.480 -> 2.371 % / 2.324 -> 2.260 %; 60
+#: %-opaque gate 1.922 -> 1.916 % / 1.980 -> 1.897 % / 1.866 -> 1.829 %; window room within 0.004 %; quickstart 1.720 ->
+#: 1.768 % / 3.795 -> 3.826 % / 2.917 -> 2.972 % (higher: its look-up is too dark beside the central shafts and the
+#: too-bright stretch made up for it; with exact visibility for the stretch it is as high). 16 samples, or hard samples:
+#: within 0.015 % of these (hard ones streak along the rows). The evaluate stage (1080p, 2 threads, hard samples,
+#: medians of 4 alternating rounds on a noisy machine): colonnade fourier 590 -> 726 ms, canopy moments6 580 -> 666 ms,
+#: window room moments6 351 -> 372 ms.
 END_SAMPLES = 4
 MAX_END_SAMPLES = 64
 #: ... but for the rays within this many degrees of the light's direction, whose stretch runs along nearly one light
