@@ -335,12 +335,13 @@ def pixel_coords(rect, camera, distance: wp.array, device=None) -> wp.array:
 
 
 def lit_ray_ends(scene, gbuffer, shadow_map, bias_texels: float, faces_away: wp.array | None = None,
-                 device=None) -> wp.array:
+                 device=None, vis: Visibility | None = None) -> wp.array:
     """(H, W) int32 Warp array: 1 where the pixel's view ray ends lit (on no surface, or on a surface facing the light
     that the shadow map sees, ``bias_texels`` of depth bias), 0 where it ends in shadow. A look-up of a ray ending lit
     may end nearer its end (``prefiltered.end_offset``, :data:`~.settings.END_OFFSET_LIT`): a lit surface shadows its
     own ray only through the texel's filtering. ``faces_away``: :func:`~.caster_culling.end_faces_away` of the frame
-    if already made (else it is)."""
+    if already made (else it is); ``vis``: the shadow map's :class:`~.marching.Visibility` with that bias, if already
+    made (else it is)."""
     device = default_device(device)
     cam = scene.camera
     light = light_params(scene.light, device)
@@ -349,8 +350,9 @@ def lit_ray_ends(scene, gbuffer, shadow_map, bias_texels: float, faces_away: wp.
     out = wp.empty((cam.height, cam.width), dtype=wp.int32, device=device)
     launch_rows(lit_ray_ends_kernel, (cam.height, cam.width),
                 [cam.params(), gbuffer.distance, gbuffer.normal, faces_away, light,
-                 visibility_params(scene, "shadow_map", shadow_map=shadow_map, shadow_bias_texels=bias_texels,
-                                   device=device), out], device=device)
+                 vis if vis is not None else visibility_params(scene, "shadow_map", shadow_map=shadow_map,
+                                                               shadow_bias_texels=bias_texels, device=device),
+                 out], device=device)
     return out
 
 
@@ -522,16 +524,16 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         column_scale = rect.column_scale if isinstance(rect, NonlinearRectification) else 1.0
         end_offset = end_offsets[0] * column_scale
         lit_end_shift = (end_offsets[0] - end_offsets[1]) * column_scale / cols
-        # the lit-end test, for the shift and for the rays looking into the light that end in shadow (the kernel)
-        lit_ends_known = not light_behind
-        lit_ends = (lit_ray_ends(scene, gbuffer, shadow_map, settings.shadow_map.bias, faces_away, device)
-                    if lit_ends_known else wp.zeros((1, 1), dtype=wp.int32, device=device))
-        nonlinear = rect if isinstance(rect, NonlinearRectification) else None
-        # the stretch a look-up leaves out before a ray ending in shadow: sampled in the shadow map (non-linear maps,
-        # whose columns are equal steps along a ray: left_out_start)
-        end_samples = p.end_samples if lit_ends_known and nonlinear is not None else 0
+        # the shadow map's visibility: the lit-end test, and the stretch a look-up leaves out before a ray ending in
+        # shadow (sampled on non-linear maps, whose columns are equal steps along a ray: left_out_start)
         end_vis = visibility_params(scene, "shadow_map", shadow_map=shadow_map,
                                     shadow_bias_texels=settings.shadow_map.bias, device=device)
+        # the lit-end test, for the shift and for the rays looking into the light that end in shadow (the kernel)
+        lit_ends_known = not light_behind
+        lit_ends = (lit_ray_ends(scene, gbuffer, shadow_map, settings.shadow_map.bias, faces_away, device, end_vis)
+                    if lit_ends_known else wp.zeros((1, 1), dtype=wp.int32, device=device))
+        nonlinear = rect if isinstance(rect, NonlinearRectification) else None
+        end_samples = p.end_samples if lit_ends_known and nonlinear is not None else 0
         weights = ray_weights(segments, chain.optical_step, nonlinear, sigma_ref, end_offset, device=device,
                               cols=cols, segment_depth=segment_depth)
         channels = ChannelRayWeights()
