@@ -433,8 +433,8 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         mips = chains[0].params(rect.full_circle)
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
-        # the view rays' angle to a spot's light varies along them: its overestimation is the towards-the-light one
-        beta = 0.0 if settings.method == "fourier" else settings.moments.beta_range()[0]
+        # the view rays' angle to a spot's light varies along them: one overestimation weight for all (settings)
+        beta = 0.0 if settings.method == "fourier" else settings.moments.spot_beta(settings.num_moments)
         if beta < 0.0:
             raise ValueError("render.scattering.moments.overestimation: 'adaptive' needs a directional light (Peters "
                              "2017 Sec. 5.3.1 weighs the light and view directions); give a number for a spot light")
