@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import warp as wp
 
 from warpscatter.bench import bench_scene_config
 from warpscatter.config import load_config
@@ -307,6 +308,49 @@ def _window_room(method, *overrides):
                                                          "render.scattering.steps=128",
                                                          "render.scattering.moments.storage_bits=192", *overrides])
     return render_images(build_scene(cfg), cfg.render)[0]["scattering"]
+
+
+@wp.kernel
+def _row_bounds_kernel(db: fl.DepthBounds, coords: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3),
+                       bounded: wp.array(dtype=wp.float32)):
+    n = wp.tid()
+    c = coords[n]
+    out[n] = fl.row_bounds(db, c[0], c[1], c[2], fl.whole_rows(2, 0))
+    bounded[n] = fl.bounded_visibility(db, c[0], c[1], c[2], fl.whole_rows(2, 0))
+
+
+def test_depth_bounds_answer_each_bilinear_row():
+    """The depth bounds decide each of a look-up's two rows (wholly shadowed 0, wholly lit 1, else -1); a row of zero
+    bilinear weight takes the other's answer, and the single answer is theirs only when they agree."""
+    db = fl.DepthBounds()
+    db.enabled = 1
+    # row 0: casters at depths 0.2-0.3, all in front of z_r 0.5; row 1: 0.4-0.6, around it; (lo, hi) per prefix
+    db.bounds = wp.array(np.array([[[0.2, 0.3]] * 4, [[0.4, 0.6]] * 4], np.float32), dtype=wp.vec2)
+    # u = 0.5: prefix column 1; v = 0.375: row coordinate 0.25 (rows at their centres); v = 0.25 and 0.75: row 0, row 1
+    coords = wp.array(np.array([[0.5, 0.375, 0.5], [0.5, 0.25, 0.5], [0.5, 0.75, 0.5], [0.5, 0.375, 0.1]],
+                               np.float32), dtype=wp.vec3)
+    out = wp.zeros(4, dtype=wp.vec3)
+    bounded = wp.zeros(4, dtype=wp.float32)
+    wp.launch(_row_bounds_kernel, dim=4, inputs=[db, coords, out, bounded])
+    np.testing.assert_allclose(out.numpy(), [[0.0, -1.0, 0.25], [0.0, 0.0, 0.0], [-1.0, -1.0, 0.0], [1.0, 1.0, 0.25]])
+    np.testing.assert_array_equal(bounded.numpy(), [-1.0, 0.0, -1.0, 1.0])
+
+
+def test_a_row_the_bounds_decide_keeps_their_answer_in_the_dark_room():
+    """A look-up whose two bilinear rows the depth bounds decide differently (or decide one of) used to reconstruct
+    both; each decided row now keeps the exact answer, mixed with the reconstruction by the rows' weights. In the
+    window room with the sun behind the camera (a dark room whose rays cross the shafts' edges) this halved the
+    error. Measured at 320x180 against the 256-step exact marcher, rel. L1 before -> after: fourier 3.26 -> 2.13 %,
+    moments4 16.4 -> 10.2 %, moments6 8.63 -> 5.09 % (bench fidelity at 960x540: 3.11 -> 1.97, 16.0 -> 9.93,
+    8.37 -> 4.94 %; no case worse)."""
+    def render(sc):
+        cfg = bench_scene_config("window", 320, 180, mirror_light=True, surfaces={"enabled": False}, scattering=sc)
+        return render_images(build_scene(cfg), cfg.render)[0]["scattering"].astype(np.float64)
+
+    ref = render({"method": "raymarch", "visibility": "exact", "steps": 256})
+    for method, bound in (("fourier", 0.025), ("moments4", 0.12), ("moments6", 0.06)):
+        img = render({"method": method})
+        assert float(np.abs(img - ref).sum() / ref.sum()) < bound
 
 
 def test_window_room_does_not_glow():

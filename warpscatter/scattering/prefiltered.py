@@ -88,7 +88,7 @@ from .epipole_fallback import (
     march_epipole_regions,
     march_flagged_pixels,
 )
-from .filtered_lookups import DepthBounds, bounded_visibility, depth_bounds_of, fourier_visibility, moments_visibility
+from .filtered_lookups import DepthBounds, depth_bounds_of, fourier_visibility, moments_visibility, row_bounds
 from .filtered_textures import (
     FilteredBasis,
     FilteredBasisArrays,
@@ -165,9 +165,18 @@ def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.
     u = c[0]
     if inside < 1.0:
         u = 1.0 + weights.end_offset / float(weights.cols)  # the look-up through the whole map
-    f = bounded_visibility(bounds, u - weights.end_offset / float(bounds.bounds.shape[1]), c[1], c[2], window)
-    if f < 0.0:
-        f = representation_visibility(texels, weights, u, c[1], c[2], window, beta, light_direction, view_direction)
+    # each bilinear row the bounds decide takes their exact answer, the others the reconstruction (blended by the
+    # rows' weights: a hard switch between neighbouring rows drew the shadow map's staircase as saw teeth)
+    b = row_bounds(bounds, u - weights.end_offset / float(bounds.bounds.shape[1]), c[1], c[2], window)
+    f0 = b[0]
+    f1 = b[1]
+    if f0 < 0.0 or f1 < 0.0:
+        r = representation_visibility(texels, weights, u, c[1], c[2], window, beta, light_direction, view_direction)
+        if f0 < 0.0:
+            f0 = r
+        if f1 < 0.0:
+            f1 = r
+    f = f0 + b[2] * (f1 - f0)
     if inside < 1.0:
         return inside * f + (1.0 - inside)
     return f

@@ -47,8 +47,8 @@ from .caster_culling import cull_unseen_casters, end_faces_away
 from .epipole_fallback import epipole_pixel_fraction, epipole_regions, march_epipole_regions
 from .filtered_lookups import (
     DepthBounds,
-    bounded_visibility,
     depth_bounds_of,
+    row_bounds,
     taps_visibility,
     window_footprint,
 )
@@ -248,30 +248,44 @@ def filter_factors(rays: SpotRays, k0: int, maps: int, j: int, table: local_tabl
 def spot_lookup(rays: SpotRays, bounds: DepthBounds, c: wp.vec3, window: wp.vec3i, table: local_table, h: float):
     """What every map's look-up of the view ray ending at rectified c shares in the row ``window`` (a mip level,
     :func:`~.row_mips.level_window`): the bilinear footprint (j0, j1, ay, i0, i1, ax), the end's continuous prefix
-    column x, the cuts (cut, esum, m) and the depth bounds' answer (0 or 1, -1: reconstruct)."""
+    column x, the cuts (cut, esum, m) and the depth bounds' answers per row (:func:`~.filtered_lookups.row_bounds`)."""
     cols = rays.sums.shape[1]
     u = c[0] - rays.end_offset / float(cols)
     j0, j1, ay, i0, i1, ax = window_footprint(window, cols, u, c[1])
     cut, esum, m = ray_cuts(rays, table, h, cols, i0)
-    return j0, j1, ay, i0, i1, ax, float(i0) + ax, cut, esum, m, bounded_visibility(bounds, u, c[1], c[2], window)
+    return j0, j1, ay, i0, i1, ax, float(i0) + ax, cut, esum, m, row_bounds(bounds, u, c[1], c[2], window)
 
 
 @wp.func
 def spot_visibility(texels: Any, rays: SpotRays, k: int, j0: int, j1: int, ay: float, i0: int, i1: int, ax: float,
-                    x: float, cut: segment_columns, esum: segment_sums, m: int, bounded: float, z_r: float,
+                    x: float, cut: segment_columns, esum: segment_sums, m: int, bounded: wp.vec3, z_r: float,
                     beta: float) -> float:
     """Visible share of a look-up (:func:`spot_lookup`) on map k (module doc): its taps weighted by the segments'
     tau-weighted reference weights, normalised by their sum (the radiance takes the unshadowed share from the finer
-    :func:`filter_factors`); 0 where the segments see no light."""
+    :func:`filter_factors`); 0 where the segments see no light. A row the depth bounds decide (``bounded``,
+    :func:`~.filtered_lookups.row_bounds`) takes their answer, the other the reconstruction, mixed by the rows'
+    shares of the weight (as :func:`~.prefiltered.map_visibility`)."""
     w0, f0 = spot_row_weights(rays, k, j0, x, cut, esum, m)
     w1, f1 = spot_row_weights(rays, k, j1, x, cut, esum, m)
     tex = (1.0 - ay) * f0 + ay * f1
     if tex <= 0.0:
         return float(0.0)
-    if bounded >= 0.0:
-        return bounded
-    return taps_visibility(texels, j0, j1, cut, m, i0, i1, ax, w0 * ((1.0 - ay) * f0 / tex), w1 * (ay * f1 / tex),
-                           z_r, beta)
+    if bounded[0] >= 0.0 and bounded[0] == bounded[1]:
+        return bounded[0]
+    r = float(0.0)
+    if bounded[0] < 0.0 or bounded[1] < 0.0:
+        r = taps_visibility(texels, j0, j1, cut, m, i0, i1, ax, w0 * ((1.0 - ay) * f0 / tex),
+                            w1 * (ay * f1 / tex), z_r, beta)
+        if bounded[0] < 0.0 and bounded[1] < 0.0:
+            return r
+    v0 = bounded[0]
+    v1 = bounded[1]
+    if v0 < 0.0:
+        v0 = r
+    if v1 < 0.0:
+        v1 = r
+    share1 = ay * f1 / tex  # row j1's share of the look-up's weight
+    return v0 + share1 * (v1 - v0)
 
 
 @wp.func
