@@ -138,36 +138,43 @@ def depth_bounds_of(rectified, enabled: bool, device=None) -> DepthBounds:
 
 
 @wp.func
-def row_bound(b: wp.vec2, z_r: float) -> float:
-    """One row's answer from its prefix bounds b = (nearest, farthest blocker depth): 0 when z_r is behind every
-    blocker, 1 when in front of every one, else -1."""
-    if z_r >= b[1]:
+def row_bound(whole: wp.vec2, partial: wp.vec2, z_r: float) -> float:
+    """One row's answer from the prefix bounds (nearest, farthest blocker depth) of the texels it decides with and of
+    those the lit answer must also clear: 0 when z_r is behind every blocker of ``whole``, 1 when in front of every
+    one of ``partial``, else -1."""
+    if z_r >= whole[1]:
         return 0.0
-    if z_r < b[0]:
+    if z_r < partial[0]:
         return 1.0
     return -1.0
 
 
 @wp.func
-def row_bounds(db: DepthBounds, u_end: float, v: float, z_r: float, window: wp.vec3i) -> wp.vec3:
+def row_bounds(db: DepthBounds, u_end: float, v: float, z_r: float, window: wp.vec3i, partial_veto: int) -> wp.vec3:
     """The depth bounds' answer for each row of a look-up ending at (u_end, v): (row j0's, row j1's, ay, the bilinear
     weight of row j1). A row answers 1 when every texel of it that the look-up reads lies behind depth z_r (the ray
     is wholly lit there), 0 when every one lies in front of it (wholly shadowed), else -1 (reconstruct); a row of
-    zero weight takes the other's answer; (-1, -1, 0) without bounds. The texels are the prefix through the
-    footprint's left column: every whole texel the look-up reads. The partial texel after it (weight ax) is left
-    out: it is the last one before the look-up's end, where the surface the ray ends on is its own blocker
-    (``end_offset``'s zone); counting it let that surface's depths, a hair behind the ray's, keep rays on a shadowed
-    ceiling from the exact answer (bench fidelity, dark room: fourier 24.4 -> 16.7 %, moments6 35.9 -> 21.2 %; no
-    case worse)."""
+    zero weight takes the other's answer; (-1, -1, 0) without bounds.
+
+    The texels are the prefix through the footprint's left column: every whole texel the look-up reads. The partial
+    texel after it (weight ax) is the last one before the look-up's end, where the surface the ray ends on is its
+    own blocker (``end_offset``'s zone): its depths, a hair behind the ray's, would keep rays on a shadowed ceiling
+    from the exact 0 (bench fidelity, dark room: fourier 24.4 -> 16.7 %, moments6 35.9 -> 21.2 % without it), and a
+    hair in front, rays on lit surfaces from the exact 1. With ``partial_veto`` (a ray ending in shadow) it must
+    clear the lit answer too: near a low sun that texel is a long stretch of ray, in the shadow of the pillar the ray
+    ends on, and answering it lit drew bright saw teeth beside the sun (colonnade_sunset)."""
     if db.enabled == 0:
         return wp.vec3(-1.0, -1.0, 0.0)
     j0, j1, ay, i0, i1, ax = window_footprint(window, db.bounds.shape[1], u_end, v)
+    ip = i0
+    if partial_veto != 0 and ax > 0.0:
+        ip = i1
     b0 = float(-1.0)
     b1 = float(-1.0)
     if ay < 1.0:
-        b0 = row_bound(db.bounds[j0, i0], z_r)
+        b0 = row_bound(db.bounds[j0, i0], db.bounds[j0, ip], z_r)
     if ay > 0.0:
-        b1 = row_bound(db.bounds[j1, i0], z_r)
+        b1 = row_bound(db.bounds[j1, i0], db.bounds[j1, ip], z_r)
     if ay <= 0.0:
         b1 = b0
     if ay >= 1.0:
@@ -180,7 +187,7 @@ def bounded_visibility(db: DepthBounds, u_end: float, v: float, z_r: float, wind
     """1 when every texel a look-up ending at (u_end, v) reads lies behind depth z_r (the ray is wholly lit), 0 when
     every one lies in front of it (wholly shadowed), else -1 (reconstruct): both bilinear rows' answers
     (:func:`row_bounds`) when they agree."""
-    b = row_bounds(db, u_end, v, z_r, window)
+    b = row_bounds(db, u_end, v, z_r, window, 0)
     if b[0] == b[1]:
         return b[0]
     return -1.0

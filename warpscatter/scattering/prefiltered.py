@@ -156,18 +156,19 @@ def representation_visibility(texels: FilteredMomentArrays, weights: RayWeights,
 
 @wp.func
 def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, window: wp.vec3i, beta: wp.vec3,
-                   light_direction: wp.vec3, view_direction: wp.vec3) -> float:
+                   light_direction: wp.vec3, view_direction: wp.vec3, ends_in_shadow: int) -> float:
     """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a Fourier texture or a moment map
     (:func:`representation_visibility`) read in the row ``window`` (a mip level, :func:`~.row_mips.level_window`),
     its texels weighted as ``weights`` says (:mod:`.ray_weights`), those beyond the map lit; a ray wholly lit or
-    wholly shadowed by the ``bounds`` is answered without the reconstruction."""
+    wholly shadowed by the ``bounds`` is answered without the reconstruction (``ends_in_shadow``: the ray is known to
+    end in shadow, :func:`~.filtered_lookups.row_bounds`' partial_veto)."""
     inside = inside_map_fraction(weights, c[0], c[2])
     u = c[0]
     if inside < 1.0:
         u = 1.0 + weights.end_offset / float(weights.cols)  # the look-up through the whole map
     # each bilinear row the bounds decide takes their exact answer, the others the reconstruction (blended by the
     # rows' weights: a hard switch between neighbouring rows drew the shadow map's staircase as saw teeth)
-    b = row_bounds(bounds, u - weights.end_offset / float(bounds.bounds.shape[1]), c[1], c[2], window)
+    b = row_bounds(bounds, u - weights.end_offset / float(bounds.bounds.shape[1]), c[1], c[2], window, ends_in_shadow)
     f0 = b[0]
     f1 = b[1]
     if f0 < 0.0 or f1 < 0.0:
@@ -184,14 +185,16 @@ def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.
 
 @wp.func
 def mipped_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, mips: RowMips, level: wp.vec2,
-                      c: wp.vec3, beta: wp.vec3, light_direction: wp.vec3, view_direction: wp.vec3) -> float:
+                      c: wp.vec3, beta: wp.vec3, light_direction: wp.vec3, view_direction: wp.vec3,
+                      ends_in_shadow: int) -> float:
     """:func:`map_visibility` at a pixel's mip ``level`` (:func:`~.row_mips.pixel_mip_level`: level, share of the
     next): the two levels' visibilities blended (trilinear filtering, Peters 2017 D.5; :mod:`.row_mips`)."""
     lv = int(level[0])
-    f = map_visibility(texels, weights, bounds, c, level_window(mips, lv), beta, light_direction, view_direction)
+    f = map_visibility(texels, weights, bounds, c, level_window(mips, lv), beta, light_direction, view_direction,
+                       ends_in_shadow)
     if level[1] > 0.0:
         f1 = map_visibility(texels, weights, bounds, c, level_window(mips, lv + 1), beta, light_direction,
-                            view_direction)
+                            view_direction, ends_in_shadow)
         f = f + level[1] * (f1 - f)
     return f
 
@@ -270,10 +273,13 @@ def evaluate_prefiltered_kernel(
     lv = pixel_mip_level(mips, coords, j, i)
     c = coords[j, i]
     in_end_zone = int(0)
+    ends_in_shadow = int(0)  # known to end in shadow: the look-up's partial last texel must clear a lit answer
     if lit_ends_known != 0:
         if lit_ends[j, i] != 0:
             c = wp.vec3(c[0] + lit_end_shift, c[1], c[2])
-        elif c[0] * float(weights.cols) <= weights.end_offset:
+        else:
+            ends_in_shadow = 1
+        if ends_in_shadow != 0 and c[0] * float(weights.cols) <= weights.end_offset:
             # a ray ending in shadow whose whole extent lies within its end surface's own zone (looking almost straight
             # into the light): the look-up reads nothing; the marcher takes it (march_flagged_pixels)
             in_end_zone = 1
@@ -296,15 +302,18 @@ def evaluate_prefiltered_kernel(
             v_end = stretch_visibility(end_vis, end, cam.position, d, left_out_start(weights, c[0], s), s,
                                        med.sigma_t, end_samples)
         if med.coloured == 0:
-            f = mipped_visibility(texels, weights, bounds, mips, lv, c, beta, light.direction, d)
+            f = mipped_visibility(texels, weights, bounds, mips, lv, c, beta, light.direction, d, ends_in_shadow)
             if march_end:
                 f = with_left_out_stretch(f, share, v_end)
             out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
         else:  # one look-up per channel, each with the channel's own ray weights (module doc)
             f_rgb = wp.vec3(
-                mipped_visibility(texels, channel_weights.r, bounds, mips, lv, c, beta, light.direction, d),
-                mipped_visibility(texels, channel_weights.g, bounds, mips, lv, c, beta, light.direction, d),
-                mipped_visibility(texels, channel_weights.b, bounds, mips, lv, c, beta, light.direction, d))
+                mipped_visibility(texels, channel_weights.r, bounds, mips, lv, c, beta, light.direction, d,
+                                  ends_in_shadow),
+                mipped_visibility(texels, channel_weights.g, bounds, mips, lv, c, beta, light.direction, d,
+                                  ends_in_shadow),
+                mipped_visibility(texels, channel_weights.b, bounds, mips, lv, c, beta, light.direction, d,
+                                  ends_in_shadow))
             if march_end:
                 f_rgb = wp.vec3(
                     with_left_out_stretch(f_rgb[0], looked_up_share(channel_weights.r, c[0], c[2]), v_end),

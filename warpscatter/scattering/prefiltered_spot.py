@@ -253,7 +253,7 @@ def spot_lookup(rays: SpotRays, bounds: DepthBounds, c: wp.vec3, window: wp.vec3
     u = c[0] - rays.end_offset / float(cols)
     j0, j1, ay, i0, i1, ax = window_footprint(window, cols, u, c[1])
     cut, esum, m = ray_cuts(rays, table, h, cols, i0)
-    return j0, j1, ay, i0, i1, ax, float(i0) + ax, cut, esum, m, row_bounds(bounds, u, c[1], c[2], window)
+    return j0, j1, ay, i0, i1, ax, float(i0) + ax, cut, esum, m, row_bounds(bounds, u, c[1], c[2], window, 0)
 
 
 @wp.func
