@@ -183,6 +183,26 @@ def row_bounds(db: DepthBounds, u_end: float, v: float, z_r: float, window: wp.v
 
 
 @wp.func
+def rows_undecided(b: wp.vec3) -> bool:
+    """Whether a look-up's :func:`row_bounds` leave a row of non-zero weight to the reconstruction."""
+    return b[0] < 0.0 or b[1] < 0.0
+
+
+@wp.func
+def mix_row_answers(b: wp.vec3, r: float, share1: float) -> float:
+    """A look-up's visible fraction from its :func:`row_bounds` b: each decided row its exact answer, an undecided one
+    the reconstruction r, mixed with row j1 weighing ``share1``. Exactly b's answer where both rows agree, exactly r
+    where neither is decided."""
+    v0 = b[0]
+    v1 = b[1]
+    if v0 < 0.0:
+        v0 = r
+    if v1 < 0.0:
+        v1 = r
+    return v0 + share1 * (v1 - v0)
+
+
+@wp.func
 def bounded_visibility(db: DepthBounds, u_end: float, v: float, z_r: float, window: wp.vec3i) -> float:
     """1 when every texel a look-up ending at (u_end, v) reads lies behind depth z_r (the ray is wholly lit), 0 when
     every one lies in front of it (wholly shadowed), else -1 (reconstruct): both bilinear rows' answers
@@ -745,6 +765,8 @@ __all__ = [
     "DepthBounds",
     "bounded_visibility",
     "row_bounds",
+    "rows_undecided",
+    "mix_row_answers",
     "MAX_TAPS",
     "FilteredBasisArrays",
     "FilteredMomentArrays",

@@ -88,7 +88,15 @@ from .epipole_fallback import (
     march_epipole_regions,
     march_flagged_pixels,
 )
-from .filtered_lookups import DepthBounds, depth_bounds_of, fourier_visibility, moments_visibility, row_bounds
+from .filtered_lookups import (
+    DepthBounds,
+    depth_bounds_of,
+    fourier_visibility,
+    mix_row_answers,
+    moments_visibility,
+    row_bounds,
+    rows_undecided,
+)
 from .filtered_textures import (
     FilteredBasis,
     FilteredBasisArrays,
@@ -166,18 +174,13 @@ def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.
     u = c[0]
     if inside < 1.0:
         u = 1.0 + weights.end_offset / float(weights.cols)  # the look-up through the whole map
-    # each bilinear row the bounds decide takes their exact answer, the others the reconstruction (blended by the
-    # rows' weights: a hard switch between neighbouring rows drew the shadow map's staircase as saw teeth)
+    # each bilinear row the bounds decide keeps their exact answer, an undecided one takes the reconstruction, mixed
+    # by the rows' weights (reconstructing both whenever they disagreed lost the dark room's exact rows)
     b = row_bounds(bounds, u - weights.end_offset / float(bounds.bounds.shape[1]), c[1], c[2], window, ends_in_shadow)
-    f0 = b[0]
-    f1 = b[1]
-    if f0 < 0.0 or f1 < 0.0:
+    r = float(0.0)
+    if rows_undecided(b):
         r = representation_visibility(texels, weights, u, c[1], c[2], window, beta, light_direction, view_direction)
-        if f0 < 0.0:
-            f0 = r
-        if f1 < 0.0:
-            f1 = r
-    f = f0 + b[2] * (f1 - f0)
+    f = mix_row_answers(b, r, b[2])
     if inside < 1.0:
         return inside * f + (1.0 - inside)
     return f
@@ -290,8 +293,8 @@ def evaluate_prefiltered_kernel(
     else:
         # a ray ending in shadow: the end_offset texels its look-up leaves out (the end surface is its own blocker
         # there) take the shadow map's visibility, sampled along the ray (module doc)
-        march_end = (end_samples > 0 and lit_ends_known != 0 and lit_ends[j, i] == 0 and c[0] <= 1.0
-                     and weights.end_offset > 0.0 and -wp.dot(light.direction, d) < end_cos_max)
+        march_end = (end_samples > 0 and ends_in_shadow != 0 and c[0] <= 1.0 and weights.end_offset > 0.0
+                     and -wp.dot(light.direction, d) < end_cos_max)
         v_end = float(0.0)
         share = float(1.0)
         if march_end:  # ... when the stretch carries enough of the ray's weight to matter

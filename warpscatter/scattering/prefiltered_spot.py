@@ -48,7 +48,9 @@ from .epipole_fallback import epipole_pixel_fraction, epipole_regions, march_epi
 from .filtered_lookups import (
     DepthBounds,
     depth_bounds_of,
+    mix_row_answers,
     row_bounds,
+    rows_undecided,
     taps_visibility,
     window_footprint,
 )
@@ -270,22 +272,11 @@ def spot_visibility(texels: Any, rays: SpotRays, k: int, j0: int, j1: int, ay: f
     tex = (1.0 - ay) * f0 + ay * f1
     if tex <= 0.0:
         return float(0.0)
-    if bounded[0] >= 0.0 and bounded[0] == bounded[1]:
-        return bounded[0]
     r = float(0.0)
-    if bounded[0] < 0.0 or bounded[1] < 0.0:
+    if rows_undecided(bounded):
         r = taps_visibility(texels, j0, j1, cut, m, i0, i1, ax, w0 * ((1.0 - ay) * f0 / tex),
                             w1 * (ay * f1 / tex), z_r, beta)
-        if bounded[0] < 0.0 and bounded[1] < 0.0:
-            return r
-    v0 = bounded[0]
-    v1 = bounded[1]
-    if v0 < 0.0:
-        v0 = r
-    if v1 < 0.0:
-        v1 = r
-    share1 = ay * f1 / tex  # row j1's share of the look-up's weight
-    return v0 + share1 * (v1 - v0)
+    return mix_row_answers(bounded, r, ay * f1 / tex)  # row j1's share of the look-up's weight
 
 
 @wp.func
