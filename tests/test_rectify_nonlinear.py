@@ -423,6 +423,33 @@ def test_resample_matches_analytic_visibility(look):
     assert mismatch < 0.005  # measured 0.0012 (side), 0.00075 (into the light): texel-size silhouettes
 
 
+@pytest.mark.parametrize("samples", [1, 2, 3, 4])
+def test_opaque_supersampling_keeps_the_general_kernels_result(samples):
+    """The supersampled resampling of an opaque map keeps its taps for the split pass
+    (``resample_radial_opaque_kernel``); its texels are bit for bit those of the general kernel's two passes, which
+    a translucent layer passing no light selects."""
+    light = np.array([-0.3, -0.8, -0.5])
+    light = light / np.linalg.norm(light)
+    pos = np.array([0.0, 2.0, 12.0])
+    cam = Camera(position=pos, look_at=pos - light, up=[0, 1, 0], fov_y=60, width=32, height=24, near=0.1, far=20)
+    spheres = [(np.array([0.0, 2.0, 0.0]), 3.0), (np.array([3.0, 1.0, 4.0]), 1.5),
+               (pos - 8.0 * light + np.array([1.5, 0.0, 0.0]), 2.5)]
+    depth, view, proj = _sphere_shadow_map(spheres, light, np.array([0.0, 1.0, 4.0]), 30.0, 384)
+    depth = depth.astype(np.float32)
+    rect = NonlinearRectification.from_camera(cam, light, rows=128, cols=128)
+    args = {"depth": "linear", "world_to_view": view, "radial_samples": samples}
+    opaque = resample_shadow_map(rect, depth, proj @ view, **args)
+    general = resample_shadow_map(rect, depth, proj @ view, translucency=(depth, np.zeros_like(depth)), **args)
+    z1, z2, w2 = opaque.z1.numpy(), opaque.z2.numpy(), opaque.w2.numpy()
+    for mine, theirs in ((z1, general.z1), (z2, general.z2), (w2, general.w2)):
+        assert np.array_equal(mine, theirs.numpy())
+    # the map has texels of every kind: no caster, casters beside empty taps, and casters split in two
+    assert np.any((z1 == 1.0) & (w2 == 0.0))
+    assert np.any((z1 < 1.0) & (z2 == 1.0) & (w2 > 0.0) & (w2 < 1.0))
+    if samples > 1:
+        assert np.any((z1 < z2) & (z2 < 1.0) & (w2 > 0.0))
+
+
 def test_resample_clamps_blockers_outside_the_frustum():
     """A caster up-light of the whole frustum clamps to depth 0; nothing (empty map) resamples to 1."""
     light = np.array([0.0, -1.0, 0.0])
