@@ -82,8 +82,10 @@ def _needed(depth, readers, bias=0.0):
     return need
 
 
-@pytest.mark.parametrize("kind", ["nonlinear", "projective"])
-def test_culling_keeps_every_texel_a_pixel_reads_deeper(kind):
+@pytest.mark.parametrize("kind,threads", [("nonlinear", "1"), ("nonlinear", "3"), ("projective", "2")])
+def test_culling_keeps_every_texel_a_pixel_reads_deeper(kind, threads, monkeypatch):
+    """Against the brute force; the readers of each band of image rows (one per worker thread) are merged."""
+    monkeypatch.setenv("WARPSCATTER_THREADS", threads)
     scene, distance, rect, depth = _rectified(kind)
     before = depth.numpy().copy()
     readers = _readers(scene, distance, rect)

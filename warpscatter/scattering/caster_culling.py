@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..parallel import launch_rows
+from ..parallel import chunks, launch_rows, run_parallel, thread_count
 from ..scene.camera import CameraParams, pixel_ray_direction
 from ..scene.lights import LightParams, faces_away_from_light
 from ..wpinit import default_device, module_options
@@ -63,12 +63,14 @@ def end_faces_away_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float
 
 @wp.kernel
 def reader_table_kernel(coords: wp.array2d(dtype=wp.vec3), faces_away: wp.array2d(dtype=wp.int32), bias_bins: int,
-                        mips: RowMips, cols: int, table: wp.array2d(dtype=wp.int32)):
-    # one launch (CPU atomics are exact within a launch): table[row, bin] = last prefix column a pixel of that depth
-    # bin reads in that row (its look-up footprint, as the evaluation's; with row mips, every level-0 row the rows of
-    # its levels average); a pixel whose ray ends on a surface facing away from the light counts bias_bins deeper,
-    # so the tolerance does not apply to its reads
+                        mips: RowMips, cols: int, table: wp.array2d(dtype=wp.int32), offset: int):
+    # table[row, bin] = last prefix column a pixel of that depth bin reads in that row (its look-up footprint, as the
+    # evaluation's; with row mips, every level-0 row the rows of its levels average); a pixel whose ray ends on a
+    # surface facing away from the light counts bias_bins deeper, so the tolerance does not apply to its reads. CPU
+    # atomics are exact within a launch only: each concurrent launch (a band of image rows) has its own table
+    # (reader_tables), merged by reader_suffix_kernel
     j, i = wp.tid()
+    j += offset
     c = coords[j, i]
     b = wp.min(cull_depth_bin(c[2]) + bias_bins * faces_away[j, i], CULL_DEPTH_BINS - 1)
     lv = pixel_mip_level(mips, coords, j, i)
@@ -84,9 +86,14 @@ def reader_table_kernel(coords: wp.array2d(dtype=wp.vec3), faces_away: wp.array2
 
 
 @wp.kernel
-def reader_suffix_kernel(table: wp.array2d(dtype=wp.int32), offset: int):
-    # table[row, b] = last column read by any pixel with a depth bin >= b
+def reader_suffix_kernel(bands: wp.array3d(dtype=wp.int32), table: wp.array2d(dtype=wp.int32), offset: int):
+    # table[row, b] = last column read by any pixel with a depth bin >= b, of any band's table
     j = wp.tid() + offset
+    for b in range(CULL_DEPTH_BINS):
+        last = bands[0, j, b]
+        for band in range(1, bands.shape[0]):
+            last = wp.max(last, bands[band, j, b])
+        table[j, b] = last
     for k in range(CULL_DEPTH_BINS - 1):
         b = CULL_DEPTH_BINS - 2 - k
         table[j, b] = wp.max(table[j, b], table[j, b + 1])
@@ -128,6 +135,25 @@ def end_faces_away(camera, gbuffer, light: LightParams, device=None) -> wp.array
     return out
 
 
+def reader_tables(coords: wp.array, faces_away: wp.array, bias_bins: int, mips: RowMips, rows: int, cols: int,
+                  device) -> wp.array:
+    """(bands, rows, CULL_DEPTH_BINS) int32: each band of image rows' reader table (:func:`reader_table_kernel`; -1
+    where no pixel reads). On the CPU one band per worker thread, launched concurrently (a launch runs on one core and
+    its atomics are exact only within it); on a GPU one band."""
+    height, width = int(coords.shape[0]), int(coords.shape[1])
+    parts = chunks(height, thread_count() if wp.get_device(device).is_cpu else 1)
+    bands = wp.full((len(parts), rows, CULL_DEPTH_BINS), -1, dtype=wp.int32, device=device)
+
+    def one_band(k: int) -> None:
+        start, stop = parts[k]
+        wp.launch(reader_table_kernel, dim=(stop - start, width),
+                  inputs=[coords, faces_away, bias_bins, mips, cols, bands[k], start], device=device)
+
+    wp.load_module(reader_table_kernel.module, device=device)
+    run_parallel(one_band, list(range(len(parts))), len(parts))
+    return bands
+
+
 def cull_unseen_casters(rectified, rect, coords: wp.array, bias: float = 0.0, device=None,
                         mip_levels: int = 1, faces_away: wp.array | None = None) -> float:
     """Empty, in place, every texel of a rectified map whose blocker shadows no pixel's look-up.
@@ -161,14 +187,13 @@ def cull_unseen_casters(rectified, rect, coords: wp.array, bias: float = 0.0, de
     two = isinstance(rectified, rectify_nonlinear.SparseRectifiedDepth)
     depth = rectified.z1 if two else rectified
     rows, cols = int(depth.shape[0]), int(depth.shape[1])
-    table = wp.full((rows, CULL_DEPTH_BINS), -1, dtype=wp.int32, device=device)
     mips = RowMips()
     mips.rows, mips.levels, mips.wrap = rows, len(level_rows(rows, mip_levels)), int(wrap_rows(rect))
     if faces_away is None:
         faces_away = wp.zeros(coords.shape, dtype=wp.int32, device=device)
-    wp.launch(reader_table_kernel, dim=coords.shape, inputs=[coords, faces_away, bias_bins, mips, cols, table],
-              device=device)
-    launch_rows(reader_suffix_kernel, rows, [table], device=device)
+    bands = reader_tables(coords, faces_away, bias_bins, mips, rows, cols, device)
+    table = wp.empty((rows, CULL_DEPTH_BINS), dtype=wp.int32, device=device)
+    launch_rows(reader_suffix_kernel, rows, [bands, table], device=device)
     culled = wp.zeros(rows, dtype=wp.int32, device=device)
     launch_rows(cull_casters_kernel, (rows, cols),
                 [table, depth, rectified.z2 if two else depth, int(two), int(bias_bins), culled], device=device)
