@@ -99,6 +99,33 @@ def test_ray_weight_table_matches_quadrature_of_the_ray():
         assert out.numpy()[k] == pytest.approx(expect, rel=2e-5)  # measured 4e-7
 
 
+def test_opaque_spot_map_keeps_the_general_paths_result(spot_scene):
+    """A spot map without translucent casters keeps its taps for the split pass (``spot_casters_opaque``): the
+    rectified depths are bit for bit those of the two-pass translucent path, which a layer passing no light
+    selects; the emission filter is the same."""
+    import dataclasses
+
+    from warpscatter.scattering.rectify_local import resample_spot_shadow_map
+    from warpscatter.scene.lights import light_params
+    from warpscatter.shadows.shadow_map import render_shadow_map
+
+    light = spot_scene.light
+    rect = spot_rectification(spot_scene.camera, light, rows=96, cols=160)
+    sm = render_shadow_map(spot_scene, 384)
+    assert not sm.translucent
+    no_light = dataclasses.replace(sm, opaque_depth=sm.depth.copy(), transmittance=np.zeros_like(sm.depth))
+    lparams = light_params(light)
+    (opaque, f_opaque), (general, f_general) = (resample_spot_shadow_map(rect, m, light, lparams)
+                                                for m in (sm, no_light))
+    np.testing.assert_array_equal(f_opaque, f_general)
+    z1, z2, w2 = opaque.z1.numpy(), opaque.z2.numpy(), opaque.w2.numpy()
+    for mine, theirs in ((z1, general.z1), (z2, general.z2), (w2, general.w2)):
+        np.testing.assert_array_equal(mine, theirs.numpy())
+    # texels of every kind: no caster, casters beside empty taps, casters split in two
+    assert np.any((z1 == 1.0) & (w2 == 0.0)) and np.any((z1 < 1.0) & (z2 == 1.0) & (w2 > 0.0))
+    assert np.any((z1 < z2) & (z2 < 1.0) & (w2 > 0.0))
+
+
 def test_texel_weights_decay_along_rows(spot_scene):
     """Every row's reference weights are positive up to its reference inclination and fall along the row in an
     extinguishing medium; without extinction they are the plain column width."""

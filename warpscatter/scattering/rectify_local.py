@@ -50,6 +50,8 @@ from .rectify_nonlinear import (
     _map_array,
     bilinear_tap,
     part_mean,
+    radial_taps,
+    split_kept_taps,
     split_point,
     tap_part,
     tap_parts,
@@ -62,6 +64,7 @@ module_options()
 #: Light rays per side of a texel's footprint whose mean emission is the texel's filter (the cone's edge and the
 #: texture box-filtered over the texel).
 SPOT_FILTER_SAMPLES = wp.constant(3)
+spot_filter_angles = wp.types.vector(length=int(SPOT_FILTER_SAMPLES), dtype=wp.float32)
 #: Far-plane samples per side for the largest angle at the light that the view reaches.
 FAR_PLANE_SAMPLES = 33
 
@@ -117,6 +120,104 @@ def spot_tap(rect: NonlinearRectParams, light_pos: wp.vec3, axis: wp.vec3, direc
     return z, weight * wx * wy, caster, x, y
 
 
+@wp.func
+def spot_light_ray(rect: NonlinearRectParams, light: LightParams, world_to_clip: wp.mat44, i: int, k: int,
+                   inv: float, phi: float, to_world: wp.mat33):
+    """Sub-sample k (of 1 / ``inv``) of texel column i's psi extent on the row at azimuth phi: (its unit light ray
+    direction, its point at unit distance in the spot map's clip coordinates, divided by w where w > 0)."""
+    psi_k = rect.psi_lo + (float(i) + (float(k) + 0.5) * inv) / float(rect.cols) * rect.r_max
+    dk = to_world * wp.vec3(wp.sin(psi_k) * wp.cos(phi), wp.sin(psi_k) * wp.sin(phi), wp.cos(psi_k))
+    q = light.position + dk
+    c = world_to_clip * wp.vec4(q[0], q[1], q[2], 1.0)
+    if c[3] > 0.0:
+        c = c / c[3]
+    return dk, c
+
+
+@wp.func
+def spot_casters_translucent(rect: NonlinearRectParams, light: LightParams, shadow_depth: wp.array2d(dtype=wp.float32),
+                             layer: TranslucentLayer, world_to_clip: wp.mat44, samples: int, i: int, phi: float,
+                             to_world: wp.mat33):
+    """The casters of texel column i (row azimuth phi) of a spot map with translucent casters, two passes over the
+    taps (two parts per tap: the nearest caster with 1 - T, the nearest opaque one with T): (caster weight, empty
+    weight, s1, w1, s2, w2) as :func:`~.rectify_nonlinear.tap_split`; a sub-sample behind the spot is empty."""
+    inv = 1.0 / float(samples)
+    lo = float(1.0e30)
+    hi = float(-1.0e30)
+    w_caster = float(0.0)
+    w_empty = float(0.0)
+    s1 = float(0.0)
+    wa = float(0.0)
+    s2 = float(0.0)
+    wb = float(0.0)
+    two = bool(False)
+    mid = float(0.0)
+    for p in range(2):
+        if p == 1:
+            if w_caster <= 0.0:
+                break
+            two, mid = split_point(lo, hi, w_empty)
+        for k in range(samples):
+            dk, c = spot_light_ray(rect, light, world_to_clip, i, k, inv, phi, to_world)
+            if c[3] <= 0.0:  # behind the spot: no light there anyway (its filter is 0)
+                if p == 0:
+                    w_empty += inv
+            for t in range(4 * int(c[3] > 0.0)):
+                z_n, w_tap, caster_n, x, y = spot_tap(rect, light.position, light.direction, dk, shadow_depth, c, t,
+                                                      inv)
+                z_o, w_o, caster_o, xo, yo = spot_tap(rect, light.position, light.direction, dk, layer.opaque_depth,
+                                                      c, t, inv)
+                passed = float(0.0)
+                if x >= 0 and y >= 0 and x < layer.transmittance.shape[1] and y < layer.transmittance.shape[0]:
+                    passed = layer.transmittance[y, x]
+                for part in range(tap_parts(passed)):
+                    z_b, w, caster = tap_part(z_n, caster_n, z_o, caster_o, w_tap, passed, part)
+                    if p == 0:
+                        lo, hi, w_caster, w_empty = tap_range(lo, hi, w_caster, w_empty, z_b, w, caster)
+                    else:
+                        s1, wa, s2, wb = tap_split(s1, wa, s2, wb, two, mid, z_b, w, caster)
+    return w_caster, w_empty, s1, wa, s2, wb
+
+
+@wp.func
+def spot_casters_opaque(rect: NonlinearRectParams, light: LightParams, shadow_depth: wp.array2d(dtype=wp.float32),
+                        world_to_clip: wp.mat44, samples: int, i: int, phi: float, to_world: wp.mat33):
+    """:func:`spot_casters_translucent` for a map without translucent casters, bit-identical: one pass reads the
+    taps and keeps them (static indices: registers, as the directional kernel's
+    ``resample_radial_opaque_kernel``); the split pass runs over the kept taps."""
+    inv = 1.0 / float(samples)
+    lo = float(1.0e30)
+    hi = float(-1.0e30)
+    w_caster = float(0.0)
+    w_empty = float(0.0)
+    s_caster = float(0.0)
+    z_kept = radial_taps()
+    w_kept = radial_taps()
+    for k in range(wp.static(MAX_RADIAL_SAMPLES)):
+        if k < samples:
+            dk, c = spot_light_ray(rect, light, world_to_clip, i, k, inv, phi, to_world)
+            if c[3] <= 0.0:  # behind the spot: no light there anyway (its filter is 0)
+                w_empty += inv
+            for t in range(4):
+                w_kept[wp.static(4 * k + t)] = -1.0
+                if c[3] > 0.0:
+                    z_b, w, caster, x, y = spot_tap(rect, light.position, light.direction, dk, shadow_depth, c,
+                                                    wp.static(t), inv)
+                    lo, hi, w_caster, w_empty = tap_range(lo, hi, w_caster, w_empty, z_b, w, caster)
+                    z_kept[wp.static(4 * k + t)] = z_b
+                    if caster > 0.0:
+                        s_caster += w * z_b
+                        w_kept[wp.static(4 * k + t)] = w
+    s1 = s_caster  # one caster part (or none)
+    wa = w_caster
+    s2 = float(0.0)
+    wb = float(0.0)
+    two, mid = split_point(lo, hi, w_empty)
+    if w_caster > 0.0 and two:
+        s1, wa, s2, wb = split_kept_taps(z_kept, w_kept, 4 * samples, mid)
+    return w_caster, w_empty, s1, wa, s2, wb
+
+
 @wp.kernel
 def resample_spot_kernel(
     rect: NonlinearRectParams,
@@ -138,13 +239,21 @@ def resample_spot_kernel(
     to_world = wp.transpose(rect.to_light)
     phi = rect.phi_mid + ((float(j) + 0.5) / float(rect.rows) - 0.5) * rect.phi_span
     # the filter is the texel's mean emission: SPOT_FILTER_SAMPLES^2 light rays over its (psi, phi) footprint
+    # (each psi's and phi's sine and cosine computed once: 6 calls instead of 18)
     e_sum = wp.vec3(0.0, 0.0, 0.0)
     nf = SPOT_FILTER_SAMPLES
-    for a in range(nf):
-        for b in range(nf):
-            psi_s = rect.psi_lo + (float(i) + (float(a) + 0.5) / float(nf)) / float(rect.cols) * rect.r_max
-            phi_s = rect.phi_mid + ((float(j) + (float(b) + 0.5) / float(nf)) / float(rect.rows) - 0.5) * rect.phi_span
-            ds = to_world * wp.vec3(wp.sin(psi_s) * wp.cos(phi_s), wp.sin(psi_s) * wp.sin(phi_s), wp.cos(psi_s))
+    sin_phi = spot_filter_angles()
+    cos_phi = spot_filter_angles()
+    for b in range(wp.static(SPOT_FILTER_SAMPLES)):
+        phi_s = rect.phi_mid + ((float(j) + (float(b) + 0.5) / float(nf)) / float(rect.rows) - 0.5) * rect.phi_span
+        sin_phi[b] = wp.sin(phi_s)
+        cos_phi[b] = wp.cos(phi_s)
+    for a in range(wp.static(SPOT_FILTER_SAMPLES)):
+        psi_s = rect.psi_lo + (float(i) + (float(a) + 0.5) / float(nf)) / float(rect.cols) * rect.r_max
+        sin_psi = wp.sin(psi_s)
+        cos_psi = wp.cos(psi_s)
+        for b in range(wp.static(SPOT_FILTER_SAMPLES)):
+            ds = to_world * wp.vec3(sin_psi * cos_phi[b], sin_psi * sin_phi[b], cos_psi)
             e, omega, dist = light_sample(light, light.position + ds / wp.length(ds))
             e_sum += e
     f = wp.vec3(0.0, 0.0, 0.0)
@@ -153,53 +262,21 @@ def resample_spot_kernel(
             f[k] = wp.clamp(e_sum[k] / (float(nf * nf) * peak[k]), 0.0, 1.0)
     out_filter[j, i] = f
     # its casters: ``samples`` light rays over the texel's psi extent, each reading its four nearest spot-map texels
-    # with bilinear weights (two parts per tap with translucent casters: the nearest caster with 1 - T, the nearest
-    # opaque one with T), condensed to two depths in the two passes of a directional light's supersampled texel
+    # with bilinear weights, condensed to two depths in the two passes of a directional light's supersampled texel
     # (rectify_nonlinear.tap_range, tap_split); one nearest texel per rectified texel streaked along the epipolar
     # slices
-    inv = 1.0 / float(samples)
-    lo = float(1.0e30)
-    hi = float(-1.0e30)
     w_caster = float(0.0)
     w_empty = float(0.0)
     s1 = float(0.0)
     wa = float(0.0)
     s2 = float(0.0)
     wb = float(0.0)
-    two = bool(False)
-    mid = float(0.0)
-    for p in range(2):
-        if p == 1:
-            if w_caster <= 0.0:
-                break
-            two, mid = split_point(lo, hi, w_empty)
-        for k in range(samples):
-            psi_k = rect.psi_lo + (float(i) + (float(k) + 0.5) * inv) / float(rect.cols) * rect.r_max
-            dk = to_world * wp.vec3(wp.sin(psi_k) * wp.cos(phi), wp.sin(psi_k) * wp.sin(phi), wp.cos(psi_k))
-            q = light.position + dk
-            c = world_to_clip * wp.vec4(q[0], q[1], q[2], 1.0)
-            if c[3] <= 0.0:  # behind the spot: no light there anyway (its filter is 0)
-                if p == 0:
-                    w_empty += inv
-            else:
-                c = c / c[3]
-            for t in range(4 * int(c[3] > 0.0)):
-                z_n, w_tap, caster_n, x, y = spot_tap(rect, light.position, light.direction, dk, shadow_depth, c, t,
-                                                      inv)
-                passed = float(0.0)
-                z_o = float(1.0)
-                caster_o = float(0.0)
-                if layer.translucent != 0:
-                    z_o, w_o, caster_o, xo, yo = spot_tap(rect, light.position, light.direction, dk,
-                                                          layer.opaque_depth, c, t, inv)
-                    if x >= 0 and y >= 0 and x < layer.transmittance.shape[1] and y < layer.transmittance.shape[0]:
-                        passed = layer.transmittance[y, x]
-                for part in range(tap_parts(passed)):
-                    z_b, w, caster = tap_part(z_n, caster_n, z_o, caster_o, w_tap, passed, part)
-                    if p == 0:
-                        lo, hi, w_caster, w_empty = tap_range(lo, hi, w_caster, w_empty, z_b, w, caster)
-                    else:
-                        s1, wa, s2, wb = tap_split(s1, wa, s2, wb, two, mid, z_b, w, caster)
+    if layer.translucent == 0:
+        w_caster, w_empty, s1, wa, s2, wb = spot_casters_opaque(rect, light, shadow_depth, world_to_clip, samples,
+                                                                i, phi, to_world)
+    else:
+        w_caster, w_empty, s1, wa, s2, wb = spot_casters_translucent(rect, light, shadow_depth, layer, world_to_clip,
+                                                                     samples, i, phi, to_world)
     z1 = float(1.0)
     z2 = float(1.0)
     w2 = float(0.0)
