@@ -49,9 +49,11 @@ from .rectify_nonlinear import (
     TranslucentLayer,
     _map_array,
     bilinear_tap,
+    empty_tap_range,
+    keep_tap,
+    kept_taps_parts,
     part_mean,
     radial_taps,
-    split_kept_taps,
     split_point,
     tap_part,
     tap_parts,
@@ -142,10 +144,7 @@ def spot_casters_translucent(rect: NonlinearRectParams, light: LightParams, shad
     taps (two parts per tap: the nearest caster with 1 - T, the nearest opaque one with T): (caster weight, empty
     weight, s1, w1, s2, w2) as :func:`~.rectify_nonlinear.tap_split`; a sub-sample behind the spot is empty."""
     inv = 1.0 / float(samples)
-    lo = float(1.0e30)
-    hi = float(-1.0e30)
-    w_caster = float(0.0)
-    w_empty = float(0.0)
+    lo, hi, w_caster, w_empty = empty_tap_range()
     s1 = float(0.0)
     wa = float(0.0)
     s2 = float(0.0)
@@ -186,10 +185,7 @@ def spot_casters_opaque(rect: NonlinearRectParams, light: LightParams, shadow_de
     taps and keeps them (static indices: registers, as the directional kernel's
     ``resample_radial_opaque_kernel``); the split pass runs over the kept taps."""
     inv = 1.0 / float(samples)
-    lo = float(1.0e30)
-    hi = float(-1.0e30)
-    w_caster = float(0.0)
-    w_empty = float(0.0)
+    lo, hi, w_caster, w_empty = empty_tap_range()
     s_caster = float(0.0)
     z_kept = radial_taps()
     w_kept = radial_taps()
@@ -203,18 +199,11 @@ def spot_casters_opaque(rect: NonlinearRectParams, light: LightParams, shadow_de
                 if c[3] > 0.0:
                     z_b, w, caster, x, y = spot_tap(rect, light.position, light.direction, dk, shadow_depth, c,
                                                     wp.static(t), inv)
-                    lo, hi, w_caster, w_empty = tap_range(lo, hi, w_caster, w_empty, z_b, w, caster)
+                    lo, hi, w_caster, w_empty, s_caster, kept = keep_tap(lo, hi, w_caster, w_empty, s_caster, z_b,
+                                                                         w, caster)
                     z_kept[wp.static(4 * k + t)] = z_b
-                    if caster > 0.0:
-                        s_caster += w * z_b
-                        w_kept[wp.static(4 * k + t)] = w
-    s1 = s_caster  # one caster part (or none)
-    wa = w_caster
-    s2 = float(0.0)
-    wb = float(0.0)
-    two, mid = split_point(lo, hi, w_empty)
-    if w_caster > 0.0 and two:
-        s1, wa, s2, wb = split_kept_taps(z_kept, w_kept, 4 * samples, mid)
+                    w_kept[wp.static(4 * k + t)] = kept
+    s1, wa, s2, wb = kept_taps_parts(z_kept, w_kept, 4 * samples, lo, hi, w_caster, w_empty, s_caster)
     return w_caster, w_empty, s1, wa, s2, wb
 
 

@@ -376,6 +376,12 @@ def tap_part(z_n: float, caster_n: float, z_o: float, caster_o: float, w_tap: fl
 
 
 @wp.func
+def empty_tap_range():
+    """The first pass's start, before any tap: (lo, hi, w_caster, w_empty) of :func:`tap_range`."""
+    return float(1.0e30), float(-1.0e30), float(0.0), float(0.0)
+
+
+@wp.func
 def tap_range(lo: float, hi: float, w_caster: float, w_empty: float, z_b: float, w: float, caster: float):
     """First pass: a tap part (depth z_b, weight w) extends the casters' depth range [lo, hi] (parts of weight 0
     excepted) and their weight w_caster, or adds to the empty weight w_empty. Returns (lo, hi, w_caster, w_empty)."""
@@ -445,10 +451,37 @@ radial_taps = wp.types.vector(length=RADIAL_TAPS, dtype=wp.float32)
 
 
 @wp.func
-def split_kept_taps(z: radial_taps, w: radial_taps, count: int, mid: float):
-    """Second pass over the first ``count`` kept taps of a texel whose casters split in two at ``mid``: depth z_b
-    in ``z``, weight in ``w`` (< 0: an empty tap, which adds nothing). Returns (s1, w1, s2, w2) as
-    :func:`tap_split`."""
+def radial_row(rect: NonlinearRectParams, world_to_clip: wp.mat44, depth_row: wp.vec4, j: int):
+    """Row j's light-ray points p(u) = origin + u a in a directional map (clip coordinates c0 + u ca, stored depth
+    d0 + u da): (c0, ca, d0, da); the point is affine in u, so one sin/cos per row."""
+    v = (float(j) + 0.5) / float(rect.rows)
+    a = light_ray_point(rect, 1.0, v) - rect.origin
+    o = wp.vec4(rect.origin[0], rect.origin[1], rect.origin[2], 1.0)
+    av = wp.vec4(a[0], a[1], a[2], 0.0)
+    return world_to_clip * o, world_to_clip * av, wp.dot(depth_row, o), wp.dot(depth_row, av)
+
+
+@wp.func
+def keep_tap(lo: float, hi: float, w_caster: float, w_empty: float, s_caster: float, z_b: float, w: float,
+             caster: float):
+    """First pass over a tap (depth z_b, weight w, 1 in ``caster`` if it holds one) of an opaque map whose taps
+    are kept: :func:`tap_range`, and the casters' weighted depth sum. Returns (lo, hi, w_caster, w_empty, s_caster,
+    the weight to keep: w, or -1 for an empty tap)."""
+    lo, hi, w_caster, w_empty = tap_range(lo, hi, w_caster, w_empty, z_b, w, caster)
+    if caster > 0.0:
+        return lo, hi, w_caster, w_empty, s_caster + w * z_b, w
+    return lo, hi, w_caster, w_empty, s_caster, float(-1.0)
+
+
+@wp.func
+def kept_taps_parts(z: radial_taps, w: radial_taps, count: int, lo: float, hi: float, w_caster: float,
+                    w_empty: float, s_caster: float):
+    """The two parts (s1, w1, s2, w2) of :func:`tap_split` from the first ``count`` kept taps (depth in ``z``,
+    weight in ``w``, < 0: empty) and the first pass's range, weights and caster sum (:func:`keep_tap`): the
+    casters split at the middle of their range when :func:`split_point` says so, else they are one part."""
+    two, mid = split_point(lo, hi, w_empty)
+    if w_caster <= 0.0 or not two:
+        return s_caster, w_caster, float(0.0), float(0.0)
     s1 = float(0.0)
     w1 = float(0.0)
     s2 = float(0.0)
@@ -478,19 +511,9 @@ def resample_radial_opaque_kernel(
     # taps, keeps them (static indices: registers) and sums the casters; the split pass runs over the kept taps
     j, i = wp.tid()
     j += offset
-    v = (float(j) + 0.5) / float(rect.rows)
-    a = light_ray_point(rect, 1.0, v) - rect.origin
-    o = wp.vec4(rect.origin[0], rect.origin[1], rect.origin[2], 1.0)
-    av = wp.vec4(a[0], a[1], a[2], 0.0)
-    c0 = world_to_clip * o
-    ca = world_to_clip * av
-    d0 = wp.dot(depth_row, o)
-    da = wp.dot(depth_row, av)
+    c0, ca, d0, da = radial_row(rect, world_to_clip, depth_row, j)
     inv = 1.0 / float(samples)
-    lo = float(1.0e30)
-    hi = float(-1.0e30)
-    w_caster = float(0.0)
-    w_empty = float(0.0)
+    lo, hi, w_caster, w_empty = empty_tap_range()
     s_caster = float(0.0)
     z_kept = radial_taps()
     w_kept = radial_taps()
@@ -502,20 +525,11 @@ def resample_radial_opaque_kernel(
             for t in range(4):
                 xt, yt, wx, wy = footprint_tap(x, y, ax, ay, wp.static(t))
                 z_b, caster = tap_caster(shadow_depth, xt, yt, d, depth_per_unit, empty_depth)
-                w = inv * wx * wy
-                lo, hi, w_caster, w_empty = tap_range(lo, hi, w_caster, w_empty, z_b, w, caster)
+                lo, hi, w_caster, w_empty, s_caster, kept = keep_tap(lo, hi, w_caster, w_empty, s_caster, z_b,
+                                                                     inv * wx * wy, caster)
                 z_kept[wp.static(4 * k + t)] = z_b
-                w_kept[wp.static(4 * k + t)] = -1.0
-                if caster > 0.0:
-                    s_caster += w * z_b
-                    w_kept[wp.static(4 * k + t)] = w
-    s1 = s_caster  # one caster part (or none)
-    w1 = w_caster
-    s2 = float(0.0)
-    w2 = float(0.0)
-    two, mid = split_point(lo, hi, w_empty)
-    if w_caster > 0.0 and two:
-        s1, w1, s2, w2 = split_kept_taps(z_kept, w_kept, 4 * samples, mid)
+                w_kept[wp.static(4 * k + t)] = kept
+    s1, w1, s2, w2 = kept_taps_parts(z_kept, w_kept, 4 * samples, lo, hi, w_caster, w_empty, s_caster)
     z1, z2, share = radial_texel_depths(rect, i, w_caster, w_empty, s1, w1, s2, w2)
     out_z1[j, i] = z1
     out_z2[j, i] = z2
@@ -547,19 +561,9 @@ def resample_radial_kernel(
     # nearest opaque caster (or the empty far end) with weight T. Two passes over the taps (tap_range, tap_split)
     j, i = wp.tid()
     j += offset
-    v = (float(j) + 0.5) / float(rect.rows)
-    a = light_ray_point(rect, 1.0, v) - rect.origin
-    o = wp.vec4(rect.origin[0], rect.origin[1], rect.origin[2], 1.0)
-    av = wp.vec4(a[0], a[1], a[2], 0.0)
-    c0 = world_to_clip * o
-    ca = world_to_clip * av
-    d0 = wp.dot(depth_row, o)
-    da = wp.dot(depth_row, av)
+    c0, ca, d0, da = radial_row(rect, world_to_clip, depth_row, j)
     inv = 1.0 / float(samples)
-    lo = float(1.0e30)
-    hi = float(-1.0e30)
-    w_caster = float(0.0)
-    w_empty = float(0.0)
+    lo, hi, w_caster, w_empty = empty_tap_range()
     s1 = float(0.0)
     w1 = float(0.0)
     s2 = float(0.0)
