@@ -66,6 +66,7 @@ module_options()
 #: Light rays per side of a texel's footprint whose mean emission is the texel's filter (the cone's edge and the
 #: texture box-filtered over the texel).
 SPOT_FILTER_SAMPLES = wp.constant(3)
+#: The sines (or cosines) of a texel's SPOT_FILTER_SAMPLES filter angles along one axis.
 spot_filter_angles = wp.types.vector(length=int(SPOT_FILTER_SAMPLES), dtype=wp.float32)
 #: Far-plane samples per side for the largest angle at the light that the view reaches.
 FAR_PLANE_SAMPLES = 33
