@@ -312,17 +312,19 @@ def _window_room(method, *overrides):
 
 @wp.kernel
 def _row_bounds_kernel(db: fl.DepthBounds, coords: wp.array(dtype=wp.vec3), veto: int, out: wp.array(dtype=wp.vec3),
-                       bounded: wp.array(dtype=wp.float32)):
+                       mixed: wp.array(dtype=wp.float32)):
     n = wp.tid()
     c = coords[n]
-    out[n] = fl.row_bounds(db, c[0], c[1], c[2], fl.whole_rows(2, 0), veto)
-    bounded[n] = fl.bounded_visibility(db, c[0], c[1], c[2], fl.whole_rows(2, 0))
+    b = fl.row_bounds(db, c[0], c[1], c[2], fl.whole_rows(2, 0), veto)
+    out[n] = b
+    mixed[n] = fl.mix_row_answers(b, 0.5, b[2])  # 0.5 stands for the reconstruction of an undecided row
 
 
 def test_depth_bounds_answer_each_bilinear_row():
     """The depth bounds decide each of a look-up's two rows (wholly shadowed 0, wholly lit 1, else -1) from the
-    prefix of its whole texels; a row of zero bilinear weight takes the other's answer, and the single answer is
-    theirs only when they agree. For a ray known to end in shadow the partial last texel must clear a lit answer."""
+    prefix of its whole texels; a row of zero bilinear weight takes the other's answer; the look-up mixes the decided
+    rows' answers with the reconstruction of the undecided ones by the rows' weights. For a ray known to end in shadow
+    the partial last texel must clear a lit answer."""
     db = fl.DepthBounds()
     db.enabled = 1
     # per-column prefix (least, greatest) caster depth. Row 0: casters at 0.2-0.3 (in front of z_r = 0.5). Row 1:
@@ -337,10 +339,11 @@ def test_depth_bounds_answer_each_bilinear_row():
                 1: [[0.0, 1.0, 0.25], [0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [-1.0, -1.0, 0.0], [1.0, 1.0, 0.25]]}
     for veto, rows_answer in expected.items():
         out = wp.zeros(5, dtype=wp.vec3)
-        bounded = wp.zeros(5, dtype=wp.float32)
-        wp.launch(_row_bounds_kernel, dim=5, inputs=[db, coords, veto, out, bounded])
+        mixed = wp.zeros(5, dtype=wp.float32)
+        wp.launch(_row_bounds_kernel, dim=5, inputs=[db, coords, veto, out, mixed])
         np.testing.assert_allclose(out.numpy(), rows_answer)
-        np.testing.assert_array_equal(bounded.numpy(), [-1.0, 0.0, 1.0, 1.0, 1.0])
+        # row 0 shadowed (weight 0.75), row 1 lit (0.25): 0.25 with no reconstruction; the vetoed case reconstructs
+        np.testing.assert_allclose(mixed.numpy(), [0.25, 0.0, 1.0, 1.0 if veto == 0 else 0.5, 1.0])
 
 
 def test_a_row_the_bounds_decide_keeps_their_answer_in_the_dark_room():

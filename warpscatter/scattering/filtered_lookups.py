@@ -203,17 +203,6 @@ def mix_row_answers(b: wp.vec3, r: float, share1: float) -> float:
 
 
 @wp.func
-def bounded_visibility(db: DepthBounds, u_end: float, v: float, z_r: float, window: wp.vec3i) -> float:
-    """1 when every texel a look-up ending at (u_end, v) reads lies behind depth z_r (the ray is wholly lit), 0 when
-    every one lies in front of it (wholly shadowed), else -1 (reconstruct): both bilinear rows' answers
-    (:func:`row_bounds`) when they agree."""
-    b = row_bounds(db, u_end, v, z_r, window, 0)
-    if b[0] == b[1]:
-        return b[0]
-    return -1.0
-
-
-@wp.func
 def fourier_taps_visibility(filtered_basis: Any, tables: FourierTables, tap_row: tap_indices, tap_col: tap_indices,
                             tap_w: tap_weights, num_taps: int, z_r: float) -> float:
     """clamp(0.5 + a(z_r) . sum_t w_t B_bar(row_t, col_t), 0, 1) (Klehm 2014 Listing 4, App. A).
@@ -763,7 +752,6 @@ def evaluate_points(filtered_basis, rect: NonlinearRectification, points, sigma_
 
 __all__ = [
     "DepthBounds",
-    "bounded_visibility",
     "row_bounds",
     "rows_undecided",
     "mix_row_answers",

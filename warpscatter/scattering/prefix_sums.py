@@ -429,8 +429,8 @@ def depth_bounds(rectified_depth, device=None) -> wp.array:
     """Per-row prefix bounds of a rectified map's blocker depths: (rows, cols) vec2 (least, greatest depth among
     columns 0..i of row j; both depths of a two-depth texel). A view ray at depth z_r whose texels all lie in
     front of it (z_r >= greatest) is wholly shadowed, one whose texels all lie behind it (z_r < least) wholly lit:
-    the look-ups answer those exactly (:func:`~.filtered_lookups.bounded_visibility`), where a truncated Fourier
-    series rings and moment bounds leak (the 1D min-max idea of Chen et al. 2011, on prefix sums)."""
+    the look-ups answer those exactly, per bilinear row (:func:`~.filtered_lookups.row_bounds`), where a truncated
+    Fourier series rings and moment bounds leak (the 1D min-max idea of Chen et al. 2011, on prefix sums)."""
     device = default_device(device)
     rd = rectified_texels(rectified_depth, device)
     out = wp.empty(rd.depth.shape, dtype=wp.vec2, device=device)
