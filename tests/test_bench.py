@@ -62,3 +62,14 @@ def test_the_marcher_curve_extends_only_below_its_smallest_error():
     curves = {"per_pixel": [(10.0, 0.4), (40.0, 0.1)], "fixed": [(9.0, 0.3), (35.0, 0.08)]}
     assert curve_too_short(curves, 0.05)  # a method more accurate than every marcher point
     assert not curve_too_short(curves, 0.08) and not curve_too_short(curves, 0.2)
+
+
+def test_timing_rounds_interleave_the_configurations():
+    from warpscatter.bench.suites_pareto import interleaved_rounds
+
+    # a round times every configuration once, in turn, so a slow phase of the machine is shared out among them
+    calls = []
+    runs = interleaved_rounds({"fourier": [1.0], "marcher 8": [2.0]}, 2, lambda key: calls.append(key) or len(calls))
+    assert calls == ["fourier", "marcher 8", "fourier", "marcher 8"]
+    assert runs == {"fourier": [1.0, 1, 3], "marcher 8": [2.0, 2, 4]}
+    assert interleaved_rounds({"a": [1.0]}, 0, lambda key: 1 / 0) == {"a": [1.0]}

@@ -12,8 +12,11 @@ On the bundled colonnade, canopy and window configs at 1920x1080 with 1024^2 map
 * every **fast method's (time, error) point** at its default settings: ``fourier``, ``moments4``, ``moments6``,
   ``epipolar``, and ``moments6`` with the ray-marched epipole disc (``moments6 with disc``; off by default).
 
-Time is the technique's own stages — G-buffer, maps, scattering — as the median of ``repeats`` runs after
-``warmup``; the kernel compile, the scene load and the writing of the frame's EXR/PNG files are reported apart.
+Time is the technique's own stages — G-buffer, maps, scattering — as the median of ``repeats`` interleaved rounds
+after ``warmup``: a round renders every method and marcher point of a scene once, in turn, so a slow phase of a
+shared machine (seen to double a render's time for a minute) falls on all of them alike instead of on whichever
+configuration it caught. The kernel compile, the scene load and the writing of the frame's EXR/PNG files are
+reported apart.
 Each method's **equal-error speed-up** is the marcher's time interpolated log-log at the method's error (on the
 lower envelope of both step patterns: the faster marcher at that error), divided by the method's time. A method
 more accurate than the most accurate marcher (1024 steps at most) gets a lower bound (``>=``, that marcher's time),
@@ -34,7 +37,7 @@ import numpy as np
 
 from ..stages import ProgressFn
 from .report import BenchReport, hbar_chart
-from .scenes import bench_scene_config, render_timed
+from .scenes import bench_scene_config, median_stages, render_timed
 
 #: The scenes (bundled configs) and the fast methods at their defaults.
 SCENES = ("colonnade", "canopy", "window")
@@ -142,6 +145,20 @@ def technique_ms(stages: dict) -> tuple[float, dict]:
     return sum(own.values()), own
 
 
+def interleaved_rounds(runs: dict[str, list], more: int, time_one) -> dict[str, list]:
+    """``more`` further timing rounds of every configuration in ``runs`` (key -> its timings so far): each round
+    calls ``time_one(key)`` once per configuration, in turn, and appends the result. Returns ``runs``."""
+    for _ in range(more):
+        for key in runs:
+            runs[key].append(time_one(key))
+    return runs
+
+
+def _seconds(stages_ms: dict) -> dict:
+    """A run's stage timings in seconds, as :func:`~.scenes.median_stages` takes them."""
+    return {k: v / 1e3 for k, v in stages_ms.items()}
+
+
 def _write_seconds(images: dict) -> float:
     """Seconds to write one frame's outputs (every AOV, the default compression) into a temporary folder."""
     from ..imageio import write_outputs
@@ -164,7 +181,7 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
     extended_steps = () if quick else EXTENDED_STEPS
     first = stride // 2
     no_surf = {"enabled": False}
-    cases = len(SCENES) * (1 + len(march_steps) * len(JITTERS) + len(METHODS))
+    cases = len(SCENES) * (2 + len(march_steps) * len(JITTERS) + len(METHODS))
     done = 0
 
     def step(label):
@@ -174,7 +191,8 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
         done += 1
 
     report.meta.update(size=f"{w}x{h}", map=smap, reference_steps=ref_steps, reference_seeds=list(REFERENCE_SEEDS),
-                       reference_stride=stride, time="G-buffer + maps + scattering (compile, scene, write apart)")
+                       reference_stride=stride, rounds=max(1, repeats),
+                       time="G-buffer + maps + scattering (compile, scene, write apart), median of interleaved rounds")
     summary = {}
     for scene_name in SCENES:
         step(f"{scene_name}: exact reference")
@@ -185,7 +203,9 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
         def error_of(images):
             return rel_l1(images["scattering"][first::stride, first::stride], reference)  # noqa: B023
 
-        # the fast methods first: whether the marcher's curve must reach further depends on their errors
+        # the fast methods first: whether the marcher's curve must reach further depends on their errors. Each
+        # configuration is timed once here; further rounds time them all again in turn (the module doc)
+        configs, rounds = {}, {}
         measured = []
         for label, sc in METHODS.items():
             step(f"{scene_name}: {label}")
@@ -194,32 +214,44 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
             t_scene = time.perf_counter()
             build_scene(cfg)
             scene_s = time.perf_counter() - t_scene
-            stages, images, compile_s, _, stats = render_timed(cfg, repeats, warmup)
-            total, own = technique_ms(stages)
-            measured.append((label, total, own, error_of(images), stats,
+            stages, images, compile_s, _, stats = render_timed(cfg, 1, warmup)
+            configs[label], rounds[label] = cfg, [_seconds(stages)]
+            measured.append((label, error_of(images), stats,
                              {"compile_s": round(compile_s, 2), "scene_s": round(scene_s, 3),
                               "write_s": round(_write_seconds(images), 3)}))
-        best_method = min(m[3] for m in measured)
-        curves: dict[str, list[tuple[float, float]]] = {j: [] for j in JITTERS}
+        best_method = min(m[1] for m in measured)
+        marched = {j: [] for j in JITTERS}  # (steps, configuration key, error, compile s) per step pattern
         for k, steps in enumerate(march_steps + extended_steps):
-            if k >= len(march_steps) and not curve_too_short(curves, best_method):
+            if k >= len(march_steps) and not curve_too_short({j: [(0.0, e) for _, _, e, _ in m]
+                                                               for j, m in marched.items()}, best_method):
                 break
             for jitter in JITTERS:
                 step(f"{scene_name}: marcher {steps} {jitter}")
-                cfg = bench_scene_config(scene_name, w, h, surfaces=no_surf, scattering={
+                key = f"marcher {steps} {jitter}"
+                configs[key] = bench_scene_config(scene_name, w, h, surfaces=no_surf, scattering={
                     "method": "raymarch", "visibility": "shadow_map", "steps": steps, "jitter": jitter,
                     "shadow_map": {"resolution": smap}})
-                stages, images, compile_s, _, _ = render_timed(cfg, repeats, warmup)
-                total, own = technique_ms(stages)
-                err = error_of(images)
+                stages, images, compile_s, _, _ = render_timed(configs[key], 1, warmup)
+                rounds[key] = [_seconds(stages)]
+                marched[jitter].append((steps, key, error_of(images), compile_s))
+        step(f"{scene_name}: timing rounds")
+        timings = {key: technique_ms(median_stages(runs)) for key, runs in interleaved_rounds(
+            rounds, max(1, repeats) - 1, lambda key, c=configs: _seconds(render_timed(c[key], 1, 0)[0])).items()}
+        curves: dict[str, list[tuple[float, float]]] = {j: [] for j in JITTERS}
+        for jitter, points in marched.items():
+            for steps, key, err, compile_s in points:
+                total, own = timings[key]
                 curves[jitter].append((total, err))
                 report.add(name=f"{scene_name}: marcher shadow_map {jitter}", params={"steps": steps},
-                           median_ms=total, stages_ms=own, rel_l1=err, extra={"compile_s": round(compile_s, 2)})
+                           median_ms=total, stages_ms=own, rel_l1=err,
+                           extra={"compile_s": round(compile_s, 2), "rounds": len(rounds[key])})
         envelope = curves["per_pixel"] + curves["fixed"]
         smallest = min([e for _, e in envelope] + [best_method])
         scene_summary = {"reference_own_rel_l1": round(own_error, 5), "reference_ok": own_error < smallest / 5.0,
                          "marcher_steps": list((march_steps + extended_steps)[:len(curves["fixed"])])}
-        for label, total, own, err, stats, extra in measured:
+        for label, err, stats, extra in measured:
+            total, own = timings[label]
+            extra["rounds"] = len(rounds[label])
             marcher_ms, bound = equal_error_time(envelope, err)
             per_jitter = {j: equal_error_time(curves[j], err) for j in JITTERS}
             row = report.add(name=f"{scene_name}: {label}", params={"map": smap}, median_ms=total, stages_ms=own,
