@@ -572,7 +572,8 @@ def chart_error_time(report: BenchReport, path: Path) -> Path | None:
         log_ticks(ax.yaxis, [p[2] for p in pts])
         ax.tick_params(labelsize=7)
         ax.margins(0.12)
-        ax.set_xlabel("median time (ms)" + (f": {report.meta['time']}" if report.meta.get("time") else ""), fontsize=7)
+        label = "median time (ms)" + (f": {report.meta['time']}" if report.meta.get("time") else "")
+        ax.set_xlabel(textwrap.fill(label, 64), fontsize=7)  # wrapped: side-by-side panels' labels must not meet
         ax.set_ylabel("rel. L1 vs reference", fontsize=8)
         ax.set_title(scene, fontsize=9)
         ax.grid(True, which="both", alpha=0.3)

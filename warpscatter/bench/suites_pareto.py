@@ -192,7 +192,7 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
 
     report.meta.update(size=f"{w}x{h}", map=smap, reference_steps=ref_steps, reference_seeds=list(REFERENCE_SEEDS),
                        reference_stride=stride, rounds=max(1, repeats),
-                       time="G-buffer + maps + scattering (compile, scene, write apart), median of interleaved rounds")
+                       time="G-buffer + maps + scattering (compile, scene, write apart)")
     summary = {}
     for scene_name in SCENES:
         step(f"{scene_name}: exact reference")
