@@ -786,7 +786,8 @@ def schema(output, verbose, quiet, debug) -> None:
 @main.command()
 @click.argument("suite", required=False)
 @click.argument("reports", nargs=-1, type=click.Path(dir_okay=False, exists=True, path_type=Path))
-@click.option("--repeats", type=click.IntRange(min=1), default=5, show_default=True, help="Timed runs per case.")
+@click.option("--repeats", type=click.IntRange(min=1), default=5, show_default=True,
+              help="Timed runs per case (pareto: interleaved rounds over all of a scene's cases).")
 @click.option("--warmup", type=click.IntRange(min=0), default=1, show_default=True, help="Untimed runs first.")
 @click.option(
     "-o",
