@@ -59,9 +59,9 @@ def test_equal_error_time_interpolates_log_log_on_the_envelope_and_bounds_outsid
 def test_the_marcher_curve_extends_only_below_its_smallest_error():
     from warpscatter.bench.suites_pareto import curve_too_short
 
-    curves = {"per_pixel": [(10.0, 0.4), (40.0, 0.1)], "fixed": [(9.0, 0.3), (35.0, 0.08)]}
-    assert curve_too_short(curves, 0.05)  # a method more accurate than every marcher point
-    assert not curve_too_short(curves, 0.08) and not curve_too_short(curves, 0.2)
+    errors = [0.4, 0.1, 0.3, 0.08]  # both step patterns' points so far
+    assert curve_too_short(errors, 0.05)  # a method more accurate than every marcher point
+    assert not curve_too_short(errors, 0.08) and not curve_too_short(errors, 0.2)
 
 
 def test_timing_rounds_interleave_the_configurations():

@@ -133,10 +133,10 @@ def equal_error_time(points: list[tuple[float, float]], error: float) -> tuple[f
     return env[-1][0], ">="  # unreachable for a sorted envelope
 
 
-def curve_too_short(curves: dict[str, list[tuple[float, float]]], best_error: float) -> bool:
-    """Whether the marcher's curves (per step pattern, (time, error) points) stop above ``best_error``, the smallest
+def curve_too_short(marcher_errors, best_error: float) -> bool:
+    """Whether the marcher's curves (the errors of all their points so far) stop above ``best_error``, the smallest
     error of the fast methods: then their speed-ups would be lower bounds and the curve takes more steps."""
-    return best_error < min(e for points in curves.values() for _, e in points)
+    return best_error < min(marcher_errors)
 
 
 def technique_ms(stages: dict) -> tuple[float, dict]:
@@ -181,7 +181,7 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
     extended_steps = () if quick else EXTENDED_STEPS
     first = stride // 2
     no_surf = {"enabled": False}
-    cases = len(SCENES) * (2 + len(march_steps) * len(JITTERS) + len(METHODS))
+    cases = len(SCENES) * (1 + int(repeats > 1) + len(march_steps) * len(JITTERS) + len(METHODS))
     done = 0
 
     def step(label):
@@ -222,8 +222,8 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
         best_method = min(m[1] for m in measured)
         marched = {j: [] for j in JITTERS}  # (steps, configuration key, error, compile s) per step pattern
         for k, steps in enumerate(march_steps + extended_steps):
-            if k >= len(march_steps) and not curve_too_short({j: [(0.0, e) for _, _, e, _ in m]
-                                                               for j, m in marched.items()}, best_method):
+            if k >= len(march_steps) and not curve_too_short([e for m in marched.values() for _, _, e, _ in m],
+                                                             best_method):
                 break
             for jitter in JITTERS:
                 step(f"{scene_name}: marcher {steps} {jitter}")
@@ -234,7 +234,8 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
                 stages, images, compile_s, _, _ = render_timed(configs[key], 1, warmup)
                 rounds[key] = [_seconds(stages)]
                 marched[jitter].append((steps, key, error_of(images), compile_s))
-        step(f"{scene_name}: timing rounds")
+        if repeats > 1:
+            step(f"{scene_name}: timing rounds")
         timings = {key: technique_ms(median_stages(runs)) for key, runs in interleaved_rounds(
             rounds, max(1, repeats) - 1, lambda key, c=configs: _seconds(render_timed(c[key], 1, 0)[0])).items()}
         curves: dict[str, list[tuple[float, float]]] = {j: [] for j in JITTERS}
