@@ -483,6 +483,86 @@ def test_kernel_weights_match_their_formulas():
         np.testing.assert_allclose(out.numpy(), w, rtol=0, atol=2e-7)  # measured max 5.7e-8, 8.4e-8 (rounding)
 
 
+@wp.kernel
+def _line_filter_kernel(geo: et.EpipolarGeometry, flt: eu.BilateralFilter, lines: et.LineArrays,
+                        p: wp.array(dtype=wp.vec2), depth: wp.array(dtype=wp.float32), delta: float,
+                        out: wp.array(dtype=wp.vec3), wsum: wp.array(dtype=wp.float32),
+                        dist: wp.array(dtype=wp.float32)):
+    i = wp.tid()
+    acc, w, dd = eu.line_filter(geo, flt, lines, 0, p[i], depth[i], delta)
+    out[i] = acc
+    wsum[i] = w
+    dist[i] = dd
+
+
+def _line_filter_numpy(st_, a, ab, L, d, p, pixel_depth, delta):
+    """Engelhardt 2010 Sec. 4.3 along one line (entry a, a + ab the exit; texels L (n, 3) at depths d) for pixels p,
+    float64: taps (m - (taps - 1) / 2) delta apart around p's projection in symmetric pairs, each read linearly between
+    its two texels; weight = linear weight x distance weight x depth weight of the texel."""
+    n, seg = len(d), np.linalg.norm(ab)
+    last = n - 1.0
+    dw_x = np.sqrt(-np.log(st_.min_weight))  # the Gaussian's cutoff
+    acc, wsum = np.zeros((len(p), 3)), np.zeros(len(p))
+    tau = ((p - a) @ ab) / (ab @ ab)
+    tc = np.clip(tau, 0.0, 1.0)
+    dist = np.linalg.norm(p - (a + tc[:, None] * ab), axis=1)
+    for i in range(len(p)):
+        if abs(tau[i] - tc[i]) * seg > max(2.0 * delta, 2.0):
+            continue
+        centre, step = tc[i] * last, delta / seg * last
+        reach = min(centre, last - centre) + 1e-4
+        for m in range(st_.taps):
+            o = m - 0.5 * (st_.taps - 1)
+            if o != 0.0 and abs(o) * step > reach:
+                continue
+            c = np.clip(centre + o * step, 0.0, last)
+            t0 = min(int(c), n - 1)
+            f = c - t0
+            for t, lw in ((t0, 1.0 - f), (min(t0 + 1, n - 1), f)):
+                x = abs(d[t] - pixel_depth[i]) / (pixel_depth[i] * st_.depth_sigma)
+                wd = np.exp(-x * x) if x <= dw_x else 0.0
+                w = lw * np.exp(-st_.distance_falloff * o * o) * (wd if wd >= st_.min_weight else 0.0)
+                if w > 0.0:
+                    acc[i] += w * L[t]
+                    wsum[i] += w
+    return acc, wsum, dist
+
+
+@pytest.mark.parametrize("taps", [1, 3, 4, 5])
+def test_line_filter_is_the_papers_bilateral_filter(taps):
+    # one line with two surfaces (depth 10 and 20) in stretches: the depth weights drop the other surface's texels,
+    # the taps at the ends go in pairs; taps 1 is the line texture's depth-weighted linear interpolation
+    from warpscatter.scattering.settings import EpipolarSettings
+    rng = np.random.default_rng(3)
+    n = 64
+    d = np.where((np.arange(n) // 7) % 3 == 1, 20.0, 10.0) * (1.0 + 0.01 * rng.standard_normal(n))
+    L = rng.uniform(0.1, 1.0, (n, 3))
+    a, ab = np.array([3.0, 5.0]), np.array([60.0, 20.0])
+    q = 500
+    tau = rng.uniform(-0.05, 1.05, q)
+    p = a + tau[:, None] * ab + rng.uniform(-2.0, 2.0, (q, 1)) * np.array([-ab[1], ab[0]]) / np.linalg.norm(ab)
+    pixel_depth = rng.choice([10.0, 15.0, 20.0], q) * (1.0 + 0.02 * rng.standard_normal(q))
+    delta = 2.5
+    dev = default_device()
+    st_ = EpipolarSettings(taps=taps)
+    flt = eu.filter_params(st_, dev)
+    geo = et.EpipolarGeometry()
+    geo.samples = n
+    lines = et.LineArrays()
+    rec = [a[0], a[1], ab[0], ab[1], ab @ ab, np.linalg.norm(ab), 1.0, 0.0]
+    lines.records = wp.array([rec], dtype=et.LineRecord, device=dev)
+    lines.texels = wp.array(np.concatenate([L, d[:, None]], 1).astype(np.float32), dtype=wp.vec4, device=dev)
+    out, wsum, dist = (wp.zeros(q, dtype=t, device=dev) for t in (wp.vec3, wp.float32, wp.float32))
+    wp.launch(_line_filter_kernel, q, [geo, flt, lines, wp.array(p.astype(np.float32), dtype=wp.vec2, device=dev),
+                                       wp.array(pixel_depth.astype(np.float32), dtype=wp.float32, device=dev),
+                                       delta, out, wsum, dist], device=dev)
+    want_acc, want_w, want_dist = _line_filter_numpy(st_, a, ab, L, d, p, pixel_depth, delta)
+    np.testing.assert_allclose(wsum.numpy(), want_w, rtol=1e-4, atol=1e-5)  # float32 arithmetic (positions ~60 px)
+    np.testing.assert_allclose(out.numpy(), want_acc, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(dist.numpy(), want_dist, rtol=1e-4, atol=1e-4)
+    assert (want_w == 0).sum() > 10 and (want_w > 0).sum() > 100  # both outcomes occur
+
+
 @pytest.mark.parametrize("jitter", ["per_pixel", "fixed"])
 def test_samples_at_pixel_centres_reproduce_the_reference_exactly(jitter):
     # march_screen_point at pixel centres == march_ray, here with exact (ray-cast) visibility and a shadowing board
@@ -514,8 +594,8 @@ def _centre_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32), m:
 # ---- settings -------------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("field, value", [("lines", 4), ("initial_samples", 1), ("taps", 6), ("kernel", "box"),
-                                          ("depth_threshold", 0.0), ("samples_per_line", 3)])
+@pytest.mark.parametrize("field, value", [("lines", 4), ("initial_samples", 1), ("taps", 0), ("taps", 6),
+                                          ("kernel", "box"), ("depth_threshold", 0.0), ("samples_per_line", 3)])
 def test_bad_settings_are_rejected(field, value):
     scene = _ground_scene([1.0, -0.3, 0.2], camera=_camera(width=8, height=6))
     gb = gbuffer_raster(scene, DeviceGeometry(scene))

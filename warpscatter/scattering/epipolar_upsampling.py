@@ -2,11 +2,13 @@
 Sec. 4.3 and 5.3), and the degenerate case's grid upsampling.
 
 Per pixel: the two nearest lines from the border arclength of the ray epipole -> pixel (the 1D border lookup,
-analytic because the border points are equidistant), projection onto them, a 3-5 tap bilateral filter along each
-(taps a multiple of the projections' distance apart, in symmetric pairs; distance and depth weights, Gaussian,
-Shepard or threshold), then between the lines by their weight sums; a side without valid taps moves to the next
-outer line (at most ``outer_lines``). Pixels with no valid tap on any tried line are listed per row as
-``unresolved`` (the method ray-marches them). Pixels whose camera ray misses a spot light's cone are exactly 0.
+analytic because the border points are equidistant), projection onto them, a bilateral filter along each (the
+paper's 3-5 taps a multiple of the projections' distance apart, in symmetric pairs, distance and depth weights,
+Gaussian, Shepard or threshold; or one tap, the default: the line texture's depth-weighted linear interpolation at
+the projection, see :data:`~.settings.EPIPOLAR_TAPS`), then between the lines by their weight sums; a side without
+valid taps moves to the next outer line (at most ``outer_lines``). Pixels with no valid tap on any tried line are
+listed per row as ``unresolved`` (the method ray-marches them). Pixels whose camera ray misses a spot light's cone
+are exactly 0.
 
 Work layout (the arithmetic is :func:`line_filter`'s, operation for operation, so the images do not depend on it):
 one thread per band of :data:`UPSAMPLE_TILE` image rows, walked in square tiles so that the texels of the few lines
@@ -119,39 +121,51 @@ def record_projection(r: LineRecord, p: wp.vec2) -> float:
 
 
 @wp.func
+def tap_texels(flt: BilateralFilter, texels: wp.array(dtype=wp.vec4), row: int, n: int, c: float, wdist: float,
+               pixel_depth: float, scale: float, acc: wp.vec4, wsum: float):
+    """One tap of :func:`line_taps` at texel position c (in [0, n - 1]) with distance weight ``wdist``: the two texels
+    around c, each weighted by its linear weight, ``wdist`` and its depth weight (invalid ones skipped), added to
+    (acc, wsum)."""
+    t0 = wp.min(int(c), n - 1)  # c >= 0: truncation is the floor
+    f = c - float(t0)
+    if f < 1.0:
+        v0 = texels[row + t0]
+        w0 = (1.0 - f) * wdist * depth_weight_scaled(flt, v0[3], pixel_depth, scale)
+        if w0 > 0.0:
+            acc += v0 * w0
+            wsum += w0
+    if f > 0.0:
+        v1 = texels[row + wp.min(t0 + 1, n - 1)]
+        w1 = f * wdist * depth_weight_scaled(flt, v1[3], pixel_depth, scale)
+        if w1 > 0.0:
+            acc += v1 * w1
+            wsum += w1
+    return acc, wsum
+
+
+@wp.func
 def line_taps(flt: BilateralFilter, texels: wp.array(dtype=wp.vec4), row: int, n: int, tc: float, step: float,
               pixel_depth: float, scale: float):
     """The taps of :func:`line_filter` along the line whose n texels start at flat index ``row`` of the (L, depth)
-    texels, around texel position tc (n - 1), ``step`` texels apart; ``scale`` is :func:`depth_scale`.
+    texels, around texel position tc (n - 1), ``step`` texels apart; ``scale`` is :func:`depth_scale`. One tap
+    (``flt.taps`` 1) is the texture's depth-weighted linear interpolation at tc (n - 1), without the tap loop.
 
     Returns:
         (sum of w (L, depth), sum of w).
     """
     last = float(n - 1)
     centre = tc * last
-    reach = wp.min(centre, last - centre) + 1.0e-4  # taps go in symmetric pairs: a pair reaching past an end is dropped
     acc = wp.vec4(0.0, 0.0, 0.0, 0.0)
     wsum = float(0.0)
+    if flt.taps == 1:
+        return tap_texels(flt, texels, row, n, centre, flt.tap_weights[0], pixel_depth, scale, acc, wsum)
+    reach = wp.min(centre, last - centre) + 1.0e-4  # taps go in symmetric pairs: a pair reaching past an end is dropped
     for m in range(5):  # unrolled (taps <= 5)
         if m < flt.taps:
             o = flt.tap_offsets[m]
             if not (wp.abs(o) * step > reach and o != 0.0):
-                c = wp.clamp(centre + o * step, 0.0, last)
-                wdist = flt.tap_weights[m]
-                t0 = wp.min(int(c), n - 1)  # c >= 0: truncation is the floor
-                f = c - float(t0)
-                if f < 1.0:
-                    v0 = texels[row + t0]
-                    w0 = (1.0 - f) * wdist * depth_weight_scaled(flt, v0[3], pixel_depth, scale)
-                    if w0 > 0.0:
-                        acc += v0 * w0
-                        wsum += w0
-                if f > 0.0:
-                    v1 = texels[row + wp.min(t0 + 1, n - 1)]
-                    w1 = f * wdist * depth_weight_scaled(flt, v1[3], pixel_depth, scale)
-                    if w1 > 0.0:
-                        acc += v1 * w1
-                        wsum += w1
+                acc, wsum = tap_texels(flt, texels, row, n, wp.clamp(centre + o * step, 0.0, last), flt.tap_weights[m],
+                                       pixel_depth, scale, acc, wsum)
     return acc, wsum
 
 
@@ -181,6 +195,7 @@ def line_filter(geo: EpipolarGeometry, flt: BilateralFilter, lines: LineArrays, 
     tap beyond an end of the segment is dropped, so a linear variation along the line is reproduced at the
     ends too); each tap reads the radiance texture linearly between its two texels, each texel weighted by its
     linear weight, the distance weight and its depth weight (texels with an invalid depth weight are skipped).
+    With one tap (``flt.taps`` 1) that is the texture's depth-weighted linear interpolation at the projection.
 
     Returns:
         (sum of w L, sum of w, distance from p to the line in pixels); the sum of w is 0 when the line is
@@ -415,4 +430,5 @@ __all__ = [
     "line_taps",
     "record_projection",
     "side_filter",
+    "tap_texels",
 ]
