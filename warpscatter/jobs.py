@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .heap import keep_freed_memory_unless_disabled
+
 #: Executor names of :func:`make_executor`.
 EXECUTORS = ("inline", "local", "dask")
 
@@ -124,6 +126,7 @@ def run_task(task: RenderTask) -> TaskResult:
         os.environ["WARPSCATTER_THREADS"] = str(task.threads)
     if task.worker_process:
         _quiet_worker()
+        keep_freed_memory_unless_disabled()  # as the CLI's own process (warpscatter.heap)
     try:
         from .config import validated_config
         from .pipeline import render
