@@ -594,8 +594,9 @@ def _centre_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32), m:
 # ---- settings -------------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("field, value", [("lines", 4), ("initial_samples", 1), ("taps", 0), ("taps", 6),
-                                          ("kernel", "box"), ("depth_threshold", 0.0), ("samples_per_line", 3)])
+@pytest.mark.parametrize("field, value", [("lines", 4), ("initial_samples", 1), ("taps", 0), ("taps", 2),
+                                          ("taps", 6), ("kernel", "box"), ("depth_threshold", 0.0),
+                                          ("samples_per_line", 3)])
 def test_bad_settings_are_rejected(field, value):
     scene = _ground_scene([1.0, -0.3, 0.2], camera=_camera(width=8, height=6))
     gb = gbuffer_raster(scene, DeviceGeometry(scene))

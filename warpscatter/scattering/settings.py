@@ -541,7 +541,8 @@ class EpipolarSettings(SettingsModel):
                                 "x <= 1; distance weight 1)")
     taps: Annotated[Int, Field(ge=1, le=5, description=(
         "taps per line of the bilateral filter: 1 reads each line's texture linearly at the pixel's projection with "
-        "depth weights; 3-5 are the paper's filter, taps a multiple of the lines' distance apart (Sec. 4.3)"))] = \
+        "depth weights; 3-5 are the paper's filter, taps a multiple of the lines' distance apart (Sec. 4.3); not "
+        "2"))] = \
         EPIPOLAR_TAPS
     distance_falloff: Annotated[Float, Field(ge=0.0, le=MAX_DISTANCE_FALLOFF, description=(
         "a of the distance weight, x^2 = a (offset / delta)^2"))] = 0.5
@@ -569,6 +570,14 @@ class EpipolarSettings(SettingsModel):
         if self.lines is not None:
             return int(self.lines)
         return max(64, 8 * round(2 * (width + height) / LINE_SPACING_PX / 8))
+
+    @field_validator("taps")
+    @classmethod
+    def _taps(cls, v: int) -> int:
+        if v == 2:  # two taps +-delta/2 have no centre tap: at a line's ends the pair drops and nothing is left
+            raise ValueError("must be 1 (the line texture read at the pixel's projection) or 3-5 (the paper's "
+                             "filter), got 2")
+        return v
 
     @model_validator(mode="after")
     def _samples(self) -> EpipolarSettings:
