@@ -250,16 +250,17 @@ RAYMARCH_STEPS = 128
 #: stage takes 100 ms with 128 steps, 339 ms with 512, of a 673 / 935 ms frame.
 EPIPOLAR_STEPS = 512
 #: Taps per line of epipolar's bilateral upsampling by default. Engelhardt 2010 Sec. 4.3 filters along each of the two
-#: nearest lines with 3-5 taps a multiple of the lines' distance apart; here the line textures hold a texel per pixel
-#: of line length or more (``samples_per_line``: the image diagonal) and the marched samples carry little noise
+#: nearest lines with 3-5 taps a multiple of the lines' distance apart; here the line textures hold a texel per pixel of
+#: line length or more (``samples_per_line``: the image diagonal) and the marched samples carry little noise
 #: (:data:`EPIPOLAR_STEPS`), so one tap, the line texture's depth-weighted linear interpolation at the pixel's
-#: projection, measured as good and costs half. 960x540, 1024^2, rel. L1 against the exact reference, 3 taps / 1 tap:
-#: colonnade 2.065 / 2.067 %, sun behind 0.231 / 0.227 %; canopy 0.646 / 0.646 %, behind 0.068 / 0.065 %; window room
-#: 0.648 / 0.647 %, behind 0.229 / 0.201 %; quickstart behind 0.099 / 0.097 %; gate behind 0.071 / 0.069 %; spot fence
-#: 0.735 / 0.730 %. With noisier samples the taps help a little (128 steps, both step patterns: 3 taps 0.3-1.6 %
-#: lower on the sun-ahead cases and the window room behind, 0.7-2.3 % higher on the colonnade and canopy behind).
-#: The upsampling kernel at 1920x1080 on two cores:
-#: colonnade 269 -> 129 ms, window room 330 -> 158 ms.
+#: projection, measured within 1 % of the paper's filter (lower or equal on 11 of 16 cases) at half its cost. 960x540,
+#: 1024^2, rel. L1 against the exact reference, 3 taps / 1 tap: colonnade 2.065 / 2.067 %, sun behind 0.231 / 0.227 %;
+#: canopy 0.646 / 0.646 %, behind 0.068 / 0.065 %; window room 0.648 / 0.647 %, behind 0.229 / 0.201 %; quickstart 1.372
+#: / 1.380 %, behind 0.099 / 0.097 %; terrain 0.760 / 0.767 %, behind 0.049 / 0.047 %; gate 2.385 / 2.393 %, behind
+#: 0.071 / 0.069 %; 60 %-opaque gate 1.924 / 1.931 %, behind 0.065 / 0.063 %; colonnade spot 0.729 / 0.729 %; spot fence
+#: 0.735 / 0.730 %. With noisier samples the taps help a little (128 steps, both step patterns: 3 taps 0.3-1.6 % lower
+#: on the sun-ahead cases and the window room behind, 0.7-2.3 % higher on the colonnade and canopy behind). The
+#: upsampling kernel at 1920x1080 on two cores: colonnade 269 -> 129 ms, window room 330 -> 158 ms.
 EPIPOLAR_TAPS = 1
 #: Step pattern (``jitter``) of the raymarch method by default: per_pixel, whose estimate is unbiased pixel by pixel
 #: (the reference marcher converges to the integral at every pixel; its noise decorrelates between pixels).
