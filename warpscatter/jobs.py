@@ -51,7 +51,8 @@ class RenderTask:
         threads: threads of the split CPU launches in the worker (None: the worker's default).
         device: the Warp device to render on (None: the worker's default).
         worker_process: True when the task runs in a worker process this run started (a local pool, a Dask
-            LocalCluster): Warp's messages are then kept at warnings, as the CLI keeps them.
+            LocalCluster): Warp's messages are then kept at warnings and freed frame buffers in the heap, as the CLI
+            does (:mod:`warpscatter.heap`).
     """
 
     label: str
