@@ -14,7 +14,7 @@ from warpscatter.heap import keep_freed_memory, keep_freed_memory_unless_disable
 _FAULTS = textwrap.dedent("""
     import resource, sys
     import numpy as np
-    from warpscatter.heap import keep_freed_memory, keep_freed_memory_unless_disabled
+    from warpscatter.heap import keep_freed_memory
     if sys.argv[1] == "keep":
         assert keep_freed_memory()
     np.ones(64 << 18, dtype=np.float32)  # 64 MB: above glibc's mmap threshold

@@ -23,8 +23,6 @@ M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
 #: Blocks up to this size stay in the heap after they are freed (1 GiB covers every buffer of an 8K frame).
 KEEP_LIMIT_BYTES = 1 << 30
-#: glibc's largest dynamic mmap threshold on 64-bit systems (the fallback where the limit is refused).
-GLIBC_MMAP_THRESHOLD_MAX = 32 << 20
 
 _applied = False
 
@@ -34,8 +32,8 @@ def keep_freed_memory(limit_bytes: int = KEEP_LIMIT_BYTES) -> bool:
     threshold both ``limit_bytes``).
 
     Returns:
-        True when applied (now or before), False where the C library has no ``mallopt`` (macOS, Windows, musl):
-        there it does nothing.
+        True when applied (now, or by an earlier call, whose limit stays), False where the C library has no
+        ``mallopt`` or refuses the limit (macOS, Windows, musl): there it does nothing.
     """
     global _applied
     if _applied:
@@ -50,11 +48,7 @@ def keep_freed_memory(limit_bytes: int = KEEP_LIMIT_BYTES) -> bool:
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     mallopt.restype = ctypes.c_int
     limit = int(min(max(limit_bytes, 0), 2**31 - 1))
-    if not mallopt(M_MMAP_THRESHOLD, limit):  # a glibc that refuses it: its own largest dynamic threshold
-        limit = min(limit, GLIBC_MMAP_THRESHOLD_MAX)
-        if not mallopt(M_MMAP_THRESHOLD, limit):
-            return False
-    _applied = bool(mallopt(M_TRIM_THRESHOLD, limit))
+    _applied = bool(mallopt(M_MMAP_THRESHOLD, limit)) and bool(mallopt(M_TRIM_THRESHOLD, limit))
     if _applied:
         log.debug("freed blocks up to %d MB stay in the heap (mallopt)", limit >> 20)
     return _applied
