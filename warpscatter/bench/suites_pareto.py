@@ -264,6 +264,7 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
                 row["extra"]["epipole_pct"] = round(100 * stats["epipole_raymarched_fraction"], 2)
             if "epipolar_raymarched_fraction" in stats:
                 row["extra"]["raymarched_pct"] = round(100 * stats["epipolar_raymarched_fraction"], 2)
+                row["extra"]["mean_sample_steps"] = round(stats["epipolar_mean_sample_steps"], 1)
             scene_summary[label] = {"ms": round(total, 1), "rel_l1": round(err, 5),
                                     "speedup": f"{bound}{marcher_ms / total:.2f}"}
         summary[scene_name] = scene_summary

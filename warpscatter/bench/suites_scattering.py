@@ -336,6 +336,7 @@ def suite_epipolar(report: BenchReport, repeats: int, warmup: int, quick: bool, 
                                                    "jitter": jitter},
                          median_ms=sum(technique.values()), stages_ms=technique,
                          extra={"raymarched_pct": round(100 * stats["epipolar_raymarched_fraction"], 2),
+                                "mean_sample_steps": round(stats["epipolar_mean_sample_steps"], 1),
                                 "rel_l1_vs_per_pixel": round(errors(images["scattering"], pp_img)["rel_l1"], 4),
                                 "rel_l1_vs_converged": round(errors(images["scattering"],
                                                                     converged["scattering"])["rel_l1"], 4)})

@@ -15,10 +15,12 @@ lines and interpolated elsewhere. Stages (names as they appear in timings):
    texels beside a discontinuity) are ray-marching samples, listed per line and gathered into one list (the
    paper's stencil mask).
 3. ``raymarch``        — the ray-marching samples only, with the reference marcher's estimator
-   (:func:`~.marching.march_screen_point` = :func:`~.marching.march_ray` at a sub-pixel position; same steps
+   (:func:`~.marching.march_screen_point` = :func:`~.marching.march_ray` at a sub-pixel position; steps
    restricted to the lit part of the ray, the step pattern ``ScatteringSettings.march_jitter``: fixed by default,
    and the same visibility: shadow map or exact), into the
-   **radiance texture** (which shares one vec4 texture with the texels' camera depth).
+   **radiance texture** (which shares one vec4 texture with the texels' camera depth). Under a directional light
+   with shadow-map visibility a sample takes ``steps_per_texel`` steps per shadow-map texel its ray crosses, at most
+   ``steps`` (:func:`~.marching.texel_steps`): most marched rays cross far fewer texels than ``steps``.
 4. ``interpolate``     — linear interpolation along each line between the sources; then per pixel (Sec. 4.3,
    5.3): the two nearest lines from the border arclength of the ray epipole -> pixel (the 1D border lookup,
    analytic because the border points are equidistant), projection onto them, a 3-5 tap bilateral filter
@@ -57,7 +59,7 @@ import numpy as np
 import warp as wp
 
 from ..parallel import launch_rows
-from ..scene.camera import CameraParams
+from ..scene.camera import CameraParams, pixel_ray_direction
 from ..scene.lights import LIGHT_SPOT
 from ..stages import StageTimer
 from ..wpinit import default_device, module_options
@@ -80,8 +82,9 @@ from .epipolar_upsampling import (
     interpolate_lines_kernel,
     upsample_kernel,
 )
-from .marching import Marcher, march_ray, march_screen_point, marcher_params, visibility_params
+from .marching import Marcher, march_ray, march_screen_point, marcher_params, texel_steps, visibility_params
 from .raymarch import march_listed_pixels
+from .settings import EPIPOLAR_LEAST_STEPS
 
 module_options()
 
@@ -106,7 +109,10 @@ def raymarch_samples_kernel(
     line_depth: wp.array2d(dtype=wp.float32),
     cam: CameraParams,
     marcher: Marcher,
+    steps_per_texel: float,  # EpipolarSettings.steps_per_texel (texel_steps)
+    least_steps: int,
     radiance: wp.array2d(dtype=wp.vec3),  # out: radiance texture at the ray-marching samples
+    sample_steps: wp.array(dtype=wp.int32),  # out: the steps each sample took
     offset: int,
 ):
     n = wp.tid() + offset
@@ -122,7 +128,11 @@ def raymarch_samples_kernel(
             along = coords[k, x + 1] - p
             if wp.length(along) > 0.0:
                 p = geo.epipole + wp.normalize(along) * LOCAL_EPIPOLE_OFFSET
-    radiance[k, x] = march_screen_point(cam, p[0], p[1], line_depth[k, x], marcher)
+    s = line_depth[k, x]
+    m = marcher
+    m.steps = texel_steps(marcher, cam.position, pixel_ray_direction(cam, p[0], p[1]), s, steps_per_texel, least_steps)
+    sample_steps[n] = m.steps
+    radiance[k, x] = march_screen_point(cam, p[0], p[1], s, m)
 
 
 @wp.kernel
@@ -131,14 +141,22 @@ def grid_raymarch_kernel(
     distance: wp.array2d(dtype=wp.float32),
     stride: int,
     marcher: Marcher,
+    steps_per_texel: float,
+    least_steps: int,
     grid: wp.array2d(dtype=wp.vec3),  # out: L_scat at the grid nodes
+    grid_steps: wp.array2d(dtype=wp.int32),  # out: the steps each node took
     offset: int,
 ):
     gj, gi = wp.tid()
     gj += offset
     i = grid_node(gi, stride, cam.width)
     j = grid_node(gj, stride, cam.height)
-    grid[gj, gi] = march_ray(cam, i, j, distance[j, i], marcher)
+    s = distance[j, i]
+    m = marcher
+    d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
+    m.steps = texel_steps(marcher, cam.position, d, s, steps_per_texel, least_steps)
+    grid_steps[gj, gi] = m.steps
+    grid[gj, gi] = march_ray(cam, i, j, s, m)
 
 
 @wp.kernel
@@ -203,8 +221,9 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
 
     Returns:
         (L_scat, info): (H, W) vec3 wp.array of in-scattered radiance (linear RGB) and a dict with
-        ``epipolar_raymarched_fraction`` (ray marches / pixels), sample and pixel counts, the epipole, the valid
-        line count, the light-texture level and ``epipolar_fallback`` (None or the degenerate-case reason).
+        ``epipolar_raymarched_fraction`` (ray marches / pixels), sample and pixel counts,
+        ``epipolar_mean_sample_steps`` (the mean steps of a marched sample, :func:`~.marching.texel_steps`), the
+        epipole, the valid line count, the light-texture level and ``epipolar_fallback`` (None or the degenerate-case reason).
 
     Raises:
         ValueError: an image smaller than 2 x 2 pixels, or a missing visibility input.
@@ -242,6 +261,7 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
                                  light_texture=prefilter_light_texture(texture, level, device) if level > 0 else None)
         if lines is not None:
             tex = line_samples(lines, gbuffer.distance, ep.depth_threshold, device)
+    adaptive_steps = [float(ep.steps_per_texel), EPIPOLAR_LEAST_STEPS]  # texel_steps' per_texel and least
     info["epipolar_light_texture_level"] = level
     info["epipolar_light_texture_footprint"] = footprint
 
@@ -253,8 +273,10 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
         stride = ep.fallback_stride
         gw, gh = -(-(w - 1) // stride) + 1, -(-(h - 1) // stride) + 1
         grid = wp.empty((gh, gw), dtype=wp.vec3, device=device)
+        steps_taken = wp.empty((gh, gw), dtype=wp.int32, device=device)
         with stage("raymarch"):
-            launch_rows(grid_raymarch_kernel, (gh, gw), [cam_p, gbuffer.distance, int(stride), marcher, grid],
+            launch_rows(grid_raymarch_kernel, (gh, gw),
+                        [cam_p, gbuffer.distance, int(stride), marcher, *adaptive_steps, grid, steps_taken],
                         device=device)
         with stage("interpolate"):
             unresolved = wp.empty(h * w, dtype=wp.int32, device=device)
@@ -270,10 +292,12 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
             dense = LOCAL_DENSE_RADIUS if scene.light.kind == "spot" and not lines.light_behind else 0.0
             classify_samples(lines, tex, ep.depth_threshold, device, dense_radius=dense)
             sample_idx, marched_samples = tex.samples, tex.sample_count
+        steps_taken = wp.zeros(max(int(marched_samples), 1), dtype=wp.int32, device=device)
         with stage("raymarch"):
             if marched_samples:
                 launch_rows(raymarch_samples_kernel, marched_samples,
-                            [sample_idx, geo, tex.coords, tex.depth, cam_p, marcher, tex.radiance], device=device)
+                            [sample_idx, geo, tex.coords, tex.depth, cam_p, marcher, *adaptive_steps, tex.radiance,
+                             steps_taken], device=device)
         with stage("interpolate"):
             launch_rows(interpolate_lines_kernel, lines.count, [tex.valid, tex.interp, tex.radiance], device=device)
             rows = wp.empty((h, w), dtype=wp.int32, device=device)
@@ -294,6 +318,7 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
         march_listed_pixels(scene.camera, gbuffer.distance, marcher, pixel_idx, marched_pixels, out, device=device)
     info.update({
         "epipolar_raymarched_samples": int(marched_samples),
+        "epipolar_mean_sample_steps": float(steps_taken.numpy().mean()) if marched_samples else 0.0,
         "epipolar_raymarched_pixels": int(marched_pixels),
         "epipolar_raymarched_fraction": float((marched_samples + marched_pixels) / (w * h)),
     })

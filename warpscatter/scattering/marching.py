@@ -470,6 +470,24 @@ def march_to_surface(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, n_end: w
 
 
 @wp.func
+def texel_steps(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, per_texel: float, least: int) -> int:
+    """Strata for the ray origin + t d (unit d), t in [0, s], by the shadow-map texels it crosses: ceil(per_texel n),
+    n = (|du| width + |dv| height) s of its projection into an ORTHOGRAPHIC map (a directional light's,
+    :func:`~warpscatter.shadows.shadow_map.orthographic_ray_coords`), kept within [min(least, m.steps), m.steps].
+    ``m.steps`` for any other light, map or visibility, and for per_texel <= 0. A hard look-up is constant over a
+    texel's stretch of ray but for one depth crossing, so a few strata per texel resolve it as well as many: the
+    steps go to the rays that cross many texels (epipolar's samples, :data:`~.settings.EPIPOLAR_STEPS_PER_TEXEL`)."""
+    if (per_texel <= 0.0 or m.light.kind != LIGHT_DIRECTIONAL or m.vis.mode != VISIBILITY_SHADOW_MAP
+            or m.vis.sm.perspective != 0):
+        return m.steps
+    _c0, dc = orthographic_ray_coords(m.vis.sm, origin, d)
+    per_length = wp.abs(dc[0]) * float(m.vis.sm.width) + wp.abs(dc[1]) * float(m.vis.sm.height)
+    texels = per_length * wp.min(s, 1.0e30)  # a sky ray's s may be +inf (and 0 * inf is NaN)
+    n = int(wp.min(wp.ceil(per_texel * texels), float(m.steps)))  # capped in float: int() of 1e30 overflows
+    return wp.clamp(n, wp.min(least, m.steps), m.steps)
+
+
+@wp.func
 def march_ray(cam: CameraParams, i: int, j: int, s: float, m: Marcher) -> wp.vec3:
     """L_scat of pixel (i, j) whose ray ends at distance s (:func:`march_to_surface` from the camera with the
     pixel's ``m.end_normals``; see the module doc)."""
@@ -684,6 +702,7 @@ __all__ = [
     "march_screen_point",
     "marcher_params",
     "march_transmittance_strata",
+    "texel_steps",
     "point_visibility",
     "shadow_ray_offset",
     "visibility_params",

@@ -249,6 +249,21 @@ RAYMARCH_STEPS = 128
 #: 0.63 % in 1.3-1.6x the time of 512 (the 1024^2 map's own error is the floor). At 1920x1080 the colonnade's raymarch
 #: stage takes 100 ms with 128 steps, 339 ms with 512, of a 673 / 935 ms frame.
 EPIPOLAR_STEPS = 512
+#: ... of which a ray-marched epipolar sample takes this many per shadow-map texel its ray crosses (directional lights,
+#: shadow-map visibility; :func:`~.marching.texel_steps`), at least EPIPOLAR_LEAST_STEPS. A hard look-up is constant
+#: along a texel's stretch of ray but for one depth crossing, so the fixed pattern's error depends on the steps per
+#: texel, not per ray: at 1920x1080 with a 1024^2 map the colonnade's marched rays cross 75 texels (median; mean 292),
+#: the canopy's 172 (375), the window room's 530 (553), and 512 steps gave the short ones 7-70 per texel. Measured at
+#: 960x540 against the exact reference (rel. L1, the 16 bench fidelity cases), 512 fixed -> 4 / 6 / 8 per texel:
+#: colonnade 2.067 -> 2.067 / 2.069 / 2.064 %, canopy 0.646 -> 0.647 / 0.646 / 0.647 %, gate 2.393 -> 2.395 / 2.393 /
+#: 2.394 %, 60 %-opaque gate 1.931 -> 1.932 / 1.931 / 1.931 %, terrain 0.767 -> 0.767 %, quickstart 1.380 -> 1.380 %,
+#: the window room and every sun-behind case within 0.0003 % (3 per texel: colonnade 2.080 %). The raymarch stage at
+#: 1080p (two alternating runs): colonnade 240 / 245 -> 135 / 167 ms, canopy 242 / 282 -> 157 / 195 ms, window room
+#: 125 / 119 -> 117 / 115 ms. 0 gives every sample ``steps``.
+EPIPOLAR_STEPS_PER_TEXEL = 4.0
+#: Fewest steps of a ray-marched epipolar sample under EPIPOLAR_STEPS_PER_TEXEL (rays along the light cross few texels
+#: but their depth sweeps through a caster's within one; 32 and 64 measured the same).
+EPIPOLAR_LEAST_STEPS = 32
 #: Taps per line of epipolar's bilateral upsampling by default. Engelhardt 2010 Sec. 4.3 filters along each of the two
 #: nearest lines with 3-5 taps a multiple of the lines' distance apart; here the line textures hold a texel per pixel of
 #: line length or more (``samples_per_line``: the image diagonal) and the marched samples carry little noise
@@ -537,6 +552,10 @@ class EpipolarSettings(SettingsModel):
         None, description="texels per line (the most samples); null: the image diagonal in pixels")
     depth_threshold: Annotated[Float, Field(ge=MIN_RELATIVE_DEPTH, le=MAX_RELATIVE_DEPTH, description=(
         "relative camera-depth jump that is a discontinuity"))] = 0.05
+    steps_per_texel: Annotated[Float, Field(ge=0.0, le=MAX_STEPS, description=(
+        "steps per shadow-map texel its ray crosses for each ray-marched sample (directional light, shadow-map "
+        "visibility), between " + str(EPIPOLAR_LEAST_STEPS) + " and `steps`; 0: every sample takes `steps`"))] = \
+        EPIPOLAR_STEPS_PER_TEXEL
     kernel: Literal[EPIPOLAR_KERNELS] = Field(  # type: ignore[valid-type]
         "gaussian", description="bilateral weight: gaussian exp(-x^2), shepard 1/(1+x^2), threshold (depth only: "
                                 "x <= 1; distance weight 1)")
@@ -687,6 +706,8 @@ __all__ = [
     "SPOT_OVERESTIMATION_MOMENTS4",
     "EPIPOLAR_KERNELS",
     "EPIPOLAR_TAPS",
+    "EPIPOLAR_STEPS_PER_TEXEL",
+    "EPIPOLAR_LEAST_STEPS",
     "END_SAMPLES",
     "END_SAMPLES_MIN_DEG",
     "END_STRETCH_MIN_WEIGHT",
