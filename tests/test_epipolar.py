@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from warpscatter.config import load_config
+from warpscatter.errors import ConfigError
 from warpscatter.gbuffer import gbuffer_raster
 from warpscatter.scattering import epipolar as ep
 from warpscatter.scattering import epipolar_textures as et
@@ -673,6 +674,39 @@ def test_epipolar_samples_take_steps_by_the_texels_they_cross():
         assert fixed_stats["epipolar_mean_sample_steps"] == 512
         assert stats["epipolar_mean_sample_steps"] < fewer * 512
         assert rel(adaptive) < 1.05 * rel(fixed) and rel(adaptive) < 0.7 * rel(coarse)
+
+
+def test_samples_debug_output_shows_the_steps_marched_at_each_pixel(tmp_path):
+    """``output.aovs: [epipolar_samples]``: per pixel the steps its marched samples (and directly marched pixels) took,
+    0 where the value was interpolated; written as NAME.epipolar_samples.exr; other methods refuse it by name."""
+    from click.testing import CliRunner
+
+    from cli.main import main
+    from warpscatter.pipeline import render_images
+
+    over = ["camera.width=160", "camera.height=90", "render.scattering.method=epipolar",
+            "render.scattering.visibility=shadow_map", "render.scattering.shadow_map.resolution=512"]
+    cfg = load_config(CONFIGS / "colonnade.yaml", over + ["output.aovs=[color, epipolar_samples]"])
+    images, stats = render_images(build_scene(cfg), cfg.render, aovs=cfg.output.aovs)
+    img = images["epipolar_samples"]
+    assert img.shape == (90, 160) and img.dtype == np.float32
+    total = stats["epipolar_raymarched_samples"] * stats["epipolar_mean_sample_steps"]
+    total += stats["epipolar_raymarched_pixels"] * stats["steps"]
+    assert img.sum() == pytest.approx(total, rel=1e-5)
+    assert 0.05 < (img > 0).mean() < 0.5  # the lines' samples, not every pixel
+    assert (img[img > 0] >= 32).all()  # every marched sample takes at least EPIPOLAR_LEAST_STEPS
+    plain, _ = render_images(build_scene(cfg), cfg.render)
+    assert "epipolar_samples" not in plain  # made only when asked
+    np.testing.assert_array_equal(plain["scattering"], images["scattering"])
+    out = tmp_path / "out"
+    sets = [a for o in over + ["output.aovs=[color,epipolar_samples]"] for a in ("--set", o)]
+    result = CliRunner().invoke(main, ["render", str(CONFIGS / "colonnade.yaml"), "-o", str(out), *sets])
+    assert result.exit_code == 0, result.output
+    assert (out / "colonnade.epipolar_samples.exr").is_file()
+    with pytest.raises(ConfigError, match="epipolar_samples is made by epipolar, not by render.scattering.method "
+                                         "'fourier'"):
+        load_config(CONFIGS / "colonnade.yaml", ["render.scattering.method=fourier",
+                                                 "output.aovs=[color, epipolar_samples]"])
 
 
 # ---- settings -------------------------------------------------------------------------------------------------

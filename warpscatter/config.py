@@ -127,8 +127,9 @@ STANDARD_AOVS = ("color", "scattering", "surface", "depth")
 #: rectified look-up coordinates (u, v, z_r), ``epipole_mask`` the weight of the ray-marched epipole region per pixel
 #: (1: marched, 0: prefiltered), ``rectified_map`` the rectified depth map and the texels caster culling emptied
 #: (map-sized, 2 channels), ``mip_level`` the row mip level each pixel's look-up reads (level + the share of the next;
-#: ``prefiltered.mip_levels``).
-DEBUG_AOVS = ("rectified", "epipole_mask", "rectified_map", "mip_level")
+#: ``prefiltered.mip_levels``); ``epipolar_samples`` the ray-march steps taken at each pixel by epipolar's marched
+#: samples and directly marched pixels (0: interpolated).
+DEBUG_AOVS = ("rectified", "epipole_mask", "rectified_map", "mip_level", "epipolar_samples")
 #: Image outputs a render can write (``output.aovs``).
 AOV_NAMES = STANDARD_AOVS + DEBUG_AOVS
 #: Mesh file suffixes accepted in ``scene.meshes.N.path`` (loaded with trimesh).
@@ -624,7 +625,8 @@ class OutputConfig(SettingsModel):
                       "stem (render for a config built from a dict), {method} the scattering or lighting method")
     aovs: list[Literal[AOV_NAMES]] = Field(  # type: ignore[valid-type]
         default_factory=lambda: list(STANDARD_AOVS), description="images to write besides NAME.exr/.png; the "
-        "debug outputs " + ", ".join(DEBUG_AOVS) + " need a method that makes them (the prefiltered ones)")
+        "debug outputs " + ", ".join(DEBUG_AOVS) + " need a method that makes them (the prefiltered ones; "
+        "epipolar_samples: epipolar)")
     exposure: Annotated[Float, Field(gt=0.0, le=MAX_GAIN, description="PNG preview exposure (linear factor)")] = 1.0
     compression: Literal[EXR_COMPRESSIONS] = Field(  # type: ignore[valid-type]
         "none", description="EXR compression, all lossless: none is the fastest to write; rle makes the files a "

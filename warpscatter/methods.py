@@ -107,7 +107,8 @@ SCATTERING: dict[str, Method] = {m.name: m for m in (
            "ray marching at a few percent of the pixels on epipolar lines, bilateral upsampling", CLASSIC_LIGHTS,
            sections=("epipolar",), visibility=VISIBILITY_CONFIGURABLE,
            modules=("warpscatter.scattering.epipolar_textures", "warpscatter.scattering.epipolar_upsampling",
-                    "warpscatter.scattering.epipolar"), entry="warpscatter.scattering.epipolar:render"),
+                    "warpscatter.scattering.epipolar"), entry="warpscatter.scattering.epipolar:render",
+           debug_aovs=("epipolar_samples",)),
 )}
 
 LIGHTING: dict[str, Method] = {m.name: m for m in (

@@ -204,6 +204,21 @@ def prefilter_light_texture(texture: np.ndarray, level: int, device=None) -> wp.
     return out
 
 
+def marched_steps_image(width: int, height: int, samples: np.ndarray, sample_steps: np.ndarray, pixels: np.ndarray,
+                        pixel_steps: int) -> np.ndarray:
+    """The ``epipolar_samples`` debug output: (height, width) float32, per pixel the ray-march steps taken there
+    (0: interpolated). ``samples`` (N, 2) screen positions (pixels) of the marched samples with their
+    ``sample_steps``; ``pixels`` the flat indices (j * width + i) of the pixels marched directly, ``pixel_steps``
+    each. Samples sharing a pixel add up."""
+    img = np.zeros((height, width), np.float32)
+    if len(samples):
+        i = np.clip(np.floor(samples[:, 0]).astype(np.int64), 0, width - 1)
+        j = np.clip(np.floor(samples[:, 1]).astype(np.int64), 0, height - 1)
+        np.add.at(img, (j, i), np.asarray(sample_steps, np.float32))
+    np.add.at(img.reshape(-1), np.asarray(pixels, np.int64), np.float32(pixel_steps))
+    return img
+
+
 def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, dict]:
     """Single scattering by epipolar sampling: the ``epipolar`` method (see the module doc; the registry's call
     shape, :mod:`warpscatter.methods`).
@@ -223,7 +238,9 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
         (L_scat, info): (H, W) vec3 wp.array of in-scattered radiance (linear RGB) and a dict with
         ``epipolar_raymarched_fraction`` (ray marches / pixels), sample and pixel counts,
         ``epipolar_mean_sample_steps`` (the mean steps of a marched sample, :func:`~.marching.texel_steps`), the
-        epipole, the valid line count, the light-texture level and ``epipolar_fallback`` (None or the degenerate-case reason).
+        epipole, the valid line count, the light-texture level, ``epipolar_fallback`` (None or the degenerate-case
+        reason) and, when the frame asks for it, the ``epipolar_samples`` debug output in ``debug_images``
+        (:func:`marched_steps_image`).
 
     Raises:
         ValueError: an image smaller than 2 x 2 pixels, or a missing visibility input.
@@ -316,6 +333,14 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
         else:
             pixel_idx, marched_pixels = gather_rows(rows, row_count, device)
         march_listed_pixels(scene.camera, gbuffer.distance, marcher, pixel_idx, marched_pixels, out, device=device)
+    if "epipolar_samples" in frame.aovs:
+        if lines is None:
+            gy, gx = np.mgrid[0:gh, 0:gw]
+            xy = np.stack([np.minimum(gx * stride, w - 1), np.minimum(gy * stride, h - 1)], -1).reshape(-1, 2) + 0.5
+        else:
+            xy = tex.coords.numpy().reshape(-1, 2)[sample_idx.numpy()[:marched_samples]]
+        info["debug_images"] = {"epipolar_samples": marched_steps_image(
+            w, h, xy, steps_taken.numpy().reshape(-1)[:len(xy)], pixel_idx.numpy()[:marched_pixels], marcher.steps)}
     info.update({
         "epipolar_raymarched_samples": int(marched_samples),
         "epipolar_mean_sample_steps": float(steps_taken.numpy().mean()) if marched_samples else 0.0,
@@ -327,6 +352,7 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
 
 __all__ = [
     "grid_raymarch_kernel",
+    "marched_steps_image",
     "prefilter_light_texture",
     "raymarch_samples_kernel",
     "render",
