@@ -599,14 +599,16 @@ def _texel_steps_kernel(m: marching.Marcher, origin: wp.vec3, dirs: wp.array(dty
     n = wp.tid()
     d = dirs[n]
     steps[n] = marching.texel_steps(m, origin, d, lengths[n], per_texel, least)
-    ends[n, 0] = shadow_coords(m.vis.sm, origin)
-    ends[n, 1] = shadow_coords(m.vis.sm, origin + d * lengths[n])
+    t0, t1 = marching.lit_interval(m.light, origin, d, lengths[n])  # the whole ray for a directional light
+    ends[n, 0] = shadow_coords(m.vis.sm, origin + d * t0)
+    ends[n, 1] = shadow_coords(m.vis.sm, origin + d * t1)
 
 
 def test_texel_steps_follow_the_texels_a_ray_crosses():
-    """texel_steps: ceil(per_texel x the shadow-map texels a ray's projection crosses, |du| width + |dv| height),
-    within [min(least, steps), steps], checked against the two end points' map coordinates (shadow_coords, not
-    the affine form texel_steps uses); every other light, visibility or per_texel 0 keeps ``steps``."""
+    """texel_steps: ceil(per_texel x the shadow-map texels a ray's lit part's projection crosses, |du| width + |dv|
+    height), within [min(least, steps), steps], checked against the two end points' map coordinates (shadow_coords,
+    not the affine form texel_steps uses for a directional light); a spot's perspective map counts the chord inside
+    its cone; exact visibility or per_texel 0 keep ``steps``."""
     scene = _ground_scene([0.3, -1.0, -0.4])
     sm = render_shadow_map(scene, 256)
     dev = default_device()
@@ -647,7 +649,12 @@ def test_texel_steps_follow_the_texels_a_ray_crosses():
                       medium=scene.medium)
     m_spot = marching.marcher_params(spot, steps=512, visibility=marching.visibility_params(
         spot, "shadow_map", shadow_map=render_shadow_map(spot, 256)))
-    assert (run(m_spot, 4.0)[0] == 512).all()
+    got, ends = run(m_spot, 4.0)
+    texels = np.abs(ends[:, 1, 0] - ends[:, 0, 0]) * w + np.abs(ends[:, 1, 1] - ends[:, 0, 1]) * h
+    lit = (ends[:, 0, :2] >= 0).all(1) & (ends[:, 1, :2] >= 0).all(1)  # both ends in front of the light
+    want = np.clip(np.ceil(4.0 * texels), 32, 512)
+    assert lit.sum() > 50 and np.abs(got[lit] - want[lit]).max() <= 1
+    assert ((got > 32) & (got < 512)).sum() > 20 and (got == 512).sum() > 0
 
 
 def test_epipolar_samples_take_steps_by_the_texels_they_cross():

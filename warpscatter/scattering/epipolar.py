@@ -18,9 +18,9 @@ lines and interpolated elsewhere. Stages (names as they appear in timings):
    (:func:`~.marching.march_screen_point` = :func:`~.marching.march_ray` at a sub-pixel position; steps
    restricted to the lit part of the ray, the step pattern ``ScatteringSettings.march_jitter``: fixed by default,
    and the same visibility: shadow map or exact), into the
-   **radiance texture** (which shares one vec4 texture with the texels' camera depth). Under a directional light
-   with shadow-map visibility a sample takes ``steps_per_texel`` steps per shadow-map texel its ray crosses, at most
-   ``steps`` (:func:`~.marching.texel_steps`): most marched rays cross far fewer texels than ``steps``.
+   **radiance texture** (which shares one vec4 texture with the texels' camera depth). With shadow-map visibility a
+   sample takes ``steps_per_texel`` steps per shadow-map texel its ray crosses, at most ``steps``
+   (:func:`~.marching.texel_steps`): most marched rays cross far fewer texels than ``steps``.
 4. ``interpolate``     — linear interpolation along each line between the sources; then per pixel (Sec. 4.3,
    5.3): the two nearest lines from the border arclength of the ray epipole -> pixel (the 1D border lookup,
    analytic because the border points are equidistant), projection onto them, a 3-5 tap bilateral filter

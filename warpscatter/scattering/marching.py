@@ -472,17 +472,37 @@ def march_to_surface(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, n_end: w
 @wp.func
 def texel_steps(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, per_texel: float, least: int) -> int:
     """Strata for the ray origin + t d (unit d), t in [0, s], by the shadow-map texels it crosses: ceil(per_texel n),
-    n = (|du| width + |dv| height) s of its projection into an ORTHOGRAPHIC map (a directional light's,
-    :func:`~warpscatter.shadows.shadow_map.orthographic_ray_coords`), kept within [min(least, m.steps), m.steps].
-    ``m.steps`` for any other light, map or visibility, and for per_texel <= 0. A hard look-up is constant over a
-    texel's stretch of ray but for one depth crossing, so a few strata per texel resolve it as well as many: the
-    steps go to the rays that cross many texels (epipolar's samples, :data:`~.settings.EPIPOLAR_STEPS_PER_TEXEL`)."""
-    if (per_texel <= 0.0 or m.light.kind != LIGHT_DIRECTIONAL or m.vis.mode != VISIBILITY_SHADOW_MAP
-            or m.vis.sm.perspective != 0):
+    n = |du| width + |dv| height of its lit part's projection into the map, kept within [min(least, m.steps),
+    m.steps]. A directional light's orthographic map: the whole ray (affine,
+    :func:`~warpscatter.shadows.shadow_map.orthographic_ray_coords`); a spot's perspective map: the chord
+    :func:`lit_interval` gives, its end points projected (a segment in front of the light projects to a segment),
+    counted on the finer of the map and the spot's texture. ``m.steps`` with exact visibility and for per_texel <= 0.
+    A hard look-up is constant over a texel's stretch of ray but for one depth crossing, so a few strata per texel
+    resolve it as well as many: the steps go to the rays that cross many texels (epipolar's samples,
+    :data:`~.settings.EPIPOLAR_STEPS_PER_TEXEL`)."""
+    if per_texel <= 0.0 or m.vis.mode != VISIBILITY_SHADOW_MAP:
         return m.steps
-    _c0, dc = orthographic_ray_coords(m.vis.sm, origin, d)
-    per_length = wp.abs(dc[0]) * float(m.vis.sm.width) + wp.abs(dc[1]) * float(m.vis.sm.height)
-    texels = per_length * wp.min(s, 1.0e30)  # a sky ray's s may be +inf (and 0 * inf is NaN)
+    texels = float(0.0)
+    if m.vis.sm.perspective == 0:
+        if m.light.kind != LIGHT_DIRECTIONAL:
+            return m.steps
+        _c0, dc = orthographic_ray_coords(m.vis.sm, origin, d)
+        per_length = wp.abs(dc[0]) * float(m.vis.sm.width) + wp.abs(dc[1]) * float(m.vis.sm.height)
+        texels = per_length * wp.min(s, 1.0e30)  # a sky ray's s may be +inf (and 0 * inf is NaN)
+    else:
+        t_lo, t_hi = lit_interval(m.light, origin, d, s)
+        if t_hi <= t_lo:
+            return wp.min(least, m.steps)  # the ray never enters the light: its march adds nothing
+        a = shadow_coords(m.vis.sm, origin + d * t_lo)
+        b = shadow_coords(m.vis.sm, origin + d * t_hi)
+        if a[0] < 0.0 and a[1] < 0.0 or b[0] < 0.0 and b[1] < 0.0:
+            return m.steps  # an end at or behind the light's plane (shadow_coords' marker): no projected segment
+        cols = float(m.vis.sm.width)
+        rows = float(m.vis.sm.height)
+        if m.light.has_texture != 0:  # the texture's colours change along the ray too
+            cols = wp.max(cols, float(m.light.texture.shape[1]))
+            rows = wp.max(rows, float(m.light.texture.shape[0]))
+        texels = wp.abs(b[0] - a[0]) * cols + wp.abs(b[1] - a[1]) * rows
     n = int(wp.min(wp.ceil(per_texel * texels), float(m.steps)))  # capped in float: int() of 1e30 overflows
     return wp.clamp(n, wp.min(least, m.steps), m.steps)
 

@@ -249,8 +249,8 @@ RAYMARCH_STEPS = 128
 #: 0.63 % in 1.3-1.6x the time of 512 (the 1024^2 map's own error is the floor). At 1920x1080 the colonnade's raymarch
 #: stage takes 100 ms with 128 steps, 339 ms with 512, of a 673 / 935 ms frame.
 EPIPOLAR_STEPS = 512
-#: ... of which a ray-marched epipolar sample takes this many per shadow-map texel its ray crosses (directional lights,
-#: shadow-map visibility; :func:`~.marching.texel_steps`), at least EPIPOLAR_LEAST_STEPS. A hard look-up is constant
+#: ... of which a ray-marched epipolar sample takes this many per shadow-map texel its ray crosses (shadow-map
+#: visibility; :func:`~.marching.texel_steps`), at least EPIPOLAR_LEAST_STEPS. A hard look-up is constant
 #: along a texel's stretch of ray but for one depth crossing, so the fixed pattern's error depends on the steps per
 #: texel, not per ray: at 1920x1080 with a 1024^2 map the colonnade's marched rays cross 75 texels (median; mean 292),
 #: the canopy's 172 (375), the window room's 530 (553), and 512 steps gave the short ones 7-70 per texel. Measured at
@@ -259,7 +259,9 @@ EPIPOLAR_STEPS = 512
 #: 2.394 %, 60 %-opaque gate 1.931 -> 1.932 / 1.931 / 1.931 %, terrain 0.767 -> 0.767 %, quickstart 1.380 -> 1.380 %,
 #: the window room and every sun-behind case within 0.0003 % (3 per texel: colonnade 2.080 %). The raymarch stage at
 #: 1080p (two alternating runs): colonnade 240 / 245 -> 135 / 167 ms, canopy 242 / 282 -> 157 / 195 ms, window room
-#: 125 / 119 -> 117 / 115 ms. 0 gives every sample ``steps``.
+#: 125 / 119 -> 117 / 115 ms. Under a spot (its perspective map, counted on the finer of map and texture) the rays
+#: near the light cross many texels: colonnade spot 0.7292 -> 0.7294 % in 484 steps on average, spot fence 0.7299 ->
+#: 0.7299 % in 474. 0 gives every sample ``steps``.
 EPIPOLAR_STEPS_PER_TEXEL = 4.0
 #: Fewest steps of a ray-marched epipolar sample under EPIPOLAR_STEPS_PER_TEXEL (rays along the light cross few texels
 #: but their depth sweeps through a caster's within one; 32 and 64 measured the same).
@@ -553,8 +555,8 @@ class EpipolarSettings(SettingsModel):
     depth_threshold: Annotated[Float, Field(ge=MIN_RELATIVE_DEPTH, le=MAX_RELATIVE_DEPTH, description=(
         "relative camera-depth jump that is a discontinuity"))] = 0.05
     steps_per_texel: Annotated[Float, Field(ge=0.0, le=MAX_STEPS, description=(
-        "steps per shadow-map texel its ray crosses for each ray-marched sample (directional light, shadow-map "
-        "visibility), between " + str(EPIPOLAR_LEAST_STEPS) + " and `steps`; 0: every sample takes `steps`"))] = \
+        "steps per shadow-map texel its ray crosses for each ray-marched sample (shadow-map visibility), between "
+        + str(EPIPOLAR_LEAST_STEPS) + " and `steps`; 0: every sample takes `steps`"))] = \
         EPIPOLAR_STEPS_PER_TEXEL
     kernel: Literal[EPIPOLAR_KERNELS] = Field(  # type: ignore[valid-type]
         "gaussian", description="bilateral weight: gaussian exp(-x^2), shepard 1/(1+x^2), threshold (depth only: "
