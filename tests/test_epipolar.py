@@ -688,7 +688,7 @@ def test_samples_debug_output_shows_the_steps_marched_at_each_pixel(tmp_path):
     0 where the value was interpolated; written as NAME.epipolar_samples.exr; other methods refuse it by name."""
     from click.testing import CliRunner
 
-    from cli.main import main
+    from warpscatter.cli.main import main
     from warpscatter.pipeline import render_images
 
     over = ["camera.width=160", "camera.height=90", "render.scattering.method=epipolar",
