@@ -702,6 +702,15 @@ def test_samples_debug_output_shows_the_steps_marched_at_each_pixel(tmp_path):
     assert img.sum() == pytest.approx(total, rel=1e-5)
     assert 0.05 < (img > 0).mean() < 0.5  # the lines' samples, not every pixel
     assert (img[img > 0] >= 32).all()  # every marched sample takes at least EPIPOLAR_LEAST_STEPS
+    grid = load_config(CONFIGS / "colonnade.yaml", over + ["output.aovs=[color, epipolar_samples]",
+                                                          "render.scattering.epipolar.sampling=screen",
+                                                          "render.scattering.epipolar.fallback_stride=4"])
+    grid_images, grid_stats = render_images(build_scene(grid), grid.render, aovs=grid.output.aovs)
+    gi, gj = np.minimum(np.arange(41) * 4, 159), np.minimum(np.arange(24) * 4, 89)  # nodes: every 4th px, the edges
+    nodes = grid_images["epipolar_samples"][np.ix_(gj, gi)]
+    marched = int((grid_images["epipolar_samples"] > 0).sum())
+    assert (nodes > 0).all() and nodes.size == grid_stats["epipolar_raymarched_samples"]
+    assert marched == nodes.size + grid_stats["epipolar_raymarched_pixels"]  # plus pixels without a valid corner
     plain, _ = render_images(build_scene(cfg), cfg.render)
     assert "epipolar_samples" not in plain  # made only when asked
     np.testing.assert_array_equal(plain["scattering"], images["scattering"])

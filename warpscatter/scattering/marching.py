@@ -145,7 +145,9 @@ class EndSurface:
 
 @wp.func
 def exact_visibility(mesh: wp.uint64, x: wp.vec3, omega_l: wp.vec3, dist: float, eps: float) -> float:
-    """1 if the segment from x towards the light (travel direction omega_l, light at ``dist``) is unblocked."""
+    """1 if the segment from x towards the light (travel direction omega_l, light at ``dist``) is unblocked. The
+    shadow ray starts ``eps`` towards the light: for a point on a surface (its own triangle must not block it); 0 for
+    a medium point (:func:`point_visibility`), which an offset start would carry through a surface closer than eps."""
     start = x - omega_l * eps
     q = wp.mesh_query_ray(mesh, start, -omega_l, wp.min(dist, 1.0e20))
     if q.result:
