@@ -350,7 +350,7 @@ def test_output_section(tmp_path):
     msg = problems(tmp_path, {"output": {"name": "a/b", "aovs": ["normals"], "exposure": 0}})
     assert "output.name: must be a plain file stem" in msg
     assert ("output.aovs.0: must be one of 'color', 'scattering', 'surface', 'depth', 'rectified', 'epipole_mask', "
-            "'rectified_map', 'mip_level' or 'epipolar_samples' (got 'normals')") in msg
+            "'rectified_map', 'mip_level', 'evaluated_pixels' or 'epipolar_samples' (got 'normals')") in msg
     assert "output.exposure: must be > 0" in msg
 
 

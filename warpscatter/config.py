@@ -127,9 +127,10 @@ STANDARD_AOVS = ("color", "scattering", "surface", "depth")
 #: rectified look-up coordinates (u, v, z_r), ``epipole_mask`` the weight of the ray-marched epipole region per pixel
 #: (1: marched, 0: prefiltered), ``rectified_map`` the rectified depth map and the texels caster culling emptied
 #: (map-sized, 2 channels), ``mip_level`` the row mip level each pixel's look-up reads (level + the share of the next;
-#: ``prefiltered.mip_levels``); ``epipolar_samples`` the ray-march steps taken at each pixel by epipolar's marched
-#: samples and directly marched pixels (0: interpolated).
-DEBUG_AOVS = ("rectified", "epipole_mask", "rectified_map", "mip_level", "epipolar_samples")
+#: ``prefiltered.mip_levels``); ``evaluated_pixels`` 1 where the prefiltered look-up ran, 0 where the pixel interpolated
+#: its grid cell (``prefiltered.evaluate_stride``); ``epipolar_samples`` the ray-march steps taken at each pixel by
+#: epipolar's marched samples and directly marched pixels (0: interpolated).
+DEBUG_AOVS = ("rectified", "epipole_mask", "rectified_map", "mip_level", "evaluated_pixels", "epipolar_samples")
 #: Image outputs a render can write (``output.aovs``).
 AOV_NAMES = STANDARD_AOVS + DEBUG_AOVS
 #: Mesh file suffixes accepted in ``scene.meshes.N.path`` (loaded with trimesh).

@@ -65,7 +65,7 @@ __all__ = [
 #: Channel count of each render output (``color`` is also written as the PNG preview), in file order: the standard
 #: outputs, then the debug ones (:data:`warpscatter.config.DEBUG_AOVS`).
 AOV_CHANNELS = {"color": 3, "scattering": 3, "surface": 3, "depth": 1, "rectified": 3, "epipole_mask": 1,
-                "rectified_map": 2, "mip_level": 1, "epipolar_samples": 1}
+                "rectified_map": 2, "mip_level": 1, "evaluated_pixels": 1, "epipolar_samples": 1}
 #: Outputs with their own size (a texture, not the image): exempt from the same-size check.
 OWN_SIZE_AOVS = ("rectified_map",)
 

@@ -82,7 +82,7 @@ _PREFILTERED_MODULES = ("warpscatter.scattering.rectify_nonlinear", "warpscatter
                         "warpscatter.scattering.prefix_sums", "warpscatter.scattering.filtered_lookups",
                         "warpscatter.scattering.caster_culling", "warpscatter.scattering.epipole_fallback",
                         "warpscatter.scattering.prefiltered", "warpscatter.scattering.prefiltered_spot")
-_PREFILTERED_AOVS = ("rectified", "epipole_mask", "rectified_map", "mip_level")
+_PREFILTERED_AOVS = ("rectified", "epipole_mask", "rectified_map", "mip_level", "evaluated_pixels")
 _LIGHTING_MODULES = ("warpscatter.csm.brdf", "warpscatter.csm.compress", "warpscatter.csm.depthmaps",
                      "warpscatter.csm.query", "warpscatter.csm.environment", "warpscatter.csm.local_lights")
 

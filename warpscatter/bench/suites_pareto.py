@@ -262,6 +262,8 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
                                     **extra})
             if "epipole_raymarched_fraction" in stats:
                 row["extra"]["epipole_pct"] = round(100 * stats["epipole_raymarched_fraction"], 2)
+            if "evaluated_fraction" in stats:
+                row["extra"]["evaluated_pct"] = round(100 * stats["evaluated_fraction"], 2)
             if "epipolar_raymarched_fraction" in stats:
                 row["extra"]["raymarched_pct"] = round(100 * stats["epipolar_raymarched_fraction"], 2)
                 row["extra"]["mean_sample_steps"] = round(stats["epipolar_mean_sample_steps"], 1)

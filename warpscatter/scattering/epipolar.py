@@ -77,7 +77,6 @@ from .epipolar_textures import (
 from .epipolar_upsampling import (
     UPSAMPLE_TILE,
     filter_params,
-    grid_node,
     grid_upsample_kernel,
     interpolate_lines_kernel,
     upsample_kernel,
@@ -85,6 +84,7 @@ from .epipolar_upsampling import (
 from .marching import Marcher, march_ray, march_screen_point, marcher_params, texel_steps, visibility_params
 from .raymarch import march_listed_pixels
 from .settings import EPIPOLAR_LEAST_STEPS
+from .sparse_evaluation import grid_node, grid_size
 
 module_options()
 
@@ -288,7 +288,7 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
             logger.warning("epipolar sampling falls back to screen-space subsampling every %d px: %s",
                            ep.fallback_stride, reason)
         stride = ep.fallback_stride
-        gw, gh = -(-(w - 1) // stride) + 1, -(-(h - 1) // stride) + 1
+        gw, gh = grid_size(w, stride), grid_size(h, stride)
         grid = wp.empty((gh, gw), dtype=wp.vec3, device=device)
         steps_taken = wp.empty((gh, gw), dtype=wp.int32, device=device)
         with stage("raymarch"):

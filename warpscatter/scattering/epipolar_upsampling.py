@@ -34,6 +34,7 @@ from .epipolar_textures import (
     wrap_line,
 )
 from .settings import EPIPOLAR_KERNELS, EpipolarSettings
+from .sparse_evaluation import grid_node
 
 module_options()
 
@@ -217,12 +218,6 @@ def side_filter(geo: EpipolarGeometry, flt: BilateralFilter, texels: wp.array(dt
     if wsum > 0.0 and dist <= (float(m) + 1.0) * geo.spacing + 1.0:
         return acc, wsum, dist
     return wp.vec4(0.0, 0.0, 0.0, 0.0), 0.0, 0.0
-
-
-@wp.func
-def grid_node(m: int, stride: int, size: int) -> int:
-    """Pixel coordinate of grid node m of the degenerate-case subsampling (the last node is clamped to the edge)."""
-    return wp.min(m * stride, size - 1)
 
 
 # ---- kernels -------------------------------------------------------------------------------------

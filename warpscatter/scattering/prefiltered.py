@@ -122,10 +122,12 @@ from .row_mips import RowMips, level_window, pixel_mip_level, pixel_mip_levels, 
 from .settings import (
     END_SAMPLES_MIN_DEG,
     END_STRETCH_MIN_WEIGHT,
+    EVALUATE_DEPTH_TOLERANCE,
     MAX_RESAMPLE_FILTER_PX,
     PrefilteredSettings,
     ScatteringSettings,
 )
+from .sparse_evaluation import PixelSet, SparseEvaluation, evaluate_sparse, set_pixel
 
 module_options()
 
@@ -265,11 +267,14 @@ def evaluate_prefiltered_kernel(
     out: wp.array2d(dtype=wp.vec3),
     end_zone: wp.array2d(dtype=wp.int32),  # out: 1 where the look-up is left to the marcher (module doc), else 0
     end_zone_any: wp.array(dtype=wp.int32),  # out: [0] set to 1 when any pixel is (a plain store: no race to lose)
+    pixels: PixelSet,  # the pixels to evaluate (sparse_evaluation)
     offset: int,
 ):
     # Klehm 2014 Listing 4 / Peters 2017 D.5: one filtered look-up and one reconstruction per pixel
-    j, i = wp.tid()
-    j += offset
+    a, b = wp.tid()
+    j, i, listed = set_pixel(pixels, cam.height, cam.width, a + offset, b)
+    if not listed:
+        return
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     s = distance[j, i]
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
@@ -565,14 +570,16 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
                                                               segment_depth=segment_depth)
                                                   for sigma in scene.medium.sigma_t_rgb)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
-        end_zone = wp.empty((cam.height, cam.width), dtype=wp.int32, device=device)
+        end_zone = wp.zeros((cam.height, cam.width), dtype=wp.int32, device=device)
         end_zone_any = wp.zeros(1, dtype=wp.int32, device=device)
-        launch_rows(evaluate_prefiltered_kernel, (cam.height, cam.width),
-                    [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, channels, bounds,
-                     chain.params(wrap_rows(rect)), beta, lparams, scene.medium.params(), lit_ends,
-                     int(lit_ends_known), gbuffer.normal, end_vis, end_samples,
-                     float(np.cos(np.radians(END_SAMPLES_MIN_DEG))), lit_end_shift, out, end_zone, end_zone_any],
-                    device=device)
+        inputs = [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, channels, bounds,
+                  chain.params(wrap_rows(rect)), beta, lparams, scene.medium.params(), lit_ends, int(lit_ends_known),
+                  gbuffer.normal, end_vis, end_samples, float(np.cos(np.radians(END_SAMPLES_MIN_DEG))), lit_end_shift,
+                  out, end_zone, end_zone_any]
+        sparse = evaluate_sparse(
+            lambda pixels, dim: launch_rows(evaluate_prefiltered_kernel, dim, [*inputs, pixels], device=device),
+            gbuffer.distance, out, p.evaluate_stride, p.evaluate_tolerance, EVALUATE_DEPTH_TOLERANCE,
+            end_zone=end_zone, device=device)
     end_zone_pixels = 0
     if end_zone_any.numpy()[0]:  # rays looking into the light that lie wholly within their end zone (rare)
         with stage("epipole"):
@@ -606,6 +613,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         "end_offset": end_offsets[0],
         "end_offset_lit": end_offsets[1],
         "end_samples": end_samples,
+        "evaluate_stride": sparse.stride,
+        "evaluated_fraction": round(sparse.evaluated_fraction, 4),
         **resample_info,
         "caster_culling": culled is not None,
         **({} if culled is None else {"culled_texel_fraction": round(culled, 4)}),
@@ -620,17 +629,21 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     else:
         info["full_circle"] = rect.full_circle
         info["map_radius"] = round(rect.r_max, 4)  # world units from the camera's light axis covered by the columns
-    add_debug_images(info, frame, coords, regions, rectified, map_before_culling, chain.params(wrap_rows(rect)))
+    add_debug_images(info, frame, coords, regions, rectified, map_before_culling, chain.params(wrap_rows(rect)),
+                     sparse)
     return out, info
 
 
 def add_debug_images(info: dict, frame, coords: wp.array, regions, rectified, map_before_culling,
-                     mips: RowMips | None = None) -> None:
+                     mips: RowMips | None = None, sparse: SparseEvaluation | None = None) -> None:
     """The debug outputs a frame asked for, into ``info["debug_images"]``: ``rectified`` the (H, W, 3) look-up
     coordinates, ``epipole_mask`` the ray-marched epipole regions' weight, ``rectified_map`` the (rows, cols, 2) map
     the prefilter read and 1 where caster culling emptied a texel (``map_before_culling``: its depths before),
-    ``mip_level`` the row mip level of each pixel's look-up (``mips``; None: level 0 everywhere)."""
+    ``mip_level`` the row mip level of each pixel's look-up (``mips``; None: level 0 everywhere),
+    ``evaluated_pixels`` 1 where the look-up ran and 0 where the pixel was interpolated (``sparse``)."""
     debug = {}
+    if "evaluated_pixels" in frame.aovs and sparse is not None:
+        debug["evaluated_pixels"] = sparse.mask()
     if "mip_level" in frame.aovs:
         debug["mip_level"] = (pixel_mip_levels(mips, coords) if mips is not None else
                               np.zeros(coords.shape, np.float32))

@@ -65,7 +65,8 @@ from .rectify_local import (
     spot_texel_weights,
 )
 from .row_mips import RowMips, level_window, pixel_mip_level, row_mip_chain, stacked_row_means
-from .settings import SPOT_SEGMENTS
+from .settings import EVALUATE_DEPTH_TOLERANCE, SPOT_SEGMENTS
+from .sparse_evaluation import PixelSet, evaluate_sparse, set_pixel
 
 module_options()
 
@@ -340,10 +341,13 @@ def evaluate_spot_kernel(
     light: LightParams,  # radiance: the emission peak per channel
     med: MediumParams,
     out: wp.array2d(dtype=wp.vec3),
+    pixels: PixelSet,  # the pixels to evaluate (sparse_evaluation)
     offset: int,
 ):
-    j, i = wp.tid()
-    j += offset
+    a, b = wp.tid()
+    j, i, listed = set_pixel(pixels, cam.height, cam.width, a + offset, b)
+    if not listed:
+        return
     c = coords[j, i]
     theta = rays.theta_hi - c[2] * rays.theta_len
     u_end = wp.min(c[0], 1.0)  # past the map's last column the spot's cone has ended
@@ -448,9 +452,10 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         arrays = [t.arrays() for t in textures]
         arrays += [arrays[0]] * (3 - len(arrays))
-        launch_rows(evaluate_spot_kernel, (cam.height, cam.width),
-                    [cam.params(), coords, *arrays, maps, rays, bounds, mips, beta, lparams, scene.medium.params(),
-                     out], device=device)
+        inputs = [cam.params(), coords, *arrays, maps, rays, bounds, mips, beta, lparams, scene.medium.params(), out]
+        sparse = evaluate_sparse(
+            lambda pixels, dim: launch_rows(evaluate_spot_kernel, dim, [*inputs, pixels], device=device),
+            gbuffer.distance, out, p.evaluate_stride, p.evaluate_tolerance, EVALUATE_DEPTH_TOLERANCE, device=device)
     # auto marches no disc under a spot (settings: its light's 1/d^2 peak made the marched disc the noisier part)
     regions = (epipole_regions(cam, rect.light_direction, p.epipole_angle_deg, p.epipole_block)
                if p.epipole_fallback is True else [])
@@ -472,6 +477,8 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         "depth_warp": depth_warp,
         "mip_levels": mips.levels,
         "end_offset": float(rays.end_offset),
+        "evaluate_stride": sparse.stride,
+        "evaluated_fraction": round(sparse.evaluated_fraction, 4),
         "resample_filter": "supersample",  # a spot's texels: bilinear spot-map taps along psi (rectify_local)
         "caster_culling": culled is not None,
         **({} if culled is None else {"culled_texel_fraction": round(culled, 4)}),
@@ -485,7 +492,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         "map_angles_deg": [round(math.degrees(rect.psi_lo), 3), round(math.degrees(rect.psi_lo + rect.r_max), 3)],
         "light_distance": round(rect.light_distance, 4),
     }
-    add_debug_images(info, frame, coords, regions, rectified, map_before_culling, mips)
+    add_debug_images(info, frame, coords, regions, rectified, map_before_culling, mips, sparse)
     return out, info
 
 

@@ -190,6 +190,27 @@ MAX_END_OFFSET = 8.0
 #: window room moments6 351 -> 372 ms.
 END_SAMPLES = 4
 MAX_END_SAMPLES = 64
+#: The look-up runs on every EVALUATE_STRIDE-th pixel in x and y, and on the pixels between them that their grid cell
+#: cannot interpolate (:mod:`~warpscatter.scattering.sparse_evaluation`: a corner off the pixel's surface by more than
+#: EVALUATE_DEPTH_TOLERANCE of its distance, left to the marcher, or the corners' radiance spread over
+#: EVALUATE_TOLERANCE of the largest). Measured at 960x540 (a coarser grid against the image than at 1080p), 1024^2,
+#: rel. L1 against the exact reference, every pixel -> stride 2 with tolerance 0.02, fourier / moments6 / moments4:
+#: colonnade 2.586 -> 2.585 % / 4.742 -> 4.741 % / 6.339 -> 6.338 % (sun behind 0.270 -> 0.271 % / 0.429 -> 0.430 % /
+#: 0.602 -> 0.603 %); canopy 0.641 -> 0.641 % / 0.627 -> 0.627 % / 0.658 -> 0.658 % (0.0785 -> 0.0794 % / 0.0686 ->
+#: 0.0694 % / 0.0807 -> 0.0815 %); window room 1.523 -> 1.517 % / 4.881 -> 4.879 % / 7.512 -> 7.510 % (1.974 ->
+#: 1.939 % / 4.941 -> 4.835 % / 9.931 -> 9.746 %); quickstart 1.766 -> 1.763 % (0.166 -> 0.166 %); terrain 1.150 ->
+#: 1.148 % (0.0359 -> 0.0381 % / 0.0279 -> 0.0298 % / 0.0285 -> 0.0303 %); gate 2.272 -> 2.270 % (0.101 -> 0.102 %);
+#: 60 %-opaque gate 1.916 -> 1.915 %; colonnade spot 1.775 -> 1.776 %; spot fence 0.907 -> 0.915 % / 1.238 -> 1.247 %
+#: / 1.841 -> 1.850 % (its shafts are a few pixels wide). Tolerance 0.05: the spot fence 0.951 %, the terrain behind
+#: 0.0388 %, the rest within 0.01 % of these; 0.01: spot fence 0.908 %. At 1920x1080 (1024^2, 2 threads, medians of
+#: 3 alternating rounds) the look-up ran at 28-35 % of the pixels, fourier's technique time colonnade / canopy /
+#: window room 971 / 935 / 846 -> 652 / 626 / 612 ms, moments6's 976 / 854 / 631 -> 674 / 547 / 542 ms (evaluate
+#: stage 628 / 585 / 409 -> 376 / 305 / 270 and 732 / 533 / 347 -> 352 / 233 / 232 ms); tolerance 0.05 evaluates
+#: 27-29 % of the pixels (fourier's evaluate stage 50-80 ms less). 1: every pixel (the papers' evaluation).
+EVALUATE_STRIDE = 2
+MAX_EVALUATE_STRIDE = 8
+EVALUATE_TOLERANCE = 0.02
+EVALUATE_DEPTH_TOLERANCE = 0.04
 #: ... but for the rays within this many degrees of the light's direction, whose stretch runs along nearly one light
 #: ray, where one shadow-map texel at a caster's silhouette decides it: there the look-up's visibility stays (the
 #: colonnade's 320x180 rays within 2 degrees of its sun, rel. abs. error sum against the exact marcher, moments4 /
@@ -413,6 +434,14 @@ class PrefilteredSettings(SettingsModel):
                             "in the papers); auto: on for moments4/moments6, off for fourier")
     caster_culling_bias: Annotated[Float, Field(ge=0.0, le=MAX_CASTER_CULLING_BIAS, description=(
         "caster culling's depth tolerance, a fraction of the rectified depth range"))] = CASTER_CULLING_BIAS
+    evaluate_stride: Annotated[Int, Field(ge=1, le=MAX_EVALUATE_STRIDE, description=(
+        "the look-up runs on every n-th pixel in x and y and on the pixels between them whose grid cell does not "
+        "agree (a corner on another surface or left to the marcher, or the corners' radiance spread over "
+        "evaluate_tolerance); the others interpolate the cell bilinearly (warpscatter's, not in the papers: most of "
+        "the methods' time is the per-pixel look-up); 1: every pixel"))] = EVALUATE_STRIDE
+    evaluate_tolerance: Annotated[Float, Field(ge=0.0, le=1.0, description=(
+        "evaluate_stride: the largest spread of a grid cell's corner radiance (largest channel), relative to the "
+        "largest corner, that is interpolated; 0: only cells of equal corners"))] = EVALUATE_TOLERANCE
 
     @model_validator(mode="after")
     def _segments_need_whole_rows(self) -> PrefilteredSettings:
@@ -698,6 +727,9 @@ class ScatteringSettings(SettingsModel):
 
 
 __all__ = [
+    "EVALUATE_DEPTH_TOLERANCE",
+    "EVALUATE_STRIDE",
+    "EVALUATE_TOLERANCE",
     "CASTER_CULLING_BIAS",
     "COLOURED_SEGMENTS",
     "SPOT_SEGMENTS",

@@ -1,0 +1,252 @@
+"""Evaluating a per-pixel look-up on fewer pixels: a grid, then only the pixels the grid cannot interpolate.
+
+warpscatter's, not in the papers (Klehm 2014 and Peters 2017 evaluate every pixel): the prefiltered methods' look-up
+(their ``evaluate`` stage, most of their time) runs on a grid of every ``stride``-th pixel in x and y (the last row
+and column of the image included), and every other pixel takes the bilinear interpolation of its grid cell's corners
+when they agree: all four within ``depth_tolerance`` (relative) of the pixel's own camera distance, none of them left
+to the marcher (``end_zone``), and their radiance (the largest of the three channels) spread by at most
+``tolerance`` times the largest (a pixel on a grid line checks its whole cell, not only the two nodes it
+interpolates). The rest (silhouettes, the edges of shafts and shadows) are evaluated directly, so the grid only saves
+work where the image is smooth, the way Engelhardt 2010 places its epipolar samples.
+
+Kernels that evaluate a :class:`PixelSet` index their pixels with :func:`set_pixel`: launched over (rows, columns)
+for :data:`PIXELS_ALL`, over the grid's (rows, columns) for :data:`PIXELS_GRID` and over (rows, most listed in a row)
+for :data:`PIXELS_LISTED`; with :func:`evaluate_sparse` driving the three launches.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import warp as wp
+
+from ..parallel import launch_rows
+from ..wpinit import default_device, module_options
+
+module_options()
+
+#: ``PixelSet.mode``: every pixel of the image.
+PIXELS_ALL = wp.constant(0)
+#: ``PixelSet.mode``: the grid nodes (every ``stride``-th pixel; the last row and column too).
+PIXELS_GRID = wp.constant(1)
+#: ``PixelSet.mode``: the pixels listed per row (``columns[j, :counts[j]]``).
+PIXELS_LISTED = wp.constant(2)
+
+
+@wp.struct
+class PixelSet:
+    """Which pixels a launch evaluates (:func:`set_pixel`)."""
+
+    mode: int  # PIXELS_ALL, PIXELS_GRID or PIXELS_LISTED
+    stride: int  # PIXELS_GRID: pixels between grid nodes
+    columns: wp.array2d(dtype=wp.int32)  # PIXELS_LISTED: per row, the listed columns
+    counts: wp.array(dtype=wp.int32)  # PIXELS_LISTED: per row, how many
+
+
+@wp.func
+def grid_node(m: int, stride: int, size: int) -> int:
+    """Pixel coordinate of grid node m (the last node is clamped to the image's edge)."""
+    return wp.min(m * stride, size - 1)
+
+
+@wp.func
+def set_pixel(ps: PixelSet, height: int, width: int, a: int, b: int):
+    """The pixel (j, i) of launch index (a, b) of a :class:`PixelSet` launch, and whether there is one (a listed
+    row has fewer pixels than the launch's width)."""
+    if ps.mode == PIXELS_GRID:
+        return grid_node(a, ps.stride, height), grid_node(b, ps.stride, width), True
+    if ps.mode == PIXELS_LISTED:
+        if b >= ps.counts[a]:
+            return a, 0, False
+        return a, ps.columns[a, b], True
+    return a, b, True
+
+
+@wp.func
+def node_span(x: int, stride: int, size: int):
+    """The grid cell around pixel coordinate x (0 <= x < size): its nodes x0 <= x1 and x's weight f of x1, and
+    whether x is itself a node. A node keeps its cell (the next node on) so that the cells beside a grid line are
+    checked for it too."""
+    x0 = (x // stride) * stride
+    x1 = wp.min(x0 + stride, size - 1)
+    f = float(0.0)
+    if x1 > x0:
+        f = float(x - x0) / float(x1 - x0)
+    return x0, x1, f, x == x0 or x == size - 1
+
+
+@wp.func
+def corner_agrees(distance: wp.array2d(dtype=wp.float32), end_zone: wp.array2d(dtype=wp.int32), check_end_zone: int,
+                  y: int, x: int, depth: float, depth_tolerance: float) -> bool:
+    """True if grid node (y, x) may be interpolated at a pixel of camera distance ``depth``: within
+    ``depth_tolerance`` of it (relative) and not left to the marcher."""
+    if wp.abs(distance[y, x] - depth) > depth_tolerance * depth:
+        return False
+    if check_end_zone != 0:
+        if end_zone[y, x] != 0:
+            return False
+    return True
+
+
+@wp.func
+def channel_max(v: wp.vec3) -> float:
+    """The largest of the three channels."""
+    return wp.max(v[0], wp.max(v[1], v[2]))
+
+
+@wp.kernel
+def interpolate_grid_kernel(
+    stride: int,
+    tolerance: float,  # largest spread of the corners' radiance, relative to the largest
+    depth_tolerance: float,  # largest relative camera-distance difference of a corner
+    distance: wp.array2d(dtype=wp.float32),  # the G-buffer's camera distance
+    end_zone: wp.array2d(dtype=wp.int32),  # 1 where the look-up left the pixel to the marcher (check_end_zone)
+    check_end_zone: int,
+    out: wp.array2d(dtype=wp.vec3),  # in: the grid nodes' radiance; out: the interpolated pixels'
+    columns: wp.array2d(dtype=wp.int32),  # out: per row, the pixels to evaluate directly
+    counts: wp.array(dtype=wp.int32),  # out: per row, how many
+    offset: int,
+):
+    # one thread per row: every pixel that is not a grid node is interpolated or listed (module doc)
+    j = wp.tid() + offset
+    height = distance.shape[0]
+    width = distance.shape[1]
+    y0, y1, fy, node_row = node_span(j, stride, height)
+    n = int(0)
+    for i in range(width):
+        x0, x1, fx, node_column = node_span(i, stride, width)
+        if node_row and node_column:
+            continue  # a grid node: evaluated
+        depth = distance[j, i]
+        ok = corner_agrees(distance, end_zone, check_end_zone, y0, x0, depth, depth_tolerance)
+        ok = ok and corner_agrees(distance, end_zone, check_end_zone, y0, x1, depth, depth_tolerance)
+        ok = ok and corner_agrees(distance, end_zone, check_end_zone, y1, x0, depth, depth_tolerance)
+        ok = ok and corner_agrees(distance, end_zone, check_end_zone, y1, x1, depth, depth_tolerance)
+        if ok:
+            c00 = out[y0, x0]
+            c01 = out[y0, x1]
+            c10 = out[y1, x0]
+            c11 = out[y1, x1]
+            m00 = channel_max(c00)
+            m01 = channel_max(c01)
+            m10 = channel_max(c10)
+            m11 = channel_max(c11)
+            hi = wp.max(wp.max(m00, m01), wp.max(m10, m11))
+            lo = wp.min(wp.min(m00, m01), wp.min(m10, m11))
+            if hi - lo <= tolerance * hi:
+                top = c00 * (1.0 - fx) + c01 * fx
+                bottom = c10 * (1.0 - fx) + c11 * fx
+                out[j, i] = top * (1.0 - fy) + bottom * fy
+                continue
+        columns[j, n] = i
+        n += 1
+    counts[j] = n
+
+
+def grid_size(size: int, stride: int) -> int:
+    """Grid nodes along an image side of ``size`` pixels (every ``stride``-th, the last pixel included)."""
+    return -(-(size - 1) // stride) + 1
+
+
+def pixel_set(mode: int, stride: int = 1, columns: wp.array | None = None, counts: wp.array | None = None,
+              device=None) -> PixelSet:
+    """A :class:`PixelSet` (1x1 placeholders for the arrays a mode does not read)."""
+    device = default_device(device)
+    ps = PixelSet()
+    ps.mode = int(mode)
+    ps.stride = int(stride)
+    ps.columns = columns if columns is not None else wp.zeros((1, 1), dtype=wp.int32, device=device)
+    ps.counts = counts if counts is not None else wp.zeros(1, dtype=wp.int32, device=device)
+    return ps
+
+
+@dataclass
+class SparseEvaluation:
+    """What :func:`evaluate_sparse` did: the pixels it evaluated (the grid's nodes and the listed ones)."""
+
+    stride: int
+    height: int
+    width: int
+    grid_nodes: int
+    listed: np.ndarray | None = None  # (H,) listed pixels per row (None: stride 1)
+    columns: np.ndarray | None = None  # (H, W) the listed columns, the first listed[j] of row j
+
+    @property
+    def evaluated(self) -> int:
+        """Pixels whose look-up ran."""
+        return self.grid_nodes + (int(self.listed.sum()) if self.listed is not None else 0)
+
+    @property
+    def evaluated_fraction(self) -> float:
+        """The evaluated pixels' share of the image."""
+        return self.evaluated / float(self.height * self.width)
+
+    def mask(self) -> np.ndarray:
+        """(H, W) float32: 1 where the look-up ran, 0 where the pixel was interpolated."""
+        m = np.zeros((self.height, self.width), np.float32)
+        if self.listed is None:
+            m[:] = 1.0
+            return m
+        ys = np.minimum(np.arange(grid_size(self.height, self.stride)) * self.stride, self.height - 1)
+        xs = np.minimum(np.arange(grid_size(self.width, self.stride)) * self.stride, self.width - 1)
+        m[np.ix_(ys, xs)] = 1.0
+        rows = np.repeat(np.arange(self.height), self.listed)
+        cols = np.concatenate([self.columns[j, :c] for j, c in enumerate(self.listed)]) if rows.size else rows
+        m[rows, cols] = 1.0
+        return m
+
+
+def evaluate_sparse(launch: Callable[[PixelSet, tuple[int, int]], None], distance: wp.array, out: wp.array,
+                    stride: int, tolerance: float, depth_tolerance: float, end_zone: wp.array | None = None,
+                    device=None) -> SparseEvaluation:
+    """Evaluate a per-pixel look-up on the pixels the image needs (module doc).
+
+    Args:
+        launch: ``launch(pixels, dim)`` runs the look-up's kernel on a :class:`PixelSet` over ``dim`` (its first
+            dimension split across threads), writing ``out`` (and ``end_zone``) at the pixels it evaluates.
+        distance: (H, W) the G-buffer's camera distance.
+        out: (H, W) vec3, written at every pixel.
+        stride: pixels between grid nodes; 1 evaluates every pixel (one launch, nothing interpolated).
+        tolerance: largest relative spread of a cell's corner radiance that is interpolated.
+        depth_tolerance: largest relative camera-distance difference between a pixel and its cell's corners.
+        end_zone: (H, W) int32 the look-up sets to 1 where it leaves a pixel to the marcher; it must be zero at
+            pixels the look-up does not evaluate (the caller allocates it with ``wp.zeros``). None: no such pixels.
+
+    Returns:
+        :class:`SparseEvaluation`.
+    """
+    device = default_device(device)
+    h, w = out.shape
+    if stride <= 1:
+        launch(pixel_set(PIXELS_ALL, device=device), (h, w))
+        return SparseEvaluation(1, h, w, h * w)
+    gh, gw = grid_size(h, stride), grid_size(w, stride)
+    launch(pixel_set(PIXELS_GRID, stride, device=device), (gh, gw))
+    columns = wp.empty((h, w), dtype=wp.int32, device=device)
+    counts = wp.empty(h, dtype=wp.int32, device=device)
+    zone = end_zone if end_zone is not None else wp.zeros((1, 1), dtype=wp.int32, device=device)
+    launch_rows(interpolate_grid_kernel, h,
+                [int(stride), float(tolerance), float(depth_tolerance), distance, zone, int(end_zone is not None), out,
+                 columns, counts], device=device)
+    listed = counts.numpy().copy()
+    most = int(listed.max()) if listed.size else 0
+    if most > 0:
+        launch(pixel_set(PIXELS_LISTED, stride, columns, counts, device=device), (h, most))
+    return SparseEvaluation(int(stride), h, w, gh * gw, listed, columns.numpy())
+
+
+__all__ = [
+    "PIXELS_ALL",
+    "PIXELS_GRID",
+    "PIXELS_LISTED",
+    "PixelSet",
+    "SparseEvaluation",
+    "evaluate_sparse",
+    "grid_node",
+    "grid_size",
+    "interpolate_grid_kernel",
+    "pixel_set",
+    "set_pixel",
+]
