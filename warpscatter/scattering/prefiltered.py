@@ -127,7 +127,7 @@ from .settings import (
     PrefilteredSettings,
     ScatteringSettings,
 )
-from .sparse_evaluation import PixelSet, SparseEvaluation, evaluate_sparse, set_pixel
+from .sparse_evaluation import PIXELS_ALL, PixelSet, SparseEvaluation, evaluate_sparse, pixel_set, set_pixel
 
 module_options()
 
@@ -333,11 +333,14 @@ def evaluate_prefiltered_kernel(
 @wp.kernel
 def lit_ray_ends_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32), normal: wp.array2d(dtype=wp.vec3),
                         faces_away: wp.array2d(dtype=wp.int32), light: LightParams, vis: Visibility,
-                        out: wp.array2d(dtype=wp.int32), offset: int):
+                        out: wp.array2d(dtype=wp.int32), pixels: PixelSet, offset: int):
     # 1 where pixel (i, j)'s view ray ends lit: on no surface, or on one facing the light (caster_culling.end_faces_away
-    # 0) whose point, moved one shadow-map texel off it, the shadow map sees (hard, with the marcher's bias)
-    j, i = wp.tid()
-    j += offset
+    # 0) whose point, moved one shadow-map texel off it, the shadow map sees (hard, with the marcher's bias); at the
+    # pixels of the set
+    a, b = wp.tid()
+    j, i, listed = set_pixel(pixels, cam.height, cam.width, a + offset, b)
+    if not listed:
+        return
     lit = int(0)
     if faces_away[j, i] == 0:
         x = cam.position + pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5) * distance[j, i]
@@ -361,24 +364,29 @@ def pixel_coords(rect, camera, distance: wp.array, device=None) -> wp.array:
 
 
 def lit_ray_ends(scene, gbuffer, shadow_map, bias_texels: float, faces_away: wp.array | None = None,
-                 device=None, vis: Visibility | None = None) -> wp.array:
+                 device=None, vis: Visibility | None = None, pixels: PixelSet | None = None,
+                 dim: tuple[int, int] | None = None, out: wp.array | None = None) -> wp.array:
     """(H, W) int32 Warp array: 1 where the pixel's view ray ends lit (on no surface, or on a surface facing the light
     that the shadow map sees, ``bias_texels`` of depth bias), 0 where it ends in shadow. A look-up of a ray ending lit
     may end nearer its end (``prefiltered.end_offset``, :data:`~.settings.END_OFFSET_LIT`): a lit surface shadows its
     own ray only through the texel's filtering. ``faces_away``: :func:`~.caster_culling.end_faces_away` of the frame
     if already made (else it is); ``vis``: the shadow map's :class:`~.marching.Visibility` with that bias, if already
-    made (else it is)."""
+    made (else it is). ``pixels`` and ``dim``: only the pixels of that
+    :class:`~.sparse_evaluation.PixelSet` launch, written into ``out`` (default: every pixel, into a new array)."""
     device = default_device(device)
     cam = scene.camera
     light = light_params(scene.light, device)
     if faces_away is None:
         faces_away = end_faces_away(cam, gbuffer, light, device)
-    out = wp.empty((cam.height, cam.width), dtype=wp.int32, device=device)
-    launch_rows(lit_ray_ends_kernel, (cam.height, cam.width),
+    if out is None:
+        out = wp.empty((cam.height, cam.width), dtype=wp.int32, device=device)
+    if pixels is None:
+        pixels, dim = pixel_set(PIXELS_ALL, device=device), (cam.height, cam.width)
+    launch_rows(lit_ray_ends_kernel, dim,
                 [cam.params(), gbuffer.distance, gbuffer.normal, faces_away, light,
                  vis if vis is not None else visibility_params(scene, "shadow_map", shadow_map=shadow_map,
                                                                shadow_bias_texels=bias_texels, device=device),
-                 out], device=device)
+                 out, pixels], device=device)
     return out
 
 
@@ -556,8 +564,9 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
                                     shadow_bias_texels=settings.shadow_map.bias, device=device)
         # the lit-end test, for the shift and for the rays looking into the light that end in shadow (the kernel)
         lit_ends_known = not light_behind
-        lit_ends = (lit_ray_ends(scene, gbuffer, shadow_map, settings.shadow_map.bias, faces_away, device, end_vis)
-                    if lit_ends_known else wp.zeros((1, 1), dtype=wp.int32, device=device))
+        lit_ends = wp.zeros((cam.height, cam.width) if lit_ends_known else (1, 1), dtype=wp.int32, device=device)
+        if lit_ends_known and faces_away is None:
+            faces_away = end_faces_away(cam, gbuffer, lparams, device)
         nonlinear = rect if isinstance(rect, NonlinearRectification) else None
         end_samples = p.end_samples if lit_ends_known and nonlinear is not None else 0
         weights = ray_weights(segments, chain.optical_step, nonlinear, sigma_ref, end_offset, device=device,
@@ -576,10 +585,15 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
                   chain.params(wrap_rows(rect)), beta, lparams, scene.medium.params(), lit_ends, int(lit_ends_known),
                   gbuffer.normal, end_vis, end_samples, float(np.cos(np.radians(END_SAMPLES_MIN_DEG))), lit_end_shift,
                   out, end_zone, end_zone_any]
-        sparse = evaluate_sparse(
-            lambda pixels, dim: launch_rows(evaluate_prefiltered_kernel, dim, [*inputs, pixels], device=device),
-            gbuffer.distance, out, p.evaluate_stride, p.evaluate_tolerance, EVALUATE_DEPTH_TOLERANCE,
-            end_zone=end_zone, device=device)
+
+        def look_up(pixels: PixelSet, dim: tuple[int, int]) -> None:
+            if lit_ends_known:  # the lit-end test of the same pixels first
+                lit_ray_ends(scene, gbuffer, shadow_map, settings.shadow_map.bias, faces_away, device, end_vis,
+                             pixels=pixels, dim=dim, out=lit_ends)
+            launch_rows(evaluate_prefiltered_kernel, dim, [*inputs, pixels], device=device)
+
+        sparse = evaluate_sparse(look_up, gbuffer.distance, out, p.evaluate_stride, p.evaluate_tolerance,
+                                 EVALUATE_DEPTH_TOLERANCE, end_zone=end_zone, device=device)
     end_zone_pixels = 0
     if end_zone_any.numpy()[0]:  # rays looking into the light that lie wholly within their end zone (rare)
         with stage("epipole"):
