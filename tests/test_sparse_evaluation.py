@@ -214,3 +214,17 @@ def test_the_cli_writes_the_evaluated_pixels_and_other_methods_refuse_them(tmp_p
         load_config(config, ["render.scattering.method=epipolar", "output.aovs=[color, evaluated_pixels]"])
     with pytest.raises(ConfigError, match="render.scattering.prefiltered.evaluate_stride"):
         load_config(config, ["render.scattering.prefiltered.evaluate_stride=0"])
+
+
+@pytest.mark.parametrize("scene", ["colonnade", "spot_fence"])
+def test_coordinates_at_the_evaluated_pixels_only_give_the_same_image(scene):
+    """Without caster culling (fourier), row mip levels or a debug output that shows them, the rectified coordinates
+    are computed by the look-up's own launches at the pixels they evaluate: the image is the one computed with every
+    pixel's coordinates (asked for by the ``rectified`` debug output)."""
+    cfg = bench_scene_config(scene, 160, 90, surfaces={"enabled": False},
+                             scattering={"method": "fourier", "shadow_map": {"resolution": 256}})
+    built = build_scene(cfg)
+    lazy, _ = render_images(built, cfg.render)
+    full, _ = render_images(built, cfg.render, aovs=["rectified"])
+    np.testing.assert_array_equal(lazy["scattering"], full["scattering"])
+    assert full["rectified"].shape == (90, 160, 3) and np.isfinite(full["rectified"]).all()

@@ -213,12 +213,15 @@ def pixel_coords_kernel(
     distance: wp.array2d(dtype=wp.float32),
     rect: RectificationParams,
     out: wp.array2d(dtype=wp.vec3),
+    pixels: PixelSet,
     offset: int,
 ):
-    # the rectified (u, v, z_r) of every pixel's view-ray end (its G-buffer hit): what caster culling and the
-    # evaluation look up
-    j, i = wp.tid()
-    j += offset
+    # the rectified (u, v, z_r) of the view-ray end (its G-buffer hit) of every pixel of the set: what caster
+    # culling and the evaluation look up
+    a, b = wp.tid()
+    j, i, listed = set_pixel(pixels, cam.height, cam.width, a + offset, b)
+    if not listed:
+        return
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     out[j, i] = rectified_coords(rect, cam.position + d * distance[j, i])
 
@@ -354,13 +357,27 @@ wp.overload(evaluate_prefiltered_kernel, {"texels": FilteredBasisArrays})
 wp.overload(evaluate_prefiltered_kernel, {"texels": FilteredMomentArrays})
 
 
-def pixel_coords(rect, camera, distance: wp.array, device=None) -> wp.array:
-    """(H, W) vec3 Warp array: the rectified (u, v, z_r) of every pixel's view-ray end (distance: G-buffer)."""
+def pixel_coords(rect, camera, distance: wp.array, device=None, pixels: PixelSet | None = None,
+                 dim: tuple[int, int] | None = None, out: wp.array | None = None) -> wp.array:
+    """(H, W) vec3 Warp array: the rectified (u, v, z_r) of every pixel's view-ray end (distance: G-buffer).
+    ``pixels`` and ``dim``: only the pixels of that :class:`~.sparse_evaluation.PixelSet` launch, written into
+    ``out`` (default: every pixel, into a new array)."""
     device = default_device(device)
-    out = wp.empty((camera.height, camera.width), dtype=wp.vec3, device=device)
-    launch_rows(pixel_coords_kernel, (camera.height, camera.width),
-                [camera.params(), distance, rectification_params(rect), out], device=device)
+    if out is None:
+        out = wp.empty((camera.height, camera.width), dtype=wp.vec3, device=device)
+    if pixels is None:
+        pixels, dim = pixel_set(PIXELS_ALL, device=device), (camera.height, camera.width)
+    launch_rows(pixel_coords_kernel, dim, [camera.params(), distance, rectification_params(rect), out, pixels],
+                device=device)
     return out
+
+
+def coords_of_every_pixel(settings: ScatteringSettings, aovs) -> bool:
+    """Whether a prefiltered render needs the rectified coordinates of every pixel before its look-up: caster culling
+    reads them all, the row mip levels read each pixel's neighbours, the ``rectified`` and ``mip_level`` debug outputs
+    show them. Otherwise the look-up's launches compute them at the pixels they evaluate (sparse_evaluation)."""
+    return (settings.culls_casters or settings.prefiltered.mip_levels > 1
+            or bool({"rectified", "mip_level"} & set(aovs)))
 
 
 def lit_ray_ends(scene, gbuffer, shadow_map, bias_texels: float, faces_away: wp.array | None = None,
@@ -518,8 +535,10 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         resample_info["resample_samples"] = samples
     if filtered_resampling:
         rectified, resample_info["resample_filter_px"] = resample_filtered(scene, rect, shadow_map, p, stage, device)
+    every_pixel = coords_of_every_pixel(settings, frame.aovs)
     with stage("pixel_coords"):
-        coords = pixel_coords(rect, cam, gbuffer.distance, device=device)
+        coords = (pixel_coords(rect, cam, gbuffer.distance, device=device) if every_pixel else
+                  wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device))
     culled, faces_away = None, None
     map_before_culling = map_depth(rectified).copy() if "rectified_map" in frame.aovs else None
     if settings.culls_casters:
@@ -587,7 +606,9 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
                   out, end_zone, end_zone_any]
 
         def look_up(pixels: PixelSet, dim: tuple[int, int]) -> None:
-            if lit_ends_known:  # the lit-end test of the same pixels first
+            if not every_pixel:  # the coordinates and the lit-end test of the same pixels first
+                pixel_coords(rect, cam, gbuffer.distance, device, pixels=pixels, dim=dim, out=coords)
+            if lit_ends_known:
                 lit_ray_ends(scene, gbuffer, shadow_map, settings.shadow_map.bias, faces_away, device, end_vis,
                              pixels=pixels, dim=dim, out=lit_ends)
             launch_rows(evaluate_prefiltered_kernel, dim, [*inputs, pixels], device=device)
@@ -685,6 +706,7 @@ __all__ = [
     "evaluate_prefiltered_kernel",
     "map_visibility",
     "representation_visibility",
+    "coords_of_every_pixel",
     "pixel_coords",
     "pixel_coords_kernel",
     "render",

@@ -393,7 +393,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         ValueError: for ``rectification: projective``, ``splits`` > 1 or ``overestimation: adaptive``, which need
             a directional light.
     """
-    from .prefiltered import add_debug_images, map_depth, pixel_coords
+    from .prefiltered import add_debug_images, coords_of_every_pixel, map_depth, pixel_coords
 
     device = default_device(frame.device)
     scene, gbuffer, shadow_map = frame.scene, frame.gbuffer, frame.shadow_map
@@ -410,8 +410,10 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         rect = spot_rectification(cam, light, rows=rows, cols=cols, guard_band=p.guard_band)
         rectified, emission = resample_spot_shadow_map(rect, shadow_map, light, lparams, device=device)
     lparams.radiance = wp.vec3(*emission_peaks(light).astype(np.float32))  # the filter is relative to the peak
+    every_pixel = coords_of_every_pixel(settings, frame.aovs)
     with stage("pixel_coords"):
-        coords = pixel_coords(rect, cam, gbuffer.distance, device=device)
+        coords = (pixel_coords(rect, cam, gbuffer.distance, device=device) if every_pixel else
+                  wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device))
     map_before_culling = map_depth(rectified).copy() if "rectified_map" in frame.aovs else None
     culled = None
     if settings.culls_casters:
@@ -453,9 +455,14 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         arrays = [t.arrays() for t in textures]
         arrays += [arrays[0]] * (3 - len(arrays))
         inputs = [cam.params(), coords, *arrays, maps, rays, bounds, mips, beta, lparams, scene.medium.params(), out]
-        sparse = evaluate_sparse(
-            lambda pixels, dim: launch_rows(evaluate_spot_kernel, dim, [*inputs, pixels], device=device),
-            gbuffer.distance, out, p.evaluate_stride, p.evaluate_tolerance, EVALUATE_DEPTH_TOLERANCE, device=device)
+
+        def look_up(pixels: PixelSet, dim: tuple[int, int]) -> None:
+            if not every_pixel:  # the coordinates of the same pixels first
+                pixel_coords(rect, cam, gbuffer.distance, device, pixels=pixels, dim=dim, out=coords)
+            launch_rows(evaluate_spot_kernel, dim, [*inputs, pixels], device=device)
+
+        sparse = evaluate_sparse(look_up, gbuffer.distance, out, p.evaluate_stride, p.evaluate_tolerance,
+                                 EVALUATE_DEPTH_TOLERANCE, device=device)
     # auto marches no disc under a spot (settings: its light's 1/d^2 peak made the marched disc the noisier part)
     regions = (epipole_regions(cam, rect.light_direction, p.epipole_angle_deg, p.epipole_block)
                if p.epipole_fallback is True else [])
