@@ -78,16 +78,10 @@ def node_span(x: int, stride: int, size: int):
 
 
 @wp.func
-def corner_agrees(distance: wp.array2d(dtype=wp.float32), end_zone: wp.array2d(dtype=wp.int32), check_end_zone: int,
-                  y: int, x: int, depth: float, depth_tolerance: float) -> bool:
-    """True if grid node (y, x) may be interpolated at a pixel of camera distance ``depth``: within
-    ``depth_tolerance`` of it (relative) and not left to the marcher."""
-    if wp.abs(distance[y, x] - depth) > depth_tolerance * depth:
-        return False
-    if check_end_zone != 0:
-        if end_zone[y, x] != 0:
-            return False
-    return True
+def near(corner_depth: float, depth: float, depth_tolerance: float) -> bool:
+    """True if a corner at camera distance ``corner_depth`` lies on the surface of a pixel at ``depth`` (within
+    ``depth_tolerance`` of it, relative)."""
+    return wp.abs(corner_depth - depth) <= depth_tolerance * depth
 
 
 @wp.func
@@ -109,39 +103,50 @@ def interpolate_grid_kernel(
     counts: wp.array(dtype=wp.int32),  # out: per row, how many
     offset: int,
 ):
-    # one thread per row: every pixel that is not a grid node is interpolated or listed (module doc)
+    # one thread per row, cell by cell (the corners and their radiance spread once per cell): every pixel that is
+    # not a grid node is interpolated or listed (module doc)
     j = wp.tid() + offset
     height = distance.shape[0]
     width = distance.shape[1]
     y0, y1, fy, node_row = node_span(j, stride, height)
     n = int(0)
-    for i in range(width):
-        x0, x1, fx, node_column = node_span(i, stride, width)
-        if node_row and node_column:
-            continue  # a grid node: evaluated
-        depth = distance[j, i]
-        ok = corner_agrees(distance, end_zone, check_end_zone, y0, x0, depth, depth_tolerance)
-        ok = ok and corner_agrees(distance, end_zone, check_end_zone, y0, x1, depth, depth_tolerance)
-        ok = ok and corner_agrees(distance, end_zone, check_end_zone, y1, x0, depth, depth_tolerance)
-        ok = ok and corner_agrees(distance, end_zone, check_end_zone, y1, x1, depth, depth_tolerance)
-        if ok:
-            c00 = out[y0, x0]
-            c01 = out[y0, x1]
-            c10 = out[y1, x0]
-            c11 = out[y1, x1]
-            m00 = channel_max(c00)
-            m01 = channel_max(c01)
-            m10 = channel_max(c10)
-            m11 = channel_max(c11)
-            hi = wp.max(wp.max(m00, m01), wp.max(m10, m11))
-            lo = wp.min(wp.min(m00, m01), wp.min(m10, m11))
-            if hi - lo <= tolerance * hi:
-                top = c00 * (1.0 - fx) + c01 * fx
-                bottom = c10 * (1.0 - fx) + c11 * fx
-                out[j, i] = top * (1.0 - fy) + bottom * fy
-                continue
-        columns[j, n] = i
-        n += 1
+    for x0 in range(0, width, stride):
+        x1 = wp.min(x0 + stride, width - 1)
+        c00 = out[y0, x0]
+        c01 = out[y0, x1]
+        c10 = out[y1, x0]
+        c11 = out[y1, x1]
+        m00 = channel_max(c00)
+        m01 = channel_max(c01)
+        m10 = channel_max(c10)
+        m11 = channel_max(c11)
+        hi = wp.max(wp.max(m00, m01), wp.max(m10, m11))
+        lo = wp.min(wp.min(m00, m01), wp.min(m10, m11))
+        agree = hi - lo <= tolerance * hi
+        if check_end_zone != 0:
+            if end_zone[y0, x0] != 0 or end_zone[y0, x1] != 0 or end_zone[y1, x0] != 0 or end_zone[y1, x1] != 0:
+                agree = False
+        d00 = distance[y0, x0]
+        d01 = distance[y0, x1]
+        d10 = distance[y1, x0]
+        d11 = distance[y1, x1]
+        for i in range(x0, wp.min(x0 + stride, width)):
+            if i == x0 or i == width - 1:
+                if node_row:
+                    continue  # a grid node: evaluated
+            fx = float(0.0)
+            if x1 > x0:
+                fx = float(i - x0) / float(x1 - x0)
+            if agree:
+                depth = distance[j, i]
+                if (near(d00, depth, depth_tolerance) and near(d01, depth, depth_tolerance)
+                        and near(d10, depth, depth_tolerance) and near(d11, depth, depth_tolerance)):
+                    top = c00 * (1.0 - fx) + c01 * fx
+                    bottom = c10 * (1.0 - fx) + c11 * fx
+                    out[j, i] = top * (1.0 - fy) + bottom * fy
+                    continue
+            columns[j, n] = i
+            n += 1
     counts[j] = n
 
 
