@@ -34,6 +34,9 @@ Stages (names as they appear in timings):
    the filtered-basis vector (one look-up per split region in
    front of the hit plus the hit's own) -> dot with a(z_r) + 0.5, clamped -> times
    sigma_s f E (1 - e^{-sigma_t s}) / sigma_t (Klehm Listing 4); the cost per pixel is constant whatever the scene.
+   By default the look-up runs on a grid of every second pixel and on the pixels between them that their grid
+   cell cannot interpolate (``evaluate_stride``, :mod:`.sparse_evaluation`); the coordinates and the lit-end
+   test are computed in the same launches where nothing else needs every pixel's.
    A ray ending in shadow (:func:`lit_ray_ends`) whose whole extent lies within its end surface's own zone
    (``end_offset``; looking almost straight into the light) has nothing to look up: its texels are those of the
    surface it ends on. Such pixels (a few dozen around the sun) are ray-marched as the disc marches (stage
