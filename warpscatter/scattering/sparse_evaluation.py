@@ -176,7 +176,7 @@ class SparseEvaluation:
     width: int
     grid_nodes: int
     listed: np.ndarray | None = None  # (H,) listed pixels per row (None: stride 1)
-    columns: np.ndarray | None = None  # (H, W) the listed columns, the first listed[j] of row j
+    columns: wp.array | None = None  # (H, W) int32 the listed columns, the first listed[j] of row j (read by mask())
 
     @property
     def evaluated(self) -> int:
@@ -198,7 +198,8 @@ class SparseEvaluation:
         xs = np.minimum(np.arange(grid_size(self.width, self.stride)) * self.stride, self.width - 1)
         m[np.ix_(ys, xs)] = 1.0
         rows = np.repeat(np.arange(self.height), self.listed)
-        cols = np.concatenate([self.columns[j, :c] for j, c in enumerate(self.listed)]) if rows.size else rows
+        columns = self.columns.numpy()  # on a GPU a copy: only when the debug output asks
+        cols = np.concatenate([columns[j, :c] for j, c in enumerate(self.listed)]) if rows.size else rows
         m[rows, cols] = 1.0
         return m
 
@@ -239,7 +240,7 @@ def evaluate_sparse(launch: Callable[[PixelSet, tuple[int, int]], None], distanc
     most = int(listed.max()) if listed.size else 0
     if most > 0:
         launch(pixel_set(PIXELS_LISTED, stride, columns, counts, device=device), (h, most))
-    return SparseEvaluation(int(stride), h, w, gh * gw, listed, columns.numpy())
+    return SparseEvaluation(int(stride), h, w, gh * gw, listed, columns)
 
 
 __all__ = [
