@@ -86,7 +86,6 @@ from .filtered_textures import (
     basis_texture,
     check_depth_warp,
     fourier_basis,
-    fourier_frequency,
     moment_texture,
     store_basis,
     store_moment_texel,
@@ -247,9 +246,29 @@ def prefix_filter_kernel(
             store_basis(out, j, i, k + 1, f1)
 
 
+@wp.func
+def group_rotation(z: float, m0: int):
+    """(sin, cos) of (2 m0 + 1) pi z, the first pair of a basis group, and of the step 2 pi z between pairs, from one
+    sine and one cosine: the step by the double-angle formulas, the group's start by m0 steps of angle addition."""
+    s1 = wp.sin(wp.pi * z)
+    c1 = wp.cos(wp.pi * z)
+    step_s = 2.0 * s1 * c1
+    step_c = c1 * c1 - s1 * s1
+    sn = s1
+    cs = c1
+    for _m in range(m0):
+        sn_next = sn * step_c + cs * step_s
+        cs = cs * step_c - sn * step_s
+        sn = sn_next
+    return sn, cs, step_s, step_c
+
+
 #: (sin, cos) pairs one thread of the fused filter carries in registers (a compile-time constant so the
-#: pair loop unrolls and the running state never leaves registers: 2.8x faster than a dynamic loop).
-PAIRS_PER_THREAD = 8
+#: pair loop unrolls and the running state never leaves registers: 2.8x faster than a dynamic loop). 16: the
+#: default 32 coefficients in one thread, which writes each texel's 128 bytes in one pass and takes one sine and
+#: one cosine per texel (with 8 two threads each wrote half of every texel and took four trigonometric calls: 1024^2,
+#: two cores, 61-63 -> 37-39 ms; the rows still give every core hundreds of threads).
+PAIRS_PER_THREAD = 16
 filter_state = wp.types.vector(length=2 * PAIRS_PER_THREAD, dtype=wp.float32)
 
 
@@ -265,8 +284,8 @@ def prefilter_depth_kernel(
     # Klehm 2014 Listing 3: the basis transform fused into the prefix filter (no basis textures), with the
     # per-texel weights of Eq. 12. Thread (row j, t) filters region t // groups, basis group t % groups:
     # it walks its region once and filters PAIRS_PER_THREAD (sin, cos) pairs; the values
-    # sin/cos((2m + 1) pi z) of the group follow from its first pair by rotating through 2 pi z (angle
-    # addition), so a texel costs four trigonometric calls whatever the group size.
+    # sin/cos((2m + 1) pi z) of the group follow from sin/cos(pi z) by rotating through 2 pi z (angle
+    # addition, group_rotation), so a texel costs two trigonometric calls whatever the group size.
     j, t = wp.tid()
     j += offset
     rows, cols, num = basis_shape(out)
@@ -296,17 +315,11 @@ def prefilter_depth_kernel(
             alpha = w / sum_w
         if out.splits > 1 and g == 0:
             out.weight_sums[j, i] = sum_w
-        sn = wp.sin(fourier_frequency(2 * m0) * z)
-        cs = wp.cos(fourier_frequency(2 * m0) * z)
-        step_s = wp.sin(2.0 * wp.pi * z)
-        step_c = wp.cos(2.0 * wp.pi * z)
+        sn, cs, step_s, step_c = group_rotation(z, m0)
         # the second depth's values (Peters 2017 Sec. 5.2); equal to the first's when w_2 = 0
         sn2, cs2, step_s2, step_c2 = sn, cs, step_s, step_c
         if w2 > 0.0:
-            sn2 = wp.sin(fourier_frequency(2 * m0) * z2)
-            cs2 = wp.cos(fourier_frequency(2 * m0) * z2)
-            step_s2 = wp.sin(2.0 * wp.pi * z2)
-            step_c2 = wp.cos(2.0 * wp.pi * z2)
+            sn2, cs2, step_s2, step_c2 = group_rotation(z2, m0)
         for p in range(wp.static(PAIRS_PER_THREAD)):
             if m0 + p < num_pairs:
                 b_s = sn + w2 * (sn2 - sn)  # (1 - w_2) B(z_1) + w_2 B(z_2)
