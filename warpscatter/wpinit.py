@@ -23,6 +23,7 @@ import warp as wp
 log = logging.getLogger("warpscatter")
 
 _initialised = False
+_after_init: list = []  # callables init() runs once Warp is up (after_init)
 
 #: Module options shared by every warpscatter kernel module (one option set = one compile cost).
 MODULE_OPTIONS = {"enable_backward": False}
@@ -62,7 +63,7 @@ def _native_stderr_to_log():
 
 
 def init(quiet_native: bool = False) -> None:
-    """Initialise Warp once.
+    """Initialise Warp once, then run what :func:`after_init` registered.
 
     Args:
         quiet_native: route Warp's native start-up messages on stderr (the CUDA-driver warning of a CPU-only
@@ -77,6 +78,21 @@ def init(quiet_native: bool = False) -> None:
     else:
         wp.init()
     _initialised = True
+    while _after_init:
+        _after_init.pop(0)()
+
+
+def initialised() -> bool:
+    """Whether :func:`init` has run in this process."""
+    return _initialised
+
+
+def after_init(fn) -> None:
+    """Call ``fn()`` once :func:`init` has started Warp (at once if it has)."""
+    if _initialised:
+        fn()
+    else:
+        _after_init.append(fn)
 
 
 def module_options() -> None:
