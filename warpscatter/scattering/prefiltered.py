@@ -76,7 +76,7 @@ import warp as wp
 
 from ..parallel import launch_rows
 from ..scene.camera import CameraParams, pixel_ray_direction
-from ..scene.lights import DirectionalLight, LightParams, SpotLight, light_params, light_sample
+from ..scene.lights import DirectionalLight, LightParams, SpotLight, faces_away_from_light, light_params, light_sample
 from ..scene.medium import MediumParams, coloured_scattering, phase_eval, transmittance_integral
 from ..shadows import moments as mm
 from ..shadows import translucency
@@ -338,18 +338,23 @@ def evaluate_prefiltered_kernel(
 
 @wp.kernel
 def lit_ray_ends_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32), normal: wp.array2d(dtype=wp.vec3),
-                        faces_away: wp.array2d(dtype=wp.int32), light: LightParams, vis: Visibility,
-                        out: wp.array2d(dtype=wp.int32), pixels: PixelSet, offset: int):
+                        faces_away: wp.array2d(dtype=wp.int32), faces_away_known: int, light: LightParams,
+                        vis: Visibility, out: wp.array2d(dtype=wp.int32), pixels: PixelSet, offset: int):
     # 1 where pixel (i, j)'s view ray ends lit: on no surface, or on one facing the light (caster_culling.end_faces_away
-    # 0) whose point, moved one shadow-map texel off it, the shadow map sees (hard, with the marcher's bias); at the
-    # pixels of the set
+    # 0: read from faces_away when faces_away_known, else tested here as end_faces_away_kernel does) whose point, moved
+    # one shadow-map texel off it, the shadow map sees (hard, with the marcher's bias); at the pixels of the set
     a, b = wp.tid()
     j, i, listed = set_pixel(pixels, cam.height, cam.width, a + offset, b)
     if not listed:
         return
+    x = cam.position + pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5) * distance[j, i]
+    away = int(0)
+    if faces_away_known != 0:
+        away = faces_away[j, i]
+    else:
+        away = int(faces_away_from_light(light, x, normal[j, i]))
     lit = int(0)
-    if faces_away[j, i] == 0:
-        x = cam.position + pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5) * distance[j, i]
+    if away == 0:
         _e, omega, dist = light_sample(light, x)
         lit = int(point_visibility(vis, x + normal[j, i] * vis.sm.texel_world, omega, dist) > 0.5)
     out[j, i] = lit
@@ -390,20 +395,22 @@ def lit_ray_ends(scene, gbuffer, shadow_map, bias_texels: float, faces_away: wp.
     that the shadow map sees, ``bias_texels`` of depth bias), 0 where it ends in shadow. A look-up of a ray ending lit
     may end nearer its end (``prefiltered.end_offset``, :data:`~.settings.END_OFFSET_LIT`): a lit surface shadows its
     own ray only through the texel's filtering. ``faces_away``: :func:`~.caster_culling.end_faces_away` of the frame
-    if already made (else it is); ``vis``: the shadow map's :class:`~.marching.Visibility` with that bias, if already
-    made (else it is). ``pixels`` and ``dim``: only the pixels of that
-    :class:`~.sparse_evaluation.PixelSet` launch, written into ``out`` (default: every pixel, into a new array)."""
+    if already made (else the kernel tests it at the pixels it evaluates); ``vis``: the shadow map's
+    :class:`~.marching.Visibility` with that bias, if already made (else it is). ``pixels`` and ``dim``: only the
+    pixels of that :class:`~.sparse_evaluation.PixelSet` launch, written into ``out`` (default: every pixel, into a
+    new array)."""
     device = default_device(device)
     cam = scene.camera
     light = light_params(scene.light, device)
-    if faces_away is None:
-        faces_away = end_faces_away(cam, gbuffer, light, device)
+    known = faces_away is not None
+    if not known:
+        faces_away = wp.zeros((1, 1), dtype=wp.int32, device=device)
     if out is None:
         out = wp.empty((cam.height, cam.width), dtype=wp.int32, device=device)
     if pixels is None:
         pixels, dim = pixel_set(PIXELS_ALL, device=device), (cam.height, cam.width)
     launch_rows(lit_ray_ends_kernel, dim,
-                [cam.params(), gbuffer.distance, gbuffer.normal, faces_away, light,
+                [cam.params(), gbuffer.distance, gbuffer.normal, faces_away, int(known), light,
                  vis if vis is not None else visibility_params(scene, "shadow_map", shadow_map=shadow_map,
                                                                shadow_bias_texels=bias_texels, device=device),
                  out, pixels], device=device)
@@ -587,8 +594,6 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         # the lit-end test, for the shift and for the rays looking into the light that end in shadow (the kernel)
         lit_ends_known = not light_behind
         lit_ends = wp.zeros((cam.height, cam.width) if lit_ends_known else (1, 1), dtype=wp.int32, device=device)
-        if lit_ends_known and faces_away is None:
-            faces_away = end_faces_away(cam, gbuffer, lparams, device)
         nonlinear = rect if isinstance(rect, NonlinearRectification) else None
         end_samples = p.end_samples if lit_ends_known and nonlinear is not None else 0
         weights = ray_weights(segments, chain.optical_step, nonlinear, sigma_ref, end_offset, device=device,
