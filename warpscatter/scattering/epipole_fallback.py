@@ -15,6 +15,11 @@ came out grainy against the smooth prefiltered surround (per-pixel variation ~6 
 colonnade_fourier at 640x360; 0.85 % now, the 512-step reference's own noise). ``jitter`` picks per-pixel or the
 fixed pattern; the render methods pass ``ScatteringSettings.march_jitter``, fixed by default (less grain still: at
 320x180 the disc's pixel-to-pixel variation 1.6 % per-pixel, 0.93 % fixed).
+
+The directional look-up skips the pixels inside the inner cones (:class:`MarchedCones`, :func:`wholly_marched`: the
+march's own test), whose value the march replaces whatever it was: fourier at 1920x1080 on the colonnade, evaluate
+stage 196 -> 183 ms. Images are unchanged inside the disc; a few pixels of the blend band that the sparse look-up
+interpolated from a skipped corner are now looked up (16 of 57600 at 320x180, 1.7e-7 rel. L1).
 """
 
 from __future__ import annotations
@@ -80,6 +85,36 @@ def epipole_region_kernel(
             psi_out = wp.acos(cos_outer)
             w = (psi_out - psi) / wp.max(psi_out - psi_in, 1.0e-12)
         out[j, i] = marched * w + out[j, i] * (1.0 - w)
+
+
+@wp.struct
+class MarchedCones:
+    """The inner cones of up to two :class:`EpipoleRegion` as kernels see them (:func:`marched_cones`): a pixel whose
+    view ray lies in one (within its launch rectangle) takes the ray-marched result alone, so a look-up there is
+    work thrown away (:func:`wholly_marched`)."""
+
+    count: int  # regions (0-2)
+    axis0: wp.vec3
+    cos0: float  # cos of the region's inner radius (epipole_region_kernel's cos_inner)
+    rect0: wp.vec4i  # the region's launch rectangle: x0, y0, x1, y1 (exclusive)
+    axis1: wp.vec3
+    cos1: float
+    rect1: wp.vec4i
+
+
+@wp.func
+def in_marched_cone(axis: wp.vec3, cos_inner: float, rect: wp.vec4i, d: wp.vec3, i: int, j: int) -> bool:
+    """Whether epipole_region_kernel gives pixel (i, j) with view direction d the weight 1 (the same test)."""
+    return i >= rect[0] and j >= rect[1] and i < rect[2] and j < rect[3] and wp.dot(d, axis) >= cos_inner
+
+
+@wp.func
+def wholly_marched(cones: MarchedCones, d: wp.vec3, i: int, j: int) -> bool:
+    """Whether :func:`march_epipole_regions` will replace pixel (i, j)'s value (view direction d, as
+    :func:`~warpscatter.scene.camera.pixel_ray_direction` gives it) by its ray-marched one, whatever it was."""
+    if cones.count > 0 and in_marched_cone(cones.axis0, cones.cos0, cones.rect0, d, i, j):
+        return True
+    return cones.count > 1 and in_marched_cone(cones.axis1, cones.cos1, cones.rect1, d, i, j)
 
 
 @dataclass(frozen=True)
@@ -162,6 +197,28 @@ def epipole_pixel_fraction(camera, regions: list[EpipoleRegion], stride: int = 4
     return float(inside.mean())
 
 
+def _cos_inner(region: EpipoleRegion) -> float:
+    """The cosine epipole_region_kernel compares with (as the kernel receives it: float32)."""
+    return float(np.float32(np.cos(np.radians(region.inner_deg))))
+
+
+def marched_cones(regions: list[EpipoleRegion]) -> MarchedCones:
+    """:class:`MarchedCones` of at most two regions (:func:`epipole_regions` gives one per epipole)."""
+    if len(regions) > 2:
+        raise ValueError(f"at most two epipole regions (one per epipole), got {len(regions)}")
+    cones = MarchedCones()
+    cones.count = len(regions)
+    cones.axis0 = cones.axis1 = wp.vec3(0.0, 0.0, 0.0)
+    cones.cos0 = cones.cos1 = 2.0
+    cones.rect0 = cones.rect1 = wp.vec4i(0, 0, 0, 0)
+    for k, r in enumerate(regions):
+        x0, y0, w, h = r.rect
+        setattr(cones, f"axis{k}", wp.vec3(*r.axis))
+        setattr(cones, f"cos{k}", _cos_inner(r))
+        setattr(cones, f"rect{k}", wp.vec4i(int(x0), int(y0), int(x0 + w), int(y0 + h)))
+    return cones
+
+
 def march_epipole_regions(scene, gbuffer, shadow_map, regions: list[EpipoleRegion], out: wp.array, *, steps: int,
                           seed: int, shadow_bias_texels: float, jitter: str = "per_pixel", device=None) -> None:
     """Ray-march the pixels of ``regions`` into ``out`` (shadow-map visibility, ``steps`` strata of equal
@@ -174,7 +231,7 @@ def march_epipole_regions(scene, gbuffer, shadow_map, regions: list[EpipoleRegio
     for r in regions:
         x0, y0, w, h = r.rect
         launch_rows(epipole_region_kernel, (h, w),
-                    [cam.params(), gbuffer.distance, wp.vec3(*r.axis), float(np.cos(np.radians(r.inner_deg))),
+                    [cam.params(), gbuffer.distance, wp.vec3(*r.axis), _cos_inner(r),
                      float(np.cos(np.radians(r.outer_deg))), marcher, int(x0), int(y0), out], device=device)
 
 

@@ -85,11 +85,14 @@ from ..wpinit import default_device, module_options
 from . import rectify_nonlinear
 from .caster_culling import cull_unseen_casters, end_faces_away
 from .epipole_fallback import (
+    MarchedCones,
     epipole_pixel_fraction,
     epipole_regions,
     epipole_weights,
     march_epipole_regions,
     march_flagged_pixels,
+    marched_cones,
+    wholly_marched,
 )
 from .filtered_lookups import (
     DepthBounds,
@@ -273,6 +276,7 @@ def evaluate_prefiltered_kernel(
     out: wp.array2d(dtype=wp.vec3),
     end_zone: wp.array2d(dtype=wp.int32),  # out: 1 where the look-up is left to the marcher (module doc), else 0
     end_zone_any: wp.array(dtype=wp.int32),  # out: [0] set to 1 when any pixel is (a plain store: no race to lose)
+    marched: MarchedCones,  # the epipole discs ray-marched afterwards: no look-up there (epipole_fallback)
     pixels: PixelSet,  # the pixels to evaluate (sparse_evaluation)
     offset: int,
 ):
@@ -282,6 +286,10 @@ def evaluate_prefiltered_kernel(
     if not listed:
         return
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
+    if wholly_marched(marched, d, i, j):  # the disc's march replaces whatever is here
+        out[j, i] = wp.vec3(0.0, 0.0, 0.0)
+        end_zone[j, i] = 0
+        return
     s = distance[j, i]
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
     lv = pixel_mip_level(mips, coords, j, i)
@@ -576,6 +584,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         bounds = depth_bounds_of(rectified, p.depth_bounds, device)
         chain = row_mip_chain(fb, tau, bounds.bounds, p.mip_levels, device)
         fb, bounds.bounds = chain.texture, chain.bounds
+    regions = (epipole_regions(cam, scene.light.direction, p.epipole_angle_deg, p.epipole_block)
+               if settings.marches_epipole else [])
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
         beta = wp.vec3(*settings.moments.beta_range(), settings.moments.epipole_taper())
@@ -611,7 +621,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         inputs = [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, channels, bounds,
                   chain.params(wrap_rows(rect)), beta, lparams, scene.medium.params(), lit_ends, int(lit_ends_known),
                   gbuffer.normal, end_vis, end_samples, float(np.cos(np.radians(END_SAMPLES_MIN_DEG))), lit_end_shift,
-                  out, end_zone, end_zone_any]
+                  out, end_zone, end_zone_any, marched_cones(regions)]
 
         def look_up(pixels: PixelSet, dim: tuple[int, int]) -> None:
             if not every_pixel:  # the coordinates and the lit-end test of the same pixels first
@@ -629,8 +639,6 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
             end_zone_pixels = march_flagged_pixels(scene, gbuffer, shadow_map, end_zone, out, steps=p.epipole_steps,
                                                    seed=settings.seed, shadow_bias_texels=settings.shadow_map.bias,
                                                    jitter=settings.march_jitter, device=device)
-    regions = (epipole_regions(cam, scene.light.direction, p.epipole_angle_deg, p.epipole_block)
-               if settings.marches_epipole else [])
     if regions:
         with stage("epipole"):
             march_epipole_regions(scene, gbuffer, shadow_map, regions, out, steps=p.epipole_steps, seed=settings.seed,
