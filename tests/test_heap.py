@@ -3,6 +3,7 @@ fresh pages."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -12,7 +13,9 @@ import pytest
 import warp as wp
 
 from warpscatter.heap import (
+    CACHE_LIMIT_BYTES,
     CachingHostAllocator,
+    default_cache_limit,
     keep_freed_memory,
     keep_freed_memory_unless_disabled,
     keep_freed_warp_buffers,
@@ -131,11 +134,20 @@ def test_caching_allocator_is_thread_safe():
     assert cache.hits + cache.misses == 4 * 2000 and base.allocations == cache.misses <= 4 * 3
 
 
+def test_the_default_limit_is_at_most_an_eighth_of_the_memory():
+    limit = default_cache_limit()
+    assert 0 < limit <= CACHE_LIMIT_BYTES
+    if sys.platform.startswith("linux"):
+        memory = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        assert limit == min(CACHE_LIMIT_BYTES, memory // 8)
+
+
 def test_warp_arrays_reuse_freed_blocks_through_the_cpu_device():
     n = (16 * MB) // 4
     cache = keep_freed_warp_buffers("cpu")
     try:
         assert cache is not None and keep_freed_warp_buffers("cpu") is cache  # idempotent
+        assert cache.limit_bytes == default_cache_limit()
         a = wp.empty(n, dtype=wp.float32, device="cpu")
         ptr = a.ptr
         del a
@@ -196,7 +208,7 @@ def test_the_cli_setting_keeps_warp_frames_from_faulting_in_fresh_pages(monkeypa
     def faults(keep: str) -> int:
         env = {"WARPSCATTER_KEEP_FREED_MEMORY": keep}
         out = subprocess.run([sys.executable, "-c", _WARP_FAULTS], capture_output=True, text=True, check=True,
-                             env={**__import__("os").environ, **env})
+                             env={**os.environ, **env})
         return int(out.stdout.split()[-1])
 
     plain, kept = faults("0"), faults("1")

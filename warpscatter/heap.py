@@ -14,7 +14,8 @@ fit the hole their predecessor left and are served from fresh pages again (6k-33
 time in a 1080p fourier frame, the prefilter stage 44-150 ms from frame to frame). :func:`keep_freed_warp_buffers`
 therefore gives Warp's CPU device a caching allocator (:class:`CachingHostAllocator`): freed blocks of at least
 :data:`CACHE_MIN_BYTES` are kept by size and handed to the next request of that size, up to
-:data:`CACHE_LIMIT_BYTES` kept in all (the oldest are released first). After the first frame a repeated frame then
+:data:`CACHE_LIMIT_BYTES` (or an eighth of the machine's memory, if less) kept in all (the oldest are released
+first). After the first frame a repeated frame then
 allocates nothing new (1080p fourier: ~10 page faults a frame, its prefilter stage 38-45 ms). The CLI applies both
 (:func:`keep_freed_memory_unless_disabled`).
 """
@@ -147,9 +148,19 @@ class CachingHostAllocator:
             self.base.deallocate(ptr, size)
 
 
-def keep_freed_warp_buffers(device="cpu", limit_bytes: int = CACHE_LIMIT_BYTES) -> CachingHostAllocator | None:
+def default_cache_limit() -> int:
+    """:data:`CACHE_LIMIT_BYTES`, or an eighth of the machine's physical memory where that is less."""
+    try:
+        memory = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, OSError, ValueError):  # pragma: no cover - no sysconf (Windows)
+        return CACHE_LIMIT_BYTES
+    return int(min(CACHE_LIMIT_BYTES, max(memory, 0) // 8))
+
+
+def keep_freed_warp_buffers(device="cpu", limit_bytes: int | None = None) -> CachingHostAllocator | None:
     """Give Warp's CPU device a :class:`CachingHostAllocator` (module doc), so that a repeated frame's buffers reuse
-    the blocks, and so the mapped pages, of the frame before.
+    the blocks, and so the mapped pages, of the frame before. ``limit_bytes``: the most it keeps (None:
+    :func:`default_cache_limit`).
 
     Warp offers custom allocators publicly for CUDA devices only; on the CPU the device's ``default_allocator`` is
     replaced. Where a Warp version has no such attribute (or ``device`` is not a CPU), nothing changes.
@@ -158,6 +169,9 @@ def keep_freed_warp_buffers(device="cpu", limit_bytes: int = CACHE_LIMIT_BYTES) 
         The installed allocator (an earlier call's, whose limit stays), or None where nothing was installed.
     """
     import warp as wp
+
+    if limit_bytes is None:
+        limit_bytes = default_cache_limit()
 
     wp.init()
     dev = wp.get_device(device)
@@ -207,5 +221,6 @@ def keep_freed_memory_unless_disabled() -> bool:
     return applied
 
 
-__all__ = ["CACHE_LIMIT_BYTES", "CACHE_MIN_BYTES", "CachingHostAllocator", "KEEP_LIMIT_BYTES", "keep_freed_memory",
-           "keep_freed_memory_unless_disabled", "keep_freed_warp_buffers", "restore_warp_allocator"]
+__all__ = ["CACHE_LIMIT_BYTES", "CACHE_MIN_BYTES", "CachingHostAllocator", "KEEP_LIMIT_BYTES", "default_cache_limit",
+           "keep_freed_memory", "keep_freed_memory_unless_disabled", "keep_freed_warp_buffers",
+           "restore_warp_allocator"]
