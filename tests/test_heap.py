@@ -204,7 +204,7 @@ def test_the_cli_setting_starts_no_warp_and_installs_the_allocator_with_it():
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="page-fault counts (getrusage)")
-def test_the_cli_setting_keeps_warp_frames_from_faulting_in_fresh_pages(monkeypatch):
+def test_the_cli_setting_keeps_warp_frames_from_faulting_in_fresh_pages():
     def faults(keep: str) -> int:
         env = {"WARPSCATTER_KEEP_FREED_MEMORY": keep}
         out = subprocess.run([sys.executable, "-c", _WARP_FAULTS], capture_output=True, text=True, check=True,

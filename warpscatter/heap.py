@@ -214,10 +214,7 @@ def keep_freed_memory_unless_disabled() -> bool:
     from . import wpinit
 
     applied = keep_freed_memory()
-    if wpinit.initialised():
-        keep_freed_warp_buffers()
-    else:
-        wpinit.after_init(keep_freed_warp_buffers)
+    wpinit.after_init(keep_freed_warp_buffers)  # now if Warp is up, else right after wpinit.init()
     return applied
 
 
