@@ -450,6 +450,35 @@ def test_opaque_supersampling_keeps_the_general_kernels_result(samples):
         assert np.any((z1 < z2) & (z2 < 1.0) & (w2 > 0.0))
 
 
+@pytest.mark.parametrize("translucent", [False, True])
+def test_supersampling_rows_do_not_depend_on_the_thread_split(monkeypatch, translucent):
+    """The supersampled kernels run one thread per rectified row from the chunk's row offset: one thread, and three
+    threads (chunks of another size, a row count that does not divide evenly), give the same texels bit for bit,
+    and every row is written (no texel keeps wp.empty's garbage: each one is a depth in [0, 1])."""
+    import warpscatter.parallel as parallel
+
+    light = np.array([-0.3, -0.8, -0.5])
+    light = light / np.linalg.norm(light)
+    pos = np.array([0.0, 2.0, 12.0])
+    cam = Camera(position=pos, look_at=pos - light, up=[0, 1, 0], fov_y=60, width=32, height=24, near=0.1, far=20)
+    spheres = [(np.array([0.0, 2.0, 0.0]), 3.0), (pos - 8.0 * light + np.array([1.5, 0.0, 0.0]), 2.5)]
+    depth, view, proj = _sphere_shadow_map(spheres, light, np.array([0.0, 1.0, 4.0]), 30.0, 256)
+    depth = depth.astype(np.float32)
+    rect = NonlinearRectification.from_camera(cam, light, rows=101, cols=64)
+    args = {"depth": "linear", "world_to_view": view, "radial_samples": 2}
+    if translucent:
+        args["translucency"] = (depth, np.full_like(depth, 0.5))
+    runs = []
+    for threads in (1, 3):
+        monkeypatch.setattr(parallel, "thread_count", lambda n=threads: n)
+        out = resample_shadow_map(rect, depth, proj @ view, **args)
+        runs.append([a.numpy() for a in (out.z1, out.z2, out.w2)])
+    for one, three in zip(*runs, strict=True):
+        assert np.array_equal(one, three)
+        assert np.all((one >= 0.0) & (one <= 1.0))
+    assert np.any(runs[0][0] < 1.0) and np.any(runs[0][0] == 1.0)  # casters and empty texels both
+
+
 def test_resample_clamps_blockers_outside_the_frustum():
     """A caster up-light of the whole frustum clamps to depth 0; nothing (empty map) resamples to 1."""
     light = np.array([0.0, -1.0, 0.0])
