@@ -452,9 +452,10 @@ def test_opaque_supersampling_keeps_the_general_kernels_result(samples):
 
 @pytest.mark.parametrize("translucent", [False, True])
 def test_supersampling_rows_do_not_depend_on_the_thread_split(monkeypatch, translucent):
-    """The supersampled kernels run one thread per rectified row from the chunk's row offset: one thread, and three
-    threads (chunks of another size, a row count that does not divide evenly), give the same texels bit for bit,
-    and every row is written (no texel keeps wp.empty's garbage: each one is a depth in [0, 1])."""
+    """The supersampled kernels run one thread per rectified row on the CPU (``radial_span``), from the chunk's row
+    offset: one thread, three threads (chunks of another size, a row count that does not divide evenly) and a thread
+    per texel (span 1, as on CUDA) give the same texels bit for bit, and every texel is written (none keeps
+    wp.empty's garbage: each one is a depth in [0, 1])."""
     import warpscatter.parallel as parallel
 
     light = np.array([-0.3, -0.8, -0.5])
@@ -468,14 +469,18 @@ def test_supersampling_rows_do_not_depend_on_the_thread_split(monkeypatch, trans
     args = {"depth": "linear", "world_to_view": view, "radial_samples": 2}
     if translucent:
         args["translucency"] = (depth, np.full_like(depth, 0.5))
+    assert rectify.radial_span(rect.cols, "cpu") == rect.cols
     runs = []
-    for threads in (1, 3):
+    for threads, span in ((1, None), (3, None), (2, 1)):
         monkeypatch.setattr(parallel, "thread_count", lambda n=threads: n)
+        if span is not None:
+            monkeypatch.setattr(rectify, "radial_span", lambda cols, device, s=span: s)
         out = resample_shadow_map(rect, depth, proj @ view, **args)
         runs.append([a.numpy() for a in (out.z1, out.z2, out.w2)])
-    for one, three in zip(*runs, strict=True):
-        assert np.array_equal(one, three)
-        assert np.all((one >= 0.0) & (one <= 1.0))
+    for first, *others in zip(*runs, strict=True):
+        for other in others:
+            assert np.array_equal(first, other)
+        assert np.all((first >= 0.0) & (first <= 1.0))
     assert np.any(runs[0][0] < 1.0) and np.any(runs[0][0] == 1.0)  # casters and empty texels both
 
 

@@ -354,9 +354,9 @@ def translucent_tap(layer: TranslucentLayer, x: int, y: int, d: float, depth_per
 # their taps for the second pass (at most RADIAL_TAPS, at indices fixed when the kernel compiles, so they stay in
 # registers; :func:`keep_tap`, :func:`kept_taps_parts`) and skip it where there are empty taps or the range is a point
 # (the casters are then one part, the first pass's caster sum): about 1.8x faster on two threads at 1024^2 than
-# re-reading the taps, bit-identical. Both kernels run one thread per row: a row's light-ray setup (one sin/cos,
-# two matrix products) done once instead of per texel halved the opaque kernel's time again (1024^2, two cores, 46
-# -> 23 ms), bit-identical. With translucent casters a tap is one part or two (:func:`tap_part`) and the
+# re-reading the taps, bit-identical. On the CPU both kernels run one thread per row (radial_span): a row's
+# light-ray setup (one sin/cos, two matrix products) done once instead of per texel halved the opaque kernel's time
+# again (1024^2, two cores, 46 -> 23 ms), bit-identical. With translucent casters a tap is one part or two (:func:`tap_part`) and the
 # second pass recomputes them (keeping up to 32 parts at run-time indices was a third slower).
 
 
@@ -532,16 +532,18 @@ def resample_radial_opaque_kernel(
     depth_per_unit: float,
     empty_depth: float,
     samples: int,  # sub-samples along the texel's column extent, 1..MAX_RADIAL_SAMPLES
+    span: int,  # texels of a row per thread (radial_span): launch dim (rows, ceil(cols / span))
     out_z1: wp.array2d(dtype=wp.float32),  # (rows, cols) the nearer depth of the texel's two-depth mix
     out_z2: wp.array2d(dtype=wp.float32),  # (rows, cols) the farther depth
     out_w2: wp.array2d(dtype=wp.float32),  # (rows, cols) the weight of z2
     offset: int,
 ):
-    # resample_radial_kernel for a map without translucent casters, its output bit-identical; one thread per row
-    # (launch dim = rows), so the row's light-ray points (one sin/cos, two matrix products) are set up once
-    j = wp.tid() + offset
+    # resample_radial_kernel for a map without translucent casters, its output bit-identical; a thread takes
+    # ``span`` texels of a row and sets up the row's light-ray points (one sin/cos, two matrix products) once
+    j, g = wp.tid()
+    j += offset
     c0, ca, d0, da = radial_row(rect, world_to_clip, depth_row, j)
-    for i in range(rect.cols):
+    for i in range(g * span, wp.min(g * span + span, rect.cols)):
         z1, z2, share = radial_opaque_texel(rect, shadow_depth, c0, ca, d0, da, depth_per_unit, empty_depth, samples,
                                             i)
         out_z1[j, i] = z1
@@ -594,6 +596,7 @@ def resample_radial_kernel(
     depth_per_unit: float,
     empty_depth: float,
     samples: int,  # sub-samples along the texel's column extent, 1..MAX_RADIAL_SAMPLES
+    span: int,  # texels of a row per thread (radial_span): launch dim (rows, ceil(cols / span))
     out_z1: wp.array2d(dtype=wp.float32),  # (rows, cols) the nearer depth of the texel's two-depth mix
     out_z2: wp.array2d(dtype=wp.float32),  # (rows, cols) the farther depth
     out_w2: wp.array2d(dtype=wp.float32),  # (rows, cols) the weight of z2
@@ -604,13 +607,14 @@ def resample_radial_kernel(
     # sample's light-ray point (the rectified depth grows with z_b). The caster taps split in two at the middle of
     # their z_b range, each part's weighted mean z_b becoming one rectified depth at the texel's centre column; with
     # empty taps (no caster: depth 1) the casters form one depth and the empty taps the other. The light-ray point
-    # is affine in u (p0 = origin + u a), so are its map coordinates and depth: one thread per row (launch dim =
-    # rows) sets them up once (one sin/cos, two matrix products), then at most two atan2 per texel. With translucent
-    # casters a tap is two parts, its nearest caster with weight (1 - T) and its nearest opaque caster (or the empty
-    # far end) with weight T.
-    j = wp.tid() + offset
+    # is affine in u (p0 = origin + u a), so are its map coordinates and depth: a thread takes ``span`` texels of a
+    # row and sets them up once (one sin/cos, two matrix products), then at most two atan2 per texel. With
+    # translucent casters a tap is two parts, its nearest caster with weight (1 - T) and its nearest opaque caster
+    # (or the empty far end) with weight T.
+    j, g = wp.tid()
+    j += offset
     c0, ca, d0, da = radial_row(rect, world_to_clip, depth_row, j)
-    for i in range(rect.cols):
+    for i in range(g * span, wp.min(g * span + span, rect.cols)):
         z1, z2, share = radial_translucent_texel(rect, shadow_depth, layer, c0, ca, d0, da, depth_per_unit,
                                                  empty_depth, samples, i)
         out_z1[j, i] = z1
@@ -1115,6 +1119,13 @@ def _pixel_median_inclination(rect: NonlinearRectification, camera, stride: int,
 # ---- host side: resampling ------------------------------------------------------------------------------
 
 
+def radial_span(cols: int, device) -> int:
+    """Texels of a rectified row one thread of the supersampled resampling takes: the whole row on the CPU (a
+    thread per row sets the row's light-ray points up once: half the time of a thread per texel at 1024^2), one on
+    CUDA (a thread per texel: a GPU needs the threads more than the saved setup). Any span gives the same texels."""
+    return max(1, int(cols)) if wp.get_device(device).is_cpu else 1
+
+
 def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_clip, *, depth: str = "ndc",
                         world_to_view=None, radial_samples: int = 0, translucency=None, device=None):
     """Resample an orthographic light shadow map into the rectified blocker-depth map (Peters 2017 Sec. 5.1.1).
@@ -1197,11 +1208,13 @@ def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_cli
     shape = (rect.rows, rect.cols)
     if radial_samples > 0 or translucency is not None:
         z1, z2, w2 = (wp.empty(shape, dtype=wp.float32, device=device) for _ in range(3))
+        span = radial_span(rect.cols, device)
+        dim = (rect.rows, (rect.cols + span - 1) // span)
         if radial_samples > 0 and translucency is None:
-            launch_rows(resample_radial_opaque_kernel, rect.rows, [*head, *tail, int(radial_samples), z1, z2, w2],
+            launch_rows(resample_radial_opaque_kernel, dim, [*head, *tail, int(radial_samples), span, z1, z2, w2],
                         device=device)
         elif radial_samples > 0:
-            launch_rows(resample_radial_kernel, rect.rows, [*head, layer, *tail, int(radial_samples), z1, z2, w2],
+            launch_rows(resample_radial_kernel, dim, [*head, layer, *tail, int(radial_samples), span, z1, z2, w2],
                         device=device)
         else:
             launch_rows(resample_translucent_kernel, shape, [*head, layer, *tail, z1, z2, w2], device=device)
