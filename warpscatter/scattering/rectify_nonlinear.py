@@ -356,8 +356,9 @@ def translucent_tap(layer: TranslucentLayer, x: int, y: int, d: float, depth_per
 # (the casters are then one part, the first pass's caster sum): about 1.8x faster on two threads at 1024^2 than
 # re-reading the taps, bit-identical. On the CPU both kernels run one thread per row (radial_span): a row's
 # light-ray setup (one sin/cos, two matrix products) done once instead of per texel halved the opaque kernel's time
-# again (1024^2, two cores, 46 -> 23 ms), bit-identical. With translucent casters a tap is one part or two (:func:`tap_part`) and the
-# second pass recomputes them (keeping up to 32 parts at run-time indices was a third slower).
+# again (1024^2, two cores, 46 -> 23 ms), bit-identical. With translucent casters a tap is one part or two
+# (:func:`tap_part`) and the second pass recomputes them (keeping up to 32 parts at run-time indices was a third
+# slower).
 
 
 @wp.func
