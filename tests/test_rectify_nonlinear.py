@@ -426,8 +426,8 @@ def test_resample_matches_analytic_visibility(look):
 @pytest.mark.parametrize("samples", [1, 2, 3, 4])
 def test_opaque_supersampling_keeps_the_general_kernels_result(samples):
     """The supersampled resampling of an opaque map keeps its taps for the split pass
-    (``resample_radial_opaque_kernel``); its texels are bit for bit those of the general kernel's two passes, which
-    a translucent layer passing no light selects."""
+    (``radial_opaque_texel``); its texels are bit for bit those of the general texel's two passes
+    (``radial_translucent_texel``), which a translucent layer passing no light selects."""
     light = np.array([-0.3, -0.8, -0.5])
     light = light / np.linalg.norm(light)
     pos = np.array([0.0, 2.0, 12.0])

@@ -183,8 +183,8 @@ def spot_casters_translucent(rect: NonlinearRectParams, light: LightParams, shad
 def spot_casters_opaque(rect: NonlinearRectParams, light: LightParams, shadow_depth: wp.array2d(dtype=wp.float32),
                         world_to_clip: wp.mat44, samples: int, i: int, phi: float, to_world: wp.mat33):
     """:func:`spot_casters_translucent` for a map without translucent casters, bit-identical: one pass reads the
-    taps and keeps them (static indices: registers, as the directional kernel's
-    ``resample_radial_opaque_kernel``); the split pass runs over the kept taps."""
+    taps and keeps them (static indices: registers, as the directional map's
+    ``radial_opaque_texel``); the split pass runs over the kept taps."""
     inv = 1.0 / float(samples)
     lo, hi, w_caster, w_empty = empty_tap_range()
     s_caster = float(0.0)

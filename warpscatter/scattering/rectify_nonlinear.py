@@ -348,17 +348,17 @@ def translucent_tap(layer: TranslucentLayer, x: int, y: int, d: float, depth_per
     return layer.transmittance[y, x], float(0.0), float(0.0)
 
 
-# A supersampled texel condenses its taps to two depths in two passes over the same taps: the first finds the
-# casters' depth range [lo, hi] and the caster and empty weights (:func:`tap_range`), the second splits the casters
-# at the middle of that range, each part's weighted mean becoming one depth (:func:`tap_split`). Opaque maps keep
-# their taps for the second pass (at most RADIAL_TAPS, at indices fixed when the kernel compiles, so they stay in
-# registers; :func:`keep_tap`, :func:`kept_taps_parts`) and skip it where there are empty taps or the range is a point
-# (the casters are then one part, the first pass's caster sum): about 1.8x faster on two threads at 1024^2 than
-# re-reading the taps, bit-identical. On the CPU both kernels run one thread per row (radial_span): a row's
-# light-ray setup (one sin/cos, two matrix products) done once instead of per texel halved the opaque kernel's time
-# again (1024^2, two cores, 46 -> 23 ms), bit-identical. With translucent casters a tap is one part or two
-# (:func:`tap_part`) and the second pass recomputes them (keeping up to 32 parts at run-time indices was a third
-# slower).
+# A supersampled texel condenses its taps to two depths in two passes over the same taps: the first finds the casters'
+# depth range [lo, hi] and the caster and empty weights (:func:`tap_range`), the second splits the casters at the middle
+# of that range, each part's weighted mean becoming one depth (:func:`tap_split`). Opaque maps keep their taps for the
+# second pass (at most RADIAL_TAPS, at indices fixed when the kernel compiles, so they stay in registers;
+# :func:`keep_tap`, :func:`kept_taps_parts`) and skip it where there are empty taps or the range is a point (the casters
+# are then one part, the first pass's caster sum): about 1.8x faster on two threads at 1024^2 than re-reading the taps,
+# bit-identical (:func:`radial_opaque_texel`; resample_radial_kernel picks it per map). On the CPU a thread takes a
+# whole row (radial_span): a row's light-ray setup (one sin/cos, two matrix products) done once instead of per texel
+# halved the opaque maps' time again (1024^2, two cores, 46 -> 23 ms), bit-identical. With translucent casters a tap is
+# one part or two (:func:`tap_part`) and the second pass recomputes them (keeping up to 32 parts at run-time indices was
+# a third slower).
 
 
 @wp.func
@@ -524,34 +524,6 @@ def radial_opaque_texel(rect: NonlinearRectParams, shadow_depth: wp.array2d(dtyp
     return radial_texel_depths(rect, i, w_caster, w_empty, s1, w1, s2, w2)
 
 
-@wp.kernel
-def resample_radial_opaque_kernel(
-    rect: NonlinearRectParams,
-    shadow_depth: wp.array2d(dtype=wp.float32),  # as resample_kernel
-    world_to_clip: wp.mat44,
-    depth_row: wp.vec4,
-    depth_per_unit: float,
-    empty_depth: float,
-    samples: int,  # sub-samples along the texel's column extent, 1..MAX_RADIAL_SAMPLES
-    span: int,  # texels of a row per thread (radial_span): launch dim (rows, ceil(cols / span))
-    out_z1: wp.array2d(dtype=wp.float32),  # (rows, cols) the nearer depth of the texel's two-depth mix
-    out_z2: wp.array2d(dtype=wp.float32),  # (rows, cols) the farther depth
-    out_w2: wp.array2d(dtype=wp.float32),  # (rows, cols) the weight of z2
-    offset: int,
-):
-    # resample_radial_kernel for a map without translucent casters, its output bit-identical; a thread takes
-    # ``span`` texels of a row and sets up the row's light-ray points (one sin/cos, two matrix products) once
-    j, g = wp.tid()
-    j += offset
-    c0, ca, d0, da = radial_row(rect, world_to_clip, depth_row, j)
-    for i in range(g * span, wp.min(g * span + span, rect.cols)):
-        z1, z2, share = radial_opaque_texel(rect, shadow_depth, c0, ca, d0, da, depth_per_unit, empty_depth, samples,
-                                            i)
-        out_z1[j, i] = z1
-        out_z2[j, i] = z2
-        out_w2[j, i] = share
-
-
 @wp.func
 def radial_translucent_texel(rect: NonlinearRectParams, shadow_depth: wp.array2d(dtype=wp.float32),
                              layer: TranslucentLayer, c0: wp.vec4, ca: wp.vec4, d0: float, da: float,
@@ -616,8 +588,15 @@ def resample_radial_kernel(
     j += offset
     c0, ca, d0, da = radial_row(rect, world_to_clip, depth_row, j)
     for i in range(g * span, wp.min(g * span + span, rect.cols)):
-        z1, z2, share = radial_translucent_texel(rect, shadow_depth, layer, c0, ca, d0, da, depth_per_unit,
-                                                 empty_depth, samples, i)
+        z1 = float(0.0)
+        z2 = float(0.0)
+        share = float(0.0)
+        if layer.translucent == 0:  # an opaque map keeps its taps for the split pass (bit-identical, faster)
+            z1, z2, share = radial_opaque_texel(rect, shadow_depth, c0, ca, d0, da, depth_per_unit, empty_depth,
+                                                samples, i)
+        else:
+            z1, z2, share = radial_translucent_texel(rect, shadow_depth, layer, c0, ca, d0, da, depth_per_unit,
+                                                     empty_depth, samples, i)
         out_z1[j, i] = z1
         out_z2[j, i] = z2
         out_w2[j, i] = share
@@ -1211,10 +1190,7 @@ def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_cli
         z1, z2, w2 = (wp.empty(shape, dtype=wp.float32, device=device) for _ in range(3))
         span = radial_span(rect.cols, device)
         dim = (rect.rows, (rect.cols + span - 1) // span)
-        if radial_samples > 0 and translucency is None:
-            launch_rows(resample_radial_opaque_kernel, dim, [*head, *tail, int(radial_samples), span, z1, z2, w2],
-                        device=device)
-        elif radial_samples > 0:
+        if radial_samples > 0:
             launch_rows(resample_radial_kernel, dim, [*head, layer, *tail, int(radial_samples), span, z1, z2, w2],
                         device=device)
         else:
