@@ -34,7 +34,7 @@ def field_kernel(values: wp.array2d(dtype=wp.vec3), out: wp.array2d(dtype=wp.vec
 
 
 def run_field(values: np.ndarray, distance: np.ndarray, stride: int, tolerance: float = 0.05,
-              depth_tolerance: float = 0.04, end_zone: np.ndarray | None = None):
+              depth_tolerance: float = 0.04, end_zone: np.ndarray | None = None, levels: int = 1):
     h, w = distance.shape
     vals = wp.array(values.astype(np.float32), dtype=wp.vec3)
     out = wp.array(np.full((h, w, 3), np.nan, np.float32), dtype=wp.vec3)
@@ -46,7 +46,7 @@ def run_field(values: np.ndarray, distance: np.ndarray, stride: int, tolerance: 
 
     zone = wp.array(end_zone.astype(np.int32)) if end_zone is not None else None
     sparse = evaluate_sparse(launch, wp.array(distance.astype(np.float32)), out, stride, tolerance, depth_tolerance,
-                             end_zone=zone)
+                             end_zone=zone, levels=levels)
     return out.numpy(), visits.numpy(), sparse
 
 
@@ -106,6 +106,87 @@ def reference_mask(values, distance, stride, tolerance, depth_tolerance):
             lo = np.minimum(lo, lum[yy][:, xx])
     node = ny[:, None] & nx[None, :]
     return node | far | (hi - lo > tolerance * hi)
+
+
+def emulate_levels(values, distance, stride, levels, tolerance, depth_tolerance):
+    """evaluate_sparse with levels, in numpy: the look-up (a copy of ``values``) on the coarsest grid's nodes, then
+    per level the finer grid's new nodes (the last level: every other pixel) interpolated in their coarse cell or, where
+    the cell does not agree, evaluated. Returns (image, evaluated mask)."""
+    h, w = distance.shape
+    v = values.astype(np.float32)
+    strides = [stride * 2 ** k for k in reversed(range(levels))]
+
+    def nodes(size, step):
+        return np.minimum(np.arange(grid_size(size, step)) * step, size - 1)
+
+    def on_grid(step):
+        m = np.zeros((h, w), bool)
+        m[np.ix_(nodes(h, step), nodes(w, step))] = True
+        return m
+
+    out = np.full_like(v, np.nan)
+    evaluated = on_grid(strides[0])
+    out[evaluated] = v[evaluated]
+    for coarse, fine in zip(strides, [*strides[1:], 1], strict=True):
+        jj, ii = np.nonzero(on_grid(fine) & ~on_grid(coarse))
+        y0, x0 = (jj // coarse) * coarse, (ii // coarse) * coarse
+        y1, x1 = np.minimum(y0 + coarse, h - 1), np.minimum(x0 + coarse, w - 1)
+        fy = np.where(y1 > y0, (jj - y0) / np.maximum(y1 - y0, 1), 0.0)[:, None]
+        fx = np.where(x1 > x0, (ii - x0) / np.maximum(x1 - x0, 1), 0.0)[:, None]
+        corners = [(y0, x0), (y0, x1), (y1, x0), (y1, x1)]
+        lum = np.stack([out[y, x].max(-1) for y, x in corners])
+        depth = distance[jj, ii]
+        agree = lum.max(0) - lum.min(0) <= tolerance * lum.max(0)
+        for y, x in corners:
+            agree &= np.abs(distance[y, x] - depth) <= depth_tolerance * depth
+        blend = ((out[y0, x0] * (1 - fx) + out[y0, x1] * fx) * (1 - fy)
+                 + (out[y1, x0] * (1 - fx) + out[y1, x1] * fx) * fy)
+        out[jj, ii] = np.where(agree[:, None], blend, v[jj, ii])
+        evaluated[jj[~agree], ii[~agree]] = True
+    return out, evaluated
+
+
+@pytest.mark.parametrize("h,w,stride,levels", [(37, 53, 2, 2), (36, 52, 2, 2), (41, 45, 1, 3), (45, 61, 2, 3),
+                                               (17, 9, 3, 2), (33, 33, 2, 1)])
+def test_levels_fill_the_grid_coarse_to_fine(h, w, stride, levels):
+    """Every pixel is evaluated at most once, the pixels evaluated are exactly the emulation's (the coarsest grid and
+    what each level's cells cannot interpolate) and the rest take its interpolation; a smooth field costs fewer
+    look-ups than with one grid, and levels 1 is the one-grid rule."""
+    values = smooth_field(h, w)
+    distance = np.full((h, w), 10.0)
+    values[:, 2 * w // 3:] *= 1.5  # a shaft's edge
+    distance[h // 3:h // 2, w // 4:w // 3] = 5.0  # a silhouette
+    out, visits, sparse = run_field(values, distance, stride, levels=levels)
+    if stride == 1:  # every pixel, whatever the levels
+        assert (visits == 1).all() and sparse.passes == []
+        return
+    assert visits.max() == 1
+    want, want_evaluated = emulate_levels(values, distance, stride, levels, 0.05, 0.04)
+    evaluated = visits == 1
+    np.testing.assert_array_equal(evaluated, want_evaluated)
+    np.testing.assert_array_equal(sparse.mask() == 1, evaluated)
+    assert sparse.evaluated == evaluated.sum() and sparse.listed.sum() == evaluated.sum() - sparse.grid_nodes
+    np.testing.assert_array_equal(out[evaluated], values.astype(np.float32)[evaluated])
+    np.testing.assert_allclose(out, want, rtol=1e-5)
+    np.testing.assert_allclose(out, values, rtol=1e-5)  # a linear field between the edges: exact
+    assert sparse.coarse_stride == stride * 2 ** (levels - 1)
+    if levels == 1:
+        np.testing.assert_array_equal(evaluated, reference_mask(values, distance, stride, 0.05, 0.04))
+    else:
+        _, one_grid, _ = run_field(values, distance, stride)
+        assert evaluated.sum() < (one_grid == 1).sum()
+
+
+def test_a_shaft_the_coarse_grid_misses_is_found_by_no_level():
+    """What levels cost: a feature between the coarsest grid's nodes that no node sees is interpolated over (the
+    one-grid rule at that spacing finds it; documented with evaluate_levels)."""
+    h, w = 33, 33
+    values = smooth_field(h, w)
+    values[:, 9:11] *= 2.0  # a 2-pixel shaft between the stride-8 nodes 8 and 16, on stride-2 nodes 10
+    _, visits, _ = run_field(values, np.full((h, w), 10.0), 2, levels=3)
+    assert visits[:, 9:11].sum() == 0
+    _, visits_one, _ = run_field(values, np.full((h, w), 10.0), 2)
+    assert visits_one[:, 10].all()
 
 
 def test_stride_one_evaluates_every_pixel_in_one_launch():

@@ -632,7 +632,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
             launch_rows(evaluate_prefiltered_kernel, dim, [*inputs, pixels], device=device)
 
         sparse = evaluate_sparse(look_up, gbuffer.distance, out, p.evaluate_stride, p.evaluate_tolerance,
-                                 EVALUATE_DEPTH_TOLERANCE, end_zone=end_zone, device=device)
+                                 EVALUATE_DEPTH_TOLERANCE, end_zone=end_zone, levels=p.evaluate_levels,
+                                 device=device)
     end_zone_pixels = 0
     if end_zone_any.numpy()[0]:  # rays looking into the light that lie wholly within their end zone (rare)
         with stage("epipole"):
@@ -665,6 +666,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         "end_offset_lit": end_offsets[1],
         "end_samples": end_samples,
         "evaluate_stride": sparse.stride,
+        "evaluate_levels": sparse.levels,
         "evaluated_fraction": round(sparse.evaluated_fraction, 4),
         **resample_info,
         "caster_culling": culled is not None,

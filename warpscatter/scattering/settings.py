@@ -209,6 +209,12 @@ MAX_END_SAMPLES = 64
 #: 27-29 % of the pixels (fourier's evaluate stage 50-80 ms less). 1: every pixel (the papers' evaluation).
 EVALUATE_STRIDE = 2
 MAX_EVALUATE_STRIDE = 8
+#: The grid is filled coarse to fine over this many levels (:mod:`~warpscatter.scattering.sparse_evaluation`): the
+#: look-up runs on every EVALUATE_STRIDE * 2^(levels - 1)-th pixel first, and each finer grid's new nodes are
+#: interpolated in the coarser grid's cells by the same test or evaluated. 1: one grid (the images before this option,
+#: bit for bit).
+EVALUATE_LEVELS = 1
+MAX_EVALUATE_LEVELS = 4
 EVALUATE_TOLERANCE = 0.02
 EVALUATE_DEPTH_TOLERANCE = 0.04
 #: ... but for the rays within this many degrees of the light's direction, whose stretch runs along nearly one light
@@ -442,6 +448,10 @@ class PrefilteredSettings(SettingsModel):
     evaluate_tolerance: Annotated[Float, Field(ge=0.0, le=1.0, description=(
         "evaluate_stride: the largest spread of a grid cell's corner radiance (largest channel), relative to the "
         "largest corner, that is interpolated; 0: only cells of equal corners"))] = EVALUATE_TOLERANCE
+    evaluate_levels: Annotated[Int, Field(ge=1, le=MAX_EVALUATE_LEVELS, description=(
+        "evaluate_stride: grids filled coarse to fine; the look-up runs on every evaluate_stride * 2^(levels - 1)-th "
+        "pixel first, and each finer grid's new nodes interpolate the coarser grid's cell by the same test or are "
+        "evaluated (warpscatter's); 1: one grid"))] = EVALUATE_LEVELS
 
     @model_validator(mode="after")
     def _segments_need_whole_rows(self) -> PrefilteredSettings:
@@ -728,6 +738,7 @@ class ScatteringSettings(SettingsModel):
 
 __all__ = [
     "EVALUATE_DEPTH_TOLERANCE",
+    "EVALUATE_LEVELS",
     "EVALUATE_STRIDE",
     "EVALUATE_TOLERANCE",
     "CASTER_CULLING_BIAS",

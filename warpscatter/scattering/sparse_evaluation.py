@@ -9,14 +9,20 @@ to the marcher (``end_zone``), and their radiance (the largest of the three chan
 interpolates). The rest (silhouettes, the edges of shafts and shadows) are evaluated directly, so the grid only saves
 work where the image is smooth, the way Engelhardt 2010 places its epipolar samples.
 
+With ``levels`` > 1 the grid itself is filled coarse to fine: the look-up runs on the grid of every
+``stride * 2**(levels - 1)``-th pixel, and each finer grid's new nodes (``stride * 2**k``) take the same test and
+interpolation in the coarser grid's cells, the nodes that fail it evaluated directly, before the pixels between the
+finest grid's nodes are. Smooth regions then cost one look-up per coarse cell, while a cell the coarse grid cannot
+interpolate falls back to the finer grid, and at an edge to every pixel, as with one level.
+
 Kernels that evaluate a :class:`PixelSet` index their pixels with :func:`set_pixel`: launched over (rows, columns)
-for :data:`PIXELS_ALL`, over the grid's (rows, columns) for :data:`PIXELS_GRID` and over (rows, most listed in a row)
-for :data:`PIXELS_LISTED`; with :func:`evaluate_sparse` driving the three launches.
+for :data:`PIXELS_ALL`, over the grid's (rows, columns) for :data:`PIXELS_GRID` and over (rows of a grid, most
+listed in a row) for :data:`PIXELS_LISTED`; with :func:`evaluate_sparse` driving the launches.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -31,7 +37,8 @@ module_options()
 PIXELS_ALL = wp.constant(0)
 #: ``PixelSet.mode``: the grid nodes (every ``stride``-th pixel; the last row and column too).
 PIXELS_GRID = wp.constant(1)
-#: ``PixelSet.mode``: the pixels listed per row (``columns[j, :counts[j]]``).
+#: ``PixelSet.mode``: the pixels listed per row of the grid of every ``stride``-th row (``columns[a, :counts[a]]`` in
+#: row ``grid_node(a, stride)``; stride 1: every row).
 PIXELS_LISTED = wp.constant(2)
 
 
@@ -40,7 +47,7 @@ class PixelSet:
     """Which pixels a launch evaluates (:func:`set_pixel`)."""
 
     mode: int  # PIXELS_ALL, PIXELS_GRID or PIXELS_LISTED
-    stride: int  # PIXELS_GRID: pixels between grid nodes
+    stride: int  # PIXELS_GRID: pixels between grid nodes; PIXELS_LISTED: rows between listed rows
     columns: wp.array2d(dtype=wp.int32)  # PIXELS_LISTED: per row, the listed columns
     counts: wp.array(dtype=wp.int32)  # PIXELS_LISTED: per row, how many
 
@@ -60,7 +67,7 @@ def set_pixel(ps: PixelSet, height: int, width: int, a: int, b: int):
     if ps.mode == PIXELS_LISTED:
         if b >= ps.counts[a]:
             return a, 0, False
-        return a, ps.columns[a, b], True
+        return grid_node(a, ps.stride, height), ps.columns[a, b], True
     return a, b, True
 
 
@@ -92,23 +99,30 @@ def channel_max(v: wp.vec3) -> float:
 
 @wp.kernel
 def interpolate_grid_kernel(
-    stride: int,
+    stride: int,  # pixels between the nodes whose cells are interpolated
+    fine: int,  # pixels between the pixels filled (1: every pixel; else the nodes of the next finer grid)
     tolerance: float,  # largest spread of the corners' radiance, relative to the largest
     depth_tolerance: float,  # largest relative camera-distance difference of a corner
     distance: wp.array2d(dtype=wp.float32),  # the G-buffer's camera distance
     end_zone: wp.array2d(dtype=wp.int32),  # 1 where the look-up left the pixel to the marcher (check_end_zone)
     check_end_zone: int,
     out: wp.array2d(dtype=wp.vec3),  # in: the grid nodes' radiance; out: the interpolated pixels'
-    columns: wp.array2d(dtype=wp.int32),  # out: per row, the pixels to evaluate directly
-    counts: wp.array(dtype=wp.int32),  # out: per row, how many
+    columns: wp.array2d(dtype=wp.int32),  # out: per filled row, the pixels to evaluate directly
+    counts: wp.array(dtype=wp.int32),  # out: per filled row, how many
     offset: int,
 ):
-    # one thread per row, cell by cell (the corners and their radiance spread once per cell): every pixel that is
-    # not a grid node is interpolated or listed (module doc)
-    j = wp.tid() + offset
+    # one thread per filled row (every fine-th, the last included), cell by cell (the corners and their radiance
+    # spread once per cell): every filled pixel that is not a node of the stride grid is interpolated or listed
+    # (module doc)
+    a = wp.tid() + offset
     height = distance.shape[0]
     width = distance.shape[1]
+    j = grid_node(a, fine, height)
     y0, y1, fy, node_row = node_span(j, stride, height)
+    # the last column is filled although it need not be a multiple of fine
+    last_extra = int(0)
+    if (width - 1) % fine != 0:
+        last_extra = 1
     n = int(0)
     for x0 in range(0, width, stride):
         x1 = wp.min(x0 + stride, width - 1)
@@ -130,10 +144,15 @@ def interpolate_grid_kernel(
         d01 = distance[y0, x1]
         d10 = distance[y1, x0]
         d11 = distance[y1, x1]
-        for i in range(x0, wp.min(x0 + stride, width)):
+        end = wp.min(x0 + stride, width)
+        filled = (end - x0 + fine - 1) // fine
+        if end == width:
+            filled += last_extra
+        for k in range(filled):
+            i = wp.min(x0 + k * fine, width - 1)
             if i == x0 or i == width - 1:
                 if node_row:
-                    continue  # a grid node: evaluated
+                    continue  # a node of the stride grid: evaluated (or filled by the coarser grid)
             fx = float(0.0)
             if x1 > x0:
                 fx = float(i - x0) / float(x1 - x0)
@@ -145,9 +164,9 @@ def interpolate_grid_kernel(
                     bottom = c10 * (1.0 - fx) + c11 * fx
                     out[j, i] = top * (1.0 - fy) + bottom * fy
                     continue
-            columns[j, n] = i
+            columns[a, n] = i
             n += 1
-    counts[j] = n
+    counts[a] = n
 
 
 def grid_size(size: int, stride: int) -> int:
@@ -168,20 +187,45 @@ def pixel_set(mode: int, stride: int = 1, columns: wp.array | None = None, count
 
 
 @dataclass
+class ListedPass:
+    """The pixels one pass of :func:`evaluate_sparse` listed for direct evaluation: in the rows of the grid of every
+    ``fine``-th row (every row for 1), ``listed[a]`` columns ``columns[a, :listed[a]]``."""
+
+    fine: int
+    listed: np.ndarray  # (grid rows,) listed pixels per row
+    columns: wp.array  # (grid rows, W) int32 the listed columns (read by SparseEvaluation.mask())
+
+
+@dataclass
 class SparseEvaluation:
-    """What :func:`evaluate_sparse` did: the pixels it evaluated (the grid's nodes and the listed ones)."""
+    """What :func:`evaluate_sparse` did: the pixels it evaluated (the coarsest grid's nodes and the listed ones)."""
 
     stride: int
     height: int
     width: int
     grid_nodes: int
-    listed: np.ndarray | None = None  # (H,) listed pixels per row (None: stride 1)
-    columns: wp.array | None = None  # (H, W) int32 the listed columns, the first listed[j] of row j (read by mask())
+    levels: int = 1
+    passes: list[ListedPass] = field(default_factory=list)  # coarse to fine; empty: stride 1
+
+    @property
+    def coarse_stride(self) -> int:
+        """Pixels between the nodes of the grid the look-up ran on first."""
+        return self.stride * 2 ** (self.levels - 1) if self.stride > 1 else 1
+
+    @property
+    def listed(self) -> np.ndarray | None:
+        """(H,) pixels listed per image row over all passes (None: stride 1)."""
+        if not self.passes:
+            return None
+        per_row = np.zeros(self.height, np.int64)
+        for ps in self.passes:
+            np.add.at(per_row, _grid_rows(self.height, ps.fine), ps.listed)
+        return per_row
 
     @property
     def evaluated(self) -> int:
         """Pixels whose look-up ran."""
-        return self.grid_nodes + (int(self.listed.sum()) if self.listed is not None else 0)
+        return self.grid_nodes + sum(int(ps.listed.sum()) for ps in self.passes)
 
     @property
     def evaluated_fraction(self) -> float:
@@ -191,22 +235,28 @@ class SparseEvaluation:
     def mask(self) -> np.ndarray:
         """(H, W) float32: 1 where the look-up ran, 0 where the pixel was interpolated."""
         m = np.zeros((self.height, self.width), np.float32)
-        if self.listed is None:
+        if not self.passes:
             m[:] = 1.0
             return m
-        ys = np.minimum(np.arange(grid_size(self.height, self.stride)) * self.stride, self.height - 1)
-        xs = np.minimum(np.arange(grid_size(self.width, self.stride)) * self.stride, self.width - 1)
-        m[np.ix_(ys, xs)] = 1.0
-        rows = np.repeat(np.arange(self.height), self.listed)
-        columns = self.columns.numpy()  # on a GPU a copy: only when the debug output asks
-        cols = np.concatenate([columns[j, :c] for j, c in enumerate(self.listed)]) if rows.size else rows
-        m[rows, cols] = 1.0
+        step = self.coarse_stride
+        m[np.ix_(_grid_rows(self.height, step), _grid_rows(self.width, step))] = 1.0
+        for ps in self.passes:
+            grid_rows = _grid_rows(self.height, ps.fine)
+            rows = np.repeat(grid_rows, ps.listed)
+            columns = ps.columns.numpy()  # on a GPU a copy: only when the debug output asks
+            cols = (np.concatenate([columns[a, :c] for a, c in enumerate(ps.listed)]) if rows.size else rows)
+            m[rows, cols] = 1.0
         return m
+
+
+def _grid_rows(size: int, stride: int) -> np.ndarray:
+    """The pixel coordinates of the grid nodes along a side (numpy's :func:`grid_node`)."""
+    return np.minimum(np.arange(grid_size(size, stride)) * stride, size - 1)
 
 
 def evaluate_sparse(launch: Callable[[PixelSet, tuple[int, int]], None], distance: wp.array, out: wp.array,
                     stride: int, tolerance: float, depth_tolerance: float, end_zone: wp.array | None = None,
-                    device=None) -> SparseEvaluation:
+                    levels: int = 1, device=None) -> SparseEvaluation:
     """Evaluate a per-pixel look-up on the pixels the image needs (module doc).
 
     Args:
@@ -214,39 +264,48 @@ def evaluate_sparse(launch: Callable[[PixelSet, tuple[int, int]], None], distanc
             dimension split across threads), writing ``out`` (and ``end_zone``) at the pixels it evaluates.
         distance: (H, W) the G-buffer's camera distance.
         out: (H, W) vec3, written at every pixel.
-        stride: pixels between grid nodes; 1 evaluates every pixel (one launch, nothing interpolated).
+        stride: pixels between the finest grid's nodes; 1 evaluates every pixel (one launch, nothing interpolated).
         tolerance: largest relative spread of a cell's corner radiance that is interpolated.
         depth_tolerance: largest relative camera-distance difference between a pixel and its cell's corners.
         end_zone: (H, W) int32 the look-up sets to 1 where it leaves a pixel to the marcher; it must be zero at
             pixels the look-up does not evaluate (the caller allocates it with ``wp.zeros``). None: no such pixels.
+        levels: grids filled coarse to fine, from every ``stride * 2**(levels - 1)``-th pixel (1: one grid).
 
     Returns:
         :class:`SparseEvaluation`.
     """
     device = default_device(device)
     h, w = out.shape
+    if levels < 1:
+        raise ValueError(f"levels must be at least 1, not {levels}")
     if stride <= 1:
         launch(pixel_set(PIXELS_ALL, device=device), (h, w))
         return SparseEvaluation(1, h, w, h * w)
-    gh, gw = grid_size(h, stride), grid_size(w, stride)
-    launch(pixel_set(PIXELS_GRID, stride, device=device), (gh, gw))
-    columns = wp.empty((h, w), dtype=wp.int32, device=device)
-    counts = wp.empty(h, dtype=wp.int32, device=device)
+    strides = [int(stride) * 2 ** k for k in reversed(range(levels))]  # coarse to fine
+    gh, gw = grid_size(h, strides[0]), grid_size(w, strides[0])
+    launch(pixel_set(PIXELS_GRID, strides[0], device=device), (gh, gw))
     zone = end_zone if end_zone is not None else wp.zeros((1, 1), dtype=wp.int32, device=device)
-    launch_rows(interpolate_grid_kernel, h,
-                [int(stride), float(tolerance), float(depth_tolerance), distance, zone, int(end_zone is not None), out,
-                 columns, counts], device=device)
-    listed = counts.numpy().copy()
-    most = int(listed.max()) if listed.size else 0
-    if most > 0:
-        launch(pixel_set(PIXELS_LISTED, stride, columns, counts, device=device), (h, most))
-    return SparseEvaluation(int(stride), h, w, gh * gw, listed, columns)
+    passes = []
+    for coarse, fine in zip(strides, [*strides[1:], 1], strict=True):
+        rows = grid_size(h, fine)
+        columns = wp.empty((rows, w), dtype=wp.int32, device=device)
+        counts = wp.empty(rows, dtype=wp.int32, device=device)
+        launch_rows(interpolate_grid_kernel, rows,
+                    [int(coarse), int(fine), float(tolerance), float(depth_tolerance), distance, zone,
+                     int(end_zone is not None), out, columns, counts], device=device)
+        listed = counts.numpy().copy()
+        most = int(listed.max()) if listed.size else 0
+        if most > 0:
+            launch(pixel_set(PIXELS_LISTED, fine, columns, counts, device=device), (rows, most))
+        passes.append(ListedPass(fine, listed, columns))
+    return SparseEvaluation(int(stride), h, w, gh * gw, int(levels), passes)
 
 
 __all__ = [
     "PIXELS_ALL",
     "PIXELS_GRID",
     "PIXELS_LISTED",
+    "ListedPass",
     "PixelSet",
     "SparseEvaluation",
     "evaluate_sparse",
