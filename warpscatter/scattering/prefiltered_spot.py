@@ -462,7 +462,8 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
             launch_rows(evaluate_spot_kernel, dim, [*inputs, pixels], device=device)
 
         sparse = evaluate_sparse(look_up, gbuffer.distance, out, p.evaluate_stride, p.evaluate_tolerance,
-                                 EVALUATE_DEPTH_TOLERANCE, levels=p.evaluate_levels, device=device)
+                                 EVALUATE_DEPTH_TOLERANCE, levels=p.evaluate_levels_for(cam.height, spot=True),
+                                 device=device)
     # auto marches no disc under a spot (settings: its light's 1/d^2 peak made the marched disc the noisier part)
     regions = (epipole_regions(cam, rect.light_direction, p.epipole_angle_deg, p.epipole_block)
                if p.epipole_fallback is True else [])

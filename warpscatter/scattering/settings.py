@@ -209,14 +209,27 @@ MAX_END_SAMPLES = 64
 #: 27-29 % of the pixels (fourier's evaluate stage 50-80 ms less). 1: every pixel (the papers' evaluation).
 EVALUATE_STRIDE = 2
 MAX_EVALUATE_STRIDE = 8
-#: The grid is filled coarse to fine over this many levels (:mod:`~warpscatter.scattering.sparse_evaluation`): the
-#: look-up runs on every EVALUATE_STRIDE * 2^(levels - 1)-th pixel first, and each finer grid's new nodes are
-#: interpolated in the coarser grid's cells by the same test or evaluated. 1: one grid (the images before this option,
-#: bit for bit).
-EVALUATE_LEVELS = 1
-MAX_EVALUATE_LEVELS = 4
 EVALUATE_TOLERANCE = 0.02
 EVALUATE_DEPTH_TOLERANCE = 0.04
+#: The grid is filled coarse to fine over this many levels (:mod:`~warpscatter.scattering.sparse_evaluation`): the
+#: look-up runs on every EVALUATE_STRIDE * 2^(levels - 1)-th pixel first, and each finer grid's new nodes are
+#: interpolated in the coarser grid's cells by the same test (with half the radiance tolerance per coarser level) or
+#: evaluated. ``auto``: 2 levels under a directional light on images of EVALUATE_LEVELS_AUTO_ROWS rows or more, else
+#: 1: a 4-pixel grid at 1080 rows spans the view's angles as the 2-pixel grid, measured at 960x540, does there.
+#: Measured at 1920x1080 against the exact reference (1024^2, rel. L1), one level as before -> two levels (with the
+#: phase interpolated apart, prefiltered.INTERPOLATE_WITHOUT_PHASE), fourier / moments6 / moments4: colonnade 2.5562
+#: -> 2.5546 % / 4.7562 -> 4.7554 % / 6.3525 -> 6.3515 %; canopy 0.6206 -> 0.6201 % / 0.6070 -> 0.6069 % / 0.6388 ->
+#: 0.6386 %; window room 1.5010 -> 1.4983 % / 4.8344 -> 4.8324 % / 7.4075 -> 7.4058 %; the look-up ran at 0.23 / 0.16
+#: / 0.15 of the pixels instead of 0.34 / 0.29 / 0.32, the evaluate stage (2 threads, fastest of 7) colonnade fourier
+#: 175 -> 157 ms, moments6 178 -> 161 ms, window room 122 -> 106 / 113 -> 101 ms. The same coarse tolerance as the
+#: fine one: canopy moments6 0.6071 %. At 960x540 two levels evaluate 0.28-0.45 instead of 0.35-0.52 of the pixels
+#: but raise the window room's moments6 error 4.814 -> 4.820 % and the canopy's moments4 0.6387 -> 0.6389 %: there
+#: the coarse grid misses shafts a few pixels wide. Under a spot light (no phase factor to interpolate apart: its
+#: 1/d^2 peak lies along each ray) two levels raise the spot fence's error at 1920x1080 (fourier 0.9073 -> 0.9098 %,
+#: moments6 1.2645 -> 1.2672 %): auto keeps one there.
+EVALUATE_LEVELS = "auto"
+EVALUATE_LEVELS_AUTO_ROWS = 1080
+MAX_EVALUATE_LEVELS = 4
 #: ... but for the rays within this many degrees of the light's direction, whose stretch runs along nearly one light
 #: ray, where one shadow-map texel at a caster's silhouette decides it: there the look-up's visibility stays (the
 #: colonnade's 320x180 rays within 2 degrees of its sun, rel. abs. error sum against the exact marcher, moments4 /
@@ -448,10 +461,20 @@ class PrefilteredSettings(SettingsModel):
     evaluate_tolerance: Annotated[Float, Field(ge=0.0, le=1.0, description=(
         "evaluate_stride: the largest spread of a grid cell's corner radiance (largest channel), relative to the "
         "largest corner, that is interpolated; 0: only cells of equal corners"))] = EVALUATE_TOLERANCE
-    evaluate_levels: Annotated[Int, Field(ge=1, le=MAX_EVALUATE_LEVELS, description=(
-        "evaluate_stride: grids filled coarse to fine; the look-up runs on every evaluate_stride * 2^(levels - 1)-th "
-        "pixel first, and each finer grid's new nodes interpolate the coarser grid's cell by the same test or are "
-        "evaluated (warpscatter's); 1: one grid"))] = EVALUATE_LEVELS
+    evaluate_levels: Union[Literal["auto"], Annotated[Int, Field(ge=1, le=MAX_EVALUATE_LEVELS)]] = Field(
+        EVALUATE_LEVELS, description=(
+            "evaluate_stride: grids filled coarse to fine; the look-up runs on every "
+            "evaluate_stride * 2^(levels - 1)-th pixel first, and each finer grid's new nodes interpolate the coarser "
+            "grid's cell by the same test (half the tolerance per coarser level) or are evaluated (warpscatter's); "
+            f"1: one grid; auto: 2 under a directional light on images of {EVALUATE_LEVELS_AUTO_ROWS} rows or more, "
+            "else 1"))
+
+    def evaluate_levels_for(self, height: int, spot: bool = False) -> int:
+        """Grid levels of a look-up on an image of ``height`` rows (``evaluate_levels``; auto:
+        :data:`EVALUATE_LEVELS_AUTO_ROWS`, one level under a spot light, ``spot``)."""
+        if self.evaluate_levels == "auto":
+            return 2 if height >= EVALUATE_LEVELS_AUTO_ROWS and not spot else 1
+        return int(self.evaluate_levels)
 
     @model_validator(mode="after")
     def _segments_need_whole_rows(self) -> PrefilteredSettings:
@@ -739,6 +762,7 @@ class ScatteringSettings(SettingsModel):
 __all__ = [
     "EVALUATE_DEPTH_TOLERANCE",
     "EVALUATE_LEVELS",
+    "EVALUATE_LEVELS_AUTO_ROWS",
     "EVALUATE_STRIDE",
     "EVALUATE_TOLERANCE",
     "CASTER_CULLING_BIAS",
