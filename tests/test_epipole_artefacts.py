@@ -216,3 +216,34 @@ def test_the_look_up_skips_exactly_the_pixels_the_disc_replaces(light, epipole):
     assert marched_cones([]).count == 0
     with pytest.raises(ValueError, match="two"):
         marched_cones(regions * 3)
+
+
+def test_the_disc_marched_on_a_grid_keeps_its_nodes_and_changes_only_the_region():
+    """epipole_stride 2: the region is marched on its 2-pixel grid and the pixels the grid cannot interpolate; the
+    marched pixels are the every-pixel march's exactly, nothing outside the region changes, the interpolated ones stay
+    far within the march's own noise of it (measured 1.7e-5 of the region's sum at 320x180, the march's seed-to-seed
+    difference there 0.0021), and fewer rays are marched (measured 0.43 of the region's pixels)."""
+    scene = build_scene(load_config(ROOT / "configs" / "colonnade_fourier.yaml",
+                                    ["camera.width=320", "camera.height=180"]))
+    frame_shadow = render_shadow_map(scene, 512)
+    g = gbuffer_raster(scene, DeviceGeometry(scene))
+    regions = epipole_regions(scene.camera, scene.light.direction, 8.0, 32)
+    x0, y0, w, h = regions[0].rect
+    images, shares = {}, {}
+    for stride, seed in ((1, 1), (2, 1), (1, 2)):
+        out = wp.full((180, 320), wp.vec3(0.5, 0.5, 0.5), dtype=wp.vec3)
+        shares[stride, seed] = march_epipole_regions(scene, g, frame_shadow, regions, out, steps=16, seed=seed,
+                                                     shadow_bias_texels=1.0, jitter="fixed", stride=stride,
+                                                     tolerance=0.02)
+        images[stride, seed] = out.numpy().astype(np.float64)
+    full, sparse = images[1, 1], images[2, 1]
+    assert shares[1, 1] == 1.0 and 0.3 < shares[2, 1] < 0.55
+    outside = np.ones((180, 320), bool)
+    outside[y0:y0 + h, x0:x0 + w] = False
+    np.testing.assert_array_equal(sparse[outside], full[outside])
+    np.testing.assert_array_equal(sparse[y0:y0 + h:2, x0:x0 + w:2], full[y0:y0 + h:2, x0:x0 + w:2])  # the nodes
+    region = (slice(y0, y0 + h), slice(x0, x0 + w))
+    diff = np.abs(sparse[region] - full[region]).sum() / np.abs(full[region]).sum()
+    noise = np.abs(images[1, 2][region] - full[region]).sum() / np.abs(full[region]).sum()
+    assert 0.0 < diff < 3e-5 and diff < noise / 50.0
+    assert np.isfinite(sparse).all()

@@ -43,6 +43,8 @@ from .marching import (
     visibility_params,
 )
 from .raymarch import march_listed_pixels
+from .settings import EVALUATE_DEPTH_TOLERANCE
+from .sparse_evaluation import PixelSet, evaluate_sparse, set_pixel
 
 module_options()
 
@@ -51,40 +53,74 @@ EPIPOLE_BLEND = 0.25
 
 
 @wp.kernel
-def epipole_region_kernel(
+def epipole_march_kernel(
     cam: CameraParams,
     distance: wp.array2d(dtype=wp.float32),
     axis: wp.vec3,  # unit direction of the epipole from the camera (-L for the light, +L for its flip)
-    cos_inner: float,  # cos of the fully ray-marched angular radius
-    cos_outer: float,  # cos of the outer radius of the blend band (<= cos_inner)
+    cos_outer: float,  # cos of the outer radius of the blend band
     marcher: Marcher,  # shadow-map visibility, ``steps`` strata, ``jitter``
-    x0: int,  # pixel rectangle origin (column, row) of the launch
+    x0: int,  # pixel rectangle origin (column, row): pixel (j, i) of ``marched`` is image pixel (y0 + j, x0 + i)
     y0: int,
-    out: wp.array2d(dtype=wp.vec3),
+    marched: wp.array2d(dtype=wp.vec3),  # out: the region's marched radiance (0 beyond the blend band)
+    pixels: PixelSet,  # the region's pixels to march (sparse_evaluation)
     offset: int,
 ):
-    # Klehm 2014 Sec. 5, Fig. 8: ray-march where the epipolar slices converge; a linear blend in the angle over
-    # the band between the inner and outer radius hides the seam to the prefiltered result
-    j, i = wp.tid()
-    j += offset + y0
-    i += x0
+    # Klehm 2014 Sec. 5, Fig. 8: ray-march where the epipolar slices converge
+    a, b = wp.tid()
+    lj, li, listed = set_pixel(pixels, marched.shape[0], marched.shape[1], a + offset, b)
+    if not listed:
+        return
+    j = lj + y0
+    i = li + x0
+    d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
+    v = wp.vec3(0.0, 0.0, 0.0)
+    if wp.dot(d, axis) > cos_outer:
+        if marcher.light.kind == LIGHT_SPOT:  # a spot: the general marcher (the strata need parallel light rays)
+            v = march_to_surface(marcher, cam.position, d, distance[j, i], pixel_end_normal(marcher, i, j),
+                                 j * cam.width + i)
+        else:
+            v = march_transmittance_strata(marcher, cam.position, d, distance[j, i], pixel_end_normal(marcher, i, j),
+                                           j * cam.width + i)
+    marched[lj, li] = v
+
+
+@wp.kernel
+def epipole_blend_kernel(
+    cam: CameraParams,
+    axis: wp.vec3,
+    cos_inner: float,  # cos of the fully ray-marched angular radius
+    cos_outer: float,  # cos of the outer radius of the blend band (<= cos_inner)
+    x0: int,
+    y0: int,
+    marched: wp.array2d(dtype=wp.vec3),  # the region's marched radiance (epipole_march_kernel)
+    out: wp.array2d(dtype=wp.vec3),  # in: the prefiltered image; out: blended with the march in the region
+    offset: int,
+):
+    # a linear blend in the angle over the band between the inner and outer radius hides the seam to the prefiltered
+    # result (Klehm 2014 Sec. 5)
+    lj, li = wp.tid()
+    lj += offset
+    j = lj + y0
+    i = li + x0
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     c = wp.dot(d, axis)
     if c > cos_outer:
-        marched = wp.vec3(0.0, 0.0, 0.0)
-        if marcher.light.kind == LIGHT_SPOT:  # a spot: the general marcher (the strata need parallel light rays)
-            marched = march_to_surface(marcher, cam.position, d, distance[j, i], pixel_end_normal(marcher, i, j),
-                                       j * cam.width + i)
-        else:
-            marched = march_transmittance_strata(marcher, cam.position, d, distance[j, i],
-                                                 pixel_end_normal(marcher, i, j), j * cam.width + i)
         w = float(1.0)
         if c < cos_inner:
             psi = wp.acos(wp.clamp(c, -1.0, 1.0))
             psi_in = wp.acos(cos_inner)
             psi_out = wp.acos(cos_outer)
             w = (psi_out - psi) / wp.max(psi_out - psi_in, 1.0e-12)
-        out[j, i] = marched * w + out[j, i] * (1.0 - w)
+        out[j, i] = marched[lj, li] * w + out[j, i] * (1.0 - w)
+
+
+@wp.kernel
+def copy_rect_kernel(src: wp.array2d(dtype=wp.float32), x0: int, y0: int, dst: wp.array2d(dtype=wp.float32),
+                     offset: int):
+    # dst[j, i] = src[y0 + j, x0 + i]: a region's camera distances for sparse_evaluation's tests
+    j = wp.tid() + offset
+    for i in range(dst.shape[1]):
+        dst[j, i] = src[y0 + j, x0 + i]
 
 
 @wp.struct
@@ -220,19 +256,39 @@ def marched_cones(regions: list[EpipoleRegion]) -> MarchedCones:
 
 
 def march_epipole_regions(scene, gbuffer, shadow_map, regions: list[EpipoleRegion], out: wp.array, *, steps: int,
-                          seed: int, shadow_bias_texels: float, jitter: str = "per_pixel", device=None) -> None:
+                          seed: int, shadow_bias_texels: float, jitter: str = "per_pixel", stride: int = 1,
+                          tolerance: float = 0.0, device=None) -> float:
     """Ray-march the pixels of ``regions`` into ``out`` (shadow-map visibility, ``steps`` strata of equal
     transmittance weight, :func:`~.marching.march_transmittance_strata`), blending with the prefiltered values
-    already in ``out`` over each region's blend band."""
+    already in ``out`` over each region's blend band. ``stride`` > 1: march a grid of every ``stride``-th pixel of
+    each region and the pixels its cells cannot interpolate (:func:`~.sparse_evaluation.evaluate_sparse`, radiance
+    ``tolerance``, :data:`~.settings.EVALUATE_DEPTH_TOLERANCE`), the rest interpolated; 1: every pixel.
+
+    Returns:
+        the share of the regions' pixels that were marched (1.0 with stride 1 or no region).
+    """
     cam = scene.camera
     vis = visibility_params(scene, "shadow_map", None, shadow_map, shadow_bias_texels, device)
     marcher = marcher_params(scene, steps=steps, visibility=vis, seed=seed, jitter=jitter, end_normals=gbuffer.normal,
                              device=device)
+    marched_pixels = total = 0
     for r in regions:
         x0, y0, w, h = r.rect
-        launch_rows(epipole_region_kernel, (h, w),
-                    [cam.params(), gbuffer.distance, wp.vec3(*r.axis), _cos_inner(r),
-                     float(np.cos(np.radians(r.outer_deg))), marcher, int(x0), int(y0), out], device=device)
+        axis, cos_outer = wp.vec3(*r.axis), float(np.cos(np.radians(r.outer_deg)))
+        marched = wp.empty((h, w), dtype=wp.vec3, device=device)
+        distance = wp.empty((h, w), dtype=wp.float32, device=device)
+        launch_rows(copy_rect_kernel, h, [gbuffer.distance, int(x0), int(y0), distance], device=device)
+
+        def march(pixels, dim, x0=x0, y0=y0, axis=axis, cos_outer=cos_outer, marched=marched):
+            launch_rows(epipole_march_kernel, dim, [cam.params(), gbuffer.distance, axis, cos_outer, marcher, int(x0),
+                                                     int(y0), marched, pixels], device=device)
+
+        sparse = evaluate_sparse(march, distance, marched, stride, tolerance, EVALUATE_DEPTH_TOLERANCE, device=device)
+        launch_rows(epipole_blend_kernel, (h, w), [cam.params(), axis, _cos_inner(r), cos_outer, int(x0), int(y0),
+                                                   marched, out], device=device)
+        marched_pixels += sparse.evaluated
+        total += h * w
+    return marched_pixels / total if total else 1.0
 
 
 def march_flagged_pixels(scene, gbuffer, shadow_map, flags: wp.array, out: wp.array, *, steps: int, seed: int,
@@ -262,5 +318,6 @@ def epipole_weights(camera, regions: list[EpipoleRegion]) -> np.ndarray:
     return w
 
 
-__all__ = ["EPIPOLE_BLEND", "EpipoleRegion", "epipole_pixel_fraction", "epipole_region_kernel", "epipole_regions",
+__all__ = ["EPIPOLE_BLEND", "EpipoleRegion", "epipole_blend_kernel", "epipole_march_kernel", "epipole_pixel_fraction",
+           "epipole_regions",
            "epipole_weights", "march_epipole_regions", "march_flagged_pixels"]

@@ -681,11 +681,13 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
             end_zone_pixels = march_flagged_pixels(scene, gbuffer, shadow_map, end_zone, out, steps=p.epipole_steps,
                                                    seed=settings.seed, shadow_bias_texels=settings.shadow_map.bias,
                                                    jitter=settings.march_jitter, device=device)
+    epipole_marched = 1.0
     if regions:
         with stage("epipole"):
-            march_epipole_regions(scene, gbuffer, shadow_map, regions, out, steps=p.epipole_steps, seed=settings.seed,
-                                  shadow_bias_texels=settings.shadow_map.bias, jitter=settings.march_jitter,
-                                  device=device)
+            epipole_marched = march_epipole_regions(
+                scene, gbuffer, shadow_map, regions, out, steps=p.epipole_steps, seed=settings.seed,
+                shadow_bias_texels=settings.shadow_map.bias, jitter=settings.march_jitter, stride=p.epipole_stride,
+                tolerance=p.evaluate_tolerance, device=device)
     info = {
         "rectification": choice.kind,
         "rectification_reason": choice.reason,
@@ -716,6 +718,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         "epipole_blocks": [[*r.rect, r.name] for r in regions],
         "epipole_angle_deg": round(regions[0].inner_deg, 3) if regions else None,
         "epipole_raymarched_fraction": round(epipole_pixel_fraction(cam, regions), 4),
+        "epipole_marched_share": round(epipole_marched, 4),
     }
     info.update(weight_info)
     if isinstance(rect, ProjectiveRectification):

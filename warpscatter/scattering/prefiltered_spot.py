@@ -467,11 +467,13 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
     # auto marches no disc under a spot (settings: its light's 1/d^2 peak made the marched disc the noisier part)
     regions = (epipole_regions(cam, rect.light_direction, p.epipole_angle_deg, p.epipole_block)
                if p.epipole_fallback is True else [])
+    epipole_marched = 1.0
     if regions:
         with stage("epipole"):
-            march_epipole_regions(scene, gbuffer, shadow_map, regions, out, steps=p.epipole_steps, seed=settings.seed,
-                                  shadow_bias_texels=settings.shadow_map.bias, jitter=settings.march_jitter,
-                                  device=device)
+            epipole_marched = march_epipole_regions(
+                scene, gbuffer, shadow_map, regions, out, steps=p.epipole_steps, seed=settings.seed,
+                shadow_bias_texels=settings.shadow_map.bias, jitter=settings.march_jitter, stride=p.epipole_stride,
+                tolerance=p.evaluate_tolerance, device=device)
     info = {
         "rectification": "nonlinear",
         "rectification_reason": "spot light: angles at the light as columns",
@@ -496,6 +498,7 @@ def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
         "epipole_blocks": [[*r.rect, r.name] for r in regions],
         "epipole_angle_deg": round(regions[0].inner_deg, 3) if regions else None,
         "epipole_raymarched_fraction": round(epipole_pixel_fraction(cam, regions), 4),
+        "epipole_marched_share": round(epipole_marched, 4),
         "full_circle": rect.full_circle,
         # the angles at the light (from the baseline towards the camera) the columns cover, and the baseline's length
         "map_angles_deg": [round(math.degrees(rect.psi_lo), 3), round(math.degrees(rect.psi_lo + rect.r_max), 3)],
