@@ -76,7 +76,7 @@ SUITES: dict[str, Suite] = {s.name: s for s in (
     Suite("pareto", "quality per time at 1920x1080: the shadow-map marcher's error/time curve (8-256 steps, both "
                     "step patterns, on to 1024 while a method is more accurate) against the exact reference, and "
                     "each fast method's equal-error speed-up over it, on colonnade, canopy and window (takes long: "
-                    "~12 min with --repeats 1, ~35 min with the default 5)", suite_pareto),
+                    "~14 min with --repeats 1, 16 measured with --repeats 3)", suite_pareto),
     Suite("papers", "the four papers' checkable claims (Klehm Fig. 3 and Table 1, Peters Sec. 5 and Figs. 19-20, "
                     "Engelhardt Fig. 10, Ritschel Table 1), each measured and marked holds / does not hold "
                     "(~10 min)", suite_papers),
