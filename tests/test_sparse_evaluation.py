@@ -169,7 +169,8 @@ def test_levels_fill_the_grid_coarse_to_fine(h, w, stride, levels):
     evaluated = visits == 1
     np.testing.assert_array_equal(evaluated, want_evaluated)
     np.testing.assert_array_equal(sparse.mask() == 1, evaluated)
-    assert sparse.evaluated == evaluated.sum() and sparse.listed.sum() == evaluated.sum() - sparse.grid_nodes
+    assert sparse.evaluated == evaluated.sum()
+    assert sum(ps.listed.sum() for ps in sparse.passes) == evaluated.sum() - sparse.grid_nodes
     np.testing.assert_array_equal(out[evaluated], values.astype(np.float32)[evaluated])
     np.testing.assert_allclose(out, want, rtol=1e-5)
     np.testing.assert_allclose(out, values, rtol=1e-5)  # a linear field between the edges: exact
@@ -220,7 +221,7 @@ def test_a_known_factor_is_interpolated_apart_on_the_coarser_levels(levels):
 def test_stride_one_evaluates_every_pixel_in_one_launch():
     values = smooth_field(20, 30)
     out, visits, sparse = run_field(values, np.full((20, 30), 3.0), 1)
-    assert (visits == 1).all() and sparse.evaluated_fraction == 1.0 and sparse.listed is None
+    assert (visits == 1).all() and sparse.evaluated_fraction == 1.0 and sparse.passes == []
     np.testing.assert_array_equal(out, values.astype(np.float32))
 
 

@@ -114,15 +114,6 @@ def epipole_blend_kernel(
         out[j, i] = marched[lj, li] * w + out[j, i] * (1.0 - w)
 
 
-@wp.kernel
-def copy_rect_kernel(src: wp.array2d(dtype=wp.float32), x0: int, y0: int, dst: wp.array2d(dtype=wp.float32),
-                     offset: int):
-    # dst[j, i] = src[y0 + j, x0 + i]: a region's camera distances for sparse_evaluation's tests
-    j = wp.tid() + offset
-    for i in range(dst.shape[1]):
-        dst[j, i] = src[y0 + j, x0 + i]
-
-
 @wp.struct
 class MarchedCones:
     """The inner cones of up to two :class:`EpipoleRegion` as kernels see them (:func:`marched_cones`): a pixel whose
@@ -276,8 +267,7 @@ def march_epipole_regions(scene, gbuffer, shadow_map, regions: list[EpipoleRegio
         x0, y0, w, h = r.rect
         axis, cos_outer = wp.vec3(*r.axis), float(np.cos(np.radians(r.outer_deg)))
         marched = wp.empty((h, w), dtype=wp.vec3, device=device)
-        distance = wp.empty((h, w), dtype=wp.float32, device=device)
-        launch_rows(copy_rect_kernel, h, [gbuffer.distance, int(x0), int(y0), distance], device=device)
+        distance = gbuffer.distance[y0:y0 + h, x0:x0 + w]  # a view: the region's camera distances for the grid's tests
 
         def march(pixels, dim, x0=x0, y0=y0, axis=axis, cos_outer=cos_outer, marched=marched):
             launch_rows(epipole_march_kernel, dim, [cam.params(), gbuffer.distance, axis, cos_outer, marcher, int(x0),

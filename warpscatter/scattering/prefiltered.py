@@ -146,17 +146,6 @@ from .sparse_evaluation import (
 
 module_options()
 
-#: Under a directional light a pixel's look-up is radiance x its view ray's phase function (one angle along the ray),
-#: so with evaluate_levels > 1 the coarser grids interpolate the radiance divided by it and multiply each node they
-#: interpolate by its own: the sun's forward peak is no longer bilinear over a coarse cell (sparse_evaluation,
-#: ``scale``; the last level, over 2-pixel cells, interpolates the radiance itself). 1080p, two levels, without ->
-#: with: fourier / moments6 / moments4 colonnade 2.5553 -> 2.5546 % / 4.7559 -> 4.7554 % / 6.3523 -> 6.3515 %, canopy
-#: 0.6206 -> 0.6201 % / 0.6074 -> 0.6069 % / 0.6391 -> 0.6386 %, window room 1.4944 -> 1.4983 % / 4.8340 -> 4.8324 % /
-#: 7.4062 -> 7.4058 %; the look-up at 0.27 -> 0.23, 0.20 -> 0.17, 0.165 -> 0.163 of the pixels; the phase at the
-#: 2-pixel grid's nodes costs about 3 ms. Divided out at the last level too: the same errors to 0.00001 %, 0.005-0.01
-#: fewer pixels looked up, but the phase at every pixel costs 10 ms.
-INTERPOLATE_WITHOUT_PHASE = True
-
 
 # ---- the per-pixel look-up of either representation ------------------------------------------------
 
@@ -666,7 +655,15 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
 
         levels = p.evaluate_levels_for(cam.height)
         phase = None
-        if INTERPOLATE_WITHOUT_PHASE and p.evaluate_stride > 1 and levels > 1:  # read at the grid's nodes only
+        if p.evaluate_stride > 1 and levels > 1:
+            # A pixel's look-up is radiance x its view ray's phase function (one angle along the whole ray under a
+            # directional light), so the coarser levels interpolate the radiance divided by it (sparse_evaluation,
+            # ``scale``), read at the 2-pixel grid's nodes only: the sun's forward peak is not flattened over a coarse
+            # cell. 1080p, two levels, without -> with: fourier / moments6 / moments4 colonnade 2.5553 -> 2.5546 % /
+            # 4.7559 -> 4.7554 % / 6.3523 -> 6.3515 %, canopy 0.6206 -> 0.6201 % / 0.6074 -> 0.6069 % / 0.6391 ->
+            # 0.6386 %, window room 1.4944 -> 1.4983 % / 4.8340 -> 4.8324 % / 7.4062 -> 7.4058 %; the look-up at 0.27
+            # -> 0.23, 0.20 -> 0.17, 0.165 -> 0.163 of the pixels; the phase costs about 3 ms. Divided out at the
+            # last level too: the same errors to 0.00001 %, 0.005-0.01 fewer look-ups, the phase at every pixel 10 ms.
             phase = wp.empty((cam.height, cam.width), dtype=wp.float32, device=device)
             grid = (grid_size(cam.height, p.evaluate_stride), grid_size(cam.width, p.evaluate_stride))
             launch_rows(pixel_phase_kernel, grid, [cam.params(), lparams, scene.medium.params(), phase,

@@ -221,19 +221,19 @@ EVALUATE_DEPTH_TOLERANCE = 0.04
 #: The grid is filled coarse to fine over this many levels (:mod:`~warpscatter.scattering.sparse_evaluation`): the
 #: look-up runs on every EVALUATE_STRIDE * 2^(levels - 1)-th pixel first, and each finer grid's new nodes are
 #: interpolated in the coarser grid's cells by the same test (with half the radiance tolerance per coarser level) or
-#: evaluated. ``auto``: 2 levels under a directional light on images of EVALUATE_LEVELS_AUTO_ROWS rows or more, else
-#: 1: a 4-pixel grid at 1080 rows spans the view's angles as the 2-pixel grid, measured at 960x540, does there.
-#: Measured at 1920x1080 against the exact reference (1024^2, rel. L1), one level as before -> two levels (with the
-#: phase interpolated apart, prefiltered.INTERPOLATE_WITHOUT_PHASE), fourier / moments6 / moments4: colonnade 2.5562
-#: -> 2.5546 % / 4.7562 -> 4.7554 % / 6.3525 -> 6.3515 %; canopy 0.6206 -> 0.6201 % / 0.6070 -> 0.6069 % / 0.6388 ->
-#: 0.6386 %; window room 1.5010 -> 1.4983 % / 4.8344 -> 4.8324 % / 7.4075 -> 7.4058 %; the look-up ran at 0.23 / 0.16
-#: / 0.15 of the pixels instead of 0.34 / 0.29 / 0.32, the evaluate stage (2 threads, fastest of 7) colonnade fourier
-#: 175 -> 157 ms, moments6 178 -> 161 ms, window room 122 -> 106 / 113 -> 101 ms. The same coarse tolerance as the
-#: fine one: canopy moments6 0.6071 %. At 960x540 two levels evaluate 0.28-0.45 instead of 0.35-0.52 of the pixels
-#: but raise the window room's moments6 error 4.814 -> 4.820 % and the canopy's moments4 0.6387 -> 0.6389 %: there
-#: the coarse grid misses shafts a few pixels wide. Under a spot light (no phase factor to interpolate apart: its
-#: 1/d^2 peak lies along each ray) two levels raise the spot fence's error at 1920x1080 (fourier 0.9073 -> 0.9098 %,
-#: moments6 1.2645 -> 1.2672 %): auto keeps one there.
+#: evaluated. ``auto``: 2 levels under a directional light on images of EVALUATE_LEVELS_AUTO_ROWS rows or more, else 1:
+#: a 4-pixel grid at 1080 rows spans the view's angles as the 2-pixel grid, measured at 960x540, does there. Measured at
+#: 1920x1080 against the exact reference (1024^2, rel. L1), one level as before -> two levels (with the phase divided
+#: out of the coarse cells: prefiltered.render), fourier / moments6 / moments4: colonnade 2.5562 -> 2.5546 % / 4.7562 ->
+#: 4.7554 % / 6.3525 -> 6.3515 %; canopy 0.6206 -> 0.6201 % / 0.6070 -> 0.6069 % / 0.6388 -> 0.6386 %; window room
+#: 1.5010 -> 1.4983 % / 4.8344 -> 4.8324 % / 7.4075 -> 7.4058 %; fourier's look-up ran at 0.23 / 0.17 / 0.16 of the
+#: pixels instead of 0.34 / 0.29 / 0.32, the evaluate stage (2 threads, fastest of 7) colonnade fourier 175 -> 157 ms,
+#: moments6 178 -> 161 ms, window room 122 -> 106 / 113 -> 101 ms. The same coarse tolerance as the fine one: canopy
+#: moments6 0.6071 %. At 960x540 two levels evaluate 0.28-0.45 instead of 0.35-0.52 of the pixels but raise the window
+#: room's moments6 error 4.814 -> 4.820 % and the canopy's moments4 0.6387 -> 0.6389 %: there the coarse grid misses
+#: shafts a few pixels wide. Under a spot light (no phase factor to interpolate apart: its 1/d^2 peak lies along each
+#: ray) two levels raise the spot fence's error at 1920x1080 (fourier 0.9073 -> 0.9098 %, moments6 1.2645 -> 1.2672 %):
+#: auto keeps one there.
 EVALUATE_LEVELS = "auto"
 EVALUATE_LEVELS_AUTO_ROWS = 1080
 MAX_EVALUATE_LEVELS = 4

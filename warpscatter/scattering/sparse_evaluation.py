@@ -248,16 +248,6 @@ class SparseEvaluation:
         return self.stride * 2 ** (self.levels - 1) if self.stride > 1 else 1
 
     @property
-    def listed(self) -> np.ndarray | None:
-        """(H,) pixels listed per image row over all passes (None: stride 1)."""
-        if not self.passes:
-            return None
-        per_row = np.zeros(self.height, np.int64)
-        for ps in self.passes:
-            np.add.at(per_row, _grid_rows(self.height, ps.fine), ps.listed)
-        return per_row
-
-    @property
     def evaluated(self) -> int:
         """Pixels whose look-up ran."""
         return self.grid_nodes + sum(int(ps.listed.sum()) for ps in self.passes)
