@@ -44,7 +44,7 @@ def bench_light_texture() -> Path:
 
 def bench_scene_config(name: str, width: int, height: int, leaves: int | None = None,
                        receiver_only_ground: bool = False, mirror_light: bool = False, medium: dict | None = None,
-                       **render):
+                       turn_light_deg: float = 0.0, **render):
     """A validated config of a bench scene: the bundled config (:data:`SCENES`) at ``width`` x ``height`` with the
     bench's own ``render`` section.
 
@@ -58,6 +58,9 @@ def bench_scene_config(name: str, width: int, height: int, leaves: int | None = 
             exact image is unchanged; the shadow-map methods no longer see its depths).
         mirror_light: turn a directional light half-way round the vertical (x and z of its direction negated): a
             sun ahead of the camera goes behind it, so the other epipole is the one in or near the view.
+        turn_light_deg: turn a directional light this many degrees about the vertical (+y; counter-clockwise seen
+            from above, after ``mirror_light``): 90 puts a sun ahead of the camera to its side, both epipoles far
+            outside the view (the case ``rectification: auto`` once gave Klehm's projective map).
         medium: keys of the ``medium`` section to change (e.g. ``{"sigma_t": 0.3}``).
         **render: the config's ``render`` section (replaces the file's).
 
@@ -81,6 +84,12 @@ def bench_scene_config(name: str, width: int, height: int, leaves: int | None = 
             raise ValueError(f"mirror_light: {name} has no directional light")
         x, y, z = data["light"]["direction"]
         data["light"] = {**data["light"], "direction": [-x, y, -z]}
+    if turn_light_deg:
+        if data["light"].get("type") != "directional":
+            raise ValueError(f"turn_light_deg: {name} has no directional light")
+        x, y, z = data["light"]["direction"]
+        c, s = np.cos(np.radians(turn_light_deg)), np.sin(np.radians(turn_light_deg))
+        data["light"] = {**data["light"], "direction": [float(c * x + s * z), y, float(c * z - s * x)]}
     if medium:
         data["medium"] = {**data.get("medium", {}), **medium}
     data["camera"] = {**data["camera"], "width": width, "height": height}

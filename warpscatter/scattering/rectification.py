@@ -5,8 +5,9 @@ every camera view ray runs along one row from column 0 with one constant depth: 
 rectification (Sec. 4.2, :mod:`.rectify_projective`; one 4x4 matrix per light-frustum region, the scene is
 rasterized straight into it) or Peters' non-linear one (Sec. 5.1.1, App. A, :mod:`.rectify_nonlinear`; spherical light
 coordinates, the shadow map resampled into them). :func:`build_rectification` picks one per frame
-(``rectification: auto``: projective unless an epipole is (nearly) in view, Klehm's criterion for degenerate
-cases); :class:`RectificationParams` and :func:`rectified_coords` give kernels one code path for both.
+(``rectification: auto``: the non-linear map whenever look-ups weight each ray by its own transmittance, else
+projective unless an epipole is (nearly) in view, Klehm's criterion for degenerate cases);
+:class:`RectificationParams` and :func:`rectified_coords` give kernels one code path for both.
 """
 
 from __future__ import annotations
@@ -75,7 +76,12 @@ def build_rectification(scene, settings: PrefilteredSettings, rows: int, cols: i
         :class:`~.rectify_projective.RectificationChoice` (kind and reason).
     """
     cam, light_dir = scene.camera, scene.light.direction
-    choice = choose_rectification(cam, light_dir, settings.rectification, settings.epipole_margin)
+    # Klehm's projective map weights every ray of a slice by one reference ray's transmittance; the non-linear map's
+    # per-ray segments follow each ray's own. Measured with the sun beside the view (480x270, 1024^2 maps, six
+    # bundled scenes turned 60-120 degrees about the vertical): the projective map's error was up to 16x the
+    # non-linear map's (window room 10.2 / 12.0 % against 0.64 / 2.0 %) and never lower by more than 0.13 points.
+    choice = choose_rectification(cam, light_dir, settings.rectification, settings.epipole_margin,
+                                  weights_per_ray=settings.weights_per_ray)
     if choice.kind == "projective" and settings.rectification == "auto" and scene.medium.coloured:
         choice = rectify_projective.RectificationChoice(
             kind="nonlinear", reason="coloured medium: each channel's own ray weights need the non-linear map's "

@@ -655,7 +655,7 @@ class RectificationChoice:
 
 
 def choose_rectification(camera, light_direction, requested: str = "auto",
-                         margin: float = EPIPOLE_MARGIN) -> RectificationChoice:
+                         margin: float = EPIPOLE_MARGIN, weights_per_ray: bool = False) -> RectificationChoice:
     """Pick the projective or the non-linear rectification (Klehm 2014 Sec. 4.2).
 
     The projective construction fails when a view ray is parallel to the light (epipole in the image) and
@@ -663,14 +663,18 @@ def choose_rectification(camera, light_direction, requested: str = "auto",
     around the light axis: the row and depth slopes and the column non-linearity blow up). Klehm detects
     such close-to-degenerate cases by the distance of the epipole to the screen border. ``auto`` uses the
     projective rectification when every epipole in front of the camera lies at least ``margin`` half image
-    heights outside the image, else the non-linear (resampled) one. A requested ``projective`` that is
-    impossible (epipole inside the image) falls back to ``nonlinear`` with a warning.
+    heights outside the image, else the non-linear (resampled) one; with ``weights_per_ray`` (the look-ups weight
+    each view ray by its own transmittance, which the projective map's uneven columns cannot) always the non-linear
+    one. A requested ``projective`` that is impossible (epipole inside the image) falls back to ``nonlinear`` with a
+    warning.
 
     Args:
         camera: the camera.
         light_direction: direction the light travels.
         requested: ``"auto"``, ``"projective"`` or ``"nonlinear"``.
         margin: threshold on :func:`epipole_distance` (>= 0).
+        weights_per_ray: ``auto`` takes the non-linear map (see
+            :attr:`~.settings.PrefilteredSettings.weights_per_ray`).
 
     Returns:
         :class:`RectificationChoice`; the reason is also logged on the ``warpscatter`` logger.
@@ -695,6 +699,8 @@ def choose_rectification(camera, light_direction, requested: str = "auto",
         else:
             kind, reason = "nonlinear", f"projective rectification impossible ({where}): non-linear used instead"
             level = logging.WARNING
+    elif weights_per_ray:
+        kind, reason = "nonlinear", f"auto: non-linear (per-ray weights need its even columns; {where})"
     elif dist >= margin:
         kind, reason = "projective", f"auto: projective ({where}, threshold {margin:g})"
     else:

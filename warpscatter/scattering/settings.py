@@ -437,11 +437,14 @@ class PrefilteredSettings(SettingsModel):
         "does not agree (evaluate_stride's rule, with evaluate_tolerance; warpscatter's); 1: every pixel"))] = (
         EPIPOLE_STRIDE)
     rectification: Literal["auto", "projective", "nonlinear"] = Field(
-        "auto", description="Klehm's projective map (Sec. 4.2) unless an epipole lies within epipole_margin half "
-                            "image heights of the view (then Peters' non-linear map), or one of them always")
-    epipole_margin: Annotated[Float, Field(ge=0.0, le=MAX_EPIPOLE_MARGIN, description="auto: the projective map "
-                                                                                       "needs every epipole this many "
-                                                               "half image heights outside the image")] = EPIPOLE_MARGIN
+        "auto", description="auto: Peters' non-linear map, unless the look-ups take Klehm's single reference ray "
+                            "(segments 1, average weighting or splits > 1) and every epipole lies epipole_margin half "
+                            "image heights outside the view (then Klehm's projective map, Sec. 4.2, which cannot "
+                            "weight each ray by its own transmittance); or one of them always")
+    epipole_margin: Annotated[Float, Field(ge=0.0, le=MAX_EPIPOLE_MARGIN, description="auto, with Klehm's single "
+                                                                                       "reference ray: the projective "
+                                                               "map needs every epipole this many half image heights "
+                                                               "outside the image")] = EPIPOLE_MARGIN
     regions: Annotated[Int, Field(ge=1, le=MAX_REGIONS, description="light-frustum regions of the projective map along "
                                                                     "x (Klehm 2014 Sec. 4.2; 1 = one matrix)")] = 8
     projective_weights: Literal["exact", "cross_ratio"] = Field(
@@ -504,13 +507,20 @@ class PrefilteredSettings(SettingsModel):
         (``light_behind``, grey media), else :data:`SEGMENTS`, :data:`COLOURED_SEGMENTS` in a coloured medium, where
         they apply). They need transmittance weighting, whole rows (splits 1) and the non-linear rectification's
         uniform columns."""
-        if self.weighting != "transmittance" or self.splits > 1 or not nonlinear:
+        if not (nonlinear and self.weights_per_ray):
             return 1
         if self.segments is not None:
             return self.segments
         if self._adaptive_by_default(method, light_behind, coloured):
             return FOURIER_SEGMENTS
         return COLOURED_SEGMENTS if coloured else SEGMENTS
+
+    @property
+    def weights_per_ray(self) -> bool:
+        """Whether look-ups on the non-linear map weight each view ray's texels by its own transmittance (per-ray
+        segments): transmittance weighting over whole rows (splits 1) and ``segments`` not 1. The projective map
+        cannot (its columns are uneven): ``rectification: auto`` then takes the non-linear map."""
+        return self.weighting == "transmittance" and self.splits == 1 and self.segments != 1
 
     def end_offsets_for(self, light_behind: bool, directional: bool = True) -> tuple[float, float]:
         """Texels a look-up ends before its ray's end point: (rays ending in shadow, rays ending lit:
