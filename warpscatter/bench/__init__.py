@@ -70,8 +70,9 @@ SUITES: dict[str, Suite] = {s.name: s for s in (
     Suite("csm", "coherent shadow maps (Ritschel 2007): compression ratio, precompute time and memory vs N and "
                  "enumeration; visibility queries/s (random, coherent) against BVH shadow rays; the csm render "
                  "method's time per pass and error against raytrace", suite_csm),
-    Suite("fidelity", "every fast method's error on every bundled sunlit scene (light in and out of view) at 960x540 "
-                      "against the exact reference, beside the 128-step shadow-map marcher (issue #13's bar; ~10 min)",
+    Suite("fidelity", "every fast method's error on every bundled sunlit scene (its light ahead, behind and beside "
+                      "the view) at 960x540 against the exact reference, beside the 128-step shadow-map marcher "
+                      "(issue #13's bar; ~15 min)",
           suite_fidelity),
     Suite("pareto", "quality per time at 1920x1080: the shadow-map marcher's error/time curve (8-256 steps, both "
                     "step patterns, on to 1024 while a method is more accurate) against the exact reference, and "

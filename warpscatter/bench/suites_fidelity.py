@@ -2,9 +2,10 @@
 
 Issue #13's bar, measured: at 960x540 with 1024^2 maps (``--quick``: 240x135, 256^2), on each bundled config with a
 directional light and a medium (:data:`SCENES`: the colonnade, canopy, window room, quickstart colonnade, terrain,
-the gate and the 60 %-opaque gate), each twice: with its own light (the sun ahead of the camera in most of them, its
-epipole in or near the view) and with the light turned half-way round the vertical (``mirror_light``: the sun behind
-the camera, the anti-solar epipole ahead); and the spot-lit scenes (:data:`SPOT_SCENES`) with their own light. Per
+the gate and the 60 %-opaque gate), each three times (:data:`LIGHTS`): with its own light (the sun ahead of the
+camera in most of them, its epipole in or near the view), with the light turned half-way round the vertical (the sun
+behind the camera, the anti-solar epipole ahead) and turned a quarter of the way (:data:`BESIDE_DEG`: the sun beside
+the view, both epipoles far outside it); and the spot-lit scenes (:data:`SPOT_SCENES`) with their own light. Per
 case:
 
 * the **exact reference**: the marcher with exact visibility, :data:`REFERENCE_STEPS` steps, two seeds, on every
@@ -33,8 +34,11 @@ SCENES = ("colonnade", "canopy", "window", "quickstart", "terrain", "gate", "gat
 #: The spot-lit scenes (their own light only): the fence under the stained-glass spot with the light in view, and the
 #: colonnade under a textured spot outside the view.
 SPOT_SCENES = ("spot_fence", "colonnade_spot")
-#: The light variants: the config's own, and turned half-way round the vertical.
-LIGHTS = {"own light": False, "mirrored light": True}
+#: The quarter turn of the "light beside" variant about the vertical (clockwise seen from above): the window room's
+#: sun then enters its window as a grazing sheet (the harder of the two quarter turns for every method there).
+BESIDE_DEG = -90.0
+#: The light variants: the config's own, turned half-way round the vertical, and a quarter of the way (degrees).
+LIGHTS = {"own light": 0.0, "mirrored light": 180.0, "light beside": BESIDE_DEG}
 #: The methods at their defaults; the first is the bar's baseline.
 MARCHER = "raymarch shadow_map 128"
 METHODS = {
@@ -46,6 +50,12 @@ METHODS = {
 }
 REFERENCE_STEPS = 1024
 REFERENCE_STRIDE = 3
+
+
+def light_turn(degrees: float) -> dict:
+    """The :func:`~.scenes.bench_scene_config` keys that turn a scene's light ``degrees`` about the vertical (180: the
+    exact mirror, ``mirror_light``)."""
+    return {"mirror_light": True} if degrees == 180.0 else {"turn_light_deg": degrees}
 
 
 def suite_fidelity(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
@@ -65,15 +75,15 @@ def suite_fidelity(report: BenchReport, repeats: int, warmup: int, quick: bool, 
         title = f"{scene_name}, {light}"
         if progress:
             progress(f"{title}: exact reference", k / len(cases))
-        mirror = LIGHTS[light]
-        reference, own_error, ref_s = exact_reference(scene_name, w, h, ref_steps, stride, mirror_light=mirror)
+        turn = light_turn(LIGHTS[light])
+        reference, own_error, ref_s = exact_reference(scene_name, w, h, ref_steps, stride, **turn)
         report.add(name=f"{title}: exact reference", params={"steps": ref_steps, "stride": stride},
                    median_ms=1e3 * ref_s, extra={"own_rel_l1": round(own_error, 5)})
         case = {"reference_own_rel_l1": round(own_error, 5)}
         for label, sc in METHODS.items():
             if progress:
                 progress(f"{title}: {label}", (k + 0.5) / len(cases))
-            cfg = bench_scene_config(scene_name, w, h, mirror_light=mirror, surfaces={"enabled": False},
+            cfg = bench_scene_config(scene_name, w, h, **turn, surfaces={"enabled": False},
                                      scattering={**sc, "shadow_map": {"resolution": smap}})
             stages, images, compile_s, _, _ = render_timed(cfg, repeats, warmup)
             total, own = technique_ms(stages)
@@ -126,4 +136,4 @@ def chart_fidelity(report: BenchReport, path: Path) -> Path | None:
     return save_figure(fig, path)
 
 
-__all__ = ["LIGHTS", "METHODS", "SCENES", "SPOT_SCENES", "chart_fidelity", "suite_fidelity"]
+__all__ = ["BESIDE_DEG", "LIGHTS", "METHODS", "SCENES", "SPOT_SCENES", "chart_fidelity", "light_turn", "suite_fidelity"]

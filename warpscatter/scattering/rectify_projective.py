@@ -699,11 +699,11 @@ def choose_rectification(camera, light_direction, requested: str = "auto",
         else:
             kind, reason = "nonlinear", f"projective rectification impossible ({where}): non-linear used instead"
             level = logging.WARNING
+    elif dist < margin:
+        kind, reason = "nonlinear", f"auto: non-linear ({where}, threshold {margin:g})"
     elif weights_per_ray:
         kind, reason = "nonlinear", f"auto: non-linear (per-ray weights need its even columns; {where})"
-    elif dist >= margin:
-        kind, reason = "projective", f"auto: projective ({where}, threshold {margin:g})"
     else:
-        kind, reason = "nonlinear", f"auto: non-linear ({where}, threshold {margin:g})"
+        kind, reason = "projective", f"auto: projective ({where}, threshold {margin:g})"
     logger.log(level, "fourier rectification: %s", reason)
     return RectificationChoice(kind=kind, reason=reason, epipole_distance=float(dist))
