@@ -46,8 +46,10 @@ def _march_rays(m: Marcher, origin: wp.vec3, dirs: wp.array(dtype=wp.vec3), s: w
 def test_disc_marcher_is_unbiased_exact_without_shadows_and_less_noisy():
     """The disc's strata of equal transmittance weight: with every shadow-map texel empty the analytic
     sigma_s f E (1 - exp(-sigma_t s)) / sigma_t for any step count; through the colonnade's shadows its mean over
-    seeds matches the reference marcher's (equal-length strata) and a dense march; its spread per ray at 64 steps
-    is a fraction of the reference marcher's (measured 0.2x)."""
+    seeds matches a dense march of its own (2048 strata; measured 0.15 %), as the reference marcher's (equal-length
+    strata, hard look-ups) matches its own (0.94 %); the disc's bilinear look-ups and the hard ones agree within
+    1.4 % on these rays (each 5.3-5.6 % from exact visibility at 512^2); its spread per ray at 64 steps is a
+    fraction of the reference marcher's (measured 0.17x)."""
     cfg = load_config(ROOT / "configs" / "colonnade_fourier.yaml", ["camera.width=64", "camera.height=36"])
     scene = build_scene(cfg)
     sm = render_shadow_map(scene, (512, 512))
@@ -74,12 +76,14 @@ def test_disc_marcher_is_unbiased_exact_without_shadows_and_less_noisy():
         scene.light.irradiance, float)
     np.testing.assert_allclose(run(7, 0, 1, empty=True), analytic, rtol=2e-4)
     dense = run(2048, 0, 0)
+    dense_strata = run(2048, 0, 1)
     assert np.abs(dense - analytic).sum() / analytic.sum() > 0.05  # the rays do cross shadows
+    assert np.abs(dense_strata - dense).sum() / dense.sum() < 0.02
     strata = np.stack([run(64, seed, 1) for seed in range(16)])
     reference = np.stack([run(64, seed, 0) for seed in range(16)])
-    for est in (strata, reference):
-        assert np.abs(est.mean(0) - dense).sum() / dense.sum() < 0.01
-    assert strata.std(0).sum() < 0.4 * reference.std(0).sum()
+    assert np.abs(strata.mean(0) - dense_strata).sum() / dense_strata.sum() < 0.005
+    assert np.abs(reference.mean(0) - dense).sum() / dense.sum() < 0.012
+    assert strata.std(0).sum() < 0.3 * reference.std(0).sum()
 
 
 # ---- the rendered artefacts, colonnade_fourier at 320x180 ----
@@ -154,6 +158,33 @@ def test_window_room_fourier_disc_has_no_sparkles_under_the_ceiling():
     assert img[disc].mean() < 1e-4 * img[lit].mean()
 
 
+def test_sunset_disc_has_no_texel_steps_near_the_sun():
+    """configs/colonnade_sunset.yaml frame 40 (the sun in view, the camera in a near pillar's shadow): the disc's
+    32 strata read the shadow map's nearest texel, so a shaft edge crossing a stratum's texel border stepped whole
+    columns of pixels at once: a comb along the top of the left shaft and a staircase along the right one (8-17
+    codes at 640x360). Bilinear percentage-closer look-ups in the disc vary smoothly between pixels. Measured at
+    320x180 against the 1024-step shadow-map marcher (fixed steps), per box: rel. L1 and the high-pass energy
+    (|pixel - its 3x3 mean|, relative) against the reference's: comb 0.058 / 0.96x (nearest texel: 0.117 / 1.70x),
+    staircase 0.026 / 0.94x (0.039 / 1.54x)."""
+    from scipy.ndimage import uniform_filter
+
+    def render(*over):
+        cfg = load_config(ROOT / "configs" / "colonnade_sunset.yaml",
+                          ["camera.width=320", "camera.height=180", *over]).at_frame(40)
+        images, stats = render_images(build_scene(cfg), cfg.render)
+        return images["scattering"].mean(-1), stats
+
+    ref, _ = render("render.scattering.method=raymarch", "render.scattering.visibility=shadow_map",
+                    "render.scattering.steps=1024", "render.scattering.jitter=fixed")
+    img, stats = render()
+    assert stats["epipole_blocks"] and stats["method"] == "fourier"
+    hp = lambda a: np.abs(a - uniform_filter(a, 3))  # noqa: E731
+    for (x0, y0, x1, y1), rel_bound in (((195, 39, 210, 52), 0.08), ((231, 22, 246, 47), 0.032)):
+        box = np.s_[y0:y1, x0:x1]
+        assert np.abs(img[box] - ref[box]).sum() / ref[box].sum() < rel_bound
+        assert hp(img)[box].sum() / img[box].sum() < 1.2 * hp(ref)[box].sum() / ref[box].sum()
+
+
 def test_colonnade_fourier_has_no_radial_streaks():
     """Radial streaks right of the last pillar and in the sky beyond the hall: one nearest shadow-map depth per
     rectified texel (seen from the camera, shadow-map texels are wedges from the sun). Measured at 320x180, streak
@@ -221,8 +252,8 @@ def test_the_look_up_skips_exactly_the_pixels_the_disc_replaces(light, epipole):
 def test_the_disc_marched_on_a_grid_keeps_its_nodes_and_changes_only_the_region():
     """epipole_stride 2: the region is marched on its 2-pixel grid and the pixels the grid cannot interpolate; the
     marched pixels are the every-pixel march's exactly, nothing outside the region changes, the interpolated ones stay
-    far within the march's own noise of it (measured 1.7e-5 of the region's sum at 320x180, the march's seed-to-seed
-    difference there 0.0021), and fewer rays are marched (measured 0.43 of the region's pixels)."""
+    far within the march's own noise of it (measured 6.6e-5 of the region's sum at 320x180, the march's seed-to-seed
+    difference there 0.0019), and fewer rays are marched (measured 0.47 of the region's pixels)."""
     scene = build_scene(load_config(ROOT / "configs" / "colonnade_fourier.yaml",
                                     ["camera.width=320", "camera.height=180"]))
     frame_shadow = render_shadow_map(scene, 512)
@@ -245,5 +276,5 @@ def test_the_disc_marched_on_a_grid_keeps_its_nodes_and_changes_only_the_region(
     region = (slice(y0, y0 + h), slice(x0, x0 + w))
     diff = np.abs(sparse[region] - full[region]).sum() / np.abs(full[region]).sum()
     noise = np.abs(images[1, 2][region] - full[region]).sum() / np.abs(full[region]).sum()
-    assert 0.0 < diff < 3e-5 and diff < noise / 50.0
+    assert 0.0 < diff < 1e-4 and diff < noise / 20.0
     assert np.isfinite(sparse).all()

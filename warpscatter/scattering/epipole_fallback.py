@@ -14,7 +14,11 @@ are sky rays of optical depth ~10, on which a handful of equal-length strata car
 came out grainy against the smooth prefiltered surround (per-pixel variation ~6 % against 0.4 % outside,
 colonnade_fourier at 640x360; 0.85 % now, the 512-step reference's own noise). ``jitter`` picks per-pixel or the
 fixed pattern; the render methods pass ``ScatteringSettings.march_jitter``, fixed by default (less grain still: at
-320x180 the disc's pixel-to-pixel variation 1.6 % per-pixel, 0.93 % fixed).
+320x180 the disc's pixel-to-pixel variation 1.6 % per-pixel, 0.93 % fixed). Each sample reads the map with bilinear
+percentage-closer filtering (:func:`~.marching.map_pcf_at`): near the sun the rays run almost along the light, so a
+shaft edge crossing one stratum's nearest texel stepped whole columns of pixels at once (a comb and a staircase along
+the shafts of ``colonnade_sunset`` frame 40: rel. L1 in those boxes 11.7 / 3.9 % -> 5.8 / 2.6 % against the
+1024-step shadow-map marcher at 320x180).
 
 The directional look-up skips the pixels inside the inner cones (:class:`MarchedCones`, :func:`wholly_marched`: the
 march's own test), whose value the march replaces whatever it was: fourier at 1920x1080 on the colonnade, evaluate

@@ -84,6 +84,7 @@ from ..shadows.shadow_map import (
     orthographic_ray_coords,
     shadow_coords,
     shadow_pcf,
+    shadow_pcf_at,
     shadow_visibility_at,
     texel_depth,
 )
@@ -189,6 +190,15 @@ def map_visibility_at(vis: Visibility, c: wp.vec3) -> float:
     if vis.translucent != 0:
         return shadow_visibility_at(vis.sm, vis.sm_layers, c, vis.sm_bias)
     return shadow_visibility_at(vis.sm, vis.sm_depth, c, vis.sm_bias)
+
+
+@wp.func
+def map_pcf_at(vis: Visibility, c: wp.vec3) -> float:
+    """:func:`map_visibility_at` with bilinear percentage-closer filtering (the 2 x 2 texels around c): V changes
+    smoothly as c crosses a texel border instead of stepping."""
+    if vis.translucent != 0:
+        return shadow_pcf_at(vis.sm, vis.sm_layers, c, vis.sm_bias, 1)
+    return shadow_pcf_at(vis.sm, vis.sm_depth, c, vis.sm_bias, 1)
 
 
 @wp.func
@@ -664,6 +674,8 @@ def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float
     ray (optical depth ~10) the first few of 64 strata carry most of the weight, so one shadow-map texel flipping
     in one of them changes the pixel by up to ~17 % (grain against the smooth prefiltered surround). Here no
     stratum carries more than 1 / N. Both estimators are unbiased per pixel (per-pixel jitter) and exact for V = 1.
+    Visibility is read with bilinear percentage-closer filtering (:func:`map_pcf_at`), the reference marcher's with
+    hard look-ups: few strata on rays almost along the light otherwise step from pixel to pixel.
     n_end: the camera-facing normal of the surface at s (zero: none), as :func:`march_to_surface` takes it.
     """
     end = end_surface(m, origin, d, s, n_end)
@@ -692,7 +704,7 @@ def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float
         t = p * s  # thin media: the weight is uniform in t
         if x > 1.0e-3:
             t = -wp.log(wp.max(1.0 - p * a, 1.0e-30)) / sigma
-        v = map_visibility_at(m.vis, c0 + dc * wp.min(t, s))
+        v = map_pcf_at(m.vis, c0 + dc * wp.min(t, s))
         if v > 0.0 and behind_end_surface(end, m.vis, origin + d * wp.min(t, s)):
             v = 0.0
         lit += v

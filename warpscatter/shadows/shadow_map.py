@@ -359,7 +359,12 @@ def box_tap_weight(d: int, lo: int, hi: int, frac: float) -> float:
 @wp.func
 def shadow_pcf(sm: ShadowMapParams, depth_map: Any, x: wp.vec3, bias: float, filter_px: int) -> float:
     """Percentage-closer filtering over a filter_px x filter_px texel box, bilinearly weighted; 1 = lit."""
-    c = shadow_coords(sm, x)
+    return shadow_pcf_at(sm, depth_map, shadow_coords(sm, x), bias, filter_px)
+
+
+@wp.func
+def shadow_pcf_at(sm: ShadowMapParams, depth_map: Any, c: wp.vec3, bias: float, filter_px: int) -> float:
+    """:func:`shadow_pcf` at map coordinates c = (u, v, depth) of :func:`shadow_coords`."""
     fx = c[0] * float(sm.width) - 0.5
     fy = c[1] * float(sm.height) - 0.5
     i0 = int(wp.floor(fx))
