@@ -83,7 +83,6 @@ from ..shadows.shadow_map import (
     nearest_texel,
     orthographic_ray_coords,
     shadow_coords,
-    shadow_pcf,
     shadow_pcf_at,
     shadow_visibility_at,
     texel_depth,
@@ -403,10 +402,7 @@ def stretch_visibility(vis: Visibility, end: EndSurface, origin: wp.vec3, d: wp.
         x = origin + d * (t0 + (float(k) + 0.5) * dt)
         wsum += w
         if not behind_end_surface(end, vis, x):
-            if vis.translucent != 0:
-                acc += w * shadow_pcf(vis.sm, vis.sm_layers, x, vis.sm_bias, 1)
-            else:
-                acc += w * shadow_pcf(vis.sm, vis.sm_depth, x, vis.sm_bias, 1)
+            acc += w * map_pcf_at(vis, shadow_coords(vis.sm, x))
         w *= decay
     return acc / wsum
 
