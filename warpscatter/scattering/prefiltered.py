@@ -152,7 +152,7 @@ module_options()
 
 @wp.func
 def representation_visibility(texels: FilteredBasisArrays, weights: RayWeights, u: float, v: float, z_r: float,
-                              window: wp.vec3i, beta: wp.vec3, light_direction: wp.vec3,
+                              window: wp.vec3i, beta: wp.vec4, light_direction: wp.vec3,
                               view_direction: wp.vec3) -> float:
     """The look-up's reconstruction from a Fourier texture (Klehm 2014 Listing 4) in the row ``window``; ``beta`` and
     the directions unused."""
@@ -161,10 +161,11 @@ def representation_visibility(texels: FilteredBasisArrays, weights: RayWeights, 
 
 @wp.func
 def representation_visibility(texels: FilteredMomentArrays, weights: RayWeights, u: float, v: float,  # noqa: F811
-                              z_r: float, window: wp.vec3i, beta: wp.vec3, light_direction: wp.vec3,
+                              z_r: float, window: wp.vec3i, beta: wp.vec4, light_direction: wp.vec3,
                               view_direction: wp.vec3) -> float:
     """The look-up's reconstruction from a moment map (Peters 2017 D.5) with the overestimation weight
-    ``beta[0] + (beta[1] - beta[0]) max(0, omega_l . omega_p)`` (:meth:`~.settings.MomentsSettings.beta_range`);
+    ``beta[0] + (beta[1] - beta[0]) clamp((omega_l . omega_p - beta[3]) / (1 - beta[3]), 0, 1)``
+    (:meth:`~.settings.MomentsSettings.beta_range`, ``beta[3]``: ``overestimation_rise_cos``);
     ``beta[0]`` < 0: Peters' adaptive weight of the light and view directions (Sec. 5.3.1). Within the epipole
     taper (``beta[2]`` = 1 - cos of its angle, > 0) the weight falls to 0 looking straight into the light:
     times (1 + omega_l . omega_p) / beta[2]."""
@@ -173,14 +174,14 @@ def representation_visibility(texels: FilteredMomentArrays, weights: RayWeights,
     if b < 0.0:
         b = mm.adaptive_overestimation_weight(light_direction, view_direction)
     elif beta[1] != beta[0]:
-        b += (beta[1] - beta[0]) * wp.max(cos_l, 0.0)
+        b += (beta[1] - beta[0]) * wp.clamp((cos_l - beta[3]) / (1.0 - beta[3]), 0.0, 1.0)
     if 1.0 + cos_l < beta[2]:
         b *= (1.0 + cos_l) / beta[2]
     return moments_visibility(texels, weights, u, v, z_r, window, b)
 
 
 @wp.func
-def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, window: wp.vec3i, beta: wp.vec3,
+def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, window: wp.vec3i, beta: wp.vec4,
                    light_direction: wp.vec3, view_direction: wp.vec3, ends_in_shadow: int) -> float:
     """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a Fourier texture or a moment map
     (:func:`representation_visibility`) read in the row ``window`` (a mip level, :func:`~.row_mips.level_window`),
@@ -205,7 +206,7 @@ def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.
 
 @wp.func
 def mipped_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, mips: RowMips, level: wp.vec2,
-                      c: wp.vec3, beta: wp.vec3, light_direction: wp.vec3, view_direction: wp.vec3,
+                      c: wp.vec3, beta: wp.vec4, light_direction: wp.vec3, view_direction: wp.vec3,
                       ends_in_shadow: int) -> float:
     """:func:`map_visibility` at a pixel's mip ``level`` (:func:`~.row_mips.pixel_mip_level`: level, share of the
     next): the two levels' visibilities blended (trilinear filtering, Peters 2017 D.5; :mod:`.row_mips`)."""
@@ -270,8 +271,8 @@ def evaluate_prefiltered_kernel(
     channel_weights: ChannelRayWeights,  # coloured media: each channel's own (grey: unused)
     bounds: DepthBounds,  # per-row prefix depth bounds: wholly lit / shadowed rays skip the reconstruction
     mips: RowMips,  # the texture's row mip levels and whether its rows wrap around (wrap_rows)
-    beta: wp.vec3,  # moment overestimation weight towards / along the light (beta_range), or < 0: adaptive;
-    # and 1 - cos of the epipole taper's angle (MomentsSettings.epipole_taper)
+    beta: wp.vec4,  # moment overestimation weight towards / along the light (beta_range), or < 0: adaptive;
+    # 1 - cos of the epipole taper's angle (MomentsSettings.epipole_taper), and the cosine beta rises from
     light: LightParams,
     med: MediumParams,
     lit_ends: wp.array2d(dtype=wp.int32),  # 1 where the pixel's ray ends lit (lit_ray_ends; read if lit_ends_known)
@@ -610,7 +611,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
                if settings.marches_epipole else [])
     with stage("evaluate"):
         overestimation = settings.moments.overestimation
-        beta = wp.vec3(*settings.moments.beta_range(), settings.moments.epipole_taper())
+        beta = wp.vec4(*settings.moments.beta_range(), settings.moments.epipole_taper(),
+                       settings.moments.overestimation_rise_cos)
         # end_offset counts texels of a map reaching the view (a fixed world distance along the rays: the surface a
         # ray ends on is its own blocker over a stretch set by the depth precision, not by the column width)
         # (rays ending in shadow, rays ending lit): the look-up takes the first, a ray ending lit (lit_ray_ends) moves
@@ -694,6 +696,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         **({"coefficients": settings.fourier.coefficients, "splits": fb.splits} if settings.method == "fourier" else
            {"overestimation": overestimation if overestimation is not None else
             [round(b, 4) for b in settings.moments.beta_range()],
+            "overestimation_rise_cos": settings.moments.overestimation_rise_cos,
             "epipole_taper_deg": settings.moments.epipole_taper_deg}),
         "bits_per_texel": settings.filtered_bits_per_texel,
         "segments": segments,
