@@ -273,6 +273,7 @@ def evaluate_prefiltered_kernel(
     mips: RowMips,  # the texture's row mip levels and whether its rows wrap around (wrap_rows)
     beta: wp.vec4,  # moment overestimation weight towards / along the light (beta_range), or < 0: adaptive;
     # 1 - cos of the epipole taper's angle (MomentsSettings.epipole_taper), and the cosine beta rises from
+    # (MomentsSettings.overestimation_rise_cos)
     light: LightParams,
     med: MediumParams,
     lit_ends: wp.array2d(dtype=wp.int32),  # 1 where the pixel's ray ends lit (lit_ray_ends; read if lit_ends_known)
