@@ -95,6 +95,9 @@ from .epipole_fallback import (
     wholly_marched,
 )
 from .filtered_lookups import (
+    RAY_END_IN_SHADOW,
+    RAY_END_LIT,
+    RAY_END_UNKNOWN,
     DepthBounds,
     depth_bounds_of,
     fourier_visibility,
@@ -182,19 +185,19 @@ def representation_visibility(texels: FilteredMomentArrays, weights: RayWeights,
 
 @wp.func
 def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, window: wp.vec3i, beta: wp.vec4,
-                   light_direction: wp.vec3, view_direction: wp.vec3, ends_in_shadow: int) -> float:
+                   light_direction: wp.vec3, view_direction: wp.vec3, ray_end: int) -> float:
     """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a Fourier texture or a moment map
     (:func:`representation_visibility`) read in the row ``window`` (a mip level, :func:`~.row_mips.level_window`),
     its texels weighted as ``weights`` says (:mod:`.ray_weights`), those beyond the map lit; a ray wholly lit or
-    wholly shadowed by the ``bounds`` is answered without the reconstruction (``ends_in_shadow``: the ray is known to
-    end in shadow, :func:`~.filtered_lookups.row_bounds`' partial_veto)."""
+    wholly shadowed by the ``bounds`` is answered without the reconstruction (``ray_end``: what is known of the
+    ray's end point, :func:`~.filtered_lookups.row_bounds`)."""
     inside = inside_map_fraction(weights, c[0], c[2])
     u = c[0]
     if inside < 1.0:
         u = 1.0 + weights.end_offset / float(weights.cols)  # the look-up through the whole map
     # each bilinear row the bounds decide keeps their exact answer, an undecided one takes the reconstruction, mixed
     # by the rows' weights (reconstructing both whenever they disagreed lost the dark room's exact rows)
-    b = row_bounds(bounds, u - weights.end_offset / float(bounds.bounds.shape[1]), c[1], c[2], window, ends_in_shadow)
+    b = row_bounds(bounds, u - weights.end_offset / float(bounds.bounds.shape[1]), c[1], c[2], window, ray_end)
     r = float(0.0)
     if rows_undecided(b):
         r = representation_visibility(texels, weights, u, c[1], c[2], window, beta, light_direction, view_direction)
@@ -207,15 +210,15 @@ def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.
 @wp.func
 def mipped_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, mips: RowMips, level: wp.vec2,
                       c: wp.vec3, beta: wp.vec4, light_direction: wp.vec3, view_direction: wp.vec3,
-                      ends_in_shadow: int) -> float:
+                      ray_end: int) -> float:
     """:func:`map_visibility` at a pixel's mip ``level`` (:func:`~.row_mips.pixel_mip_level`: level, share of the
     next): the two levels' visibilities blended (trilinear filtering, Peters 2017 D.5; :mod:`.row_mips`)."""
     lv = int(level[0])
     f = map_visibility(texels, weights, bounds, c, level_window(mips, lv), beta, light_direction, view_direction,
-                       ends_in_shadow)
+                       ray_end)
     if level[1] > 0.0:
         f1 = map_visibility(texels, weights, bounds, c, level_window(mips, lv + 1), beta, light_direction,
-                            view_direction, ends_in_shadow)
+                            view_direction, ray_end)
         f = f + level[1] * (f1 - f)
     return f
 
@@ -306,24 +309,26 @@ def evaluate_prefiltered_kernel(
     lv = pixel_mip_level(mips, coords, j, i)
     c = coords[j, i]
     in_end_zone = int(0)
-    ends_in_shadow = int(0)  # known to end in shadow: the look-up's partial last texel must clear a lit answer
+    ray_end = int(RAY_END_UNKNOWN)  # what the depth bounds may assume of the ray's end (row_bounds)
     if lit_ends_known != 0:
         if lit_ends[j, i] != 0:
             c = wp.vec3(c[0] + lit_end_shift, c[1], c[2])
+            ray_end = RAY_END_LIT
         else:
-            ends_in_shadow = 1
-        if ends_in_shadow != 0 and c[0] * float(weights.cols) <= weights.end_offset:
+            ray_end = RAY_END_IN_SHADOW
+        if ray_end == RAY_END_IN_SHADOW and c[0] * float(weights.cols) <= weights.end_offset:
             # a ray ending in shadow whose whole extent lies within its end surface's own zone (looking almost straight
             # into the light): the look-up reads nothing; the marcher takes it (march_flagged_pixels)
             in_end_zone = 1
             end_zone_any[0] = 1
+    ends_in_shadow = ray_end == RAY_END_IN_SHADOW
     end_zone[j, i] = in_end_zone
     if in_end_zone != 0:
         out[j, i] = wp.vec3(0.0, 0.0, 0.0)
     else:
         # a ray ending in shadow: the end_offset texels its look-up leaves out (the end surface is its own blocker
         # there) take the shadow map's visibility, sampled along the ray (module doc)
-        march_end = (end_samples > 0 and ends_in_shadow != 0 and c[0] <= 1.0 and weights.end_offset > 0.0
+        march_end = (end_samples > 0 and ends_in_shadow and c[0] <= 1.0 and weights.end_offset > 0.0
                      and -wp.dot(light.direction, d) < end_cos_max)
         v_end = float(0.0)
         share = float(1.0)
@@ -335,18 +340,18 @@ def evaluate_prefiltered_kernel(
             v_end = stretch_visibility(end_vis, end, cam.position, d, left_out_start(weights, c[0], s), s,
                                        med.sigma_t, end_samples)
         if med.coloured == 0:
-            f = mipped_visibility(texels, weights, bounds, mips, lv, c, beta, light.direction, d, ends_in_shadow)
+            f = mipped_visibility(texels, weights, bounds, mips, lv, c, beta, light.direction, d, ray_end)
             if march_end:
                 f = with_left_out_stretch(f, share, v_end)
             out[j, i] = light.radiance * (med.sigma_s * phase * f * transmittance_integral(med.sigma_t, 0.0, s))
         else:  # one look-up per channel, each with the channel's own ray weights (module doc)
             f_rgb = wp.vec3(
                 mipped_visibility(texels, channel_weights.r, bounds, mips, lv, c, beta, light.direction, d,
-                                  ends_in_shadow),
+                                  ray_end),
                 mipped_visibility(texels, channel_weights.g, bounds, mips, lv, c, beta, light.direction, d,
-                                  ends_in_shadow),
+                                  ray_end),
                 mipped_visibility(texels, channel_weights.b, bounds, mips, lv, c, beta, light.direction, d,
-                                  ends_in_shadow))
+                                  ray_end))
             if march_end:
                 f_rgb = wp.vec3(
                     with_left_out_stretch(f_rgb[0], looked_up_share(channel_weights.r, c[0], c[2]), v_end),

@@ -46,6 +46,7 @@ from ..wpinit import default_device, module_options
 from .caster_culling import cull_unseen_casters, end_faces_away
 from .epipole_fallback import epipole_pixel_fraction, epipole_regions, march_epipole_regions
 from .filtered_lookups import (
+    RAY_END_UNKNOWN,
     DepthBounds,
     depth_bounds_of,
     mix_row_answers,
@@ -256,7 +257,8 @@ def spot_lookup(rays: SpotRays, bounds: DepthBounds, c: wp.vec3, window: wp.vec3
     u = c[0] - rays.end_offset / float(cols)
     j0, j1, ay, i0, i1, ax = window_footprint(window, cols, u, c[1])
     cut, esum, m = ray_cuts(rays, table, h, cols, i0)
-    return j0, j1, ay, i0, i1, ax, float(i0) + ax, cut, esum, m, row_bounds(bounds, u, c[1], c[2], window, 0)
+    bounds_answer = row_bounds(bounds, u, c[1], c[2], window, RAY_END_UNKNOWN)
+    return j0, j1, ay, i0, i1, ax, float(i0) + ax, cut, esum, m, bounds_answer
 
 
 @wp.func
