@@ -69,21 +69,21 @@ RAY_END_UNKNOWN = wp.constant(0)
 RAY_END_IN_SHADOW = wp.constant(1)
 RAY_END_LIT = wp.constant(2)
 #: A ray with a known end (lit or in shadow) shorter than GUARD_COLUMN_TEXELS texels of the rectified map answers
-#: "wholly shadowed" from the depth bounds (:func:`row_bounds`) only when no texel through the guard column (the
-#: first whose centre follows the ray's end) lies behind it by more than GUARD_COLUMN_DEPTH_TOLERANCE (rectified
-#: depth, 0-1). Near the epipole a ray of a few texels ending in shadow on a pillar facing away from a low sun had
-#: every whole texel in front of it while the next sample was already behind the ray: its answer 0 drew a dark notch
-#: at the pillar's edge (colonnade_fourier.yaml at 1280x720), saw teeth and a dark wedge beside the sun
-#: (colonnade_sunset frame 20), and lit-ended rays on a pillar's silhouette came out black. The tolerance keeps
-#: surfaces that are their own blockers decided (the window room's ceiling: a median 0.00036 behind the ray); asked
-#: without it the room's dark ceiling took bright specks (320x180, moments4: 50 -> 133 pixels over half the image
-#: mean where the exact is black). Longer rays keep the whole texels' answer: guarding every ray drew dotted creases
-#: along the room's walls (at any tolerance from 0.003 to 0.03), and 64 texels brought specks back (+8 pixels at
-#: 960x540). Measured at 320x180 against the exact marcher, notch pixels fourier / moments6 at frame 20: 24 texels
-#: left the wedge (5 / 3), 32 and 48 remove it; tolerances 0.0005 / 0.002 / 0.01 all remove the notches. Bench
-#: fidelity's 21 directional cases (960x540, 1024^2, exact 1024-step references; fourier, moments4, moments6) with
-#: 32 texels and 0.002: only own-light cells move, geometric mean of the 63 ratios 1.0002, the worst +0.3 %
-#: (terrain moments6 1.506 -> 1.510 %).
+#: "wholly shadowed" from the depth bounds (:func:`row_bounds`) only when no texel through the guard column (the first
+#: whose centre follows the ray's end) lies behind it by more than GUARD_COLUMN_DEPTH_TOLERANCE (rectified depth, 0-1).
+#: Near the epipole a ray of a few texels ending in shadow on a pillar facing away from a low sun had every whole texel
+#: in front of it while the next sample was already behind the ray: its answer 0 drew a dark notch at the pillar's edge
+#: (colonnade_fourier.yaml at 1280x720), saw teeth and a dark wedge beside the sun (colonnade_sunset frame 20), and
+#: lit-ended rays on a pillar's silhouette came out black. The tolerance keeps surfaces that are their own blockers
+#: decided (the window room's ceiling: a median 0.00036 behind the ray); asked without it the room's dark ceiling took
+#: bright specks (320x180, moments4: 50 -> 133 pixels over half the image mean where the exact is black). Longer rays
+#: keep the whole texels' answer: guarding every ray drew dotted creases along the room's walls (at any tolerance from
+#: 0.003 to 0.03), and 64 texels brought specks back (+8 pixels at 960x540, measured with lit-ended rays guarded at any
+#: length). Measured at 320x180 against the exact marcher, notch pixels fourier / moments6 at frame 20: 24 texels left
+#: the wedge (5 / 3), 32 and 48 remove it; tolerances 0.0005 / 0.002 / 0.01 all remove the notches. Bench fidelity's 21
+#: directional cases (960x540, 1024^2, exact 1024-step references; fourier, moments4, moments6) with 32 texels and
+#: 0.002: only own-light cells move, geometric mean of the 63 ratios 1.0002, the worst +0.3 % (terrain moments6 1.506 ->
+#: 1.510 %).
 GUARD_COLUMN_TEXELS = wp.constant(32.0)
 GUARD_COLUMN_DEPTH_TOLERANCE = wp.constant(0.002)
 
