@@ -66,22 +66,24 @@ def test_shadow_map_keeps_the_translucent_layer():
 
 
 # bounds: measured rel. L1 against the closed form (alpha = 0.5, 48x32, 256^2 map), about 2x margin; the fast methods
-# own error on this scene (epipolar's interpolation, the Fourier basis' ringing) is the most of it
+# own error on this scene (epipolar's interpolation, the Fourier basis' ringing) is the most of it. The supersampled
+# resampling's taps ramp over half a texel (shadow_map.SCATTERING_RAMP_TEXELS), which follows the slanted slab's depths
+# a little less closely than whole-texel bilinear weights did (moments4 7.0e-3, moments6 3.0e-5 with those)
 CASES = [
     ("raymarch", {"visibility": "shadow_map", "steps": 16}, 1e-5),  # measured 8.8e-7
     ("epipolar", {"steps": 16}, 0.02),  # measured 9.0e-3
-    ("fourier", {"prefiltered": {"rectification": "nonlinear"}}, 0.015),  # measured 6.8e-3
+    ("fourier", {"prefiltered": {"rectification": "nonlinear"}}, 0.015),  # measured 7.1e-3
     ("fourier", {"prefiltered": {"rectification": "nonlinear", "resample_filter": "none"}}, 0.015),  # 8.2e-3
     ("fourier", {"prefiltered": {"rectification": "projective"}}, 0.02),  # measured 1.1e-2
-    ("moments6", {"prefiltered": {"rectification": "nonlinear"}}, 1e-3),  # measured 3.3e-5
+    ("moments6", {"prefiltered": {"rectification": "nonlinear"}}, 1e-3),  # measured 1.3e-4
     ("moments6", {"prefiltered": {"rectification": "nonlinear", "resample_filter": "moments"}}, 1e-3),  # 1.5e-5
     ("moments6", {"prefiltered": {"rectification": "projective"}}, 1e-3),  # measured 4.1e-5
     # moments4's default depth warp (c = 3) spends its resolution away from the light, on the slab's far side
-    ("moments4", {"prefiltered": {"rectification": "nonlinear"}}, 0.01),  # measured 5.6e-3
-    ("moments4", {"prefiltered": {"rectification": "nonlinear", "depth_warp": 0.0}}, 2e-3),  # measured 6.0e-4
+    ("moments4", {"prefiltered": {"rectification": "nonlinear"}}, 0.025),  # measured 1.2e-2
+    ("moments4", {"prefiltered": {"rectification": "nonlinear", "depth_warp": 0.0}}, 3e-3),  # measured 1.6e-3
     # the depth warp (Klehm Sec. 5) moves the representations' resolution, not the hard visibility
-    ("moments6", {"prefiltered": {"rectification": "nonlinear", "depth_warp": -3.0}}, 1e-3),  # measured 1.7e-4
-    ("fourier", {"prefiltered": {"rectification": "nonlinear", "depth_warp": -1.0}}, 0.015),  # measured 5.9e-3
+    ("moments6", {"prefiltered": {"rectification": "nonlinear", "depth_warp": -3.0}}, 1e-3),  # measured 2.7e-4
+    ("fourier", {"prefiltered": {"rectification": "nonlinear", "depth_warp": -1.0}}, 0.015),  # measured 6.3e-3
 ]
 
 

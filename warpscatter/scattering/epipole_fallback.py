@@ -14,7 +14,7 @@ are sky rays of optical depth ~10, on which a handful of equal-length strata car
 came out grainy against the smooth prefiltered surround (per-pixel variation ~6 % against 0.4 % outside,
 colonnade_fourier at 640x360; 0.85 % now, the 512-step reference's own noise). ``jitter`` picks per-pixel or the
 fixed pattern; the render methods pass ``ScatteringSettings.march_jitter``, fixed by default (less grain still: at
-320x180 the disc's pixel-to-pixel variation 1.6 % per-pixel, 0.93 % fixed). Each sample reads the map with bilinear
+320x180 the disc's pixel-to-pixel variation 1.6 % per-pixel, 0.93 % fixed). Each sample reads the map with 2 x 2
 percentage-closer filtering (:func:`~.marching.map_pcf_at`): near the sun the rays run almost along the light, so a
 shaft edge crossing one stratum's nearest texel stepped whole columns of pixels at once (a comb and a staircase along
 the shafts of ``colonnade_sunset`` frame 40: rel. L1 in those boxes 11.7 / 3.9 % -> 5.8 / 2.6 % against the

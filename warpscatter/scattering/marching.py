@@ -80,10 +80,10 @@ from ..scene.medium import (
 from ..shadows.shadow_map import (
     ShadowMapParams,
     TranslucentShadowDepths,
+    narrowed_pcf_at,
     nearest_texel,
     orthographic_ray_coords,
     shadow_coords,
-    shadow_pcf_at,
     shadow_visibility_at,
     texel_depth,
 )
@@ -193,11 +193,13 @@ def map_visibility_at(vis: Visibility, c: wp.vec3) -> float:
 
 @wp.func
 def map_pcf_at(vis: Visibility, c: wp.vec3) -> float:
-    """:func:`map_visibility_at` with bilinear percentage-closer filtering (the 2 x 2 texels around c): V changes
-    smoothly as c crosses a texel border instead of stepping."""
+    """:func:`map_visibility_at` with percentage-closer filtering of the 2 x 2 texels around c, their bilinear
+    weights narrowed to a ramp of :data:`~warpscatter.shadows.shadow_map.SCATTERING_RAMP_TEXELS` across each texel
+    border (:func:`~warpscatter.shadows.shadow_map.narrowed_pcf_at`): V changes smoothly as c crosses a border
+    instead of stepping, without blurring a caster's silhouette over a whole texel."""
     if vis.translucent != 0:
-        return shadow_pcf_at(vis.sm, vis.sm_layers, c, vis.sm_bias, 1)
-    return shadow_pcf_at(vis.sm, vis.sm_depth, c, vis.sm_bias, 1)
+        return narrowed_pcf_at(vis.sm, vis.sm_layers, c, vis.sm_bias)
+    return narrowed_pcf_at(vis.sm, vis.sm_depth, c, vis.sm_bias)
 
 
 @wp.func
@@ -389,9 +391,9 @@ def stretch_visibility(vis: Visibility, end: EndSurface, origin: wp.vec3, d: wp.
                        sigma_t: float, max_samples: int) -> float:
     """Transmittance-weighted mean visibility of the stretch [t0, t1] of the ray origin + t d that ends on ``end``
     (:func:`end_surface_at`; its bias guard applies), from a shadow map (``vis`` in shadow_map mode): one sample at the
-    middle of each of n equal steps, n the stretch's length in shadow-map texels (1 to ``max_samples``), each read
-    with bilinear percentage-closer filtering (hard look-ups drew the map's texel staircase as streaks along the
-    rows: colonnade_fourier's streak energy right of the last pillar 0.15 -> 0.59 %)."""
+    middle of each of n equal steps, n the stretch's length in shadow-map texels (1 to ``max_samples``), each read with
+    2 x 2 percentage-closer filtering (:func:`map_pcf_at`; hard look-ups drew the map's texel staircase as streaks along
+    the rows: colonnade_fourier's streak energy right of the last pillar 0.15 -> 0.59 %)."""
     n = wp.clamp(int(wp.ceil((t1 - t0) / wp.max(vis.sm.texel_world, 1.0e-12))), 1, max_samples)
     dt = (t1 - t0) / float(n)
     decay = wp.exp(-sigma_t * dt)
@@ -670,7 +672,7 @@ def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float
     ray (optical depth ~10) the first few of 64 strata carry most of the weight, so one shadow-map texel flipping
     in one of them changes the pixel by up to ~17 % (grain against the smooth prefiltered surround). Here no
     stratum carries more than 1 / N. Both estimators are unbiased per pixel (per-pixel jitter) and exact for V = 1.
-    Visibility is read with bilinear percentage-closer filtering (:func:`map_pcf_at`), the reference marcher's with
+    Visibility is read with 2 x 2 percentage-closer filtering (:func:`map_pcf_at`), the reference marcher's with
     hard look-ups: few strata on rays almost along the light otherwise step from pixel to pixel.
     n_end: the camera-facing normal of the surface at s (zero: none), as :func:`march_to_surface` takes it.
     """

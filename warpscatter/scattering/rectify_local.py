@@ -17,11 +17,11 @@ light is the limit D -> infinity with psi D -> r.
 
 The columns cover the angles at the light where light is and the view reaches: psi_lo, psi_hi = the spot cone's
 band around the baseline, [beta - cone, beta + cone] with beta the angle between the spot's axis and the baseline,
-cut to the largest psi of the view frustum (its far plane). Resampling (:func:`resample_spot_shadow_map`): each
-texel is a light ray; it keeps its casters as a directional light's supersampled texel does (light rays over its
-psi extent, four bilinear spot-map taps each, condensed to two depths; translucent casters split each tap), and
-the spot's emission along it (cone and texture, :func:`~warpscatter.scene.lights.light_sample`, averaged over the
-texel's footprint, relative to its peak) becomes the texel's FILTER tau in [0, 1] per colour channel. The filter
+cut to the largest psi of the view frustum (its far plane). Resampling (:func:`resample_spot_shadow_map`): each texel is
+a light ray; it keeps its casters as a directional light's supersampled texel does (light rays over its psi extent, four
+spot-map taps each (:func:`~.rectify_nonlinear.bilinear_tap`), condensed to two depths; translucent casters split each
+tap), and the spot's emission along it (cone and texture, :func:`~warpscatter.scene.lights.light_sample`, averaged over
+the texel's footprint, relative to its peak) becomes the texel's FILTER tau in [0, 1] per colour channel. The filter
 weights the texel in the prefix sums (Klehm's "Angular-dependency for Sources": "each visibility function is simply
 weighted by the light's contribution"), so outside the cone a texel has no weight and inside the texture modulates
 it; a coloured texture needs one filtered map per channel (the paper: "triples storage amount and computation

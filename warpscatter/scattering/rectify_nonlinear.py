@@ -53,7 +53,7 @@ from ..parallel import launch_rows
 from ..scene.camera import normalize
 from ..shadows import moments as mm
 from ..shadows.msm import MomentShadowMap, MomentShadowParams, sample_bilinear4
-from ..shadows.shadow_map import shadow_coords
+from ..shadows.shadow_map import narrowed_offset, shadow_coords
 from ..wpinit import default_device, module_options
 
 module_options()
@@ -277,13 +277,16 @@ MAX_RADIAL_SAMPLES = 4
 
 @wp.func
 def bilinear_footprint(texels: wp.array2d(dtype=wp.float32), c: wp.vec4):
-    """The bilinear footprint of clip coordinates c in a map (row 0 = NDC y = +1): its first texel (x, y), which may
-    lie off the map, and c's fractional offsets (ax, ay) from that texel's centre, in [0, 1)."""
+    """The 2 x 2 footprint of clip coordinates c in a map (row 0 = NDC y = +1): its first texel (x, y), which may
+    lie off the map, and the weights (ax, ay) of the next column and row: c's fractional offsets from that texel's
+    centre narrowed to a ramp of :data:`~warpscatter.shadows.shadow_map.SCATTERING_RAMP_TEXELS` across the texel
+    border (:func:`~warpscatter.shadows.shadow_map.narrowed_offset`; plain bilinear weights blurred casters'
+    silhouettes over a whole texel, a grey fringe on occluders beside a low sun)."""
     fx = (0.5 * c[0] + 0.5) * float(texels.shape[1]) - 0.5
     fy = (0.5 - 0.5 * c[1]) * float(texels.shape[0]) - 0.5
     x = int(wp.floor(fx))
     y = int(wp.floor(fy))
-    return x, y, fx - float(x), fy - float(y)
+    return x, y, narrowed_offset(fx - float(x)), narrowed_offset(fy - float(y))
 
 
 @wp.func
@@ -576,14 +579,14 @@ def resample_radial_kernel(
     offset: int,
 ):
     # ``samples`` points at equal steps over the texel's radial extent [i, i + 1) / cols, each reading its four
-    # nearest shadow-map texels with bilinear weights. Each tap's caster lies at z_b along the light from the
-    # sample's light-ray point (the rectified depth grows with z_b). The caster taps split in two at the middle of
-    # their z_b range, each part's weighted mean z_b becoming one rectified depth at the texel's centre column; with
-    # empty taps (no caster: depth 1) the casters form one depth and the empty taps the other. The light-ray point
-    # is affine in u (p0 = origin + u a), so are its map coordinates and depth: a thread takes ``span`` texels of a
-    # row and sets them up once (one sin/cos, two matrix products), then at most two atan2 per texel. With
-    # translucent casters a tap is two parts, its nearest caster with weight (1 - T) and its nearest opaque caster
-    # (or the empty far end) with weight T.
+    # nearest shadow-map texels with bilinear weights ramping over half a texel (bilinear_footprint). Each tap's
+    # caster lies at z_b along the light from the sample's light-ray point (the rectified depth grows with z_b). The
+    # caster taps split in two at the middle of their z_b range, each part's weighted mean z_b becoming one rectified
+    # depth at the texel's centre column; with empty taps (no caster: depth 1) the casters form one depth and the
+    # empty taps the other. The light-ray point is affine in u (p0 = origin + u a), so are its map coordinates and
+    # depth: a thread takes ``span`` texels of a row and sets them up once (one sin/cos, two matrix products), then at
+    # most two atan2 per texel. With translucent casters a tap is two parts, its nearest caster with weight (1 - T)
+    # and its nearest opaque caster (or the empty far end) with weight T.
     j, g = wp.tid()
     j += offset
     c0, ca, d0, da = radial_row(rect, world_to_clip, depth_row, j)
@@ -1127,11 +1130,11 @@ def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_cli
         world_to_view: (4, 4) light view matrix, required for ``depth="linear"``.
         radial_samples: 0: one nearest depth at each texel's centre. 1 to :data:`MAX_RADIAL_SAMPLES`: that many
             points spread evenly over the texel's radial (column) extent, each reading its four nearest shadow-map
-            texels with bilinear weights, condensed to two depths (:class:`SparseRectifiedDepth`, see
-            :func:`resample_radial_kernel`). One nearest depth per texel aliases: the casters' texel staircases
-            (seen from the camera, shadow-map texels are wedges from the light's epipole) and, where a rectified
-            texel is wider than a shadow-map texel (:func:`resample_footprint_texels`), casters' edges skipped at
-            random along each row show as radial streaks in the look-ups.
+            texels with bilinear weights (ramping over half a texel, :func:`bilinear_footprint`), condensed to two
+            depths (:class:`SparseRectifiedDepth`, see :func:`resample_radial_kernel`). One nearest depth per texel
+            aliases: the casters' texel staircases (seen from the camera, shadow-map texels are wedges from the light's
+            epipole) and, where a rectified texel is wider than a shadow-map texel (:func:`resample_footprint_texels`),
+            casters' edges skipped at random along each row show as radial streaks in the look-ups.
         translucency: None, or the shadow map's translucent layer (opaque depth, transmittance): two (H, W) arrays
             (numpy or Warp), the depth in the same kind as ``shadow_depth`` (module doc).
         device: Warp device.

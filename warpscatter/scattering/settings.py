@@ -192,7 +192,7 @@ END_OFFSET = 1.0
 END_OFFSET_LIT = 0.25
 MAX_END_OFFSET = 8.0
 #: Most shadow-map samples of the stretch a prefiltered look-up leaves out before a ray that ends in shadow under a
-#: directional light ahead of the camera (its END_OFFSET texels; one bilinear PCF sample per shadow-map texel of its
+#: directional light ahead of the camera (its END_OFFSET texels; one PCF sample per shadow-map texel of its
 #: length, at most this many). Before, that stretch took the look-up's own visibility: near the sun a texel of the
 #: rectified map is a long stretch of ray (1 / sin of its angle to the light), in the end surface's shadow where the
 #: look-up saw the lit air before it (colonnade_sunset's last frame, fourier 640x360 against the exact marcher: 4.94 ->
@@ -437,9 +437,9 @@ class PrefilteredSettings(SettingsModel):
                                                           "the image centre is the least radius)")] = 32
     epipole_angle_deg: Annotated[Float, Field(ge=0.0, le=MAX_EPIPOLE_ANGLE_DEG, description=(
         "pixels whose view ray lies within this angle (degrees) of the light direction or its flip are ray-marched "
-        "(bilinear shadow-map look-ups, `epipole_steps` strata of equal transmittance weight, `jitter`), blended "
-        "with the prefiltered result over a further 25 % of the angle (Klehm 2014 Sec. 5, Fig. 8); this and "
-        "epipole_block 0: off"))] = EPIPOLE_ANGLE_DEG
+        "(2x2 shadow-map look-ups, weights ramping over half a texel, `epipole_steps` strata of equal transmittance "
+        "weight, `jitter`), blended with the prefiltered result over a further 25 % of the angle (Klehm 2014 Sec. 5, "
+        "Fig. 8); this and epipole_block 0: off"))] = EPIPOLE_ANGLE_DEG
     epipole_steps: Annotated[Int, Field(ge=1, le=MAX_STEPS, description="ray-march steps of the epipole region "
                                                                          "(strata of equal "
                                                           "transmittance weight)")] = EPIPOLE_STEPS
@@ -465,11 +465,11 @@ class PrefilteredSettings(SettingsModel):
                                                                   "Sec. 3.3; fourier only; 1 = off)")] = 1
     resample_filter: Literal[RESAMPLE_FILTERS] = Field(  # type: ignore[valid-type]
         "supersample", description="non-linear rectification: none resamples the nearest shadow-map depth at each "
-                                   "texel's centre; supersample reads bilinear taps at one point per shadow-map "
-                                   "texel the rectified texel spans radially (up to 4) and keeps two depths "
-                                   "(warpscatter's: one nearest depth aliases into radial streaks); moments filters "
-                                   "during resampling (Peters 2017 Sec. 5.2: a filtered 4-moment map and Algorithm "
-                                   "2)")
+                                   "texel's centre; supersample reads 2x2 taps (weights ramping over half a "
+                                   "texel) at one point per shadow-map texel the rectified texel spans radially "
+                                   "(up to 4) and keeps two depths (warpscatter's: one nearest depth aliases into "
+                                   "radial streaks); moments filters during resampling (Peters 2017 Sec. 5.2: a "
+                                   "filtered 4-moment map and Algorithm 2)")
     resample_filter_px: Optional[Annotated[Int, Field(ge=1, le=MAX_RESAMPLE_FILTER_PX)]] = Field(
         None, description="width of that filter's Gaussian (shadow-map texels); null: the radial footprint of a "
                           "rectified texel")
