@@ -78,6 +78,7 @@ from ..scene.medium import (
     transmittance_integral_rgb,
 )
 from ..shadows.shadow_map import (
+    PCF_RAMP_TEXELS,
     ShadowMapParams,
     TranslucentShadowDepths,
     narrowed_pcf_at,
@@ -194,12 +195,12 @@ def map_visibility_at(vis: Visibility, c: wp.vec3) -> float:
 @wp.func
 def map_pcf_at(vis: Visibility, c: wp.vec3) -> float:
     """:func:`map_visibility_at` with percentage-closer filtering of the 2 x 2 texels around c, their bilinear
-    weights narrowed to a ramp of :data:`~warpscatter.shadows.shadow_map.SCATTERING_RAMP_TEXELS` across each texel
-    border (:func:`~warpscatter.shadows.shadow_map.narrowed_pcf_at`): V changes smoothly as c crosses a border
-    instead of stepping, without blurring a caster's silhouette over a whole texel."""
+    weights narrowed to a ramp of :data:`~warpscatter.shadows.shadow_map.PCF_RAMP_TEXELS` across each texel border
+    (:func:`~warpscatter.shadows.shadow_map.narrowed_pcf_at`): V changes smoothly as c crosses a border instead of
+    stepping, without blurring a caster's silhouette over a whole texel."""
     if vis.translucent != 0:
-        return narrowed_pcf_at(vis.sm, vis.sm_layers, c, vis.sm_bias)
-    return narrowed_pcf_at(vis.sm, vis.sm_depth, c, vis.sm_bias)
+        return narrowed_pcf_at(vis.sm, vis.sm_layers, c, vis.sm_bias, PCF_RAMP_TEXELS)
+    return narrowed_pcf_at(vis.sm, vis.sm_depth, c, vis.sm_bias, PCF_RAMP_TEXELS)
 
 
 @wp.func

@@ -53,7 +53,7 @@ from ..parallel import launch_rows
 from ..scene.camera import normalize
 from ..shadows import moments as mm
 from ..shadows.msm import MomentShadowMap, MomentShadowParams, sample_bilinear4
-from ..shadows.shadow_map import narrowed_offset, shadow_coords
+from ..shadows.shadow_map import TAP_RAMP_TEXELS, narrowed_offset, shadow_coords
 from ..wpinit import default_device, module_options
 
 module_options()
@@ -279,14 +279,14 @@ MAX_RADIAL_SAMPLES = 4
 def bilinear_footprint(texels: wp.array2d(dtype=wp.float32), c: wp.vec4):
     """The 2 x 2 footprint of clip coordinates c in a map (row 0 = NDC y = +1): its first texel (x, y), which may
     lie off the map, and the weights (ax, ay) of the next column and row: c's fractional offsets from that texel's
-    centre narrowed to a ramp of :data:`~warpscatter.shadows.shadow_map.SCATTERING_RAMP_TEXELS` across the texel
+    centre narrowed to a ramp of :data:`~warpscatter.shadows.shadow_map.TAP_RAMP_TEXELS` across the texel
     border (:func:`~warpscatter.shadows.shadow_map.narrowed_offset`; plain bilinear weights blurred casters'
     silhouettes over a whole texel, a grey fringe on occluders beside a low sun)."""
     fx = (0.5 * c[0] + 0.5) * float(texels.shape[1]) - 0.5
     fy = (0.5 - 0.5 * c[1]) * float(texels.shape[0]) - 0.5
     x = int(wp.floor(fx))
     y = int(wp.floor(fy))
-    return x, y, narrowed_offset(fx - float(x)), narrowed_offset(fy - float(y))
+    return x, y, narrowed_offset(fx - float(x), TAP_RAMP_TEXELS), narrowed_offset(fy - float(y), TAP_RAMP_TEXELS)
 
 
 @wp.func

@@ -437,7 +437,7 @@ class PrefilteredSettings(SettingsModel):
                                                           "the image centre is the least radius)")] = 32
     epipole_angle_deg: Annotated[Float, Field(ge=0.0, le=MAX_EPIPOLE_ANGLE_DEG, description=(
         "pixels whose view ray lies within this angle (degrees) of the light direction or its flip are ray-marched "
-        "(2x2 shadow-map look-ups, weights ramping over half a texel, `epipole_steps` strata of equal transmittance "
+        "(2x2 shadow-map look-ups, weights ramping over 0.75 texel, `epipole_steps` strata of equal transmittance "
         "weight, `jitter`), blended with the prefiltered result over a further 25 % of the angle (Klehm 2014 Sec. 5, "
         "Fig. 8); this and epipole_block 0: off"))] = EPIPOLE_ANGLE_DEG
     epipole_steps: Annotated[Int, Field(ge=1, le=MAX_STEPS, description="ray-march steps of the epipole region "

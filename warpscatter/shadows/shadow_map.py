@@ -345,38 +345,44 @@ def orthographic_ray_coords(sm: ShadowMapParams, origin: wp.vec3, d: wp.vec3):
     return wp.vec3(0.5 * c[0] + 0.5, 0.5 - 0.5 * c[1], -pv[2]), wp.vec3(0.5 * cd[0], -0.5 * cd[1], -pd[2])
 
 
-#: Width, in shadow-map texels, of the ramp between two neighbouring texels in the single-scattering reads of a
-#: shadow map (:func:`narrowed_offset`): the non-linear rectification's supersampled taps and the epipole disc's
-#: percentage-closer look-ups. Plain bilinear weights (a ramp of one texel) blurred every caster's silhouette over a
-#: whole texel, which is many pixels wherever the view rays run along a shadow's edge: near a low sun on
-#: colonnade_fourier.yaml a 4-5 pixel grey fringe lit the fog in front of a black pillar beside the bright gap (x 985,
-#: rows 165-470 at 1280x720; up to 0.24 where the exact render is 0). Measured (1280x720, surfaces off, against the
-#: 256-step exact marcher; bench fidelity's 21 directional cases at 960x540): ramp 1 texel: 1414 pixels over 0.05
-#: where the exact is black, rel. L1 2.80 %; 0.5: 435, 2.68 %, the 63 fidelity cells' geometric mean 0.999 (worst
-#: terrain fourier +4.6 %, gate fourier +3 %; colonnade -4 %); 0.33: 275, 2.69 %, but the epipole disc's comb on
-#: colonnade_sunset frame 40 comes back (high-pass energy 1.20x the reference's, 1.14x at 0.5, 0.97x at 1).
-SCATTERING_RAMP_TEXELS = wp.constant(0.5)
+#: Widths, in shadow-map texels, of the ramp between two neighbouring texels in the single-scattering reads of a
+#: shadow map (:func:`narrowed_offset`): the non-linear rectification's supersampled taps (TAP_RAMP_TEXELS) and the
+#: percentage-closer look-ups of the epipole disc's march and the end stretches (PCF_RAMP_TEXELS). Plain bilinear
+#: weights (a ramp of one texel) blurred every caster's silhouette over a whole texel, which is many pixels wherever
+#: the view rays run along a shadow's edge: near a low sun on colonnade_fourier.yaml a 4-5 pixel grey fringe lit the
+#: fog in front of a black pillar beside the bright gap (x 985, rows 165-470 at 1280x720; up to 0.24 where the exact
+#: render is 0). The disc's rays run almost along the light, so its few samples per ray read nearly the same texels:
+#: a narrower ramp there steps with the map's texel staircase (plateaus down the pillar tops under the architrave,
+#: the comb on colonnade_sunset frame 40), hence its wider ramp. Measured on colonnade_fourier (1280x720, surfaces off,
+#: against the 256-step exact marcher: pixels over 0.05 where the exact is black; rel. L1 of the image, of the fringe
+#: box x 960-1000 y 150-480, of the pillar-top box x 1080-1180 y 125-185) and frame 40 at 320x180 (comb box: rel. L1,
+#: high-pass energy against the 1024-step shadow-map marcher's), taps / PCF ramp:
+#: 1 / 1: 1414 px, 2.80 / 14.4 / 5.56 %, comb 5.8 % / 0.97x; 0.5 / 1: 696, 2.68 / 11.7 / 5.49 %, 6.0 % / 1.01x;
+#: 0.5 / 0.75: 551, 2.67 / 10.6 / 5.66 %, 4.4 % / 1.03x; 0.5 / 0.5: 435, 2.68 / 9.9 / 5.91 %, 5.0 % / 1.14x;
+#: 0.33 / 0.33: 275 px, comb 1.20x.
+TAP_RAMP_TEXELS = wp.constant(0.5)
+PCF_RAMP_TEXELS = wp.constant(0.75)
 
 
 @wp.func
-def narrowed_offset(frac: float) -> float:
+def narrowed_offset(frac: float, ramp: float) -> float:
     """The weight of the second of two neighbouring texels for a point ``frac`` (0-1) of a texel past the first's
-    centre, ramping over :data:`SCATTERING_RAMP_TEXELS` around the border between them instead of the whole texel
-    (0 and 1 at the centres as bilinear weights are; 0.5 at the border)."""
-    return wp.clamp((frac - 0.5) / SCATTERING_RAMP_TEXELS + 0.5, 0.0, 1.0)
+    centre, ramping over ``ramp`` texels (0-1) around the border between them instead of the whole texel (0 and 1
+    at the centres as bilinear weights are, 0.5 at the border; ``ramp`` 1: bilinear)."""
+    return wp.clamp((frac - 0.5) / ramp + 0.5, 0.0, 1.0)
 
 
 @wp.func
-def narrowed_pcf_at(sm: ShadowMapParams, depth_map: Any, c: wp.vec3, bias: float) -> float:
+def narrowed_pcf_at(sm: ShadowMapParams, depth_map: Any, c: wp.vec3, bias: float, ramp: float) -> float:
     """Percentage-closer filtering of the 2 x 2 texels around map coordinates c = (u, v, depth) of
-    :func:`shadow_coords` with :func:`narrowed_offset` weights: smooth across a texel border, hard within
-    (1 - :data:`SCATTERING_RAMP_TEXELS`) of a texel's centre; 1 = lit."""
+    :func:`shadow_coords` with :func:`narrowed_offset` weights ramping over ``ramp`` texels: smooth across a texel
+    border, hard within (1 - ``ramp``) / 2 of a texel's centre; 1 = lit."""
     fx = c[0] * float(sm.width) - 0.5
     fy = c[1] * float(sm.height) - 0.5
     i0 = int(wp.floor(fx))
     j0 = int(wp.floor(fy))
-    ax = narrowed_offset(fx - float(i0))
-    ay = narrowed_offset(fy - float(j0))
+    ax = narrowed_offset(fx - float(i0), ramp)
+    ay = narrowed_offset(fy - float(j0), ramp)
     top = (1.0 - ax) * shadow_texel_lit(depth_map, i0, j0, c[2], bias) + ax * shadow_texel_lit(depth_map, i0 + 1, j0,
                                                                                               c[2], bias)
     bottom = ((1.0 - ax) * shadow_texel_lit(depth_map, i0, j0 + 1, c[2], bias)
