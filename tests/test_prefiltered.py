@@ -946,7 +946,7 @@ def test_depth_bounds_cut_no_notches_where_the_next_sample_is_behind_the_ray(con
         assert rel(bounded) < min(rel(unbounded), image_bound), method
 
 
-def test_no_grey_fringe_on_a_pillar_beside_the_sun():
+def test_grey_fringe_on_a_pillar_beside_the_sun_is_narrower():
     """colonnade_fourier.yaml: the view rays that end on the near pillar's edge beside the bright gap next to the sun
     run along the pillar's shadow edge in the light's map, within a texel of it for their whole length. Plain
     bilinear weights (the rectification's supersampled taps, the epipole disc's PCF) blurred the silhouette over a
