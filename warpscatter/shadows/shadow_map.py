@@ -373,16 +373,24 @@ def narrowed_offset(frac: float, ramp: float) -> float:
 
 
 @wp.func
-def narrowed_pcf_at(sm: ShadowMapParams, depth_map: Any, c: wp.vec3, bias: float, ramp: float) -> float:
-    """Percentage-closer filtering of the 2 x 2 texels around map coordinates c = (u, v, depth) of
-    :func:`shadow_coords` with :func:`narrowed_offset` weights ramping over ``ramp`` texels: smooth across a texel
-    border, hard within (1 - ``ramp``) / 2 of a texel's centre; 1 = lit."""
+def texel_corner(sm: ShadowMapParams, c: wp.vec3):
+    """The texel (i0, j0) whose centre is the top-left of the 2 x 2 texels around map coordinates c = (u, v, depth)
+    of :func:`shadow_coords`, and c's offset (0-1 texel, along x and y) past that centre: the bilinear frame."""
     fx = c[0] * float(sm.width) - 0.5
     fy = c[1] * float(sm.height) - 0.5
     i0 = int(wp.floor(fx))
     j0 = int(wp.floor(fy))
-    ax = narrowed_offset(fx - float(i0), ramp)
-    ay = narrowed_offset(fy - float(j0), ramp)
+    return i0, j0, fx - float(i0), fy - float(j0)
+
+
+@wp.func
+def narrowed_pcf_at(sm: ShadowMapParams, depth_map: Any, c: wp.vec3, bias: float, ramp: float) -> float:
+    """Percentage-closer filtering of the 2 x 2 texels around map coordinates c = (u, v, depth) of
+    :func:`shadow_coords` with :func:`narrowed_offset` weights ramping over ``ramp`` texels: smooth across a texel
+    border, hard within (1 - ``ramp``) / 2 of a texel's centre; 1 = lit."""
+    i0, j0, fx, fy = texel_corner(sm, c)
+    ax = narrowed_offset(fx, ramp)
+    ay = narrowed_offset(fy, ramp)
     top = (1.0 - ax) * shadow_texel_lit(depth_map, i0, j0, c[2], bias) + ax * shadow_texel_lit(depth_map, i0 + 1, j0,
                                                                                               c[2], bias)
     bottom = ((1.0 - ax) * shadow_texel_lit(depth_map, i0, j0 + 1, c[2], bias)
@@ -410,12 +418,7 @@ def shadow_pcf(sm: ShadowMapParams, depth_map: Any, x: wp.vec3, bias: float, fil
 @wp.func
 def shadow_pcf_at(sm: ShadowMapParams, depth_map: Any, c: wp.vec3, bias: float, filter_px: int) -> float:
     """:func:`shadow_pcf` at map coordinates c = (u, v, depth) of :func:`shadow_coords`."""
-    fx = c[0] * float(sm.width) - 0.5
-    fy = c[1] * float(sm.height) - 0.5
-    i0 = int(wp.floor(fx))
-    j0 = int(wp.floor(fy))
-    ax = fx - float(i0)
-    ay = fy - float(j0)
+    i0, j0, ax, ay = texel_corner(sm, c)
     r = filter_px / 2
     lo = -r
     hi = filter_px - r  # filter_px + 1 texel columns, bilinear weights at the two ends
