@@ -190,15 +190,16 @@ def test_window_room_creases_stay_dark():
 
 
 def test_culling_removes_the_ground_error_of_moments6():
-    # the canopy with its meadow casting (as configured): without culling the meadow's own depths sit just behind
-    # the fragment depth of every ray that ends on it and six moments under-estimate the lower image
+    # the canopy with its meadow casting (kept in the maps: skip_unseen_planes off): without culling the meadow's own
+    # depths sit just behind the fragment depth of every ray that ends on it and six moments under-estimate the lower
+    # image
     w, h, no_surf = 160, 90, {"enabled": False}
     res = {}
     for label, sc in (("exact", {"method": "raymarch", "visibility": "exact", "steps": 128}),
                       ("fourier", {"method": "fourier"}), ("moments6", {"method": "moments6"})):
         for cull in (False, True):
             cfg = bench_scene_config("canopy", w, h, surfaces=no_surf, scattering={
-                **sc, "moments": {"storage_bits": 192}, "shadow_map": {"resolution": 256},
+                **sc, "moments": {"storage_bits": 192}, "shadow_map": {"resolution": 256, "skip_unseen_planes": False},
                 "prefiltered": {"caster_culling": cull}})
             images, stats = render_images(build_scene(cfg), cfg.render)
             res[label, cull] = images["scattering"]

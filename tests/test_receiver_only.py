@@ -122,7 +122,8 @@ def test_receiver_only_ground_removes_the_moment_receiver_error_on_the_canopy():
     # the meadow shadows nothing visible: the exact image does not change (same seed, bitwise), but in the
     # rectified map every ray ending on the ground sees the ground's own depths just behind its fragment depth,
     # where six moments leave the widest bounds (moments6 under-estimates the lower image). Caster culling (on by
-    # default for the moment methods, tests/test_caster_culling.py) removes most of it too; off here
+    # default for the moment methods, tests/test_caster_culling.py) removes most of it too; off here, and so is
+    # skip_unseen_planes, which would leave the meadow out of the maps in both arms (tests/test_unseen_planes.py)
     w, h, no_surf = 160, 90, {"enabled": False}
     exact = {"method": "raymarch", "visibility": "exact", "steps": 128}
     res = {}
@@ -130,7 +131,8 @@ def test_receiver_only_ground_removes_the_moment_receiver_error_on_the_canopy():
         for label, sc in (("exact", exact), ("fourier", {"method": "fourier"}),
                           ("moments6", {"method": "moments6", "moments": {"storage_bits": 192}})):
             cfg = bench_scene_config("canopy", w, h, receiver_only_ground=ro, surfaces=no_surf,
-                                     scattering={**sc, "shadow_map": {"resolution": 256},
+                                     scattering={**sc, "shadow_map": {"resolution": 256,
+                                                                      "skip_unseen_planes": False},
                                                  "prefiltered": {"caster_culling": False}})
             res[label, ro] = render_images(build_scene(cfg), cfg.render)[0]["scattering"]
     np.testing.assert_array_equal(res["exact", False], res["exact", True])

@@ -66,9 +66,9 @@ def test_shadow_map_keeps_the_translucent_layer():
 
 
 # bounds: measured rel. L1 against the closed form (alpha = 0.5, 48x32, 256^2 map), about 2x margin; the fast methods
-# own error on this scene (epipolar's interpolation, the Fourier basis' ringing) is the most of it. The supersampled
-# resampling's taps ramp over half a texel (shadow_map.TAP_RAMP_TEXELS), which follows the slanted slab's depths
-# a little less closely than whole-texel bilinear weights did (moments4 7.0e-3, moments6 3.0e-5 with those)
+# own error on this scene (epipolar's interpolation, the Fourier basis' ringing) is the most of it. While the
+# supersampled resampling's taps ramped over half a texel they followed the slanted slab's depths a little less
+# closely than the bilinear weights they take again (moments4 7.0e-3, moments6 3.0e-5 with these)
 CASES = [
     ("raymarch", {"visibility": "shadow_map", "steps": 16}, 1e-5),  # measured 8.8e-7
     ("epipolar", {"steps": 16}, 0.02),  # measured 9.0e-3

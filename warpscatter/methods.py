@@ -123,7 +123,7 @@ LIGHTING: dict[str, Method] = {m.name: m for m in (
 
 #: Warp modules every classic render launches (rasterizer, G-buffer, surface shadows and shading).
 CLASSIC_MODULES = ("warpscatter.raster", "warpscatter.gbuffer", "warpscatter.shadows.msm", "warpscatter.shadows.soft",
-                   "warpscatter.shading")
+                   "warpscatter.shadows.unseen_planes", "warpscatter.shading")
 #: Warp modules every lighting render launches besides the method's.
 LIGHTING_BASE_MODULES = ("warpscatter.raster", "warpscatter.gbuffer")
 

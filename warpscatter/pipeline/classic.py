@@ -22,6 +22,7 @@ from ..scene import DeviceGeometry
 from ..shading import shade_and_compose
 from ..shadows.shadow_map import render_shadow_map
 from ..shadows.surface import prepare_shadows
+from ..shadows.unseen_planes import without_unseen_planes
 from ..stages import StageTimer
 from ..wpinit import default_device
 from .common import check_finite, compile_kernels
@@ -81,9 +82,15 @@ def render_images(scene, settings, *, timer: StageTimer | None = None, device=No
             gbuf = gbuffer_raycast(scene, geometry, device)
         else:
             gbuf = gbuffer_raster(scene, geometry, device)
+    # the light's maps leave out planes that shadow nothing seen (shadows/unseen_planes.py); the BVH above keeps them
+    lit_scene, unseen_planes = scene, []
+    if need_shadow_map and sc.shadow_map.skip_unseen_planes:
+        with timer("shadow_map"):
+            lit_scene, unseen_planes = without_unseen_planes(scene, gbuf.distance)
     # a point light is six square spots, one per cube face, whose images add up (Klehm 2014 Sec. 3.2); the debug
     # outputs and the method's stats are the first face's (+X)
-    faces = [replace(scene, light=face) for face in scene.light.faces()] if scene.light.kind == "point" else [scene]
+    faces = ([replace(lit_scene, light=face) for face in scene.light.faces()] if scene.light.kind == "point"
+             else [lit_scene])
     images, info, debug_images, shadow_map = {}, {}, {}, None
     for k, lit in enumerate(faces):
         if need_shadow_map:
@@ -119,6 +126,7 @@ def render_images(scene, settings, *, timer: StageTimer | None = None, device=No
         "jitter": sc.march_jitter,
         **info,
         "shadow_map": list(shadow_map.shape[::-1]) if shadow_map is not None else None,
+        "planes_left_out_of_maps": unseen_planes,
     }
     check_finite(images)
     return images, stats

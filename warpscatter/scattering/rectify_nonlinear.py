@@ -53,7 +53,7 @@ from ..parallel import launch_rows
 from ..scene.camera import normalize
 from ..shadows import moments as mm
 from ..shadows.msm import MomentShadowMap, MomentShadowParams, sample_bilinear4
-from ..shadows.shadow_map import TAP_RAMP_TEXELS, narrowed_offset, shadow_coords
+from ..shadows.shadow_map import shadow_coords
 from ..wpinit import default_device, module_options
 
 module_options()
@@ -278,15 +278,15 @@ MAX_RADIAL_SAMPLES = 4
 @wp.func
 def bilinear_footprint(texels: wp.array2d(dtype=wp.float32), c: wp.vec4):
     """The 2 x 2 footprint of clip coordinates c in a map (row 0 = NDC y = +1): its first texel (x, y), which may
-    lie off the map, and the weights (ax, ay) of the next column and row: c's fractional offsets from that texel's
-    centre narrowed to a ramp of :data:`~warpscatter.shadows.shadow_map.TAP_RAMP_TEXELS` across the texel
-    border (:func:`~warpscatter.shadows.shadow_map.narrowed_offset`; plain bilinear weights blurred casters'
-    silhouettes over a whole texel, a grey fringe on occluders beside a low sun)."""
+    lie off the map, and the bilinear weights (ax, ay) of the next column and row: c's fractional offsets from that
+    texel's centre. (Weights ramping over half a texel narrowed a grey fringe beside a low sun while the map was
+    fitted to the whole ground; with :mod:`~warpscatter.shadows.unseen_planes` the finer map removes it, and its
+    radial streaks want the whole texel's blur: :data:`~warpscatter.shadows.shadow_map.PCF_RAMP_TEXELS`.)"""
     fx = (0.5 * c[0] + 0.5) * float(texels.shape[1]) - 0.5
     fy = (0.5 - 0.5 * c[1]) * float(texels.shape[0]) - 0.5
     x = int(wp.floor(fx))
     y = int(wp.floor(fy))
-    return x, y, narrowed_offset(fx - float(x), TAP_RAMP_TEXELS), narrowed_offset(fy - float(y), TAP_RAMP_TEXELS)
+    return x, y, fx - float(x), fy - float(y)
 
 
 @wp.func
@@ -579,7 +579,7 @@ def resample_radial_kernel(
     offset: int,
 ):
     # ``samples`` points at equal steps over the texel's radial extent [i, i + 1) / cols, each reading its four
-    # nearest shadow-map texels with bilinear weights ramping over half a texel (bilinear_footprint). Each tap's
+    # nearest shadow-map texels with bilinear weights (bilinear_footprint). Each tap's
     # caster lies at z_b along the light from the sample's light-ray point (the rectified depth grows with z_b). The
     # caster taps split in two at the middle of their z_b range, each part's weighted mean z_b becoming one rectified
     # depth at the texel's centre column; with empty taps (no caster: depth 1) the casters form one depth and the
@@ -1130,7 +1130,7 @@ def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_cli
         world_to_view: (4, 4) light view matrix, required for ``depth="linear"``.
         radial_samples: 0: one nearest depth at each texel's centre. 1 to :data:`MAX_RADIAL_SAMPLES`: that many
             points spread evenly over the texel's radial (column) extent, each reading its four nearest shadow-map
-            texels with bilinear weights (ramping over half a texel, :func:`bilinear_footprint`), condensed to two
+            texels with bilinear weights (:func:`bilinear_footprint`), condensed to two
             depths (:class:`SparseRectifiedDepth`, see :func:`resample_radial_kernel`). One nearest depth per texel
             aliases: the casters' texel staircases (seen from the camera, shadow-map texels are wedges from the light's
             epipole) and, where a rectified texel is wider than a shadow-map texel (:func:`resample_footprint_texels`),

@@ -71,9 +71,13 @@ MAX_CASTER_CULLING_BIAS = 0.25
 #: 16-bit codes); 128 bits measured no better (11.5 / 1.2 / 19.4 % against 11.5 / 1.2 / 20.3 %).
 DEFAULT_MOMENT_BITS = {4: 64, 6: 96}
 #: Ray-march steps of the prefiltered methods' epipole region by default. Its strata hold equal shares of the
-#: transmittance weight, so few suffice: 640x360 fourier rel. L1 against the exact marcher with 128 / 64 / 32 steps
-#: colonnade 3.00 / 3.01 / 3.03 %, canopy 0.98 / 0.98 / 0.99 %; the epipole stage at 1080p costs ~1.3 ms per step.
-EPIPOLE_STEPS = 32
+#: transmittance weight, so few suffice for the error: 640x360 fourier rel. L1 against the exact marcher with
+#: 128 / 64 / 32 steps colonnade 3.00 / 3.01 / 3.03 %, canopy 0.98 / 0.98 / 0.99 %; the epipole stage at 1080p costs
+#: ~1.3 ms per step. But a ray near the sun crosses many map texels, and once the map is fitted to the casters
+#: (``shadow_map.skip_unseen_planes``: 4x finer texels on the colonnade) 32 strata alias into streaks round the sun:
+#: colonnade_sunset.yaml frame 40 at 640x360, the disc's high-pass energy against the exact render's 2.35x / 1.36x
+#: in two boxes with 32 steps, 0.92 / 1.00x with 64 (0.86 / 0.93x with 96).
+EPIPOLE_STEPS = 64
 #: The epipole region is marched on a grid of every EPIPOLE_STRIDE-th pixel and at the pixels its cells cannot
 #: interpolate (the evaluate_stride rule, with evaluate_tolerance: :mod:`~warpscatter.scattering.sparse_evaluation`);
 #: the sky around the sun is smooth but for the shafts meeting there. 1920x1080 fourier, 1 -> 2: the march ran at
@@ -465,8 +469,8 @@ class PrefilteredSettings(SettingsModel):
                                                                   "Sec. 3.3; fourier only; 1 = off)")] = 1
     resample_filter: Literal[RESAMPLE_FILTERS] = Field(  # type: ignore[valid-type]
         "supersample", description="non-linear rectification: none resamples the nearest shadow-map depth at each "
-                                   "texel's centre; supersample reads 2x2 taps (weights ramping over half a "
-                                   "texel) at one point per shadow-map texel the rectified texel spans radially "
+                                   "texel's centre; supersample reads 2x2 bilinear taps "
+                                   "at one point per shadow-map texel the rectified texel spans radially "
                                    "(up to 4) and keeps two depths (warpscatter's: one nearest depth aliases into "
                                    "radial streaks); moments filters during resampling (Peters 2017 Sec. 5.2: a "
                                    "filtered 4-moment map and Algorithm 2)")

@@ -61,6 +61,10 @@ class ShadowMapSettings(SettingsModel):
                           f"map (columns x rows)")
     bias: Annotated[Float, Field(ge=0.0, le=MAX_BIAS_TEXELS, description="depth bias in texel sizes (world units = "
                                                                          "bias x texel size)")] = 1.0
+    skip_unseen_planes: Bool = Field(True, description=(
+        "leave planar casters that shadow nothing the camera sees (the camera and every view ray's end on the side "
+        "the light comes from: a ground plane under everything seen) out of the light's maps, so that a "
+        "directional map fits the casters that matter; the exact-visibility BVH keeps them (warpscatter's)"))
 
     @field_validator("resolution", mode="before")
     @classmethod

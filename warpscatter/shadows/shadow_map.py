@@ -122,14 +122,17 @@ def _box_corners(lo, hi) -> np.ndarray:
     return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
 
 
-def fit_directional(camera, direction, scene_bounds, resolution) -> tuple[np.ndarray, np.ndarray, float]:
+def fit_directional(camera, direction, scene_bounds, resolution, depth_bounds=None) -> tuple[np.ndarray, np.ndarray,
+                                                                                               float]:
     """Fit an orthographic light view to the camera frustum and the scene's casters.
 
     Args:
         camera: the :class:`~warpscatter.scene.camera.Camera`.
         direction: unit travel direction of the light.
-        scene_bounds: (min, max) world bounds of all geometry.
+        scene_bounds: (min, max) world bounds of the casters.
         resolution: (width, height) of the map in texels.
+        depth_bounds: (min, max) world bounds the far plane reaches too (the receivers: moment maps clamp a depth
+            beyond it, and a flat caster's own depth range is thinner than the depth bias); None: ``scene_bounds``.
 
     Returns:
         (view, projection, texel_world): float64 4x4 matrices and the world size of a texel (max of x, y).
@@ -171,9 +174,10 @@ def fit_directional(camera, direction, scene_bounds, resolution) -> tuple[np.nda
     # one texel of margin so lookups at the footprint's edge still find the border texels
     mx, my = (x1 - x0) / w, (y1 - y0) / h
     x0, x1, y0, y1 = x0 - mx, x1 + mx, y0 - my, y1 + my
-    # depth range (view looks down -Z, depth = -z): every caster, slightly padded
+    # depth range (view looks down -Z, depth = -z): every caster, slightly padded, and far enough for the receivers
     d = -scene_l[:, 2]
-    near, far = max(d.min() - 1e-3 * radius, 1e-4), d.max() + 1e-3 * radius
+    d_far = d.max() if depth_bounds is None else max(d.max(), float(-to_light(_box_corners(*depth_bounds))[:, 2].min()))
+    near, far = max(d.min() - 1e-3 * radius, 1e-4), d_far + 1e-3 * radius
     proj = orthographic_matrix(x0, x1, y0, y1, near, far)
     return view, proj, float(max((x1 - x0) / w, (y1 - y0) / h))
 
@@ -194,14 +198,15 @@ def render_shadow_map(scene, resolution, device=None, max_translucent_layers: in
     from . import translucency
 
     w, h = (resolution, resolution) if np.isscalar(resolution) else tuple(resolution)
+    every_bound = scene.bounds()  # receivers too: the depth range reaches them
     scene = scene.casters()
     light = scene.light
     bounds = scene.bounds()
     if isinstance(light, DirectionalLight):
-        view, proj, texel = fit_directional(scene.camera, light.direction, bounds, (w, h))
+        view, proj, texel = fit_directional(scene.camera, light.direction, bounds, (w, h), depth_bounds=every_bound)
         perspective = False
     else:
-        lo, hi = bounds
+        lo, hi = every_bound
         reach = np.linalg.norm(np.maximum(np.abs(hi - light.position), np.abs(lo - light.position))) + 1.0
         near = max(1e-3, 1e-4 * reach)
         view = view_matrix(light.position, *light.basis())
@@ -345,22 +350,23 @@ def orthographic_ray_coords(sm: ShadowMapParams, origin: wp.vec3, d: wp.vec3):
     return wp.vec3(0.5 * c[0] + 0.5, 0.5 - 0.5 * c[1], -pv[2]), wp.vec3(0.5 * cd[0], -0.5 * cd[1], -pd[2])
 
 
-#: Widths, in shadow-map texels, of the ramp between two neighbouring texels in the single-scattering reads of a
-#: shadow map (:func:`narrowed_offset`): the non-linear rectification's supersampled taps (TAP_RAMP_TEXELS) and the
-#: percentage-closer look-ups of the epipole disc's march and the end stretches (PCF_RAMP_TEXELS). Plain bilinear
-#: weights (a ramp of one texel) blurred every caster's silhouette over a whole texel, which is many pixels wherever
-#: the view rays run along a shadow's edge: near a low sun on colonnade_fourier.yaml a 4-5 pixel grey fringe lit the
-#: fog in front of a black pillar beside the bright gap (x 985, rows 165-470 at 1280x720; up to 0.24 where the exact
-#: render is 0). The disc's rays run almost along the light, so its few samples per ray read nearly the same texels:
-#: a narrower ramp there steps with the map's texel staircase (plateaus down the pillar tops under the architrave,
-#: the comb on colonnade_sunset frame 40), hence its wider ramp. Measured on colonnade_fourier (1280x720, surfaces off,
-#: against the 256-step exact marcher: pixels over 0.05 where the exact is black; rel. L1 of the image, of the fringe
-#: box x 960-1000 y 150-480, of the pillar-top box x 1080-1180 y 125-185) and frame 40 at 320x180 (comb box: rel. L1,
-#: high-pass energy against the 1024-step shadow-map marcher's), taps / PCF ramp:
-#: 1 / 1: 1414 px, 2.80 / 14.4 / 5.56 %, comb 5.8 % / 0.97x; 0.5 / 1: 696, 2.68 / 11.7 / 5.49 %, 6.0 % / 1.01x;
-#: 0.5 / 0.75: 551, 2.67 / 10.6 / 5.66 %, 4.4 % / 1.03x; 0.5 / 0.5: 435, 2.68 / 9.9 / 5.91 %, 5.0 % / 1.14x;
-#: 0.33 / 0.33: 275 px, comb 1.20x.
-TAP_RAMP_TEXELS = wp.constant(0.5)
+#: Width, in shadow-map texels, of the ramp between two neighbouring texels in the percentage-closer look-ups of the
+#: epipole disc's march and the end stretches (:func:`narrowed_offset`). Plain bilinear weights (a ramp of one texel)
+#: blurred every caster's silhouette over a whole texel, which is many pixels wherever the view rays run along a
+#: shadow's edge: near a low sun on colonnade_fourier.yaml a 4-5 pixel grey fringe lit the fog in front of a black
+#: pillar beside the bright gap (x 985, rows 165-470 at 1280x720, with the map fitted to the 80 m ground; up to 0.24
+#: where the exact render is 0). The disc's rays run almost along the light, so its few samples per ray read nearly
+#: the same texels: a narrower ramp steps with the map's texel staircase (plateaus down the pillar tops under the
+#: architrave, the comb on colonnade_sunset frame 40). Measured on colonnade_fourier (1280x720, surfaces off, against
+#: the 256-step exact marcher: pixels over 0.05 where the exact is black; rel. L1 of the image, of the fringe box
+#: x 960-1000 y 150-480, of the pillar-top box x 1080-1180 y 125-185) and frame 40 at 320x180 (comb box: rel. L1,
+#: high-pass energy against the 1024-step shadow-map marcher's), the resampling's taps / this ramp: 1 / 1: 1414 px,
+#: 2.80 / 14.4 / 5.56 %, comb 5.8 % / 0.97x; 0.5 / 1: 696, 2.68 / 11.7 / 5.49 %, 6.0 % / 1.01x; 0.5 / 0.75: 551,
+#: 2.67 / 10.6 / 5.66 %, 4.4 % / 1.03x; 0.5 / 0.5: 435, 2.68 / 9.9 / 5.91 %, 5.0 % / 1.14x; 0.33 / 0.33: 275 px, comb
+#: 1.20x. The rest of that fringe was the map's resolution: with the ground left out of the map
+#: (:mod:`.unseen_planes`, the pillars' map 4x finer) it is gone at 1 / 0.75 (0 px, 1.79 %), and the resampling's
+#: taps went back to plain bilinear weights, which the finer map's radial streaks need (colonnade_fourier at 320x180,
+#: streak energy right of the last pillar 0.58 % with half-texel taps, 0.41 % bilinear).
 PCF_RAMP_TEXELS = wp.constant(0.75)
 
 
