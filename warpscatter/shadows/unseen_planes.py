@@ -5,11 +5,13 @@ the plane inside the material's extent. When the camera lies on the lit side and
 its G-buffer distance: the stretch the scattering integral covers, and the surface point the shading shadows) either
 stays on that side or passes it beyond the material's bounding box (seen along the light: the view rays past the
 edge of a finite ground, down to the far plane), the plane darkens nothing in the image: a ground plane under
-everything seen. Left in the light's
-maps it only costs: a directional map is fitted to the casters, so an 80 m ground spreads 1024 texels over 80 m
-where the colonnade's pillars alone would get 4x finer ones (``configs/colonnade_fourier.yaml`` at 1280x720:
-rel. L1 against the exact marcher 2.67 -> 1.83 %, the grey fringe beside the sun gone), and its own depth sits
-just behind every ground pixel in the map's filters.
+everything seen. Left in the light's maps it only costs: a directional map is fitted to the casters, so an 80 m
+ground spreads 1024 texels over 80 m where the colonnade's pillars alone get 4x finer ones
+(``configs/colonnade_fourier.yaml`` at 1280x720: fourier's rel. L1 against the exact marcher 2.67 -> 1.79 %, the
+grey fringe beside the sun gone), and its own depth sits just behind every ground pixel in the map's filters.
+
+The test is conservative: a plane is kept whenever a view ray's stretch behind it may reach the material's
+axis-aligned box along the light, and a plane edge-on to the light (or through a spot's position) is kept.
 
 :func:`without_unseen_planes` marks such materials ``receiver_only`` (:class:`~warpscatter.scene.Scene`) in the
 scene the light's maps are built from (``render.scattering.shadow_map.skip_unseen_planes``). The exact-visibility
