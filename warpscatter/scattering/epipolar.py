@@ -26,13 +26,17 @@ lines and interpolated elsewhere. Stages (names as they appear in timings):
    analytic because the border points are equidistant), projection onto them, a 3-5 tap bilateral filter
    along each (taps a multiple of the projections' distance apart, in symmetric pairs; distance and depth
    weights, Gaussian, Shepard or threshold), then between the lines by their weight sums; a side without
-   valid taps moves to the next outer line (at most ``outer_lines``; :mod:`.epipolar_upsampling`). Pixels with
+   valid taps moves to the next outer line (at most ``outer_lines``; :mod:`.epipolar_upsampling`). By default
+   (``upsample_stride`` 2, warpscatter's) the filter runs on a grid of every 2nd pixel and at the pixels their grid
+   cell cannot interpolate, the prefiltered look-up's rule (:mod:`.sparse_evaluation`); 1 runs it at every pixel,
+   as the paper. Pixels with
    no valid tap on any tried line are ray-marched directly with :func:`~.marching.march_ray` (counted in
    ``epipolar_raymarched_fraction``; timed under ``raymarch``), so no pixel is ever left undefined. Pixels
    whose camera ray misses a spot light's cone are exactly 0.
 
 Every stage runs on all cores (:func:`~warpscatter.parallel.launch_rows`): one thread per line for the line
-textures, one per band of image rows, walked in square tiles, for the upsampling.
+textures, one per band of image rows, walked in square tiles, for the upsampling of every pixel (the sparse grid's
+launches as the prefiltered look-up's).
 
 Degenerate case: when the epipole is at infinity (light direction parallel to the image plane) or undefined
 (a spot light at the camera), the method falls back to plain screen-space subsampling: a regular grid of
@@ -68,19 +72,12 @@ from .epipolar_textures import (
     EpipolarGeometry,
     classify_samples,
     compact,
-    gather_rows,
     geometry_params,
     line_samples,
     sample_texture_bytes,
     trim_to_cone,
 )
-from .epipolar_upsampling import (
-    UPSAMPLE_TILE,
-    filter_params,
-    grid_upsample_kernel,
-    interpolate_lines_kernel,
-    upsample_kernel,
-)
+from .epipolar_upsampling import filter_params, grid_upsample_kernel, interpolate_lines_kernel, upsample
 from .marching import Marcher, march_ray, march_screen_point, marcher_params, texel_steps, visibility_params
 from .raymarch import march_listed_pixels
 from .settings import EPIPOLAR_LEAST_STEPS
@@ -317,21 +314,18 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
                              steps_taken], device=device)
         with stage("interpolate"):
             launch_rows(interpolate_lines_kernel, lines.count, [tex.valid, tex.interp, tex.radiance], device=device)
-            rows = wp.empty((h, w), dtype=wp.int32, device=device)
-            row_count = wp.empty(h, dtype=wp.int32, device=device)
-            launch_rows(upsample_kernel, -(-h // UPSAMPLE_TILE),
-                        [cam_p, gbuffer.distance, marcher.light, geo, flt, tex.arrays(), out, rows, row_count],
-                        device=device)
+            pixel_idx, marched_pixels, upsampled = upsample(cam, gbuffer.distance, marcher.light, geo, flt,
+                                                            tex.arrays(), out, ep.upsample_stride, device)
         info.update({"epipolar_fallback": None, "epipolar_epipole": [float(v) for v in lines.epipole],
                      "epipolar_light_behind": lines.light_behind, "epipolar_lines_valid": int(lines.valid.sum()),
                      "epipolar_samples_per_line": lines.samples,
+                     "epipolar_upsample_stride": int(ep.upsample_stride),
+                     "epipolar_upsampled_fraction": round(upsampled, 4),
                      "epipolar_texture_bytes": sample_texture_bytes(lines)})
 
     with stage("raymarch"):
         if lines is None:
             pixel_idx, marched_pixels = compact(unresolved, device)
-        else:
-            pixel_idx, marched_pixels = gather_rows(rows, row_count, device)
         march_listed_pixels(scene.camera, gbuffer.distance, marcher, pixel_idx, marched_pixels, out, device=device)
     if "epipolar_samples" in frame.aovs:
         if lines is None:

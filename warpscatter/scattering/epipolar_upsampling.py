@@ -8,7 +8,9 @@ Gaussian, Shepard or threshold; or one tap, the default: the line texture's dept
 the projection, see :data:`~.settings.EPIPOLAR_TAPS`), then between the lines by their weight sums; a side without
 valid taps moves to the next outer line (at most ``outer_lines``). Pixels with no valid tap on any tried line are
 listed per row as ``unresolved`` (the method ray-marches them). Pixels whose camera ray misses a spot light's cone
-are exactly 0.
+are exactly 0. :func:`upsample` runs the filter at every pixel or, with a stride (warpscatter's, the default), on a
+grid and the pixels its cells cannot interpolate (:mod:`.sparse_evaluation`), with one per-pixel function
+(:func:`upsample_pixel`) for both.
 
 Work layout (the arithmetic is :func:`line_filter`'s, operation for operation, so the images do not depend on it):
 one thread per band of :data:`UPSAMPLE_TILE` image rows, walked in square tiles so that the texels of the few lines
@@ -22,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..parallel import launch_rows
 from ..scene.camera import CameraParams
 from ..scene.lights import LightParams
 from ..wpinit import default_device, module_options
@@ -30,11 +33,13 @@ from .epipolar_textures import (
     LineArrays,
     LineRecord,
     border_arclength,
+    compact,
+    gather_rows,
     screen_point_in_light,
     wrap_line,
 )
-from .settings import EPIPOLAR_KERNELS, EpipolarSettings
-from .sparse_evaluation import grid_node
+from .settings import EPIPOLAR_KERNELS, EVALUATE_DEPTH_TOLERANCE, EVALUATE_TOLERANCE, EpipolarSettings
+from .sparse_evaluation import PixelSet, evaluate_sparse, grid_node, set_pixel
 
 module_options()
 
@@ -256,6 +261,66 @@ def interpolate_lines_kernel(
             radiance[k, x] = radiance[k, left] * (1.0 - t) + radiance[k, right] * t
 
 
+@wp.func(inline=True)
+def upsample_pixel(cam: CameraParams, light: LightParams, geo: EpipolarGeometry, flt: BilateralFilter,
+                   lines: LineArrays, e_rel: wp.vec2, i: int, j: int, pixel_depth: float):
+    """L_scat of pixel (i, j) (camera distance ``pixel_depth``) from the line textures (Engelhardt 2010 Sec. 4.3 /
+    5.3, module doc; ``e_rel`` = epipole - (0.5, 0.5)), and whether it has a valid tap: (value, resolved); an
+    unresolved pixel's value is 0 (the method ray-marches it), as is a pixel whose ray misses a spot light's cone
+    (resolved: exactly 0)."""
+    p = wp.vec2(float(i) + 0.5, float(j) + 0.5)
+    if not screen_point_in_light(cam, light, p):
+        return wp.vec3(0.0, 0.0, 0.0), True  # the ray never enters the light frustum: exactly 0
+    # ---- 1D border lookup: the two lines whose border points enclose the ray's exit point ----
+    dv = p - geo.epipole
+    if wp.length(dv) < 1.0e-6:
+        dv = wp.vec2(1.0, 0.0)
+    u = border_arclength(e_rel, dv, geo.border_width, geo.border_height) / geo.spacing - 0.5
+    k0 = wrap_line(int(wp.floor(u)), geo.lines)
+    k1 = k0 + 1
+    if k1 == geo.lines:
+        k1 = 0
+    # ---- tap spacing: distance between p's projections on the two nearest lines ----
+    r0 = lines.records[k0]
+    r1 = lines.records[k1]
+    tau0 = record_projection(r0, p)
+    tau1 = record_projection(r1, p)
+    delta = wp.length((wp.vec2(r0[0], r0[1]) + wp.vec2(r0[2], r0[3]) * tau0)
+                      - (wp.vec2(r1[0], r1[1]) + wp.vec2(r1[2], r1[3]) * tau1))
+    scale = depth_scale(flt, pixel_depth)
+    # ---- bilateral filter along each side's nearest valid line, moving outwards (line_filter): the nearest line on
+    # both sides first (independent work), outer lines only where that has no valid tap ----
+    a_l, w_l, d_l = side_filter(geo, flt, lines.texels, k0, r0, tau0, p, 0, delta, pixel_depth, scale)
+    a_r, w_r, d_r = side_filter(geo, flt, lines.texels, k1, r1, tau1, p, 0, delta, pixel_depth, scale)
+    m = int(1)
+    while w_l <= 0.0 and m <= flt.outer_lines:
+        k = wrap_line(k0 - m, geo.lines)
+        r = lines.records[k]
+        a_l, w_l, d_l = side_filter(geo, flt, lines.texels, k, r, record_projection(r, p), p, m, delta,
+                                    pixel_depth, scale)
+        m += 1
+    m = int(1)
+    while w_r <= 0.0 and m <= flt.outer_lines:
+        k = wrap_line(k1 + m, geo.lines)
+        r = lines.records[k]
+        a_r, w_r, d_r = side_filter(geo, flt, lines.texels, k, r, record_projection(r, p), p, m, delta,
+                                    pixel_depth, scale)
+        m += 1
+    acc_l = wp.vec3(a_l[0], a_l[1], a_l[2])
+    acc_r = wp.vec3(a_r[0], a_r[1], a_r[2])
+    if w_l <= 0.0 and w_r <= 0.0:
+        return wp.vec3(0.0, 0.0, 0.0), False
+    # ---- between the lines: linear position between them times their weight sums ----
+    frac = float(0.5)
+    if d_l + d_r > 0.0:
+        frac = d_l / (d_l + d_r)
+    wl = (1.0 - frac) * w_l
+    wr = frac * w_r
+    if wl + wr > 1.0e-30:
+        return (acc_l * (1.0 - frac) + acc_r * frac) / (wl + wr), True
+    return (acc_l + acc_r) / (w_l + w_r), True
+
+
 @wp.kernel
 def upsample_kernel(
     cam: CameraParams,
@@ -269,8 +334,8 @@ def upsample_kernel(
     unresolved_count: wp.array(dtype=wp.int32),  # out: per row, how many
     offset: int,
 ):
-    # Engelhardt 2010 Sec. 4.3 / 5.3 and Fig. 5, 8: one thread per band of UPSAMPLE_TILE rows, in tiles of
-    # UPSAMPLE_TILE columns (the texels of the few lines that cross a tile stay in the cache)
+    # every pixel (upsample_stride 1): one thread per band of UPSAMPLE_TILE rows, in tiles of UPSAMPLE_TILE columns
+    # (the texels of the few lines that cross a tile stay in the cache)
     j0 = (wp.tid() + offset) * UPSAMPLE_TILE
     j1 = wp.min(j0 + UPSAMPLE_TILE, cam.height)
     for j in range(j0, j1):
@@ -279,66 +344,36 @@ def upsample_kernel(
     for x0 in range(0, cam.width, UPSAMPLE_TILE):
         for j in range(j0, j1):
             for i in range(x0, wp.min(x0 + UPSAMPLE_TILE, cam.width)):
-                p = wp.vec2(float(i) + 0.5, float(j) + 0.5)
-                if not screen_point_in_light(cam, light, p):
-                    out[j, i] = wp.vec3(0.0, 0.0, 0.0)  # the ray never enters the light frustum: exactly 0
-                    continue
-                pixel_depth = distance[j, i]
-                # ---- 1D border lookup: the two lines whose border points enclose the ray's exit point ----
-                dv = p - geo.epipole
-                if wp.length(dv) < 1.0e-6:
-                    dv = wp.vec2(1.0, 0.0)
-                u = border_arclength(e_rel, dv, geo.border_width, geo.border_height) / geo.spacing - 0.5
-                k0 = wrap_line(int(wp.floor(u)), geo.lines)
-                k1 = k0 + 1
-                if k1 == geo.lines:
-                    k1 = 0
-                # ---- tap spacing: distance between p's projections on the two nearest lines ----
-                r0 = lines.records[k0]
-                r1 = lines.records[k1]
-                tau0 = record_projection(r0, p)
-                tau1 = record_projection(r1, p)
-                delta = wp.length((wp.vec2(r0[0], r0[1]) + wp.vec2(r0[2], r0[3]) * tau0)
-                                  - (wp.vec2(r1[0], r1[1]) + wp.vec2(r1[2], r1[3]) * tau1))
-                scale = depth_scale(flt, pixel_depth)
-                # ---- bilateral filter along each side's nearest valid line, moving outwards (line_filter): the
-                # nearest line on both sides first (independent work), outer lines only where that has no valid tap ----
-                a_l, w_l, d_l = side_filter(geo, flt, lines.texels, k0, r0, tau0, p, 0, delta, pixel_depth,
-                                            scale)
-                a_r, w_r, d_r = side_filter(geo, flt, lines.texels, k1, r1, tau1, p, 0, delta, pixel_depth,
-                                            scale)
-                m = int(1)
-                while w_l <= 0.0 and m <= flt.outer_lines:
-                    k = wrap_line(k0 - m, geo.lines)
-                    r = lines.records[k]
-                    a_l, w_l, d_l = side_filter(geo, flt, lines.texels, k, r, record_projection(r, p), p, m,
-                                                delta, pixel_depth, scale)
-                    m += 1
-                m = int(1)
-                while w_r <= 0.0 and m <= flt.outer_lines:
-                    k = wrap_line(k1 + m, geo.lines)
-                    r = lines.records[k]
-                    a_r, w_r, d_r = side_filter(geo, flt, lines.texels, k, r, record_projection(r, p), p, m,
-                                                delta, pixel_depth, scale)
-                    m += 1
-                acc_l = wp.vec3(a_l[0], a_l[1], a_l[2])
-                acc_r = wp.vec3(a_r[0], a_r[1], a_r[2])
-                if w_l <= 0.0 and w_r <= 0.0:
-                    out[j, i] = wp.vec3(0.0, 0.0, 0.0)
+                value, resolved = upsample_pixel(cam, light, geo, flt, lines, e_rel, i, j, distance[j, i])
+                out[j, i] = value
+                if not resolved:
                     c = unresolved_count[j]
                     unresolved[j, c] = i
                     unresolved_count[j] = c + 1
-                    continue
-                # ---- between the lines: linear position between them times their weight sums ----
-                frac = float(0.5)
-                if d_l + d_r > 0.0:
-                    frac = d_l / (d_l + d_r)
-                wl = (1.0 - frac) * w_l
-                wr = frac * w_r
-                if wl + wr > 1.0e-30:
-                    out[j, i] = (acc_l * (1.0 - frac) + acc_r * frac) / (wl + wr)
-                else:
-                    out[j, i] = (acc_l + acc_r) / (w_l + w_r)
+
+
+@wp.kernel
+def upsample_set_kernel(
+    cam: CameraParams,
+    distance: wp.array2d(dtype=wp.float32),
+    light: LightParams,
+    geo: EpipolarGeometry,
+    flt: BilateralFilter,
+    lines: LineArrays,
+    out: wp.array2d(dtype=wp.vec3),  # out: L_scat at the set's pixels
+    unresolved: wp.array2d(dtype=wp.int32),  # out: 1 at the set's pixels without a valid tap, else 0
+    pixels: PixelSet,
+    offset: int,
+):
+    # the pixels of a PixelSet (upsample_stride > 1: sparse_evaluation drives the launches)
+    a, b = wp.tid()
+    j, i, listed = set_pixel(pixels, cam.height, cam.width, a + offset, b)
+    if not listed:
+        return
+    value, resolved = upsample_pixel(cam, light, geo, flt, lines, geo.epipole - wp.vec2(0.5, 0.5), i, j,
+                                     distance[j, i])
+    out[j, i] = value
+    unresolved[j, i] = int(not resolved)
 
 
 @wp.kernel
@@ -388,6 +423,41 @@ def grid_upsample_kernel(
 # ---- host ----------------------------------------------------------------------------------------
 
 
+def upsample(cam, distance: wp.array, light: LightParams, geo: EpipolarGeometry, flt: BilateralFilter,
+             lines: LineArrays, out: wp.array, stride: int = 1, device=None) -> tuple[wp.array, int, float]:
+    """Bilateral upsampling of the line textures to every pixel of ``out`` (module doc).
+
+    ``stride`` 1: every pixel, in tiles (:func:`upsample_kernel`, the paper's per-pixel upsampling). ``stride`` > 1
+    (warpscatter's): the upsampling runs on every ``stride``-th pixel in x and y and on the pixels between them whose
+    grid cell does not agree; the others interpolate their cell (:func:`~.sparse_evaluation.evaluate_sparse`, the
+    prefiltered methods' rule and tolerances; an unresolved corner refuses the cell, so every unresolved pixel is
+    one the filter itself found).
+
+    Returns:
+        (indices, count, upsampled fraction): the flat indices ``j * width + i`` of the pixels without a valid tap
+        (the first ``count``; the caller ray-marches them; their ``out`` is 0) and the fraction of the pixels the
+        filter ran at.
+    """
+    device = default_device(device)
+    h, w = cam.height, cam.width
+    cam_p = cam.params()
+    if stride <= 1:
+        rows = wp.empty((h, w), dtype=wp.int32, device=device)
+        row_count = wp.empty(h, dtype=wp.int32, device=device)
+        launch_rows(upsample_kernel, -(-h // UPSAMPLE_TILE), [cam_p, distance, light, geo, flt, lines, out, rows,
+                                                              row_count], device=device)
+        return (*gather_rows(rows, row_count, device), 1.0)
+    unresolved = wp.zeros((h, w), dtype=wp.int32, device=device)
+
+    def look_up(pixels: PixelSet, dim: tuple[int, int]) -> None:
+        launch_rows(upsample_set_kernel, dim, [cam_p, distance, light, geo, flt, lines, out, unresolved, pixels],
+                    device=device)
+
+    sparse = evaluate_sparse(look_up, distance, out, stride, EVALUATE_TOLERANCE, EVALUATE_DEPTH_TOLERANCE,
+                             end_zone=unresolved, device=device)
+    return (*compact(unresolved.flatten(), device), sparse.evaluated_fraction)
+
+
 def filter_params(settings: EpipolarSettings, device=None) -> BilateralFilter:
     """:class:`BilateralFilter` from :class:`EpipolarSettings` (the tap distance weights come from a tiny kernel)."""
     device = default_device(device)
@@ -426,4 +496,6 @@ __all__ = [
     "record_projection",
     "side_filter",
     "tap_texels",
+    "upsample",
+    "upsample_pixel",
 ]
