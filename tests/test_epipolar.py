@@ -306,6 +306,16 @@ def test_sparse_upsampling_agrees_with_every_pixel(name, size, most_upsampled, b
     assert np.abs(sparse - full).sum() / np.abs(full).sum() < bound
 
 
+def test_upsample_stride_auto_keeps_every_pixel_under_spot_lights():
+    for name, want in (("spot_epipolar", 1), ("colonnade", 2)):
+        cfg = load_config(CONFIGS / f"{name}.yaml", ["camera.width=96", "camera.height=54",
+                                                     "render.surfaces.enabled=false",
+                                                     "render.scattering.method=epipolar"])
+        assert cfg.render.scattering.epipolar.upsample_stride == "auto"
+        _, info = render_images(build_scene(cfg), cfg.render)
+        assert info["epipolar_upsample_stride"] == want
+
+
 @pytest.mark.parametrize("kernel, taps, bound", [("shepard", 5, 0.01), ("threshold", 4, 0.03)])
 def test_other_kernels(kernel, taps, bound):
     scene = _ground_scene([1.0, -0.3, 0.2])

@@ -27,9 +27,9 @@ lines and interpolated elsewhere. Stages (names as they appear in timings):
    along each (taps a multiple of the projections' distance apart, in symmetric pairs; distance and depth
    weights, Gaussian, Shepard or threshold), then between the lines by their weight sums; a side without
    valid taps moves to the next outer line (at most ``outer_lines``; :mod:`.epipolar_upsampling`). By default
-   (``upsample_stride`` 2, warpscatter's) the filter runs on a grid of every 2nd pixel and at the pixels their grid
-   cell cannot interpolate, the prefiltered look-up's rule (:mod:`.sparse_evaluation`); 1 runs it at every pixel,
-   as the paper. Pixels with
+   under a directional light (``upsample_stride`` auto, warpscatter's) the filter runs on a grid of every 2nd
+   pixel and at the pixels their grid cell cannot interpolate, the prefiltered look-up's rule
+   (:mod:`.sparse_evaluation`); 1 (under spot and point lights) runs it at every pixel, as the paper. Pixels with
    no valid tap on any tried line are ray-marched directly with :func:`~.marching.march_ray` (counted in
    ``epipolar_raymarched_fraction``; timed under ``raymarch``), so no pixel is ever left undefined. Pixels
    whose camera ray misses a spot light's cone are exactly 0.
@@ -301,6 +301,7 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
                      "epipolar_grid": [gw, gh]})
     else:
         geo = geometry_params(lines)
+        upsample_stride = ep.upsample_stride_for(scene.light.kind == "spot")
         with stage("discontinuities"):
             # a spot in front of the camera: dense samples around its image (classify_samples)
             dense = LOCAL_DENSE_RADIUS if scene.light.kind == "spot" and not lines.light_behind else 0.0
@@ -315,11 +316,11 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
         with stage("interpolate"):
             launch_rows(interpolate_lines_kernel, lines.count, [tex.valid, tex.interp, tex.radiance], device=device)
             pixel_idx, marched_pixels, upsampled = upsample(cam, gbuffer.distance, marcher.light, geo, flt,
-                                                            tex.arrays(), out, ep.upsample_stride, device)
+                                                            tex.arrays(), out, upsample_stride, device)
         info.update({"epipolar_fallback": None, "epipolar_epipole": [float(v) for v in lines.epipole],
                      "epipolar_light_behind": lines.light_behind, "epipolar_lines_valid": int(lines.valid.sum()),
                      "epipolar_samples_per_line": lines.samples,
-                     "epipolar_upsample_stride": int(ep.upsample_stride),
+                     "epipolar_upsample_stride": upsample_stride,
                      "epipolar_upsampled_fraction": round(upsampled, 4),
                      "epipolar_texture_bytes": sample_texture_bytes(lines)})
 
