@@ -278,7 +278,7 @@ def test_pixels_without_valid_taps_are_ray_marched(stride):
                                           "depth_sigma": 0.01, "outer_lines": 0, "upsample_stride": stride})
     assert np.isfinite(out).all()
     n = info["epipolar_raymarched_pixels"]
-    assert 0.1 < n / (W * H) < 0.9  # measured 0.285 with either stride
+    assert 0.1 < n / (W * H) < 0.9  # measured 0.620 with either stride
     assert (np.all(out == ref, axis=-1)).sum() >= n  # measured: exactly n
 
 
@@ -288,8 +288,9 @@ def test_pixels_without_valid_taps_are_ray_marched(stride):
 ])
 def test_sparse_upsampling_agrees_with_every_pixel(name, size, most_upsampled, bound):
     """upsample_stride 2 (the default) against the paper's per-pixel upsampling (1): the filter runs at part of the
-    pixels, the image within a small relative L1 difference (smooth cells interpolated, edges filtered), the same
-    pixels ray-marched, and every pixel the filter left to the marcher filled."""
+    pixels, the image within a small relative L1 difference (smooth cells interpolated, edges filtered), no pixel
+    ray-marched that stride 1 would not march (a pixel without a valid tap whose cell agrees takes the cell's
+    interpolation instead), and every pixel the filter left to the marcher filled."""
     images = {}
     for stride in (1, 2):
         cfg = load_config(CONFIGS / f"{name}.yaml", [f"camera.width={size[0]}", f"camera.height={size[1]}",
@@ -301,19 +302,22 @@ def test_sparse_upsampling_agrees_with_every_pixel(name, size, most_upsampled, b
     (full, info1), (sparse, info2) = ((im["scattering"], info) for im, info in (images[1], images[2]))
     assert info1["epipolar_upsampled_fraction"] == 1.0
     assert 0.0 < info2["epipolar_upsampled_fraction"] < most_upsampled
-    assert info2["epipolar_raymarched_pixels"] == info1["epipolar_raymarched_pixels"]
+    assert info2["epipolar_raymarched_pixels"] <= info1["epipolar_raymarched_pixels"]  # measured 0 / 0 and 1 / 1
     assert np.isfinite(sparse).all()
     assert np.abs(sparse - full).sum() / np.abs(full).sum() < bound
 
 
-def test_upsample_stride_auto_keeps_every_pixel_under_spot_lights():
-    for name, want in (("spot_epipolar", 1), ("colonnade", 2)):
-        cfg = load_config(CONFIGS / f"{name}.yaml", ["camera.width=96", "camera.height=54",
-                                                     "render.surfaces.enabled=false",
-                                                     "render.scattering.method=epipolar"])
-        assert cfg.render.scattering.epipolar.upsample_stride == "auto"
-        _, info = render_images(build_scene(cfg), cfg.render)
-        assert info["epipolar_upsample_stride"] == want
+@pytest.mark.parametrize("name, light, want", [
+    ("spot_epipolar", [], 1),
+    ("colonnade", [], 2),
+    ("colonnade", ["light={type: point, position: [0.0, 3.0, -4.0], intensity: [20.0, 20.0, 20.0]}"], 1),  # its faces
+])
+def test_upsample_stride_auto_keeps_every_pixel_under_spot_lights(name, light, want):
+    cfg = load_config(CONFIGS / f"{name}.yaml", ["camera.width=96", "camera.height=54", "render.surfaces.enabled=false",
+                                                 "render.scattering.method=epipolar", *light])
+    assert cfg.render.scattering.epipolar.upsample_stride == "auto"
+    _, info = render_images(build_scene(cfg), cfg.render)
+    assert info["epipolar_upsample_stride"] == want
 
 
 @pytest.mark.parametrize("kernel, taps, bound", [("shepard", 5, 0.01), ("threshold", 4, 0.03)])

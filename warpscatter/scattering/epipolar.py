@@ -29,8 +29,9 @@ lines and interpolated elsewhere. Stages (names as they appear in timings):
    valid taps moves to the next outer line (at most ``outer_lines``; :mod:`.epipolar_upsampling`). By default
    under a directional light (``upsample_stride`` auto, warpscatter's) the filter runs on a grid of every 2nd
    pixel and at the pixels their grid cell cannot interpolate, the prefiltered look-up's rule
-   (:mod:`.sparse_evaluation`); 1 (under spot and point lights) runs it at every pixel, as the paper. Pixels with
-   no valid tap on any tried line are ray-marched directly with :func:`~.marching.march_ray` (counted in
+   (:mod:`.sparse_evaluation`); 1 (under spot and point lights) runs it at every pixel, as the paper. Pixels it
+   runs at with no valid tap on any tried line are ray-marched directly with :func:`~.marching.march_ray` (a grid
+   cell with such a corner is never interpolated; counted in
    ``epipolar_raymarched_fraction``; timed under ``raymarch``), so no pixel is ever left undefined. Pixels
    whose camera ray misses a spot light's cone are exactly 0.
 

@@ -430,8 +430,11 @@ def upsample(cam, distance: wp.array, light: LightParams, geo: EpipolarGeometry,
     ``stride`` 1: every pixel, in tiles (:func:`upsample_kernel`, the paper's per-pixel upsampling). ``stride`` > 1
     (warpscatter's): the upsampling runs on every ``stride``-th pixel in x and y and on the pixels between them whose
     grid cell does not agree; the others interpolate their cell (:func:`~.sparse_evaluation.evaluate_sparse`, the
-    prefiltered methods' rule and tolerances; an unresolved corner refuses the cell, so every unresolved pixel is
-    one the filter itself found).
+    prefiltered methods' rule and tolerances). A corner without a valid tap refuses its cell, so every pixel left
+    to the marcher is one the filter ran at and found no tap for; a pixel whose cell agrees is interpolated even
+    where its own filter would have found none (a subset of stride 1's marched pixels is marched), and, as for the
+    prefiltered look-up, a feature narrower than a cell between agreeing corners (a thin shaft) is interpolated
+    over.
 
     Returns:
         (indices, count, upsampled fraction): the flat indices ``j * width + i`` of the pixels without a valid tap
