@@ -348,10 +348,10 @@ EPIPOLAR_TAPS = 1
 #: canopy / window room 1.240 -> 1.230 %, 0.278 -> 0.272 %, 0.578 -> 0.565 % (the cells interpolate the samples'
 #: noise away); the filter ran at 0.40 / 0.37 / 0.36 of the pixels (0.36-0.53 at 960x540, 0.73 at 480x270), its stage
 #: (``interpolate``, medians of 5 alternating rounds on two cores) 106 -> 81, 108 -> 75, 92 -> 61 ms. Against stride 1
-#: at 960x540 the images differ by 0.02-0.03 % rel. L1. bench fidelity (960x540, 23 cases): geometric mean of the
-#: error ratios 0.993, every own-light directional case lower (0.3-2.3 %), four sun-behind cases up to 1.2 % higher
-#: (absolute errors 0.04-0.05 %); under the spot lights, whose shafts are a few pixels wide, the fence rose 1.6 % and
-#: the textured spot 0.4 %: spot and point lights keep every pixel (auto).
+#: at 960x540 the images differ by 0.02-0.03 % rel. L1. bench fidelity (960x540), 1 -> 2 on its 21 directional
+#: cases: geometric mean of the error ratios 0.992, every own-light and sun-beside case lower (0.3-2.3 %), four
+#: sun-behind cases up to 1.2 % higher (absolute errors 0.04-0.05 %); under the two spot lights, whose shafts are a
+#: few pixels wide, the fence rose 1.6 % and the textured spot 0.4 %: spot and point lights keep every pixel (auto).
 EPIPOLAR_UPSAMPLE_STRIDE = 2
 #: Step pattern (``jitter``) of the raymarch method by default: per_pixel, whose estimate is unbiased pixel by pixel
 #: (the reference marcher converges to the integral at every pixel; its noise decorrelates between pixels).
@@ -698,13 +698,6 @@ class EpipolarSettings(SettingsModel):
                             "tolerances); the others interpolate the cell bilinearly (warpscatter's, not in the "
                             "paper); 1: every pixel, as the paper; auto: " + str(EPIPOLAR_UPSAMPLE_STRIDE) + " under "
                             "a directional light, 1 under spot and point lights")
-
-    def upsample_stride_for(self, spot: bool) -> int:
-        """The upsampling's grid stride (``upsample_stride``; auto: :data:`EPIPOLAR_UPSAMPLE_STRIDE` under a
-        directional light, 1 under a spot light or a point light's faces)."""
-        if self.upsample_stride == "auto":
-            return 1 if spot else EPIPOLAR_UPSAMPLE_STRIDE
-        return int(self.upsample_stride)
     prefilter_light_texture: Bool = Field(False, description="box-downsample a spot texture to the line spacing "
                                                              "(Sec. 6)")
     fallback_stride: Annotated[Int, Field(ge=1, le=256, description="grid spacing (pixels) of the screen-space "
@@ -716,6 +709,13 @@ class EpipolarSettings(SettingsModel):
                                 "Engelhardt 2010 Fig. 9 (bench papers compares them at equal time)")
     max_epipole_distance: Annotated[Float, Field(gt=0.0, le=MAX_EPIPOLE_DISTANCE, description=(
         "epipoles farther than this many image diagonals count as at infinity"))] = 1000.0
+
+    def upsample_stride_for(self, spot: bool) -> int:
+        """The upsampling's grid stride (``upsample_stride``; auto: :data:`EPIPOLAR_UPSAMPLE_STRIDE` under a
+        directional light, 1 under a spot light or a point light's faces)."""
+        if self.upsample_stride == "auto":
+            return 1 if spot else EPIPOLAR_UPSAMPLE_STRIDE
+        return int(self.upsample_stride)
 
     def lines_for(self, width: int, height: int) -> int:
         """Epipolar lines for a width x height image: ``lines``, or one per :data:`LINE_SPACING_PX` pixels of the
