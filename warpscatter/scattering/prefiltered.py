@@ -268,7 +268,9 @@ STRETCH_MIN_WEIGHT = wp.constant(END_STRETCH_MIN_WEIGHT)
 def evaluate_prefiltered_kernel(
     cam: CameraParams,
     distance: wp.array2d(dtype=wp.float32),
-    coords: wp.array2d(dtype=wp.vec3),  # pixel_coords_kernel's output
+    coords: wp.array2d(dtype=wp.vec3),  # pixel_coords_kernel's output, read if coords_known
+    coords_known: int,  # 0: each pixel's rectified coordinates are computed here (rect)
+    rect: RectificationParams,
     texels: Any,  # FilteredBasisArrays or FilteredMomentArrays: one compiled kernel per representation
     weights: RayWeights,  # how a ray weights its texels (reference ray or per-ray segments)
     channel_weights: ChannelRayWeights,  # coloured media: each channel's own (grey: unused)
@@ -279,8 +281,10 @@ def evaluate_prefiltered_kernel(
     # (MomentsSettings.overestimation_rise_cos)
     light: LightParams,
     med: MediumParams,
-    lit_ends: wp.array2d(dtype=wp.int32),  # 1 where the pixel's ray ends lit (lit_ray_ends; read if lit_ends_known)
-    lit_ends_known: int,  # 1: lit_ends holds the test (a directional light ahead of the camera)
+    lit_end_test: int,  # 1: each ray's end is tested lit or in shadow (ray_ends_lit; a directional light ahead of
+    # the camera)
+    faces_away: wp.array2d(dtype=wp.int32),  # caster_culling.end_faces_away, read if faces_away_known
+    faces_away_known: int,
     normal: wp.array2d(dtype=wp.vec3),  # the G-buffer's camera-facing normals (the end surface's bias guard)
     end_vis: Visibility,  # the light's shadow map: the left-out end stretches' visibility
     end_samples: int,  # most samples of a left-out end stretch (0: it takes the look-up's visibility)
@@ -307,11 +311,15 @@ def evaluate_prefiltered_kernel(
     s = distance[j, i]
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
     lv = pixel_mip_level(mips, coords, j, i)
-    c = coords[j, i]
+    c = wp.vec3()
+    if coords_known != 0:
+        c = coords[j, i]
+    else:
+        c = rectified_coords(rect, cam.position + d * s)
     in_end_zone = int(0)
     ray_end = int(RAY_END_UNKNOWN)  # what the depth bounds may assume of the ray's end (row_bounds)
-    if lit_ends_known != 0:
-        if lit_ends[j, i] != 0:
+    if lit_end_test != 0:
+        if ray_ends_lit(cam.position + d * s, normal[j, i], faces_away, faces_away_known, j, i, light, end_vis):
             c = wp.vec3(c[0] + lit_end_shift, c[1], c[2])
             ray_end = RAY_END_LIT
         else:
@@ -360,28 +368,36 @@ def evaluate_prefiltered_kernel(
             out[j, i] = wp.cw_mul(coloured_scattering(med, light.radiance, 0.0, s), f_rgb) * phase
 
 
+@wp.func
+def ray_ends_lit(x: wp.vec3, n: wp.vec3, faces_away: wp.array2d(dtype=wp.int32), faces_away_known: int, j: int,
+                 i: int, light: LightParams, vis: Visibility) -> int:
+    """1 where the view ray of pixel (i, j) ending at x (G-buffer normal n) ends lit: on no surface, or on one facing
+    the light (caster_culling.end_faces_away: read from ``faces_away`` when ``faces_away_known``, else tested here
+    as end_faces_away_kernel does) whose point, moved one shadow-map texel off it, the shadow map sees (hard, with the
+    marcher's bias)."""
+    away = int(0)
+    if faces_away_known != 0:
+        away = faces_away[j, i]
+    else:
+        away = int(faces_away_from_light(light, x, n))
+    lit = int(0)
+    if away == 0:
+        _e, omega, dist = light_sample(light, x)
+        lit = int(point_visibility(vis, x + n * vis.sm.texel_world, omega, dist) > 0.5)
+    return lit
+
+
 @wp.kernel
 def lit_ray_ends_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32), normal: wp.array2d(dtype=wp.vec3),
                         faces_away: wp.array2d(dtype=wp.int32), faces_away_known: int, light: LightParams,
                         vis: Visibility, out: wp.array2d(dtype=wp.int32), pixels: PixelSet, offset: int):
-    # 1 where pixel (i, j)'s view ray ends lit: on no surface, or on one facing the light (caster_culling.end_faces_away
-    # 0: read from faces_away when faces_away_known, else tested here as end_faces_away_kernel does) whose point, moved
-    # one shadow-map texel off it, the shadow map sees (hard, with the marcher's bias); at the pixels of the set
+    # ray_ends_lit of every pixel of the set
     a, b = wp.tid()
     j, i, listed = set_pixel(pixels, cam.height, cam.width, a + offset, b)
     if not listed:
         return
     x = cam.position + pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5) * distance[j, i]
-    away = int(0)
-    if faces_away_known != 0:
-        away = faces_away[j, i]
-    else:
-        away = int(faces_away_from_light(light, x, normal[j, i]))
-    lit = int(0)
-    if away == 0:
-        _e, omega, dist = light_sample(light, x)
-        lit = int(point_visibility(vis, x + normal[j, i] * vis.sm.texel_world, omega, dist) > 0.5)
-    out[j, i] = lit
+    out[j, i] = ray_ends_lit(x, normal[j, i], faces_away, faces_away_known, j, i, light, vis)
 
 
 @wp.kernel
@@ -420,7 +436,7 @@ def pixel_coords(rect, camera, distance: wp.array, device=None, pixels: PixelSet
 def coords_of_every_pixel(settings: ScatteringSettings, aovs) -> bool:
     """Whether a prefiltered render needs the rectified coordinates of every pixel before its look-up: caster culling
     reads them all, the row mip levels read each pixel's neighbours, the ``rectified`` and ``mip_level`` debug outputs
-    show them. Otherwise the look-up's launches compute them at the pixels they evaluate (sparse_evaluation)."""
+    show them. Otherwise the look-up kernel computes them at the pixels it evaluates (sparse_evaluation)."""
     return (settings.culls_casters or settings.prefiltered.mip_levels > 1
             or bool({"rectified", "mip_level"} & set(aovs)))
 
@@ -585,7 +601,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     every_pixel = coords_of_every_pixel(settings, frame.aovs)
     with stage("pixel_coords"):
         coords = (pixel_coords(rect, cam, gbuffer.distance, device=device) if every_pixel else
-                  wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device))
+                  wp.empty((1, 1), dtype=wp.vec3, device=device))
     culled, faces_away = None, None
     map_before_culling = map_depth(rectified).copy() if "rectified_map" in frame.aovs else None
     if settings.culls_casters:
@@ -621,7 +637,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
                        settings.moments.overestimation_rise_cos)
         # end_offset counts texels of a map reaching the view (a fixed world distance along the rays: the surface a
         # ray ends on is its own blocker over a stretch set by the depth precision, not by the column width)
-        # (rays ending in shadow, rays ending lit): the look-up takes the first, a ray ending lit (lit_ray_ends) moves
+        # (rays ending in shadow, rays ending lit): the look-up takes the first, a ray ending lit (ray_ends_lit) moves
         # its end by the difference
         end_offsets = p.end_offsets_for(light_behind)
         column_scale = rect.column_scale if isinstance(rect, NonlinearRectification) else 1.0
@@ -632,10 +648,9 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         end_vis = visibility_params(scene, "shadow_map", shadow_map=shadow_map,
                                     shadow_bias_texels=settings.shadow_map.bias, device=device)
         # the lit-end test, for the shift and for the rays looking into the light that end in shadow (the kernel)
-        lit_ends_known = not light_behind
-        lit_ends = wp.zeros((cam.height, cam.width) if lit_ends_known else (1, 1), dtype=wp.int32, device=device)
+        lit_end_test = not light_behind
         nonlinear = rect if isinstance(rect, NonlinearRectification) else None
-        end_samples = p.end_samples if lit_ends_known and nonlinear is not None else 0
+        end_samples = p.end_samples if lit_end_test and nonlinear is not None else 0
         weights = ray_weights(segments, chain.optical_step, nonlinear, sigma_ref, end_offset, device=device,
                               cols=cols, segment_depth=segment_depth)
         channels = ChannelRayWeights()
@@ -648,17 +663,17 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
         end_zone = wp.zeros((cam.height, cam.width), dtype=wp.int32, device=device)
         end_zone_any = wp.zeros(1, dtype=wp.int32, device=device)
-        inputs = [cam.params(), gbuffer.distance, coords, fb.arrays(), weights, channels, bounds,
-                  chain.params(wrap_rows(rect)), beta, lparams, scene.medium.params(), lit_ends, int(lit_ends_known),
-                  gbuffer.normal, end_vis, end_samples, float(np.cos(np.radians(END_SAMPLES_MIN_DEG))), lit_end_shift,
-                  out, end_zone, end_zone_any, marched_cones(regions)]
+        # without every pixel's coordinates the kernel computes them at the pixels it evaluates, as it does the lit-end
+        # test (one pass: as two kernels before it, 24 of the 130 ms of the window room's 1080p look-up)
+        inputs = [cam.params(), gbuffer.distance, coords, int(every_pixel), rectification_params(rect), fb.arrays(),
+                  weights, channels, bounds, chain.params(wrap_rows(rect)), beta, lparams, scene.medium.params(),
+                  int(lit_end_test), faces_away if faces_away is not None else wp.zeros((1, 1), dtype=wp.int32,
+                                                                                       device=device),
+                  int(faces_away is not None), gbuffer.normal, end_vis, end_samples,
+                  float(np.cos(np.radians(END_SAMPLES_MIN_DEG))), lit_end_shift, out, end_zone, end_zone_any,
+                  marched_cones(regions)]
 
         def look_up(pixels: PixelSet, dim: tuple[int, int]) -> None:
-            if not every_pixel:  # the coordinates and the lit-end test of the same pixels first
-                pixel_coords(rect, cam, gbuffer.distance, device, pixels=pixels, dim=dim, out=coords)
-            if lit_ends_known:
-                lit_ray_ends(scene, gbuffer, shadow_map, settings.shadow_map.bias, faces_away, device, end_vis,
-                             pixels=pixels, dim=dim, out=lit_ends)
             launch_rows(evaluate_prefiltered_kernel, dim, [*inputs, pixels], device=device)
 
         levels = p.evaluate_levels_for(cam.height)
