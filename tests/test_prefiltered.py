@@ -18,7 +18,7 @@ from warpscatter.scattering import rectify_projective as rp
 from warpscatter.scattering.prefiltered import row_weights
 from warpscatter.scattering.rectify_nonlinear import NonlinearRectification
 from warpscatter.scattering.rectify_projective import ProjectiveRectification
-from warpscatter.scattering.settings import MAX_SPLITS, PrefilteredSettings, ScatteringSettings
+from warpscatter.scattering.settings import FOURIER_COEFFICIENTS, MAX_SPLITS, PrefilteredSettings, ScatteringSettings
 from warpscatter.scene import build_scene
 from warpscatter.scene.camera import Camera
 
@@ -569,8 +569,9 @@ def test_wholly_shadowed_rays_are_dark_and_lit_rays_closer(method, lit_bound):
 
 
 #: every quantized storage mode: (method, setting, bits per texel)
-QUANTIZED = [("fourier", "fourier.storage_bits=8", 32 * 8), ("moments4", "moments.storage_bits=64", 64),
-             ("moments6", "moments.storage_bits=96", 96), ("moments6", "moments.storage_bits=64", 64)]
+QUANTIZED = [("fourier", "fourier.storage_bits=8", FOURIER_COEFFICIENTS * 8),
+             ("moments4", "moments.storage_bits=64", 64), ("moments6", "moments.storage_bits=96", 96),
+             ("moments6", "moments.storage_bits=64", 64)]
 
 
 @pytest.mark.parametrize("method, setting, bits", QUANTIZED)
@@ -614,7 +615,7 @@ def test_packed_storage_renders_the_emulated_image(monkeypatch, method, setting,
     rows, cols = stats["rectified_map"][1], stats["rectified_map"][0]
     split_bytes = 4 * rows * cols + 4 * rows * 3 if method == "fourier" else 0  # weight sums, region weights
     assert stats["filtered_map_bytes"] == rows * cols * bits // 8 + split_bytes
-    float_bits = 32 * 32 if method == "fourier" else 32 * int(method[-1])
+    float_bits = 32 * FOURIER_COEFFICIENTS if method == "fourier" else 32 * int(method[-1])
     assert stats_e["filtered_map_bytes"] == rows * cols * float_bits // 8 + split_bytes  # the emulation's float32
     if method == "fourier":  # the storage is seen: 8 bits is not the float32 image
         full, _, _ = _render(*over[:1], *over[2:])

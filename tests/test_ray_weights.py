@@ -161,10 +161,11 @@ def test_adaptive_segments_match_the_fixed_count_with_fewer_cuts():
 
 def test_settings_segments_and_reference():
     p = PrefilteredSettings()
-    assert p.segments_for(nonlinear=True, method="fourier") == 6 and p.segment_depth_for("fourier") == 0.15
+    assert p.segments_for(nonlinear=True, method="fourier") == 7 and p.segment_depth_for("fourier") == 0.08
+    assert p.segments_for(True, method="fourier", light_behind=True) == 7
     assert p.segments_for(nonlinear=True, method="moments6") == 3 and p.segment_depth_for("moments6") == 0.0
     assert PrefilteredSettings(segment_depth=0.0).segment_depth_for("fourier") == 0.0
-    # with the light behind the camera the moment methods take fourier's adaptive segments (grey media)
+    # with the light behind the camera the moment methods take adaptive segments (grey media)
     assert p.segments_for(True, method="moments4", light_behind=True) == 6
     assert p.segment_depth_for("moments4", light_behind=True) == 0.15
     assert p.segments_for(True, coloured=True, method="moments6", light_behind=True) == 5

@@ -32,6 +32,10 @@ JITTERS = ("per_pixel", "fixed")
 PREFILTERED_BASES = ("fourier", "moments4", "moments6")
 #: Fourier coefficients M (even).
 MIN_COEFFICIENTS = 4
+#: fourier's Fourier coefficients M by default, with FOURIER_SEGMENTS (the pair measured there); 32 before. Under the
+#: textured spot (configs/spot.yaml, 960x540, rel. L1 against the exact marcher) 32 / 48 / 64: 0.79 / 0.65 / 0.60 %,
+#: 1080p 1471 / 1622 / 1820 ms. A 1024^2 float32 texture is 192 MB at 48 (128 at 32, 256 at 64).
+FOURIER_COEFFICIENTS = 48
 MAX_COEFFICIENTS = 128
 #: Bits per texel of the prefiltered moment maps, per moment count (Peters 2017 Sec. 5.4.3, Table 1).
 MOMENT_STORAGE_BITS = {4: (64, 128), 6: (64, 96, 192)}
@@ -100,12 +104,23 @@ SEGMENTS = 3
 #: 97 ms, adaptive up to 6 178 / 178 / 94 ms, up to 8 197 / 207 / 103 ms (a look-up reads four columns per pass over
 #: the coefficients: up to 6 segments is two passes, 8 three); 6 fixed ~1.7x the 3 fixed. The moment methods keep 3
 #: fixed with the light ahead of the camera: with 6-8 (fixed or adaptive) their own-light colonnade and window get
-#: worse (moments6 4.86 -> 5.31 %, 5.47 -> 7.38 %); with the light behind it they take fourier's adaptive segments
-#: (SEGMENT_DEPTH).
-FOURIER_SEGMENTS = 6
-#: Optical-depth mismatch per segment of fourier's adaptive per-ray segments by default (ray_weights.segment_count).
-#: With the light behind the camera (it travels the way the camera looks) the moment methods take these adaptive
-#: segments too (up to FOURIER_SEGMENTS; PrefilteredSettings.segments_for). Measured at 960x540, 1024^2 maps, rel. L1
+#: worse (moments6 4.86 -> 5.31 %, 5.47 -> 7.38 %); with the light behind it they take these adaptive segments
+#: (BEHIND_SEGMENTS, SEGMENT_DEPTH). fourier itself now takes more, finer segments (FOURIER_SEGMENTS).
+BEHIND_SEGMENTS = 6
+#: fourier's per-ray segments by default: adaptive (FOURIER_SEGMENT_DEPTH), at most this many. With 48 coefficients
+#: (FOURIER_COEFFICIENTS) the two together: 1920x1080, 1024^2 maps, bench pareto's exact reference, colonnade /
+#: canopy / window room, up to 6 at 0.15 and 32 coefficients (before) 1.43 / 0.346 / 1.50 %, up to 7 at 0.05 and 48
+#: 1.34 / 0.253 / 0.976 %, at 0.08 1.34 / 0.253 / 0.986 % (the same look-ups fewer times), up to 8 at 0.05 1.34 /
+#: 0.252 / 0.944 % but a third pass over the coefficients (a look-up reads four columns per pass: up to 7 segments is
+#: two); either alone does little on the window room (up to 8 at 0.05 and 32: 1.27 %, 48 at up to 6: 1.42 %): its
+#: rays look through the panes into the sun, where the shaft's edge must be both sharp in depth and cut finely.
+FOURIER_SEGMENTS = 7
+#: Optical-depth mismatch per segment of fourier's adaptive per-ray segments by default (ray_weights.segment_count);
+#: see FOURIER_SEGMENTS (0.15 before, with up to 6).
+FOURIER_SEGMENT_DEPTH = 0.08
+#: Optical-depth mismatch per segment of the moment methods' adaptive per-ray segments with the light behind the
+#: camera (it travels the way the camera looks; up to BEHIND_SEGMENTS; PrefilteredSettings.segments_for); fourier
+#: took these until it took FOURIER_SEGMENTS. Measured at 960x540, 1024^2 maps, rel. L1
 #: against the exact reference, the bench's seven scenes with the sun turned behind the camera, moments4 / moments6,
 #: 3 fixed -> adaptive (beta 0.25): colonnade 0.94 -> 0.83 / 0.69 -> 0.59 %, canopy 0.226 -> 0.088 / 0.212 ->
 #: 0.073 %, terrain 0.062 -> 0.031 / 0.061 -> 0.031 %, the dark window room 23.9 -> 10.7 / 19.5 -> 5.9 %, gate 0.163
@@ -397,16 +412,17 @@ class PrefilteredSettings(SettingsModel):
                           "weights alone are the largest error near the epipole and in thick media); 1: the "
                           "reference weights (Klehm 2014); with segment_depth the most a ray takes; null: with "
                           "transmittance weighting, splits 1 and the non-linear rectification " + str(FOURIER_SEGMENTS)
-                          + " for fourier and, with the light behind the camera, the moment methods (adaptive), "
+                          + " for fourier and, with the light behind the camera, " + str(BEHIND_SEGMENTS)
+                          + " for the moment methods (adaptive), "
                           + str(SEGMENTS) + " for the moment methods with the light ahead (" + str(COLOURED_SEGMENTS)
                           + " in a coloured medium), else 1; " + str(SPOT_SEGMENTS) + " under a spot light")
     segment_depth: Optional[Annotated[Float, Field(ge=0.0, le=10.0)]] = Field(
         None, description="adaptive per-ray segments: a ray takes one segment per this much optical depth by which "
                           "its decay exceeds its row reference's, at most `segments` (a ray decaying like the "
-                          "reference needs one); 0: every ray takes `segments`; null: " + str(SEGMENT_DEPTH) + " for "
-                          "fourier and, with the light behind the camera (it travels the way the camera looks), "
-                          "the moment methods (with segments up to " + str(FOURIER_SEGMENTS) + "), else 0; spot "
-                          "lights cut their own way")
+                          "reference needs one); 0: every ray takes `segments`; null: " + str(FOURIER_SEGMENT_DEPTH)
+                          + " for fourier (with segments up to " + str(FOURIER_SEGMENTS) + "), " + str(SEGMENT_DEPTH)
+                          + " for the moment methods with the light behind the camera (it travels the way the camera "
+                          "looks; up to " + str(BEHIND_SEGMENTS) + "), else 0; spot lights cut their own way")
     end_offset: Optional[Annotated[Float, Field(ge=0.0, le=MAX_END_OFFSET)]] = Field(
         None, description="texels the look-up ends before the ray's end point (texels of a map reaching the view: with "
                           "map_radius casters, as many more as the columns are finer): the surface a ray ends on is "
@@ -530,16 +546,17 @@ class PrefilteredSettings(SettingsModel):
     def segments_for(self, nonlinear: bool, coloured: bool = False, method: str = "moments6",
                      light_behind: bool = False) -> int:
         """Per-ray segments a look-up uses, at most with adaptive segments (``segments``; null:
-        :data:`FOURIER_SEGMENTS` for fourier and for the moment methods with the light behind the camera
-        (``light_behind``, grey media), else :data:`SEGMENTS`, :data:`COLOURED_SEGMENTS` in a coloured medium, where
-        they apply). They need transmittance weighting, whole rows (splits 1) and the non-linear rectification's
-        uniform columns."""
+        :data:`FOURIER_SEGMENTS` for fourier, :data:`BEHIND_SEGMENTS` for the moment methods with the light behind
+        the camera (``light_behind``, grey media), else :data:`SEGMENTS`, :data:`COLOURED_SEGMENTS` in a coloured
+        medium, where they apply). They need transmittance weighting, whole rows (splits 1) and the non-linear
+        rectification's uniform columns."""
         if not (nonlinear and self.weights_per_ray):
             return 1
         if self.segments is not None:
             return self.segments
-        if self._adaptive_by_default(method, light_behind, coloured):
-            return FOURIER_SEGMENTS
+        adaptive = self._adaptive_default(method, light_behind, coloured)
+        if adaptive is not None:
+            return adaptive[0]
         return COLOURED_SEGMENTS if coloured else SEGMENTS
 
     @property
@@ -559,18 +576,24 @@ class PrefilteredSettings(SettingsModel):
         return END_OFFSET, (END_OFFSET_LIT if directional and not light_behind else END_OFFSET)
 
     def segment_depth_for(self, method: str, light_behind: bool = False, coloured: bool = False) -> float:
-        """The adaptive segments' optical depth per segment (``segment_depth``; null: :data:`SEGMENT_DEPTH` for
-        fourier and, with the light behind the camera in a grey medium, the moment methods; else 0, fixed
-        counts)."""
+        """The adaptive segments' optical depth per segment (``segment_depth``; null: :data:`FOURIER_SEGMENT_DEPTH`
+        for fourier, :data:`SEGMENT_DEPTH` for the moment methods with the light behind the camera in a grey medium;
+        else 0, fixed counts)."""
         if self.segment_depth is not None:
             return float(self.segment_depth)
-        return SEGMENT_DEPTH if self._adaptive_by_default(method, light_behind, coloured) else 0.0
+        adaptive = self._adaptive_default(method, light_behind, coloured)
+        return adaptive[1] if adaptive is not None else 0.0
 
     @staticmethod
-    def _adaptive_by_default(method: str, light_behind: bool, coloured: bool) -> bool:
-        """Whether a method's segments are adaptive by default: fourier's always, the moment methods' with the light
-        behind the camera in a grey medium (a coloured one keeps its fixed :data:`COLOURED_SEGMENTS`)."""
-        return method == "fourier" or (light_behind and not coloured)
+    def _adaptive_default(method: str, light_behind: bool, coloured: bool) -> tuple[int, float] | None:
+        """(most segments, optical depth per segment) of a method's adaptive segments by default: fourier's always,
+        the moment methods' with the light behind the camera in a grey medium (a coloured one keeps its fixed
+        :data:`COLOURED_SEGMENTS`); None: fixed segments."""
+        if method == "fourier":
+            return FOURIER_SEGMENTS, FOURIER_SEGMENT_DEPTH
+        if light_behind and not coloured:
+            return BEHIND_SEGMENTS, SEGMENT_DEPTH
+        return None
 
     def depth_warp_for(self, method: str, columns: int) -> float:
         """The depth warp c the representations of a map with ``columns`` texels per row use (``depth_warp``; null:
@@ -594,7 +617,8 @@ class FourierSettings(SettingsModel):
     """The ``fourier`` method's representation (Klehm et al. 2014): M coefficients, float32 or 8-bit storage."""
 
     coefficients: Annotated[Int, Field(ge=MIN_COEFFICIENTS, le=MAX_COEFFICIENTS, description=(
-        "M Fourier coefficients (even: cos/sin pairs)"))] = 32
+        "M Fourier coefficients (even: cos/sin pairs); a float32 texture takes 4 M bytes per texel"))] = (
+        FOURIER_COEFFICIENTS)
     storage_bits: Literal[0, 8] = Field(0, description="0: float32 filtered bases; 8: the paper's 8-bit normalised "
                                                        "storage (App. A) in uint8 textures, a quarter of the bytes")
 
