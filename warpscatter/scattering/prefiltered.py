@@ -311,15 +311,16 @@ def evaluate_prefiltered_kernel(
     s = distance[j, i]
     phase = phase_eval(med.phase_id, med.g, wp.dot(light.direction, -d))
     lv = pixel_mip_level(mips, coords, j, i)
+    x_end = cam.position + d * s  # the ray's end point
     c = wp.vec3()
     if coords_known != 0:
         c = coords[j, i]
     else:
-        c = rectified_coords(rect, cam.position + d * s)
+        c = rectified_coords(rect, x_end)
     in_end_zone = int(0)
     ray_end = int(RAY_END_UNKNOWN)  # what the depth bounds may assume of the ray's end (row_bounds)
     if lit_end_test != 0:
-        if ray_ends_lit(cam.position + d * s, normal[j, i], faces_away, faces_away_known, j, i, light, end_vis):
+        if ray_ends_lit(x_end, normal[j, i], faces_away, faces_away_known, j, i, light, end_vis):
             c = wp.vec3(c[0] + lit_end_shift, c[1], c[2])
             ray_end = RAY_END_LIT
         else:
@@ -344,7 +345,7 @@ def evaluate_prefiltered_kernel(
             share = looked_up_share(weights, c[0], c[2])
             march_end = share < 1.0 - STRETCH_MIN_WEIGHT
         if march_end:
-            end = end_surface_at(end_vis, light, cam.position + d * s, normal[j, i])
+            end = end_surface_at(end_vis, light, x_end, normal[j, i])
             v_end = stretch_visibility(end_vis, end, cam.position, d, left_out_start(weights, c[0], s), s,
                                        med.sigma_t, end_samples)
         if med.coloured == 0:
