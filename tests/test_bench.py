@@ -35,6 +35,11 @@ def test_every_suite_runs_quick_and_writes_finite_rows(tmp_path):
     assert pre["meta"]["bar"]["fourier_speedup_vs_exact_raymarch128"] > 0.0
     epi = json.loads((tmp_path / "bench-epipolar.json").read_text())
     assert epi["meta"]["bar"]["per_pixel"]["speedup_vs_per_pixel"] > 0.0
+    # csm against raytrace: the largest scene's figures, and (none in --quick, under 100k triangles) every large one
+    csm_bar = json.loads((tmp_path / "bench-csm.json").read_text())["meta"]["bar"]
+    assert csm_bar["speedup_per_pass"] > 0.0 and csm_bar["met"] is False and csm_bar["scenes"] == []
+    csm_rows = json.loads((tmp_path / "bench-csm.json").read_text())["rows"]
+    assert not any("terrain" in r["params"].get("scene", "") for r in csm_rows)  # full mode only
     # quality per unit of time: every fast method has an equal-error speed-up against the same run's marcher curve
     par = json.loads((tmp_path / "bench-pareto.json").read_text())
     for scene in ("colonnade", "canopy", "window"):
