@@ -174,8 +174,19 @@ def test_near_not_below_far(tmp_path):
 
 def test_degenerate_camera(tmp_path):
     assert "camera: position and look_at must differ" in problems(tmp_path, {"camera": {"look_at": [0, 1, 5]}})
-    assert "parallel to the viewing direction" in problems(tmp_path, {"camera": {"up": [0, 0, -3]}})
+    assert "parallel to the viewing direction look_at - position" in problems(tmp_path, {"camera": {"up": [0, 0, -3]}})
     assert "camera.up: must be non-zero" in problems(tmp_path, {"camera": {"up": [0, 0, 0]}})
+
+
+@pytest.mark.parametrize("size", [(1, 1), (1, 9), (9, 1)])
+def test_epipolar_needs_two_pixels_each_way_at_load_time(tmp_path, size):
+    msg = problems(tmp_path, {"camera": {"width": size[0], "height": size[1]},
+                              "render": {"scattering": {"method": "epipolar"}}})
+    assert f"camera.width / camera.height: render.scattering.method 'epipolar' needs an image of at least 2x2 " \
+           f"pixels (its lines run between two border points), got {size[0]}x{size[1]}" in msg
+    epipolar = {"render": {"scattering": {"method": "epipolar"}}}
+    load_config(write(tmp_path, {"camera": {"width": 2, "height": 2}, **epipolar}))
+    load_config(write(tmp_path, {"camera": {"width": 1, "height": 1}}))  # the other methods render a single pixel
 
 
 @pytest.mark.parametrize(

@@ -400,7 +400,8 @@ class CameraConfig(SettingsModel):
             f, u = unit(view), unit(self.up)
             cross = (f[1] * u[2] - f[2] * u[1], f[2] * u[0] - f[0] * u[2], f[0] * u[1] - f[1] * u[0])
             if math.sqrt(sum(x * x for x in cross)) < 1e-6:
-                problems.append(f"up {list(self.up)} is parallel to the viewing direction")
+                problems.append(f"up {list(self.up)} is parallel to the viewing direction look_at - position "
+                                f"({[round(x, 6) for x in view]}): give another up")
         if problems:
             raise ValueError("\n".join(problems))
         return self
@@ -773,6 +774,10 @@ class Config(SettingsModel):
                              f"{self.light.type!r})")
         if self.light.type in ("spot", "point") and "prefiltered" in methods.SCATTERING[method].sections:
             self._check_prefiltered_spot(method)
+        if method == "epipolar" and min(self.camera.width, self.camera.height) < 2:
+            raise ValueError(f"camera.width / camera.height: render.scattering.method 'epipolar' needs an image of at "
+                             f"least 2x2 pixels (its lines run between two border points), got "
+                             f"{self.camera.width}x{self.camera.height}")
         return self
 
     def _check_prefiltered_spot(self, method: str) -> None:
