@@ -312,6 +312,22 @@ def test_bad_query_arguments_raise(scene):
         csm_objects_visibility_batch([(csm, np.zeros((4, 4)) + np.diag([0, 0, 0, 1.0]))], p, p + 1)
     with pytest.raises(ValueError, match="at least one"):
         csm_objects_visibility_batch([], p, p + 1)
+    with pytest.raises(ValueError, match="nearly so"):  # flattened along one axis: its float32 inverse loses the shape
+        csm_objects_visibility_batch([(csm, np.diag([1.0, 1.0, 1e-7, 1.0]))], p, p + 1)
+
+
+def test_a_uniformly_tiny_object_is_queried_like_its_unscaled_self(scene):
+    # a uniform scale of any size inverts exactly (the singularity test is relative, not on the determinant): the
+    # object scaled by 1e-6 with the points scaled alike sees what the unscaled object sees
+    _, _, csm, _, _ = scene
+    rng = np.random.default_rng(3)
+    points = csm.center + csm.radius * rng.uniform(-1.0, 1.0, (2000, 3))
+    dirs = rng.normal(size=(2000, 3))
+    s = 1.0e-6
+    unscaled = csm_objects_visibility_batch([(csm, np.eye(4))], points, dirs)
+    tiny = csm_objects_visibility_batch([(csm, np.diag([s, s, s, 1.0]))], points * s, dirs)
+    assert 0.0 < unscaled.mean() < 1.0
+    assert np.mean(unscaled == tiny) > 0.995  # measured 1.0 (float32 rounding of p * 1e-6 * 1e6 may move a texel)
 
 
 @wp.kernel

@@ -701,6 +701,11 @@ def csm_visibility_batch(
                       seed=seed, device=device, threads=threads)
 
 
+#: Smallest ratio of the smallest to the largest singular value of a rigid object's linear part (its float32 inverse
+#: T^-1 keeps about 1e-7 relative precision; below 1e-6 the object space would be flattened along one axis).
+MAX_OBJECT_CONDITION_INVERSE = 1.0e-6
+
+
 def object_arrays(objects, device) -> tuple[wp.array, wp.array]:
     """Device arrays of rigid objects (Sec. 4.6): their lat-long CSMs' :class:`CSMData` and the world -> object
     matrices T^-1 (as kernels take them: :func:`objects_visibility_kernel`, the estimators' ``VIS_OBJECTS``).
@@ -717,8 +722,10 @@ def object_arrays(objects, device) -> tuple[wp.array, wp.array]:
         t = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
         if t.shape != (4, 4) or not np.all(np.isfinite(t)) or not np.allclose(t[3], [0, 0, 0, 1]):
             raise ValueError(f"objects[{k}] transform must be a finite affine 4x4 matrix")
-        if abs(np.linalg.det(t[:3, :3])) < 1e-12:
-            raise ValueError(f"objects[{k}] transform is singular")
+        sv = np.linalg.svd(t[:3, :3], compute_uv=False)
+        if not sv[-1] > MAX_OBJECT_CONDITION_INVERSE * sv[0]:  # relative: a uniform scale of any size inverts exactly
+            raise ValueError(f"objects[{k}] transform is singular or nearly so (its linear part's singular values "
+                             f"{sv[0]:.3g} ... {sv[-1]:.3g}: a float32 inverse would lose the object's shape)")
         _expect_kind(csm, KIND_LATLONG, f"objects[{k}] csm")
         datas.append(csm_device_data(csm, device))
         invs.append(np.linalg.inv(t).astype(np.float32))
