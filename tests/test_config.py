@@ -178,6 +178,11 @@ def test_degenerate_camera(tmp_path):
     assert "camera.up: must be non-zero" in problems(tmp_path, {"camera": {"up": [0, 0, 0]}})
 
 
+def test_integer_bounds_are_printed_exactly(tmp_path):
+    msg = problems(tmp_path, {"render": {"scattering": {"seed": 2**31}}})
+    assert "render.scattering.seed: must be <= 2147483647 (got 2147483648)" in msg
+
+
 @pytest.mark.parametrize("size", [(1, 1), (1, 9), (9, 1)])
 def test_epipolar_needs_two_pixels_each_way_at_load_time(tmp_path, size):
     msg = problems(tmp_path, {"camera": {"width": size[0], "height": size[1]},

@@ -238,3 +238,8 @@ def test_corrupt_or_mismatched_files_raise(small_csm, tmp_path):
     expect("ascending", seg_end=swapped)
     expect("map_index does not match", map_index=map_index[:, ::-1].copy())
     expect("seg_start does not partition", seg_start=np.minimum(seg_start + 1, seg_start[-1]))
+    with np.load(good) as data:
+        seg_depth = data["seg_depth"]
+    expect("-inf", seg_depth=np.where(np.arange(seg_depth.size) == 0, -np.inf, seg_depth).astype(seg_depth.dtype))
+    for sphere in ({"radius": 0.0}, {"radius": 1e309}, {"center": [1e309, 0.0, 0.0]}):
+        expect("bounding sphere", params=np.array(json.dumps({**params, **sphere})))

@@ -396,7 +396,10 @@ def _reason(err: dict) -> str:
     bounds = {"greater_than": ">", "greater_than_equal": ">=", "less_than": "<", "less_than_equal": "<="}
     if kind in bounds:
         bound = next(iter(ctx.values()), "?")
-        bound = f"{bound:g}" if is_number(bound) else bound
+        if isinstance(bound, int) and not isinstance(bound, bool):
+            bound = str(bound)  # exact: "%g" would print 2^31 - 1 as 2.14748e+09, below the seeds it allows
+        elif is_number(bound):
+            bound = f"{bound:g}"
         return f"must be {bounds[kind]} {bound} (got {_short(value)})"
     expected = {
         "int_type": "an integer",

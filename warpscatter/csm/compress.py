@@ -672,6 +672,8 @@ def _load_params(path: str, data) -> dict:
         raise _fail(path, f"params lack or mistype a field ({exc})") from exc
     if min(out["n1"], out["n2"], out["resolution"]) < 1 or out["center"].shape != (3,):
         raise _fail(path, "params hold impossible sizes")
+    if not (np.all(np.isfinite(out["center"])) and np.isfinite(out["radius"]) and out["radius"] > 0.0):
+        raise _fail(path, "params hold a bounding sphere that is not finite with a radius > 0")
     if out["near"] is not None and not (np.isfinite(out["near"]) and out["near"] > 0):
         raise _fail(path, "params hold a near plane that is not > 0")
     if not (np.all(np.isfinite(out["center"])) and np.isfinite(out["radius"]) and out["radius"] > 0):
@@ -773,8 +775,8 @@ def load_csm(path: str | os.PathLike) -> CoherentShadowMap:
     step_ok = np.diff(end) > 0
     if np.any(~step_ok & ~first_of_texel[1:]) or end.min() < 0:
         raise _fail(path, "segment ends are not strictly ascending within a texel")
-    if np.isnan(arrays["seg_depth"]).any():
-        raise _fail(path, "seg_depth contains NaN")
+    if np.isnan(arrays["seg_depth"]).any() or np.isneginf(arrays["seg_depth"]).any():
+        raise _fail(path, "seg_depth contains NaN or -inf (+inf, no blocker, is the only non-finite depth)")
     if cube and not np.all(np.isfinite(arrays["light_samples"])):
         raise _fail(path, "light_samples contain non-finite positions")
     try:
