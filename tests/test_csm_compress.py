@@ -242,4 +242,4 @@ def test_corrupt_or_mismatched_files_raise(small_csm, tmp_path):
         seg_depth = data["seg_depth"]
     expect("-inf", seg_depth=np.where(np.arange(seg_depth.size) == 0, -np.inf, seg_depth).astype(seg_depth.dtype))
     for sphere in ({"radius": 0.0}, {"radius": 1e309}, {"center": [1e309, 0.0, 0.0]}):
-        expect("bounding sphere", params=np.array(json.dumps({**params, **sphere})))
+        expect("non-finite centre or a radius <= 0", params=np.array(json.dumps({**params, **sphere})))

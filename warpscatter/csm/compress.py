@@ -672,8 +672,6 @@ def _load_params(path: str, data) -> dict:
         raise _fail(path, f"params lack or mistype a field ({exc})") from exc
     if min(out["n1"], out["n2"], out["resolution"]) < 1 or out["center"].shape != (3,):
         raise _fail(path, "params hold impossible sizes")
-    if not (np.all(np.isfinite(out["center"])) and np.isfinite(out["radius"]) and out["radius"] > 0.0):
-        raise _fail(path, "params hold a bounding sphere that is not finite with a radius > 0")
     if out["near"] is not None and not (np.isfinite(out["near"]) and out["near"] > 0):
         raise _fail(path, "params hold a near plane that is not > 0")
     if not (np.all(np.isfinite(out["center"])) and np.isfinite(out["radius"]) and out["radius"] > 0):
