@@ -391,12 +391,10 @@ def ray_ends_lit(x: wp.vec3, n: wp.vec3, faces_away: wp.array2d(dtype=wp.int32),
 @wp.kernel
 def lit_ray_ends_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32), normal: wp.array2d(dtype=wp.vec3),
                         faces_away: wp.array2d(dtype=wp.int32), faces_away_known: int, light: LightParams,
-                        vis: Visibility, out: wp.array2d(dtype=wp.int32), pixels: PixelSet, offset: int):
-    # ray_ends_lit of every pixel of the set
-    a, b = wp.tid()
-    j, i, listed = set_pixel(pixels, cam.height, cam.width, a + offset, b)
-    if not listed:
-        return
+                        vis: Visibility, out: wp.array2d(dtype=wp.int32), offset: int):
+    # ray_ends_lit of every pixel
+    j, i = wp.tid()
+    j += offset
     x = cam.position + pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5) * distance[j, i]
     out[j, i] = ray_ends_lit(x, normal[j, i], faces_away, faces_away_known, j, i, light, vis)
 
@@ -443,31 +441,24 @@ def coords_of_every_pixel(settings: ScatteringSettings, aovs) -> bool:
 
 
 def lit_ray_ends(scene, gbuffer, shadow_map, bias_texels: float, faces_away: wp.array | None = None,
-                 device=None, vis: Visibility | None = None, pixels: PixelSet | None = None,
-                 dim: tuple[int, int] | None = None, out: wp.array | None = None) -> wp.array:
+                 device=None) -> wp.array:
     """(H, W) int32 Warp array: 1 where the pixel's view ray ends lit (on no surface, or on a surface facing the light
     that the shadow map sees, ``bias_texels`` of depth bias), 0 where it ends in shadow. A look-up of a ray ending lit
     may end nearer its end (``prefiltered.end_offset``, :data:`~.settings.END_OFFSET_LIT`): a lit surface shadows its
     own ray only through the texel's filtering. ``faces_away``: :func:`~.caster_culling.end_faces_away` of the frame
-    if already made (else the kernel tests it at the pixels it evaluates); ``vis``: the shadow map's
-    :class:`~.marching.Visibility` with that bias, if already made (else it is). ``pixels`` and ``dim``: only the
-    pixels of that :class:`~.sparse_evaluation.PixelSet` launch, written into ``out`` (default: every pixel, into a
-    new array)."""
+    if already made (else the kernel tests it). The look-up kernel makes the same test (:func:`ray_ends_lit`) at the
+    pixels it evaluates; this is the every-pixel form."""
     device = default_device(device)
     cam = scene.camera
-    light = light_params(scene.light, device)
     known = faces_away is not None
     if not known:
         faces_away = wp.zeros((1, 1), dtype=wp.int32, device=device)
-    if out is None:
-        out = wp.empty((cam.height, cam.width), dtype=wp.int32, device=device)
-    if pixels is None:
-        pixels, dim = pixel_set(PIXELS_ALL, device=device), (cam.height, cam.width)
-    launch_rows(lit_ray_ends_kernel, dim,
-                [cam.params(), gbuffer.distance, gbuffer.normal, faces_away, int(known), light,
-                 vis if vis is not None else visibility_params(scene, "shadow_map", shadow_map=shadow_map,
-                                                               shadow_bias_texels=bias_texels, device=device),
-                 out, pixels], device=device)
+    out = wp.empty((cam.height, cam.width), dtype=wp.int32, device=device)
+    launch_rows(lit_ray_ends_kernel, (cam.height, cam.width),
+                [cam.params(), gbuffer.distance, gbuffer.normal, faces_away, int(known),
+                 light_params(scene.light, device),
+                 visibility_params(scene, "shadow_map", shadow_map=shadow_map, shadow_bias_texels=bias_texels,
+                                   device=device), out], device=device)
     return out
 
 
