@@ -22,7 +22,8 @@ from warpscatter.wpinit import default_device
 
 ROOT = Path(__file__).resolve().parents[1]
 GATE = ROOT / "configs" / "csm_gate.yaml"
-SMALL = ["camera.width=48", "camera.height=27", "render.lighting.samples=4", "render.lighting.passes=3",
+SMALL = ["camera.width=48", "camera.height=27", "camera.supersample=1", "render.lighting.samples=4",
+         "render.lighting.passes=3",
          "render.lighting.csm.maps=[16,8]", "render.lighting.csm.resolution=32"]
 AREA = "light={type: area, position: [-3, 8, -2], u: [6, 0, 0], v: [0, 0, 3], radiance: [4, 4, 4]}"
 
@@ -39,7 +40,7 @@ def sets(*overrides):
 
 
 def test_csm_gate_renders_end_to_end_with_progress_per_pass(tmp_path):
-    result = invoke("render", GATE, "-o", tmp_path, *sets(*SMALL))
+    result = invoke("render", GATE, "-o", tmp_path, "-v", *sets(*SMALL))  # -v: the statistics and every pass
     assert result.exit_code == 0, result.output
     names = sorted(p.name for p in tmp_path.iterdir())
     assert names == ["csm_gate.depth.exr", "csm_gate.exr", "csm_gate.json", "csm_gate.png",
@@ -56,7 +57,7 @@ def test_csm_gate_renders_end_to_end_with_progress_per_pass(tmp_path):
     # the reference through --method, and an area light with its cube CSM
     for extra, stat in ((["--method", "raytrace"], "method: raytrace"), (sets(AREA), "csm_kind: cube"),
                         (sets(AREA, "render.lighting.csm.local_lights=semi_local"), "csm_kind: latlong")):
-        result = invoke("render", GATE, "-o", tmp_path / "b", "--set", "output.name=b", *sets(*SMALL), *extra)
+        result = invoke("render", GATE, "-o", tmp_path / "b", "-v", "--set", "output.name=b", *sets(*SMALL), *extra)
         assert result.exit_code == 0, result.output
         assert stat in result.output and np.isfinite(read_image(tmp_path / "b" / "b.exr")).all()
 

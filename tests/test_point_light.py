@@ -18,7 +18,9 @@ from warpscatter.scene.lights import LightParams, PointLight, light_params, ligh
 
 SPOT = "configs/spot.yaml"
 POINT = {"light": {"type": "point", "position": [-0.5, 2.2, 4.0], "intensity": [30.0, 30.0, 30.0]}}
-SMALL = {"camera.width": 160, "camera.height": 90, "render.scattering.shadow_map.resolution": 512}
+SMALL = {"camera.width": 160, "camera.height": 90, "camera.supersample": 1, "render.surfaces.ambient": [0, 0, 0],
+         "render.scattering.method": "raymarch",  # the references; the fast methods are set per case
+         "render.scattering.shadow_map.resolution": 512}
 #: Nothing in reach of the light: the ground far below.
 OPEN = {"scene.meshes": [{"procedural": "ground_plane", "params": {"size": 1},
                           "transform": {"translate": [0, -300, 0]}}], "render.surfaces.enabled": False}

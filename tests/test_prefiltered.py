@@ -841,7 +841,8 @@ def test_debug_outputs_show_the_lookups_the_epipole_region_and_the_map(tmp_path)
     assert culled.mean() == pytest.approx(stats["culled_texel_fraction"], abs=1e-3)
     assert np.all(img["rectified_map"][..., 0][culled == 1] == 1)  # culled texels hold no blocker
     with pytest.raises((ConfigError, ValueError), match="output.aovs: rectified_map is made by fourier"):
-        load_config(ROOT / "configs" / "canopy.yaml", ["output.aovs=[rectified_map]"])
+        load_config(ROOT / "configs" / "canopy.yaml", ["output.aovs=[rectified_map]",
+                                                       "render.scattering.method=raymarch"])
 
 
 def test_map_fitted_to_the_casters_is_finer_where_the_shadows_are():

@@ -18,7 +18,9 @@ from warpscatter.scattering.rectify_local import spot_rectification, spot_texel_
 from warpscatter.scene import build_scene
 
 SPOT = "configs/spot.yaml"
-SMALL = {"camera.width": 160, "camera.height": 90, "render.surfaces.enabled": False,
+SMALL = {"camera.width": 160, "camera.height": 90, "camera.supersample": 1,
+         "render.scattering.method": "raymarch",  # the references; the fast methods are set per case
+         "render.surfaces.enabled": False,
          "render.scattering.shadow_map.resolution": 512}
 #: A spot with no caster in reach: the ground far below, a cone of 89 degrees (half the sphere).
 OPEN = {"light.texture": None, "light.cone_deg": 89,

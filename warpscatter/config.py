@@ -365,6 +365,10 @@ class SceneConfig(SettingsModel):
                                                                          "procedural generator")]
 
 
+#: The largest ``camera.supersample`` (an 8 x 8 grid: 64 rays a pixel).
+MAX_SUPERSAMPLE = 8
+
+
 class CameraConfig(SettingsModel):
     """Pinhole camera (CONVENTIONS.md): lengths in scene units, ``fov_y`` in degrees, size in pixels."""
 
@@ -381,10 +385,18 @@ class CameraConfig(SettingsModel):
     far: Annotated[Float, Field(ge=MIN_LENGTH, le=MAX_COORD, description=(
         f"far clip distance (scene units); rays that hit nothing end there; far / near <= {MAX_DEPTH_RATIO:g} "
         "(float32 depth precision)"))] = 100.0
+    supersample: Annotated[Int, Field(ge=1, le=MAX_SUPERSAMPLE, description=(
+        "anti-aliasing: each pixel is the mean of supersample x supersample rays on an ordered sub-pixel grid (the "
+        "frame is rendered at supersample times the width and height and box-filtered; the cost grows with the "
+        "square). 1: one ray through each pixel centre (CONVENTIONS)"))] = 1
 
     @model_validator(mode="after")
     def _check_geometry(self) -> CameraConfig:
         problems = []
+        if max(self.width, self.height) * self.supersample > MAX_IMAGE_SIDE:
+            problems.append(f"{'width' if self.width >= self.height else 'height'} x supersample = "
+                            f"{max(self.width, self.height) * self.supersample} must be <= {MAX_IMAGE_SIDE} (the "
+                            "frame is rendered at that size)")
         if not self.near < self.far:
             problems.append(f"near ({self.near}) must be < far ({self.far})")
         elif self.far / self.near > MAX_DEPTH_RATIO:
@@ -410,12 +422,55 @@ class CameraConfig(SettingsModel):
 # ---- lights --------------------------------------------------------------------------------------
 
 
+#: The ways a directional light's orientation may be given; exactly one per light (see DirectionalLightConfig).
+SUN_FORMS = ("direction", "toward_sun", "azimuth_deg + elevation_deg")
+
+
+def sun_direction(azimuth_deg: float, elevation_deg: float) -> tuple[float, float, float]:
+    """Unit vector from the scene TOWARD the sun: ``elevation_deg`` above the horizon (the XZ plane), ``azimuth_deg``
+    about +Y, 0 toward +Z and 90 toward +X."""
+    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+    return (math.sin(az) * math.cos(el), math.sin(el), math.cos(az) * math.cos(el))
+
+
 class DirectionalLightConfig(SettingsModel):
-    """Directional light: ``direction`` light TRAVELS (unit after loading), RGB ``irradiance``."""
+    """Directional light (a sun) with RGB ``irradiance``, oriented by exactly one of: ``direction`` (the way the
+    light TRAVELS, CONVENTIONS.md), ``toward_sun`` (from the scene toward the sun, i.e. -direction), or
+    ``azimuth_deg`` with ``elevation_deg`` (the sun's position in the sky). Every form becomes ``direction`` on load
+    (unit), which is what the resolved config and the renderers hold."""
 
     type: Literal["directional"] = Field(description="directional")
-    direction: Direction = Field(description="direction the light TRAVELS (normalised on load)")
+    direction: Optional[Direction] = Field(None, description="direction the light TRAVELS, from the sun into the "
+                                           "scene (normalised on load); or give toward_sun, or azimuth_deg and "
+                                           "elevation_deg")
+    toward_sun: Optional[Direction] = Field(None, description="direction from the scene toward the sun (= -direction;"
+                                            " replaced by direction on load)")
+    azimuth_deg: Optional[Annotated[Float, Field(ge=-360.0, le=360.0)]] = Field(
+        None, description="the sun's azimuth (degrees) about +Y: 0 toward +Z, 90 toward +X; with elevation_deg "
+                          "(replaced by direction on load)")
+    elevation_deg: Optional[Annotated[Float, Field(ge=-90.0, le=90.0)]] = Field(
+        None, description="the sun's elevation above the horizon (the XZ plane, degrees); negative: below it, "
+                          "lighting from underneath")
     irradiance: RGB = Field((1.0, 1.0, 1.0), description="RGB irradiance on a plane facing the light")
+
+    @model_validator(mode="after")
+    def _one_orientation(self) -> DirectionalLightConfig:
+        given = [name for name, set_ in (("direction", self.direction is not None),
+                                         ("toward_sun", self.toward_sun is not None),
+                                         ("azimuth_deg + elevation_deg",
+                                          self.azimuth_deg is not None or self.elevation_deg is not None)) if set_]
+        if len(given) != 1:
+            raise ValueError(f"give exactly one of {', '.join(SUN_FORMS)} (got "
+                             f"{' and '.join(given) if given else 'none'})")
+        if given[0] == "azimuth_deg + elevation_deg":
+            if self.azimuth_deg is None or self.elevation_deg is None:
+                missing = "azimuth_deg" if self.azimuth_deg is None else "elevation_deg"
+                raise ValueError(f"{missing} is missing: the sun's position needs azimuth_deg and elevation_deg")
+            self.direction = tuple(0.0 - c for c in sun_direction(self.azimuth_deg, self.elevation_deg))
+        elif given[0] == "toward_sun":
+            self.direction = tuple(0.0 - c for c in self.toward_sun)
+        self.toward_sun = self.azimuth_deg = self.elevation_deg = None
+        return self
 
 
 class SpotLightConfig(SettingsModel):
@@ -589,9 +644,14 @@ class MediumConfig(SettingsModel):
 
 
 class SurfacesSettings(SettingsModel):
-    """Surface shading switch."""
+    """Surface shading: on or off, and a sky fill."""
 
     enabled: Bool = Field(True, description="false: surfaces render black (only L_scat remains)")
+    ambient: RGB = Field((0.0, 0.0, 0.0), description=(
+        "RGB radiance of a uniform sky that lights every surface unshadowed (adds albedo * ambient, seen through "
+        "the medium), so that a wall in shadow is not pure black; the scattering integral is unchanged. 0: the "
+        "light alone (CONVENTIONS). Classic pipeline only: the lighting methods light surfaces with their own "
+        "lights"))
 
 
 class RenderSettings(SettingsModel):
@@ -765,6 +825,9 @@ class Config(SettingsModel):
             if self.render.shadows.method != ShadowsSettings.model_fields["method"].default:
                 problems.append(f"render.shadows.method {self.render.shadows.method!r} is not used by "
                                 f"render.lighting.method {lighting!r} (its visibility is the CSM or shadow rays)")
+            if any(self.render.surfaces.ambient):
+                problems.append(f"render.surfaces.ambient is not used by render.lighting.method {lighting!r} (its "
+                                "surfaces are lit by the light; an environment light is a sky)")
             if problems:
                 raise ValueError("\n".join(problems))
             return self
@@ -1193,6 +1256,26 @@ def _list_index(node: list, seg, where: str) -> int:
 # ---- loading -------------------------------------------------------------------------------------
 
 
+#: The keys of each way of orienting a directional light (:data:`SUN_FORMS`).
+_SUN_FORM_KEYS = (("direction",), ("toward_sun",), ("azimuth_deg", "elevation_deg"))
+
+
+def _drop_other_sun_forms(data: dict, key_path: tuple, value) -> None:
+    """An override that orients a directional light one way replaces the config's other way: ``--set
+    light.azimuth_deg=40`` on a config that gives ``light.direction`` drops that direction (also for animation
+    tracks), instead of failing with two orientations."""
+    if len(key_path) != 2 or key_path[0] != "light" or value is None \
+            or not any(key_path[1] in keys for keys in _SUN_FORM_KEYS):
+        return
+    light = data.get("light")
+    if not isinstance(light, dict) or light.get("type") != "directional":
+        return
+    for keys in _SUN_FORM_KEYS:
+        if key_path[1] not in keys:
+            for k in keys:
+                light.pop(k, None)
+
+
 def apply_overrides(data: dict, overrides: Iterable[str] | Mapping[str, Any] = (),
                     source: str | Path | None = None) -> tuple[tuple, ...]:
     """Apply overrides to config data in place, in order, and return their key paths.
@@ -1218,6 +1301,7 @@ def apply_overrides(data: dict, overrides: Iterable[str] | Mapping[str, Any] = (
             else:
                 key_path, value = parse_override(item)
             _apply_override(data, key_path, value)
+            _drop_other_sun_forms(data, key_path, value)
             overridden.append(key_path)
         except ValueError as exc:
             problems.append(f"--set {text}: {exc}")

@@ -53,6 +53,11 @@ def bundled_config(name: str) -> Path:
     return _bundled("configs", name if name.endswith(".yaml") else f"{name}.yaml")
 
 
+def bundled_configs() -> list[Path]:
+    """Every bundled config (``configs/*.yaml`` of the source tree or the installed package), sorted by name."""
+    return sorted((ROOT / "configs").glob("*.yaml"))
+
+
 def bundled_asset(name: str) -> Path:
     """``assets/NAME`` (meshes, light textures, environment maps) of the source tree or the installed package.
 
@@ -73,4 +78,4 @@ def in_package(path: str | Path) -> bool:
     return True
 
 
-__all__ = ["PACKAGE_DIR", "ROOT", "bundled_asset", "bundled_config", "in_package"]
+__all__ = ["PACKAGE_DIR", "ROOT", "bundled_asset", "bundled_config", "bundled_configs", "in_package"]

@@ -101,6 +101,24 @@ def shade_kernel(
     color_out[j, i] = surf + scattering[j, i]
 
 
+def ambient_radiance(scene, gbuffer, ambient) -> np.ndarray | None:
+    """The sky fill of every surface pixel: albedo * L_ambient * exp(-sigma_t s), float32 (H, W, 3), or None when
+    ``ambient`` is zero.
+
+    A uniform sky of radiance L_ambient over a Lambertian surface reflects albedo * L_ambient (the integral of
+    albedo / pi * L_ambient * cos over the hemisphere), unshadowed (no occlusion term); it is seen through the medium
+    like the rest of the surface. The scattering integral does not include it (CONVENTIONS: the light alone).
+    """
+    ambient = np.asarray(ambient, dtype=np.float32)
+    if not ambient.any():
+        return None
+    material = gbuffer.material.numpy()
+    # per material its albedo * L_ambient, and a last row of zeros for the pixels that hit nothing (material -1)
+    fill = np.vstack([np.asarray(scene.albedo, np.float32) * ambient, np.zeros((1, 3), np.float32)])[material]
+    sigma_t = np.asarray(scene.medium.sigma_t_rgb, np.float32)
+    return fill * np.exp(-sigma_t * gbuffer.distance.numpy()[..., None])
+
+
 def shade_and_compose(scene, gbuffer, scattering: wp.array, *, shadows: SurfaceShadows | None = None,
                       surfaces: bool = True, device=None) -> dict[str, np.ndarray]:
     """Shade surfaces and add the in-scattered radiance.
@@ -139,4 +157,4 @@ def shade_and_compose(scene, gbuffer, scattering: wp.array, *, shadows: SurfaceS
     }
 
 
-__all__ = ["lambert", "pixel_footprint", "shade_and_compose", "shade_kernel"]
+__all__ = ["ambient_radiance", "lambert", "pixel_footprint", "shade_and_compose", "shade_kernel"]

@@ -29,6 +29,7 @@ from .classic import render_images
 from .common import check_finite, compile_kernels
 from .frame import Frame
 from .lighting import render_lighting
+from .supersample import box_filter, supersampled_scene
 
 
 @dataclass
@@ -43,6 +44,8 @@ class RenderResult:
         stats: the method's statistics (sizes, counts).
         config: the validated config that was rendered.
         device: the Warp device it ran on.
+        warnings: what a user should know about the image, e.g. why it is dark when the light reaches no pixel
+            (the CLI prints them; also in ``stats["warnings"]`` and the sidecar).
     """
 
     images: dict[str, np.ndarray]
@@ -51,6 +54,7 @@ class RenderResult:
     stats: dict = field(default_factory=dict)
     config: Config | None = None
     device: str | None = None
+    warnings: list[str] = field(default_factory=list)
 
 
 def sidecar(config: Config, device: str, timings: dict, stats: dict, files: list[str], complete: bool = True) -> dict:
@@ -109,8 +113,10 @@ def render(config: Config, out_dir: Path | None = None, progress: ProgressFn | N
         config.output.dir = Path(out_dir).resolve()  # the sidecar records where the files went
     device = default_device(device)
     timer = StageTimer(progress)
+    s = config.camera.supersample
     with timer("scene"):
-        scene = build_scene(config)
+        scene = supersampled_scene(build_scene(config), s)  # anti-aliasing: the larger frame, box-filtered below
+    frame = (scene.camera.height, scene.camera.width)
     out = Path(out_dir) if out_dir is not None else Path(config.output.dir)
     name, output = config.output_name, config.output
     lighting = config.render.lighting.method is not None
@@ -131,7 +137,7 @@ def render(config: Config, out_dir: Path | None = None, progress: ProgressFn | N
 
         def on_pass(images, done, total):  # rewrite the outputs as the image converges
             if write:
-                write_files(images, {"passes_done": done}, complete=False)
+                write_files(box_filter(images, s, frame), {"passes_done": done}, complete=False)
 
         try:
             objects = object_meshes(config) if config.render.lighting.csm.objects == "per_mesh" else None
@@ -142,8 +148,14 @@ def render(config: Config, out_dir: Path | None = None, progress: ProgressFn | N
         images.pop("scattering", None)
     else:
         images, stats = render_images(scene, config.render, timer=timer, device=device, aovs=output.aovs)
+    if s > 1:
+        with timer("antialias"):
+            images = box_filter(images, s, frame)
+        stats["supersample"] = s
+        stats["resolution"] = [config.camera.width, config.camera.height]
     files = write_files(images, stats) if write else []
-    return RenderResult(images=images, files=files, timings=timer.timings, stats=stats, config=config, device=device)
+    return RenderResult(images=images, files=files, timings=timer.timings, stats=stats, config=config, device=device,
+                        warnings=list(stats.get("warnings", [])))
 
 
 __all__ = ["Frame", "RenderResult", "StageTimer", "check_finite", "compile_kernels", "render", "render_images",

@@ -16,10 +16,12 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
+
 from .. import methods
 from ..gbuffer import gbuffer_raster, gbuffer_raycast
 from ..scene import DeviceGeometry
-from ..shading import shade_and_compose
+from ..shading import ambient_radiance, shade_and_compose
 from ..shadows.shadow_map import render_shadow_map
 from ..shadows.surface import prepare_shadows
 from ..shadows.unseen_planes import without_unseen_planes
@@ -31,6 +33,58 @@ from .frame import Frame
 #: The images that add up over a point light's faces (radiance, linear in the light); the rest (depth ...) are the
 #: first face's, the same for all.
 ADDITIVE_IMAGES = ("color", "scattering", "surface")
+
+
+#: A render whose light reaches less than this share of what it would unshadowed is called dark
+#: (:func:`dark_image_warnings`): the bundled window room, lit through its window only, reaches 7 %.
+DARK_SHARE = 0.02
+#: The same for a sun below the horizon (a directional light travelling up, the mistake of giving the direction
+#: toward the sun as ``direction``): the quickstart so turned reaches 5 % (its far rays pass beyond the ground).
+DARK_SHARE_SUN_BELOW = 0.25
+
+
+def lit_share(scene, images: dict, depth: np.ndarray) -> float:
+    """How much of the light reaches the image: the larger of the share of surface pixels the light reaches and, for
+    a directional light, the image's in-scattering over its unshadowed value (sigma_s f E (1 - exp(-sigma_t s)) /
+    sigma_t per pixel, summed over the channels); 1.0 where the medium scatters nothing. A statistic: every 4th pixel
+    of every 4th row counts (every pixel of images under 8 pixels high or wide)."""
+    cam = scene.camera
+    k = 4 if min(cam.width, cam.height) >= 8 else 1
+    rows = cols = slice(k // 2, None, k)  # the pixels of cam.ray_directions(k)
+    surface, scattering, depth = images["surface"][rows, cols], images["scattering"][rows, cols], depth[rows, cols]
+    surface_share = float((surface.max(axis=-1) > 0.0).mean())
+    light, medium = scene.light, scene.medium
+    if light.kind != "directional":
+        return max(surface_share, float(scattering.max() > 0.0))
+    sigma_t, sigma_s = np.asarray(medium.sigma_t_rgb), np.asarray(medium.sigma_s_rgb)
+    if not sigma_s.any():
+        return 1.0
+    cos_theta = -(cam.ray_directions(k) @ np.asarray(light.direction, np.float64))
+    path = np.where(sigma_t > 0.0, (1.0 - medium.transmittance(depth)) / np.where(sigma_t > 0.0, sigma_t, 1.0),
+                    depth[..., None])  # integral of exp(-sigma_t t) dt over [0, s]
+    unshadowed = (sigma_s * np.asarray(light.irradiance) * medium.phase_value(cos_theta)[..., None] * path).sum()
+    return max(surface_share, float(scattering.sum() / unshadowed) if unshadowed > 0.0 else 1.0)
+
+
+def dark_image_warnings(scene, images: dict, settings) -> list[str]:
+    """Why an image is dark when its light reaches almost none of it (:data:`DARK_SHARE`, :func:`lit_share`): a list
+    of one message naming the likely cause, or an empty list. ``images`` are the light's own (before the sky fill)."""
+    if not settings.surfaces.enabled and not np.any(scene.medium.sigma_s_rgb):
+        return ["the image is black: render.surfaces.enabled is false and the medium scatters nothing (sigma_t or "
+                "albedo 0)"]
+    light = scene.light
+    sun_below = light.kind == "directional" and light.direction[1] > 0.0
+    share = lit_share(scene, images, images["depth"])
+    if share >= (DARK_SHARE_SUN_BELOW if sun_below else DARK_SHARE):
+        return []
+    if sun_below:
+        why = (f"light.direction {[round(float(c), 3) for c in light.direction]} points up: it is the way the light "
+               "travels, so the sun is below the horizon; to give the direction toward the sun, use light.toward_sun "
+               "(or light.azimuth_deg and light.elevation_deg)")
+    else:
+        why = "almost every surface and view ray seen is in shadow" + (
+            " or outside the spot's cone" if light.kind == "spot" else "")
+    return [f"the light reaches {100.0 * share:.2g} % of what it would unshadowed, so the image is dark: {why}"]
 
 
 def render_images(scene, settings, *, timer: StageTimer | None = None, device=None,
@@ -116,6 +170,14 @@ def render_images(scene, settings, *, timer: StageTimer | None = None, device=No
                     images[name] = images[name] + face_images[name]
     if len(faces) > 1:
         info["light_faces"] = len(faces)
+    with timer("shading"):
+        warnings = dark_image_warnings(scene, images, settings)
+        fill = ambient_radiance(scene, gbuf, settings.surfaces.ambient) if settings.surfaces.enabled else None
+        if fill is not None:  # the sky fill, once (not per cube face of a point light)
+            images["surface"] += fill
+            images["color"] += fill
+    if warnings:
+        info["warnings"] = warnings
     images.update(debug_images)
     stats = {
         "triangles": scene.triangle_count,
@@ -132,4 +194,4 @@ def render_images(scene, settings, *, timer: StageTimer | None = None, device=No
     return images, stats
 
 
-__all__ = ["render_images"]
+__all__ = ["dark_image_warnings", "render_images"]
