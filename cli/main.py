@@ -5,9 +5,11 @@ suite name or command line (nothing is written then), 130 interrupted.
 
 Every command takes ``-v/--verbose`` (repeatable), ``-q/--quiet`` and ``--debug``; the commands that run kernels
 also take ``--device`` and ``--threads``. Progress goes to stderr (a bar with the elapsed time and an ETA on a
-terminal, a line per stage and then every few seconds otherwise); results (the per-stage timing table,
-statistics and the written files) go to stdout. Warp's own messages (its start-up banner, module loads, the
-warning of a machine without a CUDA driver) are shown with ``-v`` only.
+terminal; otherwise a line at the start and then one every few seconds, or one per stage with ``-v``); results
+go to stdout: by default a short report (a summary line, the timing table condensed to its longest stages, the
+written files), with ``-v`` every stage and statistic. A render's warnings (e.g. a light that reaches no pixel) go
+to stderr as ``warning: ...`` unless ``-q``. Warp's own messages (its start-up banner, module loads, the warning of
+a machine without a CUDA driver) are shown with ``-v`` only.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import threading
 import time
 import traceback
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 from pydantic import ValidationError
@@ -33,6 +36,9 @@ from warpscatter.csm import settings as csm_settings
 from warpscatter.errors import ConfigError, WarpscatterError
 from warpscatter.resources import bundled_config, in_package
 from warpscatter.schema import format_validation_errors
+
+if TYPE_CHECKING:
+    from warpscatter.stages import Estimate
 
 EXIT_FAILURE = 1
 EXIT_INVALID = 2
@@ -45,6 +51,8 @@ DEFAULT_SUITE_DURATION = "about 2 minutes on two cores"
 
 #: Seconds between progress lines when stderr is not a terminal (logs, CI).
 PLAIN_PROGRESS_INTERVAL = 10.0
+#: Rows of the default timing table (a render with more stages shows its longest ones and one row for the rest).
+TIMING_ROWS = 6
 
 log = logging.getLogger("warpscatter")
 
@@ -64,10 +72,10 @@ def _common_options(kernels: bool):
 
     def decorate(f):
         options = [
-            click.option("-v", "--verbose", count=True, help="More messages on stderr: -v info and Warp's own "
-                         "messages (module loads), -vv debug."),
-            click.option("-q", "--quiet", is_flag=True, help="No progress, tables or notes: only errors and the "
-                         "written files."),
+            click.option("-v", "--verbose", count=True, help="More messages: -v info, Warp's own messages "
+                         "(module loads) and every stage and statistic of a render, -vv debug."),
+            click.option("-q", "--quiet", is_flag=True, help="No progress, tables, notes or warnings: only errors "
+                         "and the written files."),
             click.option("--debug", is_flag=True, help="Show the full traceback of an error."),
         ]
         if kernels:
@@ -161,23 +169,56 @@ def _isatty(stream) -> bool:
         return False
 
 
-class ProgressDisplay:
-    """``progress(stage, fraction)`` callback drawing on stderr.
+def _format_eta(seconds: float) -> str:
+    if seconds < 99.5:
+        return f"{seconds:.0f} s"
+    return f"{seconds / 60:.1f} min" if seconds < 5940 else f"{seconds / 3600:.1f} h"
 
-    On a terminal: a tqdm bar per stage (percentage, elapsed time and ETA; ``prefix`` in front, e.g. ``[2/3]`` of
-    several configs). Otherwise: a line when a stage starts and, for long stages, one every ``interval`` seconds
-    with the percentage and the ETA (a background thread writes it also for a stage that reports no progress, e.g.
-    a long compile: ``still running``). Disabled: does nothing.
+
+def eta_text(stage: str | None, estimate: Estimate) -> str:
+    """The ETA as the progress display words it: ``ETA 12 s`` (the whole run, later stages known from an earlier
+    run), ``ETA 5 s for this stage`` (later stages unknown), or why it is unknown."""
+    if estimate.seconds is None:
+        if stage == "compile":
+            return "ETA unknown: a compile reports no progress"
+        return "ETA unknown: no progress reported yet"
+    text = f"ETA {_format_eta(estimate.seconds)}"
+    return text if estimate.complete else f"{text} for this stage"
+
+
+class ProgressDisplay:
+    """``progress(stage, fraction)`` callback drawing on stderr, with the time left from an
+    :class:`~warpscatter.stages.EtaEstimator` (each stage's own measured rate; the stages still to come from
+    ``expected``, e.g. the timings of the previous render of the same output).
+
+    On a terminal: a tqdm bar per stage (percentage, the stage's elapsed time and the ETA; ``prefix`` in front, e.g.
+    ``[2/3]`` of several configs), redrawn every second also while a stage reports nothing. Otherwise: a line when
+    the first stage starts (with ``every_stage``, when each one starts), then at most one every ``interval``
+    seconds with the running stage, its percentage and the ETA (a background thread writes it also for a stage that
+    reports no progress, e.g. a long compile: ``still running``). Disabled: does nothing.
+
+    Args:
+        enabled: draw anything at all.
+        stream: where to draw (default: stderr).
+        interval: seconds between plain lines (default :data:`PLAIN_PROGRESS_INTERVAL`); 0 draws every report.
+        prefix: text in front of the stage name.
+        expected: stage -> seconds of an earlier run, in order (see :class:`~warpscatter.stages.EtaEstimator`).
+        every_stage: without a terminal, a line for every stage that starts (``-v``).
     """
 
-    def __init__(self, enabled: bool = True, stream=None, interval: float = PLAIN_PROGRESS_INTERVAL,
-                 prefix: str = ""):
+    def __init__(self, enabled: bool = True, stream=None, interval: float | None = None, prefix: str = "",
+                 expected=None, every_stage: bool = False):
+        from warpscatter.stages import EtaEstimator
+
         self.stream = stream if stream is not None else sys.stderr
         self.enabled = enabled
         self.tty = enabled and _isatty(self.stream)
-        self.interval = interval
+        self.interval = PLAIN_PROGRESS_INTERVAL if interval is None else interval
         self.prefix = prefix
+        self.every_stage = every_stage
+        self.eta = EtaEstimator(expected)
         self.stage: str | None = None
+        self.started = False
         self.start = time.perf_counter()
         self.stage_start = self.start
         self.last_line = self.start
@@ -199,51 +240,62 @@ class ProgressDisplay:
     def _update(self, stage: str, fraction: float) -> None:
         with self._lock:
             self._draw(stage, fraction)
-        if not self.tty and self._heart is None and self.interval > 0:
+        if self._heart is None and (self.tty or self.interval > 0):
             self._heart = threading.Thread(target=self._heartbeat, name="warpscatter-progress", daemon=True)
             self._heart.start()
 
+    def _eta_text(self, now: float) -> str:
+        return eta_text(self.stage, self.eta.estimate(now))
+
+    def _status(self, now: float) -> str:
+        """The plain line of the running stage: its percentage and the ETA, or how long it has run."""
+        if 0.0 < self.fraction < 1.0:
+            return f"{self.prefix}{self.stage} {100 * self.fraction:3.0f}% ({self._eta_text(now)})"
+        return f"{self.prefix}{self.stage} still running ({now - self.stage_start:.0f} s; {self._eta_text(now)})"
+
+    def _write(self, now: float, text: str) -> None:
+        self.stream.write(f"[{now - self.start:7.2f}s] {text}\n")
+        self.stream.flush()
+        self.last_line = now
+
     def _heartbeat(self) -> None:
-        """Without a terminal: a line every ``interval`` seconds while a stage runs without reporting."""
-        while not self._stop.wait(min(self.interval, 1.0)):
+        """While a stage runs: the bar redrawn every second (terminal), else a line every ``interval`` seconds."""
+        while not self._stop.wait(min(self.interval, 1.0) if self.interval > 0 and not self.tty else 1.0):
             with self._lock:
                 now = time.perf_counter()
-                if not self.enabled or self.stage is None or now - self.last_line < self.interval:
+                if not self.enabled or self.stage is None:
                     continue
-                done = f" {100 * self.fraction:3.0f}%" if 0.0 < self.fraction < 1.0 else ""
                 try:
-                    self.stream.write(f"[{now - self.start:7.2f}s] {self.prefix}{self.stage}{done} still running "
-                                      f"({now - self.stage_start:.0f} s)\n")
-                    self.stream.flush()
+                    if self.bar is not None:
+                        self.bar.set_postfix_str(self._eta_text(now), refresh=True)
+                    elif not self.tty and self.interval > 0 and now - self.last_line >= self.interval:
+                        self._write(now, self._status(now))
                 except Exception:  # a closed stream: the display ends, the work goes on
                     self.enabled = False
                     return
-                self.last_line = now
 
     def _draw(self, stage: str, fraction: float) -> None:
         now = time.perf_counter()
+        self.eta.update(stage, fraction, now)
         self.fraction = fraction
         if stage != self.stage:
             self._close_bar()
-            self.stage, self.stage_start, self.last_line = stage, now, now
+            first, self.started = not self.started, True
+            self.stage, self.stage_start = stage, now
             if self.tty:
                 from tqdm import tqdm
 
-                self.bar = tqdm(total=1000, desc=f"{self.prefix}{stage}"[:32], file=self.stream, leave=False,
-                                dynamic_ncols=True, mininterval=0.1,
-                                bar_format="{desc:<32} {percentage:5.1f}% |{bar:24}| {elapsed} < {remaining}")
-            else:
-                self.stream.write(f"[{now - self.start:7.2f}s] {self.prefix}{stage}\n")
-                self.stream.flush()
+                self.bar = tqdm(total=1000, desc=f"{self.prefix}{stage}"[:24], file=self.stream, leave=False,
+                                dynamic_ncols=True, mininterval=0.1, postfix=self._eta_text(now),
+                                bar_format="{desc:<24} {percentage:5.1f}% |{bar:20}| {elapsed}{postfix}")
+            elif first or self.every_stage:
+                self._write(now, f"{self.prefix}{stage}")
+                return
         if self.bar is not None:
+            self.bar.set_postfix_str(self._eta_text(now), refresh=False)
             self.bar.update(int(round(fraction * 1000)) - self.bar.n)
         elif now - self.last_line >= self.interval and 0.0 < fraction < 1.0:
-            elapsed = now - self.stage_start
-            eta = elapsed * (1.0 - fraction) / fraction
-            self.stream.write(f"[{now - self.start:7.2f}s] {self.prefix}{stage} {100 * fraction:3.0f}% "
-                              f"(ETA {eta:.0f} s)\n")
-            self.stream.flush()
-            self.last_line = now
+            self._write(now, self._status(now))
 
     def _close_bar(self) -> None:
         if self.bar is not None:
@@ -266,12 +318,22 @@ def _format_seconds(s: float) -> str:
     return f"{s:8.3f} s "
 
 
-def timing_table(timings) -> str:
-    """Per-stage timing table: stage, time, share of the total, and a total row."""
+def timing_table(timings, max_rows: int | None = None) -> str:
+    """Per-stage timing table: stage, time, share of the total, and a total row.
+
+    Args:
+        timings: stage -> seconds, in order.
+        max_rows: with more stages than this, the ``max_rows - 1`` longest stages (in their order) and one row
+            ``(N other stages)`` for the rest; None shows every stage.
+    """
     rows = [(str(k), float(v)) for k, v in dict(timings or {}).items()]
     if not rows:
         return "(no timings)"
     total = sum(v for _, v in rows)
+    if max_rows is not None and len(rows) > max(max_rows, 2):
+        longest = set(sorted(range(len(rows)), key=lambda i: -rows[i][1])[:max(max_rows, 2) - 1])
+        others = [v for i, (_, v) in enumerate(rows) if i not in longest]
+        rows = [r for i, r in enumerate(rows) if i in longest] + [(f"({len(others)} other stages)", sum(others))]
     width = max(len("stage"), len("total"), *(len(k) for k, _ in rows))
     lines = [f"{'stage':<{width}}  {'time':>11}  {'share':>6}", "-" * (width + 21)]
     for k, v in rows:
@@ -435,10 +497,14 @@ def _summary(config: Config) -> list[str]:
     extra = [a for a in AOV_NAMES if a in out.aovs and a != "color"]
     return [
         f"  scene:   {len(meshes)} mesh(es) ({kinds})",
-        f"  camera:  {cam.width}x{cam.height}, fov_y {cam.fov_y:g} deg, {_format_value(cam.position)} -> "
-        f"{_format_value(cam.look_at)}, near {cam.near:g}, far {cam.far:g}",
+        f"  camera:  {cam.width}x{cam.height}"
+        f"{f' ({cam.supersample}x{cam.supersample} rays a pixel)' if cam.supersample > 1 else ''}, fov_y "
+        f"{cam.fov_y:g} deg, {_format_value(cam.position)} -> {_format_value(cam.look_at)}, near {cam.near:g}, "
+        f"far {cam.far:g}",
         f"  light:   {light_text}",
         f"  medium:  sigma_t {_format_value(med.sigma_t)}, albedo {_format_value(med.albedo)}, phase {phase}",
+        *([f"  surfaces: sky fill {_format_value(config.render.surfaces.ambient)}"]
+          if any(config.render.surfaces.ambient) else []),
         f"  method:  {sc.method} ({_scattering_summary(sc)})" if lt.method is None else
         f"  method:  lighting {lt.method} ({lt.samples} strata x {lt.passes} passes, filter {lt.filter}"
         f"{', CSM file ' + str(lt.csm.file) if lt.csm.file else ''})",
@@ -565,7 +631,9 @@ def render(ctx, config_paths, output_dir, overrides, method, name, seed, frames,
 
     Writes, per config, NAME.exr, NAME.png, the AOVs of output.aovs (NAME.scattering.exr, NAME.surface.exr,
     NAME.depth.exr) and NAME.json (what made them: the resolved config, versions, timings, statistics) into
-    output.dir or -o DIR, then prints the per-stage timings. Every config is checked before the first render.
+    output.dir or -o DIR, then prints a summary, the timings of the longest stages and the written files (-v: every
+    stage and the statistics). A render's warnings, e.g. a light that reaches no pixel, go to stderr as
+    "warning: ..." unless -q. Every config is checked before the first render.
 
     A config with an animation section renders its frames (NAME.0001.exr ...) through --executor, skipping the
     frames already rendered from the same config, then writes a preview (NAME.mp4 or NAME.gif).
@@ -611,7 +679,9 @@ def render(ctx, config_paths, output_dir, overrides, method, name, seed, frames,
     failures = []
     for k, (path, config) in enumerate(zip(config_paths, configs, strict=True)):
         prefix = f"[{k + 1}/{len(configs)}] " if len(configs) > 1 else ""
-        progress = ProgressDisplay(enabled=not quiet, prefix=prefix)
+        expected = None if quiet or path in frame_lists else _previous_timings(out_dir or config.output.dir,
+                                                                               config.output_name)
+        progress = ProgressDisplay(enabled=not quiet, prefix=prefix, expected=expected, every_stage=verbose > 0)
         if path in frame_lists:
             code = _render_animation(config, frame_lists[path], out_dir, progress, quiet, debug, force, preview,
                                      (executor, workers, address))
@@ -633,20 +703,48 @@ def render(ctx, config_paths, output_dir, overrides, method, name, seed, frames,
             continue
         progress.close()
         files = [Path(f) for f in getattr(result, "files", [])]
+        lines = stats_lines(getattr(result, "stats", {}))
         if not quiet:
             if len(configs) > 1:
                 click.echo(f"{prefix}{path}")
-            click.echo(timing_table(getattr(result, "timings", {})))
-            lines = stats_lines(getattr(result, "stats", {}))
-            if lines:
+            click.echo(_render_summary(config, device, files, len(lines) if not verbose else 0))
+            click.echo(timing_table(getattr(result, "timings", {}), max_rows=None if verbose else TIMING_ROWS))
+            if lines and verbose:
                 click.echo("stats:")
                 for line in lines:
                     click.echo(f"  {line}")
-            click.echo("wrote:")
+            if files:
+                click.echo("wrote:")
         for f in files:
             click.echo(f"  {f}" if not quiet else str(f))
+        if not quiet:
+            for text in getattr(result, "warnings", None) or []:
+                click.echo(f"warning: {text}", err=True)
     if failures:
         _fail(f"{len(failures)} of {len(configs)} configs failed", failures[0])
+
+
+def _previous_timings(folder: Path, name: str) -> dict | None:
+    """The stage timings of the previous render of the same output (``timings_s`` of its ``NAME.json``), or None:
+    what the progress display expects of the stages still to come."""
+    try:
+        timings = json.loads((Path(folder) / f"{name}.json").read_text(encoding="utf-8")).get("timings_s")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return timings if isinstance(timings, dict) and timings else None
+
+
+def _render_summary(config: Config, device: str | None, files: list[Path], hidden_stats: int) -> str:
+    """The first line of a render's report: output name, method, size, device, and where the statistics are when
+    they are not shown (``hidden_stats`` of them)."""
+    lt, sc = config.render.lighting, config.render.scattering
+    text = f"{config.output_name}: {lt.method or sc.method}, {config.camera.width} x {config.camera.height}"
+    text += f" on {device}" if device else ""
+    if hidden_stats:
+        sidecar = next((f.name for f in files if f.suffix == ".json"), None)
+        text += f" ({hidden_stats} statistic{'s' if hidden_stats != 1 else ''}: -v" + (f" or {sidecar})" if sidecar
+                                                                                    else ")")
+    return text
 
 
 def _render_animation(config, frames, out_dir, progress, quiet, debug, force, preview, executor_args) -> int:
@@ -721,7 +819,7 @@ def sweep(ctx, sweep_path, output_dir, overrides, executor, workers, address, ve
     out_dir = _out_dir(output_dir)
     _setup(verbose, quiet, device, threads, kernels=True)
     pool = _make_executor(executor, workers, address, len(cases), debug)
-    progress = ProgressDisplay(enabled=not quiet)
+    progress = ProgressDisplay(enabled=not quiet, every_stage=verbose > 0)
     try:
         with pool:
             result = run_sweep(settings, out_dir, executor=pool, progress=progress)
@@ -846,7 +944,7 @@ def bench(ctx, suite, reports, repeats: int, warmup: int, output_dir: Path, quic
         _fail(f"unknown suite {suite!r} (choose from: {', '.join([*suites, 'all', 'compare'])})", EXIT_INVALID)
     out_dir = _out_dir(output_dir)
 
-    progress = ProgressDisplay(enabled=not quiet)
+    progress = ProgressDisplay(enabled=not quiet, every_stage=verbose > 0)
     try:
         report = bench_module.run(
             suite, repeats=repeats, warmup=warmup, out_dir=out_dir, quick=quick, progress=progress
@@ -963,7 +1061,7 @@ def precompute(ctx, source: Path, output: Path, overrides, maps, resolution, enu
     from warpscatter.csm.compress import KIND_CUBE
     from warpscatter.csm.occluders import prepare_csm
 
-    progress = ProgressDisplay(enabled=not quiet)
+    progress = ProgressDisplay(enabled=not quiet, every_stage=verbose > 0)
     try:
         t0 = time.perf_counter()
         csm = prepare_csm(light, settings, vertices, triangles,
@@ -991,5 +1089,11 @@ def precompute(ctx, source: Path, output: Path, overrides, maps, resolution, enu
     click.echo(str(output) if quiet else f"wrote:\n  {output}")
 
 
-if __name__ == "__main__":
-    main()
+if __name__ == "__main__":  # python -m warpscatter.cli.main: run the module as imported, with every command
+    from warpscatter.cli.main import main as _main
+
+    _main()
+else:
+    from .gallery import gallery  # cli/gallery.py imports this module's helpers, defined above by now
+
+    main.add_command(gallery)

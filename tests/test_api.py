@@ -15,8 +15,8 @@ from warpscatter.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
 QUICKSTART = ROOT / "configs" / "quickstart.yaml"
-SMALL = {"camera.width": 24, "camera.height": 14, "render.scattering.steps": 8,
-         "render.scattering.shadow_map.resolution": 64}
+SMALL = {"camera.width": 24, "camera.height": 14, "render.scattering.method": "raymarch",
+         "render.scattering.steps": 8, "render.scattering.shadow_map.resolution": 64}
 
 SCENE = {
     "scene": {"meshes": [{"procedural": "ground_plane", "params": {"size": 20}, "receiver_only": True},
@@ -108,7 +108,8 @@ def test_load_config_keeps_the_source_and_copies_dicts():
 
 
 def test_output_name_template():
-    config = warpscatter.load_config(QUICKSTART, {"output.name": "{config}_{method}_x"})
+    config = warpscatter.load_config(QUICKSTART, {"output.name": "{config}_{method}_x",
+                                                  "render.scattering.method": "raymarch"})
     assert config.output_name == "quickstart_raymarch_x"
     with pytest.raises(ConfigError, match=r"output.name: .*unknown template field\(s\) \{scene\}"):
         warpscatter.load_config(QUICKSTART, {"output.name": "{scene}"})

@@ -90,10 +90,30 @@ def test_render_writes_outputs_and_reports(config_file, tmp_path, fake_pipeline)
     assert sorted(p.name for p in out.iterdir()) == ["shot.depth.exr", "shot.exr", "shot.png"]
     assert fake_pipeline[0]["out_dir"] == out and fake_pipeline[0]["config"].output.dir == out
     assert "raymarch" in result.stdout and "1.500 s" in result.stdout and "total" in result.stdout
-    assert "steps: 128" in result.stdout
+    assert result.stdout.splitlines()[0] == "shot: raymarch, 4 x 3 on cpu (1 statistic: -v)"
+    assert "steps: 128" not in result.stdout  # the statistics: -v
     assert str(out / "shot.exr") in result.stdout
-    # stderr is not a terminal here: one plain line per stage
-    assert [line.split("] ")[1] for line in result.stderr.splitlines()] == ["scene", "raymarch", "write"]
+    # stderr is not a terminal here: a line when the render starts, then one every few seconds
+    assert [line.split("] ")[1] for line in result.stderr.splitlines()] == ["scene"]
+    verbose = invoke("render", config_file, "-o", tmp_path / "o", "-v")
+    assert verbose.exit_code == 0, verbose.output
+    assert "stats:\n  steps: 128" in verbose.stdout and "(1 statistic" not in verbose.stdout
+    assert [line.split("] ")[1] for line in verbose.stderr.splitlines()] == ["scene", "raymarch", "write"]
+
+
+def test_render_prints_the_results_warnings_unless_quiet(config_file, tmp_path, monkeypatch):
+    module = types.ModuleType("warpscatter.pipeline")
+    dark = "the light reaches no pixel: light.direction is the direction the light travels"
+    module.render = lambda config, **kwargs: types.SimpleNamespace(files=[], timings={"scene": 0.1}, stats={},
+                                                                   warnings=[dark, "second"])
+    monkeypatch.setitem(sys.modules, "warpscatter.pipeline", module)
+    for flags in ((), ("-v",)):
+        result = invoke("render", config_file, "-o", tmp_path / "o", *flags)
+        assert result.exit_code == 0, result.output
+        assert result.stderr.splitlines()[-2:] == [f"warning: {dark}", "warning: second"]
+        assert "warning" not in result.stdout
+    result = invoke("render", config_file, "-o", tmp_path / "o", "-q")
+    assert result.exit_code == 0 and result.stderr == "" and result.stdout == ""
 
 
 def test_render_default_output_dir_is_relative_to_config(config_file, tmp_path, fake_pipeline, monkeypatch):
@@ -129,7 +149,8 @@ def test_render_set_and_method_apply(config_file, tmp_path, fake_pipeline):
     cfg = fake_pipeline[0]["config"]
     assert cfg.camera.fov_y == 40 and cfg.camera.width == 6 and cfg.render.scattering.steps == 7
     assert cfg.render.scattering.method == "raymarch"
-    assert "steps: 7" in result.stdout
+    assert "steps: 7" in invoke("render", config_file, "-o", tmp_path / "o", "--set", "render.scattering.steps=7",
+                                "-v").stdout
 
 
 def test_render_method_override_names_the_outputs(config_file, tmp_path, fake_pipeline):
@@ -349,6 +370,11 @@ def test_progress_on_a_terminal_draws_a_bar_and_clears_it():
 def test_progress_plain_lines_and_disabled():
     stream = io.StringIO()
     show = ProgressDisplay(stream=stream)
+    for stage, f in [("scene", 0.0), ("scene", 1.0), ("raster", 0.3), ("raster", float("nan"))]:
+        show(stage, f)
+    assert [line.split("] ")[1] for line in stream.getvalue().splitlines()] == ["scene"]  # the next in 10 s
+    stream = io.StringIO()
+    show = ProgressDisplay(stream=stream, every_stage=True)  # -v: a line per stage
     for stage, f in [("scene", 0.0), ("scene", 1.0), ("raster", 0.3), ("raster", float("nan"))]:
         show(stage, f)
     assert [line.split("] ")[1] for line in stream.getvalue().splitlines()] == ["scene", "raster"]

@@ -59,8 +59,21 @@ def load_config(source: ConfigSource, overrides: Overrides = (), *, config_dir: 
 
 
 def render(config: ConfigSource, overrides: Overrides = (), *, out_dir: str | Path | None = None, device=None,
-           progress=None):
+           progress=None, verbose: bool = False):
     """Render a config and return its images; write the output files only when ``out_dir`` is given.
+
+    Quiet by default: the render writes nothing to stdout or stderr, first call included. Warp's start-up banner
+    and its "Module ... load on device" lines go to the ``warpscatter.warp`` logger (Warp 1.19 prints them through
+    its logger, ``wp.get_logger()``, at ``wp.config.log_level <= wp.LOG_INFO``; ``wp.config.quiet`` is not a Warp
+    1.19 setting) and Warp's native warning of a machine without a CUDA driver to the ``warpscatter`` logger at
+    DEBUG level. Warp's warnings and errors still show. Warp's logger and log level are as they were after the call,
+    also when it raises. To see Warp's messages::
+
+        warpscatter.render("configs/quickstart.yaml", verbose=True)   # Warp prints them, as it does by default
+
+        import logging
+        logging.basicConfig(level=logging.INFO)   # or: logging.getLogger("warpscatter.warp").setLevel(logging.INFO)
+        warpscatter.render("configs/quickstart.yaml")                 # through logging, as INFO records
 
     Args:
         config: a YAML file path, a plain dict or a :class:`Config` (validated again: see the module docstring).
@@ -70,6 +83,8 @@ def render(config: ConfigSource, overrides: Overrides = (), *, out_dir: str | Pa
         device: a Warp device or its name; None follows Warp (``wp.get_device()``) unless ``WARPSCATTER_DEVICE``
             is set.
         progress: optional ``progress(stage, fraction)`` callback.
+        verbose: let Warp print its messages (banner, module loads) as it does by default
+            (:func:`warpscatter.wpinit.warp_messages`).
 
     Returns:
         :class:`~warpscatter.pipeline.RenderResult`: ``images`` (name -> float32 numpy array: ``color``,
@@ -80,10 +95,13 @@ def render(config: ConfigSource, overrides: Overrides = (), *, out_dir: str | Pa
         ConfigError: an invalid config or override (nothing is rendered).
         ImageWriteError: an output file could not be written (the previous files are left as they were).
     """
-    from .pipeline import render as render_config
-
     cfg = config.revalidated() if isinstance(config, Config) and not overrides else load_config(config, overrides)
-    return render_config(cfg, out_dir=out_dir, progress=progress, device=device, write=out_dir is not None)
+    from .wpinit import warp_messages
+
+    with warp_messages(verbose):
+        from .pipeline import render as render_config
+
+        return render_config(cfg, out_dir=out_dir, progress=progress, device=device, write=out_dir is not None)
 
 
 def clear_caches() -> None:

@@ -126,7 +126,8 @@ def write_preview(pngs: list[Path], target: Path, fps: float) -> Path:
 
 def render_animation(config, out_dir: str | Path | None = None, *, frames: list[int] | None = None,
                      executor: Executor | None = None, resume: bool = True, preview: str | None = None,
-                     progress: Callable[[str, float], None] | None = None, device=None) -> AnimationResult:
+                     progress: Callable[[str, float], None] | None = None, device=None,
+                     verbose: bool = False) -> AnimationResult:
     """Render the frames of an animated config and its preview.
 
     Args:
@@ -138,6 +139,7 @@ def render_animation(config, out_dir: str | Path | None = None, *, frames: list[
         preview: override ``animation.preview`` (``auto``, ``mp4``, ``gif``, ``none``).
         progress: ``progress(stage, fraction)``, called once per finished frame.
         device: the Warp device every frame renders on (default: :func:`warpscatter.wpinit.default_device`).
+        verbose: show Warp's own messages (its banner, module loads), as :func:`warpscatter.render` does.
 
     Returns:
         :class:`AnimationResult`; failed frames are in it with their errors (the others render on).
@@ -146,6 +148,13 @@ def render_animation(config, out_dir: str | Path | None = None, *, frames: list[
         ValueError: the config has no animation.
         ConfigError: a frame's values make an invalid config (checked for every frame before any render).
     """
+    from .wpinit import warp_messages
+
+    with warp_messages(verbose):
+        return _render_animation(config, out_dir, frames, executor, resume, preview, progress, device)
+
+
+def _render_animation(config, out_dir, frames, executor, resume, preview, progress, device) -> AnimationResult:
     if config.animation is None:
         raise ValueError("render_animation: the config has no animation section")
     t0 = time.perf_counter()

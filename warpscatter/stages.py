@@ -12,13 +12,20 @@ builders accept as ``progress=``)::
 
 A stage that runs twice accumulates its time. Leaving a stage synchronises Warp, so the time includes the work
 launched inside it.
+
+An :class:`EtaEstimator` turns the same progress reports into the time left (the CLI's progress display uses it)::
+
+    eta = EtaEstimator(expected={"scene": 0.1, "compile": 0.7, "prefilter": 3.0, "write": 0.1})  # an earlier run
+    eta.update("prefilter", 0.25, now=12.0)
+    eta.estimate(now=12.5)  # Estimate(seconds=..., complete=True): the rest of prefilter, then write
 """
 
 from __future__ import annotations
 
 import time
 from collections import OrderedDict
-from typing import Callable
+from collections.abc import Iterable, Mapping
+from typing import Callable, NamedTuple
 
 import warp as wp
 
@@ -77,4 +84,112 @@ class StageTimer:
         self.timings[name] = self.timings.get(name, 0.0) + seconds
 
 
-__all__ = ["ProgressFn", "ReportFn", "Stage", "StageTimer"]
+class Estimate(NamedTuple):
+    """What :meth:`EtaEstimator.estimate` returns.
+
+    Attributes:
+        seconds: the time left in seconds, or None when nothing tells it yet (a stage that has reported no progress
+            and that the earlier run did not have, e.g. a first compile).
+        complete: True when ``seconds`` includes the stages still to come (known from an earlier run); False when
+            it is the running stage's rest only.
+    """
+
+    seconds: float | None
+    complete: bool
+
+
+class EtaEstimator:
+    """The time left of a run of named stages, from each stage's own measured rate.
+
+    The running stage's rest is its remaining fraction over its rate, measured from its first progress report above
+    zero to its latest (set-up before the first report does not count), less the time since that report; with a
+    single report, the rate since the stage began. A stage that has reported nothing yet is estimated from
+    ``expected`` if it holds the stage, else unknown. The stages still to come are known only from ``expected``
+    (e.g. the ``timings_s`` of a previous render's ``NAME.json``): those after the running stage in its order,
+    each scaled by how the finished stages compared with their expected times (stages in ``unscaled``, such as
+    ``compile`` whose time depends on the kernel cache, keep their expected time and do not set the scale). The
+    scale starts at 1 and follows the finished stages as they add up: ``(spent + prior) / (expected + prior)``,
+    ``prior`` being :attr:`PRIOR_SHARE` of the expected run, so a few short stages cannot swing it.
+
+    Every method takes the time ``now`` (seconds, any clock) from the caller: the estimator reads no clock.
+
+    Args:
+        expected: stage name -> seconds of an earlier run, in the order its stages ran; None when there is none.
+        unscaled: stages whose expected time is not scaled.
+    """
+
+    #: Weight of the earlier run's own pace in :meth:`scale`, as a share of its (scaled) stages' total time.
+    PRIOR_SHARE = 0.25
+
+    def __init__(self, expected: Mapping[str, float] | None = None, unscaled: Iterable[str] = ("compile",)):
+        self.expected = OrderedDict((str(k), float(v)) for k, v in dict(expected or {}).items()
+                                    if isinstance(v, (int, float)) and v >= 0)
+        self.unscaled = frozenset(unscaled)
+        self.stage: str | None = None
+        self.fraction = 0.0
+        self.stage_start = 0.0  # when the running stage began
+        self.first: tuple[float, float] | None = None  # (time, fraction) of its first report above zero
+        self.last: tuple[float, float] | None = None  # (time, fraction) of its latest report above zero
+        self.finished: OrderedDict[str, float] = OrderedDict()  # stage -> seconds, stages left behind
+
+    def update(self, stage: str, fraction: float, now: float) -> None:
+        """A progress report: ``stage`` is ``fraction`` (0..1) done at time ``now``."""
+        if stage != self.stage:
+            if self.stage is not None:
+                self.finished[self.stage] = self.finished.get(self.stage, 0.0) + (now - self.stage_start)
+            self.stage, self.stage_start, self.first, self.last = stage, now, None, None
+        self.fraction = min(max(fraction, 0.0), 1.0)
+        if self.fraction > 0.0:
+            self.last = (now, self.fraction)
+            if self.first is None:
+                self.first = self.last
+
+    def scale(self) -> float:
+        """How long the finished stages took against their expected times, drawn towards 1 by a prior of
+        :attr:`PRIOR_SHARE` of the expected run (1 when nothing has finished)."""
+        done = [(t, self.expected[k]) for k, t in self.finished.items()
+                if k in self.expected and k not in self.unscaled]
+        spent, planned = sum(t for t, _ in done), sum(e for _, e in done)
+        prior = self.PRIOR_SHARE * sum(v for k, v in self.expected.items() if k not in self.unscaled)
+        return (spent + prior) / (planned + prior) if planned + prior > 0 else 1.0
+
+    def _expected(self, stage: str) -> float:
+        return self.expected[stage] * (1.0 if stage in self.unscaled else self.scale())
+
+    def stage_left(self, now: float) -> float | None:
+        """Seconds left of the running stage, or None when unknown."""
+        if self.stage is None:
+            return None
+        if self.fraction >= 1.0:
+            return 0.0
+        if self.last is not None:
+            (t0, f0), (t1, f1) = self.first, self.last
+            if f1 > f0 and t1 > t0:
+                rate = (f1 - f0) / (t1 - t0)
+            elif t1 > self.stage_start:
+                rate = f1 / (t1 - self.stage_start)
+            else:
+                return None
+            return max((1.0 - f1) / rate - (now - t1), 0.0)
+        if self.stage in self.expected:
+            return max(self._expected(self.stage) - (now - self.stage_start), 0.0)
+        return None
+
+    def later_stages(self) -> list[str]:
+        """The stages still to come, as far as ``expected`` tells (after the running stage in its order)."""
+        names = list(self.expected)
+        if self.stage in self.expected:
+            return names[names.index(self.stage) + 1:]
+        return [k for k in names if k not in self.finished]
+
+    def estimate(self, now: float) -> Estimate:
+        """The time left at ``now``: the running stage's rest plus, when ``expected`` is known, the later stages."""
+        left = self.stage_left(now)
+        if left is None:
+            return Estimate(None, bool(self.expected))
+        if not self.expected:
+            return Estimate(left, False)
+        return Estimate(left + sum(self._expected(k) for k in self.later_stages()), True)
+
+
+__all__ = ["Estimate", "EtaEstimator", "ProgressFn", "ReportFn", "Stage", "StageTimer"]

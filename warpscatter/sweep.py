@@ -190,7 +190,8 @@ def _file_stem(label: str) -> str:
 
 
 def run_sweep(sweep: SweepSettings, out_dir: str | Path, *, executor: Executor | None = None,
-              progress: Callable[[str, float], None] | None = None, device=None) -> SweepResult:
+              progress: Callable[[str, float], None] | None = None, device=None,
+              verbose: bool = False) -> SweepResult:
     """Render every case (and each reference), and write the results; a case that fails (or whose image cannot be
     compared with its reference) is a row with its error, and the results are written in every case.
 
@@ -200,10 +201,18 @@ def run_sweep(sweep: SweepSettings, out_dir: str | Path, *, executor: Executor |
         executor: where the renders run (default: this process, one after the other).
         progress: ``progress(stage, fraction)`` per finished render.
         device: the Warp device of every render (default: :func:`warpscatter.wpinit.default_device`).
+        verbose: show Warp's own messages (its banner, module loads), as :func:`warpscatter.render` does.
 
     Raises:
         ConfigError: an invalid case (before any render).
     """
+    from .wpinit import warp_messages
+
+    with warp_messages(verbose):
+        return _run_sweep(sweep, out_dir, executor, progress, device)
+
+
+def _run_sweep(sweep: SweepSettings, out_dir, executor, progress, device) -> SweepResult:
     from .provenance import provenance
     from .wpinit import default_device
 

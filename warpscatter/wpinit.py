@@ -6,6 +6,14 @@ compiles are ~2.5x faster). Importing warpscatter changes none of Warp's global 
 log level and messages stay the user's (the CLI quiets them, see ``warpscatter --help``);
 ``WARPSCATTER_KERNEL_CACHE``, when set, moves Warp's kernel cache.
 
+:func:`warp_messages` keeps Warp's own output (its start-up banner, the "Module ... load on device" lines, the
+CUDA-driver warning of a machine without a GPU) out of the user's terminal while warpscatter works:
+``warpscatter.render`` runs inside it. Warp 1.19 writes its messages through its logger (``wp.get_logger()``:
+info to stdout, warnings to stderr through :mod:`warnings`) when ``wp.config.log_level`` allows (``wp.LOG_INFO``
+by default); ``wp.config.quiet`` is not a setting of Warp 1.19. Inside :func:`warp_messages` Warp's debug and info
+messages go to the ``warpscatter.warp`` logger instead (shown by ``logging.basicConfig(level=logging.INFO)``);
+its warnings and errors still reach Warp's logger.
+
 The default device follows Warp's: :func:`default_device` returns the device given, else
 ``WARPSCATTER_DEVICE``, else ``wp.get_device()`` (so ``wp.ScopedDevice`` and ``wp.set_device`` apply).
 """
@@ -17,10 +25,13 @@ import logging
 import os
 import sys
 import tempfile
+import threading
 
 import warp as wp
 
 log = logging.getLogger("warpscatter")
+#: Where :func:`warp_messages` sends Warp's debug and info messages (banner, module loads).
+warp_log = logging.getLogger("warpscatter.warp")
 
 _initialised = False
 _after_init: list = []  # callables init() runs once Warp is up (after_init)
@@ -73,13 +84,115 @@ def init(quiet_native: bool = False) -> None:
     if _initialised:
         return
     if quiet_native:
-        with _native_stderr_to_log():
-            wp.init()
+        # Warp's own messages of wp.init() (its banner) are held and passed on once file descriptor 2 is the
+        # terminal's again: a Python logger writing to stderr would otherwise write into the redirection.
+        target, held = wp.get_logger(), _HeldMessages()
+        wp.set_logger(held)
+        try:
+            with _native_stderr_to_log():
+                wp.init()
+        finally:
+            wp.set_logger(target)
+            held.replay(target)
     else:
         wp.init()
     _initialised = True
     while _after_init:
         _after_init.pop(0)()
+
+
+class WarpToLogging:
+    """A Warp logger (the protocol of ``wp.set_logger``) that sends Warp's debug and info messages to the
+    ``warpscatter.warp`` logger and its warnings and errors to ``previous`` (the Warp logger it stands in for).
+
+    Args:
+        previous: the Warp logger that keeps Warp's warnings and errors (``wp.get_logger()`` when installed).
+    """
+
+    def __init__(self, previous):
+        self.previous = previous
+
+    def debug(self, message: str) -> None:
+        warp_log.debug("%s", message)
+
+    def info(self, message: str) -> None:
+        warp_log.info("%s", message)
+
+    def warning(self, message: str, category=None, stacklevel: int = 1) -> None:
+        self.previous.warning(message, category=category, stacklevel=stacklevel + 1)
+
+    def error(self, message: str) -> None:
+        self.previous.error(message)
+
+
+_quiet_lock = threading.Lock()
+_quiet_depth = 0  # warp_messages(verbose=False) blocks running now (renders in several threads share one logger)
+_quiet_saved = None  # the Warp logger the outermost block replaced
+
+
+@contextlib.contextmanager
+def warp_messages(verbose: bool = False):
+    """Keep Warp's messages out of the user's output while warpscatter works, unless ``verbose``; leave Warp's
+    settings as they were afterwards, also when the block raises.
+
+    Default (``verbose=False``): Warp is initialised with its native start-up warning routed to the logger (see
+    :func:`init`), and Warp's debug and info messages (the banner, module loads) go to the ``warpscatter.warp``
+    logger through a :class:`WarpToLogging` installed with ``wp.set_logger`` for the block (Warp's logger is
+    process-wide: a Warp module loaded by another thread during the block is logged there too). Warp's warnings and
+    errors still reach Warp's logger. ``verbose=True``: Warp prints as it does by default: ``wp.config.log_level``
+    is lowered to ``wp.LOG_INFO`` for the block if it is higher, and Warp's native start-up messages pass.
+
+    Args:
+        verbose: show Warp's own messages.
+    """
+    global _quiet_depth, _quiet_saved
+    if verbose:
+        saved_level = wp.config.log_level
+        wp.config.log_level = min(saved_level, wp.LOG_INFO)
+        try:
+            init()
+            yield
+        finally:
+            wp.config.log_level = saved_level
+        return
+    with _quiet_lock:
+        if _quiet_depth == 0:
+            _quiet_saved = wp.get_logger()
+            wp.set_logger(WarpToLogging(_quiet_saved))
+        _quiet_depth += 1
+    try:
+        init(quiet_native=True)
+        yield
+    finally:
+        with _quiet_lock:
+            _quiet_depth -= 1
+            if _quiet_depth == 0:
+                wp.set_logger(_quiet_saved)
+                _quiet_saved = None
+
+
+class _HeldMessages:
+    """A Warp logger that keeps what Warp logs until :meth:`replay` hands it to another Warp logger, in order."""
+
+    def __init__(self):
+        self.messages: list[tuple[str, tuple, dict]] = []
+
+    def debug(self, message: str) -> None:
+        self.messages.append(("debug", (message,), {}))
+
+    def info(self, message: str) -> None:
+        self.messages.append(("info", (message,), {}))
+
+    def warning(self, message: str, category=None, stacklevel: int = 1) -> None:
+        self.messages.append(("warning", (message,), {"category": category}))
+
+    def error(self, message: str) -> None:
+        self.messages.append(("error", (message,), {}))
+
+    def replay(self, target) -> None:
+        for method, args, kwargs in self.messages:
+            getattr(target, method)(*args, **kwargs)
+        self.messages.clear()
 
 
 def initialised() -> bool:
