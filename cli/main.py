@@ -528,7 +528,23 @@ def _interrupted(progress: ProgressDisplay) -> None:
 # ---- commands --------------------------------------------------------------------------------------
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class _Commands(click.Group):
+    """The application's commands: those defined in this module, and those of other modules of the package
+    (:data:`LAZY`), imported when first listed or run, so that such a module may import this one's helpers."""
+
+    LAZY = {"gallery": ("warpscatter.cli.gallery", "gallery")}
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted({*super().list_commands(ctx), *self.LAZY})
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name in self.LAZY and name not in self.commands:
+            module, attr = self.LAZY[name]
+            self.add_command(getattr(importlib.import_module(module), attr), name)
+        return super().get_command(ctx, name)
+
+
+@click.group(cls=_Commands, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, "--version", prog_name="warpscatter", message="%(prog)s %(version)s")
 @click.option("--debug", "debug", is_flag=True, help="Show full tracebacks of errors (any command).")
 @click.pass_context
@@ -1089,11 +1105,5 @@ def precompute(ctx, source: Path, output: Path, overrides, maps, resolution, enu
     click.echo(str(output) if quiet else f"wrote:\n  {output}")
 
 
-if __name__ == "__main__":  # python -m warpscatter.cli.main: run the module as imported, with every command
-    from warpscatter.cli.main import main as _main
-
-    _main()
-else:
-    from .gallery import gallery  # cli/gallery.py imports this module's helpers, defined above by now
-
-    main.add_command(gallery)
+if __name__ == "__main__":
+    main()

@@ -37,8 +37,11 @@ def box_filter(images: dict[str, np.ndarray], s: int, frame: tuple[int, int]) ->
         if img.shape[:2] != (h, w):
             out[name] = img
             continue
-        blocks = img.reshape(h // s, s, w // s, s, *img.shape[2:]).astype(np.float64)
-        out[name] = np.ascontiguousarray(blocks.mean(axis=(1, 3)), dtype=np.float32)
+        total = np.zeros((h // s, w // s, *img.shape[2:]), np.float32)
+        for a in range(s):  # s^2 strided views added (float32): several times faster than a mean over block axes
+            for b in range(s):
+                total += img[a::s, b::s]
+        out[name] = total * np.float32(1.0 / (s * s))
     return out
 
 
