@@ -186,14 +186,6 @@ def user_shading_kernel(
 
 
 @wp.kernel
-def readme_shadows_kernel(b: wp.array(dtype=wp.vec4), depth: wp.array(dtype=float), out: wp.array(dtype=float)):
-    # the README's example, verbatim: functions and constants re-exported by the moments facade
-    i = wp.tid()
-    biased = moments.bias_moments4(b[i], moments.MOMENT_BIAS4_FLOAT32, moments.BIAS_VECTOR4_FLOAT32)
-    out[i] = moments.msm4_shadow_intensity(biased, depth[i])
-
-
-@wp.kernel
 def user_distribution_kernel(
     b4: wp.array(dtype=wp.vec4),
     b6: wp.array(dtype=moments.vec6),
@@ -658,11 +650,15 @@ def test_facade_reexports_both_math_modules():
     assert all(hasattr(moments, name) for name in moments.__all__)
 
 
-def test_readme_kernel_through_the_facade_matches_the_host_wrapper():
-    """A user kernel written as the README shows gives bitwise the lower bound of ``moments.bounds4``."""
+def test_docs_kernel_through_the_facade_matches_the_host_wrapper(tmp_path, monkeypatch):
+    """The user kernel of the docs' example (``my_shadows``, run verbatim from the page: functions and constants
+    re-exported by the moments facade) gives bitwise the lower bound of ``moments.bounds4``."""
+    import doc_examples
+
+    (_, ns), *_ = doc_examples.run_examples("def my_shadows", tmp_path, monkeypatch)
     dists, b4, zf = random_cases(73, 64, 1, 5, 4)
     out = wp.zeros(len(zf), dtype=float, device="cpu")
-    wp.launch(readme_shadows_kernel, len(zf), inputs=[wp.array(b4, dtype=wp.vec4), wp.array(zf), out], device="cpu")
+    wp.launch(ns["my_shadows"], len(zf), inputs=[wp.array(b4, dtype=wp.vec4), wp.array(zf), out], device="cpu")
     want = moments.bounds4(b4, zf, alpha=moments.MOMENT_BIAS4_FLOAT32, bias_vector=moments.BIAS_VECTOR4_FLOAT32)
     np.testing.assert_array_equal(out.numpy(), want[:, 0])
     truth = np.array([shadow_truth(d, w, z) for (d, w), z in zip(dists, zf, strict=True)])

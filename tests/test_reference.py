@@ -1,5 +1,6 @@
-"""The README's config reference and method table against the settings models and the registry
-(warpscatter.reference): every key documented, nothing stale, the example config valid."""
+"""The generated config reference (docs/reference/config.md) against the settings models, the registry and the
+procedural generators (warpscatter.reference): every key documented, nothing stale, the example config valid, every
+method named in the README's method list and in a heading of docs/methods/."""
 
 import re
 import typing
@@ -14,6 +15,7 @@ from warpscatter.config import Config
 
 ROOT = Path(__file__).resolve().parent.parent
 README = (ROOT / "README.md").read_text(encoding="utf-8")
+PAGE = (ROOT / reference.REFERENCE_PAGE).read_text(encoding="utf-8")
 
 
 def _models(model: type[BaseModel], seen=None) -> set:
@@ -39,10 +41,25 @@ def test_every_key_has_a_description():
 
 
 @pytest.mark.parametrize("name", list(reference.BLOCKS))
-def test_readme_generated_blocks_are_current(name):
-    got = reference.readme_block(README, name)
-    assert got is not None, f"README lacks the <!-- generated: {name} --> block"
-    assert got == reference.BLOCKS[name](), f"README block {name!r} is stale: python -m warpscatter.reference README.md"
+def test_generated_blocks_are_current(name):
+    got = reference.readme_block(PAGE, name)
+    assert got is not None, f"{reference.REFERENCE_PAGE} lacks the <!-- generated: {name} --> block"
+    assert got == reference.BLOCKS[name](), (f"{reference.REFERENCE_PAGE}: block {name!r} is stale: "
+                                             f"python -m warpscatter.reference {reference.REFERENCE_PAGE}")
+
+
+def test_generator_reference_lists_every_parameter():
+    import inspect
+
+    from warpscatter.scene import procedural
+
+    text = reference.generator_reference()
+    for name in procedural.generator_names():
+        section = text.split(f"### `{name}`")[1].split("\n### ")[0]
+        for p in inspect.signature(procedural._lookup(name)).parameters:
+            row = re.search(rf"^\| `{p}` \|(.*)\|$", section, re.M)
+            assert row, f"generator {name}: parameter {p} missing"
+            assert row.group(1).split("|")[-1].strip(), f"generator {name}: parameter {p} has no meaning (Args:)"
 
 
 def test_config_reference_lists_every_key_of_the_json_schema():
@@ -71,20 +88,22 @@ def test_config_reference_lists_every_key_of_the_json_schema():
     assert not missing, f"keys missing from the reference: {sorted(missing)}"
 
 
-def test_readme_example_config_is_valid():
-    block = re.search(r"## Config reference.*?```yaml\n(.*?)```", README, re.S).group(1)
+def test_reference_example_config_is_valid():
+    block = re.search(r"```yaml\n(.*?)```", PAGE, re.S).group(1)
     config = Config.from_dict(yaml.safe_load(block), config_dir=ROOT / "configs")
     assert config.render.scattering.method == "moments6" and config.scene.meshes[1].receiver_only
 
 
-def test_readme_names_every_registered_method():
-    # the overview tables at the top (hand-written prose) and a Methods section per method
-    overview = README[:README.index("## Set-up")]
-    named = set(re.findall(r"`(\w+)`", " ".join(re.findall(r"^\| ([^|]+) \|", overview, re.M))))
+def test_every_registered_method_is_named_in_the_readme_and_has_a_docs_heading():
+    # the README's one-line-per-method list (its "methods" section) and a heading of a docs/methods/ page
+    section = re.search(r"^## [^\n]*[Mm]ethods[^\n]*\n(.*?)(?=^## )", README, re.S | re.M)
+    assert section, "README has no section on the methods (a `## ... methods` heading)"
+    headings = "\n".join(line for page in sorted((ROOT / "docs" / "methods").glob("*.md"))
+                         for line in page.read_text(encoding="utf-8").splitlines() if line.startswith("#"))
     for table in (methods.SCATTERING, methods.LIGHTING):
         for name in table:
-            assert name in named, f"README's overview tables miss {name}"
-            assert re.search(rf"^### [^\n]*`{name}`", README, re.M), f"README has no Methods section for {name}"
+            assert f"`{name}`" in section.group(1), f"README's method list does not name `{name}`"
+            assert f"`{name}`" in headings, f"no heading of docs/methods/*.md names `{name}`"
 
 
 def test_describe_type():

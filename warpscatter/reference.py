@@ -1,11 +1,13 @@
-"""The README's config and method reference, generated from the settings models and the method registry.
+"""The config reference of the docs, generated from the settings models, the method registry and the generators.
 
 Every key of a config is written once, in a settings model with its type, range, default and
-``Field(description=...)``; :func:`config_reference` turns the models into Markdown tables (one per section), and
-:func:`method_table` lists the registry (:mod:`warpscatter.methods`). The README holds both between
+``Field(description=...)``; :func:`config_reference` turns the models into Markdown tables (one per section),
+:func:`method_table` lists the registry (:mod:`warpscatter.methods`) and :func:`generator_reference` the
+parameters of the procedural generators (:data:`warpscatter.scene.procedural.GENERATORS`: their signatures and the
+``Args:`` sections of their docstrings). ``docs/reference/config.md`` holds them between
 ``<!-- generated: NAME -->`` markers; a test fails when they differ from what the code says. Regenerate with::
 
-    python -m warpscatter.reference README.md
+    python -m warpscatter.reference docs/reference/config.md
 
 This module does not import Warp.
 """
@@ -230,8 +232,100 @@ def method_table() -> str:
     return "\n".join(lines)
 
 
-#: Generated README blocks: name -> generator.
-BLOCKS = {"config reference": config_reference, "methods": method_table}
+def _args_section(doc: str) -> dict[str, str]:
+    """name -> description (one line) of the ``Args:`` section of a Google-style docstring."""
+    out: dict[str, str] = {}
+    lines = doc.splitlines()
+    try:
+        start = next(i for i, line in enumerate(lines) if line.strip() == "Args:")
+    except StopIteration:
+        return out
+    indent = None
+    name = None
+    for line in lines[start + 1:]:
+        if not line.strip():
+            continue
+        depth = len(line) - len(line.lstrip())
+        if indent is None:
+            indent = depth
+        if depth < indent:  # the next section (Returns:, Raises:) or the end of Args
+            break
+        m = re.match(r"\s*(\w+)(?: \([^)]*\))?:\s*(.*)", line)
+        if depth == indent and m:
+            name = m.group(1)
+            out[name] = m.group(2).strip()
+        elif name is not None:
+            out[name] += " " + line.strip()
+    return out
+
+
+def _py_type(annotation, default) -> str:
+    """bool / int / number / list ... of a generator parameter (its annotation may be a string under PEP 563)."""
+    text = annotation if isinstance(annotation, str) else getattr(annotation, "__name__", str(annotation))
+    if isinstance(default, (tuple, list)) and default:
+        items = {"int" if isinstance(v, int) and not isinstance(v, bool) else "number" for v in default}
+        return f"list of {len(default)} {items.pop() if len(items) == 1 else 'numbers'}{'s' if len(items) == 0 else ''}"
+    return {"float": "number", "str": "string"}.get(text, text)
+
+
+#: The range a generator's ``Args:`` line states in parentheses: ``(1..64 each)``, ``(> 0)``, ``(>= 0; ...)``.
+_RANGE = re.compile(r"\s*\(((?:[^()]*\d\.\.[^()]*)|(?:[<>]=?[^()]*))\)")
+
+
+def _split_range(meaning: str) -> tuple[str, str]:
+    """(range, meaning without it) of a generator parameter's description."""
+    m = _RANGE.search(meaning)
+    if not m:
+        return "", meaning
+    text = (meaning[:m.start()] + meaning[m.end():]).replace(" ,", ",").replace(" ;", ";").strip()
+    return m.group(1).replace("..", "–"), text
+
+
+def _py_default(value) -> str:
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, (tuple, list)):
+        return "[" + ", ".join(_default_item(v) for v in value) + "]"
+    return "null" if value is None else str(value)
+
+
+def generator_table(name: str) -> str:
+    """A Markdown table of the parameters (``params:`` keys) of procedural generator ``name``."""
+    import inspect
+
+    from .scene import procedural
+
+    fn = procedural._lookup(name)
+    doc = inspect.getdoc(fn) or ""
+    args = _args_section(doc)
+    lines = ["| parameter | type | range | default | meaning |", "| --- | --- | --- | --- | --- |"]
+    for p in inspect.signature(fn).parameters.values():
+        bounds, meaning = _split_range(args.get(p.name, ""))
+        row = [f"`{p.name}`", _py_type(p.annotation, p.default), bounds, _py_default(p.default), meaning]
+        lines.append("| " + " | ".join(cell.replace("|", "\\|") if i else cell for i, cell in enumerate(row)) + " |")
+    return "\n".join(lines)
+
+
+def generator_reference() -> str:
+    """One section per procedural generator: its first docstring paragraph and its parameter table."""
+    import inspect
+
+    from .scene import procedural
+
+    parts = []
+    for name in procedural.generator_names():
+        first = (inspect.getdoc(procedural._lookup(name)) or "").split("\n\n")[0]
+        parts.append(f"### `{name}`\n\n{' '.join(first.split())}\n\n{generator_table(name)}")
+    return "\n\n".join(parts)
+
+
+#: Generated blocks of the config reference page: name -> generator.
+BLOCKS = {"config reference": config_reference, "methods": method_table, "generators": generator_reference}
+
+#: The page that holds the generated blocks (relative to the repository root).
+REFERENCE_PAGE = "docs/reference/config.md"
 
 
 def _pattern(name: str) -> re.Pattern:
@@ -239,13 +333,13 @@ def _pattern(name: str) -> re.Pattern:
 
 
 def readme_block(text: str, name: str) -> str | None:
-    """The current content of generated block ``name`` in a README text (None when the markers are missing)."""
+    """The current content of generated block ``name`` in a page's text (None when the markers are missing)."""
     m = _pattern(name).search(text)
     return m.group(2).rstrip("\n") if m else None
 
 
 def update_readme(path: Path) -> bool:
-    """Rewrite every generated block of the README at ``path``; True when something changed."""
+    """Rewrite every generated block of the page at ``path``; True when something changed."""
     text = Path(path).read_text(encoding="utf-8")
     new = text
     for name, make in BLOCKS.items():
@@ -255,11 +349,10 @@ def update_readme(path: Path) -> bool:
     return new != text
 
 
-__all__ = ["BLOCKS", "config_reference", "describe_type", "method_table", "readme_block", "settings_table",
-           "update_readme"]
-
+__all__ = ["BLOCKS", "REFERENCE_PAGE", "config_reference", "describe_type", "generator_reference", "generator_table",
+           "method_table", "readme_block", "settings_table", "update_readme"]
 
 
 if __name__ == "__main__":
-    for arg in sys.argv[1:] or ["README.md"]:
+    for arg in sys.argv[1:] or [REFERENCE_PAGE]:
         print(f"{arg}: {'updated' if update_readme(Path(arg)) else 'up to date'}")
