@@ -111,18 +111,7 @@ def describe_type(annotation, metadata=()) -> str:
 def _default(field: FieldInfo) -> str:
     if field.default is PydanticUndefined and field.default_factory is None:
         return "required"
-    value = field.default_factory() if field.default is PydanticUndefined else field.default
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return str(value).lower()
-    if isinstance(value, float):
-        return f"{value:g}"
-    if isinstance(value, (tuple, list)):
-        return "[" + ", ".join(_default_item(v) for v in value) + "]"
-    if isinstance(value, Path):
-        return str(value)
-    return str(value)
+    return _py_default(field.default_factory() if field.default is PydanticUndefined else field.default)
 
 
 def _default_item(v) -> str:
@@ -282,6 +271,7 @@ def _split_range(meaning: str) -> tuple[str, str]:
 
 
 def _py_default(value) -> str:
+    """A default value as the reference writes it: YAML's null / true / false, ``%g`` numbers, ``[a, b]`` lists."""
     if isinstance(value, bool):
         return str(value).lower()
     if isinstance(value, float):
