@@ -8,10 +8,10 @@ The Python API (:mod:`warpscatter.api`)::
     result.images["color"], result.timings, result.stats
 
 The library is importable without the CLI and importing it changes none of Warp's settings. Kernel modules expose
-their ``@wp.func`` building blocks as public API so that user kernels can call them (see the README's map of the
+their ``@wp.func`` building blocks as public API so that user kernels can call them (docs/guide/kernels.md maps the
 code); the settings models (``warpscatter.config`` and each technique's ``settings`` module) and the method registry
-(``warpscatter.methods``) import no Warp, and ``import warpscatter`` imports nothing heavy until
-:func:`render` or :func:`load_config` is used.
+(``warpscatter.methods``) import no Warp, and ``import warpscatter`` imports nothing heavy until :func:`render` or
+:func:`load_config` is used.
 """
 
 __version__ = "0.1.0"

@@ -4,7 +4,7 @@ Each technique writes its keys once, as a pydantic model beside it (``scattering
 ``shadows/settings.py``, ``csm/settings.py``) built from :class:`SettingsModel` and the field types below;
 :mod:`warpscatter.config` composes them into the whole config. Every model forbids unknown keys, states each
 key's range in its type and its meaning in ``Field(description=...)``, so the JSON schema
-(``Config.model_json_schema()``) and the README's config reference (:func:`settings_reference`) document themselves.
+(``Config.model_json_schema()``) and the config reference (docs/reference/config.md) document themselves.
 
 :func:`format_validation_errors` turns a pydantic error into ``key.path: reason`` lines.
 

@@ -99,7 +99,7 @@ def suite_csm(report: BenchReport, repeats: int, warmup: int, quick: bool, progr
 
 
 #: The documented agreement of the ``csm`` method with ``raytrace``: rel. L1 of configs/csm_gate.yaml under the sky at
-#: the default bias (:func:`warpscatter.csm.occluders.texel_size`, README).
+#: the default bias (:func:`warpscatter.csm.occluders.texel_size`; docs/methods/csm.md).
 DOCUMENTED_REL_L1 = 0.0104
 #: The issue's bar: a ``csm`` pass at least this many times faster than a ``raytrace`` pass (equal samples and
 #: passes) on a scene of at least BAR_TRIANGLES occluder triangles, its image within DOCUMENTED_REL_L1.

@@ -285,7 +285,7 @@ END_STRETCH_MIN_WEIGHT = 0.01
 #: gate 3.77 / 2.95 / 2.87 / 2.85 %; the textured spot on the fence 2.01 / 1.58 / 1.58 / 1.67 %, on the colonnade
 #: 5.03 / 4.03 / 3.72 / 3.58 %; with the sun behind the camera within 0.01 % (colonnade, canopy, quickstart, terrain,
 #: gate) except the dark window room 23.1 / 27.6 / 26.7 %; c = -2 doubled every error. moments6 gains nothing (c = 1:
-#: window room 5.47 -> 4.95 %, colonnade 4.86 -> 4.89 %; c = 2: spot fence 1.20 -> 1.38 %), fourier loses (README).
+#: window room 5.47 -> 4.95 %, colonnade 4.86 -> 4.89 %; c = 2: spot fence 1.20 -> 1.38 %), fourier loses.
 MOMENTS4_DEPTH_WARP = 3.0
 #: Map columns from which moments4 uses all of MOMENTS4_DEPTH_WARP; coarser maps use c in proportion. The warp also
 #: magnifies the depth spread inside a texel at the far end (by up to c e^c / (e^c - 1), 3.2 at c = 3), which grows
@@ -455,7 +455,7 @@ class PrefilteredSettings(SettingsModel):
     map_radius: Literal["view", "casters"] = Field(
         "view", description="non-linear rectification: the map's columns reach as far from the camera's light axis as "
                             "the view frustum (Peters 2017 App. A), or as the farthest caster (a view ray's texels "
-                            "beyond count as lit; finer columns where the shadows are, see the README)")
+                            "beyond count as lit; finer columns where the shadows are: docs/methods/prefiltered.md)")
     epipole_fallback: Union[Literal["auto"], Bool] = Field(
         "auto", description="ray-march the pixels around an epipole in view (Klehm 2014 Sec. 5, Fig. 8; the region "
                             "is epipole_angle_deg / epipole_block); auto: for fourier under a directional light only "
