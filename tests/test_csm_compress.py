@@ -97,7 +97,8 @@ def test_mesh_csm_is_lossless_and_streaming_equals_one_shot(depth_layers, far):
     z_lo, z_hi = maps.render(0, maps.num_maps)
     one_shot = compress_depth_maps(z_lo, z_hi, batch_maps=maps.num_maps)
     calls = []
-    streamed = build_csm(v, t, batch_maps=5, progress=calls.append, **kw)
+    streamed = build_csm(v, t, batch=5, progress=calls.append, maps=(kw["n1"], kw["n2"]), resolution=16,
+                         layers=depth_layers, far=far)
     for name in ("seg_start", "seg_depth", "seg_end"):
         assert np.array_equal(getattr(one_shot, name), getattr(streamed.lists, name))
     assert calls[-1] == 1.0 and calls == sorted(set(calls)) and len(calls) == 15
@@ -112,11 +113,11 @@ def test_streaming_memory_is_bounded_for_many_maps():
     # batch only, so they are the same as for N = 64 maps, and far below the uncompressed set.
     v = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], np.float32)
     t = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]], np.int32)
-    big = build_csm(v, t, n1=512, n2=512, resolution=4, batch_maps=2048)
-    small = build_csm(v, t, n1=8, n2=8, resolution=4, batch_maps=2048)
+    big = build_csm(v, t, maps=(512, 512), resolution=4, batch=2048)
+    small = build_csm(v, t, maps=(8, 8), resolution=4, batch=2048)
     s = big.stats
     assert s.num_maps == 512 * 512
-    assert s.peak_working_bytes == build_csm(v, t, n1=64, n2=64, resolution=4, batch_maps=2048).stats.peak_working_bytes
+    assert s.peak_working_bytes == build_csm(v, t, maps=(64, 64), resolution=4, batch=2048).stats.peak_working_bytes
     assert small.stats.peak_working_bytes < s.peak_working_bytes  # small N: the batch is capped at N = 64 maps
     per_batch = 2048 * 16 * (2 * 8 + 2 * 4 + 2 * 4 + 4)  # keys, z_lo/z_hi, emission buffers: ~36 B per texel
     assert s.peak_working_bytes < 2.0 * per_batch  # measured 1.31 MB vs 16.8 MB uncompressed
@@ -135,7 +136,7 @@ def test_streaming_memory_is_bounded_for_many_maps():
 
 def test_hilbert_compresses_better_than_scanline():
     v, t = bumpy_mesh_with_moon()
-    counts = {e: build_csm(v, t, n1=32, n2=16, resolution=16, enumeration=e).num_segments
+    counts = {e: build_csm(v, t, maps=(32, 16), resolution=16, enumeration=e).num_segments
               for e in ("scanline", "zigzag", "hilbert")}
     # measured 8754 / 8368 / 6582 segments
     assert counts["hilbert"] < 0.85 * counts["scanline"]
@@ -144,8 +145,8 @@ def test_hilbert_compresses_better_than_scanline():
 
 def test_z1z3_compresses_better_than_z1z2_on_a_closed_mesh():
     v, t = bumpy_mesh_with_moon()
-    a = build_csm(v, t, n1=32, n2=16, resolution=16, depth_layers="z1z2").num_segments
-    b = build_csm(v, t, n1=32, n2=16, resolution=16, depth_layers="z1z3").num_segments
+    a = build_csm(v, t, maps=(32, 16), resolution=16, layers="z1z2").num_segments
+    b = build_csm(v, t, maps=(32, 16), resolution=16, layers="z1z3").num_segments
     assert b < 0.9 * a  # measured 5482 vs 6582
 
 
@@ -178,7 +179,7 @@ def test_streaming_compressor_rejects_misuse():
 @pytest.fixture(scope="module")
 def small_csm():
     v, t = bumpy_mesh_with_moon()
-    return build_csm(v, t, n1=8, n2=4, resolution=8, enumeration="zigzag", depth_layers="z1z3", far="infinite")
+    return build_csm(v, t, maps=(8, 4), resolution=8, enumeration="zigzag", layers="z1z3", far="infinite")
 
 
 def test_save_load_round_trip(small_csm, tmp_path):

@@ -71,7 +71,7 @@ def test_cube_csm_is_lossless_face_major_and_round_trips(tmp_path):
     v = (np.asarray(s.vertices) * (1 + 0.3 * np.sin(3 * s.vertices[:, :1]))).astype(np.float32)
     t = np.asarray(s.faces, np.int32)
     samples = parallelogram_light_samples([-0.5, 2.5, -0.5], [1, 0, 0], [0, 0, 1], 3, 2)
-    csm = build_cube_csm(v, t, samples, resolution=12, depth_layers="z1z2", batch_maps=5)
+    csm = build_cube_csm(v, t, samples, resolution=12, layers="z1z2", batch=5)
     maps = CubeMapSet.create(v, t, samples, resolution=12)
     z_lo, z_hi = maps.render(0, maps.num_maps)
     assert csm.num_maps == 36 and maps.face_matrices(7)[2].tolist() == samples.reshape(-1, 3)[
@@ -113,7 +113,7 @@ def _project_kernel(csm: CubeCSMData, cells: wp.array(dtype=wp.int32), points: w
 def test_cube_queries_equal_the_uncompressed_depth_test(rng):
     v, t = unit_sphere(2)
     samples = segment_light_samples([-1.0, 2.5, 0.0], [1.0, 2.5, 0.3], 5)
-    csm = build_cube_csm(v, t, samples, resolution=16, batch_maps=7)
+    csm = build_cube_csm(v, t, samples, resolution=16, batch=7)
     maps = CubeMapSet.create(v, t, samples, resolution=16)
     z_lo, z_hi = maps.render(0, maps.num_maps)
     k = 4000
@@ -173,7 +173,7 @@ def test_area_light_shadows_of_a_sphere_on_the_ground():
 def test_local_queries_reject_bad_input():
     v, t = unit_sphere(1)
     cube = build_cube_csm(v, t, segment_light_samples([0, 3, 0], [1, 3, 0], 2), resolution=4)
-    latlong = build_csm(v, t, n1=2, n2=2, resolution=4)
+    latlong = build_csm(v, t, maps=(2, 2), resolution=4)
     p = np.zeros((2, 3))
     with pytest.raises(ValueError, match="'cube' CSM"):
         csm_local_visibility_batch(latlong, p, np.zeros((2, 2)))

@@ -215,7 +215,7 @@ def sphere_over_plane():
     s = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
     v = (np.asarray(s.vertices) + [0.0, 0.8, 0.0]).astype(np.float32)
     t = np.asarray(s.faces, np.int32)
-    csm = build_csm(v, t, n1=32, n2=16, resolution=64)
+    csm = build_csm(v, t, maps=(32, 16), resolution=64)
     g = np.linspace(-1.5, 1.5, 24)
     x, z = np.meshgrid(g, g)
     pts = np.stack([x.ravel(), np.zeros(x.size), z.ravel()], 1).astype(np.float32)

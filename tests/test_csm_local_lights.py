@@ -105,7 +105,7 @@ def test_cube_csm_visibility_agrees_with_shadow_rays(occluded_scene, kind):
         light = LinearLight([-0.8, 2.2, 0.0], [0.8, 2.2, 0.3], [2.0, 2.0, 2.0])
         samples = light.sample_points(16)
     if kind == "semi_local":  # Sec. 4.3: the lat-long CSM queried towards each light point (no light samples)
-        csm = build_csm(v, t, n1=32, n2=16, resolution=64)
+        csm = build_csm(v, t, maps=(32, 16), resolution=64)
     else:
         csm = build_cube_csm(v, t, samples, resolution=64)
     kw = {"samples": 16, "seed": 5}

@@ -41,7 +41,7 @@ def bumpy_mesh_with_moon():
 @pytest.fixture(scope="module")
 def scene():
     v, t = bumpy_mesh_with_moon()
-    csm = build_csm(v, t, **KW, batch_maps=32)
+    csm = build_csm(v, t, maps=(KW["n1"], KW["n2"]), resolution=KW["resolution"], batch=32)
     maps = LatLongMapSet.create(v, t, **KW)
     z_lo, z_hi = maps.render(0, maps.num_maps)
     return v, t, csm, z_lo.reshape(maps.num_maps, -1), z_hi.reshape(maps.num_maps, -1)
@@ -234,7 +234,7 @@ def test_csm_agrees_with_ray_casting_on_surface_points(rng):
     sv = np.asarray(s.vertices)
     v = sv * (1.0 + 0.35 * np.sin(5 * sv[:, 0]) * np.sin(5 * sv[:, 1] + 1) * np.sin(5 * sv[:, 2]))[:, None]
     v, t = v.astype(np.float32), np.asarray(s.faces, np.int32)
-    csm = build_csm(v, t, n1=64, n2=32, resolution=64, depth_layers="z1z2", batch_maps=256)
+    csm = build_csm(v, t, maps=(64, 32), resolution=64, layers="z1z2", batch=256)
     k = 20000
     p, n = surface_samples(v.astype(np.float64), t, k, rng)
     d = rng.normal(size=(k, 3))
@@ -256,7 +256,7 @@ def test_semi_local_light_and_receiver_plane():
     # A sphere of radius 1 at the origin; a point light at (0, 4, 0) (outside the hull) and a receiver plane y = -2.
     s = trimesh.creation.icosphere(subdivisions=4)
     v, t = np.asarray(s.vertices, np.float32), np.asarray(s.faces, np.int32)
-    csm = build_csm(v, t, n1=64, n2=32, resolution=64)
+    csm = build_csm(v, t, maps=(64, 32), resolution=64)
     g = np.linspace(-3.0, 3.0, 61)
     gx, gz = np.meshgrid(g, g)
     ground = np.stack([gx.ravel(), np.full(gx.size, -2.0), gz.ravel()], axis=1)
@@ -290,7 +290,7 @@ def test_moving_objects_use_the_inverse_transform(scene, rng):
     assert 0.1 < direct.mean() < 0.95
     # Two objects (identity placements here): visibilities multiply exactly.
     v2, t2 = v + np.float32([0.0, 3.0, 0.0]), t
-    other = build_csm(v2, t2, n1=8, n2=4, resolution=16)
+    other = build_csm(v2, t2, maps=(8, 4), resolution=16)
     both = csm_objects_visibility_batch([(csm, None), (other, None)], p_obj, d_obj)
     assert np.array_equal(both, direct * csm_visibility_batch(other, p_obj, d_obj))
 

@@ -62,13 +62,11 @@ triangle, each row is scanned over the exact span of centres its edge functions 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import warp as wp
 
 from . import parallel
-from .raster_depth import linearize_depth, pixel_center_ndc_grid, unproject
+from .raster_depth import RasterResult, linearize_depth, pixel_center_ndc_grid, unproject
 from .raster_funcs import (
     EMPTY_KEY,
     EXACT_MARGIN_SUBPIXELS,
@@ -91,9 +89,7 @@ from .raster_funcs import (
     clip_triangle_edges,
     depth_key,
     edge_function,
-    edge_span,
     edge_tolerance,
-    emit_fragment,
     exact_edge_inside,
     exact_edge_plane,
     homogeneous_screen,
@@ -101,15 +97,8 @@ from .raster_funcs import (
     key_triangle,
     ndc_to_view_depth,
     pixel_center_ndc,
-    polygon_edge_exact,
     polygon_rows,
     project_vertex,
-    rasterize_exact_triangle_rows,
-    rasterize_screen_triangle,
-    rasterize_screen_triangle_rows,
-    rasterize_screen_triangle_rows_exact,
-    rasterize_triangle,
-    rasterize_triangle_rows,
     snap_to_screen,
     top_left_bias,
     triangle_crossing,
@@ -117,6 +106,17 @@ from .raster_funcs import (
     triangle_rows,
 )
 from .raster_inputs import as_points, as_triangles, check_matrix, check_size, is_affine
+from .raster_scan import (
+    edge_span,
+    emit_fragment,
+    polygon_edge_exact,
+    rasterize_exact_triangle_rows,
+    rasterize_screen_triangle,
+    rasterize_screen_triangle_rows,
+    rasterize_screen_triangle_rows_exact,
+    rasterize_triangle,
+    rasterize_triangle_rows,
+)
 from .wpinit import default_device, module_options
 
 module_options()
@@ -294,48 +294,6 @@ def linear_depth_kernel(
 # ---- host side -------------------------------------------------------------------------------------
 
 
-@dataclass
-class RasterResult:
-    """Depth layers of a rasterization (or of :func:`warpscatter.raycast.raycast_depth`).
-
-    Attributes:
-        ndc_depth: (layers, height, width) float32 NDC depth in [-1, 1]; +inf where no surface.
-        tri_id: (layers, height, width) int32 triangle index; -1 where no surface.
-        keys: (layers, height, width) int64 packed keys (see :func:`depth_key`) on the device; None for
-            ray-cast results.
-        device_ndc_depth: ``ndc_depth`` as a ``wp.array`` on the device (shares memory on the CPU).
-        device_tri_id: ``tri_id`` as a ``wp.array`` on the device (shares memory on the CPU).
-        view_proj: the float64 4x4 world -> clip matrix used.
-    """
-
-    ndc_depth: np.ndarray
-    tri_id: np.ndarray
-    keys: wp.array | None
-    device_ndc_depth: wp.array
-    device_tri_id: wp.array
-    view_proj: np.ndarray
-
-    @property
-    def layers(self) -> int:
-        return int(self.ndc_depth.shape[0])
-
-    @property
-    def height(self) -> int:
-        return int(self.ndc_depth.shape[1])
-
-    @property
-    def width(self) -> int:
-        return int(self.ndc_depth.shape[2])
-
-    @classmethod
-    def from_device(cls, ndc_depth: wp.array, tri_id: wp.array, keys: wp.array | None, view_proj) -> RasterResult:
-        """Result holding the device arrays ``ndc_depth`` and ``tri_id`` and their host copies."""
-        return cls(
-            ndc_depth=ndc_depth.numpy(), tri_id=tri_id.numpy(), keys=keys, device_ndc_depth=ndc_depth,
-            device_tri_id=tri_id, view_proj=view_proj,
-        )
-
-
 #: numpy layout (scalar type, trailing shape) of the Warp dtypes :func:`empty_array` backs with numpy memory
 _NUMPY_LAYOUT = {wp.int64: (np.int64, ()), wp.int32: (np.int32, ()), wp.float32: (np.float32, ()),
                  wp.vec3: (np.float32, (3,)), wp.vec4: (np.float32, (4,))}
@@ -347,7 +305,7 @@ def empty_array(shape, dtype, device: str, fill=None) -> wp.array:
     numpy asks Linux for transparent huge pages on large allocations (``madvise``), so first touches of a fresh
     image-sized buffer fault 2 MiB pages instead of 4 KiB ones: a 1920x1080 G-buffer plus its key buffer is
     about 14k page faults from ``wp.empty`` when the C allocator has given the memory back to the system
-    between calls (measured: tens of ms on the shared 2-core machine), a few dozen this way.
+    between calls, a few dozen this way (the cost: docs/benchmarks.md, "Raster buffers from numpy").
     """
     layout = _NUMPY_LAYOUT.get(dtype)
     if layout is None or not wp.get_device(device).is_cpu:

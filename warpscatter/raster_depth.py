@@ -1,5 +1,6 @@
-"""Host (numpy) utilities on rasterized depth: pixel-centre NDC grids, unprojection of NDC depth to
-world positions, and linearization of NDC depth to view-space distance.
+"""Rasterized depth on the host: the :class:`RasterResult` of a rasterization or a ray cast, and numpy utilities on
+it: pixel-centre NDC grids, unprojection of NDC depth to world positions, and linearization of NDC depth to
+view-space distance.
 
 They mirror the device conventions of :mod:`warpscatter.raster_funcs` (``pixel_center_ndc``,
 ``ndc_to_view_depth``) for images returned by :func:`warpscatter.raster.rasterize` and
@@ -8,9 +9,57 @@ They mirror the device conventions of :mod:`warpscatter.raster_funcs` (``pixel_c
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .raster_inputs import check_matrix
+
+if TYPE_CHECKING:
+    import warp as wp
+
+
+@dataclass
+class RasterResult:
+    """Depth layers of a rasterization (or of :func:`warpscatter.raycast.raycast_depth`).
+
+    Attributes:
+        ndc_depth: (layers, height, width) float32 NDC depth in [-1, 1]; +inf where no surface.
+        tri_id: (layers, height, width) int32 triangle index; -1 where no surface.
+        keys: (layers, height, width) int64 packed keys (see :func:`depth_key`) on the device; None for
+            ray-cast results.
+        device_ndc_depth: ``ndc_depth`` as a ``wp.array`` on the device (shares memory on the CPU).
+        device_tri_id: ``tri_id`` as a ``wp.array`` on the device (shares memory on the CPU).
+        view_proj: the float64 4x4 world -> clip matrix used.
+    """
+
+    ndc_depth: np.ndarray
+    tri_id: np.ndarray
+    keys: wp.array | None
+    device_ndc_depth: wp.array
+    device_tri_id: wp.array
+    view_proj: np.ndarray
+
+    @property
+    def layers(self) -> int:
+        return int(self.ndc_depth.shape[0])
+
+    @property
+    def height(self) -> int:
+        return int(self.ndc_depth.shape[1])
+
+    @property
+    def width(self) -> int:
+        return int(self.ndc_depth.shape[2])
+
+    @classmethod
+    def from_device(cls, ndc_depth: wp.array, tri_id: wp.array, keys: wp.array | None, view_proj) -> RasterResult:
+        """Result holding the device arrays ``ndc_depth`` and ``tri_id`` and their host copies."""
+        return cls(
+            ndc_depth=ndc_depth.numpy(), tri_id=tri_id.numpy(), keys=keys, device_ndc_depth=ndc_depth,
+            device_tri_id=tri_id, view_proj=view_proj,
+        )
 
 
 def pixel_center_ndc_grid(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:

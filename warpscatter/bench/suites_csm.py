@@ -37,7 +37,7 @@ def suite_csm(report: BenchReport, repeats: int, warmup: int, quick: bool, progr
         if progress:
             progress(f"CSM N={n}^2 {enum}", 0.7 * k / len(cases))
         t0 = time.perf_counter()
-        csm = build_csm(verts, tris, n1=n, n2=n, resolution=res, enumeration=enum)
+        csm = build_csm(verts, tris, maps=(n, n), resolution=res, enumeration=enum)
         st = csm.stats
         csms[(n, enum)] = csm
         report.add(name="csm precompute", params={"N": f"{n}x{n}", "M": res, "enumeration": enum,

@@ -225,7 +225,7 @@ def suite_papers(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
         ratios = {}
         for n in grids:
             for enum in (("hilbert", "zigzag", "scanline") if n == grids[-1] else ("hilbert",)):
-                st = build_csm(v, t, n1=n, n2=n, resolution=res, enumeration=enum).stats
+                st = build_csm(v, t, maps=(n, n), resolution=res, enumeration=enum).stats
                 ratio4 = st.uncompressed_bytes / st.compressed_bytes
                 report.add(name=f"Ritschel Table 1: {name}", params={"N": f"{n}x{n}", "M": res, "enumeration": enum},
                            median_ms=1e3 * (st.seconds_render + st.seconds_compress),

@@ -10,7 +10,8 @@ coherent order, compressed losslessly into per-texel segment lists and queried w
   :func:`build_csm`, :func:`build_cube_csm`), :class:`CoherentShadowMap`, ``.npz`` files (:func:`save_csm`,
   :func:`load_csm`, :class:`CSMFileError`).
 - :mod:`.query`: public ``@wp.func`` visibility queries (nearest, generalised PCF, Russian roulette,
-  semi-local lights, moving and receiver-only objects, local lights) and host wrappers for batches.
+  semi-local lights, moving and receiver-only objects, local lights) and the batch kernel; :mod:`.batch`: the
+  host functions that run batches of them.
 - :mod:`.brdf`: Lambert, normalized Phong and Lafortune BRDFs with importance sampling and the Russian-roulette
   lobe choice (Sec. 5.1), :class:`MaterialTable`.
 - :mod:`.direct_lighting`: what the Monte-Carlo estimators share: surface points, the visibility source (CSM,
@@ -28,7 +29,7 @@ progressive passes) are :mod:`warpscatter.pipeline.lighting`.
 Example::
 
     from warpscatter.csm import build_csm, csm_visibility_batch
-    csm = build_csm(vertices, triangles, n1=64, n2=32, resolution=128)
+    csm = build_csm(vertices, triangles, maps=(64, 32), resolution=128)
     vis = csm_visibility_batch(csm, points, directions, filter="pcf")
 """
 
@@ -81,9 +82,9 @@ _EXPORTS = {
     "CubeCSMData": "warpscatter.csm.query",
     "FILTERS": "warpscatter.csm.query",
     "csm_device_data": "warpscatter.csm.query",
-    "csm_local_visibility_batch": "warpscatter.csm.query",
-    "csm_objects_visibility_batch": "warpscatter.csm.query",
-    "csm_visibility_batch": "warpscatter.csm.query",
+    "csm_local_visibility_batch": "warpscatter.csm.batch",
+    "csm_objects_visibility_batch": "warpscatter.csm.batch",
+    "csm_visibility_batch": "warpscatter.csm.batch",
     "CSMBuildSettings": "warpscatter.csm.settings",
     "LightingSettings": "warpscatter.csm.settings",
     "EnvData": "warpscatter.scene.environment_map",

@@ -49,6 +49,7 @@ from ..errors import InputFileError
 from ..wpinit import default_device, module_options
 from .depthmaps import DEPTH_LAYERS, FAR_MODES, CubeMapSet, LatLongMapSet, latlong_frames
 from .enumeration import ENUMERATIONS, enumerate_grid, sequence_index
+from .settings import CSMBuildSettings
 
 module_options()
 
@@ -497,47 +498,52 @@ class CoherentShadowMap:
         return out
 
 
+def build_settings(settings: CSMBuildSettings | None = None, **fields) -> CSMBuildSettings:
+    """``settings`` (default: those of ``render.lighting.csm``) with the named ``fields`` replaced; the map sets
+    check the values, in ranges wider than the config's. Raises ValueError for a name that is not a field."""
+    unknown = sorted(set(fields) - set(CSMBuildSettings.model_fields))
+    if unknown:
+        raise ValueError(f"unknown CSM build settings {unknown}; fields are {sorted(CSMBuildSettings.model_fields)}")
+    return (CSMBuildSettings() if settings is None else settings).model_copy(update=fields)
+
+
 def build_csm(
     vertices,
     triangles,
+    settings: CSMBuildSettings | None = None,
     *,
-    n1: int,
-    n2: int,
-    resolution: int,
-    enumeration: str = "hilbert",
-    depth_layers: str = "z1z2",
-    far: str = "sphere",
-    batch_maps: int = 64,
     center=None,
     radius: float | None = None,
     progress: Callable[[float], None] | None = None,
     device: str | None = None,
     threads: int | None = None,
+    **fields,
 ) -> CoherentShadowMap:
     """Render the lat-long depth-map set of a mesh batch by batch and compress it as it streams.
 
     Args:
         vertices: (V, 3) object-space positions.
         triangles: (T, 3) vertex indices.
-        n1: azimuth cells; n2: polar cells (N = n1 n2 maps).
-        resolution: map size M.
-        enumeration: ``"scanline"``, ``"zigzag"`` or ``"hilbert"`` (sequence order, Sec. 4.4).
-        depth_layers: ``"z1z2"`` or ``"z1z3"`` (closed two-manifolds).
-        far: ``"sphere"`` (spherical far plane) or ``"infinite"``.
-        batch_maps: maps rendered and compressed per batch (memory O(M^2 batch_maps)).
+        settings: :class:`~warpscatter.csm.settings.CSMBuildSettings`; this reads ``maps`` (N1 azimuth x N2 polar
+            cells), ``resolution`` (map size M), ``enumeration`` (sequence order, Sec. 4.4), ``layers`` (``"z1z2"``, or
+            ``"z1z3"`` for closed two-manifolds), ``far`` (``"sphere"`` or ``"infinite"``) and ``batch`` (maps
+            rendered and compressed per batch, memory O(M^2 batch)).
         center, radius: bounding sphere (default: fitted to the vertices).
         progress: called as ``progress(fraction)`` after each batch, fraction = maps done / N in (0, 1] (as
             :func:`warpscatter.parallel.launch_rows` reports).
         device: Warp device.
         threads: CPU worker threads.
+        **fields: fields replacing those of ``settings``, e.g. ``build_csm(v, t, maps=(64, 32), resolution=128)``.
 
     Returns:
         :class:`CoherentShadowMap` with its :class:`CompressionStats`.
     """
-    batch_maps = _check_batch(batch_maps, progress)
+    s = build_settings(settings, **fields)
+    batch_maps = _check_batch(s.batch, progress)
     device = default_device(device)
-    maps = LatLongMapSet.create(vertices, triangles, n1=n1, n2=n2, resolution=resolution, enumeration=enumeration,
-                                depth_layers=depth_layers, far=far, center=center, radius=radius)
+    n1, n2 = s.maps
+    maps = LatLongMapSet.create(vertices, triangles, n1=n1, n2=n2, resolution=s.resolution, enumeration=s.enumeration,
+                                depth_layers=s.layers, far=s.far, center=center, radius=radius)
     return _build(maps, vertices, triangles, batch_maps, progress, device, threads)
 
 
@@ -586,15 +592,12 @@ def build_cube_csm(
     vertices,
     triangles,
     samples,
+    settings: CSMBuildSettings | None = None,
     *,
-    resolution: int,
-    enumeration: str = "hilbert",
-    depth_layers: str = "z1z2",
-    far: str = "sphere",
     near: float | None = None,
-    batch_maps: int = 64,
     progress: Callable[[float], None] | None = None,
     device: str | None = None,
+    **fields,
 ) -> CoherentShadowMap:
     """Compress the depth cube maps of a fixed local light (Sec. 3.3, 4.2), streaming in batches.
 
@@ -603,19 +606,19 @@ def build_cube_csm(
         samples: (n2, n1, 3) light sample grid or (n, 3) row (see
             :func:`~warpscatter.csm.depthmaps.segment_light_samples`,
             :func:`~warpscatter.csm.depthmaps.parallelogram_light_samples`).
-        resolution: cube face size M.
-        enumeration: order of the samples (the 6N maps run face by face, Fig. 5).
-        depth_layers, far: as for :func:`build_csm`.
+        settings: as for :func:`build_csm` (``resolution`` is the cube face size M, ``enumeration`` orders the
+            samples: the 6N maps run face by face, Fig. 5; ``maps`` is not read).
         near: near-plane distance (default 1e-3 R).
-        batch_maps, progress, device: as for :func:`build_csm`.
+        progress, device, **fields: as for :func:`build_csm`.
 
     Returns:
         :class:`CoherentShadowMap` of kind ``"cube"``.
     """
-    batch_maps = _check_batch(batch_maps, progress)
+    s = build_settings(settings, **fields)
+    batch_maps = _check_batch(s.batch, progress)
     device = default_device(device)
-    maps = CubeMapSet.create(vertices, triangles, samples, resolution=resolution, enumeration=enumeration,
-                             depth_layers=depth_layers, far=far, near=near)
+    maps = CubeMapSet.create(vertices, triangles, samples, resolution=s.resolution, enumeration=s.enumeration,
+                             depth_layers=s.layers, far=s.far, near=near)
     return _build(maps, vertices, triangles, batch_maps, progress, device, None, kind=KIND_CUBE,
                   light_samples=maps.samples, near=maps.near)
 

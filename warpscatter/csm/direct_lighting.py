@@ -27,7 +27,9 @@ and an out-of-line call copies its struct arguments on the CPU.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
@@ -35,9 +37,10 @@ import warp as wp
 from .. import parallel
 from ..raycast import occluded
 from ..wpinit import default_device, module_options
+from .batch import object_arrays
 from .brdf import MaterialTable
 from .compress import KIND_LATLONG, CoherentShadowMap
-from .query import FILTERS, CSMData, CubeCSMData, csm_device_data, csm_visibility_filtered, object_arrays
+from .query import FILTERS, CSMData, CubeCSMData, csm_device_data, csm_visibility_filtered
 
 module_options()
 
@@ -308,7 +311,7 @@ def light_visibility(csm: CoherentShadowMap | None, mesh: wp.Mesh | None, *, fil
                      ray_eps: float, device: str, objects=None, object_bias=None) -> LightVisibility:
     """:class:`LightVisibility` of a CSM (lat-long: ``VIS_CSM`` towards distant directions; cube: ``VIS_CSM`` of a
     local light), a ``wp.Mesh`` (``VIS_MESH``), rigid ``objects`` (``VIS_OBJECTS``: ``(csm, transform)`` pairs as
-    :func:`~.query.object_arrays` takes them, with ``object_bias`` per object in its object-space units; without
+    :func:`~.batch.object_arrays` takes them, with ``object_bias`` per object in its object-space units; without
     it ``bias`` is in scene units and taken into each object's space along every query) or none (``VIS_NONE``).
     The caller switches a lat-long CSM of a local light to ``VIS_SEMI_LOCAL``."""
     v = LightVisibility()
@@ -380,19 +383,68 @@ def shade_points(kernel, surface: tuple, light_data, strata: int, vis: LightVisi
     return out.numpy()
 
 
+@dataclass(frozen=True)
+class ShadingOptions:
+    """The keyword arguments of :class:`DirectLighting` and :func:`shade_direct` (except ``seed``), in one place.
+
+    Attributes:
+        samples: S strata per point, a perfect square s^2 >= 1 (each: one light and one BRDF sample, combined by
+            the balance heuristic; linear lights: one light sample).
+        csm: a coherent shadow map of the occluders: lat-long (distant lights; semi-local area / linear lights,
+            Sec. 4.3) or the local light's cube CSM (Sec. 4.2, :func:`~.local_lights.check_light_csm`).
+        mesh: ``wp.Mesh`` of the occluders for exact shadow rays (the reference).
+        objects: rigid objects (Sec. 4.6): ``(csm, transform)`` pairs of lat-long CSMs in object space and 4x4
+            object -> world matrices; their visibilities multiply (distant lights, and area / linear lights
+            semi-locally). At most one of csm / mesh / objects; none: no occlusion.
+        object_bias: one depth bias per object (its object-space units); default: ``bias`` in scene units, taken
+            into each object's space along every query.
+        view_dirs: (K, 3) or (3,) unit-ish directions from the point towards the viewer (default: the normal).
+        specular: (K, 3) or (3,) Phong reflectance k_s (default 0).
+        exponent: (K,) or scalar Phong exponent n >= 0.
+        materials: a :class:`~warpscatter.csm.brdf.MaterialTable` (Lambert / Phong / Lafortune) instead of
+            albedo / specular / exponent, with ``material_index`` (K,) rows into it (default 0).
+        material_index: see ``materials``.
+        filter: CSM filter ``"nearest"``, ``"pcf"`` or ``"roulette"`` (Sec. 4.5).
+        bias: CSM depth bias (scene units, >= 0).
+        ray_eps: offset of the query point along the normal (scene units, >= 0): the shadow-ray origin for
+            ``mesh``, the CSM query point for ``csm``.
+        device: Warp device.
+        threads: CPU worker threads.
+    """
+
+    samples: int
+    csm: CoherentShadowMap | None = None
+    mesh: wp.Mesh | None = None
+    objects: object = None
+    object_bias: object = None
+    view_dirs: object = None
+    specular: object = None
+    exponent: object = 1.0
+    materials: MaterialTable | None = None
+    material_index: object = None
+    filter: str = "nearest"
+    bias: float = 0.0
+    ray_eps: float = 1.0e-4
+    device: str | None = None
+    threads: int | None = None
+
+
+def shading_options(options: ShadingOptions | None, keywords: dict) -> ShadingOptions:
+    """``options`` with ``keywords`` (fields of :class:`ShadingOptions`) replaced, or the options of ``keywords``."""
+    return ShadingOptions(**keywords) if options is None else dataclasses.replace(options, **keywords)
+
+
 class DirectLighting:
     """Monte-Carlo direct lighting of fixed surface points under one light, set up once for any number of passes
     (Ritschel 2007 Sec. 5.2): the inputs are checked, and the points, the material table, the light and the
-    visibility source (CSM or BVH) uploaded, in the constructor; :meth:`shade` then only launches the estimator
-    with a pass's seed. :func:`shade_direct` is one pass of it; the ``csm`` / ``raytrace`` pipeline makes one per
-    render.
+    visibility source (CSM, BVH or rigid objects) uploaded, in the constructor; :meth:`shade` then only launches
+    the estimator with a pass's seed. :func:`shade_direct` is one pass of it; the ``csm`` / ``raytrace`` pipeline
+    makes one per render.
 
     Args:
         points, normals, albedo, light: as :func:`shade_direct`.
-        **options: the keyword arguments of :func:`shade_direct` except ``seed``; and ``objects``: rigid objects
-            as the visibility source instead of ``csm`` / ``mesh`` (Sec. 4.6): ``(csm, transform)`` pairs of
-            lat-long CSMs in object space and object -> world matrices, with ``object_bias`` (one depth bias per
-            object, in its object-space units; default: ``bias`` in scene units, converted along each query).
+        options: :class:`ShadingOptions`; or give its fields as keyword arguments (they replace those of
+            ``options``).
 
     Raises:
         ValueError: as :func:`shade_direct`.
@@ -406,37 +458,18 @@ class DirectLighting:
             image = acc.add(lighting.shade(seed=k))
     """
 
-    def __init__(
-        self,
-        points,
-        normals,
-        albedo,
-        light,
-        *,
-        samples: int,
-        csm: CoherentShadowMap | None = None,
-        mesh: wp.Mesh | None = None,
-        view_dirs=None,
-        specular=None,
-        exponent=1.0,
-        materials: MaterialTable | None = None,
-        material_index=None,
-        filter: str = "nearest",
-        bias: float = 0.0,
-        ray_eps: float = 1.0e-4,
-        device: str | None = None,
-        threads: int | None = None,
-        objects=None,
-        object_bias=None,
-    ):
+    def __init__(self, points, normals, albedo, light, options: ShadingOptions | None = None, **keywords):
         from ..scene.environment_map import EnvironmentMap
         from ..scene.lights import AreaLight, EnvironmentLight, LinearLight, VolumeLight
 
-        device = default_device(device)
-        strata = check_strata(samples)
-        p, n, wo, idx, table = surface_inputs(points, normals, albedo, view_dirs=view_dirs, specular=specular,
-                                              exponent=exponent, materials=materials, material_index=material_index)
-        check_visibility_source(filter, bias, ray_eps, csm, mesh, objects)
+        o = shading_options(options, keywords)
+        csm = o.csm
+        device = default_device(o.device)
+        strata = check_strata(o.samples)
+        p, n, wo, idx, table = surface_inputs(points, normals, albedo, view_dirs=o.view_dirs, specular=o.specular,
+                                              exponent=o.exponent, materials=o.materials,
+                                              material_index=o.material_index)
+        check_visibility_source(o.filter, o.bias, o.ray_eps, csm, o.mesh, o.objects)
         latlong = isinstance(csm, CoherentShadowMap) and csm.kind == KIND_LATLONG
         if isinstance(light, EnvironmentLight):
             light = light.env
@@ -459,14 +492,14 @@ class DirectLighting:
         else:
             raise ValueError(f"light must be an EnvironmentMap, AreaLight, LinearLight or VolumeLight, got "
                              f"{type(light).__name__}")
-        vis = light_visibility(csm, mesh, filter=filter, bias=bias, ray_eps=ray_eps, device=device, objects=objects,
-                               object_bias=object_bias)
+        vis = light_visibility(csm, o.mesh, filter=o.filter, bias=o.bias, ray_eps=o.ray_eps, device=device,
+                               objects=o.objects, object_bias=o.object_bias)
         if latlong and not isinstance(light, EnvironmentMap):
             vis.mode = VIS_SEMI_LOCAL  # a lat-long CSM queried towards the local light's points
         self.count = int(p.shape[0])
-        self.samples = int(samples)
+        self.samples = int(o.samples)
         self.device = device
-        self.threads = threads
+        self.threads = o.threads
         self._kernel = kernel
         self._inputs = [surface_points(p, n, wo, idx, device), table.device_data(device), light_data, strata, vis]
         self._out = wp.zeros(self.count, dtype=wp.vec3, device=device)
@@ -479,29 +512,8 @@ class DirectLighting:
         return self._out.numpy().copy()
 
 
-def shade_direct(
-    points,
-    normals,
-    albedo,
-    light,
-    *,
-    samples: int,
-    csm: CoherentShadowMap | None = None,
-    mesh: wp.Mesh | None = None,
-    seed: int = 0,
-    view_dirs=None,
-    specular=None,
-    exponent=1.0,
-    materials: MaterialTable | None = None,
-    material_index=None,
-    filter: str = "nearest",
-    bias: float = 0.0,
-    ray_eps: float = 1.0e-4,
-    device: str | None = None,
-    threads: int | None = None,
-    objects=None,
-    object_bias=None,
-) -> np.ndarray:
+def shade_direct(points, normals, albedo, light, options: ShadingOptions | None = None, *, seed: int = 0,
+                 **keywords) -> np.ndarray:
     """Direct lighting at surface points from any Monte-Carlo light (Ritschel 2007 Sec. 4.2, 5), one pass.
 
     Args:
@@ -512,28 +524,9 @@ def shade_direct(
             :class:`~warpscatter.scene.lights.EnvironmentLight` holding one: :mod:`.environment`), an
             :class:`~warpscatter.scene.lights.AreaLight` or a :class:`~warpscatter.scene.lights.LinearLight`
             (:mod:`.local_lights`).
-        samples: S strata per point, a perfect square s^2 >= 1 (each: one light and one BRDF sample, combined by
-            the balance heuristic; linear lights: one light sample).
-        csm: a coherent shadow map of the occluders: lat-long (distant lights; semi-local area / linear lights,
-            Sec. 4.3) or the local light's cube CSM (Sec. 4.2, :func:`~.local_lights.check_light_csm`).
-        mesh: ``wp.Mesh`` of the occluders for exact shadow rays (the reference).
-        objects: rigid objects (Sec. 4.6): ``(csm, transform)`` pairs of lat-long CSMs in object space and 4x4
-            object -> world matrices; their visibilities multiply (distant lights, and area / linear lights
-            semi-locally). At most one of csm / mesh / objects; none: no occlusion.
-        object_bias: one depth bias per object (its object-space units); default: ``bias`` in scene units, taken
-            into each object's space along every query.
+        options: :class:`ShadingOptions` (samples, visibility source, materials, filter, offsets, device);
+            or give its fields as keyword arguments (they replace those of ``options``).
         seed: random seed of this pass (use a different one per progressive pass: it changes every pattern).
-        view_dirs: (K, 3) or (3,) unit-ish directions from the point towards the viewer (default: the normal).
-        specular: (K, 3) or (3,) Phong reflectance k_s (default 0).
-        exponent: (K,) or scalar Phong exponent n >= 0.
-        materials: a :class:`~warpscatter.csm.brdf.MaterialTable` (Lambert / Phong / Lafortune) instead of
-            albedo / specular / exponent, with ``material_index`` (K,) rows into it (default 0).
-        filter: CSM filter ``"nearest"``, ``"pcf"`` or ``"roulette"`` (Sec. 4.5).
-        bias: CSM depth bias (scene units, >= 0).
-        ray_eps: offset of the query point along the normal (scene units, >= 0): the shadow-ray origin for
-            ``mesh``, the CSM query point for ``csm``.
-        device: Warp device.
-        threads: CPU worker threads.
 
     Returns:
         (K, 3) float32 outgoing radiance towards ``view_dirs``.
@@ -543,10 +536,7 @@ def shade_direct(
             both ``csm`` and ``mesh``, a CSM that does not fit the light, an unknown filter or light, negative
             bias / ray_eps / exponent.
     """
-    return DirectLighting(points, normals, albedo, light, samples=samples, csm=csm, mesh=mesh, view_dirs=view_dirs,
-                          specular=specular, exponent=exponent, materials=materials, material_index=material_index,
-                          filter=filter, bias=bias, ray_eps=ray_eps, device=device, threads=threads,
-                          objects=objects, object_bias=object_bias).shade(seed)
+    return DirectLighting(points, normals, albedo, light, options, **keywords).shade(seed)
 
 
 __all__ = [
@@ -560,6 +550,7 @@ __all__ = [
     "DirectLighting",
     "LightVisibility",
     "ProgressiveAccumulator",
+    "ShadingOptions",
     "SurfacePoints",
     "check_strata",
     "check_visibility_source",
@@ -569,6 +560,7 @@ __all__ = [
     "shadow_ray_blocked",
     "shade_direct",
     "shade_points",
+    "shading_options",
     "stratum_random_numbers",
     "stratum_sample",
     "surface_point",

@@ -106,8 +106,6 @@ def prepare_csm(light, settings: CSMBuildSettings, vertices, triangles, *, progr
         check_csm_for_scene(csm, light, vertices, triangles, where=str(settings.file),
                             local_lights=settings.local_lights)
         return csm
-    common = {"resolution": settings.resolution, "enumeration": settings.enumeration, "depth_layers": settings.layers,
-              "far": settings.far, "batch_maps": settings.batch, "progress": progress, "device": device}
     latlong = csm_kind_for(light, settings.local_lights) == KIND_LATLONG
     points = None if latlong else np.asarray(light.sample_points(*settings.light_samples), np.float64)
     key = (geometry_digest(vertices, triangles), settings.model_dump_json(exclude={"file"}), str(device),
@@ -115,8 +113,8 @@ def prepare_csm(light, settings: CSMBuildSettings, vertices, triangles, *, progr
     with _BUILT_LOCK:  # one build per key, also when several threads render the same scene
         csm = _BUILT.pop(key, None)
         if csm is None:
-            csm = (build_csm(vertices, triangles, n1=settings.maps[0], n2=settings.maps[1], **common) if latlong else
-                   build_cube_csm(vertices, triangles, points, **common))
+            csm = (build_csm(vertices, triangles, settings, progress=progress, device=device) if latlong else
+                   build_cube_csm(vertices, triangles, points, settings, progress=progress, device=device))
         elif progress is not None:
             progress(1.0)
         _BUILT[key] = csm  # most recently used last
@@ -148,9 +146,8 @@ _BUILT_LOCK = threading.RLock()
 
 def texel_size(csm: CoherentShadowMap) -> float:
     """2R / M: the world size of one lat-long texel of the occluders' bounding sphere (R) at map size M. The
-    default depth bias of the lighting methods is one such texel and the normal offset a quarter of it (measured
-    on configs/csm_gate.yaml against raytrace: rel. L1 1.04 % for the sky, 0.96 % for an area light's cube maps;
-    larger normal offsets leak light into contact shadows)."""
+    default depth bias of the lighting methods is one such texel and the normal offset a quarter of it: larger normal
+    offsets leak light into contact shadows (the errors against raytrace: docs/benchmarks.md, "CSM offsets")."""
     return 2.0 * float(csm.radius) / float(csm.resolution)
 
 

@@ -37,7 +37,8 @@ own (u, v), a BRDF sample's shared with its map look-up) query with :func:`csm_v
 :func:`csm_visibility_filtered` without its atan2 / acos; the filtered queries are inlined into their callers (the
 CSM struct holds six arrays, which an out-of-line call copies on the CPU).
 
-``bias`` is in object-space scene units.
+``bias`` is in object-space scene units. The host functions that run batches of queries are
+:mod:`warpscatter.csm.batch`.
 """
 
 from __future__ import annotations
@@ -47,10 +48,9 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .. import parallel
 from ..wpinit import default_device, module_options
 from . import settings
-from .compress import KIND_CUBE, KIND_LATLONG, CoherentShadowMap
+from .compress import KIND_CUBE, CoherentShadowMap
 from .depthmaps import cube_face_frames, latlong_param
 
 module_options()
@@ -517,66 +517,70 @@ def csm_local_visibility_filtered(
     return csm_local_visibility(csm, p, x, bias)
 
 
-# ---- kernels ---------------------------------------------------------------------------------------
+# ---- the batch query kernel, generic over the CSM struct ----------------------------------------------
+
+
+@wp.struct
+class CSMObjects:
+    """Rigid objects (Sec. 4.6) as :func:`visibility_kernel` sees them (:func:`object_arrays`)."""
+
+    csms: wp.array(dtype=CSMData)  # each object's lat-long CSM (object space)
+    inv_transforms: wp.array(dtype=wp.mat44)  # each object's world -> object matrix T^-1
+
+
+@wp.func
+def batch_visibility(csm: CSMData, p: wp.vec3, d: wp.vec3, bias: float, filter_mode: int, seed: int,
+                     query: int) -> float:
+    """Query ``query`` of a batch against one lat-long CSM: (point, direction towards the light)."""
+    xi = roulette_numbers(filter_mode, seed, query)
+    return csm_visibility_filtered(csm, p, d, bias, filter_mode, xi)
+
+
+@wp.func
+def batch_visibility(csm: CubeCSMData, p: wp.vec3, x: wp.vec2, bias: float, filter_mode: int,  # noqa: F811
+                     seed: int, query: int) -> float:
+    """Query ``query`` of a batch against a local light's cube CSM: (point, light parameters x in [0, 1]^2)."""
+    xi = roulette_numbers(filter_mode, seed, query)
+    return csm_local_visibility_filtered(csm, p, x, bias, filter_mode, xi)
+
+
+@wp.func
+def batch_visibility(objects: CSMObjects, p: wp.vec3, d: wp.vec3, bias: float, filter_mode: int,  # noqa: F811
+                     seed: int, query: int) -> float:
+    """Query ``query`` of a batch against rigid objects: the product of each object's filtered visibility, queried
+    with D' = D T^-1 (the roulette draws four numbers per object from one stream)."""
+    state = wp.rand_init(seed, query)
+    v = float(1.0)
+    for k in range(objects.csms.shape[0]):
+        po, do = csm_object_space(objects.inv_transforms[k], p, d)
+        xi, state = randf4(state)
+        v = v * csm_visibility_filtered(objects.csms[k], po, do, bias, filter_mode, xi)
+        if v == 0.0:
+            break
+    return v
 
 
 @wp.kernel
 def visibility_kernel(
-    csm: CSMData,
+    csm: Any,
     points: wp.array(dtype=wp.vec3),
-    directions: wp.array(dtype=wp.vec3),
+    queries: wp.array(dtype=Any),
     bias: float,
     filter_mode: int,
     seed: int,
     out: wp.array(dtype=wp.float32),
     offset: int,
 ):
-    """out[i] = filtered visibility of (points[i], directions[i]) against one CSM."""
+    """out[i] = filtered visibility of query i: points[i] and queries[i] (a direction towards a distant light, or a
+    local light's parameters) against ``csm`` (:class:`CSMData`, :class:`CubeCSMData` or :class:`CSMObjects`)."""
     i = wp.tid() + offset
-    xi = roulette_numbers(filter_mode, seed, i)
-    out[i] = csm_visibility_filtered(csm, points[i], directions[i], bias, filter_mode, xi)
+    out[i] = batch_visibility(csm, points[i], queries[i], bias, filter_mode, seed, i)
 
 
-@wp.kernel
-def objects_visibility_kernel(
-    objects: wp.array(dtype=CSMData),
-    inv_transforms: wp.array(dtype=wp.mat44),
-    points: wp.array(dtype=wp.vec3),
-    directions: wp.array(dtype=wp.vec3),
-    bias: float,
-    filter_mode: int,
-    seed: int,
-    out: wp.array(dtype=wp.float32),
-    offset: int,
-):
-    """out[i] = product over objects of the filtered visibility, each object queried with D' = D T^-1."""
-    i = wp.tid() + offset
-    state = wp.rand_init(seed, i)
-    v = float(1.0)
-    for k in range(objects.shape[0]):
-        po, do = csm_object_space(inv_transforms[k], points[i], directions[i])
-        xi, state = randf4(state)
-        v = v * csm_visibility_filtered(objects[k], po, do, bias, filter_mode, xi)
-        if v == 0.0:
-            break
-    out[i] = v
-
-
-@wp.kernel
-def local_visibility_kernel(
-    csm: CubeCSMData,
-    points: wp.array(dtype=wp.vec3),
-    light_params: wp.array(dtype=wp.vec2),
-    bias: float,
-    filter_mode: int,
-    seed: int,
-    out: wp.array(dtype=wp.float32),
-    offset: int,
-):
-    """out[i] = filtered visibility between points[i] and the light point of parameters light_params[i]."""
-    i = wp.tid() + offset
-    xi = roulette_numbers(filter_mode, seed, i)
-    out[i] = csm_local_visibility_filtered(csm, points[i], light_params[i], bias, filter_mode, xi)
+#: The query type of each CSM struct; one compiled overload of :func:`visibility_kernel` each.
+QUERY_TYPES = {CSMData: wp.vec3, CubeCSMData: wp.vec2, CSMObjects: wp.vec3}
+for _struct, _query in QUERY_TYPES.items():
+    wp.overload(visibility_kernel, {"csm": _struct, "queries": wp.array(dtype=_query)})
 
 
 # ---- host side -------------------------------------------------------------------------------------
@@ -607,206 +611,3 @@ def csm_device_data(csm: CoherentShadowMap, device: str | None = None) -> CSMDat
         d.seg_end = wp.array(csm.lists.seg_end, dtype=wp.int32, device=device)
         csm._device_cache[key] = d
     return csm._device_cache[key]
-
-
-def _vec3_rows(a, name: str, n: int | None = None) -> np.ndarray:
-    try:
-        v = np.asarray(a, dtype=np.float32)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a numeric (K, 3) array") from exc
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise ValueError(f"{name} must have shape (K, 3), got {v.shape}")
-    if n is not None and v.shape[0] != n:
-        raise ValueError(f"{name} must have {n} rows like points, got {v.shape[0]}")
-    if not np.all(np.isfinite(v)):
-        raise ValueError(f"{name} contains non-finite values")
-    return np.ascontiguousarray(v)
-
-
-def _directions(directions, n: int) -> np.ndarray:
-    """Checked (n, 3) float32 non-zero directions."""
-    d = _vec3_rows(directions, "directions", n)
-    if np.any(np.all(d == 0.0, axis=1)):
-        raise ValueError("directions must be non-zero")
-    return d
-
-
-def _check_bias(bias) -> None:
-    if not np.isfinite(bias) or bias < 0.0:
-        raise ValueError(f"bias must be a finite number >= 0, got {bias!r}")
-
-
-def _expect_kind(csm, kind: str, name: str) -> None:
-    if not isinstance(csm, CoherentShadowMap):
-        raise ValueError(f"{name} must be a CoherentShadowMap, got {type(csm).__name__}")
-    if csm.kind != kind:
-        raise ValueError(f"{name} must be a {kind!r} CSM, got kind {csm.kind!r}")
-
-
-def _filter_mode(filter: str) -> int:
-    if filter not in FILTERS:
-        raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {filter!r}")
-    return FILTERS[filter]
-
-
-def _run_query(kernel, csm_inputs, points, queries, dtype, bias, mode, seed, device, threads) -> np.ndarray:
-    """Upload checked query arrays and launch ``kernel`` over their K rows, with the inputs ``*csm_inputs,
-    points, queries (of Warp type dtype), bias, mode, seed, out``; returns out, (K,) float32."""
-    out = wp.empty(points.shape[0], dtype=wp.float32, device=device)
-    parallel.launch_rows(
-        kernel, points.shape[0],
-        [*csm_inputs, wp.array(points, dtype=wp.vec3, device=device), wp.array(queries, dtype=dtype, device=device),
-         float(bias), mode, int(seed), out],
-        device, threads=threads, min_chunk=1024,
-    )
-    return out.numpy()
-
-
-def csm_visibility_batch(
-    csm: CoherentShadowMap,
-    points,
-    directions,
-    *,
-    filter: str = "nearest",
-    bias: float = 0.0,
-    seed: int = 0,
-    device: str | None = None,
-    threads: int | None = None,
-) -> np.ndarray:
-    """Visibility of many (point, direction) pairs against one CSM.
-
-    Args:
-        csm: the coherent shadow map (object space = the space of the points).
-        points: (K, 3) query points.
-        directions: (K, 3) directions towards the light (any non-zero length).
-        filter: ``"nearest"``, ``"pcf"`` or ``"roulette"``.
-        bias: depth bias in scene units (>= 0).
-        seed: random seed of the roulette filter.
-        device: Warp device.
-        threads: CPU worker threads.
-
-    Returns:
-        (K,) float32 visibility in [0, 1] (1 = lit).
-
-    Raises:
-        ValueError: malformed points/directions, zero directions, unknown filter, negative or non-finite bias.
-    """
-    device = default_device(device)
-    mode = _filter_mode(filter)
-    p = _vec3_rows(points, "points")
-    d = _directions(directions, p.shape[0])
-    _check_bias(bias)
-    _expect_kind(csm, KIND_LATLONG, "csm")
-    return _run_query(visibility_kernel, [csm_device_data(csm, device)], p, d, wp.vec3, bias=bias, mode=mode,
-                      seed=seed, device=device, threads=threads)
-
-
-#: Smallest ratio of the smallest to the largest singular value of a rigid object's linear part (its float32 inverse
-#: T^-1 keeps about 1e-7 relative precision; below 1e-6 the object space would be flattened along one axis).
-MAX_OBJECT_CONDITION_INVERSE = 1.0e-6
-
-
-def object_arrays(objects, device) -> tuple[wp.array, wp.array]:
-    """Device arrays of rigid objects (Sec. 4.6): their lat-long CSMs' :class:`CSMData` and the world -> object
-    matrices T^-1 (as kernels take them: :func:`objects_visibility_kernel`, the estimators' ``VIS_OBJECTS``).
-
-    Args:
-        objects: sequence of ``(csm, transform)``: a lat-long CSM and its 4x4 object -> world matrix T (None:
-            identity).
-
-    Raises:
-        ValueError: a transform that is not a finite, invertible affine 4x4 matrix, or a cube CSM.
-    """
-    datas, invs = [], []
-    for k, (csm, transform) in enumerate(objects):
-        t = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
-        if t.shape != (4, 4) or not np.all(np.isfinite(t)) or not np.allclose(t[3], [0, 0, 0, 1]):
-            raise ValueError(f"objects[{k}] transform must be a finite affine 4x4 matrix")
-        sv = np.linalg.svd(t[:3, :3], compute_uv=False)
-        if not sv[-1] > MAX_OBJECT_CONDITION_INVERSE * sv[0]:  # relative: a uniform scale of any size inverts exactly
-            raise ValueError(f"objects[{k}] transform is singular or nearly so (its linear part's singular values "
-                             f"{sv[0]:.3g} ... {sv[-1]:.3g}: a float32 inverse would lose the object's shape)")
-        _expect_kind(csm, KIND_LATLONG, f"objects[{k}] csm")
-        datas.append(csm_device_data(csm, device))
-        invs.append(np.linalg.inv(t).astype(np.float32))
-    return (wp.array(datas, dtype=CSMData, device=device),
-            wp.array(np.stack(invs), dtype=wp.mat44, device=device))
-
-
-def csm_objects_visibility_batch(
-    objects,
-    points,
-    directions,
-    *,
-    filter: str = "nearest",
-    bias: float = 0.0,
-    seed: int = 0,
-    device: str | None = None,
-    threads: int | None = None,
-) -> np.ndarray:
-    """Visibility of (point, direction) pairs against several rigid objects, each with its CSM and placement.
-
-    Args:
-        objects: sequence of ``(csm, transform)``: the object's CSM and its 4x4 object -> world matrix T
-            (None = identity). Receiver-only objects simply do not appear here.
-        points, directions, filter, bias, seed, device, threads: as in :func:`csm_visibility_batch` (world space).
-
-    Returns:
-        (K,) float32 product of the objects' visibilities.
-
-    Raises:
-        ValueError: as :func:`csm_visibility_batch`, plus an empty object list or a singular / non-affine T.
-    """
-    device = default_device(device)
-    mode = _filter_mode(filter)
-    objects = list(objects)
-    if not objects:
-        raise ValueError("objects must hold at least one (csm, transform) pair")
-    p = _vec3_rows(points, "points")
-    d = _directions(directions, p.shape[0])
-    _check_bias(bias)
-    csm_inputs = list(object_arrays(objects, device))
-    return _run_query(objects_visibility_kernel, csm_inputs, p, d, wp.vec3, bias=bias, mode=mode, seed=seed,
-                      device=device, threads=threads)
-
-
-def csm_local_visibility_batch(
-    csm: CoherentShadowMap,
-    points,
-    light_params,
-    *,
-    filter: str = "nearest",
-    bias: float = 0.0,
-    seed: int = 0,
-    device: str | None = None,
-    threads: int | None = None,
-) -> np.ndarray:
-    """Visibility between points and light points of a fixed local light (a ``"cube"`` CSM).
-
-    Args:
-        csm: cube CSM from :func:`~warpscatter.csm.compress.build_cube_csm`.
-        points: (K, 3) query points.
-        light_params: (K, 2) light parameters x in [0, 1]^2 (second one ignored for linear lights, n2 = 1).
-        filter: ``"nearest"``, ``"pcf"`` or ``"roulette"``.
-        bias: depth bias in scene units (>= 0).
-        seed: random seed of the roulette filter.
-        device, threads: Warp device and CPU worker threads.
-
-    Returns:
-        (K,) float32 visibility in [0, 1].
-
-    Raises:
-        ValueError: a non-cube CSM, malformed inputs, light parameters outside [0, 1], unknown filter, bad bias.
-    """
-    device = default_device(device)
-    mode = _filter_mode(filter)
-    _expect_kind(csm, KIND_CUBE, "csm")
-    p = _vec3_rows(points, "points")
-    x = np.asarray(light_params, dtype=np.float32)
-    if x.shape != (p.shape[0], 2):
-        raise ValueError(f"light_params must have shape ({p.shape[0]}, 2), got {x.shape}")
-    if not np.all((x >= 0.0) & (x <= 1.0)):
-        raise ValueError("light_params must lie in [0, 1]")
-    _check_bias(bias)
-    return _run_query(local_visibility_kernel, [csm_device_data(csm, device)], p, np.ascontiguousarray(x), wp.vec2,
-                      bias=bias, mode=mode, seed=seed, device=device, threads=threads)
