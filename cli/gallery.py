@@ -1,7 +1,7 @@
 """``warpscatter gallery``: render the pictures the docs show (:func:`warpscatter.gallery.build`).
 
-Registered on the application in :mod:`.main` (``main.add_command(gallery)``); the options, logging set-up and exit
-codes are the other commands'.
+Registered on the application in :mod:`.main`; the options, logging set-up and exit codes are the other commands'
+(:mod:`.common`).
 """
 
 from __future__ import annotations
@@ -11,17 +11,17 @@ from pathlib import Path
 
 import click
 
-from .main import (
+from .common import (
     EXIT_FAILURE,
     EXIT_INVALID,
     ProgressDisplay,
-    _common_options,
-    _error_text,
-    _fail,
-    _format_bytes,
-    _interrupted,
-    _out_dir,
-    _setup,
+    common_options,
+    error_text,
+    fail,
+    format_bytes,
+    interrupted,
+    resolve_out_dir,
+    setup,
 )
 
 
@@ -32,7 +32,7 @@ from .main import (
               help="Chart the bench JSON results (bench-SUITE.json) of a `warpscatter bench ... -o DIR` run into "
                    "OUTPUT/bench/ (without it the charts are skipped and those already there kept).")
 @click.option("--quick", is_flag=True, help="Tiny sizes and a short reference (a smoke run: the tests).")
-@_common_options(kernels=True)
+@common_options(kernels=True)
 @click.pass_context
 def gallery(ctx, output_dir: Path, bench_dir: Path | None, quick: bool, verbose, quiet, debug: bool, device,
             threads):
@@ -44,13 +44,13 @@ def gallery(ctx, output_dir: Path, bench_dir: Path | None, quick: bool, verbose,
     from warpscatter.gallery import bench_files, build
 
     debug = debug or (ctx.obj or {}).get("debug", False)
-    device = _setup(verbose, quiet, device, threads, kernels=True)
-    out_dir = _out_dir(output_dir)
+    device = setup(verbose, quiet, device, threads, kernels=True)
+    out_dir = resolve_out_dir(output_dir)
     if bench_dir is not None:
         try:
             bench_files(bench_dir)
         except ValueError as exc:
-            _fail(str(exc), EXIT_INVALID)
+            fail(str(exc), EXIT_INVALID)
     progress = ProgressDisplay(enabled=not quiet)
 
     start = time.perf_counter()
@@ -65,24 +65,24 @@ def gallery(ctx, output_dir: Path, bench_dir: Path | None, quick: bool, verbose,
         result = build(out_dir, quick=quick, bench_dir=bench_dir, device=device,
                        progress=progress if progress.tty else None, on_job=on_job)
     except KeyboardInterrupt:
-        _interrupted(progress)
+        interrupted(progress)
     except ValueError as exc:
         progress.close()
-        _fail(str(exc), EXIT_INVALID, debug)
+        fail(str(exc), EXIT_INVALID, debug)
     except Exception as exc:
         progress.close()
-        _fail(_error_text(exc), EXIT_FAILURE, debug)
+        fail(error_text(exc), EXIT_FAILURE, debug)
     progress.close()
     for section, reason in result.skipped.items():
         click.echo(f"note: {section}: {reason}", err=True)
     if not quiet:
-        click.echo(f"wrote {len(result.entries)} images ({_format_bytes(result.total_bytes)}) in "
+        click.echo(f"wrote {len(result.entries)} images ({format_bytes(result.total_bytes)}) in "
                    f"{result.seconds:.1f} s:")
     for e in result.entries:
         size = "x".join(map(str, e.size or []))
-        click.echo(str(result.out_dir / e.path) if quiet else f"  {e.path}  {size}  {_format_bytes(e.bytes)}")
+        click.echo(str(result.out_dir / e.path) if quiet else f"  {e.path}  {size}  {format_bytes(e.bytes)}")
     if result.manifest is not None:
         click.echo(str(result.manifest) if quiet else f"  {result.manifest.name}")
     if result.failures:
-        _fail(f"{len(result.failures)} gallery image(s) failed (see above): {', '.join(result.failures)}",
+        fail(f"{len(result.failures)} gallery image(s) failed (see above): {', '.join(result.failures)}",
               EXIT_FAILURE)

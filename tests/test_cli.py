@@ -459,3 +459,17 @@ def test_method_applies_before_validation(config_file, tmp_path, fake_pipeline):
     cfg = fake_pipeline[0]["config"]
     assert cfg.render.scattering.method == "fourier" and "rectified" in cfg.output.aovs
     assert cfg.output_name == "shot_fourier"
+
+
+def test_each_command_is_a_module_and_gallery_imports_first():
+    import subprocess
+
+    from warpscatter.cli.main import main as group
+
+    assert {name: cmd.callback.__module__ for name, cmd in group.commands.items()} == {
+        "bench": "warpscatter.cli.bench", "gallery": "warpscatter.cli.gallery",
+        "precompute": "warpscatter.cli.precompute", "render": "warpscatter.cli.render",
+        "schema": "warpscatter.cli.validate", "sweep": "warpscatter.cli.sweep", "validate": "warpscatter.cli.validate"}
+    code = "import warpscatter.cli.gallery; from warpscatter.cli.main import main; print(sorted(main.commands))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and "'gallery'" in out.stdout, out.stderr

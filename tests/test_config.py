@@ -506,3 +506,54 @@ def test_override_into_scalar_rejected(tmp_path):
 
 def test_aov_names_match_output_model():
     assert cfgmod.OutputConfig().aovs == list(cfgmod.STANDARD_AOVS)
+
+
+# ---- the seams: light models, method rules, config files ----------------------------------------
+
+
+def test_every_light_type_is_one_model_that_describes_and_builds_itself():
+    import typing
+
+    from warpscatter.scene.light_configs import LIGHT_CONFIGS, LIGHT_TYPES, LightSettings
+
+    union = typing.get_args(typing.get_args(cfgmod.LightConfig)[0])
+    assert set(union) == set(LIGHT_CONFIGS) == set(LIGHT_TYPES.values())
+    for model in LIGHT_CONFIGS:  # no if-chain over light types elsewhere: each model has its own
+        assert model.describe is not LightSettings.describe and model.build is not LightSettings.build, model
+    assert "environment, area, linear or volume" in cfgmod.Config.model_fields["light"].description
+
+
+def test_a_light_builds_its_scene_light_and_describes_itself(tmp_path):
+    pytest.importorskip("warp")
+    from warpscatter.scene import light_from_config
+
+    write(tmp_path)
+    light = {"type": "linear", "start": [0, 2, 0], "end": [1, 2, 0], "intensity": [2, 2, 2]}
+    c = Config.from_dict({**BASE, "light": light, "render": {"lighting": {"method": "raytrace"}}}, tmp_path)
+    built = light_from_config(c.light)
+    assert built.kind == "linear" and built.length == pytest.approx(1.0)
+    assert c.light.describe() == "linear [0, 2, 0] -> [1, 2, 0], intensity [2, 2, 2] per unit length"
+
+
+def test_method_rules_are_their_registry_records(tmp_path):
+    from warpscatter import methods
+
+    write(tmp_path)
+    spot = {"type": "spot", "position": [0, 1, 5], "direction": [0, -1, 0]}  # at the camera
+    c = Config.from_dict({**BASE, "light": spot, "render": {"scattering": {"method": "raymarch"}}}, tmp_path)
+    assert methods.SCATTERING["raymarch"].validate(c) == []  # no rules of its own
+    c.render.scattering.method = "moments4"  # assigned in place: not validated again
+    rules = methods.SCATTERING["moments4"].validate(c)
+    assert [r.split(":")[0] for r in rules] == ["light.position"]
+    with pytest.raises(ConfigError) as info:
+        c.revalidated()
+    assert info.value.problems == rules
+
+
+def test_an_override_replaces_the_other_forms_of_the_same_key():
+    data = {"light": {"type": "directional", "direction": [0, -1, 0]}}
+    cfgmod.apply_overrides(data, ["light.azimuth_deg=30", "light.elevation_deg=40"])
+    assert data["light"] == {"type": "directional", "azimuth_deg": 30, "elevation_deg": 40}
+    data = {"light": {"type": ["not", "a", "name"], "direction": [0, -1, 0]}}
+    cfgmod.apply_overrides(data, ["light.toward_sun=[0, 1, 0]"])  # an invalid type is validation's to report
+    assert data["light"]["direction"] == [0, -1, 0]

@@ -3,8 +3,8 @@
 A record names the method, the paper it implements, the light types it renders, the settings it reads, what
 the pipeline must build for it (a BVH for exact visibility, the light's shadow map, a ray-cast G-buffer), the
 Warp modules it launches (compiled in the ``compile`` stage) and its entry point. Config validation takes the
-method choices and the light rules from here, the pipeline looks the method up here (no method names in the
-pipeline), and the README's method tables are checked against it.
+method choices, the light rules and each method's own rules (:attr:`Method.validate`) from here, the pipeline looks
+the method up here (no method names in the pipeline), and the README's method tables are checked against it.
 
 Entry points (loaded on first use, so this module and config validation stay Warp-free):
 
@@ -16,14 +16,16 @@ Entry points (loaded on first use, so this module and config validation stay War
   :class:`~warpscatter.csm.settings.LightingSettings` (:mod:`warpscatter.pipeline.lighting`).
 
 Adding a scattering method: its module (with ``render``), its settings model (a section of
-``scattering/settings.py``), one record below, its test and its README section.
+``scattering/settings.py``), one record below (with a ``validate`` hook for what it cannot render), its test and its
+README section.
 """
 
 from __future__ import annotations
 
 import importlib
+import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 #: Light types of the classic pipeline (``render.scattering``) and of the Monte-Carlo lighting methods.
 CLASSIC_LIGHTS = ("directional", "spot", "point")
@@ -34,6 +36,10 @@ VISIBILITY_CONFIGURABLE = "configurable"  # render.scattering.visibility: exact 
 VISIBILITY_SHADOW_MAP = "shadow_map"  # always the light's shadow map
 VISIBILITY_CSM = "csm"  # a coherent shadow map of the occluders
 VISIBILITY_RAYS = "rays"  # wp.Mesh shadow rays
+
+
+def _no_rules(config: Any) -> list[str]:
+    return []
 
 
 @dataclass(frozen=True)
@@ -53,6 +59,9 @@ class Method:
         entry: ``"package.module:function"`` of its render function.
         debug_aovs: the debug outputs (:data:`warpscatter.config.DEBUG_AOVS`) it makes when the frame asks
             (:attr:`~warpscatter.pipeline.frame.Frame.aovs`), returned in ``info["debug_images"]``.
+        validate: the method's own rules: ``validate(config) -> problems``, ``key.path: reason`` lines for a
+            :class:`~warpscatter.config.Config` it cannot render (the config's validation calls it for the method
+            the config names, whatever the light, and reports them beside the shared rules on lights and sections).
     """
 
     name: str
@@ -66,6 +75,7 @@ class Method:
     modules: tuple[str, ...] = ()
     entry: str = ""
     debug_aovs: tuple[str, ...] = ()
+    validate: Callable[[Any], list[str]] = _no_rules
 
     def marches_exact(self, visibility: str) -> bool:
         """True when this method casts exact shadow rays for ``render.scattering.visibility``."""
@@ -75,6 +85,65 @@ class Method:
         """The render function (imports its module, and Warp)."""
         module, _, name = self.entry.partition(":")
         return getattr(importlib.import_module(module), name)
+
+
+# ---- each method's own rules (Method.validate) ------------------------------------------------------
+
+
+def _prefiltered_rules(config: Any) -> list[str]:
+    """What the prefiltered methods cannot do under a spot or point light (warpscatter.scattering.prefiltered_spot;
+    a point light is six spots)."""
+    if config.light.type not in ("spot", "point"):
+        return []
+    s = config.render.scattering
+    problems = []
+    if s.prefiltered.rectification == "projective":
+        problems.append("render.scattering.prefiltered.rectification: 'projective' needs a directional light; a "
+                        "spot light uses the non-linear rectification (auto or nonlinear)")
+    if s.prefiltered.splits > 1:
+        problems.append("render.scattering.prefiltered.splits: a spot light's look-ups need whole rows (1)")
+    if s.method != "fourier" and s.moments.overestimation == "adaptive":
+        problems.append("render.scattering.moments.overestimation: 'adaptive' weighs a directional light's "
+                        "direction (Peters 2017 Sec. 5.3.1); give a number for a spot light")
+    camera = config.camera.position
+    if math.dist(camera, config.light.position) <= 1e-6 * max(1.0, math.hypot(*camera)):
+        problems.append(f"light.position: the light sits at the camera position, where render.scattering.method "
+                        f"{s.method!r} has no epipolar planes (move it, or use raymarch or epipolar)")
+    return problems
+
+
+def _epipolar_rules(config: Any) -> list[str]:
+    """Epipolar lines run between two border points: an image of at least 2 x 2 pixels."""
+    cam = config.camera
+    if min(cam.width, cam.height) >= 2:
+        return []
+    return [f"camera.width / camera.height: render.scattering.method 'epipolar' needs an image of at least 2x2 "
+            f"pixels (its lines run between two border points), got {cam.width}x{cam.height}"]
+
+
+def _csm_objects_rules(config: Any) -> list[str]:
+    """``render.lighting.csm.objects: per_mesh`` (one CSM per mesh) against a whole scene's CSM file and cube maps."""
+    csm = config.render.lighting.csm
+    if csm.objects != "per_mesh":
+        return []
+    problems = []
+    if csm.file is not None:
+        problems.append("render.lighting.csm.objects: per_mesh builds one CSM per mesh; a precomputed "
+                        "render.lighting.csm.file holds the whole scene's (remove one of them)")
+    if config.light.type in ("area", "linear") and csm.local_lights == "cube":
+        problems.append("render.lighting.csm.objects: per_mesh needs render.lighting.csm.local_lights: "
+                        "semi_local for an area or linear light (cube maps sit at the light's points in "
+                        "world space, which a moving mesh would invalidate)")
+    return problems
+
+
+def _csm_rules(config: Any) -> list[str]:
+    """A CSM needs an occluder (unless it is read from a file), and the per-mesh rules."""
+    no_caster = config.scene.no_caster()
+    problems = []
+    if config.light.type in MONTE_CARLO_LIGHTS and no_caster and config.render.lighting.csm.file is None:
+        problems.append(f"render.lighting: {no_caster}, so there is no occluder to build a CSM of")
+    return problems + _csm_objects_rules(config)
 
 
 _PREFILTERED_MODULES = ("warpscatter.scattering.rectify_nonlinear", "warpscatter.scattering.rectify_local",
@@ -94,31 +163,35 @@ SCATTERING: dict[str, Method] = {m.name: m for m in (
     Method("fourier", "scattering", "Klehm et al. 2014, prefiltered single scattering",
            "rectified shadow map, Fourier basis, transmittance-weighted per-row prefix sums",
            CLASSIC_LIGHTS, sections=("prefiltered", "fourier"), modules=_PREFILTERED_MODULES,
-           entry="warpscatter.scattering.prefiltered:render", debug_aovs=_PREFILTERED_AOVS),
+           entry="warpscatter.scattering.prefiltered:render", debug_aovs=_PREFILTERED_AOVS,
+           validate=_prefiltered_rules),
     Method("moments4", "scattering", "Peters et al. 2017 Sec. 5, prefiltered single scattering with moments",
            "the prefiltered pipeline with 4 moments and Algorithm 1", CLASSIC_LIGHTS,
            sections=("prefiltered", "moments"), modules=_PREFILTERED_MODULES,
-           entry="warpscatter.scattering.prefiltered:render", debug_aovs=_PREFILTERED_AOVS),
+           entry="warpscatter.scattering.prefiltered:render", debug_aovs=_PREFILTERED_AOVS,
+           validate=_prefiltered_rules),
     Method("moments6", "scattering", "Peters et al. 2017 Sec. 5, prefiltered single scattering with moments",
            "the prefiltered pipeline with 6 moments and Algorithm 1", CLASSIC_LIGHTS,
            sections=("prefiltered", "moments"), modules=_PREFILTERED_MODULES,
-           entry="warpscatter.scattering.prefiltered:render", debug_aovs=_PREFILTERED_AOVS),
+           entry="warpscatter.scattering.prefiltered:render", debug_aovs=_PREFILTERED_AOVS,
+           validate=_prefiltered_rules),
     Method("epipolar", "scattering", "Engelhardt & Dachsbacher 2010, epipolar sampling",
            "ray marching at a few percent of the pixels on epipolar lines, bilateral upsampling", CLASSIC_LIGHTS,
            sections=("epipolar",), visibility=VISIBILITY_CONFIGURABLE,
            modules=("warpscatter.scattering.epipolar_textures", "warpscatter.scattering.epipolar_upsampling",
                     "warpscatter.scattering.epipolar"), entry="warpscatter.scattering.epipolar:render",
-           debug_aovs=("epipolar_samples",)),
+           debug_aovs=("epipolar_samples",), validate=_epipolar_rules),
 )}
 
 LIGHTING: dict[str, Method] = {m.name: m for m in (
     Method("csm", "lighting", "Ritschel et al. 2007, coherent shadow maps",
            "Monte-Carlo direct lighting with coherent-shadow-map visibility", MONTE_CARLO_LIGHTS, sections=("csm",),
            visibility=VISIBILITY_CSM, modules=_LIGHTING_MODULES,
-           entry="warpscatter.pipeline.lighting:render_lighting"),
+           entry="warpscatter.pipeline.lighting:render_lighting", validate=_csm_rules),
     Method("raytrace", "lighting", "the reference of csm",
            "the same estimator with wp.Mesh shadow rays", MONTE_CARLO_LIGHTS, visibility=VISIBILITY_RAYS,
-           modules=_LIGHTING_MODULES, entry="warpscatter.pipeline.lighting:render_lighting"),
+           modules=_LIGHTING_MODULES, entry="warpscatter.pipeline.lighting:render_lighting",
+           validate=_csm_objects_rules),
 )}
 
 #: Warp modules every classic render launches (rasterizer, G-buffer, surface shadows and shading).

@@ -219,8 +219,7 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
         "light": light.kind,
         "samples": settings.samples,
         "passes": settings.passes,
-        "directions_per_pixel": 2 * settings.samples * settings.passes if light.kind not in ("linear", "volume")
-        else settings.samples * settings.passes,
+        "directions_per_pixel": light.directions_per_stratum * settings.samples * settings.passes,
         "seconds_per_pass": float(np.median(pass_seconds)),
         "shaded_pixels": int(hit.sum()),
     }

@@ -3,7 +3,9 @@
 :func:`build_scene` turns a validated :class:`warpscatter.config.Config` into a :class:`Scene`:
 mesh files loaded with trimesh and procedural generators (:mod:`.procedural`), each with its
 transform (CONVENTIONS: scale, then rotation X→Y→Z, then translation) and material, concatenated
-into one vertex/triangle array with a per-triangle material index.
+into one vertex/triangle array with a per-triangle material index. The config sections it reads are the Warp-free
+models of :mod:`.mesh_configs` (meshes, transforms, materials) and :mod:`.light_configs` (each light type's model,
+which builds its light).
 """
 
 from __future__ import annotations
@@ -111,7 +113,8 @@ def camera_from_config(c) -> Camera:
 
 
 def light_from_config(c) -> Light:
-    """The host light of a validated ``light`` section.
+    """The host light of a validated ``light`` section: its model builds it
+    (:meth:`~warpscatter.scene.light_configs.LightSettings.build`).
 
     Raises:
         InputFileError: a texture or environment map that cannot be read or holds values that are not radiance
@@ -120,40 +123,7 @@ def light_from_config(c) -> Light:
         ConfigError: an environment map that is not a valid radiance map once scaled; an area light's texture that
             is black (where it should emit).
     """
-    from ..errors import ConfigError
-    from ..imageio import read_radiance_image
-    from .lights import AreaLight, DirectionalLight, EnvironmentLight, LinearLight, PointLight, SpotLight, VolumeLight
-
-    if c.type == "directional":
-        return DirectionalLight(direction=c.direction, irradiance=c.irradiance)
-    if c.type == "spot":
-        texture = None if c.texture is None else read_radiance_image(c.texture, key="light.texture")
-        return SpotLight(position=c.position, direction=c.direction, cone_deg=c.cone_deg, intensity=c.intensity,
-                         texture=texture)
-    if c.type == "point":
-        return PointLight(position=c.position, intensity=c.intensity)
-    if c.type == "environment":
-        from .environment_map import EnvironmentMap
-
-        image = read_radiance_image(c.map, key="light.map")
-        try:
-            return EnvironmentLight(EnvironmentMap(image * np.float32(c.scale)))
-        except ValueError as exc:
-            raise ConfigError(f"light.map: {c.map}: {exc}") from None
-    if c.type == "area":
-        texture = None if c.texture is None else read_radiance_image(c.texture, key="light.texture")
-        try:
-            if c.power is not None:
-                return AreaLight.from_power(c.position, c.u, c.v, c.power, c.two_sided, texture)
-            return AreaLight(c.position, c.u, c.v, c.radiance if c.radiance is not None else (1.0, 1.0, 1.0),
-                             c.two_sided, texture)
-        except ValueError as exc:
-            raise ConfigError(f"light.texture: {c.texture}: {exc}") from None
-    if c.type == "volume":
-        if c.power is not None:
-            return VolumeLight.from_power(c.position, c.u, c.v, c.w, c.power)
-        return VolumeLight(c.position, c.u, c.v, c.w, c.intensity if c.intensity is not None else (1.0, 1.0, 1.0))
-    return LinearLight(c.start, c.end, c.intensity)
+    return c.build()
 
 
 def medium_from_config(c) -> Medium:

@@ -29,7 +29,8 @@ Monte-Carlo lights (``render.lighting``, Ritschel et al. 2007 Sec. 5; their esti
 ``LightParams`` is a single struct for both classic types so kernels need one code path (it holds the spot's
 texture array); :func:`light_sample` returns, for a world point, the incident irradiance, the unit direction the
 light travels at that point and the distance to the light (inf for directional lights). Area and linear lights
-reach kernels as :class:`LocalLightData`.
+reach kernels as :class:`LocalLightData`. Each light's config section (keys, checks, the one-line summary, the
+host light it builds) is its model in :mod:`.light_configs`.
 """
 
 from __future__ import annotations
@@ -153,6 +154,7 @@ class EnvironmentLight:
     env: EnvironmentMap
 
     kind = "environment"
+    directions_per_stratum = 2  # a light sample and a BRDF sample (csm.direct_lighting)
 
 
 def _vec(a, name: str) -> np.ndarray:
@@ -180,6 +182,7 @@ class AreaLight:
     texture: np.ndarray | None = None
 
     kind = "area"
+    directions_per_stratum = 2  # a light sample and a BRDF sample (csm.local_lights)
 
     def __post_init__(self):
         for name in ("corner", "u", "v", "radiance"):
@@ -274,6 +277,7 @@ class LinearLight:
     intensity: np.ndarray
 
     kind = "linear"
+    directions_per_stratum = 1  # no surface a BRDF sample could hit: light samples only
 
     def __post_init__(self):
         for name in ("start", "end", "intensity"):
@@ -324,6 +328,7 @@ class VolumeLight:
     intensity: np.ndarray
 
     kind = "volume"
+    directions_per_stratum = 1  # no surface a BRDF sample could hit: light samples only
 
     def __post_init__(self):
         for name in ("corner", "u", "v", "w", "intensity"):
