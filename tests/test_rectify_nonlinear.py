@@ -10,6 +10,7 @@ import pytest
 import warp as wp
 
 from warpscatter.scattering import rectify_nonlinear as rectify
+from warpscatter.scattering.rectify import nonlinear as rectify_nl
 from warpscatter.scattering.rectify_nonlinear import NonlinearRectification, reference_ray, resample_shadow_map
 from warpscatter.scene.camera import Camera, look_at_basis, orthographic_matrix, view_matrix
 from warpscatter.wpinit import default_device, module_options
@@ -474,7 +475,7 @@ def test_supersampling_rows_do_not_depend_on_the_thread_split(monkeypatch, trans
     for threads, span in ((1, None), (3, None), (2, 1)):
         monkeypatch.setattr(parallel, "thread_count", lambda n=threads: n)
         if span is not None:
-            monkeypatch.setattr(rectify, "radial_span", lambda cols, device, s=span: s)
+            monkeypatch.setattr(rectify_nl, "radial_span", lambda cols, device, s=span: s)
         out = resample_shadow_map(rect, depth, proj @ view, **args)
         runs.append([a.numpy() for a in (out.z1, out.z2, out.w2)])
     for first, *others in zip(*runs, strict=True):

@@ -1,0 +1,593 @@
+"""Projective rectification of a directional light's shadow map (Klehm 2014 Sec. 4.2, Eq. 12).
+
+Klehm's "linear" rectification replaces the light's view-projection by ONE 4x4 matrix, so the scene
+is rasterized straight into the rectified shadow map (no resampling) and a world point reaches
+rectified space with a matrix product, as in ordinary shadow mapping. Construction (Klehm 2014
+Sec. 4.2, Fig. 4):
+
+1. light view space with its origin at the camera position, z = the direction the light TRAVELS
+   (CONVENTIONS.md), any x/y completion;
+2. the camera frustum corners projected along the light (their x, y); the two 2D vectors from the
+   camera that span the largest angle give the 2D bisectrix, which is lifted to 3D with z = 0;
+3. the light view is rotated about z so that the bisectrix is the +x axis ("runs left to right");
+4. a perspective projection ALONG x with the camera as centre of projection: near / far = min / max x
+   of the eight frustum corners, left/right = min/max slope y/x, bottom/top = min/max slope z/x of
+   the corners (left = -right by the bisectrix, bottom/top may be skewed).
+
+In that space a camera view ray q = t (a, b, c) keeps the slopes y/x = b/a and z/x = c/a, so it lies
+in ONE row (the epipolar slice y/x) at ONE depth (z/x) and runs along the columns from the camera
+outward; a light ray keeps x and y (one texel) while z/x grows along the light (shadow-map depth).
+Rectified coordinates (the same convention as :mod:`.spherical`, so one evaluation serves both):
+
+* u = column coordinate in [0, 1]: the projective depth of x, u = f (x - n) / ((f - n) x) (NDC x
+  of the matrix mapped to [0, 1]); texel i has its centre at u = (i + 0.5) / cols;
+* v = row coordinate in [0, 1], v = (s_hi - y/x) / (s_hi - s_lo): row 0 is NDC y = +1, the top row
+  of the rasterized image;
+* depth = (z/x - zeta_lo) / (zeta_hi - zeta_lo) in [0, 1] growing along the light; the slope bounds
+  are stretched by the guard band (as for the non-linear rectification) so that frustum rays stay
+  off the periodic discontinuity of the Fourier step at depth differences of +-1.
+
+Rasterization clamps depth (NV_DEPTH_CLAMP in the paper), so casters between the light and the
+frustum land at depth 0 and cast the same shadows; only the part behind the centre of projection
+(x <= 0) is clipped (:func:`warpscatter.raster.rasterize` with ``clip_near=False``).
+
+Non-uniform columns: x grows hyperbolically with u, so the world step per texel along a view ray
+varies along the row. Klehm 2014 Eq. 12 models it as a constant growth factor d per texel, found
+from the first three texel centres of a row; since the step of a projective map really grows like
+x^2, :func:`column_lengths` offers the exact per-texel lengths as well (``model="exact"``).
+
+Light-frustum regions (Klehm 2014 Sec. 4.2, end, after split shadow maps): ``regions`` = R > 1 cuts
+the light frustum along x into regions of geometrically increasing size, [n (f/n)^(k/R),
+n (f/n)^((k+1)/R)], each rendered with its own projection into its own block of cols/R columns (same
+rows and depth slopes, so a view ray keeps its row and depth across regions). This counters the x^2
+growth of the texel size, which is severe because n lies on the camera's near plane: f/n is ~1000
+for near = 0.1 and far = 100, and with R = 1 the last column alone covers x in [f/2, f]. The relative
+texel size at a region's far end is R ((f/n)^(1/R) - 1) / cols: 1041/cols for R = 1, 11/cols for R = 8
+(the limit for R -> inf is ln(f/n) / cols). The prefilter's own split regions (Sec. 3.3) are
+independent of these (see :mod:`warpscatter.scattering.prefiltered`).
+
+The projection degenerates when a view ray is parallel to the light, i.e. when the light's epipole
+(or anti-epipole) lies in the image; Klehm then falls back to the resampled (non-linear)
+rectification and also does so for close-to-degenerate cases, detected by the distance of the
+epipole to the screen border (:func:`choose_rectification`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from ... import raster
+from ...scene.camera import normalize
+from ...wpinit import default_device, module_options
+from ..prefix_sums import split_columns
+from ..settings import EPIPOLE_MARGIN, MAX_REGIONS
+from .bounds import perpendicular_basis, unit_light_direction, widest_pair
+from .taps import SparseRectifiedDepth
+
+module_options()
+
+logger = logging.getLogger("warpscatter")
+
+
+@wp.struct
+class ProjectiveRectParams:
+    """A projective rectification as kernels see it (see :class:`ProjectiveRectification`)."""
+
+    origin: wp.vec3  # camera position (world), the centre of projection
+    to_light: wp.mat33  # world -> rectifying light view; rows = bisectrix x, y, light travel direction z
+    near: float  # n: smallest light-view x of the frustum corners (world units, > 0)
+    log_ratio: float  # log(f / n)
+    regions: int  # light-frustum regions along x (1 = one projection)
+    s_hi: float  # slope y/x of row coordinate v = 0
+    s_span: float  # slope range covered by v in [0, 1]
+    zeta_lo: float  # guarded slope z/x of rectified depth 0
+    zeta_span: float  # guarded slope range covered by depth in [0, 1]
+    rows: int  # epipolar slices
+    cols: int  # texels along a view ray (all regions)
+
+
+# ---- kernel-side coordinate transforms ------------------------------------------------------------
+
+
+@wp.func
+def region_near_far(rect: ProjectiveRectParams, k: int):
+    """Light-view x range [n_k, f_k] of light-frustum region k: n (f/n)^(k/R) .. n (f/n)^((k+1)/R) (Klehm Sec. 4.2)."""
+    s = float(rect.regions)
+    return rect.near * wp.exp(rect.log_ratio * float(k) / s), rect.near * wp.exp(rect.log_ratio * float(k + 1) / s)
+
+
+@wp.func
+def world_to_rectified(rect: ProjectiveRectParams, x: wp.vec3) -> wp.vec3:
+    """Rectified (u, v, depth) of world point x (Klehm 2014 Sec. 4.2): u = projective depth of the light-view x
+    (per light-frustum region), v = normalised slope y/x (row), depth = normalised slope z/x."""
+    q = rect.to_light * (x - rect.origin)
+    qx = wp.max(q[0], 1.0e-6 * rect.near)  # points behind the centre of projection go to column 0
+    k = int(0)
+    if rect.regions > 1:
+        k = int(wp.floor(float(rect.regions) * wp.log(qx / rect.near) / rect.log_ratio))
+        k = wp.clamp(k, 0, rect.regions - 1)
+    n, f = region_near_far(rect, k)
+    c0, nc = split_columns(rect.regions, rect.cols, k)
+    u_local = f * (qx - n) / ((f - n) * qx)
+    u = (float(c0) + u_local * float(nc)) / float(rect.cols)
+    v = (rect.s_hi - q[1] / qx) / rect.s_span
+    return wp.vec3(u, v, (q[2] / qx - rect.zeta_lo) / rect.zeta_span)
+
+
+@wp.func
+def rectified_to_world(rect: ProjectiveRectParams, c: wp.vec3) -> wp.vec3:
+    """World point of rectified (u, v, depth) (inverse of :func:`world_to_rectified` for u in [0, 1])."""
+    col = c[0] * float(rect.cols)
+    k = int(0)
+    for r in range(1, rect.regions):
+        c_r, nc_r = split_columns(rect.regions, rect.cols, r)
+        if col >= float(c_r):
+            k = r
+    n, f = region_near_far(rect, k)
+    c0, nc = split_columns(rect.regions, rect.cols, k)
+    u_local = (col - float(c0)) / float(nc)
+    qx = f * n / (f - u_local * (f - n))
+    q = qx * wp.vec3(1.0, rect.s_hi - c[1] * rect.s_span, rect.zeta_lo + c[2] * rect.zeta_span)
+    return rect.origin + wp.transpose(rect.to_light) * q
+
+
+@wp.func
+def rectified_ray_depth(rect: ProjectiveRectParams, direction: wp.vec3) -> float:
+    """Constant rectified depth of the camera view ray with world direction ``direction`` (x component > 0)."""
+    q = rect.to_light * direction
+    return (q[2] / q[0] - rect.zeta_lo) / rect.zeta_span
+
+
+# ---- host side: construction ----------------------------------------------------------------------
+
+
+def projection_matrix(near: float, far: float, s_lo: float, s_hi: float, zeta_lo: float, zeta_hi: float) -> np.ndarray:
+    """Perspective projection ALONG x (Klehm 2014 Sec. 4.2): light view (x, y, z) -> clip (X, Y, Z, W = x).
+
+    X/W = (f + n)/(f - n) - 2 f n / ((f - n) x) maps x = n, f to -1, +1; Y/W maps the slope y/x from
+    [s_lo, s_hi] to [-1, 1]; Z/W maps the slope z/x from [zeta_lo, zeta_hi] to [-1, 1].
+    """
+    m = np.zeros((4, 4))
+    m[0, 0] = (far + near) / (far - near)
+    m[0, 3] = -2.0 * far * near / (far - near)
+    m[1, 0] = -(s_hi + s_lo) / (s_hi - s_lo)
+    m[1, 1] = 2.0 / (s_hi - s_lo)
+    m[2, 0] = -(zeta_hi + zeta_lo) / (zeta_hi - zeta_lo)
+    m[2, 2] = 2.0 / (zeta_hi - zeta_lo)
+    m[3, 0] = 1.0
+    return m
+
+
+@dataclass(frozen=True)
+class ProjectiveRectification:
+    """Projective rectification of a directional light for one camera (Klehm 2014 Sec. 4.2).
+
+    Attributes:
+        position: camera position (world), the centre of projection.
+        to_light: (3, 3) world -> rectifying light view, rows = x (bisectrix), y, z (light travel direction).
+        corners: (8, 3) frustum corners in that light view (near plane first, as ``Camera.frustum_corners``).
+        near, far: smallest / largest light-view x of the corners (world units, 0 < near < far).
+        s_lo, s_hi: slope y/x range of the corners (rows; s_lo = -s_hi by the bisectrix).
+        zeta_min, zeta_max: tight slope z/x range of the corners (rectified depth before the guard band).
+        guard_band: relative stretch of the depth slope interval (half on each side).
+        half_angle: half the angle of the widest pair of projected corners (radians, < pi/2).
+        rows, cols: rectified map size (epipolar slices x texels along a view ray).
+        regions: light-frustum regions along x, each with its own projection (Klehm 2014 Sec. 4.2; 1 = one).
+    """
+
+    position: np.ndarray
+    to_light: np.ndarray
+    corners: np.ndarray
+    near: float
+    far: float
+    s_lo: float
+    s_hi: float
+    zeta_min: float
+    zeta_max: float
+    guard_band: float
+    half_angle: float
+    rows: int
+    cols: int
+    regions: int
+
+    @classmethod
+    def from_camera(cls, camera, light_direction, guard_band: float = 0.1, rows: int = 1024, cols: int = 1024,
+                    regions: int = 1) -> "ProjectiveRectification":
+        """Build the rectifying light frustum around ``camera`` for a directional light (Klehm 2014 Sec. 4.2, Fig. 4).
+
+        Args:
+            camera: a :class:`~warpscatter.scene.camera.Camera`.
+            light_direction: direction the light travels (any length > 0).
+            guard_band: relative stretch of the depth slope interval, >= 0.
+            rows: epipolar slices (>= 2).
+            cols: texels along each view ray (>= 3 per region).
+            regions: light-frustum regions along x (1..MAX_REGIONS).
+
+        Raises:
+            ValueError: on a zero light direction, bad sizes, or a view ray parallel to the light (the light's
+                epipole or anti-epipole inside the image: the construction is impossible, Klehm 2014 Sec. 4.2).
+        """
+        if not (np.isfinite(guard_band) and guard_band >= 0.0):
+            raise ValueError(f"guard_band must be finite and >= 0, got {guard_band}")
+        if int(regions) != regions or not 1 <= regions <= MAX_REGIONS:
+            raise ValueError(f"regions must be an integer in [1, {MAX_REGIONS}], got {regions}")
+        for name, val, low in (("rows", rows, 2), ("cols", cols, 3 * int(regions))):
+            if int(val) != val or val < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {val}")
+        ez = unit_light_direction(light_direction)
+        position = np.asarray(camera.position, float)
+        # ---- step 1-2: any light view from the camera; widest pair of projected corners -> bisectrix ----
+        ex0, ey0 = perpendicular_basis(ez)
+        far_dirs = camera.frustum_corners()[4:] - position
+        xy = np.stack([far_dirs @ ex0, far_dirs @ ey0], axis=-1)
+        lengths = np.linalg.norm(xy, axis=1)
+        if np.any(lengths <= 1e-12 * np.linalg.norm(far_dirs, axis=1)):
+            raise ValueError("projective rectification impossible: a frustum corner ray is parallel to the light")
+        a, b, angle = widest_pair(xy)
+        if angle >= math.pi - 1e-9:
+            raise ValueError("projective rectification impossible: the view frustum surrounds the light direction "
+                             "(its epipole or anti-epipole is in the image); use the non-linear rectification")
+        bis = xy[a] / lengths[a] + xy[b] / lengths[b]
+        bis /= np.linalg.norm(bis)
+        # ---- step 3: rotate the light view about z so the bisectrix is +x ----
+        ex = bis[0] * ex0 + bis[1] * ey0
+        to_light = np.stack([ex, np.cross(ez, ex), ez])
+        q = (camera.frustum_corners() - position) @ to_light.T
+        # ---- step 4: light frustum along x around the camera frustum ----
+        near, far = float(q[:, 0].min()), float(q[:, 0].max())
+        if not near > 0.0:
+            raise ValueError("projective rectification impossible: the view frustum reaches behind the camera as "
+                             "seen along the light (epipole in the image); use the non-linear rectification")
+        slope_y, slope_z = q[:, 1] / q[:, 0], q[:, 2] / q[:, 0]
+        s_lo, s_hi = float(slope_y.min()), float(slope_y.max())
+        if s_hi - s_lo <= 1e-12 * max(1.0, abs(s_hi)):
+            s_lo, s_hi = s_lo - 1e-9, s_hi + 1e-9
+        zmin, zmax = float(slope_z.min()), float(slope_z.max())
+        if zmax - zmin <= 1e-12 * max(1.0, abs(zmax)):
+            zmin, zmax = zmin - 1e-9, zmax + 1e-9
+        return cls(position=position, to_light=to_light, corners=q, near=near, far=far, s_lo=s_lo, s_hi=s_hi,
+                   zeta_min=zmin, zeta_max=zmax, guard_band=float(guard_band), half_angle=0.5 * angle,
+                   rows=int(rows), cols=int(cols), regions=int(regions))
+
+    # ---- derived bounds -------------------------------------------------------------------------------
+    @property
+    def light_direction(self) -> np.ndarray:
+        """Unit direction the light travels (light-view z axis)."""
+        return self.to_light[2]
+
+    @property
+    def zeta_lo(self) -> float:
+        """Guarded slope z/x of rectified depth 0."""
+        return self.zeta_min - 0.5 * self.guard_band * (self.zeta_max - self.zeta_min)
+
+    @property
+    def zeta_hi(self) -> float:
+        """Guarded slope z/x of rectified depth 1."""
+        return self.zeta_max + 0.5 * self.guard_band * (self.zeta_max - self.zeta_min)
+
+    def region_columns(self) -> np.ndarray:
+        """(regions + 1,) first column of every region, then ``cols``."""
+        return (np.arange(self.regions + 1) * self.cols) // self.regions
+
+    def region_bounds(self) -> np.ndarray:
+        """(regions + 1,) light-view x at the region boundaries, n (f/n)^(k/S) (geometric, Klehm 2014 Sec. 4.2)."""
+        b = self.near * (self.far / self.near) ** (np.arange(self.regions + 1) / self.regions)
+        b[0], b[-1] = self.near, self.far
+        return b
+
+    def world_to_view(self) -> np.ndarray:
+        """(4, 4) world -> rectifying light view (rotation about the camera position)."""
+        m = np.eye(4)
+        m[:3, :3] = self.to_light
+        m[:3, 3] = -self.to_light @ self.position
+        return m
+
+    def world_to_clip(self, region: int = 0) -> np.ndarray:
+        """(4, 4) world -> clip matrix of region ``region`` (the whole frustum when regions = 1)."""
+        if not 0 <= region < self.regions:
+            raise ValueError(f"region must lie in [0, {self.regions}), got {region}")
+        b = self.region_bounds()
+        return projection_matrix(b[region], b[region + 1], self.s_lo, self.s_hi, self.zeta_lo,
+                                 self.zeta_hi) @ self.world_to_view()
+
+    def params(self) -> ProjectiveRectParams:
+        """Kernel-side parameters (:class:`ProjectiveRectParams`)."""
+        p = ProjectiveRectParams()
+        p.origin = wp.vec3(*self.position)
+        p.to_light = wp.mat33(*self.to_light.ravel())
+        p.near = float(self.near)
+        p.log_ratio = float(math.log(self.far / self.near))
+        p.regions = int(self.regions)
+        p.s_hi = float(self.s_hi)
+        p.s_span = float(self.s_hi - self.s_lo)
+        p.zeta_lo = float(self.zeta_lo)
+        p.zeta_span = float(self.zeta_hi - self.zeta_lo)
+        p.rows = int(self.rows)
+        p.cols = int(self.cols)
+        return p
+
+    # ---- host coordinate transforms (float64) ------------------------------------------------------------
+    def column_to_x(self, column) -> np.ndarray:
+        """Light-view x at continuous global column coordinates (0 = left edge of column 0, cols = far)."""
+        c = np.asarray(column, dtype=np.float64)
+        starts = self.region_columns()
+        b = self.region_bounds()
+        k = np.clip(np.searchsorted(starts, c, side="right") - 1, 0, self.regions - 1)
+        n, f = b[k], b[k + 1]
+        u_local = (c - starts[k]) / (starts[k + 1] - starts[k])
+        return f * n / (f - u_local * (f - n))
+
+    def x_to_column(self, x) -> np.ndarray:
+        """Continuous global column coordinate of light-view x > 0 (inverse of :meth:`column_to_x`)."""
+        x = np.maximum(np.asarray(x, dtype=np.float64), 1e-6 * self.near)
+        starts = self.region_columns()
+        b = self.region_bounds()
+        if self.regions > 1:
+            k = np.floor(self.regions * np.log(x / self.near) / math.log(self.far / self.near)).astype(np.int64)
+            k = np.clip(k, 0, self.regions - 1)
+        else:
+            k = np.zeros(x.shape, np.int64)
+        n, f = b[k], b[k + 1]
+        return starts[k] + f * (x - n) / ((f - n) * x) * (starts[k + 1] - starts[k])
+
+    def world_to_rectified(self, points) -> np.ndarray:
+        """Rectified (u, v, depth) of world points, shape (..., 3) -> (..., 3) float64 (see the module doc)."""
+        p = np.asarray(points, dtype=np.float64)
+        if p.shape[-1] != 3:
+            raise ValueError(f"points must have shape (..., 3), got {p.shape}")
+        q = (p - self.position) @ self.to_light.T
+        qx = np.maximum(q[..., 0], 1e-6 * self.near)
+        u = self.x_to_column(qx) / self.cols
+        v = (self.s_hi - q[..., 1] / qx) / (self.s_hi - self.s_lo)
+        depth = (q[..., 2] / qx - self.zeta_lo) / (self.zeta_hi - self.zeta_lo)
+        return np.stack([u, v, depth], axis=-1)
+
+    def rectified_to_world(self, coords) -> np.ndarray:
+        """World points of rectified (u, v, depth), shape (..., 3) (u in [0, 1])."""
+        c = np.asarray(coords, dtype=np.float64)
+        if c.shape[-1] != 3:
+            raise ValueError(f"coords must have shape (..., 3), got {c.shape}")
+        qx = self.column_to_x(c[..., 0] * self.cols)
+        sy = self.s_hi - c[..., 1] * (self.s_hi - self.s_lo)
+        sz = self.zeta_lo + c[..., 2] * (self.zeta_hi - self.zeta_lo)
+        q = np.stack([qx, qx * sy, qx * sz], axis=-1)
+        return self.position + q @ self.to_light
+
+    def row_slopes(self) -> np.ndarray:
+        """Slope y/x of every row centre, shape (rows,)."""
+        return self.s_hi - (np.arange(self.rows) + 0.5) / self.rows * (self.s_hi - self.s_lo)
+
+    def slice_depth_slope_range(self, slope) -> tuple[np.ndarray, np.ndarray]:
+        """Range [zeta_lo, zeta_hi] of the depth slope z/x of the frustum's view rays in the slice(s) y/x = ``slope``.
+
+        The slice plane through the camera and the light direction cuts the frustum's cone of directions in
+        a 2D cone whose boundary rays cross the far-plane edges; slices that miss it get the global bounds.
+
+        Args:
+            slope: row slopes y/x, any shape.
+
+        Returns:
+            (lo, hi) arrays of the slope's shape (unguarded).
+        """
+        s = np.asarray(slope, dtype=np.float64)
+        quad = self.corners[4:][[0, 1, 3, 2]]  # far-plane corners in cyclic order
+        lo = np.full(s.shape, np.inf)
+        hi = np.full(s.shape, -np.inf)
+        for a in range(4):
+            qa, qb = quad[a], quad[(a + 1) % 4]
+            da = qa[1] - s * qa[0]
+            db = qb[1] - s * qb[0]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = np.where(da != db, da / (da - db), 0.0)
+            ok = (t >= -1e-12) & (t <= 1.0 + 1e-12)
+            t = np.clip(t, 0.0, 1.0)
+            p = qa + t[..., None] * (qb - qa)
+            zeta = p[..., 2] / p[..., 0]
+            lo = np.where(ok, np.minimum(lo, zeta), lo)
+            hi = np.where(ok, np.maximum(hi, zeta), hi)
+        empty = ~(lo <= hi)
+        return np.where(empty, self.zeta_min, lo), np.where(empty, self.zeta_max, hi)
+
+
+# ---- host side: rasterization straight into the rectified map ---------------------------------------------
+
+
+def rasterize_rectified(rect: ProjectiveRectification, vertices, triangles, *, opacity=None, device=None,
+                        threads: int | None = None):
+    """Rasterize a triangle mesh straight into the rectified blocker-depth map (Klehm 2014 Sec. 4.2).
+
+    One pass per light-frustum region with that region's matrix (:meth:`ProjectiveRectification.world_to_clip`),
+    depth clamping and no near-plane clipping: casters between the light and the frustum stay in the
+    map at depth 0, casters behind it at depth 1. Empty texels hold 1 (no blocker).
+
+    Args:
+        rect: the rectification (its rows x cols is the output size).
+        vertices: (N, 3) world positions (numpy or ``wp.array(dtype=wp.vec3)``).
+        triangles: (T, 3) vertex indices.
+        opacity: None (all opaque) or (T,) opacity per triangle: with translucent casters each texel holds the
+            two-depth distribution of :mod:`warpscatter.shadows.translucency` (nearest caster, nearest opaque
+            caster, the light share T passing to the latter), found by depth peeling in each region.
+        device: Warp device.
+        threads: CPU worker threads of the rasterizer.
+
+    Returns:
+        (rows, cols) float32 Warp array of rectified depth in [0, 1] (row 0 = v = 0); with translucent casters a
+        :class:`~.taps.SparseRectifiedDepth` (z_1 the nearest caster, z_2 the opaque one, w_2 = T).
+    """
+    from ...shadows import translucency
+
+    device = default_device(device)
+    points = raster.as_points(vertices, device)  # uploaded once for all regions
+    translucent = opacity is not None and translucency.has_translucent(opacity)
+    maps = [np.ones((rect.rows, rect.cols), np.float32) for _ in range(3 if translucent else 1)]
+    starts = rect.region_columns()
+
+    def rectified(z):
+        return np.where(np.isfinite(z), 0.5 * z + 0.5, 1.0)
+
+    for k in range(rect.regions):
+        width = int(starts[k + 1] - starts[k])
+        cols = slice(starts[k], starts[k + 1])
+        if translucent:
+            nearest, opaque, passed = translucency.translucent_depths(
+                points, triangles, opacity, rect.world_to_clip(k), width, rect.rows, clamp_depth=True,
+                clip_near=False, device=device)
+            maps[0][:, cols], maps[1][:, cols], maps[2][:, cols] = rectified(nearest), rectified(opaque), passed
+            continue
+        r = raster.rasterize(points, triangles, rect.world_to_clip(k), width, rect.rows, clamp_depth=True,
+                             clip_near=False, device=device, threads=threads)
+        maps[0][:, cols] = rectified(r.ndc_depth[0])
+    z1, *rest = (wp.array(a, dtype=wp.float32, device=device) for a in maps)
+    if not translucent:
+        return z1
+    return SparseRectifiedDepth(z1=z1, z2=rest[0], w2=rest[1])
+
+
+def cross_ratio_factors(rect: ProjectiveRectification) -> tuple[np.ndarray, np.ndarray]:
+    """Growth factor d and first step of every light-frustum region (Klehm 2014 Sec. 4.2, Eq. 12).
+
+    As in the paper, the first three texel centres of a row (of each region) are taken to world space at
+    one common depth, and d is the ratio of the two distances between them; the step between the first
+    two centres is the region's first world step. In light-view x (world distances of one view ray are
+    x / x_direction, so d does not depend on the row or the depth).
+
+    Returns:
+        (d, first_step): (regions,) float64 arrays; first_step in light-view x units.
+    """
+    starts = rect.region_columns()[:-1]
+    c = starts[:, None] + np.array([0.5, 1.5, 2.5])[None, :]
+    rows = np.full(c.shape, 0.5)
+    world = rect.rectified_to_world(np.stack([c / rect.cols, rows, rows], axis=-1))
+    d1 = np.linalg.norm(world[:, 1] - world[:, 0], axis=-1)
+    d2 = np.linalg.norm(world[:, 2] - world[:, 1], axis=-1)
+    dirs = (world[:, 0] - rect.position) @ rect.to_light.T
+    per_x = np.linalg.norm(dirs, axis=-1) / dirs[:, 0]  # world length per unit light-view x at that depth
+    return d2 / d1, d1 / per_x
+
+
+def column_lengths(rect: ProjectiveRectification, model: str = "exact") -> np.ndarray:
+    """Light-view x width of every column (multiply by a row's ``length_scale`` for world lengths).
+
+    Args:
+        rect: the rectification.
+        model: ``"exact"`` X(i + 1) - X(i) of the projective map; ``"cross_ratio"`` Klehm 2014 Eq. 12:
+            Delta d^i within each light-frustum region (i counted from the region's first column), with d and
+            Delta from :func:`cross_ratio_factors`. Eq. 12 assumes a constant growth factor; the true
+            growth of a projective map increases along the row (steps grow like x^2).
+
+    Returns:
+        (cols,) float64 positive widths.
+
+    Raises:
+        ValueError: on an unknown model.
+    """
+    if model == "exact":
+        return np.diff(rect.column_to_x(np.arange(rect.cols + 1, dtype=np.float64)))
+    if model != "cross_ratio":
+        raise ValueError(f"model must be 'exact' or 'cross_ratio', got {model!r}")
+    d, first = cross_ratio_factors(rect)
+    starts = rect.region_columns()
+    out = np.empty(rect.cols)
+    for k in range(rect.regions):
+        i = np.arange(starts[k + 1] - starts[k], dtype=np.float64)
+        out[starts[k]:starts[k + 1]] = first[k] * d[k] ** i
+    return out
+
+
+# ---- host side: automatic choice ---------------------------------------------------------------------------
+
+
+def epipole_distance(camera, light_direction) -> tuple[float, str]:
+    """Distance of the light's epipoles from the image, in half image heights on the image plane.
+
+    The epipole is where view rays towards the light (-L) meet the image plane; the anti-epipole where rays
+    along the light (+L) do. Only those in front of the camera count. The image plane is measured in NDC y
+    units (x scaled by the aspect ratio, so distances are isotropic); 0 means inside the image, +inf that
+    no epipole lies in front (the light travels parallel to the image plane).
+
+    Returns:
+        (distance, name) with name ``"light"``, ``"anti-light"`` or ``"none"``.
+    """
+    right, up, fwd = camera.basis
+    t = math.tan(math.radians(camera.fov_y) / 2.0)
+    a = camera.aspect
+    best, name = math.inf, "none"
+    for sign, label in ((-1.0, "light"), (1.0, "anti-light")):
+        d = sign * normalize(light_direction)
+        cz = float(d @ fwd)
+        if cz <= 1e-12:
+            continue
+        ex, ey = float(d @ right) / (cz * t), float(d @ up) / (cz * t)  # image plane in NDC-y units
+        dist = math.hypot(max(abs(ex) - a, 0.0), max(abs(ey) - 1.0, 0.0))
+        if dist < best:
+            best, name = dist, label
+    return best, name
+
+
+@dataclass(frozen=True)
+class RectificationChoice:
+    """Which rectification :func:`choose_rectification` picked, and why."""
+
+    kind: str  # "projective" or "nonlinear"
+    reason: str
+    epipole_distance: float  # in half image heights (see :func:`epipole_distance`)
+
+
+def choose_rectification(camera, light_direction, requested: str = "auto",
+                         margin: float = EPIPOLE_MARGIN, weights_per_ray: bool = False) -> RectificationChoice:
+    """Pick the projective or the non-linear rectification (Klehm 2014 Sec. 4.2).
+
+    The projective construction fails when a view ray is parallel to the light (epipole in the image) and
+    degrades as the epipole approaches the image border (the projected frustum spans nearly 180 degrees
+    around the light axis: the row and depth slopes and the column non-linearity blow up). Klehm detects
+    such close-to-degenerate cases by the distance of the epipole to the screen border. ``auto`` uses the
+    projective rectification when every epipole in front of the camera lies at least ``margin`` half image
+    heights outside the image, else the non-linear (resampled) one; with ``weights_per_ray`` (the look-ups weight
+    each view ray by its own transmittance, which the projective map's uneven columns cannot) always the non-linear
+    one. A requested ``projective`` that is impossible (epipole inside the image) falls back to ``nonlinear`` with a
+    warning.
+
+    Args:
+        camera: the camera.
+        light_direction: direction the light travels.
+        requested: ``"auto"``, ``"projective"`` or ``"nonlinear"``.
+        margin: threshold on :func:`epipole_distance` (>= 0).
+        weights_per_ray: ``auto`` takes the non-linear map (see
+            :attr:`~.settings.PrefilteredSettings.weights_per_ray`).
+
+    Returns:
+        :class:`RectificationChoice`; the reason is also logged on the ``warpscatter`` logger.
+
+    Raises:
+        ValueError: on an unknown request or a negative margin.
+    """
+    if requested not in ("auto", "projective", "nonlinear"):
+        raise ValueError(f"rectification must be 'auto', 'projective' or 'nonlinear', got {requested!r}")
+    if not (np.isfinite(margin) and margin >= 0.0):
+        raise ValueError(f"epipole margin must be finite and >= 0, got {margin}")
+    dist, which = epipole_distance(camera, light_direction)
+    where = "no epipole in front of the camera" if which == "none" else \
+        f"{which} epipole {dist:.3g} half image heights outside the image" if dist > 0.0 else \
+        f"{which} epipole inside the image"
+    level = logging.INFO
+    if requested == "nonlinear":
+        kind, reason = "nonlinear", f"non-linear rectification requested ({where})"
+    elif requested == "projective":
+        if dist > 0.0:
+            kind, reason = "projective", f"projective rectification requested ({where})"
+        else:
+            kind, reason = "nonlinear", f"projective rectification impossible ({where}): non-linear used instead"
+            level = logging.WARNING
+    elif dist < margin:
+        kind, reason = "nonlinear", f"auto: non-linear ({where}, threshold {margin:g})"
+    elif weights_per_ray:
+        kind, reason = "nonlinear", f"auto: non-linear (per-ray weights need its even columns; {where})"
+    else:
+        kind, reason = "projective", f"auto: projective ({where}, threshold {margin:g})"
+    logger.log(level, "fourier rectification: %s", reason)
+    return RectificationChoice(kind=kind, reason=reason, epipole_distance=float(dist))
