@@ -13,15 +13,9 @@ A config with an ``animation`` section renders a sequence. Each track animates o
         medium.sigma_t: {1: 0.05, 30: 0.12, 60: 0.05}
         scene.meshes.1.transform.rotate_deg: {1: [0, 0, 0], 60: [0, 90, 0]}
 
-Values: numbers and lists of numbers interpolate per component (a direction is normalised when the frame's config
-is validated: normalised linear interpolation); values of integer keys (``camera.width``) round to integers, whole
-numbers given for a float key do not; anything else
-(strings, booleans) holds the value of the last key at or before the frame. Before the first key and after the last
-a track holds its end value. Any key of the config can be animated: camera (position, look_at, fov_y), light
-(direction, position, cone_deg, intensity, irradiance), medium (sigma_t, albedo, phase.g), mesh transforms; each
-frame's config is validated like a loaded one.
-
-This module imports no Warp.
+Numbers and lists interpolate per component (directions are normalised on validation); integer keys round to
+integers; strings and booleans hold the last key's value. Outside the keys a track holds its end value. Each frame's
+config is validated like a loaded one. No Warp import.
 """
 
 from __future__ import annotations
@@ -32,11 +26,9 @@ from pydantic import BeforeValidator, Field, field_validator, model_validator
 
 from .schema import MAX_FRAME, MAX_FRAMES, Int, SettingsModel, is_number
 
-#: Interpolation between keyframes: ``linear``; ``smooth`` eases in and out at every key (smoothstep of the
-#: linear parameter: zero velocity at the keys, C1 within a segment).
+#: Interpolation between keyframes: ``linear``, or ``smooth`` (smoothstep: zero velocity at the keys).
 INTERPOLATIONS = ("linear", "smooth")
-#: Preview formats of a rendered sequence (``auto``: mp4 where imageio-ffmpeg is installed, else gif where imageio
-#: is, else none).
+#: Preview formats of a rendered sequence (``auto``: mp4 with imageio-ffmpeg, else gif with imageio, else none).
 PREVIEWS = ("auto", "mp4", "gif", "none")
 #: Frame numbers are written with this many digits at least (``NAME.0001.exr``).
 FRAME_DIGITS = 4
@@ -157,9 +149,7 @@ def _ease(t: float, interpolation: str) -> float:
 
 
 def track_value(track: Track, frame: float, interpolation: str = "linear", integer: bool = False) -> Any:
-    """A track's value at ``frame``: interpolated between the keys around it (see the module docstring); with
-    ``integer`` (the animated key is an integer field, e.g. ``camera.width``) interpolated values round to integers.
-    Whole-number keyframes of a float key (``[0, 2, -14]``) interpolate as floats."""
+    """A track's value at ``frame``, interpolated between the keys around it; with ``integer`` rounded."""
     frames = list(track.keys)
     values = list(track.keys.values())
     if frame <= frames[0]:

@@ -11,9 +11,8 @@
     cfg = warpscatter.load_config({"scene": {...}, "camera": {...}, "light": {...}})
     result = warpscatter.render(cfg, out_dir="out")   # also writes NAME.exr, NAME.png, the AOVs and NAME.json
 
-Every path into a render validates: a dict or a file is validated on loading, a :class:`Config` (possibly changed
-in place, which pydantic does not check) is validated again before any work. The device follows Warp's:
-``device`` when given, else ``WARPSCATTER_DEVICE``, else ``wp.get_device()`` (``wp.ScopedDevice`` applies).
+A :class:`Config` (possibly changed in place) is validated again before any work. The device is ``device``, else
+``WARPSCATTER_DEVICE``, else ``wp.get_device()``.
 """
 
 from __future__ import annotations
@@ -62,18 +61,9 @@ def render(config: ConfigSource, overrides: Overrides = (), *, out_dir: str | Pa
            progress=None, verbose: bool = False):
     """Render a config and return its images; write the output files only when ``out_dir`` is given.
 
-    Quiet by default: the render writes nothing to stdout or stderr, first call included. Warp's start-up banner
-    and its "Module ... load on device" lines go to the ``warpscatter.warp`` logger (Warp 1.19 prints them through
-    its logger, ``wp.get_logger()``, at ``wp.config.log_level <= wp.LOG_INFO``; ``wp.config.quiet`` is not a Warp
-    1.19 setting) and Warp's native warning of a machine without a CUDA driver to the ``warpscatter`` logger at
-    DEBUG level. Warp's warnings and errors still show. Warp's logger and log level are as they were after the call,
-    also when it raises. To see Warp's messages::
-
-        warpscatter.render("configs/quickstart.yaml", verbose=True)   # Warp prints them, as it does by default
-
-        import logging
-        logging.basicConfig(level=logging.INFO)   # or: logging.getLogger("warpscatter.warp").setLevel(logging.INFO)
-        warpscatter.render("configs/quickstart.yaml")                 # through logging, as INFO records
+    Quiet by default: Warp's banner and module-load lines go to the ``warpscatter.warp`` logger (INFO) and its
+    no-CUDA-driver warning to ``warpscatter`` (DEBUG); Warp's warnings and errors still show, and its logger and log
+    level are restored afterwards. ``verbose=True`` lets Warp print as it does by default.
 
     Args:
         config: a YAML file path, a plain dict or a :class:`Config` (validated again: see the module docstring).

@@ -1,21 +1,11 @@
 """Typed pipeline configuration: the whole config's models, validation and clear errors.
 
-A config file (schema in ``docs/conventions.md`` and the README) is read with PyYAML, patched with
-``KEY=VALUE`` overrides (``camera.fov_y=40``, ``scene.meshes.0.material.opacity=0.5``; both in
-:mod:`warpscatter.config_files`, whose names this module re-exports), and validated by the pydantic v2 models
-below, which compose the techniques' settings models and the scene's (:mod:`warpscatter.scene.mesh_configs`, the
-light models of :mod:`warpscatter.scene.light_configs`). A method's own rules are its registry record's
-(:attr:`warpscatter.methods.Method.validate`). Every model forbids unknown keys. Relative paths (mesh files,
-spot-light textures, ``output.dir``) are resolved against the config file's folder into absolute
-:class:`pathlib.Path` objects, and input files must exist.
-
-Every problem is reported at once, as ``key.path: reason`` lines in a :class:`ConfigError`, e.g.::
-
-    light.direction: must be non-zero (line 12)
-    camera: near (5.0) must be < far (1.0) (line 7)
-    scene.meshes.0.colour: unknown key (did you mean 'material'?) (line 4)
-
-This module does not import Warp: validating a config is fast.
+A YAML config (schema: ``docs/conventions.md``) is patched with ``KEY=VALUE`` overrides
+(:mod:`warpscatter.config_files`, re-exported here) and validated by these pydantic v2 models, which compose the
+techniques' and the scene's settings models; a method's own rules are its registry record's
+(:attr:`warpscatter.methods.Method.validate`). Unknown keys are refused, relative paths resolve against the config
+file's folder, and every problem is reported at once as ``key.path: reason`` lines in a :class:`ConfigError`. No Warp
+import: validating is fast.
 """
 
 
@@ -147,14 +137,10 @@ __all__ = [
 
 #: Image outputs a render writes by default (``output.aovs``); ``color`` is always written.
 STANDARD_AOVS = ("color", "scattering", "surface", "depth")
-#: Debug outputs (``output.aovs``, not written unless asked) that show why an image looks as it does, each made by
-#: the scattering methods that list it (:attr:`warpscatter.methods.Method.debug_aovs`): ``rectified`` the per-pixel
-#: rectified look-up coordinates (u, v, z_r), ``epipole_mask`` the weight of the ray-marched epipole region per pixel
-#: (1: marched, 0: prefiltered), ``rectified_map`` the rectified depth map and the texels caster culling emptied
-#: (map-sized, 2 channels), ``mip_level`` the row mip level each pixel's look-up reads (level + the share of the next;
-#: ``prefiltered.mip_levels``); ``evaluated_pixels`` 1 where the prefiltered look-up ran, 0 where the pixel interpolated
-#: its grid cell (``prefiltered.evaluate_stride``); ``epipolar_samples`` the ray-march steps taken at each pixel by
-#: epipolar's marched samples and directly marched pixels (0: interpolated).
+#: Debug outputs (``output.aovs``, written only when asked), each made by the scattering methods that list it
+#: (:attr:`warpscatter.methods.Method.debug_aovs`): ``rectified`` (u, v, z_r) look-up coordinates, ``epipole_mask``
+#: (1: marched, 0: prefiltered), ``rectified_map`` (map-sized depth and culled-texel mask), ``mip_level``,
+#: ``evaluated_pixels`` (1: look-up ran, 0: interpolated) and ``epipolar_samples`` (ray-march steps per pixel).
 DEBUG_AOVS = ("rectified", "epipole_mask", "rectified_map", "mip_level", "evaluated_pixels", "epipolar_samples")
 #: Image outputs a render can write (``output.aovs``).
 AOV_NAMES = STANDARD_AOVS + DEBUG_AOVS
@@ -214,7 +200,6 @@ class CameraConfig(SettingsModel):
         return self
 
 
-# ---- medium --------------------------------------------------------------------------------------
 
 
 class PhaseConfig(SettingsModel):
@@ -245,7 +230,6 @@ class MediumConfig(SettingsModel):
     phase: PhaseConfig = Field(default_factory=dict, description="phase function")
 
 
-# ---- render --------------------------------------------------------------------------------------
 
 
 class SurfacesSettings(SettingsModel):
@@ -269,13 +253,10 @@ class RenderSettings(SettingsModel):
     lighting: LightingSettings = Field(default_factory=dict, description="Monte-Carlo direct lighting")
 
 
-# ---- output --------------------------------------------------------------------------------------
 
 
-#: Lossless EXR compressions of ``output.compression`` (OpenImageIO names; the same tuple as
-#: :data:`warpscatter.imageio.EXR_COMPRESSIONS`, kept here so that validating needs no OpenImageIO).
-#: The four float32 EXRs of a 1280x720 render take (two shared cores, one after the other): none 0.17-0.21 s
-#: for 36.9 MB, rle 0.24 s / 24.6 MB, zips 0.47-0.70 s / 24.3 MB, zip 0.83-1.17 s / 22.6 MB, piz 1.9-2.8 s / 20.6 MB.
+#: Lossless EXR compressions of ``output.compression``, as :data:`warpscatter.imageio.EXR_COMPRESSIONS` (kept here
+#: so that validating needs no OpenImageIO; timings in docs/design/csm-core.md).
 EXR_COMPRESSIONS = ("none", "rle", "zips", "zip", "piz")
 
 
@@ -335,15 +316,10 @@ class OutputConfig(SettingsModel):
 _LIGHT_NAMES = [typing.get_args(m.model_fields["type"].annotation)[0] for m in LIGHT_CONFIGS]
 
 
-# ---- the whole config ----------------------------------------------------------------------------
 
 
 class Config(SettingsModel):
-    """A validated pipeline configuration (see the module docstring and CONVENTIONS.md).
-
-    ``config_dir`` (the folder relative paths were resolved against) and ``source`` (the file, if
-    any) are kept as private attributes and never dumped.
-    """
+    """A validated pipeline configuration; ``config_dir`` and ``source`` are private and never dumped."""
 
     scene: SceneConfig = Field(description="the meshes")
     camera: CameraConfig = Field(description="the pinhole camera")
@@ -438,8 +414,7 @@ class Config(SettingsModel):
 
     @model_validator(mode="after")
     def _tracks_fit(self, info: ValidationInfo) -> Config:
-        """Every keyframe of every track gives a valid config (relative paths against the config's folder; the
-        frames between keys are validated when rendered: :meth:`at_frame`, every frame before the first render)."""
+        """Every keyframe of every track gives a valid config (frames between keys are validated when rendered)."""
         if self.animation is None:
             return self
         config_dir = context_dir(info)
@@ -462,8 +437,7 @@ class Config(SettingsModel):
         return self
 
     def at_frame(self, frame: int) -> Config:
-        """The config of one frame of the animation: every track's value at ``frame`` applied, no ``animation``
-        section, and the output name ``NAME.FFFF`` (:func:`warpscatter.animation.frame_name`).
+        """The config of one animation frame: every track's value applied, no ``animation``, name ``NAME.FFFF``.
 
         Raises:
             ValueError: the config has no ``animation``.
@@ -507,8 +481,7 @@ class Config(SettingsModel):
         return self.output.name.format(config=stem, method=self.method)
 
     def model_copy(self, *, update: dict[str, Any] | None = None, deep: bool = False) -> Config:
-        """A copy; with ``update`` (top-level keys, e.g. ``{"camera": {...}}``) the result is validated like a
-        loaded config (pydantic's own ``model_copy`` would skip validation).
+        """A copy; with ``update`` (top-level keys) validated like a loaded config (unlike pydantic's ``model_copy``).
 
         Raises:
             ConfigError: listing every problem of the updated config as ``key.path: reason``.
@@ -519,8 +492,7 @@ class Config(SettingsModel):
         return validated_config(data, self._config_dir, self._source)
 
     def revalidated(self) -> Config:
-        """This config validated again as a whole (after fields were assigned in place, which pydantic does not
-        check); returns a new, valid config.
+        """This config validated again as a whole (after in-place assignments); returns a new, valid config.
 
         Raises:
             ConfigError: listing every problem as ``key.path: reason``.
@@ -542,9 +514,7 @@ class Config(SettingsModel):
 
 
 def _integer_field(dotted_key: str) -> bool | None:
-    """Whether a dotted config key is an integer field (``camera.width``, ``render.scattering.epipolar.lines``;
-    optional ones too), from the settings models' annotations; None where the models cannot tell (a generator's
-    ``params``, a union of several types)."""
+    """Whether a dotted config key is an integer field, from the models' annotations; None where they cannot tell."""
     from .schema import unwrap
 
     model: Any = Config
@@ -586,7 +556,6 @@ def validated_config(data: Any, config_dir: str | Path | None, source: Path | No
         raise ConfigError(format_validation_errors(exc, Config, key_lines, overridden), named or source) from None
 
 
-# ---- loading ----------------------------------------------------------------------------------
 
 
 def load_config(path: str | Path, overrides: Iterable[str] | Mapping[str, Any] = ()) -> Config:

@@ -1,9 +1,5 @@
-"""Config files and ``--set`` overrides: YAML read into plain data, and ``KEY=VALUE`` overrides applied to it.
-
-:func:`read_config_data` reads a YAML file with a strict loader (duplicate keys, keys that are lists or mappings,
-alias bombs refused, the file and line named); :func:`apply_overrides` patches the data with ``--set`` overrides
-(``camera.fov_y=40``, ``scene.meshes.0.material.opacity=0.5``). Validation is :mod:`warpscatter.config`'s, which
-re-exports these names. Nothing here imports Warp.
+"""Config files and ``--set`` overrides: YAML read into plain data with a strict loader, and ``KEY=VALUE`` overrides
+applied to it (validated by :mod:`warpscatter.config`, which re-exports these names). No Warp import.
 """
 
 from __future__ import annotations
@@ -20,12 +16,8 @@ from .errors import ConfigError
 from .scene.light_configs import LIGHT_TYPES
 from .schema import dotted
 
-# ---- YAML ----------------------------------------------------------------------------------------
-
-#: The most nodes a YAML document (a config, a sweep file, a ``--set`` value) may hold once its aliases are
-#: expanded: every scalar, list and mapping counts, each ``*alias`` as the whole node it refers to. The bundled
-#: configs hold 100-200; the limit stops alias bombs ("billion laughs": nine levels of ten aliases each expand a
-#: few hundred bytes to 10^9 nodes) while composing, before anything is built, validated or copied.
+#: The most nodes a YAML document may hold with its aliases expanded (bundled configs: 100-200): stops alias bombs
+#: while composing, before anything is built.
 MAX_YAML_NODES = 100_000
 
 _NAME_TAGS = ("tag:yaml.org,2002:str", "tag:yaml.org,2002:merge")
@@ -40,20 +32,13 @@ class _YAMLKeyError(yaml.MarkedYAMLError):
 
 
 class _Loader(yaml.SafeLoader):
-    """SafeLoader that rejects duplicate keys, reads ``1e-3`` as a float (as YAML 1.2 does), and refuses documents
-    that cannot be plain config data.
+    """SafeLoader that rejects duplicate keys, reads ``1e-3`` as a float (YAML 1.2), and refuses documents that cannot
+    be plain config data.
 
-    Alias bombs: while composing, every node's expanded size (itself plus, recursively, everything below it, an
-    alias counting as the whole node it refers to) is computed once, so a running total of the document's expanded
-    size costs O(1) per node and alias; the document is refused as soon as the total passes
-    :data:`MAX_YAML_NODES` (a ``ComposerError`` at the alias or node that passed it), and so are recursive aliases
-    (an alias inside the node it refers to). A budget on the expanded size, rather than a limit on alias depth,
-    bounds exactly what costs time and memory later (building the data, validating it, copying it, walking it for
-    line numbers) and keeps aliases usable for what they are for: sharing a material or a transform between entries.
-
-    Keys: a list or a mapping as a mapping key (``{[1, 2]: 3}``) is refused with its key path (``_YAMLKeyError``);
-    with ``string_keys_at_top`` (config and sweep files) so is a top-level key that is not a string (``1: x``).
-    Numbers stay allowed as keys below the top level (animation keyframes are ``frame: value``).
+    Alias bombs: each node's expanded size is computed once while composing and the document is refused when the
+    total passes :data:`MAX_YAML_NODES` (and for recursive aliases); a budget on the expanded size bounds exactly what
+    costs time later, and keeps aliases usable for sharing. Collection keys are refused with their key path, and with
+    ``string_keys_at_top`` so are non-string top-level keys (numbers stay allowed below: animation keyframes).
     """
 
     string_keys_at_top = False
@@ -179,16 +164,11 @@ def key_lines(text: str) -> dict[tuple, int]:
     return lines
 
 
-# ---- overrides -----------------------------------------------------------------------------------
 
 
 def parse_override(text: str) -> tuple[tuple[str | int, ...], Any]:
-    """Split ``a.b.0.c=value`` into a key path and a YAML-parsed value.
-
-    Digits in the key select list items; the index one past the end appends an item
-    (``scene.meshes.1.procedural=colonnade`` adds a second mesh). The value is parsed as YAML (``0.5`` -> float,
-    ``[0, 1, 2]`` -> list, ``raymarch`` -> str, ``true`` -> bool), by the loader of config files (:class:`_Loader`:
-    duplicate keys, lists or mappings as keys and alias bombs beyond :data:`MAX_YAML_NODES` are refused).
+    """Split ``a.b.0.c=value`` into a key path and a YAML-parsed value (digits select list items; one past the end
+    appends). The value goes through the config loader.
 
     Raises:
         ValueError: when the text is not ``KEY=VALUE`` or the value is not valid YAML or not plain config data.
@@ -247,13 +227,10 @@ def _list_index(node: list, seg, where: str) -> int:
     return seg
 
 
-# ---- reading -------------------------------------------------------------------------------------
 
 
 def _drop_replaced_keys(data: dict, key_path: tuple, value) -> None:
-    """An override of a ``light`` key drops the keys it replaces (:meth:`~warpscatter.scene.light_configs.
-    LightSettings.keys_replaced_by`): ``--set light.azimuth_deg=40`` on a config that gives ``light.direction`` drops
-    that direction (also for animation tracks), instead of failing with two orientations."""
+    """An override of a ``light`` key drops the keys it replaces (``light.azimuth_deg`` drops ``light.direction``)."""
     if len(key_path) != 2 or key_path[0] != "light" or value is None:
         return
     light = data.get("light")
@@ -312,11 +289,7 @@ def value_at(data: Any, dotted_key: str) -> Any:
 
 
 def read_config_data(path: str | Path) -> tuple[dict, str]:
-    """Read a YAML config file as plain data, with its text (for line numbers).
-
-    The loader (:class:`_ConfigLoader`) refuses duplicate keys, lists or mappings as keys, top-level keys that are
-    not strings, recursive aliases and documents of more than :data:`MAX_YAML_NODES` nodes with their aliases
-    expanded (alias bombs), the last while composing: a refused document costs time in proportion to its text.
+    """Read a YAML config file as plain data, with its text (for line numbers), through the strict loader.
 
     Raises:
         ConfigError: the file cannot be read, is not YAML, is refused by the loader (file and line named) or is

@@ -1,9 +1,5 @@
-"""The exceptions warpscatter raises on purpose: bad input, not bugs.
-
-Every one derives from :class:`WarpscatterError` and carries the exit code the CLI ends with
-(``exit_code``): 2 for input the user can fix before any work (an invalid config, a file that does not fit
-the scene), 1 for a failure while rendering or writing. Library code raises these types; only the CLI turns
-them into exit codes. This module does not import Warp.
+"""The exceptions warpscatter raises on purpose (bad input, not bugs), each with the CLI's ``exit_code``: 2 for input
+the user can fix before any work, 1 for a failure while rendering or writing. No Warp import.
 """
 
 from __future__ import annotations
@@ -39,16 +35,13 @@ class ConfigError(WarpscatterError):
 
 
 class InputFileError(WarpscatterError, ValueError):
-    """An input file (a mesh, a light texture, an environment map, a precomputed coherent shadow map) that cannot be
-    read, is not valid data (empty, unparsable, NaN, negative radiance, declared sizes beyond the file or a limit)
-    or does not fit the scene; the message names the file and the reason. The CLI treats it like an invalid config
-    (exit code 2).
+    """An input file (mesh, texture, environment map, CSM) that cannot be read, is invalid or does not fit the scene;
+    treated like an invalid config (exit code 2).
 
     Attributes:
         message: the reason, naming the file.
         path: the file, where known.
-        key: the config key that named the file (``scene.meshes.1.path``), where known: the message is then
-            ``key: message``. Loaders that do not know it leave it to their caller (:meth:`at`).
+        key: the config key that named the file, where known (the message is then ``key: message``; see :meth:`at`).
     """
 
     exit_code = 2

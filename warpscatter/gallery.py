@@ -1,27 +1,11 @@
 """The gallery: every picture the docs show, rendered again by one call (``warpscatter gallery -o docs/images``).
 
-What it writes into the output folder (``docs/images`` of the source tree by default in the CLI)::
-
-    quickstart.png                 the README's hero picture: the quickstart config at up to 960 px wide
-    configs/<config>.png           every bundled config (configs/*.yaml) with its own method, up to 480 px wide
-    methods/<name>.png             the quickstart by each scattering method (raymarch: the exact reference), and each
-                                   lighting or surface-shadow method in a bundled config that shows it (SHOWCASES)
-    compare_quickstart.png         the methods side by side with their signed error images, times and errors
-    bench/bench-<suite>*.png       the bench charts of a bench run's JSON results (``bench_dir``), when given
-    gallery.json                   what made each image: config, method, overrides, sizes, time, error, version, commit
-
-Renders go through the public API (:func:`warpscatter.render`) at each config's own size and settings (its
-``camera.supersample`` included), read at run time: the method of a config is its ``render.scattering.method`` or
-``render.lighting.method``. A config with an ``animation`` renders its middle frame. Images wider than the gallery's
-sizes are box-filtered down (area averages in linear light, then the 8-bit sRGB encoding of the PNG previews with the
-config's ``output.exposure``); none is scaled up. Every file is written atomically (a temporary renamed into place).
-
-The comparison renders the quickstart at :attr:`Sizes.compare` pixels wide with each method of :data:`COMPARED`,
-against the exact reference: the ray marcher with exact (ray-cast) visibility and :attr:`Sizes.reference_steps`
-steps. The error of each is the relative L1 of its colour image (:func:`warpscatter.metrics.errors`); its time is
-the sum of its render stages less the kernel compile.
-
-``quick=True`` (the tests) renders everything a few dozen pixels wide with one ray a pixel and a short reference.
+Writes ``quickstart.png`` (the README's hero), ``configs/<config>.png`` (each bundled config with its own method),
+``methods/<name>.png`` (the quickstart by each scattering method; lighting and shadow methods through a config that
+shows them, :data:`SHOWCASES`), ``compare_quickstart.png`` (the methods against the exact reference with signed
+error images), ``bench/bench-<suite>*.png`` (charts of a bench run's JSON, when given) and ``gallery.json``.
+Renders go through :func:`warpscatter.render` at each config's own settings; wide images are box-filtered down in
+linear light, never up. Errors are relative L1 against the reference; times exclude the kernel compile.
 """
 
 from __future__ import annotations
@@ -63,13 +47,11 @@ class Sizes:
     Attributes:
         hero: the widest hero picture (``quickstart.png``).
         config: the widest per-config picture (``configs/<config>.png``).
-        compare: the width the methods' comparison renders at (``methods/<name>.png`` and the figure's panels).
-        reference_steps: ray-march steps per ray of the comparison's exact reference (with the quickstart's
-            ``camera.supersample`` of s, s^2 rays a pixel: 256 steps and s = 2 leave it as grainy as 1024 steps and
-            one ray).
+        compare: the width the methods' comparison renders at.
+        reference_steps: ray-march steps per ray of the comparison's exact reference.
         render_width: render every config this wide (None: at its own size); one ray a pixel then.
         map_resolution: the scattering methods' shadow maps (None: each config's own).
-        csm_maps: the coherent shadow maps' grid of depth maps (None: each config's own; a CSM file is kept).
+        csm_maps: the coherent shadow maps' grid of depth maps (None: each config's own).
     """
 
     hero: int = 960
@@ -87,8 +69,7 @@ FULL = Sizes()
 QUICK = Sizes(hero=64, config=48, compare=48, reference_steps=32, render_width=48, map_resolution=256,
               csm_maps=(16, 8))
 
-#: The comparison's methods (name -> overrides of the quickstart): each fast method at its defaults, and the shadow-map
-#: marcher at the config's steps. Epipolar marches its samples against the shadow map, as the paper does.
+#: The comparison's methods (name -> overrides of the quickstart): each fast method at its defaults.
 COMPARED: dict[str, dict[str, Any]] = {
     "fourier": {"render.scattering.method": "fourier"},
     "moments4": {"render.scattering.method": "moments4"},
@@ -99,16 +80,14 @@ COMPARED: dict[str, dict[str, Any]] = {
 #: The comparison's reference: the marcher with exact visibility (its steps: :attr:`Sizes.reference_steps`).
 REFERENCE_NAME = "raymarch"
 REFERENCE = {"render.scattering.method": "raymarch", "render.scattering.visibility": "exact"}
-#: The methods the quickstart cannot show (``render.lighting`` and ``render.shadows`` methods): (kind, method) -> the
-#: bundled config whose picture shows it as ``methods/<method>.png``. Checked at run time: where that config no longer
-#: uses the method, the first bundled config that does stands in.
+#: Lighting and shadow methods the quickstart cannot show: (kind, method) -> the bundled config that shows it
+#: (checked at run time; another config using the method stands in).
 SHOWCASES: dict[tuple[str, str], str] = {
     ("lighting", "csm"): "csm_gate",
     ("shadows", "msm"): "canopy_moments",
     ("shadows", "msm_soft"): "gate_soft_shadows",
 }
-#: Signed error at which the comparison's error images saturate, as a fraction of the reference's mean (the bench's
-#: error images use the same, :data:`warpscatter.bench.report.ERROR_IMAGE_RANGE`).
+#: Signed error at which the error images saturate, as a fraction of the reference's mean (as the bench's).
 ERROR_RANGE = 0.25
 
 
@@ -150,7 +129,6 @@ class GalleryResult:
         return sum(e.bytes for e in self.entries)
 
 
-# ---- inputs -----------------------------------------------------------------------------------------------------
 
 
 def bundled_configs() -> list[Path]:
@@ -159,11 +137,7 @@ def bundled_configs() -> list[Path]:
 
 
 def bench_files(bench_dir: str | Path) -> list[Path]:
-    """The ``bench-<suite>.json`` results of a bench run's folder, sorted, each checked to be one.
-
-    Raises:
-        ValueError: the folder does not exist, holds no bench JSON, or one is not a bench JSON (named).
-    """
+    """The ``bench-<suite>.json`` results of a bench run's folder, sorted; ValueError if none or one is not one."""
     from .bench.compare import load_bench_json
 
     folder = Path(bench_dir)
@@ -178,12 +152,10 @@ def bench_files(bench_dir: str | Path) -> list[Path]:
     return files
 
 
-# ---- images -----------------------------------------------------------------------------------------------------
 
 
 def _area_weights(n_in: int, n_out: int) -> np.ndarray:
-    """(n_out, n_in) weights of a box filter from n_in to n_out samples: each output sample is the mean of the input
-    over its footprint, partial input samples weighted by their overlap."""
+    """(n_out, n_in) box-filter weights from n_in to n_out samples (partial samples weighted by overlap)."""
     edges = np.linspace(0.0, n_in, n_out + 1)
     lo, hi = edges[:-1, None], edges[1:, None]
     k = np.arange(n_in)[None, :]
@@ -192,8 +164,7 @@ def _area_weights(n_in: int, n_out: int) -> np.ndarray:
 
 
 def downscale(image: np.ndarray, width: int) -> np.ndarray:
-    """``image`` (H, W, C) box-filtered to ``width`` pixels wide (the height keeps the aspect), in float32; returned
-    as it is when it is not wider."""
+    """``image`` (H, W, C) box-filtered down to ``width`` pixels wide (aspect kept), float32; never scaled up."""
     h, w = image.shape[:2]
     if w <= width:
         return image
@@ -212,7 +183,6 @@ def _render_seconds(timings: Mapping[str, float]) -> float:
     return float(sum(v for k, v in timings.items() if k != "compile"))
 
 
-# ---- the build --------------------------------------------------------------------------------------------------
 
 
 @dataclass
@@ -243,7 +213,6 @@ class _Gallery:
             e.size = [int(img.shape[1]), int(img.shape[0])]
         return e
 
-    # ---- renders ----
 
     def render(self, source: Path, overrides: dict[str, Any]):
         """(colour image, config, frame, seconds, overrides applied) of one config with ``overrides``."""
@@ -339,8 +308,7 @@ def _uses(cfg, kind: str, method: str) -> bool:
 
 
 def _suite_chart(suite: str):
-    """The chart a suite draws of its rows (its module's ``chart_<suite>``, as its run sets ``report.chart``), else
-    the bench's default bar chart."""
+    """The chart a suite draws of its rows (``chart_<suite>``), else the bench's default bar chart."""
     from .bench import SUITES
     from .bench.report import chart_bars
 
@@ -351,12 +319,8 @@ def _suite_chart(suite: str):
 
 
 def chart_bench_json(json_path: str | Path, out_dir: Path) -> list[tuple[Path, str, float]]:
-    """Draw the charts of a bench run's ``bench-<suite>.json`` into ``out_dir`` with the bench's own chart code: the
-    suite's chart ``bench-<suite>.png`` and, where rows have errors, ``bench-<suite>-error-time.png``.
-
-    Returns:
-        (path, suite, seconds) of each chart written (none without matplotlib).
-    """
+    """Draw the charts of a bench run's ``bench-<suite>.json`` files into ``out_dir`` with the bench's chart code;
+    returns (path, suite, seconds) of each chart written (none without matplotlib)."""
     from .bench.compare import load_bench_json
     from .bench.report import BenchReport, chart_error_time
 
@@ -375,8 +339,7 @@ def chart_bench_json(json_path: str | Path, out_dir: Path) -> list[tuple[Path, s
 
 
 def palette_png(path: Path) -> Path:
-    """Rewrite a chart's PNG (flat colours, anti-aliased lines and text) with a 256-colour palette, atomically: a
-    third to a quarter of the bytes. Left as it is without Pillow (which matplotlib brings)."""
+    """Rewrite a chart's PNG with a 256-colour palette, atomically (a third to a quarter of the bytes); needs Pillow."""
     try:
         from PIL import Image
     except ImportError:
@@ -388,10 +351,8 @@ def palette_png(path: Path) -> Path:
 
 
 def comparison_figure(compared: Mapping[str, tuple[np.ndarray, Entry]], path: Path, scene: str) -> Path | None:
-    """The methods side by side: each one's colour image (exposure applied: as its PNG shows it) over its signed
-    error image (method minus reference, per pixel the mean of the channels over the reference's mean, on a
-    diverging colormap saturating at +-:data:`ERROR_RANGE`), titled with its time and rel. L1; the reference first,
-    with the colour scale. Three methods a row. None without matplotlib (the ``plot`` extra).
+    """The methods side by side: colour image over signed error image (relative to the reference's mean, saturating
+    at +-:data:`ERROR_RANGE`), titled with time and rel. L1. None without matplotlib.
     """
     from .bench.report import pyplot, save_figure
 
@@ -451,23 +412,22 @@ def comparison_figure(compared: Mapping[str, tuple[np.ndarray, Entry]], path: Pa
 def build(out_dir: str | Path, *, quick: bool = False, sizes: Sizes | None = None, bench_dir: str | Path | None = None,
           device=None, progress: Callable[[str, float], None] | None = None,
           on_job: Callable[[int, int, str], None] | None = None) -> GalleryResult:
-    """Render the gallery into ``out_dir``: the hero picture, every bundled config, the methods' comparison, the bench
-    charts of ``bench_dir`` (skipped without it), and ``gallery.json``.
+    """Render the gallery into ``out_dir``: hero picture, bundled configs, methods' comparison, bench charts, JSON.
 
     Args:
-        out_dir: the gallery folder (created; ``docs/images`` of the docs).
-        quick: tiny sizes (:data:`QUICK`) for the tests; else :data:`FULL` (or ``sizes``).
+        out_dir: the gallery folder (created).
+        quick: tiny sizes (:data:`QUICK`) for the tests; else :data:`FULL`.
         sizes: the sizes, instead of :data:`FULL` / :data:`QUICK`.
-        bench_dir: the ``-o`` folder of a ``warpscatter bench`` run: its ``bench-*.json`` are charted.
+        bench_dir: the ``-o`` folder of a ``warpscatter bench`` run whose ``bench-*.json`` are charted.
         device: the Warp device (None: as :func:`warpscatter.render`).
         progress: ``progress(stage, fraction)`` of each render.
-        on_job: ``on_job(k, n, label)`` before job k of n (``label``: the image's path in the gallery).
+        on_job: ``on_job(k, n, label)`` before job k of n.
 
     Returns:
-        :class:`GalleryResult`. A config that fails is reported in ``failures`` and the others go on.
+        :class:`GalleryResult`; a failing config is listed in ``failures`` and the others go on.
 
     Raises:
-        ValueError: ``bench_dir`` holds no bench results, or ``out_dir`` is a file (before anything renders).
+        ValueError: ``bench_dir`` holds no bench results, or ``out_dir`` is a file.
     """
     t_start = time.perf_counter()
     out = Path(out_dir).expanduser().resolve()
@@ -537,9 +497,8 @@ def build(out_dir: str | Path, *, quick: bool = False, sizes: Sizes | None = Non
 
 
 def write_manifest(result: GalleryResult, sizes: Sizes) -> Path:
-    """Write ``gallery.json``: this run's images, and those of an earlier run's bench charts that this run did not
-    draw and that still exist. Images an earlier run listed in a section this run rendered again, and that this run
-    did not write (a config since removed), are deleted; a failed job's old image is left as it was."""
+    """Write ``gallery.json``: this run's images plus earlier bench charts still present; stale images of the
+    sections rendered again are deleted."""
     out = result.out_dir
     path = out / "gallery.json"
     written = {e.path for e in result.entries}

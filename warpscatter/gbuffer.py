@@ -1,32 +1,12 @@
 """Camera G-buffer: per pixel the hit distance along its CONVENTIONS ray, the surface normal and material.
 
-Two sources with one output format:
+Two sources, one format: ``raster`` (the rasterized visible triangle, then the exact ray-plane distance) and
+``raycast`` (one BVH ray per pixel, the reference). The rasterizer runs with ``exact_edges=True`` (issue #13), so it
+covers exactly the pixels whose ray hits a triangle. The raster G-buffer is fused with the scan: each band of rows is
+converted from packed keys as soon as it is final, bitwise :func:`store_hit` per pixel.
 
-* ``raster`` — the camera view rasterized by :mod:`warpscatter.raster` gives the visible triangle of
-  each pixel centre; the hit distance is then the exact intersection of the pixel's ray with that
-  triangle's plane (so rasterized and ray-cast G-buffers agree to float precision).
-* ``raycast`` — one BVH ray per pixel (``wp.mesh_query_ray``), the exact reference.
-
-Coverage rule (issue #13): the rasterizer runs with ``exact_edges=True``. Its fixed-point rule alone
-works on vertices snapped to 1/1024 pixel, so a pixel centre within ~5e-4 pixel of a silhouette
-edge could land on the other side of the edge than the pixel's ray does (a surface hit that the ray
-misses, or the reverse: about one pixel per 1000 pixels of silhouette). In exact-edge mode such centres
-are decided on the unrounded float64 projection of the edge, which is the ray-triangle edge test:
-the raster G-buffer hits exactly the pixels whose CONVENTIONS ray hits a triangle (float64; the
-float32 ray caster itself can err for centres within ~1e-5 pixel of an edge), and at an edge shared
-by two triangles it picks the one the ray hits. Interior edges stay watertight (both neighbours
-evaluate the same plane); edges made by near-plane clipping keep the fixed-point rule.
-
-The raster G-buffer is fused with the rasterizer: :func:`warpscatter.raster.rasterize_keys` calls back once
-a band of rows is final and :func:`gbuffer_from_keys_kernel` turns its packed keys into G-buffer rows at
-once, from each triangle's plane computed once per call (:func:`triangle_planes_kernel`) and the pixel rays
-split into per-column and per-row factors (:func:`~.scene.camera.pixel_ray_factors`). The result is bitwise that of
-:func:`store_hit` per pixel on the resolved raster (the reference in tests/test_gbuffer.py).
-
-``distance`` is the ``s`` of the scattering integral: the camera hit distance, or the far-plane
-distance far / dot(direction, forward) where nothing is hit (hits beyond the far plane count as
-misses, as the rasterizer clips them). ``normal`` is the unit geometric normal turned to face the
-camera (zero where nothing is hit); ``material`` the material index or -1.
+``distance`` is the ``s`` of the scattering integral: the hit distance, or far / dot(direction, forward) where
+nothing is hit; ``normal`` the unit geometric normal facing the camera (0 where no hit); ``material`` the index or -1.
 """
 
 from __future__ import annotations
@@ -128,10 +108,8 @@ def store_hit(out: GBufferArrays, j: int, i: int, origin: wp.vec3, d: wp.vec3, t
 
 @wp.kernel
 def triangle_planes_kernel(mesh: MeshArrays, origin: wp.vec3, planes: wp.array(dtype=wp.vec4), batch: int, offset: int):
-    """Per triangle (unit normal n, dot(n, v0 - origin)) as :func:`facing_normal` and :func:`hit_record` compute
-    them before turning n to the camera; (0, 0, 0, 0) where the normal's length is not positive (such triangles,
-    and any whose stored n is 0, take the full :func:`hit_record`). Thread ``tid + offset`` handles triangles
-    [batch k, batch (k + 1)), k = tid + offset."""
+    """Per triangle (unit normal n, dot(n, v0 - origin)) before n is turned to the camera; (0, 0, 0, 0) for
+    degenerate triangles (they take the full :func:`hit_record`)."""
     first = (wp.tid() + offset) * batch
     for tri in range(first, wp.min(first + batch, planes.shape[0])):
         v0 = mesh.vertices[mesh.triangles[tri, 0]]
@@ -165,9 +143,8 @@ def gbuffer_from_keys_kernel(
     out: GBufferArrays,
     offset: int,
 ):
-    """Row ``tid + offset`` of the G-buffer from the rasterizer's packed keys: bitwise :func:`store_hit` with the
-    triangle and NDC depth of each key, the triangle's plane taken from ``planes`` (triangle_planes_kernel) and the
-    pixel rays from the column factors ``xn`` (column_factors_kernel) and the row's factor."""
+    """Row ``tid + offset`` of the G-buffer from the packed keys: bitwise :func:`store_hit`, with precomputed
+    triangle planes and pixel-ray factors."""
     j = wp.tid() + offset
     yn = pixel_ray_factors(cam, 0.5, float(j) + 0.5)[1]
     zero = wp.vec3(0.0, 0.0, 0.0)
@@ -227,11 +204,7 @@ def _alloc(h, w, device) -> GBuffer:
 
 
 def gbuffer_raster(scene, geometry, device=None, threads: int | None = None) -> GBuffer:
-    """G-buffer from the rasterized camera view (see module docstring).
-
-    The G-buffer rows are written band by band as soon as the rasterizer has resolved them (see
-    :func:`warpscatter.raster.rasterize_keys`), from each triangle's plane computed once.
-
+    """G-buffer from the rasterized camera view, written band by band as the rasterizer resolves it.
     Args:
         scene: the :class:`~warpscatter.scene.Scene`.
         geometry: :class:`~warpscatter.scene.DeviceGeometry` (vertices, triangles, materials on device).

@@ -1,23 +1,10 @@
 """Keep large freed buffers in the process heap, so that repeated frames reuse pages already mapped.
 
-A 1920x1080 frame allocates tens of MB of textures per stage. glibc serves blocks above its mmap threshold (at most
-32 MB) with fresh ``mmap`` pages and unmaps them on free, so every frame pays the kernel's page faults and zeroing
-again (at 1080p on two cores: epipolar's line textures, ~80 MB, are written in ~45 ms into fresh pages and in ~17 ms
-into mapped ones). :func:`keep_freed_memory` raises the mmap and trim thresholds, so freed blocks stay in the heap
-and the next frame reuses them. It is process-wide: the CLI applies it to its own process
-(``WARPSCATTER_KEEP_FREED_MEMORY=0`` turns it off); a program calling warpscatter's API decides for itself. The cost
-is that the process's resident memory stays at its peak instead of shrinking between frames.
-
-That is not enough for Warp's own CPU buffers: between two frames the heap's free space is split by the smaller
-blocks allocated meanwhile, so a frame's largest textures (fourier's 128 MB filtered basis at 1080p) often no longer
-fit the hole their predecessor left and are served from fresh pages again (6k-33k page faults and 70-160 ms of system
-time in a 1080p fourier frame, the prefilter stage 44-150 ms from frame to frame). :func:`keep_freed_warp_buffers`
-therefore gives Warp's CPU device a caching allocator (:class:`CachingHostAllocator`): freed blocks of at least
-:data:`CACHE_MIN_BYTES` are kept by size and handed to the next request of that size, up to
-:data:`CACHE_LIMIT_BYTES` (or an eighth of the machine's memory, if less) kept in all (the oldest are released
-first). After the first frame a repeated frame then
-allocates nothing new (1080p fourier: ~10 page faults a frame, its prefilter stage 38-45 ms). The CLI applies both
-(:func:`keep_freed_memory_unless_disabled`).
+glibc serves large blocks with fresh ``mmap`` pages and unmaps them on free, so every frame would pay page faults and
+zeroing again. :func:`keep_freed_memory` raises glibc's mmap and trim thresholds; :func:`keep_freed_warp_buffers`
+gives Warp's CPU device a caching allocator (:class:`CachingHostAllocator`), because a fragmented heap no longer fits
+a frame's largest textures. Both are process-wide; the CLI applies them (``WARPSCATTER_KEEP_FREED_MEMORY=0`` turns
+them off), at the cost of resident memory staying at its peak. Figures: docs/design/csm-core.md.
 """
 
 from __future__ import annotations
@@ -36,24 +23,19 @@ M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
 #: Blocks up to this size stay in the heap after they are freed (1 GiB covers every buffer of an 8K frame).
 KEEP_LIMIT_BYTES = 1 << 30
-#: Freed Warp CPU blocks of at least this size are kept by :class:`CachingHostAllocator` (smaller ones go back to
-#: the heap, which reuses them well).
+#: Freed Warp CPU blocks of at least this size are kept (the heap reuses smaller ones well).
 CACHE_MIN_BYTES = 1 << 20
-#: At most this many bytes of freed Warp CPU blocks are kept (after a 1920x1080 colonnade frame: fourier 251 MB (340 MB
-#: with 48 coefficients, the default since),
-#: then moments6 and epipolar in the same process 279 and 407 MB, the sizes they share reused).
+#: At most this many bytes of freed Warp CPU blocks are kept (a 1080p frame of one method needs 250-410 MB).
 CACHE_LIMIT_BYTES = 2 << 30
 
 _applied = False
 
 
 def keep_freed_memory(limit_bytes: int = KEEP_LIMIT_BYTES) -> bool:
-    """Keep freed blocks up to ``limit_bytes`` in this process's heap (glibc's ``mallopt``: mmap threshold and trim
-    threshold both ``limit_bytes``).
+    """Keep freed blocks up to ``limit_bytes`` in this process's heap (glibc ``mallopt`` thresholds).
 
     Returns:
-        True when applied (now, or by an earlier call, whose limit stays), False where the C library has no
-        ``mallopt`` or refuses the limit (macOS, Windows, musl): there it does nothing.
+        True when applied (now or earlier, whose limit stays), False without ``mallopt`` (macOS, Windows, musl).
     """
     global _applied
     if _applied:
@@ -75,13 +57,10 @@ def keep_freed_memory(limit_bytes: int = KEEP_LIMIT_BYTES) -> bool:
 
 
 class CachingHostAllocator:
-    """A Warp host allocator that keeps freed blocks for the next request of the same size.
+    """A Warp host allocator that keeps freed blocks of at least ``min_bytes`` for the next request of that size.
 
-    Blocks of at least ``min_bytes`` are not returned to ``base`` when freed but kept, by exact size, and handed out
-    again by :meth:`allocate` (the most recently freed first: its pages are the likeliest to be resident); smaller
-    blocks pass straight through. At most ``limit_bytes`` are kept: beyond that the oldest kept blocks are released
-    to ``base``. Thread-safe (Warp frees arrays on whichever thread drops the last reference). Reused memory is not
-    cleared, as a fresh ``wp.empty`` block is not either (``wp.zeros`` clears what it gets).
+    The most recently freed block is handed out first (its pages are likeliest resident); beyond ``limit_bytes`` the
+    oldest are released. Thread-safe; reused memory is not cleared, as with ``wp.empty``.
 
     Attributes:
         hits, misses: requests of at least ``min_bytes`` served from kept blocks / by ``base``.
@@ -159,12 +138,8 @@ def default_cache_limit() -> int:
 
 
 def keep_freed_warp_buffers(device="cpu", limit_bytes: int | None = None) -> CachingHostAllocator | None:
-    """Give Warp's CPU device a :class:`CachingHostAllocator` (module doc), so that a repeated frame's buffers reuse
-    the blocks, and so the mapped pages, of the frame before. ``limit_bytes``: the most it keeps (None:
-    :func:`default_cache_limit`).
-
-    Warp offers custom allocators publicly for CUDA devices only; on the CPU the device's ``default_allocator`` is
-    replaced. Where a Warp version has no such attribute (or ``device`` is not a CPU), nothing changes.
+    """Give Warp's CPU device a :class:`CachingHostAllocator` (replacing its ``default_allocator``: Warp offers
+    custom allocators publicly for CUDA only). ``limit_bytes``: the most it keeps (None: :func:`default_cache_limit`).
 
     Returns:
         The installed allocator (an earlier call's, whose limit stays), or None where nothing was installed.
@@ -188,9 +163,7 @@ def keep_freed_warp_buffers(device="cpu", limit_bytes: int | None = None) -> Cac
 
 
 def restore_warp_allocator(device="cpu") -> bool:
-    """Undo :func:`keep_freed_warp_buffers`: release the kept blocks and give the device its own allocator back
-    (blocks still in use are freed through the caching allocator, which passes them on). Returns whether one was
-    installed."""
+    """Undo :func:`keep_freed_warp_buffers`; returns whether one was installed."""
     import warp as wp
 
     dev = wp.get_device(device)
@@ -204,12 +177,8 @@ def restore_warp_allocator(device="cpu") -> bool:
 
 
 def keep_freed_memory_unless_disabled() -> bool:
-    """:func:`keep_freed_memory` and :func:`keep_freed_warp_buffers` unless the environment sets
-    ``WARPSCATTER_KEEP_FREED_MEMORY=0`` (what the CLI and its worker processes do at start). Warp is not started
-    for it: when :func:`warpscatter.wpinit.init` has not run yet, it installs the allocator right after starting
-    Warp (so ``--help`` or ``validate`` start no Warp, and its start-up messages stay where ``-v`` puts them).
-    Returns False when the environment turns it off (an earlier call stays in force: glibc's thresholds are process
-    state)."""
+    """Both keepers unless ``WARPSCATTER_KEEP_FREED_MEMORY=0``; the allocator is installed once Warp starts (so
+    ``--help`` starts no Warp). Returns False when the environment turns it off."""
     if os.environ.get("WARPSCATTER_KEEP_FREED_MEMORY", "1").strip() == "0":
         return False
     from . import wpinit

@@ -1,23 +1,10 @@
 """Image files through OpenImageIO: linear EXR, sRGB PNG previews, reading, and the render output set.
 
-Conventions (CONVENTIONS.md, "Images"): arrays are ``(H, W)`` or ``(H, W, C)`` float32, row 0 is the
-TOP row of the file. EXR files hold linear values exactly: 32-bit float with one of the lossless
-compressions :data:`EXR_COMPRESSIONS` (default :data:`DEFAULT_EXR_COMPRESSION`, ``none``: the fastest to
-write; ``rle`` makes files a third smaller, see the table there). PNG previews are exposure-scaled,
-clamped to [0, 1] and sRGB-encoded to 8 bits; reading an 8/16-bit file decodes sRGB back to linear.
-
-Every write is atomic: the image goes to a hidden temporary file in the target folder (the real
-extension kept last so OpenImageIO picks the format), is flushed to disk (``fsync``), then :func:`os.replace` moves
-it into place. :func:`write_outputs` extends this to a whole set of render outputs, all or nothing: all files are
-written to temporaries first (concurrently, one thread per file: OpenImageIO encodes without the GIL) and fsynced;
-then, target by target, the existing file (if any) is kept as a hidden backup (``.NAME.bak-PID-XXXXXX.ext``, a hard
-link, so the target never disappears; a rename where the file system has no hard links) and the temporary is renamed
-in. Any failure on the way (a write or rename error, a full disk, a directory squatting on a target, an exception or
-KeyboardInterrupt / SIGTERM) rolls back: the new files renamed in so far are removed and every backup is moved back,
-so the previous set survives byte for byte; on success the backups are deleted. Temporaries and backups that a
-killed process (SIGKILL) left behind are cleaned up by the next write into the folder
-(:func:`remove_stale_temporaries`: temporaries removed, backups moved back). Non-finite pixels are refused: the
-renderer must never produce NaN or Inf.
+Conventions (CONVENTIONS.md, "Images"): arrays are ``(H, W)`` or ``(H, W, C)`` float32, row 0 is the top row.
+EXRs hold linear float32 exactly (lossless :data:`EXR_COMPRESSIONS`); PNG previews are exposure-scaled, clamped and
+sRGB-encoded to 8 bits. Every write is atomic (temporary file, fsync, :func:`os.replace`); :func:`write_outputs`
+replaces a whole output set all or nothing, and :func:`remove_stale_temporaries` cleans up after killed writers.
+Non-finite pixels are refused.
 """
 
 from __future__ import annotations
@@ -62,35 +49,23 @@ __all__ = [
     "write_png",
 ]
 
-#: Channel count of each render output (``color`` is also written as the PNG preview), in file order: the standard
-#: outputs, then the debug ones (:data:`warpscatter.config.DEBUG_AOVS`).
+#: Channel count of each render output, in file order: the standard outputs, then the debug ones.
 AOV_CHANNELS = {"color": 3, "scattering": 3, "surface": 3, "depth": 1, "rectified": 3, "epipole_mask": 1,
                 "rectified_map": 2, "mip_level": 1, "evaluated_pixels": 1, "epipolar_samples": 1}
 #: Outputs with their own size (a texture, not the image): exempt from the same-size check.
 OWN_SIZE_AOVS = ("rectified_map",)
 
-#: The lossless EXR compressions (OpenImageIO names) ``write_exr``/``write_outputs`` accept; config key
-#: ``output.compression`` (the same tuple as :data:`warpscatter.config.EXR_COMPRESSIONS`). The lossy
-#: ones (``pxr24``, ``b44``, ``dwaa``, ``dwab``) are left out: the EXRs hold the exact float32 values.
-#: Measured on the four float32 EXRs of a 1280x720 render (configs/colonnade_fourier.yaml; two shared
-#: cores, written one after the other, medians of two series): none 0.17-0.21 s / 36.9 MB, rle 0.24 s /
-#: 24.6 MB, zips 0.47-0.70 s / 24.3 MB, zip 0.83-1.17 s / 22.6 MB, piz 1.9-2.8 s / 20.6 MB. The whole
-#: output set (:func:`write_outputs`, concurrent, with the PNG): none 120-165 ms of CPU, rle 205-240 ms,
-#: zips 360 ms, zip 430 ms, piz 970 ms.
+#: The lossless EXR compressions (OpenImageIO names) accepted for ``output.compression``; the lossy ones are left
+#: out because the EXRs hold exact float32 values. Timings: docs/design/csm-core.md.
 EXR_COMPRESSIONS = ("none", "rle", "zips", "zip", "piz")
-#: ``none``: the least work per render (the float data as it is, 36.9 MB for the four EXRs of a 1280x720
-#: render); ``rle`` is a third smaller (runs of equal values where nothing is hit: the surface image shrinks
-#: from 11.1 to 2.6 MB) for 1.3-2x the CPU time, ``zip`` 39 % smaller for 3-4x.
+#: ``none``: the least CPU per render; ``rle`` is a third smaller for 1.3-2x the time.
 DEFAULT_EXR_COMPRESSION = "none"
 
-#: PNG (zlib) settings of the previews: level 1 with the Sub filter writes a 1280x720 preview in 19 ms of
-#: CPU instead of 110 ms with libpng's default (level 6, adaptive filters), for 436 kB instead of 295 kB
-#: (level 4 with the Paeth filter: 33 ms, 330 kB); next to the 25 MB of EXRs the size does not matter.
+#: PNG (zlib) settings of the previews: fast over small (docs/design/csm-core.md).
 _PNG_ATTRIBUTES = {"png:compressionLevel": 1, "png:filter": 0x10}
 
 _CHANNEL_NAMES = {1: ("Y",), 2: ("Y", "A"), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
-#: Channel names of the outputs that differ from the default by channel count: depth is ``Z`` (OpenEXR's and
-#: compositors' depth channel), the rectified map's two channels are its depth and the culled-texel mask.
+#: Channel names that differ from the default by channel count (depth is OpenEXR's ``Z``).
 AOV_CHANNEL_NAMES = {"depth": ("Z",), "rectified": ("u", "v", "z"), "rectified_map": ("depth", "culled")}
 _INTEGER_BASETYPES = {oiio.UINT8, oiio.INT8, oiio.UINT16, oiio.INT16, oiio.UINT32, oiio.INT32}
 
@@ -102,18 +77,10 @@ class ImageWriteError(OSError):
     """An image file could not be written; the message names the file and OpenImageIO's error."""
 
 
-# ---- sRGB transfer function ------------------------------------------------------------------------
 
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
-    """Linear light -> sRGB-encoded values (IEC 61966-2-1), both in [0, 1]; input is clamped to [0, 1].
-
-    Args:
-        linear: array of linear values (any shape).
-
-    Returns:
-        float32 array of the same shape.
-    """
+    """Linear light -> sRGB-encoded values (IEC 61966-2-1), both in [0, 1]; input is clamped to [0, 1]."""
     x = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)  # float64 so that 1 maps to exactly 1
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055).astype(np.float32)
 
@@ -138,11 +105,8 @@ _BUCKET_SHIFT = 16  # 2^16 consecutive float32 values per table entry: less than
 def _srgb8_tables() -> tuple[np.ndarray, np.ndarray] | None:
     """Tables giving :func:`_srgb8_reference` of every float32 in [0, 1] from its bit pattern ``b``.
 
-    The code is a non-decreasing step function of the value, and a bucket of 2^16 consecutive float32 values
-    (0.8 % of the value or less) never holds two of its 255 steps (they are 0.9 % of the value apart or more),
-    so ``code = base[b >> 16] + (b >= step[b >> 16])``: ``base`` is the code at the bucket's first value and
-    ``step`` the first bit pattern of the next code inside the bucket (none: 2^32 - 1), found by bisection.
-    Returns None (use the direct computation) should a bucket hold more than one step.
+    A bucket of 2^16 consecutive float32 values never holds two of the 255 code steps, so
+    ``code = base[b >> 16] + (b >= step[b >> 16])``. Returns None should a bucket hold more than one step.
     """
     starts = np.arange((_ONE_BITS >> _BUCKET_SHIFT) + 1, dtype=np.int64) << _BUCKET_SHIFT
     ends = np.minimum(starts + (1 << _BUCKET_SHIFT) - 1, _ONE_BITS)
@@ -179,7 +143,6 @@ def _srgb8(linear: np.ndarray) -> np.ndarray:
     return codes
 
 
-# ---- checks ----------------------------------------------------------------------------------------
 
 
 def _as_image(name: str, image, channels: Iterable[int] = (1, 2, 3, 4)) -> np.ndarray:
@@ -204,32 +167,27 @@ def _as_image(name: str, image, channels: Iterable[int] = (1, 2, 3, 4)) -> np.nd
     return a
 
 
-# ---- writing ---------------------------------------------------------------------------------------
 
 
 def _host_tag() -> str:
-    """This machine in temporary names (letters and digits of the host name, at most 16): a folder shared by several
-    machines holds temporaries of processes whose PIDs only their own machine can check."""
+    """This machine in temporary names (host name letters and digits, at most 16), for folders shared by machines."""
     return re.sub(r"[^A-Za-z0-9]", "", platform.node())[:16] or "host"
 
 
 def temp_name(path: Path) -> Path:
-    """Hidden temporary sibling of ``path`` that keeps the real extension last (``.name.tmp-HOST-PID-XXXXXX.exr``);
-    every atomic writer of warpscatter uses it, so :func:`remove_stale_temporaries` finds what a killed one left."""
+    """Hidden temporary sibling of ``path`` keeping the real extension last (``.name.tmp-HOST-PID-XXXXXX.exr``)."""
     return path.with_name(f".{path.stem}.tmp-{_host_tag()}-{os.getpid()}-{secrets.token_hex(3)}{path.suffix}")
 
 
 def _backup_name(path: Path) -> Path:
-    """Hidden sibling of ``path`` keeping the previous file while a set is renamed in
-    (``.name.bak-HOST-PID-XXXXXX.exr``)."""
+    """Hidden sibling keeping the previous file while a set is renamed in (``.name.bak-HOST-PID-XXXXXX.exr``)."""
     return path.with_name(f".{path.stem}.bak-{_host_tag()}-{os.getpid()}-{secrets.token_hex(3)}{path.suffix}")
 
 
 _TEMP_PATTERN = re.compile(r"^\.(?P<stem>.+)\.(?P<kind>tmp|bak)-(?P<host>[A-Za-z0-9]+)-(?P<pid>\d+)-[0-9a-f]{6}"
                            r"(?P<suffix>\.[A-Za-z0-9]+)$")
 
-#: (real folder path, file name) of the temporaries and backups of this process's writes in progress
-#: (:func:`remove_stale_temporaries` leaves them alone).
+#: (real folder path, file name) of this process's temporaries and backups in progress.
 _active: set[tuple[str, str]] = set()
 _active_lock = threading.Lock()
 
@@ -247,13 +205,9 @@ def _process_alive(pid: int) -> bool:
 def remove_stale_temporaries(folder: str | Path) -> list[Path]:
     """Clean up after writers that did not finish; return the temporaries and backups removed or moved back.
 
-    Temporary files (``.NAME.tmp-PID-XXXXXX.ext``) of processes no longer running (a render killed with SIGKILL, a
-    power cut) are removed, and so are this process's own temporaries that no write in progress uses (a rollback in a
-    folder that had turned read-only could not remove them). Backups (``.NAME.bak-PID-XXXXXX.ext``: the previous file
-    of a target, kept while :func:`write_outputs` renames a set in) of such a writer are moved back onto their
-    targets when temporaries of it are left too (it stopped before its last rename: the previous set comes back), and
-    removed otherwise (every new file was in: the new set stays). Files of running processes on this machine are left
-    alone, and so are files of other machines (their names carry the host: a folder shared by several machines).
+    Temporaries of dead processes (and this process's unused ones) are removed. A dead writer's backups are moved
+    back when its temporaries remain (it stopped before its last rename) and removed otherwise. Files of running
+    processes and of other machines (the host is in the name) are left alone.
     """
     removed: list[Path] = []
     try:
@@ -295,8 +249,7 @@ def remove_stale_temporaries(folder: str | Path) -> list[Path]:
 
 
 def _header_attribute(spec: oiio.ImageSpec, key: str, value) -> None:
-    """Store one metadata value in a file header: a 4x4 matrix (numpy, row-vector convention as OpenEXR's Imath
-    matrices), a number, or text (anything else is written as its ``str``)."""
+    """Store one metadata value in a file header: a 4x4 matrix (row-vector convention, as Imath), a number, or text."""
     if isinstance(value, np.ndarray) and value.shape == (4, 4):
         spec.attribute(key, oiio.TypeDesc("matrix"), tuple(float(x) for x in value.reshape(-1)))
     elif isinstance(value, (bool, np.bool_)):
@@ -312,9 +265,7 @@ def _header_attribute(spec: oiio.ImageSpec, key: str, value) -> None:
 def _write_oiio(path: Path, pixels: np.ndarray, pixel_type: str, compression: str | None = None,
                 attributes: Mapping[str, object] | None = None, channel_names: tuple[str, ...] | None = None,
                 metadata: Mapping[str, object] | None = None) -> None:
-    """Write an (H, W, C) array to ``path`` with OpenImageIO (format from the extension); ``attributes`` are
-    writer settings (not stored in the file), ``metadata`` header attributes stored in it (:func:`_header_attribute`),
-    ``channel_names`` override the default names by channel count."""
+    """Write an (H, W, C) array with OpenImageIO; ``attributes`` are writer settings, ``metadata`` header values."""
     h, w, c = pixels.shape
     out = oiio.ImageOutput.create(str(path))
     if out is None:
@@ -357,8 +308,7 @@ def _text_writer(text: str) -> Callable[[Path], None]:
 
 
 def json_ready(value):
-    """Plain JSON data of what sidecars hold: numpy scalars and arrays become numbers and lists, paths strings,
-    tuples lists, non-finite floats ``null``; anything else unknown becomes its ``str``."""
+    """Plain JSON data of sidecar values: numpy to numbers and lists, paths to strings, non-finite floats to null."""
     if isinstance(value, Mapping):
         return {str(k): json_ready(v) for k, v in value.items()}
     if isinstance(value, (list, tuple, set, frozenset)):
@@ -400,12 +350,8 @@ def _png_writer(pixels: np.ndarray, exposure: float) -> Callable[[Path], None]:
 
 def _run_writers(jobs: list[tuple[Path, Callable[[Path], None]]],
                  temps: list[Path]) -> tuple[Path, Exception] | None:
-    """Run every writer on its temporary path, concurrently (one thread each: OpenImageIO encodes and
-    writes without the GIL); return (output, error) of the first failure in job order, or None.
-
-    Every writer has finished (or never started) when this returns or raises, also on KeyboardInterrupt, so
-    no thread writes a temporary file after the caller removed it.
-    """
+    """Run every writer on its temporary path, one thread each (OpenImageIO releases the GIL); return (output, error)
+    of the first failure in job order, or None. All writers have finished when this returns or raises."""
     if len(jobs) == 1:
         try:
             jobs[0][1](temps[0])
@@ -459,8 +405,7 @@ def _synced(writer: Callable[[Path], None]) -> Callable[[Path], None]:
 
 
 def _set_aside(final: Path, backup: Path) -> bool:
-    """Keep the file at ``final`` (if any) as ``backup``: a hard link (``final`` stays in place until the new file
-    replaces it), a rename where hard links fail. Returns whether there was a file; a directory raises."""
+    """Keep the file at ``final`` as ``backup`` (hard link, else rename); return whether there was one."""
     try:
         st = os.lstat(final)
     except FileNotFoundError:
@@ -475,9 +420,8 @@ def _set_aside(final: Path, backup: Path) -> bool:
 
 
 def _roll_back(commits: list[tuple[Path, Path, Path]], temps: list[Path]) -> list[str]:
-    """Undo a partly renamed set: every target gets its backup back (or, with no previous file, loses the new one);
-    every temporary is removed. The state is read from the files, so an interruption anywhere in the renaming is
-    undone. Returns what could not be undone (empty when the previous set is back)."""
+    """Undo a partly renamed set from the files' state: targets get their backups back, temporaries are removed.
+    Returns what could not be undone (empty when the previous set is back)."""
     problems = []
     for final, tmp, backup in reversed(commits):
         try:
@@ -501,12 +445,7 @@ def _roll_back(commits: list[tuple[Path, Path, Path]], temps: list[Path]) -> lis
 
 
 def _write_all(jobs: list[tuple[Path, Callable[[Path], None]]]) -> list[Path]:
-    """Write every job to a temporary file (concurrently) and fsync it, then rename all into place, all or nothing.
-
-    Renaming keeps each existing target as a backup first (:func:`_set_aside`); on any failure or interruption
-    :func:`_roll_back` restores the previous files and removes the new ones and the temporaries, so either the
-    complete new set or the complete previous set is there. On success the backups are deleted.
-    """
+    """Write every job to a temporary file and fsync it, then rename all into place, all or nothing."""
     temps = [temp_name(final) for final, _ in jobs]
     backups = [_backup_name(final) for final, _ in jobs]
     commits: list[tuple[Path, Path, Path]] = []
@@ -551,9 +490,7 @@ def _write_all(jobs: list[tuple[Path, Callable[[Path], None]]]) -> list[Path]:
 
 
 def write_file_atomic(path: str | Path, write: Callable[[Path], None]) -> Path:
-    """Write one file atomically: ``write(temporary)`` writes a hidden sibling (:func:`temp_name`, the real extension
-    kept last), which then replaces ``path``; on any failure the previous file is left as it was and the temporary is
-    removed. The writer of the JSON reports, CSVs, charts, previews and schema files (images: :func:`write_outputs`).
+    """Write one file atomically through ``write(temporary)``; the previous file survives any failure.
 
     Raises:
         ImageWriteError: the file could not be written (the message names it and the reason).
@@ -583,10 +520,7 @@ def write_exr(path: str | Path, image: np.ndarray, compression: str = DEFAULT_EX
 
 
 def write_png(path: str | Path, linear_rgb: np.ndarray, exposure: float = 1.0) -> Path:
-    """Write an 8-bit sRGB preview of a linear image, atomically.
-
-    Each colour value v becomes round(255 * srgb_encode(clamp(v * exposure, 0, 1))); an alpha
-    channel, if present, is clamped and stored linearly.
+    """Write an 8-bit sRGB preview of a linear image, atomically: round(255 * srgb_encode(clamp(v * exposure))).
 
     Args:
         path: target file (``.png``, or any 8-bit format OpenImageIO writes, e.g. ``.jpg``).
@@ -621,17 +555,9 @@ def write_outputs(
 ) -> list[Path]:
     """Write a render's output set (CONVENTIONS.md "Config and output contract"), all or nothing.
 
-    Files, in this order: ``NAME.exr`` (linear RGB) and ``NAME.png`` (preview) always, then
-    ``NAME.scattering.exr``, ``NAME.surface.exr`` (linear RGB), ``NAME.depth.exr`` (channel ``Z``) and the debug
-    outputs (``NAME.rectified.exr`` ...) for the AOVs requested, then ``NAME.json`` when a sidecar is given. With
-    ``layered``, the image-sized AOVs are layers of ``NAME.exr`` instead (channels ``R, G, B``,
-    ``scattering.R`` ..., ``depth.Z``); outputs of their own size (:data:`OWN_SIZE_AOVS`) stay files.
-
-    The set is replaced all or nothing: the files are written concurrently to temporary names and flushed to disk,
-    then renamed in one after the other, each target's previous file kept as a backup until all are in; any failure
-    or interruption (KeyboardInterrupt, SIGTERM) rolls back to the previous files (module docstring). Files of a
-    previous set that this set does not write (``NAME.depth.exr`` of a render that asked for depth, when this one
-    does not) are left alone: the set is what this call writes, and the sidecar lists it.
+    Files: ``NAME.exr`` and ``NAME.png`` always, then one ``NAME.<aov>.exr`` per requested AOV, then ``NAME.json``
+    when a sidecar is given; with ``layered``, image-sized AOVs are layers of ``NAME.exr``. On any failure or
+    interruption the previous files come back.
 
     Args:
         out_dir: output folder (created if missing).
@@ -652,9 +578,8 @@ def write_outputs(
     Raises:
         ValueError: unknown/missing AOV, mismatched shapes, non-finite pixels, bad exposure, compression
             or name.
-        ImageWriteError: a file could not be written or renamed in; then the folder holds the previous files as
-            they were (none of the new ones), unless the rollback itself failed (a folder turned read-only: the
-            message says which previous files are kept under which backup name).
+        ImageWriteError: a file could not be written or renamed in; the previous files are kept (or the message
+            names the backups if the rollback failed).
     """
     if not name or "/" in name or "\\" in name or name in (".", ".."):
         raise ValueError(f"name: must be a plain file stem, got {name!r}")
@@ -707,11 +632,7 @@ def write_outputs(
 
 
 def read_image(path: str | Path) -> np.ndarray:
-    """Read an image as linear float32 (H, W, C), row 0 = top.
-
-    Integer-valued files (PNG, JPEG, 8/16-bit TIFF) are taken as sRGB-encoded and decoded to linear,
-    unless the file declares a linear or raw colour space; alpha stays as stored. Float files (EXR,
-    float TIFF/HDR) are returned as stored.
+    """Read an image as linear float32 (H, W, C), row 0 = top; integer files are decoded from sRGB unless linear.
 
     Raises:
         OSError: the file cannot be opened or read (message names the file and OpenImageIO's error).
@@ -737,10 +658,7 @@ def read_image(path: str | Path) -> np.ndarray:
 
 
 def read_radiance_image(path: str | Path, key: str | None = None) -> np.ndarray:
-    """Read an image of radiance values (a light texture, an environment map) as linear float32 (H, W, 3), checked.
-
-    One channel (grey) or two (grey and alpha) become RGB; a fourth channel (alpha) is dropped. Every value must be
-    finite and >= 0: a light emits no negative or infinite radiance, and a NaN would spread through the render.
+    """Read radiance values (a light texture, an environment map) as linear float32 (H, W, 3), finite and >= 0.
 
     Args:
         path: the image file (any format :func:`read_image` reads).

@@ -1,21 +1,10 @@
 """Many renders (the frames of an animation, the cases of a sweep) through a pluggable executor.
 
-A :class:`RenderTask` is plain data (the resolved config as JSON data, where to write, what to return), so it
-travels to another process or machine; :func:`run_task` renders one and never raises: a failure comes back as a
-:class:`TaskResult` with its error, and the other tasks go on. Executors (:func:`make_executor`):
-
-- ``inline``: a plain loop in this process (kernels compile once; the reference for bit-identity and overhead).
-- ``local``: a pool of ``workers`` local processes (``concurrent.futures`` with the ``spawn`` start method); each
-  worker splits its launches over ``cores // workers`` threads. Needs no server.
-- ``dask``: Dask distributed (the ``distributed`` extra): a ``LocalCluster`` of ``workers`` processes started
-  for the run, or the scheduler at ``address`` (``tcp://host:8786``) of a cluster started with ``dask scheduler``
-  / ``dask worker`` on machines that have warpscatter and the scene files at the same paths. Dask was chosen over
-  Ray: it is pure Python (no 100 MB wheel, no object-store daemon), runs the same code on one machine and on a
-  cluster, and its ``LocalCluster`` is a real scheduler with real worker processes for the tests.
-
-Work is idempotent: a task whose sidecar (``NAME.json``) exists with the same resolved config and whose files all
-exist is skipped (:func:`finished`), so a killed run resumes where it stopped; outputs are written all or nothing
-(:func:`warpscatter.imageio.write_outputs`).
+A :class:`RenderTask` is plain data, so it travels to another process or machine; :func:`run_task` never raises (a
+failure is a :class:`TaskResult` with its error). Executors (:func:`make_executor`): ``inline`` (a loop in this
+process), ``local`` (``spawn`` worker processes, each on ``cores // workers`` threads) and ``dask`` (a LocalCluster or
+a scheduler ``address``; chosen over Ray as pure Python, the same code on one machine and a cluster). Tasks whose
+finished outputs exist with the same config are skipped (:func:`finished`), so a killed run resumes.
 """
 
 from __future__ import annotations
@@ -50,9 +39,7 @@ class RenderTask:
         return_images: images to send back (e.g. ``("color",)`` for a sweep's error); none by default.
         threads: threads of the split CPU launches in the worker (None: the worker's default).
         device: the Warp device to render on (None: the worker's default).
-        worker_process: True when the task runs in a worker process this run started (a local pool, a Dask
-            LocalCluster): Warp's messages are then kept at warnings and freed frame buffers in the heap, as the CLI
-            does (:mod:`warpscatter.heap`).
+        worker_process: True in a worker process this run started: Warp kept quiet and freed buffers kept, as the CLI.
     """
 
     label: str
@@ -86,9 +73,8 @@ class TaskResult:
 
 def task_for(config, label: str, out_dir: str | Path | None = None, return_images: Iterable[str] = (),
              threads: int | None = None, device: str | None = None) -> RenderTask:
-    """The :class:`RenderTask` of a validated :class:`~warpscatter.config.Config` (its ``output.dir`` set to
-    ``out_dir`` when given, so that the sidecar records where the files went). ``threads`` defaults to
-    ``WARPSCATTER_THREADS`` when set (a worker then splits its launches as the caller asked)."""
+    """The :class:`RenderTask` of a validated config (``output.dir`` set to ``out_dir`` when given); ``threads``
+    defaults to ``WARPSCATTER_THREADS``."""
     if threads is None and os.environ.get("WARPSCATTER_THREADS"):
         threads = int(os.environ["WARPSCATTER_THREADS"])
     if out_dir is not None:
@@ -102,9 +88,7 @@ def task_for(config, label: str, out_dir: str | Path | None = None, return_image
 
 
 def finished(task: RenderTask) -> bool:
-    """True when the task's outputs exist from a finished render of the same config: its sidecar ``NAME.json`` is
-    complete (not one of a progressive render's intermediate passes), holds the same resolved config, and every file
-    it lists exists."""
+    """True when the task's complete sidecar holds the same resolved config and every file it lists exists."""
     if task.out_dir is None:
         return False
     from .config import validated_config
@@ -162,8 +146,7 @@ def _worker_threads(workers: int) -> int:
 
 
 class Executor(ABC):
-    """Runs tasks and yields their results as they complete (:meth:`run`). Use as a context manager. The concrete
-    executors are :class:`InlineExecutor`, :class:`LocalExecutor` and :class:`DaskExecutor`."""
+    """Runs tasks and yields their results as they complete (:meth:`run`); a context manager."""
 
     name = "executor"
 
@@ -300,8 +283,7 @@ def make_executor(kind: str = "inline", workers: int | None = None, address: str
 
 def run_tasks(tasks: list[RenderTask], executor: Executor, *, skip_finished: bool = True,
               progress: Callable[[str, float], None] | None = None, stage: str = "renders") -> list[TaskResult]:
-    """Run tasks through an executor: the finished ones skipped (when ``skip_finished``), every result returned in
-    the tasks' order; ``progress(stage, fraction)`` after each completed task."""
+    """Run tasks through an executor (skipping finished ones when ``skip_finished``); results in the tasks' order."""
     results: dict[str, TaskResult] = {}
     todo = []
     for task in tasks:

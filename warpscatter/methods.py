@@ -1,23 +1,10 @@
 """The method registry: every render method is one :class:`Method` record.
 
-A record names the method, the paper it implements, the light types it renders, the settings it reads, what
-the pipeline must build for it (a BVH for exact visibility, the light's shadow map, a ray-cast G-buffer), the
-Warp modules it launches (compiled in the ``compile`` stage) and its entry point. Config validation takes the
-method choices, the light rules and each method's own rules (:attr:`Method.validate`) from here, the pipeline looks
-the method up here (no method names in the pipeline), and the README's method tables are checked against it.
-
-Entry points (loaded on first use, so this module and config validation stay Warp-free):
-
-* scattering methods: ``render(frame, settings, stage) -> (l_scat, info)`` with a
-  :class:`~warpscatter.pipeline.frame.Frame` (scene, G-buffer, shadow map, BVH), the
-  :class:`~warpscatter.scattering.settings.ScatteringSettings` and a :class:`~warpscatter.stages.StageTimer`;
-  ``l_scat`` is an (H, W) ``wp.vec3`` array of in-scattered radiance, ``info`` a dict of statistics.
-* lighting methods: ``render(scene, settings, stage, on_pass) -> (images, stats)`` with the
-  :class:`~warpscatter.csm.settings.LightingSettings` (:mod:`warpscatter.pipeline.lighting`).
-
-Adding a scattering method: its module (with ``render``), its settings model (a section of
-``scattering/settings.py``), one record below (with a ``validate`` hook for what it cannot render), its test and its
-README section.
+A record names the method, its paper, the light types and settings it uses, what the pipeline builds for it, its Warp
+modules and its entry point (loaded on first use, so validation stays Warp-free). Scattering methods:
+``render(frame, settings, stage) -> (l_scat, info)``, ``l_scat`` an (H, W) ``wp.vec3`` array; lighting methods:
+``render(scene, settings, stage, on_pass) -> (images, stats)``. A new method: its module, its settings section, a
+record here (with a ``validate`` hook), a test and a README section.
 """
 
 from __future__ import annotations
@@ -57,11 +44,8 @@ class Method:
         reference_gbuffer: with exact visibility, ray-cast the camera G-buffer too (the reference).
         modules: the Warp modules it launches.
         entry: ``"package.module:function"`` of its render function.
-        debug_aovs: the debug outputs (:data:`warpscatter.config.DEBUG_AOVS`) it makes when the frame asks
-            (:attr:`~warpscatter.pipeline.frame.Frame.aovs`), returned in ``info["debug_images"]``.
-        validate: the method's own rules: ``validate(config) -> problems``, ``key.path: reason`` lines for a
-            :class:`~warpscatter.config.Config` it cannot render (the config's validation calls it for the method
-            the config names, whatever the light, and reports them beside the shared rules on lights and sections).
+        debug_aovs: the debug outputs it makes when asked, returned in ``info["debug_images"]``.
+        validate: the method's own rules: ``validate(config) -> problems`` (``key.path: reason`` lines).
     """
 
     name: str
@@ -87,12 +71,10 @@ class Method:
         return getattr(importlib.import_module(module), name)
 
 
-# ---- each method's own rules (Method.validate) ------------------------------------------------------
 
 
 def _prefiltered_rules(config: Any) -> list[str]:
-    """What the prefiltered methods cannot do under a spot or point light (warpscatter.scattering.prefiltered_spot;
-    a point light is six spots)."""
+    """What the prefiltered methods cannot do under a spot or point light (a point light is six spots)."""
     if config.light.type not in ("spot", "point"):
         return []
     s = config.render.scattering

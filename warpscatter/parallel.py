@@ -1,15 +1,9 @@
 """Splitting CPU launches across cores.
 
-Warp runs one CPU launch on one core in a sequential loop. :func:`launch_rows` cuts a launch along
-its outer dimension into contiguous chunks and runs them from a small thread pool (Warp releases
-the GIL during a CPU launch). Kernels written for it take the chunk's start as their LAST input,
-an ``int`` named ``offset`` by convention, and index ``i = wp.tid() + offset`` (1-D) or
-``j, i = wp.tid(); j += offset`` (2-D, rows outer).
-
-CPU atomics are not atomic across concurrent launches: every chunk must own its outputs (rows,
-tiles, or private buffers merged afterwards). On a CUDA device the launch is made once, whole.
-
-The thread count is ``WARPSCATTER_THREADS`` or the number of usable cores.
+Warp runs a CPU launch on one core; :func:`launch_rows` cuts it along its outer dimension into chunks run from a
+thread pool (Warp releases the GIL). Kernels take the chunk's start as their LAST input, ``offset``, and index
+``wp.tid() + offset``. CPU atomics are not atomic across launches, so each chunk owns its outputs. CUDA gets one
+whole launch. Threads: ``WARPSCATTER_THREADS`` or the usable cores.
 """
 
 from __future__ import annotations
@@ -79,8 +73,7 @@ def launch_rows(kernel, dim, inputs: list, device: str | None = None, threads: i
         device: Warp device; CUDA devices get one whole launch.
         threads: worker count (default :func:`thread_count`).
         min_chunk: smallest chunk along dim[0] worth a separate launch.
-        progress: optional ``progress(fraction)`` called as chunks complete (long launches are then cut
-            into at least 32 chunks so the fraction moves smoothly).
+        progress: optional ``progress(fraction)`` called as chunks complete (then at least 32 chunks).
     """
     device = default_device(device)
     dims = (dim,) if isinstance(dim, int) else tuple(dim)

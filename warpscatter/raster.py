@@ -1,63 +1,24 @@
 """Triangle rasterization into depth maps for any 4x4 world -> clip matrix, with depth peeling.
 
-The rasterizer is exact in the sense of GPU hardware rasterizers: fixed-point screen positions,
-int64 edge functions and the top-left fill rule hit every pixel centre covered by a closed
-tessellated surface exactly once, and the z-buffer resolves packed (depth, triangle index) int64
-keys with ``wp.atomic_min`` (see :mod:`warpscatter.raster_funcs` for these device building blocks).
-This module holds the kernels and the host entry points :func:`rasterize`, :func:`rasterize_keys`
-(keys only, with a per-band callback for passes fused with the scan, e.g. the G-buffer),
-:func:`rasterize_linear_depth` (shadow maps) and :func:`coverage_count`; input checks live in
-:mod:`warpscatter.raster_inputs` and the numpy depth
-utilities (:func:`unproject`, :func:`linearize_depth`, :func:`pixel_center_ndc_grid`) in
-:mod:`warpscatter.raster_depth`. The names of those modules are re-exported here.
+Exact as GPU rasterizers are: fixed-point screen positions, int64 edge functions and the top-left fill rule hit every
+pixel centre of a closed surface once; the z-buffer resolves packed (depth, triangle index) int64 keys with
+``wp.atomic_min`` (device building blocks: :mod:`warpscatter.raster_funcs`). Entry points: :func:`rasterize`,
+:func:`rasterize_keys` (with a per-band callback for fused passes), :func:`rasterize_linear_depth` (shadow maps),
+:func:`coverage_count`; input checks and numpy depth utilities are re-exported from :mod:`warpscatter.raster_inputs`
+and :mod:`warpscatter.raster_depth`.
 
-Conventions (OpenGL-style, as in :mod:`warpscatter.scene.camera`): clip space -> NDC in [-1, 1]^3,
-z_ndc = -1 at the near plane. Pixel (i, j), j counted from the TOP row, has its centre at
-x_ndc = 2 (i + 0.5) / width - 1, y_ndc = 1 - 2 (j + 0.5) / height, which is exactly the centre of
-the ray :meth:`Camera.ray_directions` gives for that pixel.
+Conventions (OpenGL-style): NDC in [-1, 1]^3, z_ndc = -1 at the near plane; pixel (i, j), j from the TOP row, has its
+centre at x_ndc = 2 (i + 0.5) / width - 1, y_ndc = 1 - 2 (j + 0.5) / height, the centre of the camera's ray.
 
-Exact edges (``exact_edges=True``, used by the camera G-buffer): snapping moves every edge by up to
-~1/1024 pixel, so the fixed-point rule can put a pixel centre that close to an edge on the other side
-than the pixel's ray. In this mode the fixed-point rule still decides every centre farther than the
-snapping error from each edge (the same result, at the same cost), and the others are decided on the
-unrounded float64 projection of the mesh edge, the plane through the eye and the edge, which is the
-test a ray through the centre makes against the triangle (see :func:`rasterize_triangle_rows`).
-Both triangles at a shared edge evaluate the same plane (up to an exact sign change) and the same
-tolerance, so coverage stays watertight; ties on the exact edge follow the top-left rule.
+``exact_edges``: centres within the snapping error (~1/1024 pixel) of an edge are decided on the unrounded float64
+plane through the eye and the edge, as a ray would, still watertight. Clipping is homogeneous, against the near plane
+and a guard band (+-2^18 pixels); ``clamp_depth`` keeps fragments beyond the far plane at +1 and, for affine
+matrices, those before the near plane at -1; ``clip_near=False`` keeps only the guard band (which still cuts
+everything behind a perspective centre), as Klehm 2014's projective rectification needs (Sec. 4.2).
 
-Clipping: triangles are clipped in homogeneous clip space against the near plane (z >= -w) and a
-guard band on x and y (|x|, |y| <= g w, screen positions within +-2^18 pixels), watertight along
-shared edges. Fragments beyond the far plane (z_ndc > 1) are discarded. With ``clamp_depth=True``
-(shadow maps) fragments beyond the far plane are kept at depth +1 and, for affine (orthographic)
-matrices whose w is a positive constant, nothing is clipped at the near plane: geometry in front of
-it is kept at depth -1. A perspective matrix keeps its near clipping even with ``clamp_depth``
-(points behind the centre of projection have no meaningful projection) unless the caller passes
-``clip_near=False``: then only the guard band clips, and since |x| <= g w and |y| <= g w imply
-w >= 0 (w = 0 only at the centre of projection itself, where the triangle is dropped), everything
-behind the centre of projection is still cut away while geometry in front of the near plane is kept
-(at depth -1 with ``clamp_depth``). Klehm 2014's projective rectification (Sec. 4.2, projecting
-along x with the camera as centre of projection) needs exactly this: casters between the light and
-the camera frustum stay in the map.
-
-Parallelism: one CPU launch runs on one core, and CPU atomics are not atomic across concurrent launches,
-so every concurrent launch owns the keys it writes. Two splits, chosen per call (:class:`_Setup`):
-
-* Row bands, for scenes with few triangles per pixel (<= :data:`BANDED_TRIANGLES_PER_PIXEL`): the image is
-  cut into horizontal bands of rows (:data:`BANDS_PER_THREAD` per thread). A triangle pass records the
-  rows each triangle may cover and bins the triangles to the bands they overlap (both split into chunks
-  of triangles across threads, each chunk counting and writing its own slots). Each CPU task then owns
-  one band: it clears the band's keys, scans the band's triangles restricted to its rows, and resolves
-  them at once (all depth layers: peeling a texel reads only that texel's previous layer). A large
-  triangle (a ground plane covering half the screen) is thus shared out over the bands.
-* Chunks of triangles, for dense meshes: each chunk is scanned into its own key buffer (the first into
-  the result); the buffers are merged by a minimum over the packed keys and resolved, band by band in
-  parallel. One thread (or CUDA, where one launch with real atomics does the work) scans all triangles
-  into the result directly.
-
-Both give bitwise the result of a single scan: the minimum over packed keys, the keys strictly behind the
-previous layer's, and the fragment counts do not depend on the order of the fragments. Within a
-triangle, each row is scanned over the exact span of centres its edge functions accept
-(:func:`rasterize_screen_triangle_rows`), not over the whole bounding box.
+Parallelism: CPU atomics are not atomic across concurrent launches, so each launch owns the keys it writes. Sparse
+scenes are cut into row bands (triangles binned to the bands they overlap); dense ones into chunks of triangles with
+private key buffers merged by a minimum. Both give bitwise the result of a single scan.
 """
 
 from __future__ import annotations
@@ -133,13 +94,11 @@ MIN_BAND_ROWS = 16
 MIN_PIECE_TRIANGLES = 2048
 #: Fewest pixels in a band (each band costs a few launches: small images get few bands).
 MIN_BAND_PIXELS = 32768
-#: Up to this many triangles per pixel, CPU threads split the image into row bands (else the triangles, each chunk
-#: into its own key buffer, merged afterwards): banding pays a triangle pass and binning per triangle, but shares out
-#: large triangles and needs no merge.
+#: Up to this many triangles per pixel, CPU threads split the image into row bands (else chunks of triangles):
+#: banding shares out large triangles and needs no merge.
 BANDED_TRIANGLES_PER_PIXEL = 0.125
 
 
-# ---- kernels ---------------------------------------------------------------------------------------
 
 
 @wp.kernel
@@ -173,8 +132,7 @@ def rasterize_kernel(
     batch: int,
     offset: int,
 ):
-    """Triangles [offset + tid * batch, offset + (tid + 1) * batch) clipped to ``stop``, one thread each
-    batch (batches amortise the per-thread cost of CPU launches; use batch 1 on CUDA)."""
+    """Triangles [offset + tid * batch, offset + (tid + 1) * batch) clipped to ``stop``, a batch per thread."""
     start = offset + wp.tid() * batch
     for t in range(start, wp.min(start + batch, stop)):
         rasterize_triangle(t, verts, triangles, params, prev_keys, keys, counts)
@@ -201,10 +159,8 @@ def triangle_rows_kernel(
     chunk: int,
     offset: int,
 ):
-    """Triangle pass: ``bins.rows[t]`` = the image rows (first, last) triangle ``t`` may cover, (0, -1) for none
-    (:func:`triangle_rows`), and ``counts[chunk, b]`` += the number of these triangles overlapping band b.
-    Thread ``tid + offset`` handles triangles [batch k, batch (k + 1)), k = tid + offset; concurrent launches
-    take distinct ``chunk`` rows of ``counts``."""
+    """Triangle pass: ``bins.rows[t]`` = rows (first, last) triangle ``t`` may cover, and ``counts[chunk, b]`` +=
+    the triangles overlapping band b. Concurrent launches take distinct ``chunk`` rows."""
     first = (wp.tid() + offset) * batch
     for t in range(first, wp.min(first + batch, triangles.shape[0])):
         r = triangle_rows(t, verts, triangles, params)
@@ -216,9 +172,8 @@ def triangle_rows_kernel(
 
 @wp.kernel
 def bin_triangles_kernel(bins: TriangleBins, cursor: wp.array2d(dtype=wp.int32), batch: int, chunk: int, offset: int):
-    """Write the triangles [batch k, batch (k + 1)), k = tid + offset, to the bins of the bands they overlap:
-    ``cursor[chunk, b]`` is the next free slot of band b for this chunk (exclusive prefix sums of the counts of
-    :func:`triangle_rows_kernel`, so the chunks fill disjoint slots in ascending triangle order)."""
+    """Write each triangle to the bins of the bands it overlaps, at ``cursor[chunk, b]`` (exclusive prefix sums of
+    the counts, so chunks fill disjoint slots in ascending order)."""
     first = (wp.tid() + offset) * batch
     for t in range(first, wp.min(first + batch, bins.rows.shape[0])):
         r = bins.rows[t]
@@ -241,8 +196,7 @@ def rasterize_band_kernel(
     counts: wp.array2d(dtype=wp.int32),
     batch: int,
 ):
-    """The triangles of bin ``band[2]``, scanned over the image rows [band[0], band[1]] only (the band's rows);
-    thread ``tid`` takes ``batch`` of them."""
+    """The triangles of bin ``band[2]``, scanned over rows [band[0], band[1]] only, ``batch`` per thread."""
     first = bins.start[band[2]] + wp.tid() * batch
     for k in range(first, wp.min(first + batch, bins.start[band[2] + 1])):
         t = bins.tris[k]
@@ -277,8 +231,7 @@ def linear_depth_kernel(
     depth: wp.array2d(dtype=wp.float32),
     offset: int,
 ):
-    """Packed keys -> float32 view-space distance (+inf where empty), one row per thread: the float64 formula of
-    :func:`linearize_depth` on the NDC depth of each key, rounded to float32."""
+    """Packed keys -> float32 view-space distance (+inf where empty), a row per thread (as :func:`linearize_depth`)."""
     j = wp.tid() + offset
     for i in range(keys.shape[1]):
         key = keys[j, i]
@@ -291,7 +244,6 @@ def linear_depth_kernel(
         depth[j, i] = out
 
 
-# ---- host side -------------------------------------------------------------------------------------
 
 
 #: numpy layout (scalar type, trailing shape) of the Warp dtypes :func:`empty_array` backs with numpy memory
@@ -300,12 +252,8 @@ _NUMPY_LAYOUT = {wp.int64: (np.int64, ()), wp.int32: (np.int32, ()), wp.float32:
 
 
 def empty_array(shape, dtype, device: str, fill=None) -> wp.array:
-    """``wp.empty`` (or ``wp.full`` with ``fill``) that on the CPU takes its memory from numpy.
-
-    numpy asks Linux for transparent huge pages on large allocations (``madvise``), so first touches of a fresh
-    image-sized buffer fault 2 MiB pages instead of 4 KiB ones: a 1920x1080 G-buffer plus its key buffer is
-    about 14k page faults from ``wp.empty`` when the C allocator has given the memory back to the system
-    between calls, a few dozen this way (the cost: docs/benchmarks.md, "Raster buffers from numpy").
+    """``wp.empty`` (or ``wp.full``) that on the CPU takes its memory from numpy, which asks for transparent huge
+    pages: far fewer page faults on fresh image-sized buffers (docs/benchmarks.md, "Raster buffers from numpy").
     """
     layout = _NUMPY_LAYOUT.get(dtype)
     if layout is None or not wp.get_device(device).is_cpu:
@@ -344,9 +292,8 @@ def project_vertices(
 
 
 class _Setup:
-    """Everything a rasterization pass needs, prepared once per call: checked inputs, the vertex pass, and the
-    split of the work across CPU threads (see the module docstring): row bands with binned triangles
-    (:attr:`banded`), or chunks of triangles into private key buffers (:attr:`pieces`)."""
+    """Everything a rasterization pass needs, prepared once per call: checked inputs, the vertex pass, and the split
+    across CPU threads: row bands (:attr:`banded`) or chunks of triangles (:attr:`pieces`)."""
 
     def __init__(self, vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads,
                  clip_near=None, exact_edges=False):
@@ -392,8 +339,7 @@ class _Setup:
         wp.load_module(rasterize_kernel.module, device=self.device)
 
     def _bin(self) -> None:
-        """Triangle pass (the rows of each triangle) and binning of the triangles to the bands (each band then visits
-        only its own triangles), both split into chunks of triangles across threads."""
+        """Triangle pass and binning of the triangles to the bands, both in chunks across threads."""
         n = self.tris.shape[0]
         bands = len(self.band_list)
         bins = self.bins = TriangleBins()
@@ -459,8 +405,8 @@ class _Setup:
             )
 
     def render_keys(self, keys, on_rows=None) -> None:
-        """Rasterize all layers of ``keys`` (layers, H, W); ``on_rows(layer, start, stop)`` is called (from a worker
-        thread, bands concurrently) once rows [start, stop) of that layer are final."""
+        """Rasterize all layers of ``keys`` (layers, H, W); ``on_rows(layer, start, stop)`` runs (in a worker
+        thread) once those rows are final."""
         layers = keys.shape[0]
         first = self.params(0, 0)
         peel = self.params(0, 1)
@@ -485,8 +431,7 @@ class _Setup:
             self._render_layer(keys, layer, first if layer == 0 else peel, private, on_rows)
 
     def _render_layer(self, keys, layer: int, params, private: list, on_rows) -> None:
-        """One layer, not banded: the pieces of triangles into ``keys[layer]`` and the ``private`` buffers in parallel,
-        then per band (in parallel) the merge of the buffers and ``on_rows``."""
+        """One layer, not banded: the pieces in parallel, then per band the merge and ``on_rows``."""
         buffers = [keys[layer], *private]
         prev = self.dummy_keys if layer == 0 else keys[layer - 1]
 
@@ -542,25 +487,20 @@ def rasterize(
     """Rasterize a triangle mesh into ``layers`` depth layers seen through ``view_proj``.
 
     Args:
-        vertices: (N, 3) world-space positions (numpy float32/float64, or ``wp.array(dtype=wp.vec3)``).
-        triangles: (T, 3) vertex indices (integer numpy array or int32 ``wp.array``).
-        view_proj: 4x4 world -> clip matrix (OpenGL-style, column vectors; perspective or orthographic).
+        vertices: (N, 3) world-space positions (numpy or ``wp.array(dtype=wp.vec3)``).
+        triangles: (T, 3) vertex indices (integer numpy or int32 ``wp.array``).
+        view_proj: 4x4 world -> clip matrix (OpenGL-style, column vectors).
         width: image width in pixels (1 .. MAX_RESOLUTION).
-        height: image height in pixels; row 0 is the top of the image (NDC y = +1).
-        layers: number of depth-peeled layers (>= 1): layer n holds the nearest surface strictly behind
-            layer n-1 in (depth, triangle index) order, so coincident triangles land in separate layers.
-        clamp_depth: keep fragments beyond the far plane at depth +1 instead of discarding them and,
-            for affine (orthographic) matrices, keep geometry in front of the near plane at depth -1
-            instead of clipping it (shadow maps). Perspective matrices keep near clipping.
-        cull_backfaces: skip triangles whose projection is clockwise in NDC (front = counter-clockwise,
-            the OpenGL default). Off by default: both sides are drawn.
-        clip_near: None (default) clips at the near plane z >= -w unless ``clamp_depth`` is set and the
-            matrix is affine; False never clips there (only the guard band, which keeps w > 0, so a
-            perspective matrix still drops everything behind its centre of projection); True always clips.
-        exact_edges: decide pixel centres within the snapping error of a mesh edge on the unrounded (float64)
-            projection of the edge, as a ray through the centre would (see :func:`rasterize_triangle_rows`): the
-            coverage of silhouettes then matches :func:`warpscatter.raycast.raycast_depth`. Off by default: the
-            fixed-point rule of the snapped vertices alone, as GPU hardware.
+        height: image height in pixels; row 0 is the top (NDC y = +1).
+        layers: depth-peeled layers (>= 1): layer n is the nearest surface strictly behind layer n-1 in
+            (depth, triangle index) order.
+        clamp_depth: keep fragments beyond the far plane at +1 and, for affine matrices, those before the near
+            plane at -1 (shadow maps).
+        cull_backfaces: skip triangles clockwise in NDC (front = counter-clockwise). Off by default.
+        clip_near: None clips at z >= -w unless ``clamp_depth`` with an affine matrix; False never (guard band
+            only); True always.
+        exact_edges: decide centres near an edge on its unrounded projection, matching
+            :func:`warpscatter.raycast.raycast_depth`. Off by default (the fixed-point rule, as GPUs).
         device: Warp device (default :func:`warpscatter.wpinit.default_device`).
         threads: CPU worker threads (default :func:`warpscatter.parallel.thread_count`).
 
@@ -569,8 +509,8 @@ def rasterize(
         and ``tri_id`` (int32, -1 where empty).
 
     Raises:
-        ValueError: malformed or non-finite ``view_proj``/``vertices``, ``triangles`` of wrong shape or
-            with out-of-range indices, ``width``/``height`` outside [1, MAX_RESOLUTION], ``layers`` < 1.
+        ValueError: malformed or non-finite inputs, out-of-range indices, sizes outside [1, MAX_RESOLUTION],
+            ``layers`` < 1.
     """
     if isinstance(layers, bool) or not isinstance(layers, (int, np.integer)) or layers < 1:
         raise ValueError(f"layers must be an integer >= 1, got {layers!r}")
@@ -603,11 +543,10 @@ def rasterize_keys(
     device: str | None = None,
     threads: int | None = None,
 ) -> wp.array:
-    """One depth layer as packed keys (:func:`depth_key`; EMPTY_KEY where empty), for passes fused with the scan.
+    """One depth layer as packed keys (EMPTY_KEY where empty), for passes fused with the scan.
 
-    ``on_rows(keys, start, stop)``, if given, is called once the rows [start, stop) of ``keys`` are final, from
-    the worker thread that rasterized them (bands run concurrently; a launch there should only write its
-    rows). Other arguments as in :func:`rasterize`.
+    ``on_rows(keys, start, stop)`` runs, from the worker thread that rasterized them, once those rows are final.
+    Other arguments as in :func:`rasterize`.
 
     Returns:
         (height, width) ``wp.array`` of int64 keys on the device.
@@ -631,12 +570,11 @@ def rasterize_linear_depth(
     device: str | None = None,
     threads: int | None = None,
 ) -> np.ndarray:
-    """Nearest view-space distance per texel, float32 (+inf where empty): bitwise
-    ``linearize_depth(rasterize(...).ndc_depth[0], projection).astype(np.float32)`` with empty texels at +inf,
-    resolved band by band with the scan.
+    """Nearest view-space distance per texel, float32 (+inf where empty), resolved band by band with the scan;
+    bitwise ``linearize_depth(rasterize(...).ndc_depth[0], projection)``.
 
     Args:
-        projection: the 4x4 projection part of ``view_proj`` (see :func:`linearize_depth`).
+        projection: the 4x4 projection part of ``view_proj``.
         Others as in :func:`rasterize`.
     """
     p = check_matrix(projection, "projection")
@@ -669,10 +607,7 @@ def coverage_count(
     device: str | None = None,
     threads: int | None = None,
 ) -> np.ndarray:
-    """Number of fragments each pixel centre receives (same rules as :func:`rasterize`, no depth test).
-
-    A closed tessellated surface seen through the image gives exactly 1 per covered pixel: the
-    watertightness check of the fill rule. Arguments as in :func:`rasterize`.
+    """Fragments each pixel centre receives (no depth test): exactly 1 per covered pixel of a closed surface.
 
     Returns:
         (height, width) int32 fragment counts, row 0 at the top.

@@ -1,10 +1,5 @@
-"""Rasterized depth on the host: the :class:`RasterResult` of a rasterization or a ray cast, and numpy utilities on
-it: pixel-centre NDC grids, unprojection of NDC depth to world positions, and linearization of NDC depth to
-view-space distance.
-
-They mirror the device conventions of :mod:`warpscatter.raster_funcs` (``pixel_center_ndc``,
-``ndc_to_view_depth``) for images returned by :func:`warpscatter.raster.rasterize` and
-:func:`warpscatter.raycast.raycast_depth`.
+"""Rasterized depth on the host: :class:`RasterResult` and numpy mirrors of :mod:`warpscatter.raster_funcs`
+(pixel-centre NDC grids, unprojection to world positions, linearization to view-space distance).
 """
 
 from __future__ import annotations
@@ -97,11 +92,8 @@ def unproject(ndc_depth, view_proj) -> np.ndarray:
 
 
 def linearize_depth(ndc_depth, projection) -> np.ndarray:
-    """View-space distance along the view axis (positive in front of the camera) from NDC depth.
-
-    Host mirror of :func:`ndc_to_view_depth`; handles perspective and orthographic OpenGL-style
-    projections (the matrix without the view part, or any matrix whose rows 2 and 3 depend only on
-    view-space z).
+    """View-space distance (positive in front) from NDC depth; host mirror of :func:`ndc_to_view_depth` for
+    OpenGL-style perspective and orthographic projections.
 
     Args:
         ndc_depth: NDC depths, any shape; non-finite entries (empty texels) map to +inf.

@@ -1,29 +1,14 @@
-"""Device building blocks of the rasterizer (:mod:`warpscatter.raster`): fixed-point snapping, edge
-functions and the fill rule, packed depth keys, homogeneous clipping and the exact-edge tests.
+"""Device building blocks of the rasterizer (:mod:`warpscatter.raster`): fixed-point snapping, edge functions and
+the fill rule, packed depth keys, homogeneous clipping and the exact-edge tests.
 
-Fixed point: screen positions are snapped to :data:`SUBPIXEL_BITS` sub-pixel bits, edge functions
-are evaluated in int64 and the top-left fill rule decides pixel centres that lie exactly on an edge
-or a vertex, as in GPU hardware rasterizers. Every pixel centre covered by a closed tessellated
-surface is therefore hit exactly once: no cracks, no double hits.
-
-Depth keys: the z-buffer stores a packed int64 key per texel,
+Screen positions are snapped to :data:`SUBPIXEL_BITS` bits, int64 edge functions with the top-left rule hit every
+centre of a closed surface exactly once. The z-buffer key is
 
     key = (float32 bits of depth01) << 32 | triangle index,   depth01 = clamp(0.5 z_ndc + 0.5, 0, 1),
 
-resolved with ``wp.atomic_min``: exact and free of races, also on CUDA, and ties between triangles
-at equal depth go to the lower triangle index. Depth peeling keeps, per layer, the smallest key
-strictly greater than the previous layer's key.
-
-The scan that uses these blocks is :mod:`warpscatter.raster_scan`. Exact edges (``RasterParams.exact_edges``):
-:func:`exact_edge_plane`, :func:`exact_edge_inside` and :func:`edge_tolerance` decide a centre near a fixed-point
-edge on the unrounded float64 projection of the mesh edge.
-
-Clipping: :func:`clip_triangle` (for :func:`rasterize_triangle`) clips in homogeneous clip space against the near plane
-(z >= -w) and a guard band on x and y (|x|, |y| <= g w, screen positions within
-+-:data:`GUARD_BAND_PIXELS` pixels) with Sutherland-Hodgman; intersection points are always
-interpolated from the inside vertex towards the outside vertex, so two triangles sharing an edge
-produce bitwise identical clip vertices. The vertex pass (:func:`project_vertex`) computes each mesh
-vertex's clip position, outcode and snapped screen position once, in a :class:`ProjectedVertices`.
+resolved with ``wp.atomic_min`` (ties go to the lower index); depth peeling keeps the smallest key above the previous
+layer's. Clipping is Sutherland-Hodgman against the near plane and the guard band, interpolated from the inside
+vertex so that shared edges clip bitwise identically.
 """
 
 from __future__ import annotations
@@ -37,8 +22,7 @@ module_options()
 
 #: Sub-pixel precision of snapped screen positions (1/1024 pixel).
 SUBPIXEL_BITS = 10
-#: Screen positions after guard-band clipping stay within +-GUARD_BAND_PIXELS pixels, so snapped
-#: coordinates stay within +-2^28 and every int64 edge function within +-2^59 (no overflow).
+#: Guard band in pixels: snapped coordinates stay within +-2^28, int64 edge functions within +-2^59.
 GUARD_BAND_PIXELS = 2**18
 #: Largest accepted image width or height (keeps pixel centres inside the fixed-point range).
 MAX_RESOLUTION = 2**16
@@ -49,8 +33,7 @@ EMPTY_KEY = np.iinfo(np.int64).max
 #: ones test every centre (cheaper than the span's integer divisions for a few pixels).
 SPAN_MIN_PIXELS = 8
 
-#: Exact-edge mode (``RasterParams.exact_edges``): triangles' bounding boxes are widened by this many sub-pixel units
-#: (1/8 pixel), more than any snapped vertex lies from its unrounded position (see :func:`project_vertex`).
+#: Exact-edge mode: bounding boxes widened by this many sub-pixels (1/8 pixel), more than any snapping error.
 EXACT_MARGIN_SUBPIXELS = 128
 
 _SPAN_MIN_PIXELS = wp.constant(wp.int64(SPAN_MIN_PIXELS))
@@ -77,7 +60,6 @@ _OUT_FAR = wp.constant(512)  # z > w
 _OUT_INVALID = wp.constant(1024)  # non-finite, or w <= 0 inside the guard band (degenerate matrices only)
 
 
-# ---- building blocks (public @wp.func API) ---------------------------------------------------------
 
 
 @wp.func
@@ -90,11 +72,7 @@ def pixel_center_ndc(i: int, j: int, width: int, height: int) -> wp.vec2:
 
 @wp.func
 def depth_key(z_ndc: float, tri: int) -> wp.int64:
-    """Packed z-buffer key: float32 bits of depth01 = 0.5 z_ndc + 0.5 (in [0, 1]) above the triangle index.
-
-    Bits of non-negative float32 values order like the values, so smaller keys are nearer, and
-    equal depths are ordered by triangle index.
-    """
+    """Packed z-buffer key: float32 bits of depth01 = 0.5 z_ndc + 0.5 above the triangle index (smaller = nearer)."""
     d = 0.5 * z_ndc + 0.5
     if d <= 0.0:
         d = 0.0  # also turns -0.0 into +0.0, whose bits are the smallest
@@ -122,12 +100,10 @@ def key_triangle(key: wp.int64) -> int:
 
 @wp.func
 def ndc_to_view_depth(z_ndc: float, p22: float, p23: float, p32: float, p33: float) -> float:
-    """View-space distance along the view axis (positive in front) from NDC depth.
+    """View-space distance (positive in front) from NDC depth, for OpenGL-style perspective or orthographic matrices.
 
-    ``p22, p23, p32, p33`` are the projection matrix entries [2][2], [2][3], [3][2], [3][3]
-    (row-major, column vectors): z_ndc = (p22 z + p23) / (p32 z + p33) with view-space z < 0 in
-    front, so z = (p23 - p33 z_ndc) / (p32 z_ndc - p22) and the distance is -z. Works for
-    perspective and orthographic OpenGL-style matrices. Returns +inf for non-finite input.
+    ``p22, p23, p32, p33`` are projection entries [2][2], [2][3], [3][2], [3][3]: z = (p23 - p33 z_ndc) /
+    (p32 z_ndc - p22), distance -z. Returns +inf for non-finite input.
     """
     if not wp.isfinite(z_ndc):
         return wp.inf
@@ -136,10 +112,7 @@ def ndc_to_view_depth(z_ndc: float, p22: float, p23: float, p32: float, p33: flo
 
 @wp.func
 def edge_function(ax: wp.int64, ay: wp.int64, bx: wp.int64, by: wp.int64, px: wp.int64, py: wp.int64) -> wp.int64:
-    """Fixed-point edge function of the directed edge a -> b at p (y down): > 0 on the interior side.
-
-    Exact in int64 while coordinates stay within +-2^29 (guaranteed by the guard band).
-    """
+    """Fixed-point edge function of edge a -> b at p (y down): > 0 inside; exact in int64 within +-2^29."""
     return (bx - ax) * (py - ay) - (by - ay) * (px - ax)
 
 
@@ -147,9 +120,7 @@ def edge_function(ax: wp.int64, ay: wp.int64, bx: wp.int64, by: wp.int64, px: wp
 def top_left_bias(ax: wp.int64, ay: wp.int64, bx: wp.int64, by: wp.int64) -> wp.int64:
     """0 when edge a -> b owns the pixel centres lying exactly on it (top or left edge), else -1.
 
-    A centre is inside iff edge_function + bias >= 0 for all three edges of a triangle with positive
-    signed area. The rule equals a symbolic perturbation of the sample point to the right and
-    (infinitesimally less) down, so abutting triangles never both or neither own a shared point.
+    Equals perturbing the sample right and (infinitesimally less) down, so abutting triangles own a shared point once.
     """
     dx = bx - ax
     dy = by - ay
@@ -195,9 +166,8 @@ def clip_polygon_plane(
 ) -> tuple[ClipPolygon, ClipSources, int]:
     """Sutherland-Hodgman: keep the part of a convex clip-space polygon where dot(plane, v) >= 0.
 
-    ``src`` holds the mesh vertex index of every polygon vertex (-1 for a vertex made by clipping).
-    The intersection on a crossing edge is always interpolated from its inside vertex towards its
-    outside vertex, so triangles sharing the edge get bitwise identical points (watertight clipping).
+    ``src`` holds each vertex's mesh index (-1: made by clipping). Crossings are interpolated from the inside vertex,
+    so triangles sharing the edge get bitwise identical points.
     """
     out, out_src, _edges, m = clip_polygon_plane_edges(poly, src, ClipEdges(), n, plane)
     return out, out_src, m
@@ -207,8 +177,7 @@ def clip_polygon_plane(
 def clip_polygon_plane_edges(
     poly: ClipPolygon, src: ClipSources, edges: ClipEdges, n: int, plane: wp.vec4
 ) -> tuple[ClipPolygon, ClipSources, ClipEdges, int]:
-    """:func:`clip_polygon_plane` (bitwise the same polygon) that also carries ``edges``: the mesh edge under each
-    polygon edge k -> k + 1 (an index 0..2 of the triangle's edges, or -1 for an edge made by clipping)."""
+    """:func:`clip_polygon_plane` that also carries ``edges``, the mesh edge (0..2, -1: clip plane) under each edge."""
     out = ClipPolygon()
     out_src = ClipSources()
     out_edges = ClipEdges()
@@ -250,10 +219,8 @@ def snap_to_screen(v: wp.vec4, width: int, height: int) -> wp.vec3d:
 
 @wp.func
 def homogeneous_screen(c: wp.vec4d, width: int, height: int) -> wp.vec3d:
-    """Homogeneous screen position (X W, Y W, W) of float64 clip coordinates ``c``: X, Y the screen position (y down)
-    in sub-pixel units as :func:`snap_to_screen` computes it before rounding, W the clip w. Defined for any w: the
-    sign of ``dot(cross(h_u, h_v), (X_p, Y_p, 1))`` tells on which side of the plane through the eye and the edge
-    u v the ray through screen point p passes (the exact edge test of :func:`exact_edge_plane`)."""
+    """Homogeneous screen position (X W, Y W, W) of float64 clip coordinates, unrounded; the sign of
+    ``dot(cross(h_u, h_v), (X_p, Y_p, 1))`` gives the side of edge u v a ray through p passes."""
     half = wp.float64(0.5)
     return wp.vec3d((half * c[0] + half * c[3]) * wp.float64(width) * _SUBPIXEL_SCALE,
                     (half * c[3] - half * c[1]) * wp.float64(height) * _SUBPIXEL_SCALE, c[3])
@@ -288,12 +255,8 @@ def project_vertex(
     guard_x: float,
     guard_y: float,
 ):
-    """Vertex pass for mesh vertex ``i`` at world position ``q``: clip coordinates, outcode, the unrounded
-    homogeneous screen position (:func:`homogeneous_screen`), and the snapped screen position if the vertex lies
-    inside the guard band (``verts.screen[i]`` stays unset otherwise) with a bound on its distance from the
-    unrounded one (``verts.dev[i]``, +inf for vertices without a snapped position).
-    Triangles read the snapped positions of their mesh vertices from here, so shared vertices are snapped
-    once and identically for all of them."""
+    """Vertex pass for mesh vertex ``i``: clip coordinates, outcode, unrounded homogeneous position, and (inside the
+    guard band) the snapped position with a bound on its error, so shared vertices are snapped once."""
     v = clip_position(view_proj, q)
     verts.clip[i] = v
     h = homogeneous_screen(view_proj * wp.vec4d(wp.float64(q[0]), wp.float64(q[1]), wp.float64(q[2]), wp.float64(1.0)),
@@ -339,13 +302,9 @@ class RasterParams:
 
 @wp.func
 def exact_edge_plane(hu: wp.vec3d, hv: wp.vec3d, u: int, v: int, hw: wp.vec3d) -> wp.vec3d:
-    """Exact-edge test of mesh edge (u, v) of a triangle whose third vertex is w, from the homogeneous screen
-    positions ``hu``, ``hv``, ``hw`` (:func:`homogeneous_screen`): the plane m through the eye and the edge, turned so
-    that m . (X, Y, 1) > 0 on the side of w (see :func:`exact_edge_inside`); 0 when the triangle is degenerate seen
-    from the eye (its plane contains the eye: nothing is inside).
-
-    The cross product is taken with the lower vertex index first, so the two triangles sharing the edge get the
-    same plane up to an exact sign change: the test is antisymmetric between them (watertight)."""
+    """Exact-edge test of mesh edge (u, v) opposite w: the plane through the eye and the edge, oriented so that
+    m . (X, Y, 1) > 0 on w's side; 0 for a triangle seen edge-on. Lower vertex index first, so the two triangles of
+    the edge get the same plane up to sign (watertight)."""
     n = wp.cross(hu, hv)
     if v < u:
         n = wp.cross(hv, hu)
@@ -371,10 +330,7 @@ def triangle_edge_planes(verts: ProjectedVertices, ia: int, ib: int, ic: int) ->
 
 @wp.func
 def exact_edge_inside(m: wp.vec3d, px: wp.float64, py: wp.float64) -> bool:
-    """Whether screen point (px, py) (sub-pixel units) lies on the inner side of the :func:`exact_edge_plane` ``m``.
-
-    Points exactly on the edge follow the top-left rule of :func:`top_left_bias`: the point is moved right, then
-    (infinitesimally less) down, which picks exactly one of two triangles sharing the edge."""
+    """Whether screen point (px, py) lies on the inner side of plane ``m``; ties follow the top-left rule."""
     zero = wp.float64(0.0)
     o = m[0] * px + m[1] * py + m[2]
     if o != zero:
@@ -384,12 +340,9 @@ def exact_edge_inside(m: wp.vec3d, px: wp.float64, py: wp.float64) -> bool:
 
 @wp.func
 def edge_tolerance(sa: wp.vec3d, sb: wp.vec3d, da: wp.float64, db: wp.float64) -> wp.int64:
-    """Exact-edge mode: bound on |fixed-point - exact edge function| of the edge between snapped screen positions
-    ``sa``, ``sb`` whose unrounded positions lie within ``da``, ``db`` (sub-pixels, :attr:`ProjectedVertices.dev`)
-    of them, for centres alongside the edge; beyond it the fixed-point sign is the exact one. Symmetric in the two
-    ends, so both triangles sharing the edge decide each centre the same way (:data:`_EXACT_ALWAYS` when unbounded).
-
-    With |delta| <= d at both ends and L1 = |sb - sa|_1: |delta E| <= 2 d |p - sa|_1 + d L1 + 4 d^2."""
+    """Exact-edge mode: bound on |fixed-point - exact edge function| of edge ``sa``-``sb`` whose ends moved by at most
+    ``da``, ``db``; beyond it the fixed-point sign is exact. Symmetric, so both triangles agree.
+    With L1 = |sb - sa|_1: |delta E| <= 2 d |p - sa|_1 + d L1 + 4 d^2."""
     d = wp.max(da, db)
     l1 = wp.abs(sb[0] - sa[0]) + wp.abs(sb[1] - sa[1])
     t = wp.float64(4.0) * d * (l1 + wp.float64(8.0) * d + wp.float64(8.0)) + wp.float64(8.0)
@@ -400,8 +353,7 @@ def edge_tolerance(sa: wp.vec3d, sb: wp.vec3d, da: wp.float64, db: wp.float64) -
 
 @wp.func
 def triangle_crossing(t: int, verts: ProjectedVertices, triangles: wp.array2d(dtype=wp.int32), p: RasterParams) -> int:
-    """Trivial reject of mesh triangle ``t``: -1 when nothing of it can be drawn (an invalid vertex, or all three
-    vertices outside one plane), else the clip planes it crosses (0: the unclipped fast path)."""
+    """Trivial reject of triangle ``t``: -1 when nothing can be drawn, else the clip planes it crosses (0: none)."""
     oa = verts.outcode[triangles[t, 0]]
     ob = verts.outcode[triangles[t, 1]]
     oc = verts.outcode[triangles[t, 2]]
@@ -425,8 +377,7 @@ def clip_triangle_edges(
     p: RasterParams,
     crossing: int,
 ) -> tuple[ScreenPolygon, ClipSources, ClipEdges, int]:
-    """:func:`clip_triangle` with, per polygon vertex k, its mesh vertex (-1: made by clipping) and the triangle edge
-    under polygon edge k -> k + 1 (0, 1, 2: the edge opposite triangle vertex 0, 1, 2; -1: along a clip plane)."""
+    """:func:`clip_triangle` with each polygon vertex's mesh vertex and the triangle edge under each polygon edge."""
     sp = ScreenPolygon()
     ia = triangles[t, 0]
     ib = triangles[t, 1]
@@ -484,9 +435,8 @@ def clip_triangle(
 
 @wp.func
 def bbox_rows(xmin: wp.int64, xmax: wp.int64, ymin: wp.int64, ymax: wp.int64, p: RasterParams) -> wp.vec2i:
-    """Image rows (first, last) with pixel centres in the fixed-point box [xmin, xmax] x [ymin, ymax], clamped to
-    the image; (0, -1) when no centre of the image lies in it. Widened by :data:`EXACT_MARGIN_SUBPIXELS` in
-    exact-edge mode (``p.exact_edges``)."""
+    """Image rows (first, last) with centres in the fixed-point box, clamped to the image; (0, -1) for none.
+    Widened by :data:`EXACT_MARGIN_SUBPIXELS` in exact-edge mode."""
     if p.exact_edges != 0:
         xmin = xmin - _EXACT_MARGIN
         xmax = xmax + _EXACT_MARGIN
@@ -503,8 +453,7 @@ def bbox_rows(xmin: wp.int64, xmax: wp.int64, ymin: wp.int64, ymax: wp.int64, p:
 
 @wp.func
 def polygon_rows(sp: ScreenPolygon, n: int, p: RasterParams) -> wp.vec2i:
-    """Image rows (first, last) whose centres a screen polygon of :func:`clip_triangle` may cover:
-    its bounding box clamped to the image, (0, -1) when empty or outside the image on x."""
+    """Image rows (first, last) a clipped screen polygon may cover, (0, -1) when empty."""
     if n < 3:
         return wp.vec2i(0, -1)
     xmin = wp.int64(sp[0][0])

@@ -1,13 +1,6 @@
-"""The rasterizer's scan (:mod:`warpscatter.raster`): the fragments of a mesh triangle, after rejection and clipping
-(:mod:`warpscatter.raster_funcs`), into a packed-key z-buffer or a fragment count.
-
-Scan: :func:`_row_scan` walks the rows of a triangle's bounding box (optionally a band of them) and, in boxes wider
-than :data:`~warpscatter.raster_funcs.SPAN_MIN_PIXELS`, narrows each row to the exact span of centres the three
-edge functions accept before visiting it (:func:`edge_span`); the fragments are those of testing every centre of
-the box. It is compiled twice: the fixed-point rule alone (:func:`rasterize_screen_triangle_rows`) and with exact
-edges (``RasterParams.exact_edges``, :func:`rasterize_screen_triangle_rows_exact`), which decides a centre within
-:func:`~warpscatter.raster_funcs.edge_tolerance` of a fixed-point edge on the unrounded float64 projection of the
-mesh edge instead; see :func:`rasterize_triangle_rows`.
+"""The rasterizer's scan: the fragments of a mesh triangle, after rejection and clipping, into a packed-key z-buffer
+or a fragment count. :func:`_row_scan` narrows each row of wide boxes to the exact span of accepted centres
+(:func:`edge_span`); it is compiled with and without the exact-edge test.
 """
 
 from __future__ import annotations
@@ -45,11 +38,8 @@ module_options()
 
 @wp.func
 def edge_span(e: wp.int64, step: wp.int64, lo: wp.int64, hi: wp.int64) -> tuple[wp.int64, wp.int64]:
-    """Narrow the pixel range [lo, hi] (counted from a row's first centre) to the n with e + n step >= 0.
-
-    Exact integer version of testing every centre: the edge function is linear along the row, so the
-    centres it accepts form one interval. An empty result has lo > hi.
-    """
+    """Narrow [lo, hi] (counted from a row's first centre) to the n with e + n step >= 0, exactly in integers (the
+    accepted centres form one interval); empty when lo > hi."""
     if step > wp.int64(0):
         if e < wp.int64(0):
             lo = wp.max(lo, (step - e - wp.int64(1)) / step)  # ceil(-e / step), both operands positive
@@ -95,16 +85,9 @@ def emit_fragment(
 def _row_scan(exact: bool):
     """The row scan of a snapped screen triangle, compiled with (``exact``) or without the exact-edge test.
 
-    Each row of the triangle's bounding box (restricted to image rows [row0, row1], inclusive) is visited; in boxes
-    at least :data:`SPAN_MIN_PIXELS` + 1 centres wide it is first narrowed to the exact span of centres the three
-    edge functions accept (:func:`edge_span`, three integer divisions per row) instead of testing every centre; the
-    fragments, their depths and keys are those of the full test. ``a``, ``b``, ``c`` are (X, Y, z_ndc) with X, Y
-    the fixed-point screen position (y down, exact integers in float64) from :func:`snap_to_screen`.
-
-    Exact variant: a centre whose fixed-point edge function k (edge opposite vertex k) lies within ``tols[k]`` of 0
-    is decided by :func:`exact_edge_inside` on ``planes[k]`` instead (``tols[k]`` = -1: the fixed-point test), and
-    the bounding box is widened by ``margin`` sub-pixels. The fixed variant reads neither ``planes`` nor ``tols``.
-    Depths are the fixed-point interpolation in both.
+    Visits the bounding box's rows within [row0, row1], narrowed to their exact spans in wide boxes; the fragments are
+    those of testing every centre. ``a``, ``b``, ``c`` are (X, Y, z_ndc), X, Y fixed-point (y down). Exact variant:
+    centres within ``tols[k]`` of edge k are decided on ``planes[k]`` and the box is widened by ``margin``.
     """
 
     @wp.func(name="rasterize_screen_triangle_rows_exact" if exact else "rasterize_screen_triangle_rows_fixed")
@@ -256,10 +239,8 @@ def rasterize_exact_triangle_rows(
     keys: wp.array2d(dtype=wp.int64),
     counts: wp.array2d(dtype=wp.int32),
 ):
-    """Exact-edge mode, unclipped mesh triangle ``t`` whose snapped screen triangle has no area (smaller than the
-    sub-pixel grid, or a sliver): every centre of its widened bounding box by the three exact edge tests, depth
-    interpolated with the exact screen barycentrics. Its neighbours decide their shared edges exactly too, so the
-    centres it covers are not lost."""
+    """Exact-edge mode, a triangle whose snapped screen triangle has no area: every centre of its widened box by the
+    three exact edge tests, so the centres it covers are not lost."""
     ia = triangles[t, 0]
     ib = triangles[t, 1]
     ic = triangles[t, 2]
@@ -314,9 +295,8 @@ def rasterize_screen_triangle(a: wp.vec3d, b: wp.vec3d, c: wp.vec3d, tri: int, p
 def polygon_edge_exact(
     planes: wp.mat33d, verts: ProjectedVertices, sp: ScreenPolygon, src: ClipSources, edges: ClipEdges, k: int, n: int
 ) -> tuple[wp.vec3d, wp.int64]:
-    """Exact plane and tolerance (see :func:`rasterize_screen_triangle_rows_exact`) of edge k -> k + 1 of a clipped
-    polygon: the fixed-point test alone along a clip plane; on a mesh edge its :func:`exact_edge_plane`, with the
-    :func:`edge_tolerance` of its ends when both are mesh vertices, else the exact test near every centre."""
+    """Exact plane and tolerance of edge k -> k + 1 of a clipped polygon (the fixed-point test alone along a clip
+    plane)."""
     e = edges[k]
     if e < 0:
         return wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0)), _FIXED_ONLY
@@ -341,15 +321,9 @@ def rasterize_triangle_rows(
     keys: wp.array2d(dtype=wp.int64),
     counts: wp.array2d(dtype=wp.int32),
 ):
-    """Reject, clip where needed, and scan mesh triangle ``t`` (or the fan of its clipped polygon) over
-    image rows [row0, row1].
-
-    Exact-edge mode (``p.exact_edges``): the fixed-point rule decides a pixel centre unless it lies within the
-    snapping error of a mesh edge (:func:`edge_tolerance`); there the edge is tested on the unrounded float64
-    projection (:func:`exact_edge_inside`), the test a ray through the centre makes against the triangle, so
-    silhouettes follow the ray caster instead of the vertices rounded to 1/1024 pixel. Both triangles at a shared
-    edge take the same decision (watertight). Edges made by clipping and the diagonals of a clipped polygon's fan
-    keep the fixed-point rule; depths keep the fixed-point interpolation."""
+    """Reject, clip where needed, and scan mesh triangle ``t`` (or its clipped polygon's fan) over rows [row0, row1].
+    In exact-edge mode centres near a mesh edge are decided on its unrounded projection, as a ray would; clip edges
+    and fan diagonals keep the fixed-point rule."""
     crossing = triangle_crossing(t, verts, triangles, p)
     if crossing < 0:
         return

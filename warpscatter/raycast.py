@@ -1,14 +1,6 @@
-"""BVH ray casting with ``wp.Mesh``: kernel helpers for other modules, and the depth references.
-
-``ray_hit``, ``ray_hit_distance`` and ``occluded`` are ``@wp.func`` building blocks for kernels that
-trace rays against a mesh (exact-visibility scattering, shadow rays). On the host,
-:func:`raycast_depth` casts one ray per pixel centre through any 4x4 world -> clip matrix and
-returns NDC depth and triangle ids in the format of :func:`warpscatter.raster.rasterize`: it is the
-reference the rasterizer is tested and benchmarked against. :func:`raycast_camera` casts the
-CONVENTIONS camera rays and returns the hit distance along each unit ray.
-
-Pixel centres follow the rasterizer: pixel (i, j), row j from the top, sits at
-x_ndc = 2 (i + 0.5) / width - 1, y_ndc = 1 - 2 (j + 0.5) / height.
+"""BVH ray casting with ``wp.Mesh``: @wp.func building blocks (``ray_hit``, ``ray_hit_distance``, ``occluded``) and
+the host references :func:`raycast_depth` (the rasterizer's reference, same format and pixel centres) and
+:func:`raycast_camera` (hit distance along each camera ray).
 """
 
 from __future__ import annotations
@@ -29,16 +21,12 @@ from .wpinit import default_device, module_options
 module_options()
 
 
-# ---- building blocks (public @wp.func API) ---------------------------------------------------------
 
 
 @wp.func
 def ray_hit(mesh_id: wp.uint64, origin: wp.vec3, direction: wp.vec3, t_max: float) -> tuple[float, int]:
-    """Closest hit of a ray with a mesh: (t, face) with t in [0, t_max] in multiples of |direction|.
-
-    Returns (+inf, -1) when nothing is hit. Both sides of every triangle are hit. A ray starting on a
-    surface may hit it again at t ~ 0: offset the origin for secondary rays.
-    """
+    """Closest hit of a ray with a mesh: (t, face), t in [0, t_max] in multiples of |direction|; (+inf, -1) for none.
+    Both sides are hit; offset the origin of secondary rays."""
     q = wp.mesh_query_ray(mesh_id, origin, direction, t_max)
     if q.result:
         return q.t, q.face
@@ -65,7 +53,6 @@ def unproject_ndc(inv_view_proj: wp.mat44d, x: wp.float64, y: wp.float64, z: wp.
     return wp.vec3d(p[0], p[1], p[2]) / p[3], p[3]
 
 
-# ---- kernels ---------------------------------------------------------------------------------------
 
 
 @wp.kernel
@@ -137,7 +124,6 @@ def shadow_rays_kernel(
         out[i] = 0.0
 
 
-# ---- host side -------------------------------------------------------------------------------------
 
 
 def build_mesh(vertices, triangles, device: str | None = None) -> wp.Mesh:
@@ -149,8 +135,7 @@ def build_mesh(vertices, triangles, device: str | None = None) -> wp.Mesh:
         device: Warp device.
 
     Returns:
-        ``wp.Mesh``; it holds references to its point and index arrays (``mesh.points``,
-        ``mesh.indices``), so they live as long as the mesh. Triangle ids of queries index ``triangles``.
+        ``wp.Mesh``, holding references to its point and index arrays.
 
     Raises:
         ValueError: wrong shapes, non-finite vertices, out-of-range indices, or no triangles.
@@ -171,10 +156,8 @@ _BVHS_LOCK = threading.RLock()
 
 
 def cached_bvh(vertices, triangles, device: str | None = None) -> wp.Mesh:
-    """:func:`build_mesh` of host (numpy) geometry, reused while the same geometry comes back on the same device:
-    the frames of an animation whose geometry does not move, repeated renders of one scene (keyed by the SHA-256 of
-    the float32 vertices and int32 triangles, :func:`warpscatter.csm.compress.geometry_digest`). Nothing refits a
-    BVH in warpscatter, so a shared one is never changed."""
+    """:func:`build_mesh` of host geometry, reused while the same geometry (by digest) comes back on the same device;
+    nothing refits a BVH, so a shared one never changes."""
     from .csm.compress import geometry_digest
 
     device = default_device(device)
@@ -204,11 +187,8 @@ def _check_mesh(mesh) -> wp.Mesh:
 def raycast_depth(
     mesh: wp.Mesh, view_proj, width: int, height: int, device: str | None = None, threads: int | None = None
 ) -> RasterResult:
-    """Ray-cast NDC depth and triangle ids per pixel centre, in the format of ``rasterize`` (one layer).
-
-    Each pixel's ray runs from the near plane (z_ndc = -1) to the far plane (z_ndc = +1) of
-    ``view_proj``, unprojected with its inverse, so it works for perspective and orthographic
-    matrices alike and sees exactly what the rasterizer keeps (no clamping).
+    """Ray-cast NDC depth and triangle ids per pixel centre, in the format of ``rasterize`` (one layer): rays from
+    the near to the far plane of ``view_proj``, unprojected, so perspective and orthographic alike.
 
     Args:
         mesh: ``wp.Mesh`` from :func:`build_mesh`.
@@ -242,11 +222,7 @@ def raycast_depth(
 def raycast_camera(
     mesh: wp.Mesh, camera: Camera, device: str | None = None, threads: int | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Hit distance along every CONVENTIONS camera ray (``Camera.ray_directions``) and the hit triangle.
-
-    Rays start at the camera position (t = 0, not the near plane) and end at the far plane
-    (t_max = far / dot(direction, forward)).
-
+    """Hit distance along every camera ray from the camera position to the far plane, and the hit triangle.
     Args:
         mesh: ``wp.Mesh`` from :func:`build_mesh`.
         camera: the camera (its width x height pixels).
@@ -277,11 +253,8 @@ def raycast_camera(
 
 def shadow_ray_visibility(mesh: wp.Mesh, points, directions, *, eps: float = 0.0, device: str | None = None,
                           threads: int | None = None) -> wp.array:
-    """Visibility (1 lit, 0 blocked) of rays from ``points`` (offset by ``eps`` along them) towards ``directions``.
-
-    The BVH reference for batched visibility queries (e.g. coherent shadow maps). Inputs are (K, 3) numpy or
-    ``wp.array(vec3)`` on ``device``; returns a (K,) float32 ``wp.array``.
-    """
+    """Visibility (1 lit, 0 blocked) of rays from ``points`` (offset by ``eps``) towards ``directions``: the BVH
+    reference of batched queries. (K, 3) inputs; returns a (K,) float32 ``wp.array``."""
     device = default_device(device)
     mesh = _check_mesh(mesh)
     pts = points if isinstance(points, wp.array) else wp.array(np.asarray(points, np.float32), dtype=wp.vec3,

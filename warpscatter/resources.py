@@ -1,15 +1,8 @@
 """The bundled configs and assets (``configs/*.yaml``, ``assets/*``): where they are, with a clear error where not.
 
-Two layouts hold them, side by side in both so that the configs' relative paths (``../assets/gate.obj``) resolve:
-
-- a source checkout or an editable install (``pip install -e .``): the top-level ``configs/`` and ``assets/`` folders
-  of the source tree, beside the ``warpscatter/`` package folder;
-- a wheel (``pip install warpscatter``, ``pip install .``): inside the package, as ``warpscatter/configs/`` and
-  ``warpscatter/assets/`` (package data, see ``[tool.setuptools]`` in ``pyproject.toml``).
-
-:data:`ROOT` is the folder that holds both. The bundled configs write to ``output.dir: ../out``, relative to the
-config; in a wheel install that is inside the installed package, so render them with ``-o DIR`` (or ``out_dir=``);
-:func:`in_package` tells whether a path lies there.
+A source checkout holds them at the top of the tree, a wheel inside the package; :data:`ROOT` holds both, side by side
+so the configs' relative paths resolve. In a wheel install render bundled configs with ``-o DIR``
+(:func:`in_package`).
 """
 
 from __future__ import annotations
@@ -68,9 +61,7 @@ def bundled_asset(name: str) -> Path:
 
 
 def in_package(path: str | Path) -> bool:
-    """Whether ``path`` lies inside the installed ``warpscatter`` package folder (site-packages for a wheel install),
-    where nothing should be written unless the user asked: e.g. a bundled config's default ``output.dir``
-    (``../out``) in a wheel install. In a source checkout the top-level ``out/`` is outside the package: False."""
+    """Whether ``path`` lies inside the installed package folder, where nothing should be written unasked."""
     try:
         Path(path).expanduser().resolve().relative_to(PACKAGE_DIR)
     except ValueError:

@@ -1,25 +1,9 @@
 """Warp-free building blocks of every settings model: the strict base model, field types, key-path errors.
 
-Each technique writes its keys once, as a pydantic model beside it (``scattering/settings.py``,
-``shadows/settings.py``, ``csm/settings.py``) built from :class:`SettingsModel` and the field types below;
-:mod:`warpscatter.config` composes them into the whole config. Every model forbids unknown keys, states each
-key's range in its type and its meaning in ``Field(description=...)``, so the JSON schema
-(``Config.model_json_schema()``) and the config reference (docs/reference/config.md) document themselves.
-
-:func:`format_validation_errors` turns a pydantic error into ``key.path: reason`` lines.
-
-Ranges: every numeric key has a lower and an upper bound, checked when the config is validated (before any work).
-The bounds the models share are the constants below (:data:`MAX_COORD` ... :data:`MAX_FRAMES`); a technique's own
-limits live beside its settings model. They are chosen so that what the renderer computes in float32 (largest
-3.4e38, 24-bit mantissa) stays finite and meaningful: coordinates and lengths within 1e6 scene units, extinction
-at most 1e4 per unit (so sigma_t times any distance, at most 1e10, and exp(-sigma_t d) stay finite), light
-quantities at most 1e6 per channel (images stay below ~1e12 after the phase function, the BRDFs and the integrals),
-far at least 1e-6 and far / near at most 1e7, fov_y at most 170 degrees (tan(fov_y / 2) = 11.4; at 180 the image
-plane and the pixel footprint are infinite), Henyey-Greenstein |g| at most 0.99 (1 + g^2 - 2 g cos cancels to 0 in
-float32 beyond ~0.999), seeds 0..2^31-1. Vectors are checked per component; directions are normalised on load
-without overflow (scaled first), so tiny ones work too.
-
-This module does not import Warp.
+Each technique's keys are a pydantic model beside it, built from :class:`SettingsModel` and these field types, and
+:mod:`warpscatter.config` composes them; ``Field(description=...)`` and the types' bounds feed the JSON schema and
+docs/reference/config.md. Every numeric key has both bounds, chosen so that float32 arithmetic (largest 3.4e38,
+24-bit mantissa) stays finite and meaningful. :func:`format_validation_errors` gives ``key.path: reason`` lines.
 """
 
 from __future__ import annotations
@@ -47,27 +31,21 @@ from pydantic import (
 #: Largest accepted image / shadow-map side, in pixels (guards against typos such as 19200).
 MAX_IMAGE_SIDE = 16384
 
-# ---- ranges shared by the settings models (one place; see the module docstring) --------------------------------
 
-#: Largest |component| of a point or an edge vector and the largest length, in scene units (positions, look-at
-#: points, translations, light corners, edges and segment ends, the far plane, procedural lengths, offsets). Twice
-#: that squared (4e12) and its products with :data:`MAX_SIGMA_T` stay far inside float32.
+#: Largest |component| and length in scene units; 4 MAX_COORD^2 and its products with MAX_SIGMA_T fit float32.
 MAX_COORD = 1.0e6
-#: Smallest positive length in scene units (the near plane, a light's size, an edge, a segment, the distance from
-#: the camera to the point it looks at): squares of shorter ones approach float32's smallest normal numbers.
+#: Smallest positive length in scene units: squares of shorter ones approach float32's smallest normals.
 MIN_LENGTH = 1.0e-6
 #: Largest camera far / near: float32 depths hold 24 bits, so a larger ratio cannot order surfaces near far.
 MAX_DEPTH_RATIO = 1.0e7
-#: Field of view limits (degrees): tan(fov_y / 2) and the pixel footprint grow without bound towards 180 (at
-#: 179.9999 a pixel spans 1e6 units at unit distance); below 0.01 degrees tan(fov / 2) approaches float32's step.
+#: Field of view limits (degrees): the pixel footprint grows without bound towards 180; 0.01 nears float32's step.
 MIN_FOV_DEG = 0.01
 MAX_FOV_Y_DEG = 170.0
 #: Smallest cone half-angle of a spot light (degrees): its projection divides by tan(cone_deg).
 MIN_CONE_DEG = 0.01
 #: Largest extinction sigma_t (1 / scene unit): a mean free path of 1e-4 units; sigma_t x MAX_COORD = 1e10.
 MAX_SIGMA_T = 1.0e4
-#: Largest |g| of the Henyey-Greenstein phase function: its denominator 1 + g^2 - 2 g cos(theta) is (1 - g)^2 in the
-#: forward direction and cancels to 0 in float32 from |g| ~ 0.9999 (0.999 errs 10 %, 0.99 0.1 %).
+#: Largest |g| of the Henyey-Greenstein phase function: 1 + g^2 - 2 g cos cancels in float32 from |g| ~ 0.9999.
 MAX_HG_G = 0.99
 #: Largest component of a light's irradiance, intensity, radiance or power, and of an environment map's scale.
 MAX_EMISSION = 1.0e6
@@ -87,7 +65,6 @@ MAX_FRAME = 1_000_000
 MAX_FRAMES = 100_000
 
 
-# ---- field types ---------------------------------------------------------------------------------
 
 
 def is_number(x: Any) -> bool:
@@ -106,8 +83,7 @@ def vec3(v: Any) -> tuple[float, float, float]:
 
 
 def length(v) -> float:
-    """|v| without overflow or underflow (``math.hypot`` scales; plain sqrt(sum x^2) where that is exact enough,
-    so that results stay bit for bit what they were)."""
+    """|v| without overflow or underflow (``math.hypot`` only where plain sqrt is not exact enough)."""
     n = math.sqrt(sum(x * x for x in v))
     return n if 1e-150 < n < 1e150 else math.hypot(*v)
 
@@ -162,8 +138,7 @@ def _path_string(v: Any) -> Any:
 
 
 def scalar_or_rgb(lo: float, hi: float | None = None, what: str = "number"):
-    """A BeforeValidator accepting one number (grey) or a list of 3 [r, g, b], each in [lo, hi]; it returns a float
-    or a tuple of 3 floats. Its ``type_text`` is what the config reference shows."""
+    """A BeforeValidator accepting one number or a list of 3 [r, g, b] in [lo, hi]; ``type_text`` for the docs."""
 
     def check(v: Any):
         if is_number(v):
@@ -186,8 +161,7 @@ def scalar_or_rgb(lo: float, hi: float | None = None, what: str = "number"):
 
 
 def scalar_or_rgb_type(lo: float, hi: float, what: str = "number") -> Any:
-    """The type of one number or a list of 3 [r, g, b], each in [lo, hi] (:func:`scalar_or_rgb`); its JSON
-    schema states the bounds."""
+    """The type of one number or a list of 3 [r, g, b], each in [lo, hi] (:func:`scalar_or_rgb`)."""
     item = bounded_float(lo, hi)
     return Annotated[Union[item, tuple[item, item, item]], scalar_or_rgb(lo, hi, what)]
 
@@ -198,11 +172,8 @@ def bounded_float(lo: float, hi: float) -> Any:
 
 
 def vec3_in(lo: float, hi: float, type_text: str, *after: Any, interval: bool = True) -> Any:
-    """The type of a list of 3 finite numbers [x, y, z], each in [lo, hi], then ``after`` validators.
-
-    Out-of-range input is reported for the whole vector (``key: every component must lie in [lo, hi], got [...]``;
-    with ``interval`` False as ``must be >= lo`` / ``must be <= hi``); the components' JSON schema states the
-    bounds, and ``type_text`` is what the config reference shows."""
+    """The type of a list of 3 finite numbers [x, y, z], each in [lo, hi], then ``after`` validators; range errors
+    name the whole vector."""
 
     def check(v: Any) -> tuple[float, float, float]:
         out = vec3(v)
@@ -273,11 +244,9 @@ def existing_file(p: Path) -> Path:
 
 
 class SettingsModel(BaseModel):
-    """Base of every settings model: unknown keys are errors, defaults are validated, an empty section means
-    its defaults."""
+    """Base of every settings model: unknown keys are errors, defaults are validated, an empty section = defaults."""
 
-    # Section defaults are given as ``{}`` and validated like user input (validate_default), so they are
-    # built inside the validation context: a default ``output.dir`` resolves against the config folder.
+    # Defaults validated inside the validation context, so a default ``output.dir`` resolves against the config folder.
     model_config = ConfigDict(extra="forbid", validate_default=True)
 
     @model_validator(mode="before")
@@ -308,7 +277,6 @@ def dotted(path) -> str:
     return ".".join(str(p) for p in path)
 
 
-# ---- validation errors ---------------------------------------------------------------------------
 
 
 def unwrap(tp):
@@ -328,12 +296,10 @@ def unwrap(tp):
 
 
 def _display_loc(loc: tuple, root: type[BaseModel]) -> tuple[tuple, type | None, bool]:
-    """Drop union segments from a pydantic error location under model ``root``: the tags of discriminated unions and
-    the member names pydantic gives the alternatives of a plain union (``literal['adaptive']``, ``constrained-float``,
-    ``bool``).
+    """Drop union segments (discriminator tags, alternative names) from a pydantic error location under ``root``.
 
-    Returns the user-facing key path, the model class at its end (None when not a model) and whether the error is
-    one alternative of a plain union (its siblings are the other alternatives' errors at the same key).
+    Returns the user-facing key path, the model class at its end (or None) and whether the error is one alternative
+    of a plain union.
     """
     out: list = []
     tp: Any = root
@@ -366,8 +332,7 @@ def _display_loc(loc: tuple, root: type[BaseModel]) -> tuple[tuple, type | None,
 
 
 def _merge_alternatives(reasons: list[str]) -> str:
-    """One reason for the errors of a plain union's alternatives: ``must be one of 'adaptive' or must be <= 1 (got
-    1.5)``."""
+    """One reason for the errors of a plain union's alternatives (``must be one of 'adaptive' or must be <= 1``)."""
     got = {m.group(1) for r in reasons if (m := re.search(r" \(got (.*)\)$", r))}
     if len(got) == 1 and all(re.search(r" \(got .*\)$", r) for r in reasons):
         return " or ".join(re.sub(r" \(got .*\)$", "", r) for r in reasons) + f" (got {got.pop()})"

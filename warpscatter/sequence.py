@@ -1,13 +1,9 @@
 """Rendering an animated config: every frame through an executor, then a preview movie.
 
-:func:`render_animation` renders the frames of a config's ``animation`` section (:mod:`warpscatter.animation`) as
-``NAME.0001.exr`` ... (each frame the whole output set, sidecar included), skipping the frames already rendered
-with the same config (a killed run resumes), and writes a preview: ``NAME.mp4`` through imageio-ffmpeg or
-``NAME.gif`` through imageio (the ``video`` extra), from the frames' PNGs. Without either library the PNG frames
-are the preview; ``ffmpeg -framerate FPS -i NAME.%04d.png -pix_fmt yuv420p NAME.mp4`` makes the movie.
-
-Frames are bit-identical whichever executor renders them (:mod:`warpscatter.jobs`: the renders are deterministic for
-a given seed on any thread count).
+:func:`render_animation` renders ``NAME.0001.exr`` ... (each a whole output set), skipping frames already rendered
+with the same config, then writes ``NAME.mp4`` (imageio-ffmpeg) or ``NAME.gif`` (imageio) from the PNGs, or leaves
+the PNGs (``ffmpeg -framerate FPS -i NAME.%04d.png -pix_fmt yuv420p NAME.mp4``). Frames are bit-identical with any
+executor.
 """
 
 from __future__ import annotations
@@ -29,8 +25,7 @@ log = logging.getLogger("warpscatter")
 
 @dataclass
 class AnimationResult:
-    """What :func:`render_animation` did: one result per frame (in order), the preview file (None: none written),
-    the frames per second of the run (rendered frames only) and the wall time (s)."""
+    """What :func:`render_animation` did: per-frame results, the preview file (or None), frames per second, wall s."""
 
     frames: list[TaskResult]
     preview: Path | None = None
@@ -76,8 +71,7 @@ def parse_frames(text: str | None, first: int, last: int) -> list[int]:
 
 
 def preview_format(requested: str) -> str:
-    """The preview actually written for ``animation.preview`` (``auto``: mp4 where imageio-ffmpeg is installed,
-    else gif where imageio is, else none)."""
+    """The preview written for ``animation.preview`` (``auto``: mp4 with imageio-ffmpeg, else gif, else none)."""
     if requested != "auto":
         return requested
     try:
@@ -95,13 +89,11 @@ def preview_format(requested: str) -> str:
 
 
 def write_preview(pngs: list[Path], target: Path, fps: float) -> Path:
-    """Write the PNG frames as a movie (``.mp4``: H.264 through imageio-ffmpeg; ``.gif``), atomically
-    (:func:`warpscatter.imageio.write_file_atomic`: a failure leaves no file behind).
+    """Write the PNG frames as a movie (``.mp4`` H.264 or ``.gif``), atomically.
 
     Raises:
         ImportError: imageio (and, for mp4, imageio-ffmpeg) is not installed.
-        ImageWriteError: the frames cannot make a movie (e.g. frames of different sizes) or the file cannot be
-            written.
+        ImageWriteError: the frames cannot make a movie or the file cannot be written.
     """
     import imageio.v2 as iio
 
@@ -162,8 +154,7 @@ def _render_animation(config, out_dir, frames, executor, resume, preview, progre
     from .wpinit import default_device
 
     numbers = list(dict.fromkeys(frames or config.animation.frame_numbers))  # each frame once
-    # the caller's device travels only when asked for (the argument or WARPSCATTER_DEVICE): a worker otherwise
-    # renders on its own default (a remote GPU worker of a CPU-only client, and the reverse)
+    # the caller's device travels only when asked for: a worker otherwise renders on its own default
     device = default_device(device) if device is not None or os.environ.get("WARPSCATTER_DEVICE") else None
     tasks = [task_for(frame_config, frame_config.output_name, out, device=device)
              for frame_config in (config.at_frame(f) for f in numbers)]

@@ -1,14 +1,8 @@
 """Surface shading and composition (CONVENTIONS.md).
 
-Surfaces are Lambertian: L_surface = albedo / pi * E(x) * max(0, dot(n, -omega_l)) * V_shadow(x),
-with n the camera-facing normal from the G-buffer and V_shadow (RGB, for tinted translucent
-occluders) from the selected shadow method (:mod:`warpscatter.shadows.surface`: pcf, msm, msm_soft, pcss, none).
-
-The seen radiance is L_surface * exp(-sigma_t s) + L_scat (per channel in a coloured medium).
-
-AOVs returned by :func:`shade_and_compose` (all (H, W, 3) float32 linear RGB, row 0 = top):
-``surface`` = L_surface * exp(-sigma_t s) (zero where no surface), ``scattering`` = L_scat,
-``color`` = their sum; ``depth`` (H, W) the G-buffer distance.
+Lambertian surfaces: L_surface = albedo / pi * E(x) * max(0, dot(n, -omega_l)) * V_shadow(x), V_shadow (RGB) from the
+surface shadow method; seen radiance L_surface * exp(-sigma_t s) + L_scat per channel. AOVs (float32, row 0 = top):
+``surface``, ``scattering``, ``color`` (their sum), ``depth`` (the G-buffer distance).
 """
 
 from __future__ import annotations
@@ -29,9 +23,8 @@ module_options()
 
 @wp.func
 def pixel_footprint(cam: CameraParams, i: int, j: int, x: wp.vec3, n: wp.vec3):
-    """World vectors from x to where the rays of pixels (i + 1, j) and (i, j + 1) meet x's tangent plane (normal n):
-    the receiver's pixel footprint for mip-level selection. Rays (nearly) parallel to the plane or meeting it
-    behind the camera fall back to the footprint of a plane facing the camera at x's distance."""
+    """World vectors from x to where the rays of pixels (i + 1, j) and (i, j + 1) meet x's tangent plane: the pixel
+    footprint for mip selection (a camera-facing plane where the rays graze)."""
     o = cam.position
     d0 = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     dist = wp.length(x - o)
@@ -102,13 +95,8 @@ def shade_kernel(
 
 
 def ambient_radiance(scene, gbuffer, ambient) -> np.ndarray | None:
-    """The sky fill of every surface pixel: albedo * L_ambient * exp(-sigma_t s), float32 (H, W, 3), or None when
-    ``ambient`` is zero.
-
-    A uniform sky of radiance L_ambient over a Lambertian surface reflects albedo * L_ambient (the integral of
-    albedo / pi * L_ambient * cos over the hemisphere), unshadowed (no occlusion term); it is seen through the medium
-    like the rest of the surface. The scattering integral does not include it (CONVENTIONS: the light alone).
-    """
+    """The sky fill of every surface pixel: albedo * L_ambient * exp(-sigma_t s), (H, W, 3) float32, or None when
+    ``ambient`` is zero. Unshadowed; the cosine integral of a uniform sky gives albedo * L_ambient."""
     ambient = np.asarray(ambient, dtype=np.float32)
     if not ambient.any():
         return None

@@ -1,23 +1,12 @@
 """Named, timed stages with progress: the one stage context of every render, method and bench case.
 
-A :class:`StageTimer` times named stages in order (their names appear in the CLI's timing table, in ``bench``
-output and in logs) and forwards progress to one callback shape, ``progress(stage, fraction)``. Inside a stage,
-``report(fraction)`` moves the fraction (the shape that :func:`warpscatter.parallel.launch_rows` and the CSM
-builders accept as ``progress=``)::
+A :class:`StageTimer` times named stages (the names of the timing tables and logs) and forwards progress as
+``progress(stage, fraction)``; a stage that runs twice accumulates, and leaving one synchronises Warp::
 
-    timer = StageTimer(progress=lambda stage, f: print(stage, f))
     with timer("scattering") as stage:
         launch_rows(kernel, dim, inputs, progress=stage.report)
-    timer.timings  # {"scattering": seconds}
 
-A stage that runs twice accumulates its time. Leaving a stage synchronises Warp, so the time includes the work
-launched inside it.
-
-An :class:`EtaEstimator` turns the same progress reports into the time left (the CLI's progress display uses it)::
-
-    eta = EtaEstimator(expected={"scene": 0.1, "compile": 0.7, "prefilter": 3.0, "write": 0.1})  # an earlier run
-    eta.update("prefilter", 0.25, now=12.0)
-    eta.estimate(now=12.5)  # Estimate(seconds=..., complete=True): the rest of prefilter, then write
+An :class:`EtaEstimator` turns the same reports into the time left (the CLI's progress display).
 """
 
 from __future__ import annotations
@@ -88,10 +77,8 @@ class Estimate(NamedTuple):
     """What :meth:`EtaEstimator.estimate` returns.
 
     Attributes:
-        seconds: the time left in seconds, or None when nothing tells it yet (a stage that has reported no progress
-            and that the earlier run did not have, e.g. a first compile).
-        complete: True when ``seconds`` includes the stages still to come (known from an earlier run); False when
-            it is the running stage's rest only.
+        seconds: the time left, or None when nothing tells it yet.
+        complete: True when ``seconds`` includes the stages still to come; False: the running stage's rest only.
     """
 
     seconds: float | None
@@ -101,17 +88,10 @@ class Estimate(NamedTuple):
 class EtaEstimator:
     """The time left of a run of named stages, from each stage's own measured rate.
 
-    The running stage's rest is its remaining fraction over its rate, measured from its first progress report above
-    zero to its latest (set-up before the first report does not count), less the time since that report; with a
-    single report, the rate since the stage began. A stage that has reported nothing yet is estimated from
-    ``expected`` if it holds the stage, else unknown. The stages still to come are known only from ``expected``
-    (e.g. the ``timings_s`` of a previous render's ``NAME.json``): those after the running stage in its order,
-    each scaled by how the finished stages compared with their expected times (stages in ``unscaled``, such as
-    ``compile`` whose time depends on the kernel cache, keep their expected time and do not set the scale). The
-    scale starts at 1 and follows the finished stages as they add up: ``(spent + prior) / (expected + prior)``,
-    ``prior`` being :attr:`PRIOR_SHARE` of the expected run, so a few short stages cannot swing it.
-
-    Every method takes the time ``now`` (seconds, any clock) from the caller: the estimator reads no clock.
+    The running stage's rest is its remaining fraction over its rate since its first report above zero; stages to
+    come are known only from ``expected`` (e.g. a previous render's ``timings_s``), scaled by how the finished stages
+    compared with theirs, drawn towards 1 by a prior of :attr:`PRIOR_SHARE` (``unscaled`` stages such as ``compile``
+    keep their time). The caller passes the time ``now``: the estimator reads no clock.
 
     Args:
         expected: stage name -> seconds of an earlier run, in the order its stages ran; None when there is none.
@@ -145,8 +125,7 @@ class EtaEstimator:
                 self.first = self.last
 
     def scale(self) -> float:
-        """How long the finished stages took against their expected times, drawn towards 1 by a prior of
-        :attr:`PRIOR_SHARE` of the expected run (1 when nothing has finished)."""
+        """Finished stages' time over their expected times, drawn towards 1 (1 when nothing has finished)."""
         done = [(t, self.expected[k]) for k, t in self.finished.items()
                 if k in self.expected and k not in self.unscaled]
         spent, planned = sum(t for t, _ in done), sum(e for _, e in done)

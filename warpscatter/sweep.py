@@ -12,13 +12,10 @@ A sweep file (YAML; paths relative to it)::
                 render.scattering.steps: 512}             # optional: error of every case against it
     images: false                                          # true: write each case's output set
 
-Every case's config is validated before the first render. Cases run through an executor
-(:mod:`warpscatter.jobs`); a failed case is reported with its error and the others go on. Results: one row per case
-(config, overrides, technique time = the render's stages without ``scene``, ``compile`` and ``write``, total time,
-and with a reference its relative L1 and RMSE), written as ``NAME.json`` (with the provenance of
-:mod:`warpscatter.provenance`), ``NAME.csv`` and, with matplotlib (the ``plot`` extra), ``NAME-error-time.png``
-(error against time per config, one marker per method). Times measured with several workers on a shared machine
-are contended: compare techniques with ``--workers 1`` or the inline executor.
+Every case is validated before the first render and runs through an executor (:mod:`warpscatter.jobs`); a failed case
+is reported and the others go on. One row per case (technique time = stages without ``scene``, ``compile`` and
+``write``; errors against the reference) goes to ``NAME.json``, ``NAME.csv`` and ``NAME-error-time.png``. Compare
+times with ``--workers 1``: several workers on a shared machine contend.
 """
 
 from __future__ import annotations
@@ -111,15 +108,13 @@ def _value_text(v: Any) -> str:
     return json.dumps(v, separators=(",", ":")) if isinstance(v, (list, dict)) else str(v)
 
 
-#: Overrides under this prefix change the technique; all others (scene, camera, light, medium) change what is
-#: rendered, and a case's reference takes them too.
+#: Overrides under this prefix change the technique; others change what is rendered, so the reference takes them.
 TECHNIQUE_PREFIX = "render."
 
 
 @dataclass
 class SweepCase:
-    """One case: its label, config file, overrides (``set`` left out: the same for all), validated config and the
-    key of its reference (:func:`sweep_cases`)."""
+    """One case: label, config file, overrides (without ``set``), validated config and its reference's key."""
 
     label: str
     config_file: Path
@@ -142,9 +137,8 @@ class SweepResult:
 
 
 def sweep_cases(sweep: SweepSettings) -> tuple[list[SweepCase], dict[str, Config]]:
-    """Every case's validated config, and the reference configs (when the sweep has a reference): one per config
-    file and set of the cases' scene overrides (the keys outside ``render.``: a case that changes the camera or the
-    medium is compared with a reference of the same camera or medium), keyed as each case's ``reference``.
+    """Every case's validated config and the reference configs, one per config file and set of scene overrides
+    (keys outside ``render.``), keyed as each case's ``reference``.
 
     Raises:
         ConfigError: listing every case whose config (or reference) is invalid (``CASE: key.path: reason``).
@@ -184,16 +178,14 @@ def sweep_cases(sweep: SweepSettings) -> tuple[list[SweepCase], dict[str, Config
 
 
 def _file_stem(label: str) -> str:
-    """A case label as a plain file stem: characters other than letters, digits, ``.``, ``_`` and ``-`` become
-    ``_`` (``colonnade/method=fourier`` -> ``colonnade_method-fourier``)."""
+    """A case label as a file stem: other than letters, digits, ``.``, ``_`` and ``-`` becomes ``_``."""
     return re.sub(r"[^A-Za-z0-9._-]+", "_", label.replace("=", "-")).strip("._") or "case"
 
 
 def run_sweep(sweep: SweepSettings, out_dir: str | Path, *, executor: Executor | None = None,
               progress: Callable[[str, float], None] | None = None, device=None,
               verbose: bool = False) -> SweepResult:
-    """Render every case (and each reference), and write the results; a case that fails (or whose image cannot be
-    compared with its reference) is a row with its error, and the results are written in every case.
+    """Render every case (and each reference) and write the results; a failing case is a row with its error.
 
     Args:
         sweep: the validated sweep.
@@ -219,8 +211,7 @@ def _run_sweep(sweep: SweepSettings, out_dir, executor, progress, device) -> Swe
     cases, references = sweep_cases(sweep)
     out = Path(out_dir)
     executor = executor or InlineExecutor()
-    # the caller's device travels only when asked for (the argument or WARPSCATTER_DEVICE): a worker otherwise
-    # renders on its own default (a remote GPU worker of a CPU-only client, and the reverse)
+    # the caller's device travels only when asked for: a worker otherwise renders on its own default
     device = default_device(device) if device is not None or os.environ.get("WARPSCATTER_DEVICE") else None
     want = ("color",) if references else ()
     ref_tasks = [task_for(cfg, label, None, ("color",), device=device) for label, cfg in references.items()]
@@ -246,8 +237,7 @@ def _run_sweep(sweep: SweepSettings, out_dir, executor, progress, device) -> Swe
 
 
 def _row(case: SweepCase, result: TaskResult, reference: TaskResult | None) -> dict:
-    """A case's row: its overrides, method, times and errors against its reference (or the error that stopped
-    it)."""
+    """A case's row: overrides, method, times and errors against its reference (or its error)."""
     row: dict[str, Any] = {"case": case.label, "config": case.config_file.stem, **{
         f"set:{k}": v for k, v in case.overrides.items()}, "method": case.config.method}
     if not result.ok:
@@ -269,9 +259,7 @@ def _row(case: SweepCase, result: TaskResult, reference: TaskResult | None) -> d
 
 
 def write_results(rows: list[dict], meta: dict, out: Path, name: str) -> list[Path]:
-    """``NAME.json`` (meta + rows), ``NAME.csv`` (one line per case) and, with matplotlib, ``NAME-error-time.png``
-    (:func:`warpscatter.bench.report.chart_error_time`: one panel per config, one marker per method); each written
-    atomically."""
+    """Write ``NAME.json``, ``NAME.csv`` and, with matplotlib, ``NAME-error-time.png``, each atomically."""
     from .imageio import json_ready, write_file_atomic
 
     out.mkdir(parents=True, exist_ok=True)
@@ -294,8 +282,7 @@ def write_results(rows: list[dict], meta: dict, out: Path, name: str) -> list[Pa
 
 
 def error_time_chart(rows: list[dict], meta: dict, path: Path) -> Path | None:
-    """The bench's error-vs-time chart of the rows (technique time in ms, rel. L1; one panel per config, one marker
-    per method); None without matplotlib or without two comparable rows in a config."""
+    """The bench's error-vs-time chart of the rows; None without matplotlib or two comparable rows in a config."""
     from .bench.report import BenchReport, chart_error_time
 
     machine = meta.get("machine") or {}

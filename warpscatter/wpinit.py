@@ -1,21 +1,10 @@
 """One place that initialises Warp for warpscatter and names the default device.
 
-Every kernel module of warpscatter calls :func:`module_options` at import time so all of them
-share one set of module options (backward passes off: nothing here is differentiated, and
-compiles are ~2.5x faster). Importing warpscatter changes none of Warp's global settings: Warp's
-log level and messages stay the user's (the CLI quiets them, see ``warpscatter --help``);
-``WARPSCATTER_KERNEL_CACHE``, when set, moves Warp's kernel cache.
-
-:func:`warp_messages` keeps Warp's own output (its start-up banner, the "Module ... load on device" lines, the
-CUDA-driver warning of a machine without a GPU) out of the user's terminal while warpscatter works:
-``warpscatter.render`` runs inside it. Warp 1.19 writes its messages through its logger (``wp.get_logger()``:
-info to stdout, warnings to stderr through :mod:`warnings`) when ``wp.config.log_level`` allows (``wp.LOG_INFO``
-by default); ``wp.config.quiet`` is not a setting of Warp 1.19. Inside :func:`warp_messages` Warp's debug and info
-messages go to the ``warpscatter.warp`` logger instead (shown by ``logging.basicConfig(level=logging.INFO)``);
-its warnings and errors still reach Warp's logger.
-
-The default device follows Warp's: :func:`default_device` returns the device given, else
-``WARPSCATTER_DEVICE``, else ``wp.get_device()`` (so ``wp.ScopedDevice`` and ``wp.set_device`` apply).
+Every kernel module calls :func:`module_options` at import (backward passes off: nothing is differentiated, and
+compiles are faster). Importing warpscatter changes none of Warp's global settings; ``WARPSCATTER_KERNEL_CACHE``
+moves Warp's kernel cache. :func:`warp_messages` sends Warp's banner and module-load lines to the ``warpscatter.warp``
+logger while warpscatter works (Warp 1.19 logs through ``wp.get_logger()``; it has no ``wp.config.quiet``).
+:func:`default_device`: the device given, else ``WARPSCATTER_DEVICE``, else ``wp.get_device()``.
 """
 
 from __future__ import annotations
@@ -52,8 +41,7 @@ _configure()
 
 @contextlib.contextmanager
 def _native_stderr_to_log():
-    """Route what native code writes to file descriptor 2 (Warp's "CUDA driver not found" warning on a machine
-    without a GPU) to the ``warpscatter`` logger at DEBUG level instead of the terminal."""
+    """Route native writes to fd 2 (Warp's "CUDA driver not found" warning) to the ``warpscatter`` logger (DEBUG)."""
     try:
         sys.stderr.flush()
         saved = os.dup(2)
@@ -77,15 +65,13 @@ def init(quiet_native: bool = False) -> None:
     """Initialise Warp once, then run what :func:`after_init` registered.
 
     Args:
-        quiet_native: route Warp's native start-up messages on stderr (the CUDA-driver warning of a CPU-only
-            machine) to the ``warpscatter`` logger at DEBUG level; the CLI does this unless ``-v`` is given.
+        quiet_native: route Warp's native start-up warning on stderr to the ``warpscatter`` logger (DEBUG).
     """
     global _initialised
     if _initialised:
         return
     if quiet_native:
-        # Warp's own messages of wp.init() (its banner) are held and passed on once file descriptor 2 is the
-        # terminal's again: a Python logger writing to stderr would otherwise write into the redirection.
+        # Warp's banner is held until fd 2 is the terminal's again (a stderr logger would write into the redirection).
         target, held = wp.get_logger(), _HeldMessages()
         wp.set_logger(held)
         try:
@@ -102,12 +88,8 @@ def init(quiet_native: bool = False) -> None:
 
 
 class WarpToLogging:
-    """A Warp logger (the protocol of ``wp.set_logger``) that sends Warp's debug and info messages to the
-    ``warpscatter.warp`` logger and its warnings and errors to ``previous`` (the Warp logger it stands in for).
-
-    Args:
-        previous: the Warp logger that keeps Warp's warnings and errors (``wp.get_logger()`` when installed).
-    """
+    """A Warp logger (``wp.set_logger``) sending debug and info to ``warpscatter.warp``, warnings and errors to
+    ``previous``."""
 
     def __init__(self, previous):
         self.previous = previous
@@ -132,15 +114,11 @@ _quiet_saved = None  # the Warp logger the outermost block replaced
 
 @contextlib.contextmanager
 def warp_messages(verbose: bool = False):
-    """Keep Warp's messages out of the user's output while warpscatter works, unless ``verbose``; leave Warp's
-    settings as they were afterwards, also when the block raises.
+    """Keep Warp's messages out of the user's output while warpscatter works, unless ``verbose``; Warp's settings are
+    restored afterwards, also when the block raises.
 
-    Default (``verbose=False``): Warp is initialised with its native start-up warning routed to the logger (see
-    :func:`init`), and Warp's debug and info messages (the banner, module loads) go to the ``warpscatter.warp``
-    logger through a :class:`WarpToLogging` installed with ``wp.set_logger`` for the block (Warp's logger is
-    process-wide: a Warp module loaded by another thread during the block is logged there too). Warp's warnings and
-    errors still reach Warp's logger. ``verbose=True``: Warp prints as it does by default: ``wp.config.log_level``
-    is lowered to ``wp.LOG_INFO`` for the block if it is higher, and Warp's native start-up messages pass.
+    Without ``verbose`` a :class:`WarpToLogging` is installed for the block (process-wide: other threads' module loads
+    are logged there too); with it, ``wp.config.log_level`` is lowered to ``wp.LOG_INFO`` for the block.
 
     Args:
         verbose: show Warp's own messages.
@@ -217,9 +195,8 @@ def module_options() -> None:
 
 
 def default_device(device=None) -> str:
-    """The device to launch on, as a Warp device name: ``device`` (a name or a ``wp.context.Device``), else
-    ``WARPSCATTER_DEVICE``, else Warp's current device (``wp.get_device()``: ``"cpu"`` on a machine without a GPU,
-    whatever ``wp.ScopedDevice`` / ``wp.set_device`` chose otherwise)."""
+    """The device to launch on, as a Warp device name: ``device``, else ``WARPSCATTER_DEVICE``, else
+    ``wp.get_device()``."""
     init()
     if device is not None:
         return str(device) if not isinstance(device, str) else device

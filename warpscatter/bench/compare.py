@@ -1,17 +1,9 @@
 """Comparing two bench JSONs (``bench-<suite>.json``, :mod:`.report`): ``compare_reports(a_path, b_path) -> str``.
 
-Rows are matched on their case: the suite and :func:`~.report.case_label` (name and every parameter; a repeated case
-in one file gets ``#2``, ``#3``, ...). Per matched case and per timed stage (``total`` first: the row's
-``median_ms``), the text lists A's and B's medians (ms), the ratio B/A and a verdict by this rule:
-
-* ``slower`` / ``faster``: both sides have at least 2 repeats and the intervals [fastest repeat, slowest repeat] of A
-  and B do not overlap (B's fastest slower than A's slowest, or B's slowest faster than A's fastest);
-* ``within spread``: both have at least 2 repeats and the intervals overlap;
-* ``no spread``: a side has fewer than 2 repeats (or a JSON without them): the ratio alone, no verdict.
-
-The total line also has the rows' errors (rel. L1, RMSE) on each side where they have them. Cases only in one file
-are listed as such; different suites, machines (CPU, cores, threads, device, OS) or ``--quick`` give warning lines
-and different package versions note lines, never a failure.
+Rows are matched on their case (:func:`~.report.case_label`; repeats in one file get ``#2``, ...). Per case and stage
+the text lists A's and B's medians, B/A and a verdict: ``slower`` / ``faster`` when both have 2+ repeats and the
+[fastest, slowest] intervals do not overlap, ``within spread`` when they do, ``no spread`` otherwise. Different
+suites, machines or ``--quick`` give warnings, different versions notes, never a failure.
 """
 
 from __future__ import annotations
@@ -83,8 +75,7 @@ def load_bench_json(path: str | Path) -> dict:
 
 
 def cases(data: dict) -> dict[tuple[str, str], dict]:
-    """The rows of a bench JSON by ("", case), a case repeated in the file numbered ``#2``, ``#3``, ... (the suite is
-    not part of the key: the same case measured by two suites matches)."""
+    """The rows of a bench JSON by ("", case), repeats numbered ``#2``, ... (the suite is not part of the key)."""
     out: dict[tuple[str, str], dict] = {}
     for row in data["rows"]:
         case = case_label(row)
@@ -106,8 +97,7 @@ def _timings(row: dict) -> dict[str, dict]:
 
 
 def verdict(a: dict, b: dict) -> str:
-    """The module rule on two stage timings (``min_ms``, ``max_ms``, ``n``): slower, faster, within spread or no
-    spread."""
+    """The module rule on two stage timings: slower, faster, within spread or no spread."""
     if min(a.get("n") or 0, b.get("n") or 0) < 2 or None in (a.get("min_ms"), a.get("max_ms"), b.get("min_ms"),
                                                                  b.get("max_ms")):
         return "no spread"
@@ -173,8 +163,7 @@ def _cell(v, fmt: str) -> str:
 
 
 def format_comparison(c: Comparison, a_path: str | Path = "A", b_path: str | Path = "B") -> str:
-    """The text of a :class:`Comparison`: the two files, warnings, one block per case (a line per stage), the cases
-    in one file only and a summary; lines of at most :data:`~.report.TABLE_WIDTH` characters."""
+    """The text of a :class:`Comparison`: files, warnings, a block per case, one-sided cases and a summary."""
     lines = [f"A: {_describe(Path(a_path), c.a)}", f"B: {_describe(Path(b_path), c.b)}"]
     lines += [f"warning: {w}" for w in c.warnings] + [f"note: {n}" for n in c.notes]
     lines.append("verdict: slower/faster when both have >= 2 repeats and their [fastest, slowest] repeats do not "

@@ -1,9 +1,8 @@
 """Measuring and reporting bench cases: timings with their spread, image errors, the report table, JSON, CSV, charts.
 
-Timings: :func:`measure` and :func:`stage_medians` return medians as before and also record every repeat's time;
-:meth:`BenchReport.add` attaches the recorded repeats whose median equals a figure of the row (its ``median_ms`` or
-one of its ``stages_ms``) to the row as ``timing`` (see :func:`spread`). Rows whose figures were not measured through
-them (a single timed build, a median of per-pass medians) carry ``repeats_ms: null``.
+Timings: :func:`measure` and :func:`stage_medians` record every repeat; :meth:`BenchReport.add` attaches the repeats
+whose median equals a figure of the row as ``timing`` (:func:`spread`); rows not measured through them carry
+``repeats_ms: null``.
 
 ``bench-<suite>.json``::
 
@@ -26,10 +25,8 @@ Each row: ``name``, ``params``, ``case`` (:func:`case_label`, the key :mod:`.com
 ``median_ms`` .. ``iqr_ms`` and ``n`` as in the JSON, ``repeats_ms`` the repeats joined by ``;``; ``speedup``,
 ``rel_l1``, ``rmse`` and ``extra`` (``key=value`` pairs) only on the total line; ``params`` as ``key=value`` pairs.
 
-Charts (the ``plot`` extra; skipped without matplotlib): ``bench-<suite>.png`` (the suite's own chart, else
-:func:`chart_bars`) and ``bench-<suite>-error-time.png`` (:func:`chart_error_time`) where rows have an error; a suite
-that keeps images (:attr:`BenchReport.comparisons`) also gets ``bench-<suite>-errors-<name>.png`` each
-(:func:`chart_error_images`: the reference, each method's image and its signed error image).
+Charts (the ``plot`` extra): ``bench-<suite>.png``, ``bench-<suite>-error-time.png`` where rows have an error, and
+``bench-<suite>-errors-<name>.png`` per kept image comparison (:attr:`BenchReport.comparisons`).
 """
 
 from __future__ import annotations
@@ -146,7 +143,6 @@ def thread_limit(n: int | None):
                 os.environ["WARPSCATTER_THREADS"] = old
 
 
-# ---- text -----------------------------------------------------------------------------------------------------
 
 
 def format_value(v) -> str:
@@ -222,7 +218,6 @@ def _wrap(text: str, indent: str = "  ") -> list[str]:
     return textwrap.wrap(text, TABLE_WIDTH, subsequent_indent=indent, break_long_words=True) or [""]
 
 
-# ---- the report -----------------------------------------------------------------------------------------------
 
 
 @dataclass
@@ -254,12 +249,10 @@ class BenchReport:
         self.rows.append(row)
         return row
 
-    # ---- text table ----
 
     def header(self) -> list[str]:
-        """The table's header lines: the run and the machine, the versions, then the suite's own meta as
-        ``key=value`` (nested dicts flattened; one with more than 16 values only counted: it is in the JSON). What
-        the meta lacks is left out."""
+        """The table's header lines: run, machine, versions, then the suite's meta as ``key=value`` (long ones only
+        counted)."""
         m = self.meta
 
         def items(*formats: str) -> list[str]:
@@ -287,9 +280,8 @@ class BenchReport:
         return [w for line in lines for w in _wrap(line)]
 
     def table(self) -> str:
-        """Fixed-width text table, lines of at most :data:`TABLE_WIDTH` characters: the header, then one line per row
-        (median and interquartile range of the repeats in ms, speed-up, errors) and an indented line of its stage
-        medians (ms) and extra figures on up to two more lines, cut with an ellipsis (the JSON has them all)."""
+        """Fixed-width text table (:data:`TABLE_WIDTH`): the header, then per row its median, IQR, speed-up and
+        errors, with its stage medians and extra figures indented below (cut with an ellipsis)."""
         cols = ["name", "params", "median_ms", "iqr_ms", "speedup", "rel_l1", "rmse"]
         cells = []
         for r in self.rows:
@@ -321,7 +313,6 @@ class BenchReport:
                                  max_lines=2, placeholder=" …")
         return "\n".join(out)
 
-    # ---- files ----
 
     def to_dict(self) -> dict:
         """The JSON document (module doc): format, suite, meta, rows with their case keys."""
@@ -383,7 +374,6 @@ def _write_atomic(path: Path, write: Callable, newline: str | None = None) -> Pa
     return write_file_atomic(path, text)
 
 
-# ---- charts ---------------------------------------------------------------------------------------------------
 
 
 def pyplot():
@@ -436,10 +426,8 @@ def scenes(rows: list[dict]) -> list[str]:
 
 def hbar_chart(report: BenchReport, path: Path, rows: list[dict], values, what: str, xlabel: str,
                texts: list[str] | None = None, whiskers: tuple[list, list] | None = None, line: float | None = None):
-    """Horizontal bars, one per row top-down (labels: :func:`short_labels`, wrapped after :data:`LABEL_WIDTH`
-    characters, coloured by scene), the figure as tall and wide as the rows and labels need; log scale when the
-    values span more than 30x. ``texts``: written at the bars' ends (default: the values); ``whiskers``: (low,
-    high) per row or None; ``line``: a vertical reference line at that value."""
+    """Horizontal bars, one per row top-down, coloured by scene, log scale when the values span more than 30x.
+    ``texts``: written at the bars' ends; ``whiskers``: (low, high) per row or None; ``line``: a reference line."""
     plt = pyplot()
     if plt is None or not rows:
         return None
@@ -496,10 +484,8 @@ _MARCHER = re.compile(r"raymarch|marcher")
 
 
 def error_time_points(report: BenchReport) -> dict[str, list[tuple[str, float, float, str]]]:
-    """The error/time chart's points by scene (:func:`scenes`; scenes with fewer than 2 points left out):
-    (series, time ms, rel. L1, point label) of every row with a positive time and error. The series is the row's
-    name less its scene prefix; a marcher's step count (a trailing number of its name, else its ``steps``
-    parameter) becomes the point's label instead where the scene has more of that marcher (its curve)."""
+    """The error/time chart's points by scene (scenes of 2+ points): (series, time ms, rel. L1, label); a marcher's
+    step count labels its points."""
     rows = [r for r in report.rows if isinstance(r.get("rel_l1"), (int, float)) and r["rel_l1"] > 0
             and isinstance(r.get("median_ms"), (int, float)) and r["median_ms"] > 0]
     named = []
@@ -523,8 +509,7 @@ def error_time_points(report: BenchReport) -> dict[str, list[tuple[str, float, f
 
 
 def log_ticks(axis, values) -> None:
-    """Log-axis ticks as plain numbers: at 1, 2, 5 x 10^k; at 1, 1.5, 2, 3, 5, 7 x 10^k when the values span less
-    than 10x; evenly spaced (linear steps) when less than 3x."""
+    """Log-axis ticks as plain numbers at 1, 2, 5 x 10^k (denser or linear for narrow spans)."""
     from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullFormatter
 
     span = max(values) / min(values)
@@ -535,10 +520,8 @@ def log_ticks(axis, values) -> None:
 
 
 def chart_error_time(report: BenchReport, path: Path) -> Path | None:
-    """Error against time per scene (log-log, one panel per scene, :func:`error_time_points`): rel. L1 against the
-    suite's reference over the median time (ms), one colour and marker per method (the same in every panel, one
-    legend below them), a marcher's points joined by a line in step order and labelled with their step counts. None
-    without matplotlib or without a scene of two such rows."""
+    """Error against time per scene (log-log, one panel per scene), one colour and marker per method, a marcher's
+    points joined in step order. None without matplotlib or a scene of two such rows."""
     plt = pyplot()
     panels = error_time_points(report)
     if plt is None or not panels:
@@ -591,10 +574,8 @@ ERROR_IMAGE_RANGE = 0.25
 
 def chart_error_images(report: BenchReport, name: str, reference: np.ndarray, images: dict[str, np.ndarray],
                        path: Path) -> Path | None:
-    """The reference and each method's image side by side (one exposure: the reference's 99.5th percentile at
-    white, gamma 1/2.2), and below each method its signed error (method - reference, per pixel the mean of the
-    channels, over the reference's mean; red too bright, blue too dark, saturating at +-:data:`ERROR_IMAGE_RANGE`),
-    titled with its rel. L1 (Peters 2017 Figs. 15-16 show such error images). None without matplotlib."""
+    """The reference and each method's image side by side (one exposure), each method's signed error below (over the
+    reference's mean, saturating at +-:data:`ERROR_IMAGE_RANGE`; Peters 2017 Figs. 15-16). None without matplotlib."""
     plt = pyplot()
     if plt is None:
         return None
@@ -634,8 +615,7 @@ def chart_error_images(report: BenchReport, name: str, reference: np.ndarray, im
 
 
 def machine_meta() -> dict:
-    """The machine and software of a run: CPU model and architecture, logical cores, worker threads, device, OS,
-    Python and package versions, the source checkout's git commit (None outside one) and the UTC time (ISO 8601)."""
+    """The machine and software of a run: CPU, cores, threads, device, OS, versions, git commit, UTC time (ISO 8601)."""
     from ..parallel import thread_count
 
     commit, dirty = source_commit()

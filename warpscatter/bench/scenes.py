@@ -45,22 +45,16 @@ def bench_light_texture() -> Path:
 def bench_scene_config(name: str, width: int, height: int, leaves: int | None = None,
                        receiver_only_ground: bool = False, mirror_light: bool = False, medium: dict | None = None,
                        turn_light_deg: float = 0.0, **render):
-    """A validated config of a bench scene: the bundled config (:data:`SCENES`) at ``width`` x ``height`` with the
-    bench's own ``render`` section.
+    """A validated config of a bench scene: the bundled config at ``width`` x ``height`` with the bench's ``render``.
 
     Args:
-        name: a key of :data:`SCENES`: ``colonnade``, ``canopy``, ``window``, ``quickstart``, ``terrain``, ``gate``
-            (``configs/NAME.yaml``), ``gate_translucent`` (``gate_soft_shadows.yaml``: the gate 60 % opaque) or
-            ``colonnade_spot`` (the colonnade under a textured spot light).
+        name: a key of :data:`SCENES` (``colonnade``, ``canopy``, ``window``, ``quickstart``, ``terrain``, ``gate``,
+            ``gate_translucent``, ``colonnade_spot``).
         width, height: image size in pixels.
-        leaves: leaf quads of the canopy (its complexity knob; None: the config's).
-        receiver_only_ground: mark the scene's ground plane ``receiver_only`` (it shadows nothing visible, so the
-            exact image is unchanged; the shadow-map methods no longer see its depths).
-        mirror_light: turn a directional light half-way round the vertical (x and z of its direction negated): a
-            sun ahead of the camera goes behind it, so the other epipole is the one in or near the view.
-        turn_light_deg: turn a directional light this many degrees about the vertical (+y; counter-clockwise seen
-            from above, after ``mirror_light``): 90 puts a sun ahead of the camera to its side, both epipoles far
-            outside the view (the case ``rectification: auto`` once gave Klehm's projective map).
+        leaves: leaf quads of the canopy (None: the config's).
+        receiver_only_ground: mark the ground plane ``receiver_only`` (the exact image is unchanged).
+        mirror_light: negate x and z of a directional light's direction (the other epipole comes into view).
+        turn_light_deg: turn a directional light this many degrees about +y (90: both epipoles far outside).
         medium: keys of the ``medium`` section to change (e.g. ``{"sigma_t": 0.3}``).
         **render: the config's ``render`` section (replaces the file's).
 
@@ -121,12 +115,8 @@ def _bumpy_sphere(count: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def render_timed(cfg, repeats, warmup, device=None):
-    """Render a config's classic stages ``warmup + repeats`` times (one case, rendered once per run).
-
-    Returns:
-        (stages, images, compile_s, scene, stats): per-stage medians (ms, compile excluded), the images of the last
-        run, the compile time of the first load (s), the built scene and the render's stats.
-    """
+    """Render a config's classic stages ``warmup + repeats`` times; returns (per-stage medians ms, last images,
+    compile s, scene, stats)."""
     t0 = time.perf_counter()
     method = methods.get("scattering", cfg.render.scattering.method)
     compile_kernels(methods.CLASSIC_MODULES + method.modules, device)
@@ -147,11 +137,8 @@ def median_stages(runs: list[dict], names=None) -> dict:
 
 
 def scattering_rows(report, name, cfg_kw, params, repeats, warmup, reference=None, extra=None):
-    """Time one render configuration's scattering stages; add a row with errors against ``reference``.
-
-    Returns:
-        (row, images, stats).
-    """
+    """Time one configuration's scattering stages and add a row with errors against ``reference``; returns
+    (row, images, stats)."""
     cfg = bench_scene_config(**cfg_kw)
     stages, images, compile_s, scene, stats = render_timed(cfg, repeats, warmup)
     technique = {k: v for k, v in stages.items() if k not in ("upload", "bvh", "gbuffer", "shadow_map", "shading")}

@@ -111,18 +111,11 @@ RENDER_ROUNDS = 2
 
 
 def _csm_render_rows(report, repeats, warmup, quick, progress, verts, tris):
-    """The ``csm`` render method against ``raytrace`` (wp.Mesh shadow rays) in the same run, at equal samples (16
-    strata) and passes (warmup + repeats) on the same G-buffer: the time per progressive pass (median over the
-    passes of a render, then over RENDER_ROUNDS alternating renders of each method), and the image error of csm
-    against raytrace. The CSM is precomputed once per scene with the csm stage's own builder
-    (:func:`~warpscatter.csm.occluders.prepare_csm`, the config's maps and resolution) and its build time reported
-    apart in the csm row (``stages_ms.precompute``): it is not in the per-pass time, which is the time the bar
-    compares. The BVH build is likewise the raytrace row's ``stages_ms.bvh``. A third row times the same
-    estimator on the same pixels without any visibility query (V = 1): raytrace's pass over it bounds the speed-up
-    any visibility method can reach on the scene. In full mode the bumpy sphere (a 246 x 246 UV sphere) has 240k
-    triangles, the bar's scene, and the bundled terrain under the sky (155k) is a third scene whose shadow rays cost
-    a BVH more (``meta.bar.scenes`` lists both); --quick shrinks the sphere to ~14k and leaves the terrain out (a
-    smoke run, not the bar)."""
+    """The ``csm`` render method against ``raytrace`` in the same run, at equal samples (16 strata) and passes on the
+    same G-buffer: time per progressive pass (median of passes, then of RENDER_ROUNDS alternating renders) and the
+    image error. The CSM build (``stages_ms.precompute``) and the BVH build (``stages_ms.bvh``) are reported apart. A
+    third row without visibility queries (V = 1) bounds any method's speed-up. Full mode: the 240k-triangle bumpy
+    sphere (the bar's scene) and the terrain (155k); --quick: a ~14k sphere only (a smoke run)."""
     import tempfile
 
     import trimesh

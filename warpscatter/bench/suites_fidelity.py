@@ -1,23 +1,10 @@
 """Bench suite ``fidelity``: every fast method's error on every bundled sunlit scene, its light in and out of view.
 
-Issue #13's bar, measured: at 960x540 with 1024^2 maps (``--quick``: 240x135, 256^2), on each bundled config with a
-directional light and a medium (:data:`SCENES`: the colonnade, canopy, window room, quickstart colonnade, terrain,
-the gate and the 60 %-opaque gate), each three times (:data:`LIGHTS`): with its own light (the sun ahead of the
-camera in most of them, its epipole in or near the view), with the light turned half-way round the vertical (the sun
-behind the camera, the anti-solar epipole ahead) and turned a quarter of the way (:data:`BESIDE_DEG`: the sun beside
-the view, both epipoles far outside it); and the spot-lit scenes (:data:`SPOT_SCENES`) with their own light. Per
-case:
-
-* the **exact reference**: the marcher with exact visibility, :data:`REFERENCE_STEPS` steps, two seeds, on every
-  :data:`REFERENCE_STRIDE`-th pixel (:func:`~.suites_pareto.exact_reference`; its own error is stated);
-* the **128-step shadow-map marcher** and every fast method at its defaults: time (the technique's stages, median of
-  ``repeats``) and rel. L1 against the reference on the same pixels;
-* the bar column: a method's error against twice the marcher's (issue #13: "at most half of today's, or at most 2x
-  the 128-step shadow-map marcher's, whichever is larger"; today's figures are in the issue notes), and its time
-  against the marcher's.
-
-The charts: ``bench-fidelity.png`` shows each method's error per case next to the marcher's doubled error,
-``bench-fidelity-error-time.png`` error against time per case.
+Issue #13's bar at 960x540 with 1024^2 maps (``--quick``: 240x135, 256^2): each scene of :data:`SCENES` under its
+own light, the light turned half-way round the vertical and a quarter (:data:`LIGHTS`), plus the spot-lit
+:data:`SPOT_SCENES`. Per case: the exact reference (:func:`~.suites_pareto.exact_reference`), the 128-step shadow-map
+marcher and each fast method at its defaults, with time and rel. L1; the bar is a method's error against twice the
+marcher's (issue #13).
 """
 
 from __future__ import annotations
@@ -31,11 +18,9 @@ from .suites_pareto import REFERENCE_SEEDS, exact_reference, rel_l1, technique_m
 
 #: The bundled sunlit scenes (:data:`~.scenes.SCENES` keys).
 SCENES = ("colonnade", "canopy", "window", "quickstart", "terrain", "gate", "gate_translucent")
-#: The spot-lit scenes (their own light only): the fence under the stained-glass spot with the light in view, and the
-#: colonnade under a textured spot outside the view.
+#: The spot-lit scenes (their own light only).
 SPOT_SCENES = ("spot_fence", "colonnade_spot")
-#: The quarter turn of the "light beside" variant about the vertical (clockwise seen from above): the window room's
-#: sun then enters its window as a grazing sheet (the harder of the two quarter turns for every method there).
+#: The quarter turn of the "light beside" variant (clockwise from above; the window room's harder one).
 BESIDE_DEG = -90.0
 #: The light variants: the config's own, turned half-way round the vertical, and a quarter of the way (degrees).
 LIGHTS = {"own light": 0.0, "mirrored light": 180.0, "light beside": BESIDE_DEG}

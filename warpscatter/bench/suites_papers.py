@@ -1,24 +1,11 @@
 """Bench suite ``papers``: the four papers' checkable claims, each measured here and marked holds / does not hold.
 
-Every section adds its rows (time, error against the exact reference where one applies) and one entry per claim to
-``meta["claims"]``: the paper and place, the claim, our numbers, and ``holds`` (True / False) by the rule stated in
-the entry. Scenes are the bundled configs at 960x540 with 1024^2 maps (``--quick``: 240x135, 256^2; the verdicts of
-a quick run are smoke only). The exact reference is the 1024-step exact-visibility marcher (two seeds) on every 3rd
-pixel (:func:`.suites_pareto.exact_reference`).
-
-* Klehm et al. 2014 Fig. 3 — transmittance-weighted prefix sums against the average visibility, in thin to thick
-  media (``prefiltered.weighting``).
-* Klehm et al. 2014 Table 1 — regions per epipolar slice (``prefiltered.splits``) against the prefix-sum and
-  evaluation times (their GPU threads become our CPU rows: the claim checked is the trade of prefix-sum time for
-  evaluation time).
-* Peters et al. 2017 Sec. 5 — "moments outperform Fourier" on the colonnade, canopy and window room, with and
-  without caster culling; Fig. 19 — 96 against 60 (64) bits of moments6 in the window room; Fig. 20 — time against
-  map and output resolution.
-* Engelhardt & Dachsbacher 2010 Fig. 9 — epipolar sampling against screen-space subsampling (``epipolar.sampling:
-  screen``, grids every 2-8 pixels, the same marcher and upsampling) at equal time; Fig. 10 — 256, 512 and 1024
-  epipolar lines: error and time.
-* Ritschel et al. 2007 Table 1 — compression against a 2-byte (their baseline) and a 4-byte depth per texel, its
-  growth with the number of maps N, and the enumeration (Hilbert, zig-zag, scan-line) on three objects.
+Each section adds its rows and one entry per claim to ``meta["claims"]`` (paper and place, claim, our numbers,
+``holds``). Scenes are the bundled configs at 960x540 with 1024^2 maps (``--quick``: smoke only), against the
+exact reference of :func:`.suites_pareto.exact_reference`. Claims: Klehm et al. 2014 Fig. 3 (transmittance weighting)
+and Table 1 (regions per slice); Peters et al. 2017 Sec. 5 (moments outperform Fourier), Figs. 19-20; Engelhardt &
+Dachsbacher 2010 Figs. 9-10 (against screen-space subsampling; line counts); Ritschel et al. 2007 Table 1
+(compression, its growth with N, the enumerations).
 """
 
 from __future__ import annotations

@@ -1,29 +1,11 @@
 """Bench suite ``pareto``: quality per unit of time, the fast methods against the simple shadow-map marcher.
 
-On the bundled colonnade, canopy and window configs at 1920x1080 with 1024^2 maps (``--quick``: 320x180, 256^2):
-
-* the **exact reference**: the ray marcher with exact (ray-cast) visibility, :data:`REFERENCE_STEPS` steps, twice
-  with two seeds, on every :data:`REFERENCE_STRIDE`-th pixel in x and y (a regular pixel subset: the relative L1 on
-  it estimates the whole image's); the reference is the mean of the two and its own error is estimated as half
-  their relative L1 distance (each carries sigma, their distance is sqrt(2) sigma in the mean, the mean carries
-  sigma / sqrt(2)). The suite states it and checks it against a fifth of the smallest error compared;
-* the **error/time curve of the shadow-map marcher**: steps 8 ... 256 in both step patterns (``per_pixel``,
-  ``fixed``), extended to 512 and then 1024 steps while a fast method's error lies below the curve's smallest;
-* every **fast method's (time, error) point** at its default settings: ``fourier``, ``moments4``, ``moments6``,
-  ``epipolar``, and ``moments6`` with the ray-marched epipole disc (``moments6 with disc``; off by default).
-
-Time is the technique's own stages — G-buffer, maps, scattering — as the median of ``repeats`` interleaved rounds
-after ``warmup``: a round renders every method and marcher point of a scene once, in turn, so a slow phase of a
-shared machine (seen to double a render's time for a minute) falls on all of them alike instead of on whichever
-configuration it caught. The kernel compile, the scene load and the writing of the frame's EXR/PNG files are
-reported apart.
-Each method's **equal-error speed-up** is the marcher's time interpolated log-log at the method's error (on the
-lower envelope of both step patterns: the faster marcher at that error), divided by the method's time. A method
-more accurate than the most accurate marcher (1024 steps at most) gets a lower bound (``>=``, that marcher's time),
-one less accurate than the 8-step marcher an upper bound (``<=``, the 8-step time).
-
-The charts (the ``plot`` extra): ``bench-pareto-error-time.png`` draws error against time per scene on log-log axes
-(the marcher's curves and the methods' points), ``bench-pareto.png`` the equal-error speed-ups.
+On the bundled colonnade, canopy and window configs at 1920x1080 (``--quick``: 320x180): the exact reference (two
+seeds on a pixel subset, its own error estimated as half their distance), the shadow-map marcher's error/time curve
+(8 ... 256 steps, extended while a fast method beats it) and each fast method's point. Times are medians of
+interleaved rounds, so a slow phase of a shared machine hits all configurations alike. A method's equal-error
+speed-up is the marcher's time interpolated log-log at its error over its own time (``>=`` / ``<=`` bounds outside
+the curve).
 """
 
 from __future__ import annotations
@@ -46,23 +28,17 @@ METHODS = {
     "moments4": {"method": "moments4"},
     "moments6": {"method": "moments6"},
     "epipolar": {"method": "epipolar", "visibility": "shadow_map"},
-    # Peters 2017 Sec. 6: the moment methods need no special case at the epipole (no disc by default); this point
-    # shows what the ray-marched disc would cost and buy them
+    # Peters 2017 Sec. 6: no special case at the epipole by default; this point shows what the disc costs and buys
     "moments6 with disc": {"method": "moments6", "prefiltered": {"epipole_fallback": True}},
 }
-#: The shadow-map marcher's curve: steps and step patterns; the steps it extends to, in turn, while a fast method is
-#: more accurate than every point of it (not with ``--quick``).
+#: The shadow-map marcher's curve: steps, step patterns, and the steps it extends to (not with ``--quick``).
 MARCH_STEPS = (8, 16, 32, 64, 128, 256)
 EXTENDED_STEPS = (512, 1024)
 JITTERS = ("per_pixel", "fixed")
-#: The exact reference: steps per ray, the two seeds, the pixel subset.
-#: (2048: its own error, ~0.1 %, stays under a fifth of the 1024-step marcher's on the extended curve; with 1024 steps
-#: the canopy's and window room's, 0.13-0.14 %, were 4.4-4.6x under it)
+#: The exact reference: steps per ray (its own error stays under a fifth of the marcher's best), seeds, pixel subset.
 REFERENCE_STEPS = 2048
 REFERENCE_SEEDS = (101, 202)
-#: (3, from pixel 1: a stride coprime to the sparse look-up's grids, so the subset holds their nodes and the pixels
-#: they interpolate in their own shares; every 4th from 2 held only 2-pixel grid nodes, and no interpolated pixel of
-#: evaluate_stride 2 or epipole_stride 2 entered the error)
+#: (3, from pixel 1: coprime to the sparse look-up's grids, so the subset holds their nodes and interpolated pixels)
 REFERENCE_STRIDE = 3
 #: Stages that are not the technique's own time.
 APART = ("compile", "upload", "shading")
@@ -77,12 +53,8 @@ def rel_l1(a: np.ndarray, b: np.ndarray) -> float:
 
 def exact_reference(name: str, width: int, height: int, steps: int, stride: int, seeds=REFERENCE_SEEDS,
                     **scene):
-    """The exact marcher on every ``stride``-th pixel (from ``stride // 2``) of a bench scene, twice (``scene``: more
-    :func:`~.scenes.bench_scene_config` keys).
-
-    Returns:
-        (reference (Hs, Ws, 3) float64: the mean of the two seeds, its estimated own rel. L1 error, seconds).
-    """
+    """The exact marcher on every ``stride``-th pixel of a bench scene, twice; returns (mean reference (Hs, Ws, 3)
+    float64, its estimated own rel. L1 error, seconds)."""
     from .. import methods
     from ..gbuffer import gbuffer_raycast
     from ..pipeline import compile_kernels
@@ -118,12 +90,8 @@ def _envelope(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
 
 
 def equal_error_time(points: list[tuple[float, float]], error: float) -> tuple[float, str]:
-    """The marcher's time at ``error`` interpolated log-log on the envelope of its (time, error) points.
-
-    Returns:
-        (time, bound): bound ``""`` inside the curve, ``">="`` when ``error`` is below the curve's smallest error (the
-        time of the most accurate point: a lower bound), ``"<="`` when above its largest (the fastest point's time).
-    """
+    """The marcher's time at ``error`` interpolated log-log on its envelope, and the bound: ``""`` inside the curve,
+    ``">="`` below its smallest error, ``"<="`` above its largest."""
     env = _envelope(points)
     if error <= env[-1][1]:
         return env[-1][0], ">=" if error < env[-1][1] else ""
@@ -137,8 +105,7 @@ def equal_error_time(points: list[tuple[float, float]], error: float) -> tuple[f
 
 
 def curve_too_short(marcher_errors, best_error: float) -> bool:
-    """Whether the marcher's curves (the errors of all their points so far) stop above ``best_error``, the smallest
-    error of the fast methods: then their speed-ups would be lower bounds and the curve takes more steps."""
+    """Whether the marcher's curves stop above ``best_error``, so the curve must take more steps."""
     return best_error < min(marcher_errors)
 
 
@@ -149,8 +116,7 @@ def technique_ms(stages: dict) -> tuple[float, dict]:
 
 
 def interleaved_rounds(runs: dict[str, list], more: int, time_one) -> dict[str, list]:
-    """``more`` further timing rounds of every configuration in ``runs`` (key -> its timings so far): each round
-    calls ``time_one(key)`` once per configuration, in turn, and appends the result. Returns ``runs``."""
+    """``more`` further interleaved timing rounds of every configuration in ``runs``; returns ``runs``."""
     for _ in range(more):
         for key in runs:
             runs[key].append(time_one(key))
@@ -206,8 +172,7 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
         def error_of(images):
             return rel_l1(images["scattering"][first::stride, first::stride], reference)  # noqa: B023
 
-        # the fast methods first: whether the marcher's curve must reach further depends on their errors. Each
-        # configuration is timed once here; further rounds time them all again in turn (the module doc)
+        # the fast methods first: their errors decide how far the marcher's curve must reach
         configs, rounds = {}, {}
         measured = []
         for label, sc in METHODS.items():
@@ -280,8 +245,7 @@ def suite_pareto(report: BenchReport, repeats: int, warmup: int, quick: bool, pr
 
 
 def chart_pareto(report: BenchReport, path: Path) -> Path | None:
-    """Each fast method's equal-error speed-up over the shadow-map marcher per scene, as horizontal bars (the bound
-    ``>=`` / ``<=`` written beside it; 1x dashed). Error against time is ``bench-pareto-error-time.png``."""
+    """Each fast method's equal-error speed-up over the marcher per scene, as horizontal bars with their bounds."""
     rows = [r for r in report.rows if "speedup_bound" in (r.get("extra") or {}) and r.get("speedup")]
     bounds = {"=": "", ">=": "≥", "<=": "≤"}
     texts = [f"{bounds.get(r['extra']['speedup_bound'], '')}{r['speedup']:.2f}x" for r in rows]

@@ -1,17 +1,8 @@
-"""Bench suites of the single-scattering methods: ``prefiltered``, ``moments`` and ``epipolar``.
-
-* ``prefiltered`` — the ``fourier`` method (Klehm 2014): stage times against map size, output size and basis count,
-  error against the exact reference, and a scene-complexity sweep; prefix-sum throughput of its float32 and RGBA8
-  textures against a memcpy.
-* ``moments``     — ``fourier``, ``moments4``, ``moments6`` (Peters 2017) and the marcher on the colonnade, canopy and
-  window (colonnade and canopy also with a receiver-only ground): time, bits per texel, error; prefix-sum
-  throughput of every storage mode against a memcpy (Peters 2017 App. C); moment soft shadows against PCSS.
-
-Every prefiltered render row also reports its texture's real size (``filtered_map_MB``), the prefilter stage's
-texture bytes written per second (``prefilter_GBps``) and the evaluate stage's wall time per pixel
-(``evaluate_ns_per_px``; both stages run on all threads).
-* ``epipolar``    — epipolar sampling (Engelhardt 2010) under a textured spot: fraction ray-marched, stage times,
-  errors against per-pixel marching, the exact reference and a converged marcher.
+"""Bench suites of the single-scattering methods: ``prefiltered`` (fourier, Klehm 2014: stage times against map
+size, output size and basis count, errors, scene complexity), ``moments`` (fourier, moments4, moments6 of Peters 2017
+and the marcher on three scenes; prefix-sum throughput against a memcpy, App. C; soft shadows) and ``epipolar``
+(Engelhardt 2010 under a textured spot). Prefiltered rows also report ``filtered_map_MB``, ``prefilter_GBps`` and
+``evaluate_ns_per_px``.
 """
 
 from __future__ import annotations
@@ -33,8 +24,7 @@ PREFIX_SUM_COEFFICIENTS = 32
 
 
 def storage_extras(row: dict, stats: dict, pixels: int) -> dict:
-    """Add to a prefiltered render row its texture's allocated size, the prefilter stage's texture bytes written per
-    second and the evaluate stage's wall time per pixel (no-op for other methods). Returns the row."""
+    """Add a prefiltered render row's texture size, prefilter throughput and evaluate time per pixel; returns it."""
     stages = row.get("stages_ms") or {}
     if "filtered_map_bytes" not in stats or "prefilter" not in stages:
         return row
@@ -56,8 +46,7 @@ def bench_rectified_depth(size: int, seed: int = 0) -> np.ndarray:
 
 
 def memcpy_seconds(nbytes: int, repeats: int) -> tuple[float, int]:
-    """The faster memcpy of ``nbytes`` on this machine: median seconds of numpy copies on one thread and of contiguous
-    chunks on all pool threads, and the thread count of the faster."""
+    """The faster memcpy of ``nbytes``: median seconds on one thread or all pool threads, and that thread count."""
     src = np.random.default_rng(1).integers(0, 256, nbytes, dtype=np.uint8)
     dst = np.empty_like(src)
     best = (float("inf"), 1)
@@ -72,13 +61,9 @@ def memcpy_seconds(nbytes: int, repeats: int) -> tuple[float, int]:
 
 
 def prefix_sum_rows(report: BenchReport, modes, size: int, repeats: int, warmup: int) -> list[dict]:
-    """Prefix-sum throughput (Peters 2017 App. C): per storage mode, the prefilter (basis or moment transform fused
-    into the transmittance-weighted prefix sums, all threads) of a (size, size) rectified map, in texture bytes
-    written per second, against the faster memcpy of the same bytes on this machine (one thread or all; ``x_memcpy``:
-    prefilter time over memcpy time; the paper's GPU: 1.3x for 64-bit four moments, 2.1x for six).
-
-    Returns:
-        The rows added.
+    """Prefix-sum throughput (Peters 2017 App. C) of each storage mode on a (size, size) rectified map, in texture
+    bytes written per second, against the faster memcpy (``x_memcpy``; the paper's GPU: 1.3x for 64-bit four moments,
+    2.1x for six). Returns the rows added.
     """
     from ..scattering.prefix_sums import prefilter_moments, prefilter_weighted
 
@@ -131,8 +116,7 @@ def suite_prefiltered(report: BenchReport, repeats: int, warmup: int, quick: boo
         {"scene": "colonnade", "size": f"{w}x{h}", "steps": 128}, 1, 0)
     reference = ref_img["scattering"]
     rows = {}
-    # the brute-force marcher (exact visibility) at 32 steps with another seed: its error against the reference is
-    # its own noise, the bar's error threshold; the shadow-map marcher shows the same at the cheaper visibility
+    # the exact marcher at 32 steps with another seed: its error against the reference is the bar's threshold
     for label, sc, reps in (("raymarch exact 32", {**march(32, "exact"), "seed": 1}, 1),
                             ("raymarch shadow_map 128", march(128), repeats), ("raymarch shadow_map 32", march(32),
                                                                                repeats),
@@ -216,17 +200,15 @@ def suite_moments(report: BenchReport, repeats: int, warmup: int, quick: bool, p
                                                                              "fourier": {"storage_bits": 8}})]
     methods += [(f"{m} {b}-bit", {"method": m, "moments": {"storage_bits": b}})
                 for m, bits in (("moments4", (64, 128)), ("moments6", (64, 96, 192))) for b in bits]
-    # caster culling (warpscatter's, on by default for the moment methods only): each side of the default
+    # caster culling (on by default for the moment methods only): each side of the default
     methods += [("fourier M=32 culled", {"method": "fourier", "prefiltered": {"caster_culling": True}}),
                 ("moments6 192-bit unculled", {"method": "moments6", "moments": {"storage_bits": 192},
                                                "prefiltered": {"caster_culling": False}})]
     # filtering during resampling (Peters 2017 Sec. 5.2, Fig. 17): a filtered 4-moment map and Algorithm 2
     methods += [(f"{label} filtered", {**sc, "prefiltered": {"resample_filter": "moments"}}) for label, sc in methods
                 if label in ("fourier M=32", "moments4 64-bit", "moments6 64-bit", "moments6 192-bit")]
-    # each scene as configured, and colonnade / canopy once more with the ground plane receiver_only: the ground
-    # shadows nothing visible (the exact image is the same), but the shadow map is fitted to the casters and no
-    # ray that ends on the ground sees the ground's own depths just behind its fragment depth in the rectified map
-    # (where moment bounds are loosest; caster culling removes most of those too)
+    # colonnade / canopy again with the ground receiver_only: the same exact image, but no ground depths just behind
+    # a ray's end in the rectified map (where moment bounds are loosest)
     variants = [("colonnade", False), ("colonnade", True), ("canopy", False), ("canopy", True), ("window", False)]
     casting_refs = {}
     for k, (scene, ro_ground) in enumerate(variants):
@@ -280,12 +262,8 @@ def suite_moments(report: BenchReport, repeats: int, warmup: int, quick: bool, p
 
 
 def suite_epipolar(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
-    """Engelhardt & Dachsbacher 2010: fraction ray-marched, stage times and errors for line / sample counts.
-
-    Every epipolar row is compared with the per-pixel marcher at the same steps AND the same step pattern
-    (``jitter``; the sweep uses the default ``per_pixel``, the bar case 1024 lines / 16 samples is repeated with
-    ``fixed``), with the exact-visibility reference (per-pixel jitter, same steps) and with a converged marcher
-    (8x steps, another seed: its own noise is about 1/8 of the others').
+    """Engelhardt & Dachsbacher 2010: fraction ray-marched, stage times and errors for line / sample counts, against
+    the per-pixel marcher (same steps and step pattern), the exact reference and a converged marcher (8x steps).
     """
     w, h = (320, 180) if quick else (1920, 1080)
     steps = 32 if quick else 128
@@ -300,8 +278,7 @@ def suite_epipolar(report: BenchReport, repeats: int, warmup: int, quick: bool, 
     _, exact, _ = scattering_rows(report, "raymarch exact (reference)",
                                 dict(common, scattering={**march, "visibility": "exact"}),
                                 {"scene": scene, "size": size, "steps": steps, "jitter": "per_pixel"}, 1, 0)
-    # the same marcher with 8x the steps: a converged reference that still includes the light texture, against
-    # which the per-pixel marcher's own noise (textured lights) shows too
+    # the marcher with 8x the steps: a converged reference including the light texture
     if progress:
         progress("converged marcher", 0.05)
     _, converged, _ = scattering_rows(report, "raymarch shadow_map (8x steps, converged)",

@@ -1,30 +1,10 @@
 """Coherent shadow maps (Ritschel, Grosch, Kautz, Müller 2007): precomputed visibility of rigid objects.
 
-Many orthographic depth maps around an object (N1 x N2 lat-long directions, M x M texels each) are put in a
-coherent order, compressed losslessly into per-texel segment lists and queried with a binary search:
-
-- :mod:`.depthmaps`: the depth-map sets (:class:`LatLongMapSet` for distant / semi-local lights,
-  :class:`CubeMapSet` for fixed local lights), depth peeling for z1 / z2 (or z3), the spherical far plane.
-- :mod:`.enumeration`: scan-line, zig-zag and Hilbert orders of the map grid.
-- :mod:`.compress`: Eq. 1 segment compression, streaming in batches (:class:`StreamingCompressor`,
-  :func:`build_csm`, :func:`build_cube_csm`), :class:`CoherentShadowMap`, ``.npz`` files (:func:`save_csm`,
-  :func:`load_csm`, :class:`CSMFileError`).
-- :mod:`.query`: public ``@wp.func`` visibility queries (nearest, generalised PCF, Russian roulette,
-  semi-local lights, moving and receiver-only objects, local lights) and the batch kernel; :mod:`.batch`: the
-  host functions that run batches of them.
-- :mod:`.brdf`: Lambert, normalized Phong and Lafortune BRDFs with importance sampling and the Russian-roulette
-  lobe choice (Sec. 5.1), :class:`MaterialTable`.
-- :mod:`.direct_lighting`: what the Monte-Carlo estimators share: surface points, the visibility source (CSM,
-  shadow rays or none), strata, :class:`ProgressiveAccumulator` (Sec. 5, 5.2).
-- :mod:`.environment`: the stratified MIS estimator :func:`shade_environment` of lat-long environment maps
-  (:class:`~warpscatter.scene.environment_map.EnvironmentMap`, importance-sampled, Sec. 5.1).
-- :mod:`.local_lights`: area (parallelogram) and linear lights (:mod:`warpscatter.scene.lights`) sampled by
-  radiance with cube-CSM visibility, :func:`shade_local_light` (Sec. 4.2, 5.1).
-- :mod:`.occluders`: the CSM of a scene's occluders: built, or loaded and checked against the scene.
-- :mod:`.settings`: the Warp-free settings of ``render.lighting`` (:class:`LightingSettings`).
-
-The ``csm`` / ``raytrace`` render methods (``render.lighting``: CSM of the scene's occluders, G-buffer,
-progressive passes) are :mod:`warpscatter.pipeline.lighting`.
+N1 x N2 orthographic depth maps around an object are put in a coherent order (:mod:`.enumeration`), rendered
+(:mod:`.depthmaps`), compressed losslessly into per-texel segment lists (:mod:`.compress`) and queried by binary
+search (:mod:`.query`, batches in :mod:`.batch`). :mod:`.brdf`, :mod:`.direct_lighting`, :mod:`.environment` and
+:mod:`.local_lights` are the Monte-Carlo estimators (Sec. 5); :mod:`.occluders` the CSM of a scene; :mod:`.settings`
+``render.lighting``. The ``csm`` / ``raytrace`` render methods are :mod:`warpscatter.pipeline.lighting`.
 
 Example::
 

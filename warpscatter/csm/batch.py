@@ -1,8 +1,5 @@
-"""Host batch queries of coherent shadow maps: many (point, direction) or (point, light parameters) pairs at once,
-checked and launched as :func:`~warpscatter.csm.query.visibility_kernel` over CPU threads (Ritschel 2007 Sec. 4).
-
-The @wp.func queries they run, the CSM structs and the kernel are :mod:`warpscatter.csm.query`. ``bias`` is in
-object-space scene units.
+"""Host batch queries of coherent shadow maps (Ritschel 2007 Sec. 4): many (point, direction) or (point, light
+parameters) pairs launched as :func:`~warpscatter.csm.query.visibility_kernel`; ``bias`` in object-space units.
 """
 
 from __future__ import annotations
@@ -108,18 +105,15 @@ def csm_visibility_batch(
                       seed=seed, device=device, threads=threads)
 
 
-#: Smallest ratio of the smallest to the largest singular value of a rigid object's linear part (its float32 inverse
-#: T^-1 keeps about 1e-7 relative precision; below 1e-6 the object space would be flattened along one axis).
+#: Smallest ratio of a rigid object's smallest to largest singular value (float32 T^-1 holds ~1e-7 precision).
 MAX_OBJECT_CONDITION_INVERSE = 1.0e-6
 
 
 def object_arrays(objects, device) -> tuple[wp.array, wp.array]:
-    """Device arrays of rigid objects (Sec. 4.6): their lat-long CSMs' :class:`CSMData` and the world -> object
-    matrices T^-1 (as kernels take them: :class:`CSMObjects`, the estimators' ``VIS_OBJECTS``).
+    """Device arrays of rigid objects (Sec. 4.6): their lat-long CSMs and world -> object matrices T^-1.
 
     Args:
-        objects: sequence of ``(csm, transform)``: a lat-long CSM and its 4x4 object -> world matrix T (None:
-            identity).
+        objects: sequence of ``(csm, transform)``: a lat-long CSM and its 4x4 object -> world matrix (None: identity).
 
     Raises:
         ValueError: a transform that is not a finite, invertible affine 4x4 matrix, or a cube CSM.
@@ -154,8 +148,7 @@ def csm_objects_visibility_batch(
     """Visibility of (point, direction) pairs against several rigid objects, each with its CSM and placement.
 
     Args:
-        objects: sequence of ``(csm, transform)``: the object's CSM and its 4x4 object -> world matrix T
-            (None = identity). Receiver-only objects simply do not appear here.
+        objects: sequence of ``(csm, transform)``: CSM and 4x4 object -> world matrix (None = identity).
         points, directions, filter, bias, seed, device, threads: as in :func:`csm_visibility_batch` (world space).
 
     Returns:

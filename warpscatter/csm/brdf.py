@@ -1,36 +1,21 @@
 """BRDFs and their importance sampling for Monte-Carlo direct lighting (Ritschel 2007, Sec. 5.1).
 
-All directions are unit vectors pointing AWAY from the surface point: ``wo`` towards the viewer, ``wi`` towards
-the light; ``n`` is the unit (camera-facing) normal. f_r is in 1/sr; it is 0 for wi below the surface.
+Directions are unit vectors pointing AWAY from the surface: ``wo`` towards the viewer, ``wi`` towards the light, ``n``
+the camera-facing normal. f_r is in 1/sr, 0 below the surface.
 
 - Lambert: f = k_d / pi, sampled cosine-weighted.
-- Normalized Phong (Lafortune and Willems 1994): f = k_d / pi + k_s (e + 2) / (2 pi) cos^e(alpha), alpha between
-  wi and the mirror direction of wo; the lobe is sampled with p = (e + 1) / (2 pi) cos^e(alpha)
-  (:func:`cos_power_sample`). Diffuse or specular is chosen by Russian roulette with
-  P(specular) = lum(k_s) / (lum(k_d) + lum(k_s)); the density is the mixture.
-- Lafortune (Lafortune et al. 1997), a sum of generalized cosine lobes in the local frame (t, b, n):
+- Normalized Phong (Lafortune and Willems 1994): f = k_d / pi + k_s (e + 2) / (2 pi) cos^e(alpha), alpha from the
+  mirror direction; sampled with p = (e + 1) / (2 pi) cos^e(alpha), diffuse or specular by Russian roulette.
+- Lafortune et al. 1997, generalized cosine lobes in the frame (t, b, n) of :func:`orthonormal_basis`:
 
       f = k_d / pi + sum_i rho_i [C_x,i u_x v_x + C_y,i u_y v_y + C_z,i u_z v_z]^(e_i)     (0 where [..] <= 0)
 
-  with u = wo and v = wi in local coordinates. Lobe i equals rho_i |w_i|^e_i cos^e_i(alpha_i), alpha_i the
-  angle between wi and the lobe axis w_i = (C_x u_x, C_y u_y, C_z u_z) (back in world space), so the Phong
-  sampler about that axis samples it exactly up to the factor |w_i|^e_i. Sec. 5.1: "preintegrate the single
-  lobes and select one of the lobes with Russian roulette, then the same sampling strategy as for Phong": the
-  roulette weight of lobe i is its preintegrated albedo lum(rho_i) |w_i|^e_i 2 pi / (e_i + 2) (the exact
-  directional albedo when the axis is the normal), the diffuse weight lum(k_d); the density is the mixture
-  (:func:`material_pdf`). Normalized Phong with (k_s, e) is the single lobe C = (-1, -1, 1) (axis = the mirror
-  direction of wo, |w| = 1), rho = k_s (e + 2) / (2 pi), exponent e; its roulette weight is lum(k_s), so the
-  two agree exactly. The tangent t is :func:`orthonormal_basis` of n (Duff et al. 2017): anisotropic lobes
-  (C_x != C_y) follow that frame, which is not tied to the mesh (use C_x = C_y on meshes).
-- :class:`MaterialTable` holds k_d and up to :data:`MAX_LOBES` lobes per material for kernels
-  (:class:`MaterialData`); Phong materials are stored as their equivalent Lafortune lobe.
-- :class:`ShadingPoint` (:func:`shading_point`) is a material at one surface point and view direction: the frame,
-  the lobe axes and the roulette weights, computed once per point; :func:`shading_eval`, :func:`shading_pdf` and
-  :func:`shading_sample` then cost only their per-direction part; ``material_eval``, ``material_pdf`` and
-  ``material_sample`` are the one-direction form of the same code.
+  Each lobe is sampled as a Phong lobe about its axis w_i = (C_x u_x, C_y u_y, C_z u_z), picked by roulette with its
+  preintegrated albedo lum(rho_i) |w_i|^e_i 2 pi / (e_i + 2) (Sec. 5.1). Phong is the lobe C = (-1, -1, 1),
+  rho = k_s (e + 2) / (2 pi), so both agree exactly.
 
-f is reciprocal (symmetric in u, v) by construction; energy conservation is the caller's choice of rho / C
-(normalized Phong with lum(k_d) + lum(k_s) <= 1 conserves energy).
+:class:`ShadingPoint` holds what does not change between a point's samples (frame, lobe axes, roulette weights);
+``material_*`` are the one-direction form of ``shading_*``.
 """
 
 from __future__ import annotations
@@ -58,7 +43,6 @@ class MaterialData:
     lobe_rho: wp.array2d(dtype=wp.vec3)  # (M, MAX_LOBES) per lobe RGB scale rho (1/sr)
 
 
-# ---- building blocks (public @wp.func API) ---------------------------------------------------------
 
 
 @wp.func
@@ -90,8 +74,7 @@ def lobe_direction(axis: wp.vec3, cos_t: float, phi: float) -> wp.vec3:
 
 @wp.func
 def cos_power_sample(axis: wp.vec3, exponent: float, xi: wp.vec2) -> wp.vec3:
-    """Direction about the unit ``axis`` with density (e + 1) / (2 pi) cos^e(alpha) (the Phong lobe's sampling,
-    Sec. 5.1: cos(alpha) = (1 - xi_0)^(1 / (e + 1)), azimuth 2 pi xi_1); ``exponent`` e >= 0."""
+    """Direction about the unit ``axis`` with density (e + 1) / (2 pi) cos^e(alpha), e >= 0 (Sec. 5.1)."""
     cos_a = wp.pow(1.0 - xi[0], 1.0 / (exponent + 1.0))
     return lobe_direction(axis, cos_a, 2.0 * wp.pi * xi[1])
 
@@ -125,8 +108,7 @@ def phong_reflect(n: wp.vec3, wo: wp.vec3) -> wp.vec3:
 
 @wp.func
 def phong_lobe(n: wp.vec3, wo: wp.vec3, wi: wp.vec3, exponent: float) -> float:
-    """Normalized Phong lobe (n + 2) / (2 pi) cos^n(alpha), alpha between ``wi`` and the mirror of ``wo``
-    (Lafortune and Willems 1994; integrates with cos theta to 1 at normal incidence)."""
+    """Normalized Phong lobe (n + 2) / (2 pi) cos^n(alpha), alpha from the mirror of ``wo`` (Lafortune 1994)."""
     c = wp.dot(phong_reflect(n, wo), wi)
     if c <= 0.0:
         return 0.0
@@ -166,8 +148,8 @@ def brdf_eval(n: wp.vec3, wo: wp.vec3, wi: wp.vec3, kd: wp.vec3, ks: wp.vec3, ex
 @wp.func
 def brdf_sample(n: wp.vec3, wo: wp.vec3, kd: wp.vec3, ks: wp.vec3, exponent: float, xi: wp.vec2,
                 choice: float) -> wp.vec3:
-    """Sample the BRDF (Sec. 5.1, P_f^-1): Russian roulette ``choice`` in [0, 1) picks the Phong lobe with
-    :func:`specular_probability`, else the cosine lobe. Density: :func:`brdf_pdf`."""
+    """Sample the BRDF (Sec. 5.1): roulette ``choice`` picks the Phong lobe with :func:`specular_probability`,
+    else the cosine lobe."""
     if choice < specular_probability(kd, ks):
         return phong_sample(n, wo, exponent, xi)
     return lambert_sample(n, xi)
@@ -182,8 +164,7 @@ def brdf_pdf(n: wp.vec3, wo: wp.vec3, wi: wp.vec3, kd: wp.vec3, ks: wp.vec3, exp
 
 @wp.func
 def lafortune_axis(n: wp.vec3, t: wp.vec3, b: wp.vec3, wo: wp.vec3, c: wp.vec4) -> wp.vec3:
-    """Lobe axis w = (C_x u_x, C_y u_y, C_z u_z) of a Lafortune lobe ``c`` = (C_x, C_y, C_z, e) for outgoing
-    ``wo``, in world space (frame t, b, n); not normalised: lobe(wi) = (w . wi)^e."""
+    """Unnormalised world-space axis w = (C_x u_x, C_y u_y, C_z u_z) of lobe ``c`` for ``wo``: lobe = (w . wi)^e."""
     return (c[0] * wp.dot(wo, t)) * t + (c[1] * wp.dot(wo, b)) * b + (c[2] * wp.dot(wo, n)) * n
 
 
@@ -205,12 +186,7 @@ def lafortune_lobe_weight(axis: wp.vec3, rho: wp.vec3, exponent: float) -> float
     return wp.max(luminance(rho), 0.0) * wp.pow(a, exponent) * 2.0 * wp.pi / (exponent + 2.0)
 
 
-# ---- per-point shading state (the estimators' strata loops) ------------------------------------------
-# What a material's f_r, pdf and sampler need from the material, the normal and the view direction alone (the
-# tangent frame, every lobe's axis, its normalised axis and frame, its roulette weight) does not change between
-# the 2 S samples of a point: :func:`shading_point` computes it once per point and :func:`shading_eval`,
-# :func:`shading_pdf`, :func:`shading_sample` finish the per-direction part. The material_* functions are the
-# one-direction form of the same code.
+# Per-point shading state: computed once per point, shared by its 2 S samples.
 
 #: MAX_LOBES x 3 rows, one per lobe.
 LobeRows = wp.types.matrix(shape=(MAX_LOBES, 3), dtype=wp.float32)
@@ -246,8 +222,7 @@ def frame_direction(t: wp.vec3, b: wp.vec3, axis: wp.vec3, cos_t: float, phi: fl
 
 @wp.func
 def shading_point(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3) -> ShadingPoint:
-    """The per-point part of material ``m`` (unit normal ``n``, unit ``wo`` towards the viewer): computed once per
-    surface point, then :func:`shading_eval` / :func:`shading_pdf` / :func:`shading_sample` per direction."""
+    """The per-point part of material ``m`` (unit normal ``n``, unit ``wo``), computed once per surface point."""
     sp = ShadingPoint()
     t, b = orthonormal_basis(n)
     sp.n = n
@@ -308,8 +283,7 @@ def shading_pdf(sp: ShadingPoint, wi: wp.vec3) -> float:
 
 @wp.func(inline=True)
 def shading_sample(sp: ShadingPoint, xi: wp.vec2, choice: float) -> wp.vec3:
-    """Sample the point's material with ``xi`` in [0, 1)^2 and the roulette ``choice`` in [0, 1):
-    :func:`material_sample`."""
+    """Sample the point's material with ``xi`` in [0, 1)^2 and roulette ``choice`` (:func:`material_sample`)."""
     if not (sp.total_sample > 0.0):
         return sp.n
     x = choice * sp.total_sample
@@ -335,9 +309,7 @@ def shading_sample(sp: ShadingPoint, xi: wp.vec2, choice: float) -> wp.vec3:
 
 @wp.func
 def material_eval(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3, wi: wp.vec3) -> wp.vec3:
-    """f_r (1/sr) of material ``m`` (unit normal ``n``, unit ``wo`` towards the viewer) towards unit ``wi``: k_d / pi
-    plus its Lafortune lobes; 0 for wi below the surface. One direction: :func:`shading_eval` of a
-    :func:`shading_point` (the estimators build the point once for all their samples)."""
+    """f_r (1/sr) of material ``m`` towards unit ``wi``: k_d / pi plus its Lafortune lobes; 0 below the surface."""
     return shading_eval(shading_point(mat, m, n, wo), wi)
 
 
@@ -349,13 +321,11 @@ def material_pdf(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3, wi: wp.vec3
 
 @wp.func
 def material_sample(mat: MaterialData, m: int, n: wp.vec3, wo: wp.vec3, xi: wp.vec2, choice: float) -> wp.vec3:
-    """Sample material ``m`` (Sec. 5.1): the Russian roulette ``choice`` in [0, 1) picks the diffuse term or a
-    lobe with the preintegrated weights, then the cosine / Phong sampler draws wi from ``xi``. A material
-    without weight (black) returns the normal, with density 0 (:func:`material_pdf`)."""
+    """Sample material ``m`` (Sec. 5.1): roulette ``choice`` picks diffuse or a lobe by preintegrated weight, then
+    ``xi`` draws wi; a black material returns the normal with density 0."""
     return shading_sample(shading_point(mat, m, n, wo), xi, choice)
 
 
-# ---- host side -------------------------------------------------------------------------------------
 
 
 class MaterialTable:
@@ -407,11 +377,8 @@ class MaterialTable:
 
     @classmethod
     def phong(cls, kd, ks, exponent) -> MaterialTable:
-        """Lambert + normalized Phong materials as tables: (M, 3) k_d, (M, 3) k_s, (M,) exponents e >= 0.
-
-        The Phong lobe k_s (e + 2) / (2 pi) cos^e(alpha) is the Lafortune lobe C = (-1, -1, 1) with
-        rho = k_s (e + 2) / (2 pi); materials with k_s = 0 get no lobe.
-        """
+        """Lambert + normalized Phong materials: (M, 3) k_d, (M, 3) k_s, (M,) exponents e >= 0; each Phong lobe
+        becomes the Lafortune lobe C = (-1, -1, 1), rho = k_s (e + 2) / (2 pi)."""
         kd = np.asarray(kd, np.float32)
         ks = np.asarray(ks, np.float32)
         e = np.broadcast_to(np.asarray(exponent, np.float32), (kd.shape[0],))
@@ -424,9 +391,8 @@ class MaterialTable:
 
     @classmethod
     def from_specs(cls, specs) -> MaterialTable:
-        """Materials from plain specs, one dict per material: ``{"albedo": rgb}`` plus optionally
-        ``{"phong": {"specular": rgb, "exponent": e}}`` or ``{"lafortune": [{"coefficients": [cx, cy, cz],
-        "exponent": e, "color": rgb}, ...]}`` (what :mod:`warpscatter.config` validates)."""
+        """Materials from plain specs: ``{"albedo": rgb}`` plus optionally ``{"phong": {...}}`` or
+        ``{"lafortune": [...]}`` (as :mod:`warpscatter.config` validates)."""
         specs = list(specs)
         m = len(specs)
         kd = np.zeros((m, 3), np.float32)

@@ -1,33 +1,17 @@
 """Lossless compression of depth-map sequences into segment lists (Ritschel 2007, Sec. 3.1, Eq. 1), and CSM files.
 
-Per texel, over the sequence i = 0 .. N-1 of maps, the stored depth z(i) may be any value with
-z_lo(i) <= z(i) < z_hi(i) (dual depth layers, Fig. 3): a point on the first surface is still lit and a point
-on the upper surface still shadowed. The compressor picks a piecewise-constant z(i): starting at i0 it extends
-a segment to the largest i_end with
+Per texel, over the maps i = 0 .. N-1, any stored depth z(i) with z_lo(i) <= z(i) < z_hi(i) is correct (dual depth
+layers, Fig. 3). The compressor extends a piecewise-constant segment from i0 to the largest i_end with
 
     max {z_lo(i0), ..., z_lo(i_end)}  <  min {z_hi(i0), ..., z_hi(i_end)}                         (Eq. 1)
 
-and stores (z_avg, i_end) with z_avg the midpoint of that max and min (Fig. 4). Greedy extension gives the
-fewest segments any piecewise-constant separator can have. Special cases, all keeping the lossless property
-z_lo <= z_avg < z_hi:
+and stores (z_avg, i_end), z_avg the float32 midpoint kept inside the interval (Fig. 4); greedy extension gives the
+fewest segments. z_hi = +inf bounds nothing; z_lo = z_hi (coincident surfaces) forms a one-map segment.
 
-- z_hi = +inf (texel without upper surface under ``far="infinite"``, or an empty texel, where z_lo = +inf
-  too) bounds nothing: the segment stays open and, if its min z_hi is +inf, stores z_avg = +inf.
-- z_lo = z_hi (coincident surfaces, the paper's "pixels which start a new segment (z1 = z2)") can only form
-  a one-map segment, stored as z_avg = z_lo: such texels need the query's depth bias.
-- The float32 midpoint is rounded so that z_avg < min z_hi always holds (it falls back to max z_lo).
-
-Output: per texel a segment list; all lists concatenated texel by texel (``seg_depth`` float32,
-``seg_end`` int32, ascending i_end within a list, the last = N - 1), and the lookup texture ``seg_start``
-(M^2 + 1 int32): texel t owns segments [seg_start[t], seg_start[t + 1]).
-
-Streaming: :class:`StreamingCompressor` takes the maps in batches of sequence indices and keeps, per texel,
-only the open segment's running [max z_lo, min z_hi] interval; closed segments leave each batch compacted.
-Working memory is O(M^2 x batch), the rest is the output itself. :func:`build_csm` renders and compresses a
-:class:`~warpscatter.csm.depthmaps.LatLongMapSet` that way, :func:`build_cube_csm` the 6N face-major depth
-cube maps of a fixed local light (:class:`~warpscatter.csm.depthmaps.CubeMapSet`, Sec. 3.3).
-:func:`save_csm` / :func:`load_csm` store a :class:`CoherentShadowMap` as one ``.npz`` with a format version;
-bad files raise :class:`CSMFileError`.
+Output: the lists of all texels concatenated (``seg_depth`` float32, ``seg_end`` int32 ascending per texel, the last
+N - 1) and ``seg_start`` (M^2 + 1 int32): texel t owns segments [seg_start[t], seg_start[t + 1]).
+:class:`StreamingCompressor` works in batches of maps with O(M^2 x batch) memory; :func:`build_csm` and
+:func:`build_cube_csm` (Sec. 3.3) render and compress map sets; :func:`save_csm` / :func:`load_csm` handle ``.npz``.
 """
 
 from __future__ import annotations
@@ -61,27 +45,22 @@ KIND_CUBE = "cube"
 KINDS = (KIND_LATLONG, KIND_CUBE)
 
 
-#: The most array data (bytes, all arrays together, as the ``.npz`` entries' headers declare them) :func:`load_csm`
-#: reads: checked before anything is allocated. A 64 x 32 x 128^2 CSM of a few hundred triangles holds ~100 MB.
+#: The most array data in bytes :func:`load_csm` reads, checked before anything is allocated.
 MAX_CSM_BYTES = 4 * 2**30
 
 
 class CSMFileError(InputFileError):
-    """A CSM file cannot be read or does not hold a consistent CSM; the message names the file and the reason.
-
-    An :class:`~warpscatter.errors.InputFileError` (and so a ValueError): a user error, CLI exit code 2."""
+    """A CSM file cannot be read or is inconsistent (an InputFileError: a user error, CLI exit code 2)."""
 
 
 def geometry_digest(vertices, triangles) -> str:
-    """SHA-256 (hex) of a mesh as float32 vertices and int32 triangles: identifies the occluders a CSM was built
-    from, so a render can refuse a CSM file of another mesh or placement."""
+    """SHA-256 (hex) of a mesh as float32 vertices and int32 triangles, so a render refuses another mesh's CSM."""
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(np.asarray(vertices, np.float32)).tobytes())
     h.update(np.ascontiguousarray(np.asarray(triangles, np.int32)).tobytes())
     return h.hexdigest()
 
 
-# ---- building blocks (public @wp.func API) ---------------------------------------------------------
 
 
 @wp.func
@@ -113,7 +92,6 @@ class StreamState:
     out_count: wp.array(dtype=wp.int32)  # segments the batch closed per texel
 
 
-# ---- kernels ---------------------------------------------------------------------------------------
 
 
 @wp.kernel
@@ -125,8 +103,7 @@ def compress_batch_kernel(
     state: StreamState,
     offset: int,
 ):
-    """Texel t: push maps first .. first + rows - 1 (rows of z_lo / z_hi) through the open segment; write every
-    segment that closes (and the last one when the batch ends at ``last_map``) to
+    """Texel t: push maps first .. first + rows - 1 through the open segment; write the segments that close to
     state.out_*[t, :state.out_count[t]]."""
     t = wp.tid() + offset
     lo = state.lo[t]
@@ -161,7 +138,6 @@ def compress_batch_kernel(
     state.out_count[t] = n
 
 
-# ---- host side: streaming compression --------------------------------------------------------------
 
 
 def _check_count(name: str, value) -> int:
@@ -179,10 +155,9 @@ class CompressionStats:
         num_maps: N.
         num_texels: M^2.
         num_segments: total segments S.
-        compressed_bytes: 8 S + 4 (M^2 + 1) (float32 depth + int32 end per segment, int32 lookup texture).
-        uncompressed_bytes: 4 N M^2 (one float32 depth per texel and map, as a plain shadow map stores).
-        peak_working_bytes: largest sum of per-batch device arrays and per-texel state held at once (output
-            excluded); depends on M^2 and the batch size only, not on N.
+        compressed_bytes: 8 S + 4 (M^2 + 1).
+        uncompressed_bytes: 4 N M^2 (a plain float32 shadow map per map).
+        peak_working_bytes: most working memory held at once (output excluded); independent of N.
         seconds_render: time spent rendering depth maps (0 when maps were given).
         seconds_compress: time spent compressing and assembling.
     """
@@ -246,13 +221,6 @@ class SegmentLists:
 class StreamingCompressor:
     """Compress a sequence of N depth maps pushed in batches (in sequence order) into :class:`SegmentLists`.
 
-    Example::
-
-        comp = StreamingCompressor(num_texels=M * M, num_maps=N, max_batch=64)
-        for start in range(0, N, 64):
-            comp.push(z_lo[start:start + 64], z_hi[start:start + 64])   # (B, M*M) or (B, M, M)
-        lists = comp.finish()
-
     Args:
         num_texels: texels per map (M^2).
         num_maps: total number of maps N that will be pushed.
@@ -309,13 +277,11 @@ class StreamingCompressor:
         """Compress the next batch of maps.
 
         Args:
-            z_lo: (B, M^2) or (B, M, M) lower depths z1 of the next B maps in sequence order (numpy or
-                ``wp.array2d(float32)``), +inf where empty.
-            z_hi: same shape, upper depths (z2 / z3 / far value), z_hi >= z_lo, +inf = unbounded.
+            z_lo: (B, M^2) or (B, M, M) lower depths of the next B maps (numpy or Warp), +inf where empty.
+            z_hi: same shape, upper depths, z_hi >= z_lo, +inf = unbounded.
 
         Raises:
-            ValueError: wrong shapes, NaN, z_hi < z_lo (numpy input), a batch larger than ``max_batch`` or
-                more maps than ``num_maps`` in total.
+            ValueError: wrong shapes, NaN, z_hi < z_lo, or a batch or total beyond the declared sizes.
         """
         t0 = time.perf_counter()
         lo = self._as_rows(z_lo, "z_lo")
@@ -404,9 +370,6 @@ def compress_depth_maps(z_lo, z_hi, batch_maps: int = 64, device: str | None = N
         z_hi: same shape, upper depths, z_hi >= z_lo (+inf = unbounded).
         batch_maps: maps per batch (>= 1); the result does not depend on it.
         device: Warp device.
-
-    Returns:
-        :class:`SegmentLists`.
     """
     lo = np.asarray(z_lo, dtype=np.float32)
     hi = np.asarray(z_hi, dtype=np.float32)
@@ -421,30 +384,26 @@ def compress_depth_maps(z_lo, z_hi, batch_maps: int = 64, device: str | None = N
     return comp.finish()
 
 
-# ---- host side: the CSM object, building, files ----------------------------------------------------
 
 
 @dataclass
 class CoherentShadowMap:
-    """A compressed depth-map set of one object.
-
-    ``kind == "latlong"``: N1 x N2 orthographic lat-long maps (distant and semi-local lights, Sec. 4.1, 4.3).
-    ``kind == "cube"``: depth cube maps at the n1 x n2 sample points of a fixed local light, 6N maps
-    concatenated face by face (Sec. 3.3, 4.2).
+    """A compressed depth-map set of one object: ``"latlong"`` orthographic maps (Sec. 4.1, 4.3) or ``"cube"`` maps
+    at the samples of a fixed local light, 6N maps face by face (Sec. 3.3, 4.2).
 
     Attributes:
         kind: ``"latlong"`` or ``"cube"``.
         n1, n2: grid of the maps' locations (lat-long azimuth x polar, or light samples).
         resolution: map size M.
         center: (3,) float64 bounding-sphere centre (object space).
-        radius: bounding-sphere radius R; lat-long maps span [-R, R]^2 and depths [0, 2R] inside the sphere.
-        enumeration, depth_layers, far: how the maps were ordered and which depths bound the stored value.
-        map_index: (n2, n1) int32 sequence index of each grid cell (cube: of each light sample).
+        radius: bounding-sphere radius R; lat-long maps span [-R, R]^2 and depths [0, 2R].
+        enumeration, depth_layers, far: map order and the depths bounding the stored value.
+        map_index: (n2, n1) int32 sequence index of each grid cell.
         lists: the compressed :class:`SegmentLists`.
-        stats: :class:`CompressionStats` of the build (None when loaded from a file).
-        light_samples: cube only: (n1 n2, 3) float64 sample positions, entry b n1 + a for cell (a, b).
+        stats: :class:`CompressionStats` of the build (None when loaded).
+        light_samples: cube only: (n1 n2, 3) sample positions, entry b n1 + a for cell (a, b).
         near: cube only: near-plane distance of the faces.
-        geometry: :func:`geometry_digest` of the mesh it was built from (None in files that do not store it).
+        geometry: :func:`geometry_digest` of the source mesh (None if not stored).
     """
 
     n1: int
@@ -499,8 +458,7 @@ class CoherentShadowMap:
 
 
 def build_settings(settings: CSMBuildSettings | None = None, **fields) -> CSMBuildSettings:
-    """``settings`` (default: those of ``render.lighting.csm``) with the named ``fields`` replaced; the map sets
-    check the values, in ranges wider than the config's. Raises ValueError for a name that is not a field."""
+    """``settings`` (default: ``render.lighting.csm``'s) with ``fields`` replaced; ValueError for an unknown field."""
     unknown = sorted(set(fields) - set(CSMBuildSettings.model_fields))
     if unknown:
         raise ValueError(f"unknown CSM build settings {unknown}; fields are {sorted(CSMBuildSettings.model_fields)}")
@@ -524,16 +482,13 @@ def build_csm(
     Args:
         vertices: (V, 3) object-space positions.
         triangles: (T, 3) vertex indices.
-        settings: :class:`~warpscatter.csm.settings.CSMBuildSettings`; this reads ``maps`` (N1 azimuth x N2 polar
-            cells), ``resolution`` (map size M), ``enumeration`` (sequence order, Sec. 4.4), ``layers`` (``"z1z2"``, or
-            ``"z1z3"`` for closed two-manifolds), ``far`` (``"sphere"`` or ``"infinite"``) and ``batch`` (maps
-            rendered and compressed per batch, memory O(M^2 batch)).
+        settings: :class:`~warpscatter.csm.settings.CSMBuildSettings` (``maps``, ``resolution``, ``enumeration``,
+            ``layers``, ``far``, ``batch``).
         center, radius: bounding sphere (default: fitted to the vertices).
-        progress: called as ``progress(fraction)`` after each batch, fraction = maps done / N in (0, 1] (as
-            :func:`warpscatter.parallel.launch_rows` reports).
+        progress: called as ``progress(fraction)`` after each batch, fraction of maps done.
         device: Warp device.
         threads: CPU worker threads.
-        **fields: fields replacing those of ``settings``, e.g. ``build_csm(v, t, maps=(64, 32), resolution=128)``.
+        **fields: fields replacing those of ``settings``, e.g. ``maps=(64, 32)``.
 
     Returns:
         :class:`CoherentShadowMap` with its :class:`CompressionStats`.
@@ -556,9 +511,7 @@ def _check_batch(batch_maps, progress) -> int:
 
 def _build(maps, vertices, triangles, batch_maps: int, progress, device: str, threads,
            **kind_fields) -> CoherentShadowMap:
-    """Render ``maps`` (a LatLongMapSet or CubeMapSet of the mesh ``vertices``, ``triangles``) batch by batch in
-    sequence order, compress them as they stream and return the :class:`CoherentShadowMap` (``kind_fields``: the
-    fields that only cube CSMs set)."""
+    """Render ``maps`` batch by batch in sequence order, compress them as they stream, return the CSM."""
     n = maps.num_maps
     batch = min(int(batch_maps), n)
     comp = StreamingCompressor(maps.num_texels, n, batch, device, threads)
@@ -603,11 +556,8 @@ def build_cube_csm(
 
     Args:
         vertices: (V, 3) object positions; triangles: (T, 3) vertex indices.
-        samples: (n2, n1, 3) light sample grid or (n, 3) row (see
-            :func:`~warpscatter.csm.depthmaps.segment_light_samples`,
-            :func:`~warpscatter.csm.depthmaps.parallelogram_light_samples`).
-        settings: as for :func:`build_csm` (``resolution`` is the cube face size M, ``enumeration`` orders the
-            samples: the 6N maps run face by face, Fig. 5; ``maps`` is not read).
+        samples: (n2, n1, 3) light sample grid or (n, 3) row.
+        settings: as for :func:`build_csm` (``resolution`` is the face size M; ``maps`` is not read).
         near: near-plane distance (default 1e-3 R).
         progress, device, **fields: as for :func:`build_csm`.
 
@@ -627,10 +577,7 @@ _ARRAYS = ("format_version", "params", "map_index", "seg_start", "seg_depth", "s
 
 
 def save_csm(csm: CoherentShadowMap, path: str | os.PathLike) -> None:
-    """Write a CSM as one ``.npz``: the format version, the parameters (JSON) and the arrays.
-
-    The file is written to a temporary name and renamed, so a crash never leaves a half-written CSM.
-    """
+    """Write a CSM as one ``.npz`` (format version, JSON parameters, arrays), atomically."""
     path = os.fspath(path)
     tmp = path + ".tmp.npz"
     extra = {}
@@ -686,10 +633,8 @@ def _load_params(path: str, data) -> dict:
 
 
 def _check_declared_sizes(path: str) -> None:
-    """Check every array of a ``.npz`` before it is read: its ``.npy`` header's shape and dtype (read without
-    allocating the data) must account exactly for the bytes of its zip entry, an entry stored uncompressed must lie
-    inside the file, and all arrays together must stay within :data:`MAX_CSM_BYTES`. A crafted header declaring a
-    huge shape would otherwise make numpy allocate that much before finding the data missing."""
+    """Check each ``.npz`` array's declared shape and dtype against its zip entry and :data:`MAX_CSM_BYTES` before
+    reading, so a crafted header cannot make numpy allocate a huge array."""
     file_size = os.path.getsize(path)
     total = 0
     with zipfile.ZipFile(path) as zf:
@@ -726,14 +671,9 @@ def _check_declared_sizes(path: str) -> None:
 def load_csm(path: str | os.PathLike) -> CoherentShadowMap:
     """Read a CSM written by :func:`save_csm`, checking it completely.
 
-    The arrays' declared sizes are checked against the file and :data:`MAX_CSM_BYTES` before any is read
-    (:func:`_check_declared_sizes`).
-
     Raises:
-        CSMFileError: missing or unreadable file, array sizes that the file does not hold or beyond the limit,
-            wrong format version, missing arrays, wrong dtypes or sizes, a lookup texture that does not partition
-            the segments, segment ends that are not ascending per texel or do not end at N - 1, or an enumeration
-            table that is not a bijection.
+        CSMFileError: missing or unreadable file, sizes beyond the file or :data:`MAX_CSM_BYTES`, wrong version,
+            arrays, dtypes or sizes, or segment lists and enumeration tables that are inconsistent.
     """
     path = os.fspath(path)
     if not os.path.isfile(path):

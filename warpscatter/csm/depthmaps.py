@@ -1,42 +1,24 @@
 """Depth-map sets of coherent shadow maps: orthographic maps around an object's bounding sphere (Ritschel 2007).
 
-For infinite distant lights (Sec. 4.1) the mapping function D is the lat-long mapping of parameters
-(u, v) in [0, 1]^2 to directions, discretised into an N1 x N2 grid of cells (a, b) whose centres are
+Distant lights (Sec. 4.1): the lat-long mapping D discretised into N1 x N2 cells (a, b) centred at
 
     phi = 2 pi (a + 0.5) / N1,  theta = pi (b + 0.5) / N2,
-    dir = (sin theta cos phi, cos theta, sin theta sin phi)                    (+Y up, theta from +Y).
+    dir = (sin theta cos phi, cos theta, sin theta sin phi)                    (+Y up, theta from +Y),
 
-``dir`` points from the object towards the light (a shadow ray's direction). The map of cell (a, b) is an
-orthographic camera on the bounding sphere (centre c, radius R) at c + R dir, looking at c, whose square
-extent is the sphere's: with the image frame
+``dir`` pointing towards the light. Cell (a, b)'s map is an orthographic camera at c + R dir looking at the
+bounding sphere's centre c, with frame
 
-    right = (sin phi, 0, -cos phi),  up = (-cos theta cos phi, sin theta, -cos theta sin phi)   (right x up = dir),
+    right = (sin phi, 0, -cos phi),  up = (-cos theta cos phi, sin theta, -cos theta sin phi)   (right x up = dir):
 
-a point p has NDC x = <p - c, right> / R, y = <p - c, up> / R and LINEAR depth q_z = R - <p - c, dir> in
-[0, 2R] inside the sphere (distance from the map plane, scene units). Texel (x, y), row y from the top, is
-centred at NDC (2 (x + 0.5) / M - 1, 1 - 2 (y + 0.5) / M) as in :mod:`warpscatter.raster`. The frame varies
-smoothly with phi and theta, so neighbouring cells give similar images (the coherence the compression needs).
+NDC x = <p - c, right> / R, y = <p - c, up> / R, LINEAR depth q_z = R - <p - c, dir> in [0, 2R]. Texel centres as
+in :mod:`warpscatter.raster`. The frame varies smoothly, so neighbouring maps are coherent.
 
-Per texel two depths bound the stored value z of a coherent shadow map (Sec. 3.1, Fig. 3): z_lo = z1, the
-first surface, and z_hi = z2 (``depth_layers="z1z2"``, correct for any mesh) or z3 (``"z1z3"``, for closed
-two-manifolds, whose backs need no shadow), found by depth peeling with the exact rasterizer of
-:mod:`warpscatter.raster` (its @wp.func building blocks, batched here over many maps per launch; the result
-is bitwise that of ``raster.rasterize(..., layers=2 or 3, clamp_depth=True)``). Texels without the upper
-surface take a far value (``far``):
-
-- ``"sphere"``: the *spherical far plane* of the paper, the depth R + sqrt(R^2 - r^2) where the texel's ray
-  leaves the bounding sphere (r: the ray's distance from the centre). Points of other objects (receivers)
-  behind this object and outside its sphere stay shadowed; compression is a little lower.
-- ``"infinite"``: +inf (the paper's "large value"): longer segments, but stored depths may be huge, so
-  receivers behind the object can be wrongly lit (Sec. 3.1 / 4.6).
-
-Texels that see no surface at all hold z_lo = z_hi = +inf (nothing to shadow, everything lit).
-
-Generation runs in batches of maps (sequence indices in the enumeration order): one batch needs
-O(layers x batch x M^2) working memory, whatever N is.
-
-Fixed local lights (Sec. 3.3, 4.2) use :class:`CubeMapSet`: a depth cube map (six 90-degree perspective faces,
-linear depth along the face axis) at each sample point of the light, the 6N maps ordered face by face.
+Per texel z_lo = z1 and z_hi = z2 (``"z1z2"``, any mesh) or z3 (``"z1z3"``, closed two-manifolds) bound the stored
+depth (Sec. 3.1, Fig. 3), peeled by the exact rasterizer (bitwise ``rasterize(..., clamp_depth=True)``). A missing
+upper surface takes ``far``: ``"sphere"``, the paper's spherical far plane R + sqrt(R^2 - r^2) (receivers behind the
+object stay shadowed), or ``"infinite"`` (longer segments; receivers behind may be wrongly lit). Empty texels hold
++inf twice. Maps are rendered in batches: O(layers x batch x M^2) memory. Fixed local lights (Sec. 3.3, 4.2):
+:class:`CubeMapSet`.
 """
 
 from __future__ import annotations
@@ -65,7 +47,6 @@ _EMPTY_KEY = wp.constant(wp.int64(raster.EMPTY_KEY))
 _TWO_PI = 2.0 * np.pi
 
 
-# ---- building blocks (public @wp.func API) ---------------------------------------------------------
 
 
 @wp.func
@@ -98,8 +79,7 @@ def latlong_param(d: wp.vec3) -> wp.vec2:
 
 @wp.func
 def ortho_snap(view_proj: wp.mat44d, q: wp.vec3, size: int) -> wp.vec3d:
-    """Snapped screen position of a vertex, computed exactly as the rasterizer's vertex pass does
-    (float64 product, float32 clip coordinates, :func:`warpscatter.raster.snap_to_screen`)."""
+    """Snapped screen position of a vertex, exactly as the rasterizer's vertex pass computes it."""
     c = view_proj * wp.vec4d(wp.float64(q[0]), wp.float64(q[1]), wp.float64(q[2]), wp.float64(1.0))
     v = wp.vec4(float(c[0]), float(c[1]), float(c[2]), float(c[3]))
     return raster.snap_to_screen(v, size, size)
@@ -121,7 +101,6 @@ def sphere_exit_depth(x: int, y: int, size: int, radius: float) -> float:
     return radius * (1.0 + wp.sqrt(wp.max(1.0 - nx * nx - ny * ny, 0.0)))
 
 
-# ---- kernels ---------------------------------------------------------------------------------------
 
 
 @wp.kernel
@@ -181,7 +160,6 @@ def resolve_depths_kernel(
             z_hi[m, t] = hi
 
 
-# ---- host side -------------------------------------------------------------------------------------
 
 
 def latlong_frames(n1: int, n2: int) -> np.ndarray:
@@ -203,9 +181,8 @@ def latlong_frames(n1: int, n2: int) -> np.ndarray:
 
 
 def ortho_view_proj(center, radius: float, frame: np.ndarray) -> np.ndarray:
-    """World -> clip matrix of orthographic maps: NDC x, y = <p - c, right | up> / R, z = -<p - c, dir> / R.
-
-    Linear depth (distance from the map plane at c + R dir) is (z_ndc + 1) R.
+    """World -> clip matrix of orthographic maps: NDC x, y = <p - c, right | up> / R, z = -<p - c, dir> / R;
+    linear depth is (z_ndc + 1) R.
 
     Args:
         center: (3,) bounding-sphere centre.
@@ -255,8 +232,7 @@ def _check_options(resolution, enumeration: str, depth_layers: str, far: str) ->
 
 
 def _set_fields(v: np.ndarray, t: np.ndarray, n1: int, n2: int, enumeration: str, depth_layers: str, far: str) -> dict:
-    """The fields every depth-map set fills alike from its checked mesh, its n1 x n2 grid and its options: the
-    options, the enumeration tables ``order`` / ``map_index`` and the mesh as float32 / int32 arrays."""
+    """The fields every depth-map set fills alike: options, enumeration tables and the float32 / int32 mesh."""
     order = enumerate_grid(n1, n2, enumeration)
     return {
         "enumeration": enumeration, "depth_layers": depth_layers, "far": far, "order": order,
@@ -282,8 +258,6 @@ def _check_mesh(vertices, triangles) -> tuple[np.ndarray, np.ndarray]:
 @dataclass
 class LatLongMapSet:
     """The N1 x N2 orthographic depth maps of a mesh for distant (and semi-local) lights, in sequence order.
-
-    Build with :meth:`create`; :meth:`render` gives the z_lo / z_hi depths of any range of sequence indices.
 
     Attributes:
         n1: azimuth cells N1 (grid axis a, fastest in scan-line order).
@@ -394,12 +368,8 @@ class LatLongMapSet:
         return self._device[device]
 
     def render_device(self, start: int, stop: int, device: str | None = None, threads: int | None = None):
-        """Depths of the maps with sequence indices [start, stop) as device arrays.
-
-        Returns:
-            (z_lo, z_hi): ``wp.array2d(float32)`` of shape (stop - start, M * M), linear depths (scene units,
-            +inf = empty / missing; see the module docstring), texel y * M + x.
-        """
+        """Depths (z_lo, z_hi) of the maps [start, stop) as ``wp.array2d(float32)`` (stop - start, M * M), linear
+        (scene units, +inf = empty), texel y * M + x."""
         device = default_device(device)
         n = self.num_maps
         if not (0 <= start < stop <= n):
@@ -440,14 +410,10 @@ class LatLongMapSet:
         return z_lo.numpy().reshape(shape), z_hi.numpy().reshape(shape)
 
 
-# ---- depth cube maps of a fixed local light (Sec. 3.3, 4.2) ------------------------------------------
 
 
 def cube_face_frames() -> np.ndarray:
-    """Rows (right, up, forward) of the six cube faces k = 0..5 looking along +X, -X, +Y, -Y, +Z, -Z.
-
-    right x up = -forward (a camera looking down its -Z axis), matching :func:`cube_face_frame`.
-    """
+    """Rows (right, up, forward) of the cube faces k = 0..5 along +X, -X, +Y, -Y, +Z, -Z; right x up = -forward."""
     out = np.zeros((6, 3, 3))
     for k in range(6):
         f = np.zeros(3)
@@ -474,8 +440,7 @@ def segment_light_samples(p0, p1, n: int) -> np.ndarray:
 
 
 def parallelogram_light_samples(corner, edge_s, edge_t, n1: int, n2: int) -> np.ndarray:
-    """Sample points of an area light (d = 2): the n1 x n2 cell centres of corner + s edge_s + t edge_t,
-    shape (n2, n1, 3)."""
+    """Sample points of an area light: the n1 x n2 cell centres of corner + s edge_s + t edge_t, (n2, n1, 3)."""
     n1 = _check_int("n1", n1, 1, 2**15)
     n2 = _check_int("n2", n2, 1, 2**15)
     st = light_grid_params(n1, n2)
@@ -487,13 +452,9 @@ def parallelogram_light_samples(corner, edge_s, edge_t, n1: int, n2: int) -> np.
 class CubeMapSet:
     """Depth cube maps at the sample points of a fixed local light, concatenated face by face (Sec. 3.3).
 
-    The light's sample points form an n1 x n2 grid (n2 = 1 for linear lights) put in sequence order i = 0..N-1
-    by an enumeration; the 6N maps are ordered face-major, map k N + i = face k of sample i, so that each
-    face's N maps are coherent (Fig. 5). Face k of sample o is a 90-degree perspective view along the face's
-    forward axis (:func:`cube_face_frames`) rendered with :func:`warpscatter.raster.rasterize` (near clipping
-    at ``near``); its LINEAR depth is the distance along that axis, q_z = <p - o, forward>. Missing upper
-    surfaces take the spherical far plane (the depth where the texel's ray leaves the object's bounding
-    sphere) or +inf, as for :class:`LatLongMapSet`. Geometry closer to a sample than ``near`` is clipped.
+    Map k N + i is face k of sample i, so each face's N maps are coherent (Fig. 5). A face is a 90-degree perspective
+    view, LINEAR depth q_z = <p - o, forward>; ``far`` as for :class:`LatLongMapSet`; geometry nearer than ``near``
+    is clipped.
 
     Attributes:
         n1, n2: light-sample grid; N = n1 n2 samples, 6N maps.

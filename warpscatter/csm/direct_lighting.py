@@ -1,28 +1,14 @@
 """What the Monte-Carlo direct-lighting estimators share (Ritschel et al. 2007 Sec. 5): the surface points, the
 visibility source, the strata and the progressive average.
 
-Both estimators — environment maps (:mod:`.environment`) and area / linear lights (:mod:`.local_lights`) — shade
-K surface points (positions, normals, view directions and materials: a G-buffer) with S = s^2 strata of a
-per-point jittered pattern (Sec. 5.1 "Random Numbers"). Visibility (:class:`LightVisibility`) comes from
+The estimators (environment maps, :mod:`.environment`; area and linear lights, :mod:`.local_lights`) shade K surface
+points with S = s^2 jittered strata (Sec. 5.1). Visibility modes: ``VIS_CSM`` (a lat-long CSM towards a distant
+direction, Sec. 4.1, or a local light's cube CSM, Sec. 4.2), ``VIS_SEMI_LOCAL`` (a lat-long CSM towards a local
+light's point, Sec. 4.3), ``VIS_OBJECTS`` (rigid objects, each CSM queried with D' = D T^-1, Sec. 4.6),
+``VIS_MESH`` (shadow rays, the reference) and ``VIS_NONE``. :class:`DirectLighting` uploads the inputs once and shades
+any number of passes; :class:`ProgressiveAccumulator` averages them (Sec. 5.2).
 
-* ``VIS_CSM`` — a coherent shadow map: a lat-long CSM queried towards a distant direction
-  (:func:`~warpscatter.csm.query.csm_visibility_filtered`, Sec. 3.3 / 4.1) or the local light's cube CSM queried
-  with the light point's parameters (Sec. 4.2);
-* ``VIS_SEMI_LOCAL`` — a lat-long CSM queried towards a local light's point (semi-local lights, Sec. 4.3);
-* ``VIS_OBJECTS`` — several rigid objects, each with its own lat-long CSM in its object space and its placement
-  T (Sec. 4.6: queried with D' = D T^-1, the visibilities multiplied), towards distant directions or a local
-  light's points (semi-local); moving an object changes T only, never its CSM;
-* ``VIS_MESH`` — a ``wp.Mesh`` shadow ray (the reference);
-* ``VIS_NONE`` — no occlusion.
-
-Progressive rendering (Sec. 5.2): :class:`DirectLighting` checks and uploads the points, the material table, the
-light and the visibility source once, then shades any number of passes (one launch each, split across the CPU
-cores); :class:`ProgressiveAccumulator` averages passes rendered with different seeds. :func:`shade_direct` is one
-pass of a fresh :class:`DirectLighting`.
-
-The estimators' per-sample functions (visibility, BRDF evaluation, density and sampling of a
-:class:`~warpscatter.csm.brdf.ShadingPoint`) are inlined into the kernels: the structs they take hold many arrays,
-and an out-of-line call copies its struct arguments on the CPU.
+The per-sample functions are inlined: an out-of-line call copies its struct arguments on the CPU.
 """
 
 from __future__ import annotations
@@ -81,8 +67,7 @@ class LightVisibility:
 
 @wp.func(inline=True)
 def objects_visibility(vis: LightVisibility, o: wp.vec3, d: wp.vec3, xi: wp.vec4) -> float:
-    """VIS_OBJECTS: the product over the rigid objects of the filtered visibility from world point ``o`` towards
-    world direction ``d`` (unnormalised), each queried in its object space (Sec. 4.6, D' = D T^-1)."""
+    """VIS_OBJECTS: product over the objects of the filtered visibility from ``o`` towards ``d`` (Sec. 4.6)."""
     v = float(1.0)
     for k in range(vis.objects.shape[0]):
         po = wp.transform_point(vis.to_object[k], o)
@@ -95,16 +80,13 @@ def objects_visibility(vis: LightVisibility, o: wp.vec3, d: wp.vec3, xi: wp.vec4
 
 @wp.func(inline=False)
 def shadow_ray_blocked(mesh: wp.uint64, origin: wp.vec3, direction: wp.vec3, t_max: float) -> bool:
-    """A shadow ray's any-hit query (:func:`~warpscatter.raycast.occluded`), kept out of line: the BVH traversal
-    is long, inlined at each of an estimator's call sites it would only grow the kernel (no speed-up measured), and
-    its arguments are a few words, unlike the visibility struct whose copies the inlined callers avoid."""
+    """A shadow ray's any-hit query, kept out of line: the BVH traversal is long and its arguments are few."""
     return occluded(mesh, origin, direction, t_max)
 
 
 @wp.func
 def stratum_sample(k: int, s: int, jitter: wp.vec2) -> wp.vec2:
-    """Point of stratum ``k`` of an s x s grid over [0, 1)^2 jittered by ``jitter`` in [0, 1)^2 (stratified
-    pattern, Sec. 5.1)."""
+    """Point of stratum ``k`` of an s x s grid over [0, 1)^2 jittered by ``jitter`` (Sec. 5.1)."""
     a = k % s
     b = k // s
     return wp.vec2((float(a) + jitter[0]) / float(s), (float(b) + jitter[1]) / float(s))
@@ -118,8 +100,7 @@ def surface_point(surf: SurfacePoints, k: int):
 
 @wp.func
 def stratum_random_numbers(rng: wp.uint32):
-    """The uniform numbers of one stratum of the estimators, drawn in this order from ``rng``: the light sample's
-    and the BRDF sample's jitter in the stratum, the BRDF lobe choice, and four numbers for each sample's CSM
+    """The uniforms of one stratum, in order: light and BRDF sample jitter, lobe choice, four per sample for the
     roulette filter. Returns them and the advanced state (Warp passes the state by value)."""
     j_light = wp.vec2(wp.randf(rng), wp.randf(rng))
     j_brdf = wp.vec2(wp.randf(rng), wp.randf(rng))
@@ -129,25 +110,17 @@ def stratum_random_numbers(rng: wp.uint32):
     return j_light, j_brdf, choice, xi_light, xi_brdf, rng
 
 
-# ---- host side -------------------------------------------------------------------------------------
 
 
 class ProgressiveAccumulator:
-    """Running mean of Monte-Carlo passes (Ritschel 2007 Sec. 5.2: m frames blended with weight 1 / m).
-
-    Example::
-
-        acc = ProgressiveAccumulator()
-        for k in range(passes):
-            image = acc.add(shade_environment(..., seed=k))   # write ``image`` as it converges
-    """
+    """Running mean of Monte-Carlo passes (Ritschel 2007 Sec. 5.2: m frames blended with weight 1 / m)."""
 
     def __init__(self):
         self._sum: np.ndarray | None = None
         self.passes = 0
 
     def add(self, frame) -> np.ndarray:
-        """Add one pass (any array shape, the same for every pass) and return the running mean (float32).
+        """Add one pass (any shape, the same for every pass) and return the running mean (float32).
 
         Raises:
             ValueError: a shape differing from the earlier passes, or non-finite values.
@@ -165,11 +138,7 @@ class ProgressiveAccumulator:
 
     @property
     def mean(self) -> np.ndarray:
-        """The current mean of all passes (float32).
-
-        Raises:
-            ValueError: no pass added yet.
-        """
+        """The current mean of all passes (float32); ValueError before the first pass."""
         if self._sum is None:
             raise ValueError("no pass has been added yet")
         return (self._sum / self.passes).astype(np.float32)
@@ -201,8 +170,7 @@ _placeholders: dict = {}
 
 
 def placeholder_csms(device: str) -> tuple[CSMData, CubeCSMData]:
-    """A 1 x 1 lat-long and a one-sample cube CSM struct with valid (unused) arrays, for launches that query
-    neither."""
+    """A 1 x 1 lat-long and a one-sample cube CSM struct, for launches that query neither."""
     if device not in _placeholders:
         from .depthmaps import cube_face_frames
 
@@ -230,10 +198,8 @@ def placeholder_csms(device: str) -> tuple[CSMData, CubeCSMData]:
 
 def surface_inputs(points, normals, albedo, *, view_dirs=None, specular=None, exponent=1.0, materials=None,
                    material_index=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, MaterialTable]:
-    """Check and normalise the per-point inputs shared by the Monte-Carlo shading functions.
-
-    Either Lambert + Phong per point (``albedo``, ``specular``, ``exponent``) or a :class:`MaterialTable` with
-    a per-point ``material_index`` (then albedo / specular / exponent must be None / defaults).
+    """Check and normalise the per-point inputs: Lambert + Phong per point, or a :class:`MaterialTable` with
+    ``material_index``.
 
     Returns:
         (points, normals, view_dirs, material_index (K,) int32, materials).
@@ -273,11 +239,7 @@ def surface_inputs(points, normals, albedo, *, view_dirs=None, specular=None, ex
 
 
 def check_strata(samples) -> int:
-    """s for ``samples`` = s^2 >= 1 strata (a jittered s x s grid).
-
-    Raises:
-        ValueError: not a positive integer or not a perfect square.
-    """
+    """s for ``samples`` = s^2 >= 1 strata; ValueError if not a positive perfect square."""
     if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
         raise ValueError(f"samples must be a positive integer, got {samples!r}")
     strata = math.isqrt(int(samples))
@@ -287,12 +249,8 @@ def check_strata(samples) -> int:
 
 
 def check_visibility_source(filter: str, bias, ray_eps, csm, mesh, objects=None) -> None:
-    """The checks every shading host function makes of its visibility inputs.
-
-    Raises:
-        ValueError: an unknown CSM filter, a negative or non-finite bias / ray_eps, more than one of ``csm``,
-            ``mesh`` and ``objects``, or a ``mesh`` that is not a ``wp.Mesh``.
-    """
+    """Check the visibility inputs; ValueError for an unknown filter, a bad bias / ray_eps, more than one source,
+    or a ``mesh`` that is not a ``wp.Mesh``."""
     if sum(x is not None for x in (csm, mesh, objects)) > 1:
         raise ValueError("give at most one of csm, mesh and objects as the visibility source")
     if objects is not None and not list(objects):
@@ -309,11 +267,9 @@ def check_visibility_source(filter: str, bias, ray_eps, csm, mesh, objects=None)
 
 def light_visibility(csm: CoherentShadowMap | None, mesh: wp.Mesh | None, *, filter: str, bias: float,
                      ray_eps: float, device: str, objects=None, object_bias=None) -> LightVisibility:
-    """:class:`LightVisibility` of a CSM (lat-long: ``VIS_CSM`` towards distant directions; cube: ``VIS_CSM`` of a
-    local light), a ``wp.Mesh`` (``VIS_MESH``), rigid ``objects`` (``VIS_OBJECTS``: ``(csm, transform)`` pairs as
-    :func:`~.batch.object_arrays` takes them, with ``object_bias`` per object in its object-space units; without
-    it ``bias`` is in scene units and taken into each object's space along every query) or none (``VIS_NONE``).
-    The caller switches a lat-long CSM of a local light to ``VIS_SEMI_LOCAL``."""
+    """:class:`LightVisibility` of a CSM, a ``wp.Mesh``, rigid ``objects`` (``(csm, transform)`` pairs; without
+    ``object_bias`` the scene-unit ``bias`` is taken into each object's space) or none. The caller switches a
+    lat-long CSM of a local light to ``VIS_SEMI_LOCAL``."""
     v = LightVisibility()
     v.latlong, v.cube = placeholder_csms(device)
     v.mode, v.mesh = VIS_NONE, wp.uint64(0)
@@ -348,14 +304,12 @@ def surface_points(p: np.ndarray, n: np.ndarray, wo: np.ndarray, idx: np.ndarray
     return s
 
 
-#: Chunks per worker thread of a CPU pass: points differ in cost (sky-facing ground vs. occluded crevices), so a few
-#: more chunks than threads keep both cores busy to the end of the pass (a launch costs ~50 us).
+#: Chunks per worker thread of a CPU pass: points differ in cost, so a few more chunks than threads balance the load.
 CHUNKS_PER_THREAD = 8
 
 
 def launch_points(kernel, count: int, inputs: list, device: str, threads: int | None = None) -> None:
-    """Launch an estimator ``kernel(*inputs, offset)`` over ``count`` points: on the CPU cut into
-    :data:`CHUNKS_PER_THREAD` chunks per worker thread (:mod:`warpscatter.parallel`), on CUDA one launch."""
+    """Launch ``kernel(*inputs, offset)`` over ``count`` points: CPU chunks per thread, one launch on CUDA."""
     if count == 0:
         return
     n = threads or parallel.thread_count()
@@ -373,8 +327,7 @@ def launch_points(kernel, count: int, inputs: list, device: str, threads: int | 
 
 def shade_points(kernel, surface: tuple, light_data, strata: int, vis: LightVisibility, table: MaterialTable,
                  seed: int, device: str, threads: int | None) -> np.ndarray:
-    """Launch an estimator ``kernel(surface, materials, light, strata, visibility, seed, out)`` over the points of
-    ``surface`` = (points, normals, view_dirs, material_index) split across CPU threads; (K, 3) float32 radiance."""
+    """Launch an estimator over the points of ``surface`` split across CPU threads; (K, 3) float32 radiance."""
     p, n, wo, idx = surface
     k = p.shape[0]
     out = wp.zeros(k, dtype=wp.vec3, device=device)
@@ -385,29 +338,23 @@ def shade_points(kernel, surface: tuple, light_data, strata: int, vis: LightVisi
 
 @dataclass(frozen=True)
 class ShadingOptions:
-    """The keyword arguments of :class:`DirectLighting` and :func:`shade_direct` (except ``seed``), in one place.
+    """The keyword arguments of :class:`DirectLighting` and :func:`shade_direct` (except ``seed``).
 
     Attributes:
-        samples: S strata per point, a perfect square s^2 >= 1 (each: one light and one BRDF sample, combined by
-            the balance heuristic; linear lights: one light sample).
-        csm: a coherent shadow map of the occluders: lat-long (distant lights; semi-local area / linear lights,
-            Sec. 4.3) or the local light's cube CSM (Sec. 4.2, :func:`~.local_lights.check_light_csm`).
+        samples: S strata per point, s^2 >= 1 (one light and one BRDF sample each, balance heuristic).
+        csm: a lat-long CSM (distant or semi-local lights, Sec. 4.3) or the local light's cube CSM (Sec. 4.2).
         mesh: ``wp.Mesh`` of the occluders for exact shadow rays (the reference).
-        objects: rigid objects (Sec. 4.6): ``(csm, transform)`` pairs of lat-long CSMs in object space and 4x4
-            object -> world matrices; their visibilities multiply (distant lights, and area / linear lights
-            semi-locally). At most one of csm / mesh / objects; none: no occlusion.
-        object_bias: one depth bias per object (its object-space units); default: ``bias`` in scene units, taken
-            into each object's space along every query.
-        view_dirs: (K, 3) or (3,) unit-ish directions from the point towards the viewer (default: the normal).
+        objects: rigid objects (Sec. 4.6): ``(csm, transform)`` pairs, object -> world 4x4. At most one of
+            csm / mesh / objects; none: no occlusion.
+        object_bias: one depth bias per object (object-space units); default: ``bias`` taken into each object.
+        view_dirs: (K, 3) or (3,) directions towards the viewer (default: the normal).
         specular: (K, 3) or (3,) Phong reflectance k_s (default 0).
         exponent: (K,) or scalar Phong exponent n >= 0.
-        materials: a :class:`~warpscatter.csm.brdf.MaterialTable` (Lambert / Phong / Lafortune) instead of
-            albedo / specular / exponent, with ``material_index`` (K,) rows into it (default 0).
-        material_index: see ``materials``.
+        materials: a :class:`~warpscatter.csm.brdf.MaterialTable` instead of albedo / specular / exponent.
+        material_index: (K,) rows into ``materials`` (default 0).
         filter: CSM filter ``"nearest"``, ``"pcf"`` or ``"roulette"`` (Sec. 4.5).
         bias: CSM depth bias (scene units, >= 0).
-        ray_eps: offset of the query point along the normal (scene units, >= 0): the shadow-ray origin for
-            ``mesh``, the CSM query point for ``csm``.
+        ray_eps: offset of the query point along the normal (scene units, >= 0).
         device: Warp device.
         threads: CPU worker threads.
     """
@@ -436,26 +383,14 @@ def shading_options(options: ShadingOptions | None, keywords: dict) -> ShadingOp
 
 class DirectLighting:
     """Monte-Carlo direct lighting of fixed surface points under one light, set up once for any number of passes
-    (Ritschel 2007 Sec. 5.2): the inputs are checked, and the points, the material table, the light and the
-    visibility source (CSM, BVH or rigid objects) uploaded, in the constructor; :meth:`shade` then only launches
-    the estimator with a pass's seed. :func:`shade_direct` is one pass of it; the ``csm`` / ``raytrace`` pipeline
-    makes one per render.
+    (Ritschel 2007 Sec. 5.2); :meth:`shade` launches one pass per seed.
 
     Args:
         points, normals, albedo, light: as :func:`shade_direct`.
-        options: :class:`ShadingOptions`; or give its fields as keyword arguments (they replace those of
-            ``options``).
+        options: :class:`ShadingOptions`, or its fields as keyword arguments.
 
     Raises:
         ValueError: as :func:`shade_direct`.
-
-    Example::
-
-        lighting = DirectLighting(points, normals, None, env, samples=16, csm=csm, materials=table,
-                                  material_index=idx, filter="roulette", bias=b, ray_eps=e)
-        acc = ProgressiveAccumulator()
-        for k in range(passes):
-            image = acc.add(lighting.shade(seed=k))
     """
 
     def __init__(self, points, normals, albedo, light, options: ShadingOptions | None = None, **keywords):
@@ -505,8 +440,7 @@ class DirectLighting:
         self._out = wp.zeros(self.count, dtype=wp.vec3, device=device)
 
     def shade(self, seed: int = 0) -> np.ndarray:
-        """One pass: (K, 3) float32 outgoing radiance towards the view directions, drawn with ``seed`` (use a new
-        seed per progressive pass: it changes every pattern)."""
+        """One pass: (K, 3) float32 outgoing radiance, drawn with ``seed`` (a new seed per pass)."""
         launch_points(self._kernel, self.count, [*self._inputs, int(seed) & 0x7FFFFFFF, self._out], self.device,
                       self.threads)
         return self._out.numpy().copy()
@@ -517,24 +451,20 @@ def shade_direct(points, normals, albedo, light, options: ShadingOptions | None 
     """Direct lighting at surface points from any Monte-Carlo light (Ritschel 2007 Sec. 4.2, 5), one pass.
 
     Args:
-        points: (K, 3) surface positions (scene units); with a lat-long ``csm`` they must be in its object space.
+        points: (K, 3) surface positions (scene units; in the lat-long ``csm``'s object space).
         normals: (K, 3) surface normals (any non-zero length).
         albedo: (K, 3) or (3,) diffuse reflectance k_d (Lambert f = k_d / pi); None with ``materials``.
-        light: an :class:`~warpscatter.scene.environment_map.EnvironmentMap` (or the
-            :class:`~warpscatter.scene.lights.EnvironmentLight` holding one: :mod:`.environment`), an
-            :class:`~warpscatter.scene.lights.AreaLight` or a :class:`~warpscatter.scene.lights.LinearLight`
-            (:mod:`.local_lights`).
-        options: :class:`ShadingOptions` (samples, visibility source, materials, filter, offsets, device);
-            or give its fields as keyword arguments (they replace those of ``options``).
-        seed: random seed of this pass (use a different one per progressive pass: it changes every pattern).
+        light: an environment map or :class:`~warpscatter.scene.lights.EnvironmentLight`, an
+            :class:`~warpscatter.scene.lights.AreaLight` or a :class:`~warpscatter.scene.lights.LinearLight`.
+        options: :class:`ShadingOptions`, or its fields as keyword arguments.
+        seed: random seed of this pass (a different one per progressive pass).
 
     Returns:
         (K, 3) float32 outgoing radiance towards ``view_dirs``.
 
     Raises:
-        ValueError: malformed arrays, zero normals or view directions, a non-square or non-positive ``samples``,
-            both ``csm`` and ``mesh``, a CSM that does not fit the light, an unknown filter or light, negative
-            bias / ray_eps / exponent.
+        ValueError: malformed inputs, a bad ``samples``, several visibility sources, a CSM that does not fit the
+            light, an unknown filter or light, negative bias / ray_eps / exponent.
     """
     return DirectLighting(points, normals, albedo, light, options, **keywords).shade(seed)
 

@@ -1,19 +1,9 @@
 """Enumerations of a discretised depth-map domain: scan-line, zig-zag and Hilbert orders (Ritschel 2007, Sec. 4.4).
 
-A CSM discretises the d-dimensional domain of its mapping function D into N = N1 x N2 depth-map locations
-(here d = 2: the lat-long grid of directions of a distant light, or a grid of sample points on an area light).
-The compression of Sec. 3.1 works on a *sequence* of maps and gains from successive maps being similar, so the
-grid is put in a coherent order first. An enumeration is a bijection from the grid cells (a, b), a in [0, N1)
-(fastest coordinate, azimuth for lat-long maps) and b in [0, N2), to the sequence indices 0 .. N-1:
-
-- ``scanline``: a runs fastest, i = a + N1 b ("first all depth maps in one dimension are concatenated").
-- ``zigzag``: like scan-line, but every odd row is walked backwards (boustrophedon), so successive cells are
-  always grid neighbours.
-- ``hilbert``: the generalised Hilbert ("gilbert") curve of J. Cervený (BSD-2-Clause algorithm), which covers any
-  N1 x N2 rectangle, equals the classic Hilbert curve on power-of-two squares and moves between 4-neighbours
-  except for at most one diagonal step when one side is odd and the other even.
-
-Everything here is plain numpy run once per CSM build.
+The compression gains from successive maps being similar, so the N1 x N2 grid of map locations is put in a coherent
+order: a bijection from cells (a, b), a fastest, to sequence indices 0 .. N-1. ``scanline``: i = a + N1 b;
+``zigzag``: odd rows walked backwards, so successive cells are neighbours; ``hilbert``: the generalised Hilbert
+("gilbert") curve of J. Cervený (BSD-2-Clause), any rectangle, at most one diagonal step.
 """
 
 from __future__ import annotations
@@ -40,22 +30,14 @@ def _check_dims(n1, n2) -> tuple[int, int]:
 
 
 def scanline_order(n1: int, n2: int) -> np.ndarray:
-    """Cells (a, b) of an n1 x n2 grid in scan-line order (a fastest).
-
-    Returns:
-        (n1 * n2, 2) int64 array; row i holds the cell visited i-th.
-    """
+    """Cells (a, b) of an n1 x n2 grid in scan-line order (a fastest), (n1 * n2, 2) int64 in visiting order."""
     n1, n2 = _check_dims(n1, n2)
     b, a = np.divmod(np.arange(n1 * n2, dtype=np.int64), n1)
     return np.stack([a, b], axis=1)
 
 
 def zigzag_order(n1: int, n2: int) -> np.ndarray:
-    """Cells (a, b) in boustrophedon order: even rows b walk a upwards, odd rows downwards.
-
-    Returns:
-        (n1 * n2, 2) int64 array; row i holds the cell visited i-th.
-    """
+    """Cells (a, b) in boustrophedon order (odd rows b walk a downwards), (n1 * n2, 2) int64 in visiting order."""
     n1, n2 = _check_dims(n1, n2)
     b, a = np.divmod(np.arange(n1 * n2, dtype=np.int64), n1)
     a = np.where(b % 2 == 1, n1 - 1 - a, a)
@@ -63,10 +45,7 @@ def zigzag_order(n1: int, n2: int) -> np.ndarray:
 
 
 def _gilbert(x: int, y: int, ax: int, ay: int, bx: int, by: int, out: list) -> None:
-    """Generalised Hilbert curve over the rectangle spanned by (ax, ay) and (bx, by) from (x, y).
-
-    Iterative over an explicit stack (the recursion of the published algorithm, depth ~log2(max(N1, N2))).
-    """
+    """Generalised Hilbert curve over the rectangle spanned by (ax, ay) and (bx, by) from (x, y), iteratively."""
     stack = [(x, y, ax, ay, bx, by)]
     while stack:
         x, y, ax, ay, bx, by = stack.pop()
@@ -101,11 +80,7 @@ def _gilbert(x: int, y: int, ax: int, ay: int, bx: int, by: int, out: list) -> N
 
 
 def hilbert_order(n1: int, n2: int) -> np.ndarray:
-    """Cells (a, b) along the generalised Hilbert curve of the n1 x n2 grid, starting at (0, 0).
-
-    Returns:
-        (n1 * n2, 2) int64 array; row i holds the cell visited i-th.
-    """
+    """Cells (a, b) along the generalised Hilbert curve from (0, 0), (n1 * n2, 2) int64 in visiting order."""
     n1, n2 = _check_dims(n1, n2)
     out: list = []
     if n1 >= n2:

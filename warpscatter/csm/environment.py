@@ -1,22 +1,10 @@
 """Monte-Carlo direct lighting from an environment map with coherent-shadow-map visibility (Ritschel 2007, Sec. 5).
 
-Solves the direct lighting equation of Sec. 5,
-
-    L(x, wo) = integral over the sphere of f_r(x, wo, wi) L_in(wi) V(x, wi) max(cos theta_i, 0) dwi,
-
-for surface points (a G-buffer: positions, normals, materials) lit by a distant lat-long environment map
-(:class:`~warpscatter.scene.environment_map.EnvironmentMap`, importance-sampled by inverse CDFs P_L^-1):
-
-- BRDFs (Sec. 5.1, P_f^-1), in :mod:`.brdf`: Lambert, normalized Phong and Lafortune lobes, importance sampled
-  with the diffuse / lobe choice by Russian roulette (:class:`~warpscatter.csm.brdf.MaterialTable`).
-- Estimator: per point S = s^2 strata of a jittered s x s grid (a per-point random pattern, Sec. 5.1 "Random
-  Numbers"); each stratum draws one environment sample and one BRDF sample, combined with multiple importance
-  sampling (balance heuristic [VG95]): each sample contributes f L V cos / (p_env + p_brdf).
-- Visibility (:mod:`.direct_lighting`): a lat-long CSM (points in its object space, Sec. 3.3 / 4.1), a
-  ``wp.Mesh`` shadow ray (the reference), or none. Both samples of a stratum use the same directions whatever the
-  visibility source, so ``csm`` and ``raytrace`` images differ by the visibility query alone.
-
-Radiance units follow the environment map (its texels are radiance L_in).
+Solves L(x, wo) = integral of f_r(x, wo, wi) L_in(wi) V(x, wi) max(cos theta_i, 0) dwi for surface points lit by an
+importance-sampled lat-long environment map (P_L^-1; radiance units follow the map). Per point S = s^2 jittered
+strata (Sec. 5.1), each drawing one environment and one BRDF sample (:mod:`.brdf`), combined by the balance
+heuristic [VG95]: f L V cos / (p_env + p_brdf). Both samples use the same directions whatever the visibility source,
+so ``csm`` and ``raytrace`` images differ by the visibility query alone.
 """
 
 from __future__ import annotations
@@ -49,12 +37,8 @@ module_options()
 @wp.func(inline=True)
 def distant_visibility_uv(vis: LightVisibility, p: wp.vec3, n: wp.vec3, d: wp.vec3, uv: wp.vec2,
                           xi: wp.vec4) -> float:
-    """V(p, d) in [0, 1] towards a distant direction ``d`` with lat-long parameters ``uv`` (= latlong_param(d), which
-    the caller already has): the lat-long CSM query of p + eps n (Sec. 3.3; ``xi`` uniform in [0, 1)^4 for the
-    roulette filter) for VIS_CSM, a shadow ray from p + eps n for VIS_MESH, else 1.
-
-    Inlined into its callers (as every per-sample function of the estimators): the visibility struct holds a dozen
-    arrays, which an out-of-line call would copy twice per sample on the CPU."""
+    """V(p, d) in [0, 1] towards distant direction ``d`` with lat-long parameters ``uv``: the CSM query of p + eps n
+    (VIS_CSM), a shadow ray (VIS_MESH), else 1. Inlined: the visibility struct holds a dozen arrays."""
     if vis.mode == VIS_CSM:
         return csm_visibility_filtered_uv(vis.latlong, p + vis.eps * n, uv, vis.bias, vis.filter_mode, xi)
     if vis.mode == VIS_OBJECTS:
@@ -65,7 +49,6 @@ def distant_visibility_uv(vis: LightVisibility, p: wp.vec3, n: wp.vec3, d: wp.ve
     return 1.0
 
 
-# ---- kernels ---------------------------------------------------------------------------------------
 
 
 @wp.kernel
@@ -80,11 +63,7 @@ def shade_environment_kernel(
     offset: int,
 ):
     """out[k] = one stratified MIS estimate (s^2 strata) of the reflected radiance of point k towards view_dirs[k].
-
-    The material's per-point part (frame, lobe axes and weights) is computed once per point (:func:`shading_point`).
-    The lat-long CSM is queried with lat-long parameters the estimator already has: an environment sample's own
-    (u, v) (its direction is env_direction(u, v); recomputing them from the direction would only add an atan2, an
-    acos and their rounding), a BRDF sample's latlong_param, which also serves its map look-up and density."""
+    The CSM is queried with the (u, v) the estimator already has (saves an atan2 and an acos per sample)."""
     k = wp.tid() + offset
     rng = wp.rand_init(seed, k)  # a different pattern per point and per pass (seed)
     p, n, wo, m = surface_point(surf, k)
@@ -116,13 +95,11 @@ def shade_environment_kernel(
     out[k] = total / float(count)
 
 
-# ---- host side -------------------------------------------------------------------------------------
 
 
 def shade_environment(points, normals, albedo, env: EnvironmentMap, **options) -> np.ndarray:
-    """Direct lighting from an environment map at surface points (Ritschel 2007 Sec. 5), one Monte-Carlo pass:
-    :func:`~warpscatter.csm.direct_lighting.shade_direct` with ``env`` (each stratum draws one environment and one
-    BRDF sample, 2 S directions combined by the balance heuristic; ``csm`` must be a lat-long CSM).
+    """Direct lighting from an environment map at surface points (Ritschel 2007 Sec. 5), one pass of
+    :func:`~warpscatter.csm.direct_lighting.shade_direct` (``csm`` must be lat-long).
 
     Raises:
         ValueError: ``env`` is not an :class:`~warpscatter.scene.environment_map.EnvironmentMap`, or as

@@ -1,30 +1,14 @@
 """Monte-Carlo direct lighting from local area and linear lights with coherent-shadow-map visibility
 (Ritschel 2007, Sec. 4.2 and 5.1).
 
-Lights (:class:`~warpscatter.scene.lights.AreaLight`, :class:`~warpscatter.scene.lights.LinearLight`; scene
-units, radiometric quantities in linear RGB): a parallelogram y(s, t) = corner + s u + t v of radiance L_e (times
-its texture at (s, t), if any),
-or a segment y(s) of intensity I per unit length, or a parallelepiped y(s, t, r) of intensity I per unit volume
-(Sec. 4.2's d = 3; neither has a surface: BRDF samples never hit them, only light sampling contributes; a volume light
-is stratified in (s, t), r drawn per stratum, and its visibility is semi-local or ray-cast: the cube CSM's samples
-are indexed by a surface's (s, t)).
+Lights (scene units, linear RGB): a parallelogram y(s, t) = corner + s u + t v of radiance L_e (times its texture),
+a segment of intensity I per unit length, or a parallelepiped of intensity I per unit volume (d = 3; only light
+sampling contributes). Sampling by radiance (Sec. 5.1): uniform in (s, t) or s, a textured light by its texels, the
+S strata stratifying (s, t); an area sample's solid-angle density is d^2 / (A |cos theta_l|). Area lights combine one
+light and one BRDF sample per stratum with the balance heuristic [VG95]; linear lights: f I V cos(theta_x) / d^2 * l.
 
-Sampling "by radiance" (Sec. 5.1): with constant emission that is uniform in (s, t) (area) or s (linear); a
-textured area light is sampled by its texels' emission (:func:`~warpscatter.scene.lights.area_light_sample_st`; the
-cube CSM's samples stay indexed by (s, t)); the
-S = s^2 strata of the per-point jittered pattern stratify (s, t), and S strata stratify s of a linear light.
-The area light's solid-angle density of a light sample y seen from x is d^2 / (A |cos theta_l|).
-
-Estimator per stratum for an area light, balance heuristic [VG95] as for environment maps: one light sample,
-f L_e V cos / (p_light + p_brdf), and one BRDF sample that contributes f L_e V cos / (p_brdf + p_light) when its
-ray hits the parallelogram (on an emitting side). Linear lights: f I V cos(theta_x) / d^2 * l per stratum.
-
-Visibility between x and the light point y of parameters (s, t): the local light's ``"cube"`` CSM
-(:func:`~warpscatter.csm.query.csm_local_visibility_filtered`, depth cube maps at the light's sample points,
-Sec. 3.3 / 4.2; the CSM must be built on the same parallelogram / segment so that (s, t) index its samples), or
-a lat-long CSM of the occluders queried in direction y - x (semi-local lights, Sec. 4.3: valid while the light
-stays outside the occluders' convex hull; one CSM serves any such light), or a ``wp.Mesh`` shadow ray from
-x + eps n to y (the reference), or none.
+Visibility: the light's ``"cube"`` CSM (Sec. 3.3 / 4.2, built on the same light so (s, t) index its samples), a
+lat-long CSM towards y - x (semi-local, Sec. 4.3: the light outside the occluders' hull), a shadow ray, or none.
 """
 
 from __future__ import annotations
@@ -69,9 +53,8 @@ module_options()
 
 @wp.func(inline=True)
 def local_visibility(vis: LightVisibility, x: wp.vec3, n: wp.vec3, y: wp.vec3, st: wp.vec2, xi: wp.vec4) -> float:
-    """V between surface point ``x`` (normal n) and the light point ``y`` of parameters ``st``: the cube CSM
-    query of x + eps n (VIS_CSM), the lat-long CSM towards y (VIS_SEMI_LOCAL), a shadow ray from x + eps n that
-    stops just short of y (VIS_MESH), else 1. Inlined into the estimator (no copies of the visibility struct)."""
+    """V between surface point ``x`` and the light point ``y`` of parameters ``st`` for each visibility mode (shadow
+    rays stop just short of y). Inlined into the estimator."""
     o = x + vis.eps * n
     if vis.mode == VIS_CSM:
         return csm_local_visibility_filtered(vis.cube, o, st, vis.bias, vis.filter_mode, xi)
@@ -87,7 +70,6 @@ def local_visibility(vis: LightVisibility, x: wp.vec3, n: wp.vec3, y: wp.vec3, s
     return 1.0
 
 
-# ---- kernels ---------------------------------------------------------------------------------------
 
 
 @wp.kernel
@@ -101,8 +83,7 @@ def shade_local_light_kernel(
     out: wp.array(dtype=wp.vec3),
     offset: int,
 ):
-    """out[k] = one stratified estimate of the radiance reflected at point k from the local light (the material's
-    per-point part computed once, :func:`~warpscatter.csm.brdf.shading_point`)."""
+    """out[k] = one stratified estimate of the radiance reflected at point k from the local light."""
     k = wp.tid() + offset
     rng = wp.rand_init(seed, k)
     x, n, wo, m = surface_point(surf, k)
@@ -112,8 +93,7 @@ def shade_local_light_kernel(
     for s in range(count):
         j_light, j_brdf, choice, xi_light, xi_brdf, rng = stratum_random_numbers(rng)
         if light.kind == LOCAL_LIGHT_VOLUME or light.kind == LOCAL_LIGHT_LINEAR:
-            # ---- no surface to hit: light sampling only. Volume: stratified in (s, t), r from the stratum's third
-            # number; linear: stratified in s (zero area) ----
+            # no surface to hit: light sampling only (volume: r from the stratum's third number)
             st = stratum_sample(s, strata, j_light)
             y = light.origin + st[0] * light.edge_u + st[1] * light.edge_v + choice * light.normal
             if light.kind == LOCAL_LIGHT_LINEAR:
@@ -161,15 +141,11 @@ def shade_local_light_kernel(
     out[k] = total / float(count)
 
 
-# ---- host side -------------------------------------------------------------------------------------
 
 
 def shade_local_light(points, normals, albedo, light: AreaLight | LinearLight | VolumeLight, **options) -> np.ndarray:
-    """Direct lighting from an area or linear light at surface points (Ritschel 2007 Sec. 4.2, 5), one pass:
-    :func:`~warpscatter.csm.direct_lighting.shade_direct` with ``light`` (area: one light and one BRDF sample per
-    stratum; linear: one light sample). ``csm`` is the light's ``"cube"`` CSM
-    (:func:`~warpscatter.csm.compress.build_cube_csm` on ``light.sample_points(...)``) or a lat-long CSM of the
-    occluders (semi-local light, Sec. 4.3).
+    """Direct lighting from an area or linear light at surface points (Ritschel 2007 Sec. 4.2, 5), one pass of
+    :func:`~warpscatter.csm.direct_lighting.shade_direct`; ``csm`` is the light's cube CSM or a lat-long CSM.
 
     Raises:
         ValueError: ``light`` is not an :class:`~warpscatter.scene.lights.AreaLight` or

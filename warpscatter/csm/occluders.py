@@ -1,10 +1,5 @@
-"""The coherent shadow map of a scene's occluders (Ritschel et al. 2007): which triangles occlude, which CSM kind
-a light needs, building it or loading a precomputed one and checking that it fits the scene.
-
-Occluders are every mesh not marked ``receiver_only``, in world space. An environment light (and a semi-local
-area / linear light, Sec. 4.3) needs a lat-long CSM; an area or linear light with ``local_lights: cube`` needs
-depth cube maps at its sample points (Sec. 4.2). ``warpscatter precompute`` and the ``csm`` lighting method build
-them with the same functions.
+"""The coherent shadow map of a scene's occluders (Ritschel et al. 2007): which triangles occlude (meshes not
+``receiver_only``), which CSM kind a light needs, building or loading it and checking that it fits the scene.
 """
 
 from __future__ import annotations
@@ -31,9 +26,8 @@ from .settings import CSMBuildSettings
 
 
 def scene_occluders(scene, receiver_only=None) -> tuple[np.ndarray, np.ndarray]:
-    """The occluder mesh of a scene: the triangles of every material (= mesh entry) k with ``receiver_only[k]``
-    false (default: the scene's own flags, :meth:`~warpscatter.scene.Scene.caster_mask`), compacted to the vertices
-    they use (float32 world positions, int32 indices; both empty when nothing casts)."""
+    """The occluder mesh: triangles of the meshes not ``receiver_only`` (default: the scene's flags), compacted
+    (float32 world positions, int32 indices; empty when nothing casts)."""
     from ..scene import compact_mesh
 
     if receiver_only is not None:
@@ -42,9 +36,8 @@ def scene_occluders(scene, receiver_only=None) -> tuple[np.ndarray, np.ndarray]:
 
 
 def csm_kind_for(light, local_lights: str = "cube") -> str:
-    """The CSM kind a light needs: depth cube maps at the samples of an area or linear light with ``local_lights``
-    ``cube`` (Sec. 4.2), else lat-long maps (environment and semi-local lights, Sec. 4.3, a volume light always, or
-    no light at all: they serve any distant or semi-local light)."""
+    """The CSM kind a light needs: cube for area or linear lights with ``local_lights: cube`` (Sec. 4.2), else
+    lat-long (environment, semi-local and volume lights, or none, Sec. 4.3)."""
     if getattr(light, "kind", None) in ("area", "linear") and local_lights == "cube":
         return KIND_CUBE
     return KIND_LATLONG
@@ -52,11 +45,7 @@ def csm_kind_for(light, local_lights: str = "cube") -> str:
 
 def check_csm_for_scene(csm: CoherentShadowMap, light, vertices, triangles, where: str = "csm",
                         local_lights: str = "cube") -> None:
-    """Refuse a CSM that does not belong to these occluders and this light.
-
-    Checks: the kind (:func:`csm_kind_for`: lat-long for environment and semi-local lights, else cube), the geometry
-    (:func:`~warpscatter.csm.compress.geometry_digest`, or the bounding sphere for files without a digest) and,
-    for cube CSMs, that the light samples lie on the light.
+    """Refuse a CSM whose kind, geometry (digest, else bounding sphere) or cube light samples do not fit.
 
     Raises:
         CSMFileError: naming ``where`` and the mismatch.
@@ -134,20 +123,16 @@ def clear_csm_cache() -> None:
         _BUILT.clear()
 
 
-#: CSMs this process built, by (occluder geometry, settings, device, light sample points): a render of the same
-#: occluders (the frames of an animation whose occluders do not move or move rigidly with per-mesh CSMs, a sweep
-#: over other settings) reuses them.
+#: CSMs this process built, by (occluder geometry, settings, device, light samples): reused by later renders.
 _BUILT: OrderedDict = OrderedDict()
-#: Bytes of built CSMs the process keeps, host and device copies (the least recently used leave first; the last one
-#: stays).
+#: Bytes of built CSMs kept, host and device copies (least recently used leave first; the last one stays).
 BUILT_CACHE_BYTES = 512 * 2**20
 _BUILT_LOCK = threading.RLock()
 
 
 def texel_size(csm: CoherentShadowMap) -> float:
-    """2R / M: the world size of one lat-long texel of the occluders' bounding sphere (R) at map size M. The
-    default depth bias of the lighting methods is one such texel and the normal offset a quarter of it: larger normal
-    offsets leak light into contact shadows (the errors against raytrace: docs/benchmarks.md, "CSM offsets")."""
+    """2R / M: one lat-long texel of the occluders' bounding sphere. The default depth bias is one texel and the
+    normal offset a quarter (larger offsets leak light; docs/benchmarks.md, "CSM offsets")."""
     return 2.0 * float(csm.radius) / float(csm.resolution)
 
 

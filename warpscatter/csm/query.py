@@ -1,44 +1,18 @@
 """Visibility queries against coherent shadow maps (Ritschel 2007, Sec. 3.2, 4.1, 4.3, 4.5, 4.6).
 
-A query asks whether the ray from a point p in direction d (towards the light) leaves the object's bounding
-sphere unblocked. It selects the map whose lat-long cell holds d (nearest cell in the (u, v) parameter domain
-of :func:`~warpscatter.csm.depthmaps.latlong_param`, the "depth map with a viewing direction most similar to
-d"), projects p with the depth-map matrix D_i, q = D_i p (texel x, y and linear depth q_z), finds by binary
-search the segment j of the texel's list with i_end(j - 1) < i <= i_end(j) (i: the map's sequence index) and
-compares: p is shadowed iff q_z - bias > z_avg(j). Points projecting outside the map are lit: nothing of the
-object lies on their ray.
+A query for point p and direction d (towards the light) selects the map whose lat-long cell holds d, projects
+q = D_i p (texel x, y and linear depth q_z), binary-searches the texel's segment j with i_end(j - 1) < i <= i_end(j)
+and returns shadowed iff q_z - bias > z_avg(j); points outside the map are lit. ``bias`` is in object-space units.
 
-Filters (Sec. 4.5), all returning a visibility in [0, 1]:
+Filters (Sec. 4.5), visibility in [0, 1]: nearest (one map, one texel); generalised PCF (the 4 nearest maps,
+azimuth wrapped and polar clamped, times the 4 nearest texels, bilinear weights [RSC87]); Russian roulette (one of
+those 16 comparisons picked with its PCF weight, so its expectation is the PCF value).
 
-- nearest: the nearest map and the texel containing q.
-- generalised PCF: the 2^d = 4 nearest maps (bilinear in (u, v) over cell centres; azimuth wraps around,
-  the polar index is clamped at the poles) times the 4 nearest texels (bilinear over texel centres), 16 depth
-  comparisons weighted by the products of the bilinear weights [RSC87].
-- Russian roulette: one of those 16 comparisons, chosen with probability equal to its PCF weight (four
-  independent uniform numbers decide the four bilinear choices), so its expectation is the PCF value.
-
-Semi-local lights (Sec. 4.3): the visibility between p and a light point l is the distant query with d = l - p
-(valid while l stays outside the object's convex hull). Moving rigid objects (Sec. 4.6): an object placed by
-the 4x4 matrix T is queried with D' = D T^-1, i.e. p and d are first taken to object space
-(:func:`csm_object_space`); several objects' visibilities multiply, which also serves receiver-only objects
-(ground planes) that have no CSM of their own.
-
-Fixed local lights (Sec. 3.3, 4.2) use a ``"cube"`` CSM: depth cube maps at the light's sample points, 6N maps
-concatenated face by face. A query for a point p and light parameters x selects the nearest sample o (or the
-2^d nearest for PCF / roulette), the cube face k of p - o, and decodes map k N + i (i: the sample's sequence
-index); texels beyond a face's border are clamped to it.
-
-Both kinds share one implementation of the filters (PCF and roulette over 2^2 maps x 2^2 texels): generic
-@wp.funcs over the CSM struct, which Warp compiles once per kind, resolving two per-kind overloads, the texel
-depth test and the 2x2-texel footprint of a point in a map.
-
-Callers that already have a direction's lat-long parameters (the environment estimator: an environment sample's
-own (u, v), a BRDF sample's shared with its map look-up) query with :func:`csm_visibility_filtered_uv`, which is
-:func:`csm_visibility_filtered` without its atan2 / acos; the filtered queries are inlined into their callers (the
-CSM struct holds six arrays, which an out-of-line call copies on the CPU).
-
-``bias`` is in object-space scene units. The host functions that run batches of queries are
-:mod:`warpscatter.csm.batch`.
+Semi-local lights (Sec. 4.3) use d = l - p; rigid objects (Sec. 4.6) are queried with D' = D T^-1
+(:func:`csm_object_space`), their visibilities multiplied. Fixed local lights (Sec. 3.3, 4.2) use ``"cube"`` CSMs:
+the nearest light sample o, the cube face of p - o, map k N + i. Both kinds share the filters: generic @wp.funcs over
+the CSM struct with two per-kind overloads (``_texel_test``, ``_map_footprint``). The filtered queries are inlined
+(the struct holds six arrays, which an out-of-line call copies on the CPU). Batches: :mod:`warpscatter.csm.batch`.
 """
 
 from __future__ import annotations
@@ -95,7 +69,6 @@ class CubeCSMData:
     seg_end: wp.array(dtype=wp.int32)
 
 
-# ---- building blocks (public @wp.func API) ---------------------------------------------------------
 
 
 @wp.func
@@ -121,10 +94,8 @@ def segment_lookup(
 
 @wp.func
 def grid_bilinear(u: float, v: float, n1: int, n2: int, wrap_u: int) -> tuple[wp.vec4i, wp.vec2]:
-    """The 2^2 cells of an n1 x n2 grid around parameters (u, v) in [0, 1]^2 and the bilinear weights over
-    cell centres: cells (c00, c10, c01, c11) as b n1 + a and (fa, fb); weight of c10 = fa (1 - fb), of
-    c01 = (1 - fa) fb, of c11 = fa fb. ``wrap_u`` != 0 wraps the first axis (azimuth), else it is clamped;
-    the second axis is always clamped."""
+    """The 2^2 cells of an n1 x n2 grid around (u, v) in [0, 1]^2 and bilinear weights over cell centres: cells
+    (c00, c10, c01, c11) as b n1 + a and (fa, fb). ``wrap_u`` != 0 wraps the first axis; the second is clamped."""
     s = u * float(n1) - 0.5
     t = v * float(n2) - 0.5
     fs = wp.floor(s)
@@ -155,8 +126,7 @@ def bilinear_blend(v00: float, v10: float, v01: float, v11: float, fx: float, fy
 
 @wp.func
 def bilinear_pick(xi: wp.vec2, w: wp.vec2) -> wp.vec2i:
-    """Corner (dx, dy) in {0, 1}^2 of a bilinear stencil with fractions ``w``, chosen by the uniform numbers
-    ``xi`` in [0, 1)^2 with probability equal to its bilinear weight (dx = 1 iff xi_0 < w_0, likewise dy)."""
+    """Corner (dx, dy) of a bilinear stencil with fractions ``w``, chosen by ``xi`` in [0, 1)^2 with its weight."""
     dx = int(0)
     dy = int(0)
     if xi[0] < w[0]:
@@ -175,24 +145,19 @@ def randf4(state: wp.uint32) -> tuple[wp.vec4, wp.uint32]:
 
 @wp.func
 def roulette_numbers(filter_mode: int, seed: int, query: int) -> wp.vec4:
-    """The uniform numbers ``xi`` of query ``query`` (random stream (seed, query)) under FILTER_ROULETTE; zero
-    under the other filters, which do not use them."""
+    """The uniforms ``xi`` of query ``query`` (stream (seed, query)) under FILTER_ROULETTE; zero otherwise."""
     if filter_mode == FILTER_ROULETTE:
         xi, _state = randf4(wp.rand_init(seed, query))
         return xi
     return wp.vec4(0.0)
 
 
-# ---- the filters of both kinds (Sec. 4.5), generic over CSMData / CubeCSMData -------------------------
-# Per kind, two overloads do what differs: _texel_test (depth test of one texel of a map) and _map_footprint
-# (the 2x2-texel footprint of a point in the map of a grid cell: its sequence index, -1 when nothing there can
-# shadow the point, and the filter coordinates (x - 0.5, y - 0.5) and depth).
+# The filters of both kinds (Sec. 4.5); per kind, overloads of _texel_test and _map_footprint do what differs.
 
 
 @wp.func
 def _texel_stencil(sx: float, sy: float) -> tuple[wp.vec2i, wp.vec2]:
-    """Texel (x0, y0) at the lower corner of the 2x2 stencil of filter coordinates (sx, sy) and the fractions
-    (fx, fy) of (sx, sy) past it."""
+    """Lower-corner texel (x0, y0) of the 2x2 stencil at filter coordinates (sx, sy) and the fractions past it."""
     fx0 = wp.floor(sx)
     fy0 = wp.floor(sy)
     return wp.vec2i(int(fx0), int(fy0)), wp.vec2(sx - fx0, sy - fy0)
@@ -235,13 +200,11 @@ def _cells_pcf(csm: Any, cells: wp.vec4i, w: wp.vec2, p: wp.vec3, bias: float) -
 
 @wp.func
 def _cells_roulette(csm: Any, cells: wp.vec4i, w: wp.vec2, p: wp.vec3, bias: float, xi: wp.vec4) -> float:
-    """One of the 16 comparisons of :func:`_cells_pcf`, picked with its weight by ``xi`` (map a, map b,
-    texel x, texel y)."""
+    """One of the 16 comparisons of :func:`_cells_pcf`, picked with its weight by ``xi``."""
     d = bilinear_pick(wp.vec2(xi[0], xi[1]), w)
     return _map_roulette(csm, cells[d[0] + 2 * d[1]], p, bias, wp.vec2(xi[2], xi[3]))
 
 
-# ---- lat-long CSMs of distant and semi-local lights (Sec. 4.1, 4.3, 4.6) ----
 
 
 @wp.func
@@ -252,8 +215,7 @@ def csm_segment_depth(csm: CSMData, texel: int, sequence: int) -> float:
 
 @wp.func
 def csm_nearest_cell_uv(csm: CSMData, uv: wp.vec2) -> int:
-    """Grid cell b n1 + a of the map selected for the direction of lat-long parameters ``uv`` (nearest cell
-    centre; ``uv`` = :func:`~warpscatter.csm.depthmaps.latlong_param` of the direction)."""
+    """Grid cell b n1 + a of the map selected for lat-long parameters ``uv`` (nearest cell centre)."""
     a = wp.min(int(uv[0] * float(csm.n1)), csm.n1 - 1)
     b = wp.min(int(uv[1] * float(csm.n2)), csm.n2 - 1)
     return b * csm.n1 + a
@@ -273,15 +235,13 @@ def csm_bilinear_cells_uv(csm: CSMData, uv: wp.vec2) -> tuple[wp.vec4i, wp.vec2]
 
 @wp.func
 def csm_bilinear_cells(csm: CSMData, d: wp.vec3) -> tuple[wp.vec4i, wp.vec2]:
-    """The 2^2 cells around direction ``d`` and the bilinear weights: cells (c00, c10, c01, c11) and
-    (fa, fb), weight of c10 = fa (1 - fb), of c01 = (1 - fa) fb, of c11 = fa fb (Sec. 4.5)."""
+    """The 2^2 cells around direction ``d`` and the bilinear weights (fa, fb), as :func:`csm_bilinear_cells`."""
     return csm_bilinear_cells_uv(csm, latlong_param(d))
 
 
 @wp.func
 def csm_project(csm: CSMData, cell: int, p: wp.vec3) -> wp.vec3:
-    """q = D_i p for the map of ``cell``: continuous texel coordinates (x, y) (texel x covers [x, x + 1), row y
-    from the top) and the linear depth q_z = R - <p - c, dir> (scene units from the map plane)."""
+    """q = D_i p for the map of ``cell``: continuous texel (x, y) (row y from the top) and linear depth q_z."""
     f = csm.frames[cell]
     r = p - csm.center
     half = 0.5 * float(csm.resolution)
@@ -309,8 +269,7 @@ def _texel_test(csm: CSMData, sequence: int, x: int, y: int, depth: float, bias:
 
 @wp.func
 def _map_footprint(csm: CSMData, cell: int, p: wp.vec3) -> tuple[int, wp.vec3]:
-    """Lat-long overload of the filters' footprint: none (-1) when the 2x2 texels around q = D_i p all lie
-    outside the map (also for NaN)."""
+    """Lat-long footprint: none (-1) when the 2x2 texels around q = D_i p all lie outside the map (or NaN)."""
     q = csm_project(csm, cell, p)
     m = float(csm.resolution)
     sx = q[0] - 0.5
@@ -351,8 +310,8 @@ def csm_visibility_pcf(csm: CSMData, p: wp.vec3, d: wp.vec3, bias: float) -> flo
 
 @wp.func
 def csm_visibility_roulette(csm: CSMData, p: wp.vec3, d: wp.vec3, bias: float, xi: wp.vec4) -> float:
-    """Russian-roulette filter (Sec. 4.5): one of the 16 PCF comparisons, picked with its PCF weight by the
-    uniform numbers ``xi`` in [0, 1)^4 (map a, map b, texel x, texel y). E[result] = :func:`csm_visibility_pcf`."""
+    """Russian-roulette filter (Sec. 4.5): one of the 16 PCF comparisons, picked with its PCF weight by ``xi`` in
+    [0, 1)^4. E[result] = :func:`csm_visibility_pcf`."""
     cells, w = csm_bilinear_cells(csm, d)
     return _cells_roulette(csm, cells, w, p, bias, xi)
 
@@ -360,8 +319,7 @@ def csm_visibility_roulette(csm: CSMData, p: wp.vec3, d: wp.vec3, bias: float, x
 @wp.func(inline=True)
 def csm_visibility_filtered_uv(csm: CSMData, p: wp.vec3, uv: wp.vec2, bias: float, filter_mode: int,
                                xi: wp.vec4) -> float:
-    """:func:`csm_visibility_filtered` of the direction whose lat-long parameters ``uv`` (= latlong_param of it)
-    the caller already has: the environment estimator shares them with its map look-up."""
+    """:func:`csm_visibility_filtered` for a direction whose lat-long parameters ``uv`` the caller already has."""
     if filter_mode == FILTER_PCF:
         cells, w = csm_bilinear_cells_uv(csm, uv)
         return _cells_pcf(csm, cells, w, p, bias)
@@ -373,28 +331,22 @@ def csm_visibility_filtered_uv(csm: CSMData, p: wp.vec3, uv: wp.vec2, bias: floa
 
 @wp.func(inline=True)
 def csm_visibility_filtered(csm: CSMData, p: wp.vec3, d: wp.vec3, bias: float, filter_mode: int, xi: wp.vec4) -> float:
-    """Visibility with the filter ``filter_mode`` (FILTER_NEAREST, FILTER_PCF or FILTER_ROULETTE; ``xi`` is
-    used by the roulette only)."""
+    """Visibility with the filter ``filter_mode`` (``xi`` used by the roulette only)."""
     return csm_visibility_filtered_uv(csm, p, latlong_param(d), bias, filter_mode, xi)
 
 
 @wp.func
 def csm_visibility_to_point(csm: CSMData, p: wp.vec3, light_point: wp.vec3, bias: float) -> float:
-    """Semi-local lights (Sec. 4.3): visibility between ``p`` and a light point outside the object's convex
-    hull, the distant query with d = light_point - p (nearest map and texel)."""
+    """Semi-local lights (Sec. 4.3): visibility between ``p`` and a light point, the distant query with d = l - p."""
     return csm_visibility(csm, p, light_point - p, bias)
 
 
 @wp.func
 def csm_object_space(inv_transform: wp.mat44, p: wp.vec3, d: wp.vec3) -> tuple[wp.vec3, wp.vec3]:
-    """World point and direction -> object space of an object placed by T (Sec. 4.6: D' = D T^-1).
-
-    ``inv_transform`` is T^-1 (affine). The direction takes the linear part only; it needs no normalisation.
-    """
+    """World point and direction -> object space of an object placed by T (Sec. 4.6: D' = D T^-1, T^-1 affine)."""
     return wp.transform_point(inv_transform, p), wp.transform_vector(inv_transform, d)
 
 
-# ---- depth cube maps of fixed local lights (Sec. 3.3, 4.2) ----
 
 
 @wp.func
@@ -418,9 +370,8 @@ def cube_face(w: wp.vec3) -> int:
 
 @wp.func
 def csm_cube_project(csm: CubeCSMData, cell: int, p: wp.vec3) -> tuple[int, wp.vec3]:
-    """Face k and q = (x, y, depth) of ``p`` in the cube map of light sample ``cell``: continuous texel
-    coordinates of the face (row y from the top) and the linear depth <p - o, forward>. A point at the
-    sample itself gets x = -1 (outside: lit)."""
+    """Face k and q = (x, y, depth) of ``p`` in the cube map of light sample ``cell`` (linear depth along the
+    face axis); a point at the sample itself gets x = -1 (lit)."""
     w = p - csm.samples[cell]
     k = cube_face(w)
     f = csm.faces[k]
@@ -452,8 +403,7 @@ def _texel_test(csm: CubeCSMData, sequence: int, x: int, y: int, depth: float, b
 
 @wp.func
 def _map_footprint(csm: CubeCSMData, cell: int, p: wp.vec3) -> tuple[int, wp.vec3]:  # noqa: F811
-    """Cube overload of the filters' footprint: in face k of sample ``cell`` (map k N + i); none (-1) for a
-    point at the sample itself."""
+    """Cube footprint: in face k of sample ``cell``; none (-1) for a point at the sample itself."""
     k, q = csm_cube_project(csm, cell, p)
     if q[0] < 0.0:
         return -1, wp.vec3(0.0)
@@ -492,8 +442,7 @@ def csm_local_visibility(csm: CubeCSMData, p: wp.vec3, x: wp.vec2, bias: float) 
 
 @wp.func
 def csm_local_visibility_pcf(csm: CubeCSMData, p: wp.vec3, x: wp.vec2, bias: float) -> float:
-    """Generalised PCF for local lights (Sec. 4.5): the 2^d nearest light samples (bilinear in x, clamped at
-    the light's edges; d = 1 when n2 = 1) times 4 texels."""
+    """Generalised PCF for local lights (Sec. 4.5): the 2^d nearest light samples times 4 texels."""
     cells, w = grid_bilinear(x[0], x[1], csm.n1, csm.n2, 0)
     return _cells_pcf(csm, cells, w, p, bias)
 
@@ -517,7 +466,6 @@ def csm_local_visibility_filtered(
     return csm_local_visibility(csm, p, x, bias)
 
 
-# ---- the batch query kernel, generic over the CSM struct ----------------------------------------------
 
 
 @wp.struct
@@ -547,8 +495,7 @@ def batch_visibility(csm: CubeCSMData, p: wp.vec3, x: wp.vec2, bias: float, filt
 @wp.func
 def batch_visibility(objects: CSMObjects, p: wp.vec3, d: wp.vec3, bias: float, filter_mode: int,  # noqa: F811
                      seed: int, query: int) -> float:
-    """Query ``query`` of a batch against rigid objects: the product of each object's filtered visibility, queried
-    with D' = D T^-1 (the roulette draws four numbers per object from one stream)."""
+    """Query against rigid objects: the product of each object's filtered visibility (D' = D T^-1)."""
     state = wp.rand_init(seed, query)
     v = float(1.0)
     for k in range(objects.csms.shape[0]):
@@ -571,8 +518,7 @@ def visibility_kernel(
     out: wp.array(dtype=wp.float32),
     offset: int,
 ):
-    """out[i] = filtered visibility of query i: points[i] and queries[i] (a direction towards a distant light, or a
-    local light's parameters) against ``csm`` (:class:`CSMData`, :class:`CubeCSMData` or :class:`CSMObjects`)."""
+    """out[i] = filtered visibility of points[i] and queries[i] (a direction or light parameters) against ``csm``."""
     i = wp.tid() + offset
     out[i] = batch_visibility(csm, points[i], queries[i], bias, filter_mode, seed, i)
 
@@ -583,12 +529,10 @@ for _struct, _query in QUERY_TYPES.items():
     wp.overload(visibility_kernel, {"csm": _struct, "queries": wp.array(dtype=_query)})
 
 
-# ---- host side -------------------------------------------------------------------------------------
 
 
 def csm_device_data(csm: CoherentShadowMap, device: str | None = None) -> CSMData | CubeCSMData:
-    """The :class:`CSMData` (lat-long) or :class:`CubeCSMData` (cube) of a CSM on ``device`` (uploaded once,
-    then cached on the CSM object)."""
+    """The :class:`CSMData` or :class:`CubeCSMData` of a CSM on ``device`` (uploaded once, cached on the CSM)."""
     device = default_device(device)
     key = str(device)
     if key not in csm._device_cache:

@@ -1,11 +1,6 @@
-"""Settings of the Monte-Carlo lighting methods and of coherent shadow maps: the keys, defaults, ranges and
-meanings of ``render.lighting`` (Warp-free; the only place they are written, ``warpscatter precompute`` takes its
-choices and limits from here too).
-
-* :class:`CSMBuildSettings` — how a coherent shadow map of the occluders is built (Ritschel et al. 2007 Sec. 3-4),
-  or the ``file`` it is loaded from.
-* :class:`LightingSettings` — Monte-Carlo direct lighting (Sec. 5): the method (``csm`` or its ray-traced reference
-  ``raytrace``), strata, progressive passes, the CSM filter and offsets.
+"""Settings of the Monte-Carlo lighting methods and of coherent shadow maps (``render.lighting``; Warp-free, the one
+place they are written): :class:`CSMBuildSettings` (Ritschel et al. 2007 Sec. 3-4) and :class:`LightingSettings`
+(Sec. 5).
 """
 
 from __future__ import annotations

@@ -1,59 +1,25 @@
 """The ``epipolar`` render method: epipolar sampling for crepuscular rays (Engelhardt & Dachsbacher 2010).
 
-In-scattered light varies smoothly along epipolar lines (the screen images of planes through the camera and
-the light) except at depth discontinuities, so it is ray-marched only at a sparse set of samples on those
-lines and interpolated elsewhere. Stages (names as they appear in timings):
+In-scattered light varies smoothly along epipolar lines (the screen images of planes through the camera and the
+light) except at depth discontinuities, so it is ray-marched at a sparse set of samples on those lines and
+interpolated elsewhere. Stages (names as they appear in timings):
 
-1. ``lines``           — the epipole and N lines from it to equidistant border points, clipped against the
-   viewport and culled when outside (:mod:`.epipolar_lines`, host numpy), clipped against a spot light's cone
-   (:func:`trim_to_cone`); then the **coordinate texture** (line x texel -> screen position, Sec. 5.1; row =
-   line, column = position along it) and the camera depth (G-buffer distance) at every texel.
-2. ``discontinuities`` — the sources of every texel as the paper's per-texel search left and right inside its
-   initial segment finds them (Sec. 5.2 pseudo-code), in one pass per line: each initial segment splits into
-   runs at the depth discontinuities between neighbouring texels, and every texel of a run gets the run's ends.
-   The **interpolation texture** stores the two sources; texels that are their own source (initial samples and
-   texels beside a discontinuity) are ray-marching samples, listed per line and gathered into one list (the
-   paper's stencil mask).
-3. ``raymarch``        — the ray-marching samples only, with the reference marcher's estimator
-   (:func:`~.marching.march_screen_point` = :func:`~.marching.march_ray` at a sub-pixel position; steps
-   restricted to the lit part of the ray, the step pattern ``ScatteringSettings.march_jitter``: fixed by default,
-   and the same visibility: shadow map or exact), into the
-   **radiance texture** (which shares one vec4 texture with the texels' camera depth). With shadow-map visibility a
-   sample takes ``steps_per_texel`` steps per shadow-map texel its ray crosses, at most ``steps``
-   (:func:`~.marching.texel_steps`): most marched rays cross far fewer texels than ``steps``.
-4. ``interpolate``     — linear interpolation along each line between the sources; then per pixel (Sec. 4.3,
-   5.3): the two nearest lines from the border arclength of the ray epipole -> pixel (the 1D border lookup,
-   analytic because the border points are equidistant), projection onto them, a 3-5 tap bilateral filter
-   along each (taps a multiple of the projections' distance apart, in symmetric pairs; distance and depth
-   weights, Gaussian, Shepard or threshold), then between the lines by their weight sums; a side without
-   valid taps moves to the next outer line (at most ``outer_lines``; :mod:`.epipolar_upsampling`). By default
-   under a directional light (``upsample_stride`` auto, warpscatter's) the filter runs on a grid of every 2nd
-   pixel and at the pixels their grid cell cannot interpolate, the prefiltered look-up's rule
-   (:mod:`.sparse_evaluation`); 1 (under spot and point lights) runs it at every pixel, as the paper. Pixels it
-   runs at with no valid tap on any tried line are ray-marched directly with :func:`~.marching.march_ray` (a grid
-   cell with such a corner is never interpolated; counted in
-   ``epipolar_raymarched_fraction``; timed under ``raymarch``), so no pixel is ever left undefined. Pixels
-   whose camera ray misses a spot light's cone are exactly 0.
+1. ``lines`` — the epipole and N lines to equidistant border points, clipped to the viewport and to a spot light's
+   cone (:mod:`.epipolar_lines`, :func:`trim_to_cone`); the coordinate texture (row = line, column = position along
+   it, Sec. 5.1) and the camera depth at every texel.
+2. ``discontinuities`` — each texel's two interpolation sources, as the paper's search inside its initial segment
+   finds them (Sec. 5.2); texels that are their own source are the ray-marching samples.
+3. ``raymarch`` — those samples only, with the reference marcher's estimator (:func:`~.marching.march_screen_point`),
+   ``steps_per_texel`` steps per shadow-map texel crossed (:func:`~.marching.texel_steps`).
+4. ``interpolate`` — along each line between the sources, then per pixel between the two nearest lines with a
+   bilateral filter (Sec. 4.3, 5.3; :mod:`.epipolar_upsampling`), under a directional light on a sparse grid
+   (:mod:`.sparse_evaluation`, warpscatter's). Pixels with no valid tap are ray-marched directly, so none is left
+   undefined; pixels whose ray misses a spot light's cone are exactly 0.
 
-Every stage runs on all cores (:func:`~warpscatter.parallel.launch_rows`): one thread per line for the line
-textures, one per band of image rows, walked in square tiles, for the upsampling of every pixel (the sparse grid's
-launches as the prefiltered look-up's).
-
-Degenerate case: when the epipole is at infinity (light direction parallel to the image plane) or undefined
-(a spot light at the camera), the method falls back to plain screen-space subsampling: a regular grid of
-ray-marching samples every ``fallback_stride`` pixels, bilinear interpolation with the same depth weights,
-direct ray marching where no grid corner is valid. The reason is logged on the ``warpscatter`` logger.
-
-Spot-light textures modulate the marched samples exactly as in the reference (``light_sample``); with
-``prefilter_light_texture`` a box-downsampled (mip-like) copy matched to the angular line spacing is used
-instead (Sec. 6: "we have to prefilter the light texture accordingly").
-
-Modules: :mod:`.epipolar_lines` (host line layout), :mod:`.epipolar_textures` (line textures, discontinuities),
-:mod:`.epipolar_upsampling` (interpolation and bilateral upsampling), this one (the ray marching and the method).
+When the epipole is at infinity or undefined the method falls back to screen-space subsampling every
+``fallback_stride`` pixels (the reason is logged). ``prefilter_light_texture`` box-downsamples a spot texture to the
+line spacing (Sec. 6). Two camera depths a, b are discontinuous when |a - b| > threshold min(a, b) (Sec. 6).
 Settings: :class:`~warpscatter.scattering.settings.EpipolarSettings` (``render.scattering.epipolar``).
-
-Depth comparisons are relative: two camera depths a, b are discontinuous when |a - b| > threshold min(a, b),
-which also raises the absolute threshold for distant parts of the scene as the paper suggests (Sec. 6).
 """
 
 from __future__ import annotations

@@ -1,29 +1,17 @@
 """Epipolar lines on the screen for epipolar sampling (Engelhardt & Dachsbacher 2010, Sec. 4.1 and 5.1): host geometry.
 
-Per-frame setup in float64 numpy, no kernels (the per-line and per-texel work lives in :mod:`.epipolar`):
+Per-frame setup in float64 numpy, no kernels:
 
-* the **epipole**: the light projected onto the image plane — a spot light's position, or a directional
-  light's direction towards the light as a point at infinity. When the light is behind the camera the
-  projection (dividing by a negative w) is the vanishing point the anti-crepuscular rays converge to; the
-  lines are the same, so that case needs no special treatment (Sec. 4.1). When the epipole is at infinity
-  (light direction parallel to the image plane) or undefined (a spot light at the camera position) there
-  is no usable pencil of lines: :func:`epipolar_lines` reports the reason and the caller falls back to
-  plain screen-space subsampling.
-* the **lines**: from the epipole to ``lines`` points placed equidistantly along the screen border
-  (clockwise from the top-left corner, half a spacing in); each segment is clipped against the viewport
-  (Liang-Barsky) and lines that do not enter it are culled (the culled neighbour of each end of the visible
-  chain is redirected to the image corner the epipole sees tangentially, so the corners stay covered); for
-  spot lights each surviving segment is then trimmed to the camera rays that enter the light's cone ("lines
-  clipped against the light frustum") by a kernel (:func:`~warpscatter.scattering.epipolar.trim_to_cone`).
-* the **texel layout**: each line is one row of the coordinate/interpolation/radiance textures, with
-  ``samples`` columns equidistant between the clipped segment's entry (epipole side) and exit (border)
-  points; ``initial_samples`` of them, every ``segment`` columns, are the initial ray-marching samples.
-* the **light-texture level** for prefiltering a spot light's texture to the angular line spacing (Sec. 6).
+* the **epipole**: the light projected onto the image plane (a spot's position, a directional light's direction as
+  a point at infinity); a light behind the camera gives the anti-crepuscular vanishing point, the same lines
+  (Sec. 4.1). At infinity or undefined, :func:`epipolar_lines` reports the reason for the screen-space fallback.
+* the **lines**: from the epipole to ``lines`` equidistant border points (clockwise from the top-left corner),
+  clipped to the viewport (Liang-Barsky), lines outside culled; spot lights trim them to their cone later.
+* the **texel layout**: one texture row per line, ``samples`` columns from the epipole side to the border, every
+  ``segment``-th an initial ray-marching sample; and the light-texture level for a spot texture (Sec. 6).
 
-Screen coordinates are pixels: x to the right, y DOWN, pixel (i, j) centred at (i + 0.5, j + 0.5)
-(CONVENTIONS.md). The "screen border" of the lines is the rectangle through the outermost pixel centres,
-[0.5, W - 0.5] x [0.5, H - 0.5]: every pixel centre lies inside it. Segments run on to the rectangle grown by
-half a line spacing (pixels between two lines' end points project there).
+Screen coordinates are pixels: x right, y DOWN, pixel (i, j) centred at (i + 0.5, j + 0.5) (CONVENTIONS.md); the
+border is the rectangle through the outermost pixel centres, segments run on half a line spacing beyond it.
 """
 
 from __future__ import annotations

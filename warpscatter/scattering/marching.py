@@ -6,49 +6,20 @@ For a ray origin + t d (unit d) ending at distance s:
     L_scat = sigma_s * integral_0^s f(cos_theta(x_t)) E(x_t) V(x_t) exp(-sigma_t t) dt,
     cos_theta = dot(omega_l(x_t), -d),
 
-estimated with N stratified steps over the LIT part of the ray, [t_lo, t_hi] (Engelhardt 2010 Sec. 5.3: "we
-always ray march at a fixed step size restricted to the light frustum"): the whole [0, s] for a directional
-light, the chord inside a spot light's cone clipped to [0, s] for a spot light (:func:`lit_interval`; the cone is
-convex, so the chord is one interval). Stratum k = [t_lo + k dt, t_lo + (k+1) dt], dt = (t_hi - t_lo) / N,
-contributes f E V at one point of it times the EXACT transmittance integral over the stratum
-(:func:`~warpscatter.scene.medium.transmittance_integral`). Outside [t_lo, t_hi] the integrand is 0, so the
-estimate is that of the whole ray, with all N steps where light is. With V = 1 and a directional light the
-estimate is the analytic sigma_s f E (1 - exp(-sigma_t s)) / sigma_t for any N; with occluders or a spot light it
-converges as N grows. N is fixed per ray (the ``steps`` key), so the step length is (t_hi - t_lo) / N, shorter on
-short chords; the paper fixes the step length instead (a count that varies per ray). Here ``steps`` keeps one
-meaning for every method that marches rays.
+estimated with N (``steps``) stratified steps over the lit part [t_lo, t_hi] of the ray (:func:`lit_interval`;
+Engelhardt 2010 Sec. 5.3). Each stratum contributes f E V at one point times the exact transmittance integral over
+the stratum, so V = 1 under a directional light is exact for any N. N is fixed per ray (the paper fixes the step
+length instead) so that ``steps`` means the same for every method.
 
-The point in each stratum (``jitter``):
+The point in each stratum (``jitter``): ``per_pixel`` (default), an independent offset per stratum and ray, unbiased
+per pixel; ``fixed``, one offset per frame for every stratum (the paper's fixed step), whose error moves smoothly
+between pixels. Visibility V (:class:`Visibility`): ``exact`` shadow rays against the casters' BVH (the reference),
+or a hard ``shadow_map`` look-up. Translucent casters pass 1 - opacity each in both modes.
 
-* ``per_pixel`` (default) — an independent uniform offset per stratum and ray (stratified jittered sampling,
-  the random stream of the ray's pixel): unbiased per pixel, noise that decorrelates between pixels;
-* ``fixed`` — one offset per frame shared by every stratum of every ray (the paper's fixed step): a regular
-  step pattern that moves smoothly from pixel to pixel, so neighbouring rays err coherently (banding instead
-  of noise) and sparse sampling with interpolation can be compared against per-pixel marching without the
-  per-pixel noise. Unbiased over the seed, not per pixel.
+With the pixels' normals (``marcher_params(end_normals=...)``) the shadow-map marcher shadows samples that the map's
+bias would light just behind a ray's end surface when that faces away from the light (:func:`behind_end_surface`).
 
-Visibility V(x) (:class:`Visibility`) is either
-
-* ``exact`` — a shadow ray from x towards the light cast against the casters' BVH (``wp.Mesh``): the
-  ground truth every fast method is measured against; or
-* ``shadow_map`` — a hard (nearest-texel) lookup in the light's shadow map.
-
-A shadow map's depth bias lights what lies just behind a caster's surface: a ray ending on a surface that faces
-away from the light (the underside of a ceiling seen from the room below) would count its last stretch as lit, and
-a stratum's sample landing there lights a dark pixel by a whole stratum's share (sparkles in dark rooms, a glow on
-average). With the pixels' surface normals (``marcher_params(end_normals=...)``, the G-buffer's) the shadow-map
-marcher knows the surface its ray ends on: when that faces away from the light, a sample behind its plane (along
-the light) whose map texel holds a caster no deeper than the plane there (the surface itself, give or take the bias
-and two texels of slope) is shadowed (:func:`behind_end_surface`); beyond the surface's edge the texel holds something
-deeper and the map decides as before. Rays ending on lit surfaces, exact visibility, translucent casters and rays
-without a normal (a zero normal: sky, or :func:`march_along`) are unchanged.
-
-Translucent casters (material opacity < 1) pass 1 - opacity each in both modes: exact shadow rays multiply the
-transmittances of every caster surface they cross (:func:`exact_transmittance`); the shadow map keeps the
-transmittance of the translucent casters in front of each texel's opaque one (:func:`map_visibility_at`).
-
-Kernels take the estimator's inputs as one :class:`Marcher` struct (light, medium, steps, seed, step pattern,
-visibility). Calling it from your own kernel::
+Kernels take the estimator's inputs as one :class:`Marcher` struct. Calling it from your own kernel::
 
     from warpscatter.scattering import marching
 
@@ -126,8 +97,7 @@ class Marcher:
     seed: int  # jitter seed
     jitter: int  # JITTER_PER_PIXEL or JITTER_FIXED
     vis: Visibility
-    end_normals: wp.array2d(dtype=wp.vec3)  # (H, W) camera-facing unit normal of each pixel's end surface (the
-    # G-buffer's; zero: none), or a 1x1 placeholder: only the shadow-map marcher reads it (module doc)
+    end_normals: wp.array2d(dtype=wp.vec3)  # (H, W) camera-facing normals of the pixels' end surfaces, or 1x1
 
 
 @wp.struct
@@ -146,9 +116,8 @@ class EndSurface:
 
 @wp.func
 def exact_visibility(mesh: wp.uint64, x: wp.vec3, omega_l: wp.vec3, dist: float, eps: float) -> float:
-    """1 if the segment from x towards the light (travel direction omega_l, light at ``dist``) is unblocked. The
-    shadow ray starts ``eps`` towards the light: for a point on a surface (its own triangle must not block it); 0 for
-    a medium point (:func:`point_visibility`), which an offset start would carry through a surface closer than eps."""
+    """1 if the segment from x towards the light (travel direction omega_l, light at ``dist``) is unblocked; the
+    shadow ray starts ``eps`` towards the light (0 for a medium point)."""
     start = x - omega_l * eps
     q = wp.mesh_query_ray(mesh, start, -omega_l, wp.min(dist, 1.0e20))
     if q.result:
@@ -162,10 +131,8 @@ MAX_TRANSLUCENT_LAYERS = wp.constant(16)
 
 @wp.func
 def exact_transmittance(vis: Visibility, x: wp.vec3, omega_l: wp.vec3, dist: float) -> float:
-    """Light transmittance of the segment from x towards the light (travel direction omega_l, light at ``dist``):
-    the product of 1 - opacity of every caster surface it crosses (Peters 2017 Sec. 3's translucent occluders, exact);
-    0 at an opaque one or after :data:`MAX_TRANSLUCENT_LAYERS` surfaces. The ray starts at x itself (a medium point,
-    :func:`point_visibility`); ``vis.eps`` takes it past each surface it crosses."""
+    """Light transmittance from x towards the light: the product of 1 - opacity of every caster surface crossed
+    (Peters 2017 Sec. 3), 0 at an opaque one or after :data:`MAX_TRANSLUCENT_LAYERS` surfaces."""
     start = x
     left = wp.min(dist, 1.0e20)
     t = float(1.0)
@@ -194,10 +161,8 @@ def map_visibility_at(vis: Visibility, c: wp.vec3) -> float:
 
 @wp.func
 def map_pcf_at(vis: Visibility, c: wp.vec3) -> float:
-    """:func:`map_visibility_at` with percentage-closer filtering of the 2 x 2 texels around c, their bilinear
-    weights narrowed to a ramp of :data:`~warpscatter.shadows.shadow_map.PCF_RAMP_TEXELS` across each texel border
-    (:func:`~warpscatter.shadows.shadow_map.narrowed_pcf_at`): V changes smoothly as c crosses a border instead of
-    stepping, without blurring a caster's silhouette over a whole texel."""
+    """:func:`map_visibility_at` with 2 x 2 PCF whose weights are narrowed to a ramp of
+    :data:`~warpscatter.shadows.shadow_map.PCF_RAMP_TEXELS` at texel borders: smooth without blurring silhouettes."""
     if vis.translucent != 0:
         return narrowed_pcf_at(vis.sm, vis.sm_layers, c, vis.sm_bias, PCF_RAMP_TEXELS)
     return narrowed_pcf_at(vis.sm, vis.sm_depth, c, vis.sm_bias, PCF_RAMP_TEXELS)
@@ -205,13 +170,8 @@ def map_pcf_at(vis: Visibility, c: wp.vec3) -> float:
 
 @wp.func
 def point_visibility(vis: Visibility, x: wp.vec3, omega_l: wp.vec3, dist: float) -> float:
-    """V(x) in [0, 1] of medium point x for light travelling along omega_l from ``dist`` away (exact visibility with
-    translucent casters: their transmittance, :func:`exact_transmittance`).
-
-    An exact shadow ray starts at x itself: x lies in the medium, not on a surface, so nothing needs stepping over,
-    while a start moved ``vis.eps`` towards the light passes through a surface closer to x than that. The samples a
-    ray takes in its last eps before the surface it ends on (a ceiling seen from a dark room) were lit through it:
-    isolated bright pixels, ~150 of the 640x360 configs/window.yaml at 128 steps, more with more steps."""
+    """V(x) in [0, 1] of medium point x for light travelling along omega_l from ``dist`` away. An exact shadow ray
+    starts at x itself: an offset start would pass through a surface closer than the offset (bright pixels)."""
     if vis.mode == VISIBILITY_EXACT:
         if vis.translucent != 0:
             return exact_transmittance(vis, x, omega_l, dist)
@@ -236,8 +196,7 @@ def inscatter_sample(m: Marcher, x: wp.vec3, d: wp.vec3) -> wp.vec3:
 @wp.func
 def square_lit_interval(light: LightParams, w: wp.vec3d, dd: wp.vec3d, s: float):
     """:func:`lit_interval` of a square spot (a point light's cube face): the ray w + t dd (apex-relative, float64)
-    clipped by the pyramid's four planes |dot(x, right)| <= tan dot(x, forward), |dot(x, up)| <= tan dot(x, forward)
-    (convex: one interval), widened as :func:`lit_interval` widens the cone's."""
+    clipped by the pyramid's four planes."""
     t = wp.float64(light.tan_cone)
     f = wp.vec3d(wp.float64(light.direction[0]), wp.float64(light.direction[1]), wp.float64(light.direction[2]))
     r = wp.vec3d(wp.float64(light.right[0]), wp.float64(light.right[1]), wp.float64(light.right[2]))
@@ -271,13 +230,8 @@ def square_lit_interval(light: LightParams, w: wp.vec3d, dd: wp.vec3d, s: float)
 def lit_interval(light: LightParams, origin: wp.vec3, d: wp.vec3, s: float):
     """Part [t_lo, t_hi] of the ray origin + t d (unit d), t in [0, s], where the light can reach the medium.
 
-    Directional lights: the whole [0, s]. Square spots: :func:`square_lit_interval`. Spot lights: the chord of the
-    ray inside the forward cone
-    {x: dot(normalize(x - position), direction) >= cos_cone} of :func:`~warpscatter.scene.lights.light_sample`,
-    clipped to [0, s]; the cone (half-angle < 90 deg) is convex, so the chord is one interval. Solved in float64
-    (the quadratic dot(w + t d, a)^2 = cos^2 |w + t d|^2, w = origin - apex, restricted to the forward half-space
-    dot(w + t d, a) >= 0) and widened by 1e-5 (|w| + s) on both sides, so float32 cone tests at the ends never
-    fall outside it (a wider interval only spreads the steps: the integrand is 0 outside the cone).
+    Directional lights: [0, s]. Spot lights: the chord inside the forward cone (convex: one interval), solved in
+    float64 and widened by 1e-5 (|w| + s) so float32 cone tests at the ends never fall outside it.
 
     Returns:
         (t_lo, t_hi): distances along the ray; t_hi <= t_lo when the ray never enters the light.
@@ -342,9 +296,7 @@ def lit_interval(light: LightParams, origin: wp.vec3, d: wp.vec3, s: float):
 
 @wp.func
 def end_surface(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, n_end: wp.vec3) -> EndSurface:
-    """The bias guard of a ray origin + t d ending at distance s on a surface with camera-facing unit normal n_end
-    (zero: none); inactive unless V comes from an opaque shadow map and the surface faces away from the light (module
-    doc)."""
+    """The bias guard of a ray ending at distance s on a surface with camera-facing normal n_end (zero: none)."""
     return end_surface_at(m.vis, m.light, origin + d * s, n_end)
 
 
@@ -371,10 +323,8 @@ def end_surface_at(vis: Visibility, light: LightParams, point: wp.vec3, n_end: w
 
 @wp.func
 def behind_end_surface(e: EndSurface, vis: Visibility, x: wp.vec3) -> bool:
-    """Whether medium point x lies behind the plane of the ray's end surface (within ``e.zone`` along the light,
-    where the map's bias could call it lit) and x's map texel holds a caster no deeper than the plane there: the
-    surface itself shadows x. Farther behind, the map's own test is right; beyond the surface's edge the texel
-    holds something deeper."""
+    """Whether medium point x lies behind the ray's end surface within ``e.zone`` along the light and its map texel
+    holds a caster no deeper than that plane: the surface itself shadows x."""
     if e.active == 0:
         return False
     h = wp.dot(x - e.point, e.normal) / wp.dot(e.omega, e.normal)  # back along the light ray to the plane
@@ -390,11 +340,8 @@ def behind_end_surface(e: EndSurface, vis: Visibility, x: wp.vec3) -> bool:
 @wp.func
 def stretch_visibility(vis: Visibility, end: EndSurface, origin: wp.vec3, d: wp.vec3, t0: float, t1: float,
                        sigma_t: float, max_samples: int) -> float:
-    """Transmittance-weighted mean visibility of the stretch [t0, t1] of the ray origin + t d that ends on ``end``
-    (:func:`end_surface_at`; its bias guard applies), from a shadow map (``vis`` in shadow_map mode): one sample at the
-    middle of each of n equal steps, n the stretch's length in shadow-map texels (1 to ``max_samples``), each read with
-    2 x 2 percentage-closer filtering (:func:`map_pcf_at`; hard look-ups drew the map's texel staircase as streaks along
-    the rows: colonnade_fourier's streak energy right of the last pillar 0.15 -> 0.59 %)."""
+    """Transmittance-weighted mean shadow-map visibility of the stretch [t0, t1] of a ray ending on ``end``: one
+    2 x 2 PCF sample (:func:`map_pcf_at`; hard look-ups streak) per map texel of its length, at most ``max_samples``."""
     n = wp.clamp(int(wp.ceil((t1 - t0) / wp.max(vis.sm.texel_world, 1.0e-12))), 1, max_samples)
     dt = (t1 - t0) / float(n)
     decay = wp.exp(-sigma_t * dt)
@@ -413,13 +360,9 @@ def stretch_visibility(vis: Visibility, end: EndSurface, origin: wp.vec3, d: wp.
 @wp.func
 def march_directional_shadow_map(m: Marcher, origin: wp.vec3, d: wp.vec3, dt: float, u: float,
                                  rng: wp.uint32, end: EndSurface) -> wp.vec3:
-    """:func:`march_along`'s strata for a directional light and an orthographic shadow map, ray from t = 0.
-
-    Along such a ray E, omega_l and the phase term are constant, the map coordinates are affine in t
-    (:func:`~warpscatter.shadows.shadow_map.orthographic_ray_coords`) and the strata's transmittance integrals a
-    geometric sequence (factor exp(-sigma_t dt)), so a step costs a texel fetch and a few multiply-adds. The
-    same samples (``u`` and ``rng`` as :func:`march_along` drew them) and the same estimate up to float rounding.
-    """
+    """:func:`march_along`'s strata for a directional light and an orthographic map: E, omega_l and the phase are
+    constant, the map coordinates affine in t and the transmittance integrals geometric, so a step is a texel fetch
+    and a few multiply-adds; the same estimate up to rounding."""
     acc = wp.vec3(0.0, 0.0, 0.0)
     e = m.light.radiance
     if e[0] + e[1] + e[2] <= 0.0:
@@ -443,20 +386,14 @@ def march_directional_shadow_map(m: Marcher, origin: wp.vec3, d: wp.vec3, dt: fl
 
 @wp.func
 def march_along(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, stream: int) -> wp.vec3:
-    """L_scat along the ray origin + t d (unit d), t in [0, s]: ``m.steps`` strata over :func:`lit_interval`.
-
-    ``m.jitter`` JITTER_PER_PIXEL draws one offset per stratum from the random stream (``m.seed``, ``stream``);
-    JITTER_FIXED uses one offset per frame (stream 0 of ``m.seed``) for every stratum of every ray (module doc).
-    Nothing is known of the surface at s: :func:`march_to_surface` with its normal guards the map's bias there.
-    """
+    """L_scat along the ray origin + t d (unit d), t in [0, s]: ``m.steps`` strata over :func:`lit_interval`, no end
+    surface known."""
     return march_to_surface(m, origin, d, s, wp.vec3(0.0, 0.0, 0.0), stream)
 
 
 @wp.func
 def march_to_surface(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, n_end: wp.vec3, stream: int) -> wp.vec3:
-    """:func:`march_along` for a ray ending on a surface with camera-facing unit normal n_end (zero: none): a
-    shadow-map marcher shadows the samples the map's bias would light behind a surface facing away from the light
-    (:func:`end_surface`)."""
+    """:func:`march_along` for a ray ending on a surface with camera-facing unit normal n_end (zero: none)."""
     end = end_surface(m, origin, d, s, n_end)
     t_lo, t_hi = lit_interval(m.light, origin, d, s)
     acc = wp.vec3(0.0, 0.0, 0.0)
@@ -488,15 +425,10 @@ def march_to_surface(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, n_end: w
 
 @wp.func
 def texel_steps(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, per_texel: float, least: int) -> int:
-    """Strata for the ray origin + t d (unit d), t in [0, s], by the shadow-map texels it crosses: ceil(per_texel n),
-    n = |du| width + |dv| height of its lit part's projection into the map, kept within [min(least, m.steps),
-    m.steps]. A directional light's orthographic map: the whole ray (affine,
-    :func:`~warpscatter.shadows.shadow_map.orthographic_ray_coords`); a spot's perspective map: the chord
-    :func:`lit_interval` gives, its end points projected (a segment in front of the light projects to a segment),
-    counted on the finer of the map and the spot's texture. ``m.steps`` with exact visibility and for per_texel <= 0.
-    A hard look-up is constant over a texel's stretch of ray but for one depth crossing, so a few strata per texel
-    resolve it as well as many: the steps go to the rays that cross many texels (epipolar's samples,
-    :data:`~.settings.EPIPOLAR_STEPS_PER_TEXEL`)."""
+    """Strata for the ray by the shadow-map texels it crosses, ceil(per_texel n), within [min(least, m.steps),
+    m.steps]; n counts texels of the lit part's projection (a spot's on the finer of map and texture). A hard look-up
+    is constant over a texel but for one depth crossing, so the steps go to rays crossing many texels. ``m.steps``
+    with exact visibility and for per_texel <= 0."""
     if per_texel <= 0.0 or m.vis.mode != VISIBILITY_SHADOW_MAP:
         return m.steps
     texels = float(0.0)
@@ -526,8 +458,7 @@ def texel_steps(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, per_texel: fl
 
 @wp.func
 def march_ray(cam: CameraParams, i: int, j: int, s: float, m: Marcher) -> wp.vec3:
-    """L_scat of pixel (i, j) whose ray ends at distance s (:func:`march_to_surface` from the camera with the
-    pixel's ``m.end_normals``; see the module doc)."""
+    """L_scat of pixel (i, j) whose ray ends at distance s (:func:`march_to_surface`)."""
     d = pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5)
     return march_to_surface(m, cam.position, d, s, pixel_end_normal(m, i, j), j * cam.width + i)
 
@@ -542,11 +473,8 @@ def pixel_end_normal(m: Marcher, i: int, j: int) -> wp.vec3:
 
 @wp.func
 def march_screen_point(cam: CameraParams, x: float, y: float, s: float, m: Marcher) -> wp.vec3:
-    """L_scat along the camera ray through screen point (x, y) (pixels) ending at distance s.
-
-    :func:`march_to_surface` at a sub-pixel position; the random stream and the end surface's normal are those of
-    the pixel containing (x, y), so a sample at a pixel centre reproduces :func:`march_ray` bit for bit.
-    """
+    """L_scat along the camera ray through screen point (x, y) (pixels) ending at distance s; random stream and end
+    normal of the pixel containing (x, y), so a pixel centre reproduces :func:`march_ray` bit for bit."""
     d = pixel_ray_direction(cam, x, y)
     pi = wp.clamp(int(wp.floor(x)), 0, cam.width - 1)
     pj = wp.clamp(int(wp.floor(y)), 0, cam.height - 1)
@@ -555,8 +483,7 @@ def march_screen_point(cam: CameraParams, x: float, y: float, s: float, m: March
 
 # ---- host side -------------------------------------------------------------------------------------
 
-#: struct instance -> the Python object owning the BVH its ``mesh`` id points to. A Warp struct holds a wp.Mesh
-#: only as an id, so the struct keeps its owner alive here (as long as the struct lives).
+#: struct -> owner of the BVH its ``mesh`` id points to (a Warp struct holds a wp.Mesh only as an id).
 _BVH_OWNERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
@@ -662,20 +589,12 @@ def marcher_params(scene, *, steps: int, visibility: Visibility, seed: int = 0, 
 @wp.func
 def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, n_end: wp.vec3,
                                stream: int) -> wp.vec3:
-    """L_scat along origin + t d (unit d), t in [0, s], for a directional light and an orthographic shadow map, with
-    ``m.steps`` strata of EQUAL transmittance weight: stratum k holds p in [k / N, (k + 1) / N] of the normalised
-    weight p(t) = (1 - exp(-sigma_t t)) / (1 - exp(-sigma_t s)), so a sample sits at t = -ln(1 - p (1 - exp(-sigma_t
-    s))) / sigma_t and counts 1 / N of sigma_s f E integral_0^s exp(-sigma_t t) dt. In a coloured medium the strata
-    follow the mean extinction and each channel c reweights its samples by exp(-(sigma_c - sigma_t) t), normalised by
-    the sum of those weights (a ratio estimator: exact for V = 1, consistent otherwise).
+    """L_scat along the ray for a directional light and an orthographic map with ``m.steps`` strata of EQUAL
+    transmittance weight: a sample at p in [0, 1) sits at t = -ln(1 - p (1 - exp(-sigma_t s))) / sigma_t and counts
+    1 / N. Coloured media reweight per channel by exp(-(sigma_c - sigma_t) t) (a ratio estimator).
 
-    The reference marcher's strata are equal in LENGTH, each weighted by its own transmittance integral: on a sky
-    ray (optical depth ~10) the first few of 64 strata carry most of the weight, so one shadow-map texel flipping
-    in one of them changes the pixel by up to ~17 % (grain against the smooth prefiltered surround). Here no
-    stratum carries more than 1 / N. Both estimators are unbiased per pixel (per-pixel jitter) and exact for V = 1.
-    Visibility is read with 2 x 2 percentage-closer filtering (:func:`map_pcf_at`), the reference marcher's with
-    hard look-ups: few strata on rays almost along the light otherwise step from pixel to pixel.
-    n_end: the camera-facing normal of the surface at s (zero: none), as :func:`march_to_surface` takes it.
+    Equal-length strata put most weight on the first few of a sky ray, where one flipping texel shows as grain; here
+    none carries more than 1 / N. Visibility uses 2 x 2 PCF (:func:`map_pcf_at`). n_end as in :func:`march_to_surface`.
     """
     end = end_surface(m, origin, d, s, n_end)
     acc = wp.vec3(0.0, 0.0, 0.0)

@@ -1,11 +1,8 @@
 """Scenes: the triangle soup, materials, camera, light and medium one render works on.
 
-:func:`build_scene` turns a validated :class:`warpscatter.config.Config` into a :class:`Scene`:
-mesh files loaded with trimesh and procedural generators (:mod:`.procedural`), each with its
-transform (CONVENTIONS: scale, then rotation X→Y→Z, then translation) and material, concatenated
-into one vertex/triangle array with a per-triangle material index. The config sections it reads are the Warp-free
-models of :mod:`.mesh_configs` (meshes, transforms, materials) and :mod:`.light_configs` (each light type's model,
-which builds its light).
+:func:`build_scene` turns a validated config into a :class:`Scene`: meshes loaded or generated, transformed
+(CONVENTIONS), concatenated with a per-triangle material index. The config sections it reads are the Warp-free models
+of :mod:`.mesh_configs` and :mod:`.light_configs`.
 """
 
 from __future__ import annotations
@@ -30,17 +27,10 @@ class Scene:
     """Everything a render needs, in world space (scene units).
 
     Attributes:
-        vertices: (N, 3) float32 world-space positions.
-        triangles: (T, 3) int32 vertex indices.
-        tri_material: (T,) int32 index into ``albedo``/``opacity``.
-        albedo: (K, 3) float32 Lambert albedo per material.
-        opacity: (K,) float32 opacity per material (1 = opaque).
-        camera, light, medium: see their modules.
-        receiver_only: (K,) bool per material, or None (all cast): materials that receive shadows but cast none
-            (config ``scene.meshes.N.receiver_only``). They are left out of every shadow map, moment map, rectified
-            map, exact-visibility BVH and CSM; see :meth:`casters`.
-        brdfs: per material the BRDF of the lighting methods as
-            :meth:`~warpscatter.csm.brdf.MaterialTable.from_specs` reads it, or None (Lambert with ``albedo``).
+        vertices: (N, 3) float32; triangles: (T, 3) int32; tri_material: (T,) int32 material index.
+        albedo: (K, 3) float32 Lambert albedo; opacity: (K,) float32 (1 = opaque).
+        receiver_only: (K,) bool, or None: materials left out of every visibility structure (:meth:`casters`).
+        brdfs: per material the BRDF spec of the lighting methods, or None (Lambert with ``albedo``).
     """
 
     vertices: np.ndarray
@@ -59,20 +49,15 @@ class Scene:
         return int(self.triangles.shape[0])
 
     def caster_mask(self) -> np.ndarray:
-        """(T,) bool: the triangles that cast shadows: their material is not ``receiver_only`` and passes the alpha
-        test (opacity >= :data:`CASTER_ALPHA_TEST`, Peters 2017 Sec. 3.3)."""
+        """(T,) bool: triangles not ``receiver_only`` with opacity >= :data:`CASTER_ALPHA_TEST`."""
         keep = np.asarray(self.opacity, np.float64)[self.tri_material] >= CASTER_ALPHA_TEST
         if self.receiver_only is None:
             return keep
         return keep & ~np.asarray(self.receiver_only, bool)[self.tri_material]
 
     def casters(self) -> "Scene":
-        """This scene's shadow casters: ``self`` when every material casts, else a copy holding only the casting
-        triangles, compacted to the vertices they use (materials, camera, light and medium unchanged). With no
-        caster at all the copy keeps every vertex (so :meth:`bounds` stays the scene's) and has no triangle.
-
-        Everything that computes light visibility works on it; only the camera's view (G-buffer) sees receivers.
-        """
+        """The scene of the shadow casters only, compacted (``self`` when all cast; without casters every vertex is
+        kept for :meth:`bounds`). Every light-visibility computation works on it."""
         keep = self.caster_mask()
         if keep.all():
             return self
@@ -82,16 +67,14 @@ class Scene:
         return replace(self, vertices=verts, triangles=tris, tri_material=self.tri_material[keep], receiver_only=None)
 
     def brdf_specs(self) -> list[dict]:
-        """Per material the BRDF as :meth:`~warpscatter.csm.brdf.MaterialTable.from_specs` reads it (Lambert with
-        ``albedo`` where the scene gives none)."""
+        """Per material the BRDF spec (Lambert with ``albedo`` where the scene gives none)."""
         if self.brdfs is not None:
             return self.brdfs
         return [{"albedo": tuple(float(c) for c in a)} for a in self.albedo]
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounds (min, max) of all vertices, float64."""
-        # column by column: the same values as v.min(axis=0) without numpy's slow axis-0 reduction of an (N, 3)
-        # array (114k vertices of configs/terrain.yaml: 0.3 ms instead of 6.5 ms)
+        # column by column: numpy's axis-0 reduction of an (N, 3) array is slow
         v = np.asarray(self.vertices)
         return (np.array([v[:, k].min() for k in range(3)], np.float64),
                 np.array([v[:, k].max() for k in range(3)], np.float64))
@@ -105,7 +88,6 @@ def compact_mesh(vertices, triangles) -> tuple[np.ndarray, np.ndarray]:
 
 
 def camera_from_config(c) -> Camera:
-    """The :class:`~.camera.Camera` of a validated ``camera`` section."""
     from .camera import Camera
 
     return Camera(position=c.position, look_at=c.look_at, up=c.up, fov_y=c.fov_y, width=c.width,
@@ -113,21 +95,16 @@ def camera_from_config(c) -> Camera:
 
 
 def light_from_config(c) -> Light:
-    """The host light of a validated ``light`` section: its model builds it
-    (:meth:`~warpscatter.scene.light_configs.LightSettings.build`).
+    """The host light of a validated ``light`` section (:meth:`~warpscatter.scene.light_configs.LightSettings.build`).
 
     Raises:
-        InputFileError: a texture or environment map that cannot be read or holds values that are not radiance
-            (NaN, infinite, negative), at key ``light.texture`` / ``light.map``
-            (:func:`~warpscatter.imageio.read_radiance_image`).
-        ConfigError: an environment map that is not a valid radiance map once scaled; an area light's texture that
-            is black (where it should emit).
+        InputFileError: an unreadable or invalid texture or environment map (``light.texture`` / ``light.map``).
+        ConfigError: an environment map invalid once scaled; a black area-light texture.
     """
     return c.build()
 
 
 def medium_from_config(c) -> Medium:
-    """The :class:`~.medium.Medium` of a validated ``medium`` section."""
     from .medium import Medium
 
     g = getattr(c.phase, "g", 0.0)
@@ -135,8 +112,7 @@ def medium_from_config(c) -> Medium:
 
 
 def _entry_source(entry):
-    """(cache key of the untransformed mesh, a function building it) of a ``scene.meshes`` entry: the file (path,
-    size, times) and its loader, or the generator with its exact parameters (key None: not cacheable)."""
+    """(cache key, builder) of a ``scene.meshes`` entry's untransformed mesh (key None: not cacheable)."""
     from .meshes import file_key, load_mesh
     from .procedural import GENERATORS, generator_key
 
@@ -146,12 +122,7 @@ def _entry_source(entry):
 
 
 def load_entry_mesh(entry):
-    """Load one ``scene.meshes`` entry (file or generator) with its transform applied.
-
-    Meshes are cached in process (:func:`.meshes.cached_mesh`), keyed by the file (path, size, times) or the
-    generator and its exact parameters, and the transform matrix: repeated renders load and generate each mesh
-    once. The returned mesh's arrays are read-only (shared with the cache).
-    """
+    """Load one ``scene.meshes`` entry with its transform applied, cached in process (read-only arrays)."""
     from .meshes import apply_transform, cached_mesh, transform_matrix
 
     t = entry.transform
@@ -162,10 +133,8 @@ def load_entry_mesh(entry):
 
 
 def object_meshes(cfg) -> list:
-    """The casting meshes of a config as rigid objects (Ritschel 2007 Sec. 4.6): for each ``scene.meshes`` entry
-    that casts (not ``receiver_only``, opacity >= :data:`CASTER_ALPHA_TEST`), ``(mesh, matrix)``: its
-    :class:`~.meshes.TriangleMesh` in OBJECT space (as loaded or generated, no transform; cached like
-    :func:`load_entry_mesh`) and its 4x4 object -> world matrix."""
+    """``(mesh in object space, 4x4 object -> world matrix)`` of each casting ``scene.meshes`` entry: the rigid
+    objects of Ritschel 2007 Sec. 4.6."""
     from .meshes import cached_mesh, transform_matrix
 
     out = []
@@ -182,11 +151,8 @@ def object_meshes(cfg) -> list:
 def build_scene(cfg) -> Scene:
     """Build a :class:`Scene` from a validated config (meshes loaded and transformed, see :func:`load_entry_mesh`).
 
-    The scene's arrays are new (writable) arrays: changing them does not touch the mesh cache.
-
     Raises:
-        InputFileError: a mesh file that cannot be used (:class:`.meshes.MeshLoadError`), at its key
-            (``scene.meshes.N.path``), or a light texture or environment map (:func:`light_from_config`).
+        InputFileError: an unusable mesh file (at ``scene.meshes.N.path``) or light image.
         ConfigError: a generator that refuses its parameters, at ``scene.meshes.N.params``.
     """
     from ..errors import ConfigError, InputFileError
@@ -195,11 +161,11 @@ def build_scene(cfg) -> Scene:
     base = 0
     for k, entry in enumerate(cfg.scene.meshes):
         try:
-            mesh = load_entry_mesh(entry)  # float32 and int32 already
-        except InputFileError as exc:  # a mesh file that cannot be used: name the entry's key
+            mesh = load_entry_mesh(entry)
+        except InputFileError as exc:
             exc.at(f"scene.meshes.{k}.path" if entry.path is not None else f"scene.meshes.{k}")
             raise
-        except ValueError as exc:  # a generator refusing its parameters (pillars=100000): a config error
+        except ValueError as exc:  # a generator refusing its parameters
             if entry.path is not None:
                 raise
             raise ConfigError(f"scene.meshes.{k}.params: {exc}", getattr(cfg, "source", None)) from None
@@ -224,8 +190,7 @@ def build_scene(cfg) -> Scene:
     )
 
 
-#: Names served from the Warp-side module :mod:`.geometry` (loaded on first access: building and validating
-#: scenes needs no Warp).
+#: Names served lazily from the Warp-side :mod:`.geometry`, so building scenes needs no Warp.
 _GEOMETRY = ("DeviceGeometry", "MeshArrays")
 
 

@@ -1,16 +1,9 @@
-"""Pinhole camera following CONVENTIONS.md, and the 4x4 matrices shared by every rasterizing stage.
+"""Pinhole camera following CONVENTIONS.md (``docs/conventions.md``), and the 4x4 matrices shared by every
+rasterizing stage.
 
-Conventions (see ``docs/conventions.md``):
-
-* pixel (i, j): column i from the left, row j from the TOP;
-* ray of pixel (i, j): from ``position`` through the pixel centre, with t = tan(fov_y/2),
-  a = width/height, x_ndc = (2(i+0.5)/width - 1) t a, y_ndc = (1 - 2(j+0.5)/height) t,
-  direction = normalize(x_ndc right + y_ndc up' + forward);
-* a ray that hits nothing ends on the far plane: t_max = far / dot(direction, forward).
-
-Matrices are OpenGL-style: view space is right-handed and looks down -Z, clip-space NDC is [-1, 1]^3
-with z = -1 at the near plane. The rasterizer maps NDC y = +1 to image row 0 (top), so a camera's
-view-projection rasterizes pixel (i, j) exactly at the centre of the ray above.
+Pixel (i, j): column i from the left, row j from the TOP; its ray runs from ``position`` through the pixel centre
+and ends on the far plane if it hits nothing. Matrices are OpenGL-style (view space right-handed looking down -Z,
+NDC [-1, 1]^3, z = -1 at near); NDC y = +1 is image row 0, so pixel (i, j) rasterizes exactly at its ray's centre.
 """
 
 from __future__ import annotations
@@ -96,9 +89,8 @@ class Camera:
             raise ValueError("camera needs 0 < near < far")
         if not (0.0 < self.fov_y < 180.0):
             raise ValueError("camera fov_y must lie in (0, 180) degrees")
-        look_at_basis(self.position, self.look_at, self.up)  # validates the basis
+        look_at_basis(self.position, self.look_at, self.up)  # validates
 
-    # ---- basis and matrices -------------------------------------------------------------------
     @property
     def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(right, up', forward), orthonormal, float64."""
@@ -125,14 +117,8 @@ class Camera:
         return self.projection() @ self.view()
 
     def exr_matrices(self) -> dict[str, np.ndarray]:
-        """The OpenEXR standard attributes ``worldToCamera`` and ``worldToNDC`` of this camera (float64 4x4, stored
-        TRANSPOSED as OpenEXR's Imath matrices are: a world point p maps as [p, 1] @ M).
-
-        OpenEXR's camera space is left-handed: +x right, +y up, +z along the view direction (points in front have
-        z > 0). Its NDC has (0, 0) at the image's top-left corner and (1, 1) at the bottom-right, so pixel (i, j)'s
-        centre (CONVENTIONS) projects to ((i + 0.5) / width, (j + 0.5) / height) after the divide by w; NDC z is
-        the view depth mapped to [0, 1] between near and far.
-        """
+        """OpenEXR's ``worldToCamera`` and ``worldToNDC`` (float64 4x4, transposed: p maps as [p, 1] @ M); camera space
+        left-handed with +z forward, NDC (0, 0) at the top-left corner, z in [0, 1] from near to far."""
         right, up, forward = self.basis
         to_camera = np.eye(4)
         to_camera[0, :3], to_camera[1, :3], to_camera[2, :3] = right, up, forward
@@ -147,13 +133,8 @@ class Camera:
         ])
         return {"worldToCamera": to_camera.T.copy(), "worldToNDC": (projection @ to_camera).T.copy()}
 
-    # ---- rays -----------------------------------------------------------------------------------
     def ray_directions(self, stride: int = 1) -> np.ndarray:
-        """Unit ray directions of the pixels, shape (height, width, 3), row 0 = top (float64).
-
-        ``stride`` > 1 returns every stride-th pixel of every stride-th row (starting at stride // 2),
-        the same values as ``ray_directions()[s // 2::s, s // 2::s]`` without computing the others.
-        """
+        """Unit ray directions (height, width, 3) float64, row 0 = top; ``stride`` s: ``[s//2::s, s//2::s]``."""
         t = np.tan(np.radians(self.fov_y) / 2.0)
         i = np.arange(stride // 2, self.width, stride) + 0.5
         j = np.arange(stride // 2, self.height, stride) + 0.5
@@ -215,8 +196,7 @@ class CameraParams:
 
 @wp.func
 def pixel_ray_factors(cam: CameraParams, x: float, y: float) -> wp.vec2:
-    """The factors (xn, yn) of ``cam.right`` and ``cam.up`` in :func:`pixel_ray_direction` of image point (x, y):
-    xn depends on x only and yn on y only, so a row's pixels share yn and a column's share xn."""
+    """Factors (xn, yn) of ``cam.right`` and ``cam.up`` for image point (x, y) (xn depends on x only, yn on y)."""
     xn = (2.0 * x / float(cam.width) - 1.0) * cam.tan_half_fov * cam.aspect
     yn = (1.0 - 2.0 * y / float(cam.height)) * cam.tan_half_fov
     return wp.vec2(xn, yn)

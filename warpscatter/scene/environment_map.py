@@ -1,16 +1,7 @@
-"""Lat-long environment maps as light sources: the radiance per direction and the importance-sampling tables
-of Ritschel et al. 2007 Sec. 5.1 (inverse CDFs P_L^-1).
-
-The map is an RGB float32 image, row 0 = zenith: texel (i, j) covers theta in pi [j, j + 1] / H from +Y and
-phi in 2 pi [i, i + 1] / W, direction d = (sin t cos p, cos t, sin t sin p) (assets/README.md); it is piecewise
-constant per texel. Sampling uses a marginal CDF over rows weighted by luminance x sin(theta_j) and one
-conditional CDF per row; in the (u, v) = (phi / 2 pi, theta / pi) domain the density is constant per texel,
-p_uv = W H P(texel), and the solid-angle density is p_uv / (2 pi^2 sin theta). The inverse CDFs are searched
-through guide tables (the cutpoint method: :func:`cdf_guide`, :func:`guided_search`), which return the binary
-search's interval with about half a step of scanning instead of log2 n mispredicted branches.
-
-:class:`EnvironmentMap` builds the tables on the host; :class:`EnvData` is the map as kernels see it, and the
-``@wp.func``s below (public API) look it up and sample it.
+"""Lat-long environment maps as light sources: radiance per direction and the importance sampling of Ritschel et
+al. 2007 Sec. 5.1. Piecewise constant RGB float32, row 0 = zenith, theta from +Y, phi from +X towards +Z
+(assets/README.md); density W H P(texel) in (u, v) = (phi / 2 pi, theta / pi), p_uv / (2 pi^2 sin theta) per solid
+angle. The CDFs are searched through guide tables (Chen & Asau 1974), avoiding log2 n mispredicted branches.
 """
 
 from __future__ import annotations
@@ -31,23 +22,19 @@ LUMA = (0.2126, 0.7152, 0.0722)
 class EnvData:
     """A lat-long environment map and its sampling tables as kernels see it (build with :class:`EnvironmentMap`)."""
 
-    width: int  # W, columns (azimuth)
-    height: int  # H, rows (polar angle, row 0 = zenith)
+    width: int
+    height: int
     pixels: wp.array2d(dtype=wp.vec3)  # (H, W) radiance
-    marginal_cdf: wp.array(dtype=wp.float32)  # (H + 1,) CDF over rows, 0 ... 1
-    conditional_cdf: wp.array2d(dtype=wp.float32)  # (H, W + 1) CDF over the columns of each row
-    texel_pdf: wp.array2d(dtype=wp.float32)  # (H, W) density in (u, v) = W H P(texel)
-    marginal_guide: wp.array(dtype=wp.int32)  # (GUIDE H,) guide table of marginal_cdf (cdf_guide)
-    conditional_guide: wp.array2d(dtype=wp.int32)  # (H, GUIDE W) guide table of each row of conditional_cdf
-
-
-# ---- building blocks (public @wp.func API) -----------------------------------------------------
+    marginal_cdf: wp.array(dtype=wp.float32)  # (H + 1,)
+    conditional_cdf: wp.array2d(dtype=wp.float32)  # (H, W + 1)
+    texel_pdf: wp.array2d(dtype=wp.float32)  # (H, W) density in (u, v)
+    marginal_guide: wp.array(dtype=wp.int32)
+    conditional_guide: wp.array2d(dtype=wp.int32)
 
 
 @wp.func
 def cdf_search(cdf: wp.array(dtype=wp.float32), n: int, x: float) -> int:
-    """Interval k in [0, n) with cdf[k] <= x < cdf[k + 1] of an (n + 1,) CDF (empty intervals are never chosen
-    for x in [0, 1)); binary search, O(log n)."""
+    """Interval k in [0, n) with cdf[k] <= x < cdf[k + 1] of an (n + 1,) CDF, by binary search."""
     lo = int(0)
     hi = n - 1
     while lo < hi:
@@ -75,9 +62,7 @@ def cdf_search_row(cdf: wp.array2d(dtype=wp.float32), row: int, n: int, x: float
 
 @wp.func
 def guided_search(cdf: wp.array(dtype=wp.float32), guide: wp.array(dtype=wp.int32), n: int, x: float) -> int:
-    """:func:`cdf_search` (the same interval, bit for bit) started from the guide table of the CDF (the cutpoint
-    method, :func:`cdf_guide`): the bucket of x gives an interval at or below the answer, and a short scan upwards
-    (on average about half a step) finds it; a binary search mispredicts about every other of its log2 n steps."""
+    """:func:`cdf_search` (the same interval) by a short scan up from the CDF's guide table (:func:`cdf_guide`)."""
     g = wp.clamp(int(x * float(guide.shape[0])), 0, guide.shape[0] - 1)
     k = guide[g]
     while k + 1 < n and cdf[k + 1] <= x:
@@ -114,8 +99,7 @@ def env_direction(u: float, v: float) -> wp.vec3:
 
 @wp.func
 def env_texel_uv(env: EnvData, uv: wp.vec2) -> wp.vec2i:
-    """Texel (column i, row j) of the map holding the direction of lat-long parameters ``uv``
-    (:func:`~warpscatter.csm.depthmaps.latlong_param`)."""
+    """Texel (column i, row j) holding the direction of lat-long parameters ``uv``."""
     i = wp.clamp(int(uv[0] * float(env.width)), 0, env.width - 1)
     j = wp.clamp(int(uv[1] * float(env.height)), 0, env.height - 1)
     return wp.vec2i(i, j)
@@ -142,12 +126,11 @@ def env_lookup(env: EnvData, d: wp.vec3) -> wp.vec3:
 
 @wp.func
 def env_pdf_uv(env: EnvData, d: wp.vec3, uv: wp.vec2) -> float:
-    """:func:`env_pdf` of direction ``d`` whose lat-long parameters ``uv`` = latlong_param(d) the caller already
-    has (one atan2 / acos for the environment look-up, its density and the CSM query of a BRDF sample)."""
+    """:func:`env_pdf` of direction ``d`` whose lat-long parameters ``uv`` the caller already has."""
     n = wp.length(d)
     if not (n > 0.0):
         return 0.0
-    s = wp.sqrt(d[0] * d[0] + d[2] * d[2]) / n  # sin theta, accurate near the poles (unlike sqrt(1 - y^2))
+    s = wp.sqrt(d[0] * d[0] + d[2] * d[2]) / n  # sin theta, accurate near the poles
     if s < 1.0e-7:
         return 0.0
     t = env_texel_uv(env, uv)
@@ -156,16 +139,13 @@ def env_pdf_uv(env: EnvData, d: wp.vec3, uv: wp.vec2) -> float:
 
 @wp.func
 def env_pdf(env: EnvData, d: wp.vec3) -> float:
-    """Solid-angle density (1/sr) with which :func:`env_sample` draws direction ``d``:
-    p = p_uv / (2 pi^2 sin theta); 0 at the poles (sin theta = 0, probability zero)."""
+    """Solid-angle density (1/sr) of :func:`env_sample` drawing ``d``: p_uv / (2 pi^2 sin theta); 0 at the poles."""
     return env_pdf_uv(env, d, latlong_param(d))
 
 
 @wp.func
 def env_sample_uv(env: EnvData, xi: wp.vec2) -> tuple[wp.vec3, wp.vec3, float, wp.vec2]:
-    """:func:`env_sample`, also returning the sample's lat-long parameters (u, v) (its direction is
-    env_direction(u, v) exactly; a lat-long CSM query of the sample can take them instead of recomputing them from
-    the direction with an atan2 and an acos)."""
+    """:func:`env_sample`, also returning the sample's lat-long parameters (u, v)."""
     x0 = wp.clamp(xi[0], 0.0, 0.99999994)
     x1 = wp.clamp(xi[1], 0.0, 0.99999994)
     j = guided_search(env.marginal_cdf, env.marginal_guide, env.height, x0)
@@ -178,7 +158,7 @@ def env_sample_uv(env: EnvData, xi: wp.vec2) -> tuple[wp.vec3, wp.vec3, float, w
     du = wp.clamp((x1 - r0) / wp.max(r1 - r0, 1.0e-30), 0.0, 1.0)
     u = (float(i) + du) / float(env.width)
     v = (float(j) + dv) / float(env.height)
-    d, s = env_direction_sin(u, v)  # s = sin(pi v)
+    d, s = env_direction_sin(u, v)
     pdf = float(0.0)
     if s >= 1.0e-7:
         pdf = env.texel_pdf[j, i] / (2.0 * wp.pi * wp.pi * s)
@@ -190,8 +170,7 @@ def env_sample(env: EnvData, xi: wp.vec2) -> tuple[wp.vec3, wp.vec3, float]:
     """Importance-sample the map (Ritschel 2007 Sec. 5.1, inverse CDFs P_L^-1) with uniform ``xi`` in [0, 1)^2.
 
     Returns:
-        (direction (unit), radiance L_in of its texel, solid-angle pdf in 1/sr; pdf 0 marks an unusable sample
-        at a pole).
+        (unit direction, radiance L_in, solid-angle pdf in 1/sr; 0 marks an unusable sample at a pole).
     """
     d, radiance, pdf, _uv = env_sample_uv(env, xi)
     return d, radiance, pdf
@@ -204,32 +183,24 @@ def env_lookup_kernel(env: EnvData, directions: wp.array(dtype=wp.vec3), out: wp
     out[k] = env_lookup(env, directions[k])
 
 
-# ---- host side -------------------------------------------------------------------------------------
-
-#: Guide-table buckets per CDF interval (:func:`cdf_guide`): the scan of :func:`guided_search` takes about
-#: 1 / (2 GUIDE) steps on average.
+#: Guide-table buckets per CDF interval (:func:`cdf_guide`).
 GUIDE = 2
 
 
 def cdf_guide(cdf, buckets: int) -> np.ndarray:
-    """Guide table of an (n + 1,) float32 CDF for :func:`guided_search` (the cutpoint method, Chen & Asau 1974):
-    entry g is the last interval k < n with cdf[k] <= x_g, x_g the smallest float32 x that the kernel puts in bucket
-    g (int(x * buckets) computed in float32 >= g), so every x of the bucket has its interval at or above it.
-
-    Returns:
-        (buckets,) int32.
-    """
+    """(buckets,) int32 guide table of an (n + 1,) float32 CDF (Chen & Asau 1974): entry g is the last interval
+    with cdf[k] <= the smallest float32 x the kernel puts in bucket g."""
     c = np.asarray(cdf, np.float32)
     n = c.shape[0] - 1
     g = np.arange(buckets)
     scale = np.float32(buckets)
     x = (g / buckets).astype(np.float32)
-    for _ in range(8):  # up while the float32 product lands below bucket g
+    for _ in range(8):
         below = (x * scale).astype(np.float32) < g
         if not below.any():
             break
         x = np.where(below, np.nextafter(x, np.float32(2.0)), x)
-    for _ in range(8):  # down while it still lands in bucket g: the bucket's first x
+    for _ in range(8):
         lower = np.nextafter(x, np.float32(-1.0))
         inside = (x > 0.0) & ((lower * scale).astype(np.float32) >= g)
         if not inside.any():
@@ -247,13 +218,7 @@ class EnvironmentMap:
         image: (H, W, 3) or (H, W, 4) linear RGB(A) radiance (alpha ignored), row 0 = zenith; H >= 1, W >= 1,
             finite and >= 0.
 
-    Attributes:
-        image: (H, W, 3) float32 radiance.
-        marginal_cdf: (H + 1,) float32 CDF over rows (weights: sum over the row of luminance x sin theta_j).
-        conditional_cdf: (H, W + 1) float32 CDFs over the columns of each row (weights: luminance).
-        texel_pdf: (H, W) float32 density in (u, v) of each texel, W H P(texel), P from the stored float32 CDFs.
-
-    A map whose sampling weight is zero everywhere (black) is sampled by sin theta alone (uniform on the sphere).
+    Rows are weighted by luminance x sin theta_j, columns by luminance; a black map is sampled uniformly.
 
     Raises:
         ValueError: wrong shape, empty, non-finite or negative texels.
@@ -299,12 +264,10 @@ class EnvironmentMap:
 
     @property
     def width(self) -> int:
-        """Map width W (azimuth texels)."""
         return int(self.image.shape[1])
 
     @property
     def height(self) -> int:
-        """Map height H (polar texels)."""
         return int(self.image.shape[0])
 
     def texel_solid_angles(self) -> np.ndarray:

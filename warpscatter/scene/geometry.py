@@ -19,19 +19,13 @@ module_options()
 class MeshArrays:
     """A scene's triangles as kernels see them (:meth:`DeviceGeometry.arrays`)."""
 
-    vertices: wp.array(dtype=wp.vec3)  # world positions
-    triangles: wp.array2d(dtype=wp.int32)  # (T, 3) vertex indices
-    tri_material: wp.array(dtype=wp.int32)  # material per triangle
+    vertices: wp.array(dtype=wp.vec3)
+    triangles: wp.array2d(dtype=wp.int32)
+    tri_material: wp.array(dtype=wp.int32)
 
 
 class DeviceGeometry:
-    """A scene's triangles on a Warp device, with the ``wp.Mesh`` BVH built on first use.
-
-    Attributes:
-        vertices: wp.array(vec3) world positions.
-        triangles: wp.array2d(int32) (T, 3) indices.
-        tri_material: wp.array(int32) material per triangle.
-    """
+    """A scene's triangles on a Warp device (``vertices``, ``triangles``, ``tri_material``), with BVHs on first use."""
 
     def __init__(self, scene: Scene, device=None):
         self.device = default_device(device)
@@ -39,12 +33,11 @@ class DeviceGeometry:
         self.triangles = wp.array(scene.triangles, dtype=wp.int32, device=self.device)
         self.tri_material = wp.array(scene.tri_material, dtype=wp.int32, device=self.device)
         self._indices = wp.array(scene.triangles.ravel(), dtype=wp.int32, device=self.device)
-        self._host = (scene.vertices, scene.triangles)  # for the BVH cache's key (raycast.cached_bvh)
+        self._host = (scene.vertices, scene.triangles)  # the BVH cache's key
         self._mesh = None
         casters = scene.casters()
         self._casters = None if casters is scene else casters  # None: every triangle casts
         self._shadow_mesh = None
-        # light transmittance 1 - opacity of each caster triangle, in the shadow mesh's order
         self._caster_transmittance = (1.0 - np.asarray(casters.opacity, np.float32)[casters.tri_material]).astype(
             np.float32) if len(casters.triangles) else np.zeros(0, np.float32)
         self._caster_transmittance_array = None
@@ -57,8 +50,7 @@ class DeviceGeometry:
 
     @property
     def mesh(self) -> wp.Mesh:
-        """The BVH (``wp.Mesh``) over the triangles; built on first access, or reused from an earlier render of the
-        same geometry (:func:`warpscatter.raycast.cached_bvh`)."""
+        """The BVH (``wp.Mesh``) over the triangles, built or reused (:func:`warpscatter.raycast.cached_bvh`)."""
         if self._mesh is None:
             from ..raycast import cached_bvh
 
@@ -67,8 +59,7 @@ class DeviceGeometry:
 
     @property
     def shadow_mesh(self) -> wp.Mesh:
-        """The BVH of the shadow casters (:meth:`Scene.casters`), for exact visibility; :attr:`mesh` when every
-        material casts. Built once, on first access.
+        """The BVH of the shadow casters (:meth:`Scene.casters`) for exact visibility, built once.
 
         Raises:
             ValueError: when every material is ``receiver_only`` (nothing casts).

@@ -1,36 +1,9 @@
 """Light sources (CONVENTIONS.md): every light's host class, and the classic lights as kernels see them.
 
-Classic lights (the scattering methods and surface shading, :class:`LightParams`, :func:`light_sample`):
-
-* Directional: ``direction`` is the unit direction light TRAVELS; ``irradiance`` RGB on a plane
-  perpendicular to it. The light is at infinity: every point of the medium receives the same E.
-* Point: ``position``, ``intensity`` RGB (W/sr) in every direction; rendered as six square spots (cube faces).
-* Spot: ``position``, unit axis ``direction``, ``cone_deg`` the HALF-angle of the cone (degrees),
-  ``intensity`` RGB (W/sr). Irradiance at x is intensity / d^2 times the light texture, if any, for
-  points inside the cone and 0 outside. The texture spans the square [-1,1]^2 of the spot's
-  perspective projection (field of view 2 * cone_deg, its +v axis along the light's up), so a
-  spot shadow map and its texture share texel coordinates.
-
-Monte-Carlo lights (``render.lighting``, Ritschel et al. 2007 Sec. 5; their estimators are in :mod:`warpscatter.csm`):
-
-* Environment: a distant lat-long radiance map with importance-sampling tables
-  (:class:`~warpscatter.scene.environment_map.EnvironmentMap`).
-* Area: the parallelogram y(s, t) = corner + s u + t v, (s, t) in [0, 1]^2, area A = |u x v|, unit normal
-  n_l = (u x v) / A, radiance L_e from its front side (or both sides when ``two_sided``), times an optional texture
-  over (s, t) (Ritschel 2007: "area lights of arbitrary shape, varying intensity"; row 0 = the edge t = 1, as an
-  image of the light seen from its front with u to the right); a light given by its power P has L_e = P / (pi A)
-  (one-sided) or P / (2 pi A), divided by the texture's mean.
-* Linear: the segment y(s) = start + s (end - start) of length l, an isotropic line emitter of intensity I per
-  unit length (W sr^-1 unit^-1): dE = I cos(theta_x) / d^2 dl.
-* Volume: the parallelepiped y(s, t, r) = corner + s u + t v + r w, (s, t, r) in [0, 1]^3, volume
-  V = |u . (v x w)|, an isotropic emitter of intensity I per unit volume (W sr^-1 unit^-3): dE = I cos(theta_x) /
-  d^2 dV (Ritschel 2007 Sec. 4.2: "volumetric lights (d = 3)"; a light given by its power P has I = P / (4 pi V)).
-
-``LightParams`` is a single struct for both classic types so kernels need one code path (it holds the spot's
-texture array); :func:`light_sample` returns, for a world point, the incident irradiance, the unit direction the
-light travels at that point and the distance to the light (inf for directional lights). Area and linear lights
-reach kernels as :class:`LocalLightData`. Each light's config section (keys, checks, the one-line summary, the
-host light it builds) is its model in :mod:`.light_configs`.
+Classic lights (:class:`LightParams`, :func:`light_sample`): directional (``direction`` of travel, RGB
+``irradiance``), spot (HALF-angle ``cone_deg``, ``intensity`` in W/sr, optional texture over its projection's square
+[-1, 1]^2) and point (six square spots). Monte-Carlo lights (Ritschel et al. 2007 Sec. 4-5): environment maps and
+area, linear and volume lights (:class:`LocalLightData`). Each light's config section is in :mod:`.light_configs`.
 """
 
 from __future__ import annotations
@@ -48,16 +21,11 @@ from .environment_map import EnvironmentMap, cdf_search, cdf_search_row
 
 module_options()
 
-#: ``LightParams.kind`` of the classic lights.
 LIGHT_DIRECTIONAL = wp.constant(0)
 LIGHT_SPOT = wp.constant(1)
-#: ``LocalLightData.kind`` of the Monte-Carlo local lights.
 LOCAL_LIGHT_AREA = wp.constant(0)
 LOCAL_LIGHT_LINEAR = wp.constant(1)
 LOCAL_LIGHT_VOLUME = wp.constant(2)
-
-
-# ---- host classes ---------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -76,17 +44,15 @@ class DirectionalLight:
 
 @dataclass(frozen=True)
 class SpotLight:
-    """Spot light at ``position`` with unit axis ``direction``, half-angle ``cone_deg``, RGB ``intensity`` (W/sr).
-
-    ``texture`` is an optional linear RGB float32 image (H, W, 3), row 0 = top (+v of the light).
-    """
+    """Spot light at ``position``, axis ``direction``, half-angle ``cone_deg``, RGB ``intensity`` (W/sr) and an
+    optional linear RGB ``texture`` (H, W, 3), row 0 = top (+v)."""
 
     position: np.ndarray
     direction: np.ndarray
     cone_deg: float
     intensity: np.ndarray
     texture: np.ndarray | None = None
-    square: bool = False  # the cone is the square pyramid of its shadow map's frustum (a point light's cube face)
+    square: bool = False  # the cone is its shadow map's square pyramid (a point light's cube face)
 
     kind = "spot"
 
@@ -110,8 +76,7 @@ class SpotLight:
 
     @property
     def outer_cone_deg(self) -> float:
-        """Half-angle of the smallest circular cone holding every lit direction: ``cone_deg``, or for a ``square``
-        spot the pyramid's corner, atan(sqrt(2) tan(cone_deg))."""
+        """Half-angle of the smallest circular cone holding every lit direction (a square spot's corner)."""
         if not self.square:
             return float(self.cone_deg)
         return math.degrees(math.atan(math.sqrt(2.0) * math.tan(math.radians(self.cone_deg))))
@@ -123,12 +88,8 @@ CUBE_FACES = ((1.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, -1.0, 0.
 
 @dataclass(frozen=True)
 class PointLight:
-    """Omnidirectional light at ``position``, RGB ``intensity`` (W/sr) in every direction.
-
-    The classic pipeline renders it as six square spots, one per cube face (:meth:`faces`; Klehm 2014 Sec. 3.2:
-    "six independent spotlights for each directional sector, corresponding to the face of a cube map. The
-    different contributions of these sources are simply added"), each with its own 90-degree shadow map.
-    """
+    """Omnidirectional light at ``position``, RGB ``intensity`` (W/sr); rendered as six square spots with their own
+    shadow maps (:meth:`faces`; Klehm 2014 Sec. 3.2)."""
 
     position: np.ndarray
     intensity: np.ndarray
@@ -154,7 +115,7 @@ class EnvironmentLight:
     env: EnvironmentMap
 
     kind = "environment"
-    directions_per_stratum = 2  # a light sample and a BRDF sample (csm.direct_lighting)
+    directions_per_stratum = 2  # a light sample and a BRDF sample
 
 
 def _vec(a, name: str) -> np.ndarray:
@@ -166,13 +127,8 @@ def _vec(a, name: str) -> np.ndarray:
 
 @dataclass(frozen=True)
 class AreaLight:
-    """Parallelogram light corner + s u + t v with constant radiance (see the module docstring).
-
-    Args:
-        corner, u, v: the corner y(0, 0) and the two edge vectors (scene units, not parallel).
-        radiance: RGB radiance L_e (W m^-2 sr^-1 in scene units).
-        two_sided: emit from both sides (else only towards n_l = u x v / |u x v|).
-    """
+    """Parallelogram light corner + s u + t v (scene units), RGB radiance L_e (W m^-2 sr^-1), emitting towards
+    n_l = u x v / |u x v| or ``two_sided``; an optional ``texture`` over (s, t) has row 0 at the edge t = 1."""
 
     corner: np.ndarray
     u: np.ndarray
@@ -182,7 +138,7 @@ class AreaLight:
     texture: np.ndarray | None = None
 
     kind = "area"
-    directions_per_stratum = 2  # a light sample and a BRDF sample (csm.local_lights)
+    directions_per_stratum = 2
 
     def __post_init__(self):
         for name in ("corner", "u", "v", "radiance"):
@@ -201,8 +157,7 @@ class AreaLight:
 
     @classmethod
     def from_power(cls, corner, u, v, power, two_sided: bool = False, texture=None) -> AreaLight:
-        """The light emitting RGB ``power`` (W): L_e = P / (pi A), or P / (2 pi A) when two-sided; with a texture
-        divided by the texture's mean per channel (so that the light still emits P)."""
+        """The light emitting RGB ``power`` (W): L_e = P / (pi A), two-sided P / (2 pi A), over the texture's mean."""
         a = float(np.linalg.norm(np.cross(_vec(u, "u"), _vec(v, "v"))))
         if not a > 0.0:
             raise ValueError("u and v must span a parallelogram (non-zero and not parallel)")
@@ -249,11 +204,8 @@ class AreaLight:
         return d
 
     def sampling_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Sampling by radiance of a textured light (Ritschel 2007 Sec. 5.1): the rows' CDF (H + 1,), each row's
-        CDF over its columns (H, W + 1) and each texel's density over (s, t) relative to uniform (H, W), float32.
-        A texel's weight is the largest emission (summed over channels) in its 3 x 3 neighbourhood: the bilinear
-        look-up lets a texel's light reach into its neighbours, so every point that emits can be sampled.
-        Without a texture: (1, 1) tables of uniform sampling."""
+        """Tables for sampling by radiance (Ritschel 2007 Sec. 5.1): rows' CDF (H + 1,), per-row CDFs (H, W + 1),
+        texel density relative to uniform (H, W). A texel weighs its 3 x 3 maximum, as bilinear look-ups spread it."""
         if self.texture is None:
             return np.array([0.0, 1.0], np.float32), np.array([[0.0, 1.0]], np.float32), np.ones((1, 1), np.float32)
         emit = (np.asarray(self.texture, np.float64) * self.radiance).sum(axis=-1)
@@ -277,7 +229,7 @@ class LinearLight:
     intensity: np.ndarray
 
     kind = "linear"
-    directions_per_stratum = 1  # no surface a BRDF sample could hit: light samples only
+    directions_per_stratum = 1  # no surface for a BRDF sample to hit
 
     def __post_init__(self):
         for name in ("start", "end", "intensity"):
@@ -318,8 +270,7 @@ class LinearLight:
 
 @dataclass(frozen=True)
 class VolumeLight:
-    """Parallelepiped light corner + s u + t v + r w, isotropic, RGB ``intensity`` per unit volume
-    (W sr^-1 unit^-3; see the module docstring)."""
+    """Parallelepiped light corner + s u + t v + r w, isotropic, RGB ``intensity`` per unit volume (W sr^-1 unit^-3)."""
 
     corner: np.ndarray
     u: np.ndarray
@@ -328,7 +279,7 @@ class VolumeLight:
     intensity: np.ndarray
 
     kind = "volume"
-    directions_per_stratum = 1  # no surface a BRDF sample could hit: light samples only
+    directions_per_stratum = 1
 
     def __post_init__(self):
         for name in ("corner", "u", "v", "w", "intensity"):
@@ -366,27 +317,23 @@ class VolumeLight:
 Light = Union[DirectionalLight, SpotLight, PointLight, EnvironmentLight, AreaLight, LinearLight, VolumeLight]
 
 
-# ---- kernel views ---------------------------------------------------------------------------------
-
-
 @wp.struct
 class LocalLightData:
     """An area, linear or volume light as kernels see it (build with the lights' ``device_data``)."""
 
-    kind: int  # LOCAL_LIGHT_AREA, LOCAL_LIGHT_LINEAR or LOCAL_LIGHT_VOLUME
-    origin: wp.vec3  # area, volume: corner y(0, 0[, 0]); linear: start
-    edge_u: wp.vec3  # area, volume: u; linear: end - start
-    edge_v: wp.vec3  # area, volume: v; linear: unused (0)
-    normal: wp.vec3  # area: unit n_l = (u x v) / A; volume: the third edge w
-    size: float  # area A (area), length l (linear) or volume V (volume)
-    emission: wp.vec3  # area: radiance L_e; linear, volume: intensity per unit length / volume I
-    two_sided: int  # area: 1 emits from both sides
-    has_texture: int  # area: 1 when ``texture`` modulates L_e over (s, t)
-    texture: wp.array2d(dtype=wp.vec3)  # area: row 0 = the edge t = 1, columns s = 0 -> 1; 1x1 white without one
-    # sampling by radiance of a textured light (Ritschel 2007 Sec. 5.1): the texels' CDFs, rows first
-    marginal_cdf: wp.array(dtype=wp.float32)  # (H + 1,)
-    conditional_cdf: wp.array2d(dtype=wp.float32)  # (H, W + 1)
-    texel_pdf: wp.array2d(dtype=wp.float32)  # (H, W) density over (s, t) relative to uniform
+    kind: int  # LOCAL_LIGHT_*
+    origin: wp.vec3  # corner; linear: start
+    edge_u: wp.vec3  # linear: end - start
+    edge_v: wp.vec3
+    normal: wp.vec3  # area: unit n_l; volume: the third edge w
+    size: float  # area, length or volume
+    emission: wp.vec3  # area: radiance L_e; linear, volume: intensity I
+    two_sided: int
+    has_texture: int
+    texture: wp.array2d(dtype=wp.vec3)  # area: row 0 = the edge t = 1; 1x1 white without one
+    marginal_cdf: wp.array(dtype=wp.float32)
+    conditional_cdf: wp.array2d(dtype=wp.float32)
+    texel_pdf: wp.array2d(dtype=wp.float32)
 
 
 @wp.func
@@ -397,8 +344,7 @@ def area_light_point(light: LocalLightData, st: wp.vec2) -> wp.vec3:
 
 @wp.func
 def area_light_radiance(light: LocalLightData, w: wp.vec3, st: wp.vec2) -> wp.vec3:
-    """Radiance leaving the light's point (s, t) along the unit direction ``w`` (from the light towards the
-    receiver): L_e, times the texture there (bilinear); 0 behind a one-sided light."""
+    """Radiance leaving point (s, t) along unit ``w`` (towards the receiver); 0 behind a one-sided light."""
     if light.two_sided == 0 and wp.dot(light.normal, w) <= 0.0:
         return wp.vec3(0.0)
     if light.has_texture != 0:
@@ -416,8 +362,7 @@ def area_light_texel(light: LocalLightData, st: wp.vec2) -> wp.vec2i:
 
 @wp.func
 def area_light_sample_st(light: LocalLightData, xi: wp.vec2) -> wp.vec2:
-    """The light's parameters (s, t) for uniform ``xi`` in [0, 1)^2: ``xi`` itself, or for a textured light
-    sampled by radiance through its texels' CDFs (rows, then the column within the row; uniform inside a texel)."""
+    """(s, t) for uniform ``xi`` in [0, 1)^2: ``xi``, or sampled by radiance through a texture's CDFs."""
     if light.has_texture == 0:
         return xi
     h = light.texel_pdf.shape[0]
@@ -435,9 +380,7 @@ def area_light_sample_st(light: LocalLightData, xi: wp.vec2) -> wp.vec2:
 
 @wp.func
 def area_light_pdf(light: LocalLightData, x: wp.vec3, y: wp.vec3, st: wp.vec2) -> float:
-    """Solid-angle density (1/sr), seen from ``x``, of sampling the light's point y = y(s, t) as
-    :func:`area_light_sample_st` does: p(s, t) d^2 / (A |cos theta_l|) (p = 1 for uniform sampling); 0 when
-    grazing."""
+    """Solid-angle density (1/sr) from ``x`` of sampling y(s, t): p(s, t) d^2 / (A |cos theta_l|); 0 when grazing."""
     w = y - x
     d2 = wp.dot(w, w)
     c = wp.abs(wp.dot(light.normal, w)) / wp.sqrt(d2)
@@ -460,7 +403,6 @@ def area_light_intersect(light: LocalLightData, x: wp.vec3, d: wp.vec3) -> tuple
     if not (r > 0.0):
         return -1.0, wp.vec2(0.0)
     q = x + r * d - light.origin
-    # solve q = s u + t v in the plane (Gram matrix of u, v)
     uu = wp.dot(light.edge_u, light.edge_u)
     uv = wp.dot(light.edge_u, light.edge_v)
     vv = wp.dot(light.edge_v, light.edge_v)
@@ -478,17 +420,17 @@ def area_light_intersect(light: LocalLightData, x: wp.vec3, d: wp.vec3) -> tuple
 class LightParams:
     """A light as kernels see it (one struct for every light type)."""
 
-    kind: int  # LIGHT_DIRECTIONAL or LIGHT_SPOT
-    direction: wp.vec3  # unit: travel direction (directional) or cone axis (spot)
-    position: wp.vec3  # spot position (unused for directional)
+    kind: int
+    direction: wp.vec3  # travel direction or cone axis
+    position: wp.vec3
     radiance: wp.vec3  # irradiance E (directional) or intensity I in W/sr (spot)
-    right: wp.vec3  # spot frame, for the texture lookup
+    right: wp.vec3
     up: wp.vec3
-    tan_cone: float  # tan(cone half-angle)
-    cos_cone: float  # cos(cone half-angle); a square spot: of its outer cone (SpotLight.outer_cone_deg)
-    square: int  # 1: the lit directions are the square pyramid |right|, |up| <= tan_cone * forward
+    tan_cone: float
+    cos_cone: float  # of the outer cone (SpotLight.outer_cone_deg)
+    square: int
     has_texture: int
-    texture: wp.array2d(dtype=wp.vec3)  # spot light texture, row 0 = top (+v); a 1x1 white texel without one
+    texture: wp.array2d(dtype=wp.vec3)  # row 0 = top (+v); 1x1 white without one
 
 
 def light_params(light, device=None, texture: wp.array | None = None) -> LightParams:
@@ -497,8 +439,7 @@ def light_params(light, device=None, texture: wp.array | None = None) -> LightPa
     Args:
         light: the light.
         device: Warp device of the texture array.
-        texture: an (H, W) vec3 array to use as the spot's texture instead of ``light.texture`` (a prefiltered
-            copy, say).
+        texture: an (H, W) vec3 array replacing ``light.texture`` (a prefiltered copy, say).
     """
     p = LightParams()
     p.direction = wp.vec3(*light.direction)
@@ -577,7 +518,6 @@ def light_sample(light: LightParams, x: wp.vec3):
     if inside:
         e = light.radiance / d2
         if light.has_texture != 0:
-            # project onto the spot's image plane at unit distance: [-1,1]^2 spans the cone's square
             su = wp.dot(omega, light.right) / (c * light.tan_cone)
             sv = wp.dot(omega, light.up) / (c * light.tan_cone)
             t = sample_bilinear_rgb(light.texture, 0.5 * su + 0.5, 0.5 - 0.5 * sv)
@@ -587,8 +527,7 @@ def light_sample(light: LightParams, x: wp.vec3):
 
 @wp.func
 def faces_away_from_light(light: LightParams, x: wp.vec3, n: wp.vec3) -> bool:
-    """Whether a surface at world point ``x`` whose unit normal ``n`` faces the viewer faces away from the light:
-    the viewer sees its unlit side, which its own surface shadows (False for a zero normal: no surface)."""
+    """Whether a surface at ``x`` with viewer-facing unit normal ``n`` faces away from the light (False for n = 0)."""
     if wp.dot(n, n) < 0.25:
         return False
     _e, omega, _d = light_sample(light, x)

@@ -1,14 +1,8 @@
 """Homogeneous participating medium and phase functions (CONVENTIONS.md, Klehm 2014 Sec. 2.1).
 
-``sigma_t`` is extinction (1/scene unit), ``albedo`` the scattering albedo rho, so sigma_s = rho sigma_t.
-cos_theta = dot(light_direction, -ray_direction) where light_direction is the direction light TRAVELS;
-g > 0 scatters forward (looking into the light is brightest).
-
-Coloured media: ``sigma_t`` and ``albedo`` may each be RGB triples (pbrt's and Mitsuba's spectrally varying
-homogeneous medium, reduced to three channels). Kernels then see ``coloured`` = 1 and the per-channel
-``sigma_t_rgb`` / ``sigma_s_rgb``; the scalar ``sigma_t`` is the channels' mean, the one extinction of the
-prefiltered methods' visibility weights (their only approximation of colour: see :mod:`warpscatter.scattering`).
-A grey medium keeps ``coloured`` = 0 and every kernel its scalar code.
+``sigma_t`` is extinction (1/scene unit), ``albedo`` the scattering albedo rho (sigma_s = rho sigma_t); both may be
+RGB (coloured media; kernels then see ``coloured`` = 1, and the scalar ``sigma_t`` is the channels' mean).
+cos_theta = dot(light_direction, -ray_direction), light_direction the direction light TRAVELS; g > 0 scatters forward.
 """
 
 from __future__ import annotations
@@ -38,8 +32,8 @@ def _rgb(v) -> tuple[float, float, float]:
 
 @dataclass(frozen=True)
 class Medium:
-    """Homogeneous medium: extinction sigma_t (1/unit), albedo rho, phase ('isotropic' or 'henyey_greenstein', g);
-    sigma_t and albedo are numbers (grey) or RGB triples (coloured; module doc)."""
+    """Homogeneous medium: extinction sigma_t (1/unit), albedo rho (grey or RGB), phase ('isotropic' or
+    'henyey_greenstein', g)."""
 
     sigma_t: float | tuple[float, float, float]
     albedo: float | tuple[float, float, float] = 1.0
@@ -110,13 +104,13 @@ class Medium:
 class MediumParams:
     """Homogeneous medium as kernels see it."""
 
-    sigma_t: float  # extinction, 1/unit (coloured: the channels' mean)
-    sigma_s: float  # scattering, 1/unit (coloured: the channels' mean)
-    coloured: int  # 1: the channels differ, use sigma_t_rgb / sigma_s_rgb
-    sigma_t_rgb: wp.vec3  # extinction per channel
-    sigma_s_rgb: wp.vec3  # scattering per channel
-    phase_id: int  # PHASE_ISOTROPIC or PHASE_HENYEY_GREENSTEIN
-    g: float  # HG asymmetry
+    sigma_t: float  # 1/unit, channels' mean
+    sigma_s: float
+    coloured: int  # 1: use sigma_t_rgb / sigma_s_rgb
+    sigma_t_rgb: wp.vec3
+    sigma_s_rgb: wp.vec3
+    phase_id: int
+    g: float
 
 
 @wp.func
@@ -157,8 +151,8 @@ def transmittance_integral_rgb(med: MediumParams, t0: float, t1: float) -> wp.ve
 
 @wp.func
 def coloured_scattering(med: MediumParams, radiance: wp.vec3, t0: float, t1: float) -> wp.vec3:
-    """radiance * sigma_s * integral_t0^t1 exp(-sigma_t t) dt per channel of a coloured medium: the single-scattering
-    term of incident ``radiance`` over [t0, t1] of a view ray, before the phase and visibility factors."""
+    """radiance * sigma_s * integral_t0^t1 exp(-sigma_t t) dt per channel: single scattering before phase and
+    visibility."""
     return wp.cw_mul(wp.cw_mul(radiance, med.sigma_s_rgb), transmittance_integral_rgb(med, t0, t1))
 
 

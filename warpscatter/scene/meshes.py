@@ -1,23 +1,10 @@
 """Triangle meshes: the validated container every stage consumes, file loading through trimesh, and transforms.
 
-A :class:`TriangleMesh` is plain numpy: ``vertices`` (N, 3) float32 in scene units and ``triangles`` (T, 3)
-int32 indices, checked on construction (finite coordinates, indices in range, at least one triangle).
-Rasterizers and BVH builders take these arrays as they are; nothing here launches a kernel.
-
-:func:`load_mesh` reads OBJ, PLY, STL, GLB/glTF and OFF with trimesh. Files holding a scene (GLB/glTF node
-graphs, OBJ files with several objects) are flattened with their node transforms applied; quads and polygons
-arrive triangulated. Files that cannot be read, are larger than :data:`MAX_MESH_FILE_BYTES`, cannot be parsed, or
-hold no triangles (empty, points or lines only) or non-finite vertices raise :class:`MeshLoadError` naming the file
-and the reason: an :class:`~warpscatter.errors.InputFileError`, a user error (CLI exit code 2).
-
-Transforms follow CONVENTIONS.md: scale first, then the rotations about X, Y and Z (in that order, about the
-mesh origin, angles in degrees), then the translation, i.e. ``M = T @ Rz @ Ry @ Rx @ S`` acting on column
-vectors ``[x, y, z, 1]``.
-
-:func:`cached_mesh` keeps built meshes in process (least recently used first out, :data:`MESH_CACHE_BYTES` in
-all) so that repeated renders of a scene (bench runs, loops in Python) load and generate each mesh once; the
-scene builder keys it by what determines a mesh (:func:`file_key`, the generator and its parameters, the
-transform). Cached meshes hold read-only arrays: nobody can change the cache's copy by accident.
+A :class:`TriangleMesh` holds ``vertices`` (N, 3) float32 in scene units and ``triangles`` (T, 3) int32, checked on
+construction. :func:`load_mesh` reads OBJ, PLY, STL, GLB/glTF and OFF (scenes flattened, polygons triangulated) and
+raises :class:`MeshLoadError` (a user error, CLI exit code 2). Transforms (CONVENTIONS.md) are
+``M = T @ Rz @ Ry @ Rx @ S`` on column vectors, angles in degrees. :func:`cached_mesh` keeps built meshes in process
+(LRU, :data:`MESH_CACHE_BYTES`) with read-only arrays, so repeated renders load and generate each mesh once.
 """
 
 from __future__ import annotations
@@ -35,37 +22,21 @@ import numpy as np
 from ..errors import InputFileError
 
 SUPPORTED_EXTENSIONS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
-#: The largest mesh file :func:`load_mesh` reads (bytes): trimesh holds the whole file and its parsed arrays in
-#: memory, several times the file's size. 2 GiB is some 40 million triangles of binary STL.
+#: The largest mesh file :func:`load_mesh` reads (bytes): trimesh holds it and its arrays in memory.
 MAX_MESH_FILE_BYTES = 2 * 2**30
-#: Formats that are text (all of it: OBJ, OFF, glTF's JSON) and read as UTF-8, or Latin-1 where it is not UTF-8.
+#: Text formats: read as UTF-8, or Latin-1 where it is not UTF-8.
 _TEXT_FORMATS = (".obj", ".off", ".gltf")
 
 
 class MeshLoadError(InputFileError):
-    """A mesh file could not be read or holds no (valid) triangles; the message names the file and the reason.
+    """A mesh file could not be read or holds no valid triangles (an InputFileError: CLI exit code 2)."""
 
-    An :class:`~warpscatter.errors.InputFileError` (and so a ValueError): the CLI exits with code 2; the scene builder
-    adds the config key that named the file (``scene.meshes.1.path``)."""
-
-
-# ---------------------------------------------------------------------------------------------------------------------
-# Container
-# ---------------------------------------------------------------------------------------------------------------------
 
 
 @dataclass
 class TriangleMesh:
-    """An indexed triangle mesh in scene units (+Y up).
-
-    Attributes:
-        vertices: (N, 3) float32 vertex positions.
-        triangles: (T, 3) int32 vertex indices; counter-clockwise seen from the side the face normal points to
-            (normal = (v1 - v0) x (v2 - v0)).
-
-    Raises:
-        ValueError: on wrong shapes, non-finite coordinates, out-of-range indices or an empty triangle list.
-    """
+    """An indexed triangle mesh in scene units (+Y up): ``vertices`` (N, 3) float32, ``triangles`` (T, 3) int32,
+    counter-clockwise about the normal (v1 - v0) x (v2 - v0). Raises ValueError on invalid input."""
 
     vertices: np.ndarray
     triangles: np.ndarray
@@ -94,27 +65,21 @@ class TriangleMesh:
 
     @classmethod
     def _trusted(cls, vertices: np.ndarray, triangles: np.ndarray) -> TriangleMesh:
-        """A mesh around arrays known to be valid (float32 (N, 3), int32 (T, 3) in range): no checks, no copies."""
+        """A mesh around arrays known to be valid: no checks, no copies."""
         mesh = cls.__new__(cls)
         mesh.vertices, mesh.triangles = vertices, triangles
         return mesh
 
     @property
     def num_vertices(self) -> int:
-        """Number of vertices N."""
         return int(self.vertices.shape[0])
 
     @property
     def num_triangles(self) -> int:
-        """Number of triangles T."""
         return int(self.triangles.shape[0])
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Axis-aligned bounds of the referenced vertices.
-
-        Returns:
-            (min, max): two float64 (3,) arrays in scene units.
-        """
+        """(min, max) float64 bounds of the referenced vertices."""
         used = self.vertices[np.unique(self.triangles)].astype(np.float64)
         return used.min(axis=0), used.max(axis=0)
 
@@ -137,18 +102,7 @@ class TriangleMesh:
 
     @staticmethod
     def concatenate(meshes: Sequence[TriangleMesh]) -> tuple[TriangleMesh, np.ndarray]:
-        """Join meshes into one, keeping their triangle order.
-
-        Args:
-            meshes: at least one :class:`TriangleMesh`.
-
-        Returns:
-            (mesh, part): the joined mesh and a (T,) int32 array giving, for every triangle, the index of the input
-            mesh it came from (used to look up per-entry materials).
-
-        Raises:
-            ValueError: when ``meshes`` is empty or holds something other than TriangleMesh.
-        """
+        """Join meshes, keeping triangle order: (mesh, part), part[t] the index of triangle t's input mesh."""
         meshes = list(meshes)
         if not meshes:
             raise ValueError("meshes must hold at least one TriangleMesh")
@@ -171,18 +125,11 @@ def concatenate(meshes: Sequence[TriangleMesh]) -> tuple[TriangleMesh, np.ndarra
     return TriangleMesh.concatenate(meshes)
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Loading
-# ---------------------------------------------------------------------------------------------------------------------
-
 
 def load_mesh(path: str | os.PathLike) -> TriangleMesh:
     """Load a triangle mesh from OBJ, PLY, STL, GLB/glTF or OFF.
 
-    Scenes (GLB/glTF node graphs, multi-object OBJ) are flattened with every node transform applied; quads and
-    polygons are triangulated by trimesh's readers. Point clouds and line/curve geometry inside a file are ignored;
-    a file with no triangles at all is an error. Vertex positions are kept as stored (no merging); glTF files are
-    +Y up in metres, which matches the scene convention, other formats are taken as they are.
+    Scenes are flattened with their node transforms; points and lines are ignored; vertices are not merged.
 
     Args:
         path: file path; the format is taken from the extension.
@@ -191,9 +138,7 @@ def load_mesh(path: str | os.PathLike) -> TriangleMesh:
         The flattened mesh, all triangles of all objects in file order.
 
     Raises:
-        MeshLoadError: (an InputFileError, a ValueError) when the file is missing, has an unsupported extension, is
-            larger than :data:`MAX_MESH_FILE_BYTES`, cannot be parsed, holds no triangles or invalid ones (NaN
-            vertices); the message names the file and the reason.
+        MeshLoadError: missing, unsupported, too large, unparsable, or no valid triangles; names file and reason.
     """
     import trimesh
 
@@ -218,7 +163,7 @@ def load_mesh(path: str | os.PathLike) -> TriangleMesh:
         raise fail(f"cannot be read ({exc.strerror or exc})") from exc
     if not data:
         raise fail("the file is empty")
-    if len(data) > MAX_MESH_FILE_BYTES:  # grew since it was measured
+    if len(data) > MAX_MESH_FILE_BYTES:  # grew since the size check
         raise fail(f"the file has more than the {MAX_MESH_FILE_BYTES:,} bytes a mesh file may have "
                    f"(warpscatter.scene.meshes.MAX_MESH_FILE_BYTES)")
     kind = ext[1:].upper()
@@ -228,10 +173,10 @@ def load_mesh(path: str | os.PathLike) -> TriangleMesh:
         scene = trimesh.load_scene(io.BytesIO(_readable_text(data, ext)), file_type=ext[1:],
                                    resolver=trimesh.resolvers.FilePathResolver(path), process=False)
         geometries = scene.dump()
-    except ImportError as exc:  # an optional module of trimesh's (text encoding detection, say) on this path
+    except ImportError as exc:
         raise fail(f"cannot be parsed as {kind} (trimesh would need the module {exc.name!r} for this file, "
                    f"which is not installed: text that is not UTF-8 in a binary format?)") from exc
-    except Exception as exc:  # trimesh raises many types (IndexError, KeyError, struct.error, ...) on bad files
+    except Exception as exc:  # trimesh raises many types on bad files
         raise fail(f"cannot be parsed as {kind} ({type(exc).__name__}: {exc})") from exc
 
     parts, skipped = [], []
@@ -268,10 +213,8 @@ def _looks_binary(data: bytes) -> bool:
 
 
 def _readable_text(data: bytes, ext: str) -> bytes:
-    """``data`` with the text trimesh decodes made UTF-8, so that trimesh never falls back to guessing the encoding
-    (its guess needs the optional module charset_normalizer): whole text formats and ASCII STL that are not UTF-8 are
-    taken as Latin-1 (every byte a character; OBJ/OFF/glTF syntax is ASCII) and re-encoded, and the 80-byte header of
-    a binary STL (free text, often not UTF-8) has its non-ASCII bytes replaced by ``?``."""
+    """``data`` with its text made UTF-8 (non-UTF-8 read as Latin-1; binary STL header bytes >= 0x80 -> ``?``), so
+    trimesh never guesses the encoding (which needs the optional charset_normalizer)."""
     if ext == ".stl" and len(data) >= 84 and len(data) == 84 + 50 * struct.unpack_from("<I", data, 80)[0]:
         return bytes(b if b < 0x80 else 0x3F for b in data[:80]) + data[80:]
     if ext in _TEXT_FORMATS or ext == ".stl":
@@ -282,13 +225,8 @@ def _readable_text(data: bytes, ext: str) -> bytes:
     return data
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Transforms
-# ---------------------------------------------------------------------------------------------------------------------
-
 
 def _vec3(name: str, value, default: float) -> np.ndarray:
-    """A finite length-3 float64 vector from a scalar (broadcast) or a 3-sequence; None gives ``default``."""
     if value is None:
         return np.full(3, default, dtype=np.float64)
     try:
@@ -305,8 +243,7 @@ def _vec3(name: str, value, default: float) -> np.ndarray:
 
 
 def rotation_matrix(axis: str, angle_deg: float) -> np.ndarray:
-    """Right-handed 3x3 rotation about ``axis`` ('x', 'y' or 'z') by ``angle_deg`` degrees (counter-clockwise
-    looking down the axis towards the origin)."""
+    """Right-handed 3x3 rotation about ``axis`` ('x', 'y' or 'z') by ``angle_deg`` degrees."""
     a = np.radians(float(angle_deg))
     c, s = np.cos(a), np.sin(a)
     if axis == "x":
@@ -319,22 +256,15 @@ def rotation_matrix(axis: str, angle_deg: float) -> np.ndarray:
 
 
 def transform_matrix(translate=None, rotate_deg=None, scale=None) -> np.ndarray:
-    """The 4x4 matrix of a mesh-entry transform (CONVENTIONS.md).
-
-    Scale first, then rotate about X, then Y, then Z (about the mesh origin), then translate:
-    ``M = T @ Rz @ Ry @ Rx @ S`` applied to column vectors ``[x, y, z, 1]``.
+    """The 4x4 float64 matrix ``M = T @ Rz @ Ry @ Rx @ S`` of a mesh-entry transform (CONVENTIONS.md).
 
     Args:
         translate: [tx, ty, tz] in scene units (default zeros).
         rotate_deg: [rx, ry, rz] in degrees, right-handed (default zeros).
         scale: a positive number or three positive numbers [sx, sy, sz] (default 1).
 
-    Returns:
-        (4, 4) float64 matrix.
-
     Raises:
-        ValueError: naming ``translate``, ``rotate_deg`` or ``scale`` when a value is malformed, non-finite, or a
-            scale is not > 0.
+        ValueError: naming the malformed or non-finite argument, or a scale not > 0.
     """
     t = _vec3("translate", translate, 0.0)
     r = _vec3("rotate_deg", rotate_deg, 0.0)
@@ -348,17 +278,7 @@ def transform_matrix(translate=None, rotate_deg=None, scale=None) -> np.ndarray:
 
 
 def apply_transform(mesh: TriangleMesh, matrix) -> TriangleMesh:
-    """Return a new mesh with ``matrix`` applied to its vertices (points, w = 1).
-
-    A matrix with negative determinant (a mirror) also reverses the winding so that normals keep facing the same
-    side of the surface.
-
-    Args:
-        mesh: the mesh to transform (not modified).
-        matrix: (4, 4) affine matrix (last row 0, 0, 0, 1).
-
-    Returns:
-        The transformed mesh (float32 vertices computed in float64).
+    """A new mesh with the affine 4x4 ``matrix`` applied (in float64); a mirror also reverses the winding.
 
     Raises:
         ValueError: when ``matrix`` is not a finite affine 4x4 matrix or is singular.
@@ -372,16 +292,12 @@ def apply_transform(mesh: TriangleMesh, matrix) -> TriangleMesh:
     if abs(det) < 1e-300:
         raise ValueError("matrix is singular (zero determinant)")
     if np.array_equal(m[:3, :3], np.eye(3)) and not np.any(m[:3, 3]) and not np.any(np.signbit(m[:3, 3])):
-        # The identity (the default transform): v @ I + 0 is exactly v + 0 (which turns -0.0 into +0.0).
+        # identity: v @ I + 0 is exactly v + 0 (-0.0 -> +0.0)
         return TriangleMesh(mesh.vertices + np.float32(0.0), mesh.triangles.copy())
     v = mesh.vertices.astype(np.float64) @ m[:3, :3].T + m[:3, 3]
     tris = mesh.triangles if det > 0 else mesh.triangles[:, ::-1]
     return TriangleMesh(v, tris.copy())
 
-
-# ---------------------------------------------------------------------------------------------------------------------
-# In-process cache
-# ---------------------------------------------------------------------------------------------------------------------
 
 #: Total size (vertex and index bytes) of the meshes :func:`cached_mesh` keeps; 0 turns the cache off.
 MESH_CACHE_BYTES = 256 * 2**20
@@ -392,8 +308,7 @@ _cache_state = {"bytes": 0, "hits": 0, "misses": 0}
 
 
 def file_key(path: str | os.PathLike) -> tuple | None:
-    """Cache key of a mesh file: absolute path, size, modification and change times (ns), inode; None when the
-    file cannot be stat'ed (the loader then reports the problem)."""
+    """Cache key of a mesh file (path, size, times, inode); None when it cannot be stat'ed."""
     try:
         st = os.stat(path)
     except OSError:
@@ -402,14 +317,8 @@ def file_key(path: str | os.PathLike) -> tuple | None:
 
 
 def cached_mesh(key: Hashable | None, build: Callable[[], TriangleMesh]) -> TriangleMesh:
-    """The mesh ``build()`` makes, built once per ``key`` while it stays in the cache.
-
-    ``build`` must return a new mesh (one nobody else holds): its arrays become the cache's and are made
-    read-only. Every call returns a new :class:`TriangleMesh` object around these shared read-only arrays, so
-    writing into them raises and the cached mesh stays as built. ``key`` None (or a mesh larger than
-    :data:`MESH_CACHE_BYTES`) bypasses the cache; errors of ``build`` are not cached. The least recently used
-    meshes leave first once the cache holds more than :data:`MESH_CACHE_BYTES`.
-    """
+    """The mesh ``build()`` makes (a new one), built once per ``key`` while cached, around shared read-only arrays.
+    ``key`` None bypasses the cache; errors are not cached."""
     if key is not None:
         with _cache_lock:
             hit = _cache.get(key)
@@ -425,7 +334,7 @@ def cached_mesh(key: Hashable | None, build: Callable[[], TriangleMesh]) -> Tria
     size = vertices.nbytes + triangles.nbytes
     if key is not None and size <= MESH_CACHE_BYTES:
         with _cache_lock:
-            old = _cache.pop(key, None)  # another thread built it meanwhile
+            old = _cache.pop(key, None)
             if old is not None:
                 _cache_state["bytes"] -= old[0].nbytes + old[1].nbytes
             _cache[key] = (vertices, triangles)

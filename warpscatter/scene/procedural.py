@@ -1,27 +1,6 @@
-"""Procedural scenes: deterministic triangle-mesh generators named in configs (``procedural: colonnade``).
-
-Every generator takes keyword parameters only, with typed defaults, and returns a :class:`TriangleMesh` in scene
-units (about metres), +Y up, standing on (or, for ``terrain``, straddling) the plane y = 0 and centred on the
-Y axis. Unknown or invalid parameters raise ValueError naming the parameter. Generators that draw random numbers
-take a ``seed`` and give identical meshes for identical parameters.
-
-Closed solids (boxes, cylinders) are wound counter-clockwise seen from outside (outward normals); open sheets
-(ground, terrain) face +Y; leaf quads are two-sided cards with arbitrary orientation; the room of
-``room_window`` faces inwards, towards a camera placed inside it.
-
-| generator | what it builds | default triangles |
-| --- | --- | --- |
-| ground_plane | square in y = 0 | 2 |
-| colonnade | two rows of cylindrical pillars under an architrave and a slab roof | 1060 |
-| fence | slatted fence: posts, vertical slats with gaps, horizontal rails | 828 |
-| canopy | a tree: trunk cylinder and thousands of small leaf quads clustered in a crown ellipsoid | 8048 |
-| room_window | closed box room with a (paned) window opening in its -Z wall | 58 |
-| terrain | height-field grid of smooth sinusoid noise | 32768 |
-
-For a >= 1M-triangle benchmark mesh use ``terrain(resolution=710)`` (2 * 710^2 = 1,008,200 triangles) or
-``canopy(leaves=500000)`` (1,000,048 triangles, a much harder occluder set).
-
-The building blocks ``box``, ``box_quads``, ``cylinder`` and ``quads_to_triangles`` are public for asset scripts.
+"""Procedural scenes: deterministic triangle-mesh generators named in configs (``procedural: colonnade``), taking
+keyword parameters only and returning a :class:`TriangleMesh` in scene units (about metres), +Y up, on y = 0, centred
+on the Y axis; solids face outwards, ``room_window`` inwards. Table and benchmark meshes: docs/design/shadows-scene.md.
 """
 
 from __future__ import annotations
@@ -37,10 +16,6 @@ from .meshes import TriangleMesh, concatenate
 
 GENERATORS: dict[str, Callable[..., TriangleMesh]] = {}
 _ORIGINALS: dict[str, Callable[..., TriangleMesh]] = {}
-
-# ---------------------------------------------------------------------------------------------------------------------
-# Parameter checks (each raises ValueError naming the parameter)
-# ---------------------------------------------------------------------------------------------------------------------
 
 
 def _int(name: str, value, lo: int, hi: int) -> int:
@@ -93,38 +68,22 @@ def _seed(value) -> int:
     return _int("seed", value, 0, 2**63 - 1)
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Building blocks
-# ---------------------------------------------------------------------------------------------------------------------
-
 
 def quads_to_triangles(quads) -> np.ndarray:
-    """Split (Q, 4) counter-clockwise quads (a, b, c, d) into (2Q, 3) triangles (a, b, c), (a, c, d), keeping the
-    winding; triangle 2q and 2q + 1 come from quad q."""
+    """Split (Q, 4) quads (a, b, c, d) into (2Q, 3) triangles (a, b, c), (a, c, d), keeping the winding."""
     q = np.asarray(quads, dtype=np.int64).reshape(-1, 4)
     return np.stack([q[:, [0, 1, 2]], q[:, [0, 2, 3]]], axis=1).reshape(-1, 3)
 
 
-# Corner k of a box is (x, y, z) = (hi if bit 0 else lo, hi if bit 1 else lo, hi if bit 2 else lo).
-# Faces in the order -X, +X, -Y, +Y, -Z, +Z, counter-clockwise seen from outside.
+# corner k has bit 0/1/2 selecting hi for x/y/z; faces -X, +X, -Y, +Y, -Z, +Z, counter-clockwise from outside
 _BOX_QUADS = np.array(
     [[0, 4, 6, 2], [1, 3, 7, 5], [0, 1, 5, 4], [2, 6, 7, 3], [0, 2, 3, 1], [4, 5, 7, 6]], dtype=np.int64
 )
 
 
 def box_quads(lo, hi) -> tuple[np.ndarray, np.ndarray]:
-    """Corners and outward quads of an axis-aligned box.
-
-    Args:
-        lo: (3,) minimum corner, scene units.
-        hi: (3,) maximum corner, each component > the one in ``lo``.
-
-    Returns:
-        (vertices (8, 3) float64, quads (6, 4) int64), quads counter-clockwise seen from outside.
-
-    Raises:
-        ValueError: when the box has zero or negative extent.
-    """
+    """(vertices (8, 3) float64, outward quads (6, 4) int64) of the box ``lo`` < ``hi`` (scene units); ValueError
+    for an empty box."""
     lo = np.asarray(lo, dtype=np.float64)
     hi = np.asarray(hi, dtype=np.float64)
     if lo.shape != (3,) or hi.shape != (3,) or not np.all(hi > lo):
@@ -140,42 +99,37 @@ def box(lo, hi) -> TriangleMesh:
 
 
 def _boxes(lo: np.ndarray, hi: np.ndarray) -> TriangleMesh:
-    """B boxes at once, the same mesh as ``concatenate([box(lo[b], hi[b]) for b in range(B)])``.
-
-    Args:
-        lo, hi: (B, 3) float64 corners, B >= 1.
-    """
+    """B boxes (corners (B, 3)) at once, the same mesh as concatenating :func:`box` of each."""
     bad = np.flatnonzero(~np.all(hi > lo, axis=1))
     if len(bad):
-        box_quads(lo[bad[0]], hi[bad[0]])  # raises the same error as box() would
+        box_quads(lo[bad[0]], hi[bad[0]])  # raises box()'s error
     bits = (np.arange(8)[:, None] >> np.arange(3)[None, :]) & 1
-    vertices = np.where(bits[None] == 1, hi[:, None, :], lo[:, None, :])  # (B, 8, 3)
+    vertices = np.where(bits[None] == 1, hi[:, None, :], lo[:, None, :])
     triangles = quads_to_triangles(_BOX_QUADS)[None] + 8 * np.arange(len(lo))[:, None, None]
     return TriangleMesh(vertices.reshape(-1, 3), triangles.reshape(-1, 3))
 
 
 def _cylinders(radius: float, y0: float, y1: float, s: int, cx: np.ndarray, cz: np.ndarray,
                caps: bool = True) -> TriangleMesh:
-    """P cylinders at once (axes at ``(cx[p], cz[p])``), the same mesh as concatenating ``cylinder(radius, y0, y1,
-    s, (cx[p], cz[p]), caps)`` for p = 0 .. P - 1 (parameters already checked)."""
+    """P cylinders with axes at (cx[p], cz[p]) at once, the same mesh as concatenating :func:`cylinder` of each."""
     theta = 2.0 * np.pi * np.arange(s) / s
     ring = np.zeros((len(cx), s, 3))
     ring[:, :, 0] = cx[:, None] + radius * np.cos(theta)
     ring[:, :, 2] = cz[:, None] + radius * np.sin(theta)
-    per = 2 * s + 2 if caps else 2 * s  # vertices per cylinder: bottom ring, top ring, cap centres
+    per = 2 * s + 2 if caps else 2 * s  # bottom ring, top ring, cap centres
     verts = np.empty((len(cx), per, 3))
     verts[:, :s] = ring + [0.0, y0, 0.0]
     verts[:, s : 2 * s] = ring + [0.0, y1, 0.0]
     k = np.arange(s)
     k1 = (k + 1) % s
-    quads = np.stack([k, s + k, s + k1, k1], axis=1)  # bottom_k, top_k, top_k+1, bottom_k+1: outward
+    quads = np.stack([k, s + k, s + k1, k1], axis=1)
     tris = [quads_to_triangles(quads)]
     if caps:
         verts[:, 2 * s] = np.stack([cx, np.full(len(cx), y0), cz], axis=1)
         verts[:, 2 * s + 1] = np.stack([cx, np.full(len(cx), y1), cz], axis=1)
         cb, ct = 2 * s, 2 * s + 1
-        tris.append(np.stack([np.full(s, cb), k, k1], axis=1))  # faces -Y
-        tris.append(np.stack([np.full(s, ct), s + k1, s + k], axis=1))  # faces +Y
+        tris.append(np.stack([np.full(s, cb), k, k1], axis=1))
+        tris.append(np.stack([np.full(s, ct), s + k1, s + k], axis=1))
     triangles = np.concatenate(tris)[None] + per * np.arange(len(cx))[:, None, None]
     return TriangleMesh(verts.reshape(-1, 3), triangles.reshape(-1, 3))
 
@@ -189,9 +143,6 @@ def cylinder(radius: float, y0: float, y1: float, segments: int, center_xz=(0.0,
         segments: number of sides (>= 3).
         center_xz: (x, z) of the axis.
         caps: close the ends with triangle fans around a centre vertex.
-
-    Returns:
-        TriangleMesh with 2 * segments side triangles (+ 2 * segments cap triangles), outward winding.
     """
     if not (radius > 0.0 and y1 > y0 and segments >= 3):
         raise ValueError(f"cylinder needs radius > 0, y1 > y0, segments >= 3; got {radius}, {y0}, {y1}, {segments}")
@@ -200,24 +151,16 @@ def cylinder(radius: float, y0: float, y1: float, segments: int, center_xz=(0.0,
 
 
 def _height_grid(size: float, n: int, heights: np.ndarray | None = None) -> TriangleMesh:
-    """(n+1) x (n+1) vertex grid over [-size/2, size/2]^2 in x-z with 2 n^2 triangles facing +Y.
-
-    Vertex (i, j) (i along x, j along z) has index j * (n + 1) + i and height ``heights[j, i]`` (0 when None).
-    """
+    """(n+1)^2 vertex grid over [-size/2, size/2]^2 in x-z facing +Y; vertex (i, j) at heights[j, i] (or 0)."""
     c = np.linspace(-0.5 * size, 0.5 * size, n + 1)
-    x, z = np.meshgrid(c, c, indexing="xy")  # [j, i]
+    x, z = np.meshgrid(c, c, indexing="xy")
     y = np.zeros_like(x) if heights is None else heights
     verts = np.stack([x, y, z], axis=-1).reshape(-1, 3)
     i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="xy")
     a = (j * (n + 1) + i).ravel()
-    # a, a + z, a + x + z, a + x is counter-clockwise seen from +Y.
     quads = np.stack([a, a + n + 1, a + n + 2, a + 1], axis=1)
     return TriangleMesh(verts, quads_to_triangles(quads))
 
-
-# ---------------------------------------------------------------------------------------------------------------------
-# Registry
-# ---------------------------------------------------------------------------------------------------------------------
 
 
 def _generator(fn: Callable[..., TriangleMesh]) -> Callable[..., TriangleMesh]:
@@ -250,11 +193,7 @@ def _lookup(name: str) -> Callable[..., TriangleMesh]:
 
 
 def describe(name: str) -> str:
-    """One-line description ``name(param: type = default, ...): first docstring line`` of a generator.
-
-    Raises:
-        ValueError: for an unknown generator name.
-    """
+    """One-line description ``name(param: type = default, ...): first docstring line`` of a generator."""
     fn = _lookup(name)
     parts = []
     for p in inspect.signature(fn).parameters.values():
@@ -265,8 +204,7 @@ def describe(name: str) -> str:
 
 
 def _canonical(value):
-    """A hashable, exact stand-in for a parameter value: equal only for values of the same type and repr (so 1,
-    1.0 and True differ, and so do 0.0 and -0.0); lists, tuples and dicts recursively."""
+    """Hashable stand-in for a parameter value, equal only for the same type and repr (1, 1.0, True differ)."""
     if isinstance(value, dict):
         return ("dict", tuple(sorted((str(k), _canonical(v)) for k, v in value.items())))
     if isinstance(value, (list, tuple)):
@@ -277,8 +215,7 @@ def _canonical(value):
 
 
 def generator_key(name: str, params: dict | None = None) -> tuple | None:
-    """Cache key of ``GENERATORS[name](**params)``: the registered function itself and the exact parameter values
-    (generators are deterministic); None for an unknown name or parameter values of other types (not cached)."""
+    """Cache key of ``GENERATORS[name](**params)``; None (not cached) for an unknown name or uncacheable values."""
     fn = GENERATORS.get(name)
     if fn is None:
         return None
@@ -289,21 +226,13 @@ def generator_key(name: str, params: dict | None = None) -> tuple | None:
 
 
 def generate(name: str, params: dict | None = None) -> TriangleMesh:
-    """Build the mesh of generator ``name`` with keyword ``params`` (a config entry's ``procedural``/``params``).
-
-    Raises:
-        ValueError: for an unknown generator, an unknown parameter or an invalid value (naming it).
-    """
+    """Build the mesh of generator ``name`` with keyword ``params``; ValueError names a bad generator or parameter."""
     _lookup(name)
     params = {} if params is None else params
     if not isinstance(params, dict):
         raise ValueError(f"params of {name!r} must be a mapping, got {type(params).__name__}")
     return GENERATORS[name](**params)
 
-
-# ---------------------------------------------------------------------------------------------------------------------
-# Generators
-# ---------------------------------------------------------------------------------------------------------------------
 
 
 @_generator
@@ -333,11 +262,6 @@ def colonnade(
 ) -> TriangleMesh:
     """Two rows of cylindrical pillars along X under an architrave and a slab roof (crepuscular-rays scene).
 
-    Pillar axes stand at x = (i - (pillars - 1) / 2) * spacing and z = +-row_gap / 2, from y = 0 to ``height``.
-    With ``roof`` each row carries an architrave beam (y in [height, height + roof_thickness]) and a slab
-    (y in [height + roof_thickness, height + 2 roof_thickness]) spans both rows, overhanging them by 1.5 radius.
-    Light coming in low from the side (+-Z) streams between the pillars into the covered hall.
-
     Args:
         pillars: pillars per row (1..10000).
         spacing: axis-to-axis distance along X (> 2 radius), scene units.
@@ -347,9 +271,6 @@ def colonnade(
         roof: add the architraves and the roof slab (36 triangles).
         row_gap: distance between the two rows' axes (> 2 radius).
         roof_thickness: thickness of architrave and slab (> 0).
-
-    Returns:
-        2 * pillars * 4 * segments (+ 36 with roof) triangles, closed solids with outward normals.
     """
     n = _int("pillars", pillars, 1, 10000)
     radius = _float("radius", radius, 0.0)
@@ -362,7 +283,7 @@ def colonnade(
 
     xs = (np.arange(n) - 0.5 * (n - 1)) * spacing
     rows = np.array([-0.5 * row_gap, 0.5 * row_gap])
-    pillars = _cylinders(radius, 0.0, height, s, np.tile(xs, 2), np.repeat(rows, n))  # row by row, x increasing
+    pillars = _cylinders(radius, 0.0, height, s, np.tile(xs, 2), np.repeat(rows, n))
     if not roof:
         return pillars
     x0, x1 = xs[0] - 0.5 * spacing, xs[-1] + 0.5 * spacing
@@ -388,10 +309,6 @@ def fence(
 ) -> TriangleMesh:
     """Slatted fence along X in the plane z = 0: square posts, vertical slats separated by gaps, and rails.
 
-    Post p stands at x = (p - (posts - 1) / 2) * post_spacing, from y = 0 to ``height``. Each of the posts - 1
-    bays holds ``slats`` boards (y in [0.06, 0.94] * height) with ``gap`` of clear space between boards and
-    next to the posts; ``rails`` horizontal bars run behind the slats (+Z side) across the whole fence.
-
     Args:
         posts: number of posts (2..10000).
         slats: boards per bay (0..1000).
@@ -401,9 +318,6 @@ def fence(
         post_width: square post cross-section (> 0).
         slat_thickness: board thickness along Z (> 0).
         rails: horizontal rails (0..100), 0.08 high and 0.04 deep, evenly spread over the height.
-
-    Returns:
-        12 * (posts + (posts - 1) * slats + rails) triangles (closed boxes, outward normals).
     """
     n = _int("posts", posts, 2, 10000)
     m = _int("slats", slats, 0, 1000)
@@ -428,13 +342,12 @@ def fence(
     hw = 0.5 * post_width
 
     def corners(x, y, z) -> np.ndarray:
-        """(B, 3) corners from per-box arrays or scalars (broadcast)."""
         x, y, z = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64), np.asarray(z, np.float64))
         return np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
 
-    lo = [corners(xs - hw, 0.0, -hw)]  # posts
+    lo = [corners(xs - hw, 0.0, -hw)]
     hi = [corners(xs + hw, height, hw)]
-    if m > 0:  # slats, bay by bay, left to right
+    if m > 0:
         bx = (xs[:-1, None] + hw + gap + np.arange(m)[None, :] * (board + gap)).ravel()
         lo.append(corners(bx, 0.06 * height, -0.5 * thick))
         hi.append(corners(bx + board, 0.94 * height, 0.5 * thick))
@@ -461,12 +374,6 @@ def canopy(
 ) -> TriangleMesh:
     """A tree: trunk cylinder plus many small randomly oriented square leaf cards clumped in a crown ellipsoid.
 
-    The crown is an ellipsoid with horizontal semi-axes ``radius`` and vertical semi-axis crown_ratio * radius,
-    its bottom at y = trunk_height. Leaves are grouped in ``clusters`` spherical clumps of ``cluster_radius``
-    whose centres are uniform in the crown (0 clusters: leaves uniform in the whole crown); the gaps between
-    clumps let light shafts through. Each leaf is a square of side ``leaf_size`` with a uniformly random
-    orientation, two triangles; the trunk (``trunk_segments`` sides) runs from y = 0 to the crown centre.
-
     Args:
         leaves: number of leaf cards (0..10,000,000).
         radius: horizontal crown semi-axis (> 0), scene units.
@@ -480,8 +387,7 @@ def canopy(
         trunk_segments: trunk sides (3..1024).
 
     Returns:
-        4 * trunk_segments + 2 * leaves triangles: the trunk first, then leaf k as triangles
-        4 * trunk_segments + 2k and + 2k + 1 (vertices 4k.. after the trunk's).
+        The trunk's 4 * trunk_segments triangles, then two per leaf.
     """
     nl = _int("leaves", leaves, 0, 10_000_000)
     radius = _float("radius", radius, 0.0)
@@ -511,7 +417,6 @@ def canopy(
         shrunk = np.maximum(semi - cluster_radius, 0.25 * semi)
         centres = centre + in_ball(nc) * shrunk
         pos = centres[rng.integers(0, nc, size=nl)] + in_ball(nl) * cluster_radius
-    # Uniformly random orientation: normal uniform on the sphere, tangent uniform around it.
     normal = rng.normal(size=(nl, 3))
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
     helper = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
@@ -523,7 +428,6 @@ def canopy(
     v = np.cross(normal, u)
     h = 0.5 * leaf_size
     hu, hv = h * u, h * v
-    # The trunk's vertices, then the leaves' corners (float32, as concatenating the two meshes gives them).
     nt = trunk.num_vertices
     vertices = np.empty((nt + 4 * nl, 3), dtype=np.float32)
     vertices[:nt] = trunk.vertices
@@ -547,11 +451,7 @@ def room_window(
 ) -> TriangleMesh:
     """Closed box room, faces pointing inwards, with a rectangular window opening in its -Z wall.
 
-    The room spans x in [-W/2, W/2], y in [0, H], z in [-D/2, D/2] for size = (W, H, D). The opening
-    (width, height) = ``window`` is centred at (x, y) = ``window_center`` in the wall z = -D/2 and divided into
-    panes[0] x panes[1] openings by zero-thickness mullion strips ``mullion`` wide. All six walls are built on one
-    lattice of grid lines (room edges, window and mullion edges), so every edge is shared by exactly two triangles
-    except the edges around the openings: no cracks, no T-junctions. Normals face the inside of the room.
+    The walls share one lattice of grid lines, so the mesh has no cracks or T-junctions.
 
     Args:
         size: (W, H, D) room extent, each > 0, scene units.
@@ -559,10 +459,6 @@ def room_window(
         window_center: (x, y) of the opening's centre on the -Z wall.
         panes: (columns, rows) of panes (1..64 each).
         mullion: width of the strips between panes (> 0; unused with one pane).
-
-    Returns:
-        2 * (2 nx ny + 2 ny nz + 2 nx nz - columns * rows) triangles, where nx, ny, nz count the lattice cells
-        along each axis (nz = 1; with one pane nx = ny = 3: 58 triangles).
     """
     W, H, D = _floats("size", size, 3)
     ww, wh = _floats("window", window, 2)
@@ -597,8 +493,7 @@ def room_window(
     quads, normals = [], []
 
     def wall(axis: int, fixed: int, inward: float, skip=None):
-        """Quads of the wall where lattice index along ``axis`` is ``fixed``; inward normal sign along ``axis``.
-        Cells (a, b) along the two other axes in row-major order, those where ``skip(a, b)`` holds left out."""
+        """Quads of the wall at lattice index ``fixed`` along ``axis``, cells where ``skip(a, b)`` left out."""
         other = [a for a in range(3) if a != axis]
         counts = [nx, ny, 2]
         a, b = np.meshgrid(np.arange(counts[other[0]] - 1), np.arange(counts[other[1]] - 1), indexing="ij")
@@ -617,22 +512,21 @@ def room_window(
         normals.append(n)
 
     def is_pane(i, j):
-        # Cells between xl[1 + 2p] and xl[2 + 2p] (and likewise in y) are openings.
         return (1 <= i) & (i <= 2 * pc - 1) & (i % 2 == 1) & (1 <= j) & (j <= 2 * pr - 1) & (j % 2 == 1)
 
-    wall(2, 0, +1.0, skip=is_pane)  # -Z wall with the window, faces +Z
-    wall(2, 1, -1.0)  # +Z wall
-    wall(0, 0, +1.0)  # -X wall
-    wall(0, nx - 1, -1.0)  # +X wall
-    wall(1, 0, +1.0)  # floor
-    wall(1, ny - 1, -1.0)  # ceiling
+    wall(2, 0, +1.0, skip=is_pane)  # the window wall
+    wall(2, 1, -1.0)
+    wall(0, 0, +1.0)
+    wall(0, nx - 1, -1.0)
+    wall(1, 0, +1.0)
+    wall(1, ny - 1, -1.0)
 
     gx, gy, gz = np.meshgrid(xl, yl, zl, indexing="ij")
     lattice = np.zeros((nx * ny * 2, 3))
     ii, jj, kk = np.meshgrid(np.arange(nx), np.arange(ny), np.arange(2), indexing="ij")
     lattice[vid(ii, jj, kk).ravel()] = np.stack([gx, gy, gz], axis=-1).reshape(-1, 3)
     quads = np.concatenate(quads).astype(np.int64)
-    # Orient every quad so that (b - a) x (c - a) points along its inward normal.
+    # orient each quad's (b - a) x (c - a) along its inward normal
     p = lattice[quads]
     facing = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), np.concatenate(normals))
     quads[facing < 0] = quads[facing < 0][:, ::-1]
@@ -644,10 +538,7 @@ def room_window(
 def terrain(*, size: float = 40.0, resolution: int = 128, amplitude: float = 2.0, seed: int = 0) -> TriangleMesh:
     """Rolling height-field terrain: a square grid displaced by a sum of random sinusoids (smooth noise).
 
-    Heights are h(x, z) = sum_k a_k sin(2 pi (d_k . (x, z)) / lambda_k + phase_k) over 8 waves with random
-    directions d_k and phases, wavelengths from ``size`` / 0.8 down to ``size`` / 12 and amplitudes proportional
-    to the wavelength, rescaled so that max |h| = ``amplitude`` over the grid (mean about 0, heights in
-    [-amplitude, amplitude]). The grid covers [-size/2, size/2]^2 with resolution^2 cells and faces +Y.
+    8 waves of random direction and phase, wavelengths ``size`` / 0.8 to ``size`` / 12, amplitude in proportion.
 
     Args:
         size: edge length (> 0), scene units.
@@ -665,10 +556,10 @@ def terrain(*, size: float = 40.0, resolution: int = 128, amplitude: float = 2.0
     phase = rng.random(waves) * 2.0 * np.pi
     weight = wavelength / wavelength[0] * (0.6 + 0.8 * rng.random(waves))
     c = np.linspace(-0.5 * size, 0.5 * size, n + 1)
-    h = np.zeros((n + 1, n + 1))  # [j (z), i (x)]
+    h = np.zeros((n + 1, n + 1))  # [z, x]
     for k in range(waves):
         kx, kz = 2.0 * np.pi * np.cos(angle[k]) / wavelength[k], 2.0 * np.pi * np.sin(angle[k]) / wavelength[k]
-        # sin(kx x + kz z + p) = sin(kx x) cos(kz z + p) + cos(kx x) sin(kz z + p): outer products, O(n^2).
+        # sin(kx x + kz z + p) split into outer products
         h += weight[k] * (
             np.outer(np.cos(kz * c + phase[k]), np.sin(kx * c)) + np.outer(np.sin(kz * c + phase[k]), np.cos(kx * c))
         )

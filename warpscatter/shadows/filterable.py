@@ -1,35 +1,10 @@
 """Filterable shadow-map formats: what a texel holds and how a filtered texel becomes a shadow intensity.
 
-Every filterable shadow map stores b(z) per depth sample, so that filtering the map (Gaussian, mip-mapping, the
-over operator of translucent occluders) filters the depth distribution Z (Peters et al. 2017, Sec. 2.1); the
-formats differ in b and in the reconstruction of the shadow intensity Z(z < z_f). Depth z is the signed depth in
-[-1, 1] of :mod:`.msm` (-1 at the map's near plane). Each format is a storage mode of the moment shadow map
-pipeline (:mod:`.msm`: generation with supersampling and translucent blending, Gaussian filter, mip chain,
-look-ups), selected by ``render.shadows.method`` and ``render.shadows.storage``:
-
-=================  ======  ==============================================================  ===========================
-method             bits    texel                                                           reconstruction
-=================  ======  ==============================================================  ===========================
-``msm``            64      Theta_4*(z, z^2, z^3, z^4), 4 x 16-bit unorm (Sec. 2.4)         Algorithm 1, alpha_b 6e-5
-``msm``            128     (z, z^2, z^3, z^4), 4 x float32 (Sec. 2.3)                      Algorithm 1, alpha_b 3e-7
-``msm2015``        64      u = (z + 1) / 2 in [0, 1]: the dense quantization transform of   Algorithm 1 at u_f,
-                           Peters and Klein 2015 of (u, u^2, u^3, u^4), 4 x 16-bit unorm   alpha_b 3e-5, b* (.5, ...)
-``msm2015``        128     (u, u^2, u^3, u^4), 4 x float32 (Fig. 4d)                       alpha_b 2e-6, b* (.5, ...)
-``vsm``            32      (z, z^2), 2 x float16 (Donnelly and Lauritzen 2006; Fig. 5a)    Cantelli's inequality
-``vsm``            64      (z, z^2), 2 x float32                                           Cantelli's inequality
-``evsm``           64      (e+, e+^2, -e-, e-^2), e+ = exp(c+ z), e- = exp(-c- z),          the smaller of the two
-                           4 x float16, c+ = c- = 5.54 (Lauritzen and McCool 2008; Fig. 4a)  Cantelli bounds
-``evsm``           128     the same in 4 x float32, c+ = 40, c- = 5.54 (Fig. 4e)
-=================  ======  ==============================================================  ===========================
-
-Cantelli (Sec. 2.2): mu = b_1, sigma^2 = b_2 - b_1^2, Z(z < z_f) >= 1 - sigma^2 / (sigma^2 + (z_f - mu)^2) for
-z_f > mu (and 0 otherwise); the variance is clamped below at a floor (:data:`VSM_MIN_VARIANCE` in z^2 units; for
-EVSM scaled by the squared derivative of each warp, (c e)^2) against rounding and acne. Float16 channels are
-emulated by rounding to the nearest float16 after every write (generation, blending, each filter pass, each mip
-level), as a GPU's 16-bit float render target does. Every format ends with the same over-darkening (divide by
-0.98, clamp; Sec. 2.6).
-
-The formats of ``msm`` are :mod:`.moments`' 4-moment storage modes (``STORAGE4_*``), unchanged.
+Every format stores a vector b(z) of the signed depth z in [-1, 1] of :mod:`.msm`, so that filtering the map filters
+the depth distribution (Peters et al. 2017, Sec. 2.1): ``msm`` (Peters 2017, 64/128 bits), ``msm2015`` (Peters and
+Klein 2015), ``vsm`` (Donnelly and Lauritzen 2006) and ``evsm`` (Lauritzen and McCool 2008), with Cantelli's
+inequality for the last two; float16 channels are emulated by rounding after every write. The table of formats is
+in docs/design/shadows-scene.md.
 """
 
 from __future__ import annotations
@@ -42,7 +17,7 @@ from . import moments as mm
 
 module_options()
 
-#: Format ints (``MomentShadowParams.storage``); the first two are :mod:`.moments`' 4-moment storage modes.
+#: Format ints (``MomentShadowParams.storage``).
 FORMAT_MSM_UNORM16 = mm.STORAGE4_UNORM16
 FORMAT_MSM_FLOAT32 = mm.STORAGE4_FLOAT32
 FORMAT_MSM2015_UNORM16 = wp.constant(2)
@@ -62,11 +37,10 @@ BITS_OF_METHOD = {"msm": (64, 128), "msm2015": (64, 128), "vsm": (32, 64), "evsm
 
 #: EVSM exponents (c+, c-) of Peters 2017 Fig. 4: 64 bits (a) and 128 bits (e).
 EVSM_EXPONENTS = {64: (5.54, 5.54), 128: (40.0, 5.54)}
-#: Largest exponent whose squared warp fits the channel: float16 max 65504 (2c <= ln 65504), float32 3.4e38.
+#: Largest exponent whose squared warp fits the channel (float16 max 65504, float32 3.4e38).
 EVSM_MAX_EXPONENT = {64: float(np.log(65504.0) / 2.0), 128: float(np.log(3.4e38) / 2.0)}
 
-#: Peters and Klein 2015's quantization transform of the moments of depths in [0, 1] (row vector b times this
-#: matrix, then +QUANTIZATION_OFFSET_2015 on the first channel): maps every valid moment vector into [0, 1]^4.
+#: Peters and Klein 2015's quantization transform: row vector b times this, + offset on the first channel.
 QUANTIZATION_2015 = np.array([
     [-2.07224649, 13.7948857237, 0.105877704, 9.7924062118],
     [32.23703778, -59.4683975703, -1.9077466311, -33.7652110555],
@@ -74,24 +48,18 @@ QUANTIZATION_2015 = np.array([
     [39.3703274134, -35.364903257, -6.6543490743, -23.9728048165],
 ])
 QUANTIZATION_OFFSET_2015 = 0.035955884801
-_Q2015 = wp.constant(wp.mat44(*QUANTIZATION_2015.T.reshape(-1)))  # column form: q = M^T b
+_Q2015 = wp.constant(wp.mat44(*QUANTIZATION_2015.T.reshape(-1)))
 _Q2015_INV = wp.constant(wp.mat44(*np.linalg.inv(QUANTIZATION_2015.T).reshape(-1)))
 _Q2015_OFFSET = wp.constant(wp.vec4(QUANTIZATION_OFFSET_2015, 0.0, 0.0, 0.0))
 
-#: alpha_b of the original moment shadow maps: 64 bits (Peters and Klein 2015's value for 16-bit storage with
-#: their quantization transform) and 128 bits (Peters 2017, Fig. 4d); b* = (1, .5, .5, .5, .5): the moments of
-#: (delta_0 + delta_1) / 2 (Sec. 2.5).
+#: alpha_b of msm2015 (64 bits: Peters and Klein 2015; 128 bits: Peters 2017 Fig. 4d), b* of (delta_0 + delta_1) / 2.
 MOMENT_BIAS_2015_UNORM16 = wp.constant(3.0e-5)
 MOMENT_BIAS_2015_FLOAT32 = wp.constant(2.0e-6)
 BIAS_VECTOR_2015 = wp.constant(wp.vec4(0.5, 0.5, 0.5, 0.5))
 
-#: Variance floor of the Cantelli bound in (signed depth)^2 units, per channel precision: float16 rounds z^2 near
-#: 1 to 2^-11 relative, float32 to 2^-24 (measured: no acne on a lit plane under a 5-texel Gaussian with these).
+#: Variance floor of the Cantelli bound in (signed depth)^2 units per channel precision, against acne.
 VSM_MIN_VARIANCE_FLOAT16 = wp.constant(1.0e-4)
 VSM_MIN_VARIANCE_FLOAT32 = wp.constant(1.0e-6)
-
-
-# ---- b(z), encoding and storage ------------------------------------------------------------------------------------
 
 
 @wp.func
@@ -111,13 +79,13 @@ def float16_round4(t: wp.vec4) -> wp.vec4:
 def texel_from_depth(z: float, fmt: int, exponents: wp.vec2) -> wp.vec4:
     """b(z) of a depth sample at signed depth z (before encoding): the vector filtering averages."""
     if fmt == FORMAT_VSM_FLOAT16 or fmt == FORMAT_VSM_FLOAT32:
-        return wp.vec4(z, z * z, 0.0, 0.0)  # Sec. 2.2: b(z) = (1, z, z^2)
+        return wp.vec4(z, z * z, 0.0, 0.0)
     if fmt == FORMAT_EVSM_FLOAT16 or fmt == FORMAT_EVSM_FLOAT32:
         pos = wp.exp(exponents[0] * z)  # Sec. 2.2: two exponentially warped depths
         neg = wp.exp(-exponents[1] * z)
         return wp.vec4(pos, pos * pos, -neg, neg * neg)
     if fmt == FORMAT_MSM2015_UNORM16 or fmt == FORMAT_MSM2015_FLOAT32:
-        return mm.moments4_from_depth(0.5 * z + 0.5)  # depth defined in [0, 1] (Sec. 2.3, "originally")
+        return mm.moments4_from_depth(0.5 * z + 0.5)  # msm2015: depth in [0, 1]
     return mm.moments4_from_depth(z)
 
 
@@ -159,13 +127,9 @@ def load_texel(t: wp.vec4, fmt: int) -> wp.vec4:
     return t
 
 
-# ---- reconstruction ------------------------------------------------------------------------------------------------
-
-
 @wp.func
 def cantelli_shadow(mean: float, second: float, z_f: float, min_variance: float) -> float:
-    """Lower bound of Z(z < z_f) from the mean and second moment (Cantelli's inequality, Sec. 2.2): 0 for
-    z_f <= mean, else 1 - sigma^2 / (sigma^2 + (z_f - mean)^2) with sigma^2 clamped below at ``min_variance``."""
+    """Lower bound of Z(z < z_f) by Cantelli's inequality (Sec. 2.2), sigma^2 clamped below at ``min_variance``."""
     if not (z_f > mean):
         return 0.0
     variance = wp.max(second - mean * mean, min_variance)
@@ -177,7 +141,6 @@ def cantelli_shadow(mean: float, second: float, z_f: float, min_variance: float)
 def shadow_intensity(t: wp.vec4, z_f: float, fmt: int, exponents: wp.vec2, overdarkening: float) -> float:
     """Filtered texel -> over-darkened shadow intensity in [0, 1] at signed fragment depth z_f (depth-biased)."""
     if fmt == FORMAT_MSM_UNORM16 or fmt == FORMAT_MSM_FLOAT32:
-        # Peters 2017, D.2: revert Theta_4*, bias (Sec. 2.5), Algorithm 1 lower bound (Eq. 1)
         shadow = mm.msm4_shadow_intensity(mm.load_biased_moments4(t, fmt), z_f)
     elif fmt == FORMAT_MSM2015_UNORM16 or fmt == FORMAT_MSM2015_FLOAT32:
         alpha = MOMENT_BIAS_2015_FLOAT32

@@ -1,35 +1,7 @@
 """Algorithms 1 and 2 of Peters et al. 2017 ("Improved Moment Shadow Maps ...", JCGT 6(1)): from biased moments to
-shadow intensities.
-
-Part of the moment shadow mapping math re-exported by :mod:`warpscatter.shadows.moments` (use that module; its
-docstring states the conventions). Here, in the paper's terms:
-
-* Algorithm 1 with four moments (Hamburger 4MSM): ``msm4_kernel_polynomial`` (Steps 1-2, LDL^T Cholesky of the
-  3x3 Hankel matrix), ``quadratic_roots`` (Step 3), ``msm4_distribution`` (Steps 4-6), ``msm4_bounds`` (the sharp
-  lower and upper bounds of Fig. 2), ``msm4_shadow_intensity`` (the lower bound, Eq. 1: what the paper renders hard
-  shadows with) and ``msm4_interpolated_shadow_intensity`` (bounds blended with the overestimation weight beta of
-  Sec. 5.3.1, for single scattering).
-* Algorithm 1 with six moments: ``msm6_kernel_polynomial`` (4x4 Hankel Cholesky), ``cubic_roots`` (Blinn 2007, the
-  single-branch variant of Sec. 5.4.1), ``msm6_visibility`` (Newton divided differences, Sec. 5.4.2),
-  ``msm6_bounds``, ``msm6_shadow_intensity``, ``msm6_interpolated_shadow_intensity``, ``msm6_distribution``.
-* ``hankel_pivots4/6``: the unclamped LDL^T pivots of the Hankel matrices (positive definiteness test).
-* Algorithm 2 (Sec. 5.2, Appendix B): ``two_depth_distribution``.
-* ``adaptive_overestimation_weight`` (Sec. 5.3.1) and ``scale_shadow_intensity`` (over-darkening, Sec. 2.6).
-
-Robustness (the paper's functions assume valid, biased moments; ours must never return NaN):
-
-* Every shadow function first sanitizes its input (``sanitize_moments4/6``, ``sanitize_depth`` of
-  :mod:`.moment_storage`): a NaN moment is replaced by the float32 bias vector's component, moments are clamped to
-  the range of moments of depths in [-1, 1] (|b_j| <= 1, even b_j >= 0), a NaN fragment depth becomes 0 and
-  infinite ones are clamped to +-DEPTH_LIMIT. Valid inputs pass unchanged.
-* The LDL^T pivots of the Hankel matrix are floored at PIVOT_FLOOR. If the first pivot (the variance b_2 - b_1^2)
-  is not above PIVOT_FLOOR the distribution is taken to be the single Dirac delta at b_1 (the fallback that
-  Sec. 5.2 uses in Algorithm 2). Floored later pivots make Algorithm 1 degrade continuously into the determinate
-  distribution with fewer depths that the singular Hankel matrix describes (its weight at z_f tends to zero).
-* Square roots of discriminants take max(., 0); polynomial leading coefficients and divided-difference denominators
-  are kept away from zero; the weight at z_f is 1 / max(Q(z_f), 1) (see ``msm4_distribution``).
-* Returned intensities are clamped to [0, 1]; a non-finite intermediate result falls back to the single-Dirac
-  answer above.
+shadow intensities, with four and six moments. Re-exported by :mod:`warpscatter.shadows.moments` (its docstring
+states the conventions). Every function sanitizes its input and never returns NaN; the numerical guards (the FLOOR
+constants, the single-Dirac fallback of Sec. 5.2) are described in docs/design/shadows-scene.md.
 """
 
 from __future__ import annotations
@@ -51,7 +23,6 @@ module_options()
 #: Over-darkening divisor against faint light leaking (Sec. 2.6, D.2): shadow' = clamp(shadow / 0.98, 0, 1).
 OVERDARKENING_DIVISOR = wp.constant(0.98)
 
-# ---- Numerical guards (documented in the module docstring) ----
 PIVOT_FLOOR = wp.constant(1.0e-12)  # smallest LDL^T pivot of a Hankel matrix used in a division
 LEADING_COEFF_FLOOR = wp.constant(1.0e-7)  # |leading coefficient| >= this * |largest other coefficient|
 DIVDIFF_FLOOR = wp.constant(1.0e-12)  # smallest |z_k - z_l| in a divided difference
@@ -66,8 +37,7 @@ def _finite_or(x: wp.float32, fallback: wp.float32) -> wp.float32:
 
 @wp.func
 def _away_from_zero(x: wp.float32, floor: wp.float32) -> wp.float32:
-    # x with |x| raised to at least floor, keeping its sign (0 -> +floor; NaN passes): the guard of leading
-    # coefficients and divided-difference denominators (module docstring)
+    # |x| raised to at least floor, keeping its sign (0 -> +floor; NaN passes)
     if wp.abs(x) < floor:
         if x < 0.0:
             return -floor
@@ -77,7 +47,7 @@ def _away_from_zero(x: wp.float32, floor: wp.float32) -> wp.float32:
 
 @wp.func
 def _dirac_shadow(mean: wp.float32, z_f: wp.float32) -> wp.float32:
-    # Z(z < z_f) of the single Dirac delta at the mean depth b_1 (the fallback of Peters 2017, Sec. 5.2)
+    # Z(z < z_f) of the single Dirac delta at b_1 (Peters 2017, Sec. 5.2 fallback)
     if mean < z_f:
         return 1.0
     return 0.0
@@ -85,28 +55,19 @@ def _dirac_shadow(mean: wp.float32, z_f: wp.float32) -> wp.float32:
 
 @wp.func
 def _dirac_distribution4(mean: wp.float32, z_f: wp.float32):
-    # msm4_distribution's answer for the single Dirac delta at the mean depth b_1 (Peters 2017, Sec. 5.2 fallback):
-    # its weight sits at z_0 = z_f when the mean is z_f, else at z_1 = z_2 = b_1
+    # the single Dirac delta at b_1 as msm4_distribution returns it (weight at z_0 when b_1 == z_f)
     if mean == z_f:
         return wp.vec3(z_f, mean, mean), wp.vec3(1.0, 0.0, 0.0)
     return wp.vec3(z_f, mean, mean), wp.vec3(0.0, 1.0, 0.0)
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Polynomial roots
-# ---------------------------------------------------------------------------------------------------------------------
-
 
 @wp.func
 def quadratic_roots(c: wp.vec3) -> wp.vec2:
-    """Real roots (ascending) of c_0 + c_1 z + c_2 z^2, computed without cancellation.
+    """Real roots (ascending) of c_0 + c_1 z + c_2 z^2 without cancellation (Algorithm 1 Step 3, Algorithm 2 Step 4).
 
-    A negative discriminant counts as zero (double root at the vertex). |c_2| is kept >= LEADING_COEFF_FLOOR *
-    max(|c_0|, |c_1|), so a vanishing leading coefficient yields one finite root and one far root (<= ~1e7 times the
-    other coefficients' scale) instead of infinity. All-zero input returns (0, 0); a root that overflows (non-finite
-    coefficients) is returned as 0, so the output is always finite.
+    A negative discriminant counts as zero; a vanishing c_2 gives one far root; the output is always finite.
     """
-    # Peters 2017, Algorithm 1 Step 3 (m = 4) and Algorithm 2 Step 4
     c0 = c[0]
     c1 = c[1]
     c2 = _away_from_zero(c[2], LEADING_COEFF_FLOOR * wp.max(wp.abs(c0), wp.abs(c1)))
@@ -129,16 +90,9 @@ def quadratic_roots(c: wp.vec3) -> wp.vec2:
 
 @wp.func
 def cubic_roots(c: wp.vec4) -> wp.vec3:
-    """Roots (ascending) of c_0 + c_1 z + c_2 z^2 + c_3 z^3 assumed to have three real roots.
-
-    Blinn's closed form (IEEE CG&A 27(3), 2007) with ONE branch for all three roots (Peters 2017, Sec. 5.4.1): the
-    cubic is normalized by its leading coefficient, depressed, and solved trigonometrically. Guards: |c_3| >=
-    LEADING_COEFF_FLOOR * max(|c_0|, |c_1|, |c_2|) (a vanishing c_3 moves one root far away, ~1e7 x scale, instead of
-    to infinity); negative discriminants or depressed slopes count as zero (a cubic without three real roots gets
-    real approximations). All-zero input returns (0, 0, 0); a root that overflows (non-finite coefficients) is
-    returned as 0, so the output is always finite.
+    """Roots (ascending) of c_0 + c_1 z + c_2 z^2 + c_3 z^3, assumed all real: Blinn 2007 (IEEE CG&A 27(3)), one
+    branch for all three (Peters 2017, Sec. 5.4.1). Guards as :func:`quadratic_roots`; the output is always finite.
     """
-    # Peters 2017, Sec. 5.4.1 (Blinn 2007, single branch)
     c3 = _away_from_zero(c[3], LEADING_COEFF_FLOOR * wp.max(wp.abs(c[0]), wp.max(wp.abs(c[1]), wp.abs(c[2]))))
     if c3 == 0.0:
         return wp.vec3(0.0, 0.0, 0.0)
@@ -147,7 +101,6 @@ def cubic_roots(c: wp.vec4) -> wp.vec3:
     d = c[0] * inv_c3
     cc = c[1] * inv_c3 / 3.0
     bb = c[2] * inv_c3 / 3.0
-    # Hessian coefficients delta_1..3 and discriminant
     delta1 = cc - bb * bb
     delta2 = d - bb * cc
     delta3 = bb * d - cc * cc
@@ -166,22 +119,16 @@ def cubic_roots(c: wp.vec4) -> wp.vec3:
     r0 = _finite_or(r0, 0.0)
     r1 = _finite_or(r1, 0.0)
     r2 = _finite_or(r2, 0.0)
-    # sort ascending
     lo = wp.min(r0, wp.min(r1, r2))
     hi = wp.max(r0, wp.max(r1, r2))
     mid = r0 + r1 + r2 - lo - hi
     return wp.vec3(lo, mid, hi)
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Hankel matrices (Algorithm 1, Steps 1-2)
-# ---------------------------------------------------------------------------------------------------------------------
-
 
 @wp.func
 def hankel_pivots4(b: wp.vec4) -> wp.vec2:
-    """LDL^T pivots (D_11, D_22) of the Hankel matrix B(1, b_1..b_4), unclamped: B is positive definite iff both > 0."""
-    # Peters 2017, Algorithm 1 Step 1 (m = 4)
+    """Unclamped LDL^T pivots (D_11, D_22) of B(1, b_1..b_4): positive definite iff both > 0 (Algorithm 1 Step 1)."""
     d11 = b[1] - b[0] * b[0]
     l21d11 = b[2] - b[0] * b[1]
     d22 = b[3] - b[1] * b[1]
@@ -192,8 +139,7 @@ def hankel_pivots4(b: wp.vec4) -> wp.vec2:
 
 @wp.func
 def hankel_pivots6(b: vec6) -> wp.vec3:
-    """LDL^T pivots (D_11, D_22, D_33) of the 4x4 Hankel matrix B(1, b_1..b_6), unclamped (all > 0 iff PD)."""
-    # Peters 2017, Sec. 5.4.1 (Cholesky of the 4x4 Hankel matrix)
+    """Unclamped LDL^T pivots (D_11, D_22, D_33) of the 4x4 Hankel matrix B(1, b_1..b_6) (Sec. 5.4.1)."""
     d11 = b[1] - b[0] * b[0]
     l21 = b[2] - b[0] * b[1]
     l31 = b[3] - b[0] * b[2]
@@ -213,22 +159,18 @@ def hankel_pivots6(b: vec6) -> wp.vec3:
 
 @wp.func
 def msm4_kernel_polynomial(b: wp.vec4, z_f: wp.float32) -> wp.vec3:
-    """q = B(b)^-1 (1, z_f, z_f^2): coefficients (q_0, q_1, q_2) of the kernel polynomial whose roots are z_1, z_2.
+    """q = B(b)^-1 (1, z_f, z_f^2), the kernel polynomial with roots z_1, z_2 (Algorithm 1 Steps 1-2), by LDL^T.
 
-    Solved with an LDL^T (square-root-free Cholesky) factorization; pivots are floored at PIVOT_FLOOR. Expects
-    biased moments with b_2 - b_1^2 > 0 (``msm4_distribution`` handles the other case).
+    Expects biased moments with b_2 - b_1^2 > 0.
     """
-    # Peters 2017, Algorithm 1 Steps 1-2 (m = 4)
     d11 = wp.max(b[1] - b[0] * b[0], PIVOT_FLOOR)
     l21 = (b[2] - b[0] * b[1]) / d11
     d22 = wp.max(b[3] - b[1] * b[1] - l21 * l21 * d11, PIVOT_FLOOR)
-    # forward substitution L y = (1, z, z^2)
+    # L y = (1, z, z^2), D scaling, L^T q = y
     y1 = z_f - b[0]
     y2 = z_f * z_f - b[1] - l21 * y1
-    # diagonal scaling
     y1 = y1 / d11
     y2 = y2 / d22
-    # backward substitution L^T q = y
     q2 = y2
     q1 = y1 - l21 * q2
     q0 = 1.0 - b[0] * q1 - b[1] * q2
@@ -237,37 +179,27 @@ def msm4_kernel_polynomial(b: wp.vec4, z_f: wp.float32) -> wp.vec3:
 
 @wp.func
 def msm6_kernel_polynomial(b: vec6, z_f: wp.float32) -> wp.vec4:
-    """q = B(b)^-1 (1, z_f, z_f^2, z_f^3) for the 4x4 Hankel matrix: the cubic whose roots are z_1, z_2, z_3.
-
-    LDL^T factorization with pivots floored at PIVOT_FLOOR; expects biased moments with b_2 - b_1^2 > 0.
-    """
-    # Peters 2017, Algorithm 1 Steps 1-2 with m = 6 (Sec. 5.4.1)
+    """q = B(b)^-1 (1, z_f, z_f^2, z_f^3), the cubic with roots z_1..z_3 (Algorithm 1 Steps 1-2, m = 6), by LDL^T."""
     d11 = wp.max(b[1] - b[0] * b[0], PIVOT_FLOOR)
     l21 = (b[2] - b[0] * b[1]) / d11
     l31 = (b[3] - b[0] * b[2]) / d11
     d22 = wp.max(b[3] - b[1] * b[1] - l21 * l21 * d11, PIVOT_FLOOR)
     l32 = (b[4] - b[1] * b[2] - l21 * l31 * d11) / d22
     d33 = wp.max(b[5] - b[2] * b[2] - l31 * l31 * d11 - l32 * l32 * d22, PIVOT_FLOOR)
-    # forward substitution L y = (1, z, z^2, z^3)
+    # L y = (1, z, z^2, z^3), D scaling, L^T q = y
     z2 = z_f * z_f
     y1 = z_f - b[0]
     y2 = z2 - b[1] - l21 * y1
     y3 = z2 * z_f - b[2] - l31 * y1 - l32 * y2
-    # diagonal scaling
     y1 = y1 / d11
     y2 = y2 / d22
     y3 = y3 / d33
-    # backward substitution L^T q = y
     q3 = y3
     q2 = y2 - l32 * q3
     q1 = y1 - l21 * q2 - l31 * q3
     q0 = 1.0 - b[0] * q1 - b[1] * q2 - b[2] * q3
     return wp.vec4(q0, q1, q2, q3)
 
-
-# ---------------------------------------------------------------------------------------------------------------------
-# Algorithm 1, four moments
-# ---------------------------------------------------------------------------------------------------------------------
 
 
 @wp.func
@@ -279,27 +211,20 @@ def msm4_distribution(b: wp.vec4, z_f: wp.float32):
         z_f: fragment depth (signed, [-1, 1]).
 
     Returns:
-        (depths, weights) as two ``wp.vec3``: depths = (z_0 = z_f, z_1, z_2) with z_1 <= z_2, weights (w_0, w_1, w_2)
-        >= 0 summing to 1. Step 5 (A w = (b_0, b_1, b_2)) is solved in closed form: w_0 = 1 / Q(z_f) where
-        Q(z) = sum_j q_j z^j (Q vanishes at z_1, z_2, so E_S(Q(z) z^k) = z_f^k gives w_0 Q(z_f) = 1; Q(z_f) =
-        v^T B^-1 v >= 1 for valid moments, and unlike the Lagrange form it stays well-conditioned when z_1 or z_2
-        approach z_f), then w_1 + w_2 = 1 - w_0 and w_1 z_1 + w_2 z_2 = b_1 - w_0 z_f.
-        Degenerate input (b_2 - b_1^2 <= 0) gives the single Dirac delta at b_1.
+        (depths, weights) as two ``wp.vec3``: (z_0 = z_f, z_1 <= z_2) and weights >= 0 summing to 1; b_2 - b_1^2 <= 0
+        gives the single Dirac delta at b_1.
     """
-    # Peters 2017, Algorithm 1 (Hamburger 4MSM)
     bs = sanitize_moments4(b)
     z0 = sanitize_depth(z_f)
     if bs[1] - bs[0] * bs[0] <= PIVOT_FLOOR:
-        return _dirac_distribution4(bs[0], z0)  # single Dirac delta at the mean (Sec. 5.2 fallback)
-    # Steps 1-2
+        return _dirac_distribution4(bs[0], z0)
     q = msm4_kernel_polynomial(bs, z0)
-    # Step 3
     roots = quadratic_roots(q)
     z1 = roots[0]
     z2 = roots[1]
     if not (wp.isfinite(q[0]) and wp.isfinite(q[1]) and wp.isfinite(q[2])):
-        return _dirac_distribution4(bs[0], z0)  # overflow (only for garbage input)
-    # Steps 4-5 (closed form, see docstring)
+        return _dirac_distribution4(bs[0], z0)
+    # Step 5 in closed form, w_0 = 1 / Q(z_f): well-conditioned as z_1 or z_2 approach z_f, unlike Lagrange's
     kernel_at_zf = q[0] + z0 * (q[1] + z0 * q[2])
     w0 = 1.0 / wp.max(_finite_or(kernel_at_zf, 1.0), 1.0)
     rest = 1.0 - w0
@@ -313,11 +238,7 @@ def msm4_distribution(b: wp.vec4, z_f: wp.float32):
 
 @wp.func
 def msm4_bounds(b: wp.vec4, z_f: wp.float32) -> wp.vec2:
-    """Sharp (lower, upper) bounds of Z(z < z_f) over all distributions with moments b (Fig. 2).
-
-    lower = sum of w_l (l >= 1) with z_l < z_f (Eq. 1); upper = lower + w_0 (Sec. 5.3). Both in [0, 1].
-    """
-    # Peters 2017, Algorithm 1 + Sec. 5.3
+    """Sharp (lower, upper) bounds of Z(z < z_f) over distributions with moments b (Eq. 1, Sec. 5.3, Fig. 2)."""
     depths, weights = msm4_distribution(b, z_f)
     z0 = depths[0]
     lower = float(0.0)
@@ -332,45 +253,28 @@ def msm4_bounds(b: wp.vec4, z_f: wp.float32) -> wp.vec2:
 
 @wp.func
 def msm4_shadow_intensity(b: wp.vec4, z_f: wp.float32) -> wp.float32:
-    """Hard-shadow intensity in [0, 1]: the LOWER bound of Eq. (1), the paper's choice against surface acne.
-
-    ``b`` must already be biased (``load_biased_moments4`` / ``bias_moments4``); apply a depth bias to z_f yourself.
-    """
-    # Peters 2017, Eq. (1) / Algorithm 1
+    """Hard-shadow intensity in [0, 1]: the lower bound of Eq. (1) (against acne). ``b`` biased; z_f not."""
     return msm4_bounds(b, z_f)[0]
 
 
 @wp.func
 def msm4_interpolated_shadow_intensity(b: wp.vec4, z_f: wp.float32, beta: wp.float32) -> wp.float32:
-    """Shadow intensity upper - beta (upper - lower) with the overestimation weight beta in [0, 1].
-
-    beta is the single-scattering weight of Sec. 5.3.1: beta = 0 underestimates visibility (upper shadow bound), beta
-    = 1 overestimates it (lower bound, as for hard shadows). See ``adaptive_overestimation_weight``.
-    """
-    # Peters 2017, Sec. 5.3 / 5.3.1
+    """upper - beta (upper - lower) with the overestimation weight beta in [0, 1] (Sec. 5.3.1; 1: lower bound)."""
     bounds = msm4_bounds(b, z_f)
     bt = wp.clamp(_finite_or(beta, 0.5), 0.0, 1.0)
     return wp.clamp(bounds[1] - bt * (bounds[1] - bounds[0]), 0.0, 1.0)
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Algorithm 1, six moments
-# ---------------------------------------------------------------------------------------------------------------------
-
 
 @wp.func
 def _divided_difference(f_hi: wp.float32, f_lo: wp.float32, z_hi: wp.float32, z_lo: wp.float32) -> wp.float32:
-    # Peters 2017, Sec. 5.4.2: one Newton divided difference, |z_hi - z_lo| kept >= DIVDIFF_FLOOR
+    # Peters 2017, Sec. 5.4.2
     return (f_hi - f_lo) / _away_from_zero(z_hi - z_lo, DIVDIFF_FLOOR)
 
 
 @wp.func
 def interpolation_dot(z: wp.vec4, v: wp.vec4, m: wp.vec4) -> wp.float32:
-    """sum_j u_j m_j where u is the cubic interpolating (z_l, v_l), l = 0..3 (Newton divided differences).
-
-    With m = (b_0, .., b_3) and z the support of a distribution matching those moments this is sum_l w_l v_l.
-    """
-    # Peters 2017, Sec. 5.4.2 (Newton form, then the canonical basis)
+    """sum_j u_j m_j, u the cubic interpolating (z_l, v_l), l = 0..3: sum_l w_l v_l for m = (b_0..b_3) (Sec. 5.4.2)."""
     f01 = _divided_difference(v[1], v[0], z[1], z[0])
     f12 = _divided_difference(v[2], v[1], z[2], z[1])
     f23 = _divided_difference(v[3], v[2], z[3], z[2])
@@ -380,11 +284,9 @@ def interpolation_dot(z: wp.vec4, v: wp.vec4, m: wp.vec4) -> wp.float32:
     # u(z) = f0 + (z - z0) (f01 + (z - z1) (f012 + (z - z2) f0123)), expanded innermost first
     p0 = f012 - f0123 * z[2]
     p1 = f0123
-    # * (z - z1) + f01
     p2 = p1
     p1 = p0 - p1 * z[1]
     p0 = f01 - p0 * z[1]
-    # * (z - z0) + f0
     p3 = p2
     p2 = p1 - p2 * z[0]
     p1 = p0 - p1 * z[0]
@@ -394,7 +296,7 @@ def interpolation_dot(z: wp.vec4, v: wp.vec4, m: wp.vec4) -> wp.float32:
 
 @wp.func
 def _msm6_support(b: vec6, z_f: wp.float32) -> wp.vec4:
-    # Algorithm 1 Steps 1-4 with m = 6: (z_0 = z_f, z_1, z_2, z_3); assumes sanitized input with positive variance
+    # Algorithm 1 Steps 1-4 with m = 6; sanitized input with positive variance
     q = msm6_kernel_polynomial(b, z_f)
     roots = cubic_roots(q)
     return wp.vec4(z_f, roots[0], roots[1], roots[2])
@@ -402,16 +304,11 @@ def _msm6_support(b: vec6, z_f: wp.float32) -> wp.vec4:
 
 @wp.func
 def msm6_visibility(b: vec6, z_f: wp.float32, beta: wp.float32) -> wp.float32:
-    """Average visibility sum_l w_l v_l with v_0 = beta, v_l = [z_f <= z_l] (l >= 1), clamped to [0, 1].
-
-    beta = 0: lower visibility bound (1 - upper shadow bound); beta = 1: upper visibility bound; the adaptive
-    overestimation of Sec. 5.3.1 sets beta per view ray. ``b`` must already be biased.
-    """
-    # Peters 2017, Sec. 5.4.2 (Algorithm 1 with m = 6, weights folded into a Newton interpolation)
+    """Visibility sum_l w_l v_l, v_0 = beta, v_l = [z_f <= z_l], in [0, 1] (Sec. 5.4.2); beta 0 / 1: lower / upper
+    bound. ``b`` biased."""
     bs = sanitize_moments6(b)
     z0 = sanitize_depth(z_f)
     bt = wp.clamp(_finite_or(beta, 0.5), 0.0, 1.0)
-    # single Dirac delta at the mean (Sec. 5.2 fallback); at z_f itself it counts with weight beta
     fallback = 1.0 - _dirac_shadow(bs[0], z0)
     if bs[0] == z0:
         fallback = bt
@@ -428,8 +325,7 @@ def msm6_visibility(b: vec6, z_f: wp.float32, beta: wp.float32) -> wp.float32:
 
 @wp.func
 def msm6_bounds(b: vec6, z_f: wp.float32) -> wp.vec2:
-    """Sharp (lower, upper) bounds of Z(z < z_f) from six biased moments: 1 - visibility(beta = 1), 1 - vis(0)."""
-    # Peters 2017, Sec. 5.4.2
+    """Sharp (lower, upper) bounds of Z(z < z_f) from six biased moments (Sec. 5.4.2)."""
     lower = 1.0 - msm6_visibility(b, z_f, 1.0)
     upper = 1.0 - msm6_visibility(b, z_f, 0.0)
     return wp.vec2(wp.min(lower, upper), wp.max(lower, upper))
@@ -438,25 +334,19 @@ def msm6_bounds(b: vec6, z_f: wp.float32) -> wp.vec2:
 @wp.func
 def msm6_shadow_intensity(b: vec6, z_f: wp.float32) -> wp.float32:
     """Lower bound of Z(z < z_f) from six biased moments (Eq. 1 with m = 6), in [0, 1]."""
-    # Peters 2017, Eq. (1), Algorithm 1 with m = 6
     return 1.0 - msm6_visibility(b, z_f, 1.0)
 
 
 @wp.func
 def msm6_interpolated_shadow_intensity(b: vec6, z_f: wp.float32, beta: wp.float32) -> wp.float32:
     """1 - msm6_visibility(b, z_f, beta): upper - beta (upper - lower), the single-scattering estimate of Sec. 5.4."""
-    # Peters 2017, Sec. 5.4.2 with the overestimation weight of Sec. 5.3.1
     return 1.0 - msm6_visibility(b, z_f, beta)
 
 
 @wp.func
 def msm6_distribution(b: vec6, z_f: wp.float32):
-    """Algorithm 1 (m = 6): (depths, weights) as two ``wp.vec4``, depths (z_f, z_1 <= z_2 <= z_3).
-
-    Weights come from the same Newton interpolation as ``msm6_visibility`` (w_l = value for v = e_l), clamped to >= 0
-    and renormalized. Degenerate input (b_2 - b_1^2 <= 0) gives the single Dirac delta at b_1.
-    """
-    # Peters 2017, Algorithm 1 with m = 6, Step 5 via Sec. 5.4.2
+    """Algorithm 1 (m = 6): (depths, weights) as two ``wp.vec4``, depths (z_f, z_1 <= z_2 <= z_3); weights by the
+    Newton interpolation of Sec. 5.4.2, clamped and renormalized."""
     bs = sanitize_moments6(b)
     z0 = sanitize_depth(z_f)
     if bs[1] - bs[0] * bs[0] <= PIVOT_FLOOR:
@@ -481,25 +371,18 @@ def msm6_distribution(b: vec6, z_f: wp.float32):
     return z, w
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Algorithm 2 and helpers for single scattering
-# ---------------------------------------------------------------------------------------------------------------------
-
 
 @wp.func
 def two_depth_distribution(b: wp.vec3):
-    """Algorithm 2: the distribution w_1 delta_{z_1} + w_2 delta_{z_2} with moments (1, b_1, b_2, b_3).
+    """Algorithm 2 (Sec. 5.2, Appendix B): w_1 delta_{z_1} + w_2 delta_{z_2} with moments (1, b_1, b_2, b_3).
 
     Args:
         b: (b_1, b_2, b_3), e.g. the first three of a filtered 4-moment vector.
 
     Returns:
-        (depths, weights) as two ``wp.vec2`` with z_1 <= z_2, w_1 + w_2 = 1, w in [0, 1]. The input is sanitized like
-        ``sanitize_moments4``. Non-positive variance b_2 - b_1^2 (or non-finite intermediates) gives delta_{b_1}:
-        depths (b_1, b_1), weights (1, 0). Depths are not clamped further: map them and clamp to your range afterwards
-        as Sec. 5.2 does.
+        (depths, weights) as two ``wp.vec2``, z_1 <= z_2, w_1 + w_2 = 1; non-positive variance gives depths (b_1, b_1),
+        weights (1, 0). Depths are not clamped (Sec. 5.2 clamps after mapping).
     """
-    # Peters 2017, Algorithm 2 (Sec. 5.2, Appendix B)
     s = BIAS_VECTOR4_FLOAT32
     b1 = _sanitize_moment(b[0], s[0], False)
     b2 = _sanitize_moment(b[1], s[1], True)
@@ -525,20 +408,14 @@ def two_depth_distribution(b: wp.vec3):
 
 @wp.func
 def adaptive_overestimation_weight(light_direction: wp.vec3, ray_direction: wp.vec3) -> wp.float32:
-    """beta = (1 + omega_l . omega_p) / 2 for unit vectors in warpscatter's conventions.
-
-    ``light_direction`` is the direction light TRAVELS and ``ray_direction`` points from the camera into the scene
-    (CONVENTIONS.md). The paper's omega_l (towards the light) and omega_p (towards the camera) are their negatives, so
-    omega_l . omega_p = light_direction . ray_direction: beta = 0 looking into the light, 1 looking away from it.
-    """
-    # Peters 2017, Sec. 5.3.1
+    """beta = (1 + omega_l . omega_p) / 2 of Sec. 5.3.1 = (1 + light_direction . ray_direction) / 2 with the light's
+    travel direction and the camera ray (both negated in the paper): 0 looking into the light."""
     return wp.clamp(0.5 * (1.0 + wp.dot(light_direction, ray_direction)), 0.0, 1.0)
 
 
 @wp.func
 def scale_shadow_intensity(shadow: wp.float32, divisor: wp.float32) -> wp.float32:
-    """Over-darkening: clamp(shadow / divisor, 0, 1), e.g. divisor OVERDARKENING_DIVISOR = 0.98 (<= 0: no scaling)."""
-    # Peters 2017, Sec. 2.6 / D.2 (after Annen et al. 2007)
+    """Over-darkening clamp(shadow / divisor, 0, 1) (Sec. 2.6, Annen et al. 2007); divisor <= 0: none."""
     s = _finite_or(shadow, 0.0)
     if divisor > 0.0:
         s = s / divisor

@@ -1,24 +1,12 @@
 """Moment shadow mapping math of Peters et al. 2017 ("Improved Moment Shadow Maps ...", JCGT 6(1)).
 
-Public ``@wp.func`` building blocks (float32, callable from any user kernel as ``moments.<name>``) and thin numpy
-host wrappers. The building blocks live in two modules and are all re-exported here:
+Public float32 ``@wp.func`` building blocks, callable from any kernel as ``moments.<name>``, re-exported from
+:mod:`.moment_storage` (moment vectors, quantization transforms, storage modes, biasing) and :mod:`.moment_solvers`
+(Algorithms 1 and 2, bounds, over-darkening), and numpy host wrappers (``moments4``, ``shadow_intensity4``, ...).
 
-* :mod:`.moment_storage`: moment vectors of a depth, the quantization transforms Theta_4* / Theta_6* (Sec. 2.4,
-  Eq. 3; Sec. 5.4.3), unorm rounding, storing and loading texels of each storage mode (its docstring has the table
-  of modes, their moment biases alpha_b and bias vectors b*), biasing (Sec. 2.5) and sanitizing.
-* :mod:`.moment_solvers`: Algorithm 1 with four and six moments (Hankel pivots, kernel polynomials, quadratic and
-  cubic roots, distributions, sharp bounds, shadow intensities, interpolated intensities), Algorithm 2 (two-depth
-  reconstruction, Sec. 5.2), the adaptive overestimation weight (Sec. 5.3.1) and over-darkening (Sec. 2.6); its
-  docstring states the numerical guards that keep every result finite.
-
-This module adds the host wrappers (numpy in, numpy out): ``moments4/6``, ``shadow_intensity4/6``, ``bounds4/6``,
-``two_depths_from_moments3``, ``quantize4/6``, ``dequantize4/6``, ``apply_quantization_transform4/6`` and
-``solve_cubic``.
-
-Conventions (Peters 2017 Sec. 2.3): depth is SIGNED, z in [-1, 1] (-1 at the near plane, +1 at the far plane of the
-shadow map). A moment vector omits b_0 = 1: four moments are a ``wp.vec4`` (b_1, b_2, b_3, b_4), six moments a
-:data:`vec6` (b_1, ..., b_6). "Shadow intensity" is the fraction Z(z < z_f) of the filtered depth distribution Z in
-front of the fragment depth z_f (0 = lit, 1 = fully shadowed); visibility is 1 - shadow intensity.
+Conventions (Sec. 2.3): depth is SIGNED, z in [-1, 1] (-1 at the shadow map's near plane, +1 at its far plane). A
+moment vector omits b_0 = 1: ``wp.vec4`` (b_1..b_4) or :data:`vec6` (b_1..b_6). "Shadow intensity" is the fraction
+Z(z < z_f) of the depth distribution in front of the fragment depth z_f (0 = lit); visibility is 1 - it.
 """
 
 from __future__ import annotations
@@ -138,9 +126,6 @@ __all__ = [
 ]
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Kernels (the last input of each is the row offset used by parallel.launch_rows)
-# ---------------------------------------------------------------------------------------------------------------------
 
 
 @wp.kernel
@@ -180,11 +165,10 @@ def _two_depths_kernel(b: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec4),
     out[i] = wp.vec4(depths[0], depths[1], weights[0], weights[1])
 
 
-#: The ``op`` of the host wrappers' transform kernels.
-_OP_THETA = wp.constant(0)  # the quantization transform Theta*
+_OP_THETA = wp.constant(0)
 _OP_THETA_INVERSE = wp.constant(1)
-_OP_STORE = wp.constant(2)  # store_moments (Theta* and fixed point)
-_OP_LOAD = wp.constant(3)  # load_moments
+_OP_STORE = wp.constant(2)
+_OP_LOAD = wp.constant(3)
 
 
 @wp.kernel
@@ -219,17 +203,12 @@ def _cubic_kernel(c: wp.array(dtype=wp.vec4), out: wp.array(dtype=wp.vec3), offs
     out[i] = cubic_roots(c[i])
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Host wrappers (numpy in, numpy out)
-# ---------------------------------------------------------------------------------------------------------------------
 
 _MIN_CHUNK = 4096
 _STORAGE4 = {int(STORAGE4_UNORM16): "STORAGE4_UNORM16", int(STORAGE4_FLOAT32): "STORAGE4_FLOAT32"}
 _STORAGE6 = {int(STORAGE6_UNORM10): "STORAGE6_UNORM10", int(STORAGE6_UNORM16): "STORAGE6_UNORM16",
              int(STORAGE6_FLOAT32): "STORAGE6_FLOAT32"}
-#: Number of moments m -> (Warp vector type of m moments, kernel of ``moments4/6``).
 _MOMENT_KERNELS = {4: (wp.vec4, _moments4_kernel), 6: (vec6, _moments6_kernel)}
-#: Number of moments m -> (Warp vector type of m moments, kernel of ``shadow_intensity4/6`` and ``bounds4/6``).
 _SHADOW_KERNELS = {4: (wp.vec4, _msm4_kernel), 6: (vec6, _msm6_kernel)}
 
 
@@ -249,7 +228,7 @@ def _per_item(x, shape: tuple, name: str) -> np.ndarray:
 
 
 def _fraction(value, name: str, allow_array: bool = False, tol: float = 0.0):
-    """Validate a weight in [0, 1] (within tol, e.g. float32 rounding of (1 + l.d) / 2) and return it clipped."""
+    """A weight in [0, 1] (within tol of float32 rounding), clipped."""
     a = np.asarray(value, dtype=np.float64)
     if a.ndim and not allow_array:
         raise ValueError(f"{name}: expected a scalar, got shape {a.shape}")
@@ -308,13 +287,12 @@ def shadow_intensity4(b, z_f, alpha=MOMENT_BIAS4_FLOAT32, bias_vector=BIAS_VECTO
     """Four-moment shadow intensity Z(z < z_f) in [0, 1] (Algorithm 1), after biasing (Sec. 2.5).
 
     Args:
-        b: canonical moments (..., 4) = (b_1, .., b_4) of signed depths (e.g. ``dequantize4`` output), unbiased.
+        b: unbiased canonical moments (..., 4) of signed depths.
         z_f: fragment depths, broadcastable to b.shape[:-1].
-        alpha: moment bias alpha_b in [0, 1] (MOMENT_BIAS4_*; 0 disables biasing).
-        bias_vector: b*_1..b*_4 (BIAS_VECTOR4_FLOAT32 for float32 storage, BIAS_VECTOR4_QUANTIZED after Theta_4*).
-        beta: overestimation weight(s) in [0, 1] broadcastable to b.shape[:-1]; the default 1 returns the lower bound
-            (Eq. 1, hard shadows), 0 the upper bound, (1 + l.d)/2 the adaptive choice of Sec. 5.3.1.
-        device: Warp device (default ``default_device()``).
+        alpha: moment bias alpha_b in [0, 1] (MOMENT_BIAS4_*; 0: none).
+        bias_vector: b* (BIAS_VECTOR4_FLOAT32, or BIAS_VECTOR4_QUANTIZED after Theta_4*).
+        beta: overestimation weight(s) in [0, 1]: 1 the lower bound (Eq. 1), 0 the upper, Sec. 5.3.1 between.
+        device: Warp device.
 
     Returns:
         float32 array of shape b.shape[:-1].
@@ -326,11 +304,7 @@ def shadow_intensity4(b, z_f, alpha=MOMENT_BIAS4_FLOAT32, bias_vector=BIAS_VECTO
 
 
 def bounds4(b, z_f, alpha=0.0, bias_vector=BIAS_VECTOR4_FLOAT32, device=None) -> np.ndarray:
-    """Sharp (lower, upper) bounds of Z(z < z_f) from four moments: float32 array b.shape[:-1] + (2,).
-
-    ``b`` is taken as given (alpha = 0, the default) or biased first with alpha and bias_vector (see
-    :func:`shadow_intensity4`).
-    """
+    """Sharp (lower, upper) bounds of Z(z < z_f) from four moments (biased first when alpha > 0): (..., 2)."""
     return _msm(b, z_f, alpha, bias_vector, 1.0, 4, device)[..., :2]
 
 
@@ -339,18 +313,8 @@ def shadow_intensity6(b, z_f, alpha=MOMENT_BIAS6_FLOAT32, bias_vector=BIAS_VECTO
     """Six-moment shadow intensity in [0, 1]: 1 - visibility of Sec. 5.4.2, after biasing.
 
     Args:
-        b: canonical moments (..., 6) = (b_1, .., b_6) of signed depths, unbiased.
-        z_f: fragment depths, broadcastable to b.shape[:-1].
-        alpha: moment bias in [0, 1] (MOMENT_BIAS6_* of the storage mode; 0 disables biasing).
-        bias_vector: b*_1..b*_6 (BIAS_VECTOR6).
-        beta: overestimation weight(s) of Sec. 5.3.1 in [0, 1]; 1 (default) gives the lower bound, 0 the upper one.
-        device: Warp device.
-
-    Returns:
-        float32 array of shape b.shape[:-1].
-
-    Raises:
-        ValueError: wrong shapes, alpha or beta outside [0, 1].
+        b, z_f, alpha, bias_vector, beta, device: as :func:`shadow_intensity4`, with six moments (MOMENT_BIAS6_*,
+            BIAS_VECTOR6).
     """
     return _msm(b, z_f, alpha, bias_vector, beta, 6, device)[..., 2]
 
@@ -401,10 +365,7 @@ def apply_quantization_transform4(b, inverse: bool = False, device=None) -> np.n
 
 
 def quantize4(b, storage=STORAGE4_UNORM16, device=None) -> np.ndarray:
-    """Texel values (..., 4) float32 after storing canonical moments in ``storage`` (STORAGE4_*).
-
-    STORAGE4_UNORM16: Theta_4*(b) rounded to multiples of 1/65535 in [0, 1]; STORAGE4_FLOAT32: b itself.
-    """
+    """Texel values (..., 4) float32 after storing canonical moments in ``storage`` (STORAGE4_*)."""
     return _transform(b, 4, _transform4_kernel, wp.vec4, _OP_STORE, _storage(storage, _STORAGE4, "4-moment"), device)
 
 
@@ -430,11 +391,7 @@ def dequantize6(texels, storage=STORAGE6_UNORM16, device=None) -> np.ndarray:
 
 
 def solve_cubic(coeffs, device=None) -> np.ndarray:
-    """Roots (ascending, float32 (..., 3)) of c_0 + c_1 z + c_2 z^2 + c_3 z^3 for coeffs (..., 4) in ASCENDING order.
-
-    Same ``@wp.func`` as the 6-moment shadows (Blinn, single branch, Sec. 5.4.1); intended for cubics with three
-    real roots (others get real approximations).
-    """
+    """Roots (ascending, (..., 3)) of c_0 + c_1 z + c_2 z^2 + c_3 z^3, coeffs (..., 4) (:func:`cubic_roots`)."""
     device = default_device(device)
     c = _vectors(coeffs, 4, "coeffs")
     flat = c.reshape(-1, 4)

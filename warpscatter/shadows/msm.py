@@ -1,53 +1,6 @@
-"""Moment shadow maps for surfaces (Peters et al. 2017, Sec. 2-3, Appendices D.1-D.3): filtered hard shadows and
-translucent occluders.
-
-Stages (each a host function that allocates and launches; names appear in timings):
-
-1. ``generate`` (:func:`generate_moment_shadow_map`, D.1): the light view of an existing
-   :class:`~warpscatter.shadows.shadow_map.ShadowMap` (its view and projection, so both maps share texel footprints)
-   is rasterized at ``s x s`` times the resolution, each sample's depth becomes a SIGNED depth z in [-1, 1] (Sec. 2.3:
-   -1 at the map's near plane, +1 at its far plane, linear in light-space depth for orthographic and perspective maps
-   alike; texels without a caster hold z = +1, the "cleared" far plane of Sec. 3.2), and the moments b(z) =
-   (z, z^2, z^3, z^4) of the ``s^2`` samples of a texel are averaged (the custom resolve of D.1). Storage (Sec. 2.3,
-   2.4): ``bits=64`` keeps Theta_4*(b) (Eq. 3) in four emulated 16-bit unorm channels, ``bits=128`` keeps the canonical
-   moments in float32 (``store_moments4`` of :mod:`.moments`, applied once to the average: Theta_4* is affine).
-2. Translucent occluders (Sec. 3.2, D.3), in the same resolve kernel: materials with opacity alpha < 1 are rasterized
-   separately with depth peeling (as many layers as the deepest sample has translucent fragments, found by a coverage
-   count, so the order is exact per sample; the supersampled view is peeled in row bands of bounded memory, which
-   gives bitwise the same result). Per sample, starting from the opaque moments b(z_opaque), the
-   translucent fragments in front of the opaque depth are blended back to front with the over operator,
-   ``b <- alpha b(z_t) + (1 - alpha) b``, which yields the moments of Z = sum_j prod_{k<j}(1 - alpha_k) alpha_j
-   delta_{z_j}. Fragments with alpha below 1% are discarded (the alpha test of Sec. 3.3). In 64-bit mode every blend
-   result is rounded to 16 bits, emulating a blended 16-bit render target and its accumulated rounding (Sec. 3.3).
-   Blending is done per sample before the resolve: the supersampled equivalent of the paper's 1x blending, which keeps
-   translucent edges antialiased and makes the depth test against the opaque surface exact per sample.
-3. ``filter`` (:func:`filter_moment_shadow_map`, D.2): two-pass separable Gaussian, ``filter_px`` taps wide (see
-   :func:`gaussian_weights`), each pass clamping at the map border and rounding to 16 bits again in 64-bit mode.
-4. ``msm_mipmap`` (:func:`build_mip_chain`, D.2 "generate a full mipmap hierarchy"), optional: 2x2 box averages of
-   the filtered texels level by level. Averages of moment vectors are moment vectors of the merged distributions, and
-   Theta_4* is affine, so the 64-bit map is averaged in its stored domain (as a GPU mips a 16-bit unorm texture) and
-   rounded to 16 bits again per level; odd sizes drop the last row/column (floor), as GPU mip chains do.
-   The texel operations of stages 3-5 (storage rounding, look-ups, filter and mip kernels) live in
-   :mod:`.msm_texels` and are re-exported here.
-5. Lookup (:func:`msm_visibility`, :func:`msm_visibility_rgb`, D.2): bilinear sample at the receiver's texel
-   coordinates, revert the quantization transform, bias with the storage mode's alpha_b and b*, Algorithm 1's lower
-   bound at the depth-biased fragment depth, over-darkening (divide by 0.98, clamp), visibility = 1 - intensity.
-   With a mip chain, :func:`msm_visibility_rgb_footprint` takes a TRILINEAR sample instead: the level of detail is
-   log2 of the longer side of the receiver's pixel footprint (two world-space vectors on its tangent plane) in
-   shadow-map texels (the GPU rule), clamped to the chain; footprints below a texel use level 0 bilinearly.
-
-Coloured translucency (Sec. 3.3, "one moment shadow map per colour channel"): with ``coloured=True`` the map holds
-three channels (R, G, B). A translucent material of opacity alpha and albedo a has, per channel, the transmittance
-
-    T_c = (1 - alpha) ** s_c,   s_c = (1 - a_c) / (1 - mean(a))   (s_c = 1 when all a_c are equal),
-    alpha_c = 1 - T_c,
-
-i.e. the surface's optical depth -ln(1 - alpha) is shared among the channels in proportion to the fraction 1 - a_c
-each one absorbs, normalised so that a grey material gives 1 - alpha in every channel (the monochrome map) and the
-geometric mean of T_c is always 1 - alpha. alpha = 1 stays opaque in every channel; a channel with a_c = 1 of a
-coloured material passes unattenuated. See :func:`channel_opacities`.
-
-Texel (i, j) has j from the TOP, as every image here; lookups outside the map's footprint are lit.
+"""Moment shadow maps for surfaces (Peters et al. 2017, Sec. 2-3, D.1-D.3): filtered hard shadows and translucent
+occluders. Signed depth z in [-1, 1]: -1 at the map's near plane, +1 at its far plane and in empty texels; texel
+(i, j) has j from the top; look-ups outside the map are lit. Stages and colour rule: docs/design/shadows-scene.md.
 """
 
 from __future__ import annotations
@@ -89,27 +42,27 @@ module_options()
 class MomentShadowParams:
     """A moment shadow map's geometry and lookup settings as kernels see them."""
 
-    sm: ShadowMapParams  # transforms and size of the map (shared with the plain shadow map)
+    sm: ShadowMapParams
     depth_scale: float  # signed depth z = depth_scale * d + depth_offset, d = linear light-space depth
     depth_offset: float
     near: float  # linear depth of the near plane (z = -1), scene units
-    texel_x: float  # world size of a texel along map x (orthographic), or at unit depth (perspective)
-    texel_y: float  # same along map y
-    storage: int  # the format (filterable.FORMAT_*: msm 64/128 are mm.STORAGE4_UNORM16 / STORAGE4_FLOAT32)
-    exponents: wp.vec2  # EVSM (c+, c-); unused by the other formats
-    depth_bias: float  # depth bias in scene units, subtracted from the fragment depth
-    normal_offset: float  # receiver offset along its normal, in texels at the receiver's depth
-    overdarkening: float  # shadow intensity divisor (0.98, Sec. 2.6; <= 0 disables)
-    channels: int  # 1 (monochrome) or 3 (coloured translucency, R G B)
-    mip_levels: int  # levels of the mip chain (incl. level 0); 0: none (bilinear lookups only)
+    texel_x: float  # world texel size along x (orthographic), or at unit depth (perspective); texel_y likewise
+    texel_y: float
+    storage: int  # filterable.FORMAT_*
+    exponents: wp.vec2  # EVSM (c+, c-)
+    depth_bias: float  # scene units
+    normal_offset: float  # texels at the receiver's depth
+    overdarkening: float  # shadow intensity divisor (Sec. 2.6; <= 0 disables)
+    channels: int
+    mip_levels: int  # incl. level 0; 0: no chain
 
 
 @wp.struct
 class LightDepthMapping:
-    """Rasterized NDC depth of the light view -> signed depth, as :func:`signed_depth_from_ndc` takes it."""
+    """Rasterized NDC depth of the light view -> signed depth (:func:`signed_depth_from_ndc`)."""
 
-    proj: wp.vec4  # P[2,2], P[2,3], P[3,2], P[3,3] of the light projection
-    depth_scale: float  # signed depth z = depth_scale * d + depth_offset, d = linear light-space depth
+    proj: wp.vec4
+    depth_scale: float
     depth_offset: float
 
 
@@ -117,22 +70,17 @@ class LightDepthMapping:
 class TranslucentBand:
     """One row band of depth-peeled translucent layers of the supersampled light view (Sec. 3.2, D.3)."""
 
-    trans_ndc: wp.array3d(dtype=wp.float32)  # (k, band sample rows, sW) translucent layers, nearest first
-    trans_tri: wp.array3d(dtype=wp.int32)  # (k, band sample rows, sW) translucent triangle index, -1 empty
-    n_layers: int  # k (0: no translucent fragments in the band; the arrays are then 1x1x1 dummies)
-    row0: int  # first map row of the band
-    trans_alpha: wp.array2d(dtype=wp.float32)  # (T_t, C) opacity per translucent triangle and channel
+    trans_ndc: wp.array3d(dtype=wp.float32)  # (k, band sample rows, sW), nearest first
+    trans_tri: wp.array3d(dtype=wp.int32)  # same shape, triangle index, -1 empty
+    n_layers: int  # k; 0: the arrays are 1x1x1 dummies
+    row0: int
+    trans_alpha: wp.array2d(dtype=wp.float32)  # (T_t, C) opacity per triangle and channel
 
-
-# ---------------------------------------------------------------------------------------------------------------------
-# Building blocks
-# ---------------------------------------------------------------------------------------------------------------------
 
 
 @wp.func
 def signed_depth(p: MomentShadowParams, d: float) -> float:
-    """Signed depth in [-1, 1] of linear light-space depth d (-1 at the near plane, +1 at the far plane)."""
-    # Peters 2017, Sec. 2.3
+    """Signed depth in [-1, 1] of linear light-space depth d (Peters 2017, Sec. 2.3)."""
     z = p.depth_scale * d + p.depth_offset
     if wp.isnan(z):
         return 1.0
@@ -141,8 +89,8 @@ def signed_depth(p: MomentShadowParams, d: float) -> float:
 
 @wp.func
 def signed_depth_from_ndc(z_ndc: float, proj: wp.vec4, depth_scale: float, depth_offset: float) -> float:
-    """Signed depth of a rasterized NDC depth (``proj`` = P[2,2], P[2,3], P[3,2], P[3,3]); empty (+inf) -> +1."""
-    # Peters 2017, D.1 "convert the read depth to a linear depth z in [-1, 1]"; Sec. 3.2: cleared to the far plane
+    """Signed depth of a rasterized NDC depth (``proj`` = P[2,2], P[2,3], P[3,2], P[3,3]); empty (+inf) -> +1
+    (Peters 2017, D.1, Sec. 3.2)."""
     if not wp.isfinite(z_ndc):
         return 1.0
     d = ndc_to_view_depth(z_ndc, proj[0], proj[1], proj[2], proj[3])
@@ -154,15 +102,13 @@ def signed_depth_from_ndc(z_ndc: float, proj: wp.vec4, depth_scale: float, depth
 
 @wp.func
 def blend_over(dst: wp.vec4, src: wp.vec4, alpha: float) -> wp.vec4:
-    """Over operator on texel values: alpha src + (1 - alpha) dst (back-to-front translucent blending)."""
-    # Peters 2017, Sec. 3.2 / D.3
+    """Over operator alpha src + (1 - alpha) dst (Peters 2017, Sec. 3.2 / D.3)."""
     return alpha * src + (1.0 - alpha) * dst
 
 
 @wp.func
 def footprint_lod(p: MomentShadowParams, x: wp.vec3, dx: wp.vec3, dy: wp.vec3) -> float:
-    """Level of detail of the receiver footprint spanned by world vectors dx, dy at x: log2 of the longer side in
-    shadow-map texels (OpenGL's isotropic rule); -1 for non-finite input (level 0)."""
+    """Level of detail of the footprint dx, dy at x: log2 of its longer side in texels; -1 if non-finite."""
     c = shadow_coords(p.sm, x)
     cx = shadow_coords(p.sm, x + dx)
     cy = shadow_coords(p.sm, x + dy)
@@ -185,8 +131,7 @@ def texel_size_at(p: MomentShadowParams, d: float) -> wp.vec2:
 
 @wp.func
 def receiver_coords(p: MomentShadowParams, x: wp.vec3, n: wp.vec3) -> wp.vec3:
-    """(u, v, d) of the receiver x moved ``normal_offset`` texels along its normal n (u, v in [0, 1], v down;
-    d linear light-space depth). Non-finite input gives (-1, -1, 0): outside the map, hence lit."""
+    """(u, v, d) of x moved ``normal_offset`` texels along n (v down, d linear depth); (-1, -1, 0) if non-finite."""
     c0 = shadow_coords(p.sm, x)
     t = texel_size_at(p, wp.max(c0[2], 0.0))
     c = shadow_coords(p.sm, x + n * (p.normal_offset * wp.max(t[0], t[1])))
@@ -203,19 +148,14 @@ def inside_map(c: wp.vec3) -> bool:
 
 @wp.func
 def moment_shadow_intensity(p: MomentShadowParams, texel: wp.vec4, z_f: float) -> float:
-    """Filtered texel -> over-darkened shadow intensity at fragment depth z_f (already depth-biased), in the map's
-    format (:func:`.filterable.shadow_intensity`; 4-moment maps: Peters 2017 D.2, Algorithm 1)."""
+    """Over-darkened shadow intensity of a filtered texel at biased depth z_f (Peters 2017 D.2, Algorithm 1)."""
     return filterable.shadow_intensity(texel, z_f, p.storage, p.exponents, p.overdarkening)
 
 
 @wp.func
 def msm_visibility_rgb(p: MomentShadowParams, texels: wp.array3d(dtype=wp.vec4), x: wp.vec3, n: wp.vec3) -> wp.vec3:
-    """Filtered hard-shadow visibility in [0, 1]^3 of world point x with normal n (R, G, B; equal for 1 channel).
-
-    ``texels`` is :attr:`MomentShadowMap.texels` (C, H, W); points outside the map or with non-finite coordinates
-    are lit.
-    """
-    # Peters 2017, D.2
+    """Filtered hard-shadow visibility (R, G, B) in [0, 1] of point x with normal n (Peters 2017, D.2); ``texels``:
+    :attr:`MomentShadowMap.texels`."""
     c = receiver_coords(p, x, n)
     if not inside_map(c):
         return wp.vec3(1.0, 1.0, 1.0)
@@ -232,10 +172,8 @@ def msm_visibility_rgb(p: MomentShadowParams, texels: wp.array3d(dtype=wp.vec4),
 def msm_visibility_rgb_footprint(p: MomentShadowParams, texels: wp.array3d(dtype=wp.vec4),
                                  mips: wp.array2d(dtype=wp.vec4), x: wp.vec3, n: wp.vec3, dx: wp.vec3,
                                  dy: wp.vec3) -> wp.vec3:
-    """:func:`msm_visibility_rgb` with a trilinear look-up in the mip chain ``mips`` (:attr:`MomentShadowMap.mips`)
-    at the level of the receiver's pixel footprint (world vectors dx, dy on its tangent plane, e.g. the offsets to
-    the neighbouring pixels' rays); ``p.mip_levels`` = 0 falls back to the bilinear :func:`msm_visibility_rgb`."""
-    # Peters 2017, D.2: "All hardware-accelerated texture filtering is applicable, e.g. ... mipmapping"
+    """:func:`msm_visibility_rgb` with a trilinear look-up in ``mips`` at the level of the pixel footprint dx, dy
+    (world vectors on the tangent plane); ``p.mip_levels`` = 0: bilinear. Peters 2017, D.2 (mipmapping)."""
     if p.mip_levels <= 0:
         return msm_visibility_rgb(p, texels, x, n)
     c = receiver_coords(p, x, n)
@@ -260,37 +198,32 @@ def msm_visibility(p: MomentShadowParams, texels: wp.array3d(dtype=wp.vec4), x: 
     return (v[0] + v[1] + v[2]) / 3.0
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Kernels (the last input of each is the row offset used by parallel.launch_rows)
-# ---------------------------------------------------------------------------------------------------------------------
-
 
 @wp.kernel
 def _generate_kernel(
-    opaque_ndc: wp.array3d(dtype=wp.float32),  # (1, sH, sW) NDC depth of opaque casters, +inf where empty
+    opaque_ndc: wp.array3d(dtype=wp.float32),  # (1, sH, sW), +inf where empty
     band: TranslucentBand,
-    s: int,  # supersampling factor per axis
+    s: int,
     depth: LightDepthMapping,
-    storage: int,  # the format (filterable.FORMAT_*)
-    exponents: wp.vec2,  # EVSM (c+, c-)
+    storage: int,
+    exponents: wp.vec2,
     texels: wp.array3d(dtype=wp.vec4),  # out: (C, H, W)
     offset: int,
 ):
     j, i = wp.tid()
     j += offset + band.row0
-    y0 = band.row0 * s  # first sample row of the band arrays
+    y0 = band.row0 * s
     for c in range(texels.shape[0]):
-        acc = wp.vec4(0.0, 0.0, 0.0, 0.0)  # sum of per-sample b(z) (canonical moments for msm)
+        acc = wp.vec4(0.0, 0.0, 0.0, 0.0)
         for sj in range(s):
             y = j * s + sj
             for si in range(s):
                 xs = i * s + si
-                # ---- opaque moments (D.1) ----
                 z_o = signed_depth_from_ndc(opaque_ndc[0, y, xs], depth.proj, depth.depth_scale, depth.depth_offset)
                 b = filterable.texel_from_depth(z_o, storage, exponents)
-                # ---- translucent layers, back to front, over operator (Sec. 3.2) ----
+                # translucent layers back to front (Sec. 3.2); q: the render target's stored value
                 blended = bool(False)
-                q = wp.vec4(0.0, 0.0, 0.0, 0.0)  # the render target's stored value once blending starts
+                q = wp.vec4(0.0, 0.0, 0.0, 0.0)
                 for k in range(band.n_layers):
                     layer = band.n_layers - 1 - k
                     t = band.trans_tri[layer, y - y0, xs]
@@ -298,7 +231,7 @@ def _generate_kernel(
                         z_t = signed_depth_from_ndc(band.trans_ndc[layer, y - y0, xs], depth.proj, depth.depth_scale,
                                                     depth.depth_offset)
                         alpha = band.trans_alpha[t, c]
-                        if z_t < z_o and alpha >= ALPHA_TEST:  # depth test against the opaque surface; alpha test
+                        if z_t < z_o and alpha >= ALPHA_TEST:
                             if not blended:
                                 q = filterable.store_texel(b, storage)
                                 blended = True
@@ -307,7 +240,7 @@ def _generate_kernel(
                 if blended:
                     b = filterable.load_texel(q, storage)
                 acc += b
-        # the resolve: average, then one quantization transform and rounding (the transforms are affine)
+        # one quantization after the average suffices: the transforms are affine
         texels[c, j, i] = filterable.store_texel(acc / float(s * s), storage)
 
 
@@ -328,18 +261,9 @@ def _visibility_points_kernel(p: MomentShadowParams, texels: wp.array3d(dtype=wp
     out[k] = msm_visibility_rgb(p, texels, points[k], normals[k])
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Host functions
-# ---------------------------------------------------------------------------------------------------------------------
-
 @dataclass
 class MapGeometry:
-    """Depth range and texel size of a light view, derived from a :class:`ShadowMap`'s projection.
-
-    Attributes:
-        near, far: linear light-space depths of signed depth -1 and +1 (scene units).
-        texel_x, texel_y: world size of a texel along map x and y (orthographic), or at unit depth (perspective).
-    """
+    """Depth range (linear depths of signed depth -1 and +1, scene units) and texel size of a light view."""
 
     near: float
     far: float
@@ -373,8 +297,7 @@ def moment_params(shadow_map: ShadowMap, *, storage: int = int(mm.STORAGE4_FLOAT
 
     Args:
         shadow_map: the light's :class:`ShadowMap` (transforms and resolution).
-        storage: the format, one of :data:`.filterable.FORMATS` (``mm.STORAGE4_UNORM16`` / ``STORAGE4_FLOAT32``:
-            the 64- and 128-bit moment shadow maps).
+        storage: one of :data:`.filterable.FORMATS`.
         exponents: EVSM (c+, c-) (:func:`.filterable.evsm_exponents`).
         channels: 1 or 3.
         depth_bias: scene units (>= 0) subtracted from the receiver's light-space depth.
@@ -412,21 +335,13 @@ def moment_params(shadow_map: ShadowMap, *, storage: int = int(mm.STORAGE4_FLOAT
 
 @dataclass
 class MomentShadowMap:
-    """A filterable shadow map on a device: a 4-moment shadow map (Peters 2017), or another format of
-    :mod:`.filterable` (``method``: msm2015, vsm, evsm) through the same generation, filtering and look-ups.
+    """A filterable shadow map on a device: 4-moment (Peters 2017) or another :mod:`.filterable` ``method``.
 
     Attributes:
-        texels: (C, H, W) ``wp.vec4`` stored texel values (msm: Theta_4* in 16-bit steps for 64 bits, canonical
-            moments for 128 bits; the other formats: :mod:`.filterable`); C = 1, or 3 for coloured translucency.
-        bits: bits per texel and channel (msm: 64 or 128; :data:`.filterable.BITS_OF_METHOD`).
-        shadow_map: the plain :class:`ShadowMap` whose transforms (and resolution) this map shares.
-        geometry: its :class:`MapGeometry`.
-        supersampling: samples per texel per axis used in generation.
-        translucent_layers: depth-peeled translucent layers blended in (0 without translucent casters).
-        filter_px: Gaussian width applied (1: unfiltered).
-        mips: None, or the mip chain from :func:`build_mip_chain`: (C, N) ``wp.vec4``, levels 0, 1, ... packed one
-            after another (level l: max(1, W >> l) x max(1, H >> l) texels, row-major; :func:`mip_level_offset`).
-        mip_levels: levels in ``mips`` (0 without a chain).
+        texels: (C, H, W) ``wp.vec4`` stored texel values; C = 1, or 3 for coloured translucency.
+        bits: bits per texel and channel (:data:`.filterable.BITS_OF_METHOD`).
+        shadow_map: the plain :class:`ShadowMap` whose transforms this map shares.
+        mips: None, or the (C, N) mip chain of :func:`build_mip_chain`, levels packed (:func:`mip_level_offset`).
     """
 
     texels: wp.array
@@ -439,7 +354,7 @@ class MomentShadowMap:
     mips: wp.array | None = None
     mip_levels: int = 0
     method: str = "msm"
-    exponents: tuple[float, float] = (0.0, 0.0)  # EVSM (c+, c-)
+    exponents: tuple[float, float] = (0.0, 0.0)
 
     @property
     def storage(self) -> int:
@@ -456,8 +371,7 @@ class MomentShadowMap:
 
     @property
     def nbytes(self) -> int:
-        """Memory of the texels (and of the mip chain, if any) in the emulated format (8 or 16 bytes per texel and
-        channel)."""
+        """Bytes of the texels and mip chain in the emulated format."""
         n = self.shape[0] * self.shape[1] + (int(self.mips.shape[1]) if self.mips is not None else 0)
         return self.channels * n * self.bits // 8
 
@@ -467,8 +381,7 @@ class MomentShadowMap:
 
     def params(self, *, depth_bias: float = 0.0, normal_offset_texels: float = 1.0,
                overdarkening: float = float(mm.OVERDARKENING_DIVISOR)) -> MomentShadowParams:
-        """Kernel parameters for :func:`msm_visibility_rgb` (arguments as in :func:`moment_params`); ``mip_levels``
-        is set when the map has a mip chain (trilinear look-ups in :func:`msm_visibility_rgb_footprint`)."""
+        """Kernel parameters for the look-ups (arguments as in :func:`moment_params`)."""
         p = moment_params(self.shadow_map, storage=self.storage, channels=self.channels, depth_bias=depth_bias,
                           normal_offset_texels=normal_offset_texels, overdarkening=overdarkening,
                           exponents=self.exponents)
@@ -476,7 +389,7 @@ class MomentShadowMap:
         return p
 
     def mip_arrays(self, device=None) -> wp.array:
-        """The mip chain, or a (C, 1) placeholder when there is none (kernels need an array either way)."""
+        """The mip chain, or a (C, 1) placeholder."""
         if self.mips is not None:
             return self.mips
         return wp.zeros((self.channels, 1), dtype=wp.vec4, device=default_device(device))
@@ -488,7 +401,7 @@ def _check_nonneg(x, name: str) -> None:
 
 
 def channel_opacities(opacity, albedo, coloured: bool = False) -> np.ndarray:
-    """Per-material, per-channel opacities alpha_c for the over operator (module docstring).
+    """Per-material, per-channel opacities alpha_c for the over operator (Peters 2017, Sec. 3.3).
 
     Args:
         opacity: (K,) material opacities in [0, 1].
@@ -500,7 +413,7 @@ def channel_opacities(opacity, albedo, coloured: bool = False) -> np.ndarray:
         (K, C) float32, C = 1 or 3; opaque materials (alpha = 1) give 1 in every channel.
 
     Raises:
-        ValueError: shapes, or values outside [0, 1] / non-finite.
+        ValueError: bad shapes or values.
     """
     a = np.asarray(opacity, np.float64).reshape(-1)
     if not np.all(np.isfinite(a)) or np.any(a < 0.0) or np.any(a > 1.0):
@@ -548,21 +461,13 @@ def generate_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: i
         scene: the :class:`~warpscatter.scene.Scene` (``opacity``/``albedo`` per material, ``tri_material``).
         shadow_map: the plain map from :func:`~warpscatter.shadows.shadow_map.render_shadow_map`; its view,
             projection and resolution define the moment map.
-        supersampling: s >= 1: the light view is rasterized at s x s times the resolution and the moments of each
-            s x s block are averaged.
-        bits: 64 (Theta_4* in 4 x 16-bit unorm, Sec. 2.4) or 128 (canonical float32 moments, Sec. 2.3); the other
-            methods: :data:`.filterable.BITS_OF_METHOD`.
-        coloured: one map per colour channel (module docstring); otherwise one monochrome map.
-        max_translucent_layers: most translucent fragments blended per sample (depth peeling passes); exact while
-            no sample of the supersampled view lies behind more translucent fragments; beyond, the farthest are
-            dropped. The peeled layers are processed in row bands of bounded memory
-            (:func:`~.translucency.peel_row_bands`).
+        supersampling: s >= 1 samples per texel per axis, their moments averaged.
+        bits: 64 (Theta_4*, 16-bit unorm, Sec. 2.4) or 128 (float32, Sec. 2.3); :data:`.filterable.BITS_OF_METHOD`.
+        coloured: one map per colour channel (Sec. 3.3); otherwise monochrome.
+        max_translucent_layers: most translucent fragments blended per sample; beyond, the farthest are dropped.
         method: ``msm`` (Peters 2017), or the baselines ``msm2015``, ``vsm``, ``evsm`` (:mod:`.filterable`).
         evsm_exponents: EVSM (c+, c-); None: Peters 2017 Fig. 4's for the storage.
         device: Warp device.
-
-    Returns:
-        :class:`MomentShadowMap`.
 
     Raises:
         ValueError: unknown ``bits``, bad supersampling or layer count, opacities outside [0, 1].
@@ -575,27 +480,25 @@ def generate_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: i
     h, w = shadow_map.shape
     if s * max(h, w) > MAX_RESOLUTION:
         raise ValueError(f"supersampling: {s} x {max(h, w)} texels exceeds the rasterizer's {MAX_RESOLUTION}")
-    scene = scene.casters()  # receiver_only materials cast nothing
+    scene = scene.casters()
     geom = map_geometry(shadow_map)
-    alpha = channel_opacities(scene.opacity, scene.albedo, coloured)  # (K, C)
+    alpha = channel_opacities(scene.opacity, scene.albedo, coloured)
     channels = alpha.shape[1]
     tri_mat = np.asarray(scene.tri_material, np.int64)
     if tri_mat.shape != (scene.triangle_count,) or (tri_mat.size and (tri_mat.min() < 0 or
                                                                        tri_mat.max() >= alpha.shape[0])):
         raise ValueError("scene.tri_material: expected one valid material index per triangle")
-    tri_alpha = alpha[tri_mat]  # (T, C)
+    tri_alpha = alpha[tri_mat]
     opaque = np.asarray(scene.opacity, np.float64)[tri_mat] >= OPAQUE_ALPHA
     translucent = ~opaque & (tri_alpha.max(axis=1, initial=0.0) >= float(ALPHA_TEST))
     view_proj = shadow_map.view_projection
     sw, sh = s * w, s * h
     clamp = not shadow_map.perspective
-    # ---- opaque depth (supersampled) ----
     if np.any(opaque):
         opaque_ndc = rasterize(scene.vertices, scene.triangles[opaque], view_proj, sw, sh, clamp_depth=clamp,
                                device=device).device_ndc_depth
     else:
         opaque_ndc = wp.full((1, sh, sw), np.inf, dtype=wp.float32, device=device)
-    # ---- translucent layers (depth peeling, nearest first), in row bands of bounded memory ----
     texels = wp.empty((channels, h, w), dtype=wp.vec4, device=device)
     dummy_ndc = wp.full((1, 1, 1), np.inf, dtype=wp.float32, device=device)
     dummy_tri = wp.full((1, 1, 1), -1, dtype=wp.int32, device=device)
@@ -638,13 +541,7 @@ def filter_moment_shadow_map(msm: MomentShadowMap, filter_px: int, device=None) 
 
 
 def build_mip_chain(msm: MomentShadowMap, device=None) -> MomentShadowMap:
-    """Full mip chain of the (filtered) texels by 2x2 box averages (D.2); returns a new :class:`MomentShadowMap`.
-
-    Box averages of moments are the moments of the merged depth distributions, so every level is a valid moment map;
-    64-bit maps are averaged in the stored Theta_4* domain (affine, hence the same as averaging canonical moments) and
-    rounded to 16 bits per level, as a GPU generates the mips of a 16-bit unorm texture. Level 0 is copied into the
-    packed chain (memory: about 4/3 of the texels more). See :func:`build_mip_levels`.
-    """
+    """Full mip chain of the texels by 2x2 box averages (D.2; :func:`build_mip_levels`); returns a new map."""
     mips, levels = build_mip_levels(msm.texels, msm.storage, device)
     return replace(msm, mips=mips, mip_levels=levels)
 
@@ -653,12 +550,8 @@ def render_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: int
                              filter_px: int = 5, coloured: bool = False, max_translucent_layers: int = 16,
                              mipmap: bool = False, method: str = "msm", evsm_exponents=None,
                              timer: StageTimer | None = None, device=None) -> MomentShadowMap:
-    """Generate (stage ``msm_generate``), filter (stage ``msm_filter``) and optionally mip (stage ``msm_mipmap``) a
-    moment shadow map for hard shadows.
-
-    Arguments as in :func:`generate_moment_shadow_map` and :func:`filter_moment_shadow_map`; ``mipmap`` builds the
-    chain of :func:`build_mip_chain`; ``timer``: the :class:`~warpscatter.stages.StageTimer` of the stages.
-    """
+    """Generate, filter and optionally mip a moment shadow map (stages ``msm_generate``, ``msm_filter``,
+    ``msm_mipmap``); arguments as in :func:`generate_moment_shadow_map` and :func:`filter_moment_shadow_map`."""
     stage = timer or StageTimer()
     with stage("msm_generate"):
         msm = generate_moment_shadow_map(scene, shadow_map, supersampling=supersampling, bits=bits,
@@ -721,15 +614,11 @@ def msm_visibility_footprint_at(msm: MomentShadowMap, points, dx, dy, normals=No
         msm: the (filtered) map, with a mip chain from :func:`build_mip_chain` (without one: bilinear).
         points: (..., 3) world positions.
         dx, dy: (..., 3) world vectors spanning each receiver's footprint (broadcast to points).
-        normals, depth_bias, normal_offset_texels, overdarkening: as in :func:`msm_visibility_at`.
-        device: Warp device.
-
-    Returns:
-        (..., C) float32 visibilities in [0, 1].
+        normals, depth_bias, normal_offset_texels, overdarkening, device: as in :func:`msm_visibility_at`.
     """
     device = default_device(device)
     shape, pts, nrm = point_arrays(points, normals, device)
-    dxa = point_arrays(points, dx, device)[2]  # broadcast like normals
+    dxa = point_arrays(points, dx, device)[2]
     dya = point_arrays(points, dy, device)[2]
     params = msm.params(depth_bias=depth_bias, normal_offset_texels=normal_offset_texels,
                         overdarkening=overdarkening)

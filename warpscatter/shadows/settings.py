@@ -1,11 +1,5 @@
-"""Settings of the light's shadow map and of the surface shadow methods: the keys, defaults, ranges and meanings
-of ``render.scattering.shadow_map`` and ``render.shadows`` (Warp-free; the only place they are written).
-
-* :class:`ShadowMapSettings` — the light's depth map that the shadow-map visibility of every method reads.
-* :class:`ShadowsSettings` — surface shadows: ``pcf``, moment shadow maps ``msm`` (filtered hard shadows,
-  translucent occluders), moment soft shadows ``msm_soft``, their brute-force reference ``pcss``, the filterable
-  baselines Peters 2017 compares with (``msm2015``, ``vsm``, ``evsm``: :mod:`.filterable`), or ``none``
-  (Peters et al. 2017 Sec. 2-4).
+"""Settings of ``render.scattering.shadow_map`` (:class:`ShadowMapSettings`) and ``render.shadows``
+(:class:`ShadowsSettings`, Peters et al. 2017 Sec. 2-4): keys, defaults, ranges and meanings (Warp-free).
 """
 
 from __future__ import annotations
@@ -18,9 +12,7 @@ from ..schema import MAX_COORD, MAX_IMAGE_SIDE, MIN_LENGTH, Bool, Float, Int, Se
 
 #: Surface shadow methods (``render.shadows.method``).
 SHADOW_METHODS = ("pcf", "msm", "msm_soft", "pcss", "msm2015", "vsm", "evsm", "none")
-#: The filterable shadow maps (one pipeline: generation, translucent blending, Gaussian, mip chain) and the bits per
-#: texel each stores (the same table as :data:`warpscatter.shadows.filterable.BITS_OF_METHOD`, kept here so that
-#: validating needs no Warp).
+#: Bits per texel of each filterable method (a Warp-free copy of :data:`.filterable.BITS_OF_METHOD`).
 FILTERABLE_BITS = {"msm": (64, 128), "msm2015": (64, 128), "vsm": (32, 64), "evsm": (64, 128)}
 #: Largest EVSM exponent per storage: exp(2c) must fit float16 (64 bits) or float32 (128 bits).
 EVSM_MAX_EXPONENT = {64: 5.545, 128: 44.3}

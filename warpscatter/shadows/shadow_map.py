@@ -1,32 +1,7 @@
-"""Light-space shadow maps: fitting, rendering, hard and PCF lookups.
-
-A :class:`ShadowMap` stores, per texel, the LINEAR light-space depth of the nearest caster: the
-distance along the light's axis from the light's view origin (directional: an orthographic view
-placed behind every caster; spot: the light position). Empty texels hold +inf.
-
-* Directional lights get an orthographic map fitted to the camera's view frustum (its footprint in
-  light space, intersected with the scene's bounds) and to the scene's casters: the depth range
-  spans every caster, and the rasterizer's depth clamping keeps casters outside it in the map.
-* Spot lights get a perspective map with the cone's square frustum (fov = 2 * cone half-angle).
-
-Texel (i, j) has j from the TOP (NDC y = +1), as every image in warpscatter. A lookup outside the
-map's xy footprint is lit (no caster was rasterized there).
-
-Translucent casters (material opacity < 1): the map then also keeps, per texel, the depth of the nearest OPAQUE caster
-and the transmittance T of the translucent casters in front of it (:mod:`.translucency`); kernels read the three as
-one :class:`TranslucentShadowDepths` (:meth:`ShadowMap.device_layers`), and a texel look-up (:func:`shadow_texel_lit`)
-returns 1 before the nearest caster, T up to the opaque one and 0 behind it. The marchers' hard look-ups and the PCF
-filters take either the plain depth array or that struct (a generic ``depth_map``; the plain array keeps the
-opaque-only code).
-
-Surfaces at a contact on the map's silhouette (:func:`shadow_pcf_surface`): where a receiver meets its occluder
-along the outline of everything the light sees — the floor and walls of a closed room, whose creases are that
-outline — plain PCF leaks light into the contact shadow. Its box reaches past the outline into empty texels (lit),
-compares the receiver's single depth against an occluder that is steep in light space (a wall lit at a grazing
-angle: several texels of depth per texel), and the depth bias lets the occluder's texels next to the contact pass
-as the receiver's own. Near such an outline :func:`shadow_pcf_contact` therefore drops the empty texels (the
-receiver, itself a caster, does not reach there), compares each texel against the receiver's plane (receiver-plane
-depth) and needs only a small fraction of the bias. Elsewhere nothing changes.
+"""Light-space shadow maps: fitting, rendering, hard and PCF lookups. A :class:`ShadowMap` stores per texel the
+LINEAR light-space depth of the nearest caster (+inf empty; j from the top; outside: lit), orthographic for
+directional lights, perspective for spots; with translucent casters also the opaque depth and transmittance
+(:class:`TranslucentShadowDepths`). Contact PCF at the map's silhouette: docs/design/shadows-scene.md.
 """
 
 from __future__ import annotations
@@ -45,9 +20,7 @@ module_options()
 
 SHADOW_ORTHOGRAPHIC = 0
 SHADOW_PERSPECTIVE = 1
-#: Contact PCF (:func:`shadow_pcf_contact`): the depth bias it keeps, as a fraction of the map's bias. Comparing
-#: against the receiver's plane leaves only float and rasterization noise to absorb; what remains of the bias is a
-#: wedge of occluder next to the contact that still passes as lit (0.05 texel with the default bias of one).
+#: Fraction of the depth bias kept by :func:`shadow_pcf_contact`: the receiver-plane test leaves only float noise.
 CONTACT_BIAS_FRACTION = wp.constant(0.05)
 #: Texels beyond the PCF box searched for an empty texel (the map's silhouette) by :func:`shadow_pcf_surface`.
 CONTACT_RING = wp.constant(1)
@@ -61,15 +34,14 @@ class ShadowMapParams:
     view: wp.mat44  # world -> light view (looks down -Z)
     width: int
     height: int
-    texel_world: float  # world size of one texel at unit depth (perspective) or everywhere (orthographic)
-    perspective: int  # SHADOW_ORTHOGRAPHIC or SHADOW_PERSPECTIVE
+    texel_world: float  # texel size at unit depth (perspective) or everywhere (orthographic)
+    perspective: int
 
 
 @dataclass
 class ShadowMap:
-    """A rendered shadow map: linear depth (H, W) float32 of the nearest caster (+inf empty) and its transforms
-    (float64 4x4); with translucent casters also ``opaque_depth`` (H, W) of the nearest opaque caster and
-    ``transmittance`` (H, W), the light fraction passing the translucent casters in front of it (module doc)."""
+    """Linear depth (H, W) float32 of the nearest caster (+inf empty), its float64 4x4 transforms and, with
+    translucent casters, ``opaque_depth`` and ``transmittance`` (H, W)."""
 
     depth: np.ndarray
     view: np.ndarray
@@ -81,7 +53,6 @@ class ShadowMap:
 
     @property
     def translucent(self) -> bool:
-        """True when translucent casters are in the map (``opaque_depth`` and ``transmittance`` are set)."""
         return self.transmittance is not None
 
     @property
@@ -105,8 +76,7 @@ class ShadowMap:
         return wp.array(self.depth, dtype=wp.float32, device=default_device(device))
 
     def device_layers(self, depth: wp.array | None = None, device=None) -> TranslucentShadowDepths:
-        """The :class:`TranslucentShadowDepths` kernels read (``depth``: the map's :meth:`device_depth` if already
-        uploaded). Without translucent casters ``opaque`` and ``transmittance`` are 1x1 placeholders, never read."""
+        """The :class:`TranslucentShadowDepths` kernels read (1x1 placeholders without translucent casters)."""
         device = default_device(device)
         t = TranslucentShadowDepths()
         t.depth = depth if depth is not None else self.device_depth(device)
@@ -131,8 +101,7 @@ def fit_directional(camera, direction, scene_bounds, resolution, depth_bounds=No
         direction: unit travel direction of the light.
         scene_bounds: (min, max) world bounds of the casters.
         resolution: (width, height) of the map in texels.
-        depth_bounds: (min, max) world bounds the far plane reaches too (the receivers: moment maps clamp a depth
-            beyond it, and a flat caster's own depth range is thinner than the depth bias); None: ``scene_bounds``.
+        depth_bounds: (min, max) world bounds the far plane reaches too (the receivers); None: ``scene_bounds``.
 
     Returns:
         (view, projection, texel_world): float64 4x4 matrices and the world size of a texel (max of x, y).
@@ -150,31 +119,26 @@ def fit_directional(camera, direction, scene_bounds, resolution, depth_bounds=No
     def to_light(p):
         return (view[:3, :3] @ p.T).T + view[:3, 3]
 
-    # the view rays start AT the camera (CONVENTIONS' integral from t = 0), not at its near plane: the frustum from
-    # its apex, or the stretch [0, near) of rays looking across the light falls outside the map and counts as lit (a
-    # closed room lit from outside glowed: the 128-step marcher at 156 % rel. L1 with the sun beside the window room)
+    # the frustum from its apex: view rays start at the camera (t = 0), not at the near plane (design notes)
     frustum = to_light(camera.frustum_corners(near=0.0))
     scene_l = to_light(scene_pts)
-    # xy footprint: frustum box intersected with the scene box (outside the scene nothing casts)
     fx0, fy0 = frustum[:, 0].min(), frustum[:, 1].min()
     fx1, fy1 = frustum[:, 0].max(), frustum[:, 1].max()
     sx0, sy0 = scene_l[:, 0].min(), scene_l[:, 1].min()
     sx1, sy1 = scene_l[:, 0].max(), scene_l[:, 1].max()
     x0, x1 = max(fx0, sx0), min(fx1, sx1)
     y0, y1 = max(fy0, sy0), min(fy1, sy1)
-    if not (x1 > x0 and y1 > y0):  # frustum sees no geometry: any valid box will do
+    if not (x1 > x0 and y1 > y0):
         x0, x1, y0, y1 = sx0, sx1, sy0, sy1
-    # a flat scene seen edge-on by the light has no extent along one axis: give the box a minimal size
     pad = 1e-3 * radius
     if x1 - x0 < pad:
         x0, x1 = 0.5 * (x0 + x1) - pad, 0.5 * (x0 + x1) + pad
     if y1 - y0 < pad:
         y0, y1 = 0.5 * (y0 + y1) - pad, 0.5 * (y0 + y1) + pad
     w, h = resolution
-    # one texel of margin so lookups at the footprint's edge still find the border texels
     mx, my = (x1 - x0) / w, (y1 - y0) / h
     x0, x1, y0, y1 = x0 - mx, x1 + mx, y0 - my, y1 + my
-    # depth range (view looks down -Z, depth = -z): every caster, slightly padded, and far enough for the receivers
+    # view looks down -Z, depth = -z
     d = -scene_l[:, 2]
     d_far = d.max() if depth_bounds is None else max(d.max(), float(-to_light(_box_corners(*depth_bounds))[:, 2].min()))
     near, far = max(d.min() - 1e-3 * radius, 1e-4), d_far + 1e-3 * radius
@@ -186,9 +150,7 @@ def render_shadow_map(scene, resolution, device=None, max_translucent_layers: in
     """Rasterize the scene's casters into the light's shadow map, fitted to them.
 
     Args:
-        scene: a :class:`~warpscatter.scene.Scene`; its ``receiver_only`` materials are left out
-            (:meth:`~warpscatter.scene.Scene.casters`). Materials with opacity < 1 add the translucent layer
-            (``opaque_depth``, ``transmittance``; module doc).
+        scene: a :class:`~warpscatter.scene.Scene`; ``receiver_only`` materials are left out.
         resolution: int or (width, height) in texels.
         device: Warp device.
         max_translucent_layers: most translucent fragments per texel (default
@@ -198,7 +160,7 @@ def render_shadow_map(scene, resolution, device=None, max_translucent_layers: in
     from . import translucency
 
     w, h = (resolution, resolution) if np.isscalar(resolution) else tuple(resolution)
-    every_bound = scene.bounds()  # receivers too: the depth range reaches them
+    every_bound = scene.bounds()
     scene = scene.casters()
     light = scene.light
     bounds = scene.bounds()
@@ -214,7 +176,7 @@ def render_shadow_map(scene, resolution, device=None, max_translucent_layers: in
         texel = 2.0 * np.tan(np.radians(light.cone_deg)) / w
         perspective = True
     opacity = translucency.triangle_opacity(scene)
-    if scene.triangle_count == 0:  # nothing casts: every texel is empty
+    if scene.triangle_count == 0:
         depth = np.full((h, w), np.inf, np.float32)
     elif translucency.has_translucent(opacity):
         layers = translucency.DEFAULT_MAX_LAYERS if max_translucent_layers is None else int(max_translucent_layers)
@@ -226,13 +188,9 @@ def render_shadow_map(scene, resolution, device=None, max_translucent_layers: in
                          perspective=perspective, texel_world=texel,
                          opaque_depth=linearize_depth(opaque, proj).astype(np.float32), transmittance=passed)
     else:
-        # linear depth resolved band by band with the scan (bitwise linearize_depth of the NDC depth, as float32)
         depth = rasterize_linear_depth(scene.vertices, scene.triangles, proj @ view, proj, w, h,
                                        clamp_depth=not perspective, device=device)
     return ShadowMap(depth=depth, view=view, projection=proj, perspective=perspective, texel_world=texel)
-
-
-# ---- kernel-side lookups ---------------------------------------------------------------------------
 
 
 @wp.func
@@ -250,8 +208,8 @@ def shadow_coords(sm: ShadowMapParams, x: wp.vec3) -> wp.vec3:
 class TranslucentShadowDepths:
     """A shadow map with translucent casters as the look-ups read it (:meth:`ShadowMap.device_layers`)."""
 
-    depth: wp.array2d(dtype=wp.float32)  # linear depth of the nearest caster
-    opaque: wp.array2d(dtype=wp.float32)  # of the nearest opaque caster
+    depth: wp.array2d(dtype=wp.float32)  # nearest caster
+    opaque: wp.array2d(dtype=wp.float32)  # nearest opaque caster
     transmittance: wp.array2d(dtype=wp.float32)  # of the translucent casters in front of it
 
 
@@ -296,7 +254,6 @@ def texel_blocked(depth_map: wp.array2d(dtype=wp.float32), j: int, i: int, d: fl
 
 @wp.func
 def texel_blocked(depth_map: TranslucentShadowDepths, j: int, i: int, d: float, bias: float) -> float:  # noqa: F811
-    # with translucent casters: their transmittance up to the opaque caster
     if d <= depth_map.opaque[j, i] + bias:
         return depth_map.transmittance[j, i]
     return 0.0
@@ -304,8 +261,7 @@ def texel_blocked(depth_map: TranslucentShadowDepths, j: int, i: int, d: float, 
 
 @wp.func
 def shadow_texel_lit(depth_map: Any, i: int, j: int, d: float, bias: float) -> float:
-    """1 if depth d is not behind the caster stored in texel (i, j) (out-of-map texels are lit); behind it 0, or the
-    translucent casters' transmittance (``depth_map`` a :class:`TranslucentShadowDepths`)."""
+    """1 if depth d is not behind texel (i, j)'s caster or (i, j) is outside; else 0 or the transmittance."""
     if i < 0 or j < 0 or i >= map_width(depth_map) or j >= map_height(depth_map):
         return 1.0
     if d <= texel_depth(depth_map, j, i) + bias:
@@ -315,8 +271,7 @@ def shadow_texel_lit(depth_map: Any, i: int, j: int, d: float, bias: float) -> f
 
 @wp.func
 def nearest_texel(sm: ShadowMapParams, c: wp.vec3):
-    """(i, j) of the texel holding map coordinates c = (u, v, depth) of :func:`shadow_coords`, or (-1, -1) outside
-    the map."""
+    """(i, j) of the texel holding c = (u, v, depth) of :func:`shadow_coords`, or (-1, -1) outside."""
     if c[0] < 0.0 or c[0] >= 1.0 or c[1] < 0.0 or c[1] >= 1.0:
         return -1, -1
     return int(c[0] * float(sm.width)), int(c[1] * float(sm.height))
@@ -324,8 +279,7 @@ def nearest_texel(sm: ShadowMapParams, c: wp.vec3):
 
 @wp.func
 def shadow_visibility_at(sm: ShadowMapParams, depth_map: Any, c: wp.vec3, bias: float) -> float:
-    """Hard shadow-map visibility at map coordinates c = (u, v, depth) of :func:`shadow_coords` (nearest texel;
-    outside the map: lit); 1 = lit. ``bias`` in world units."""
+    """Hard visibility (nearest texel) at c = (u, v, depth); 1 = lit. ``bias`` in world units."""
     i, j = nearest_texel(sm, c)
     if i < 0:
         return 1.0
@@ -340,9 +294,7 @@ def shadow_visibility(sm: ShadowMapParams, depth_map: wp.array2d(dtype=wp.float3
 
 @wp.func
 def orthographic_ray_coords(sm: ShadowMapParams, origin: wp.vec3, d: wp.vec3):
-    """:func:`shadow_coords` along the ray origin + t d of an ORTHOGRAPHIC map (``perspective`` 0), where they
-    are affine in t: returns (c0, dc) with coords(t) = c0 + t dc (equal to :func:`shadow_coords` up to float
-    rounding)."""
+    """(c0, dc) with :func:`shadow_coords` (origin + t d) = c0 + t dc on an orthographic map."""
     c = sm.view_proj * wp.vec4(origin[0], origin[1], origin[2], 1.0)
     cd = sm.view_proj * wp.vec4(d[0], d[1], d[2], 0.0)
     pv = sm.view * wp.vec4(origin[0], origin[1], origin[2], 1.0)
@@ -350,38 +302,21 @@ def orthographic_ray_coords(sm: ShadowMapParams, origin: wp.vec3, d: wp.vec3):
     return wp.vec3(0.5 * c[0] + 0.5, 0.5 - 0.5 * c[1], -pv[2]), wp.vec3(0.5 * cd[0], -0.5 * cd[1], -pd[2])
 
 
-#: Width, in shadow-map texels, of the ramp between two neighbouring texels in the percentage-closer look-ups of the
-#: epipole disc's march and the end stretches (:func:`narrowed_offset`). Plain bilinear weights (a ramp of one texel)
-#: blurred every caster's silhouette over a whole texel, which is many pixels wherever the view rays run along a
-#: shadow's edge: near a low sun on colonnade_fourier.yaml a 4-5 pixel grey fringe lit the fog in front of a black
-#: pillar beside the bright gap (x 985, rows 165-470 at 1280x720, with the map fitted to the 80 m ground; up to 0.24
-#: where the exact render is 0). The disc's rays run almost along the light, so its few samples per ray read nearly
-#: the same texels: a narrower ramp steps with the map's texel staircase (plateaus down the pillar tops under the
-#: architrave, the comb on colonnade_sunset frame 40). Measured on colonnade_fourier (1280x720, surfaces off, against
-#: the 256-step exact marcher: pixels over 0.05 where the exact is black; rel. L1 of the image, of the fringe box
-#: x 960-1000 y 150-480, of the pillar-top box x 1080-1180 y 125-185) and frame 40 at 320x180 (comb box: rel. L1,
-#: high-pass energy against the 1024-step shadow-map marcher's), the resampling's taps / this ramp: 1 / 1: 1414 px,
-#: 2.80 / 14.4 / 5.56 %, comb 5.8 % / 0.97x; 0.5 / 1: 696, 2.68 / 11.7 / 5.49 %, 6.0 % / 1.01x; 0.5 / 0.75: 551,
-#: 2.67 / 10.6 / 5.66 %, 4.4 % / 1.03x; 0.5 / 0.5: 435, 2.68 / 9.9 / 5.91 %, 5.0 % / 1.14x; 0.33 / 0.33: 275 px, comb
-#: 1.20x. The rest of that fringe was the map's resolution: with the ground left out of the map
-#: (:mod:`.unseen_planes`, the pillars' map 4x finer) it is gone at 1 / 0.75 (0 px, 1.79 %), and the resampling's
-#: taps went back to plain bilinear weights, which the finer map's radial streaks need (colonnade_fourier at 320x180,
-#: streak energy right of the last pillar 0.58 % with half-texel taps, 0.41 % bilinear).
+#: Width in texels of the ramp between neighbouring texels in the narrowed PCF look-ups (:func:`narrowed_offset`):
+#: narrower than bilinear (1) so caster silhouettes stay sharp where view rays run along a shadow's edge.
 PCF_RAMP_TEXELS = wp.constant(0.75)
 
 
 @wp.func
 def narrowed_offset(frac: float, ramp: float) -> float:
-    """The weight of the second of two neighbouring texels for a point ``frac`` (0-1) of a texel past the first's
-    centre, ramping over ``ramp`` texels (0-1) around the border between them instead of the whole texel (0 and 1
-    at the centres as bilinear weights are, 0.5 at the border; ``ramp`` 1: bilinear)."""
+    """Weight of the second of two texels at ``frac`` (0-1) past the first's centre, ramping over ``ramp`` texels
+    around their border (``ramp`` 1: bilinear)."""
     return wp.clamp((frac - 0.5) / ramp + 0.5, 0.0, 1.0)
 
 
 @wp.func
 def texel_corner(sm: ShadowMapParams, c: wp.vec3):
-    """The texel (i0, j0) whose centre is the top-left of the 2 x 2 texels around map coordinates c = (u, v, depth)
-    of :func:`shadow_coords`, and c's offset (0-1 texel, along x and y) past that centre: the bilinear frame."""
+    """Bilinear frame of c = (u, v, depth): top-left texel (i0, j0) of the 2 x 2 around c and c's offset past it."""
     fx = c[0] * float(sm.width) - 0.5
     fy = c[1] * float(sm.height) - 0.5
     i0 = int(wp.floor(fx))
@@ -391,9 +326,7 @@ def texel_corner(sm: ShadowMapParams, c: wp.vec3):
 
 @wp.func
 def narrowed_pcf_at(sm: ShadowMapParams, depth_map: Any, c: wp.vec3, bias: float, ramp: float) -> float:
-    """Percentage-closer filtering of the 2 x 2 texels around map coordinates c = (u, v, depth) of
-    :func:`shadow_coords` with :func:`narrowed_offset` weights ramping over ``ramp`` texels: smooth across a texel
-    border, hard within (1 - ``ramp``) / 2 of a texel's centre; 1 = lit."""
+    """2 x 2 PCF at c = (u, v, depth) with :func:`narrowed_offset` weights; 1 = lit."""
     i0, j0, fx, fy = texel_corner(sm, c)
     ax = narrowed_offset(fx, ramp)
     ay = narrowed_offset(fy, ramp)
@@ -406,8 +339,7 @@ def narrowed_pcf_at(sm: ShadowMapParams, depth_map: Any, c: wp.vec3, bias: float
 
 @wp.func
 def box_tap_weight(d: int, lo: int, hi: int, frac: float) -> float:
-    """Weight of tap offset d in [lo, hi] of a PCF box whose centre sits ``frac`` of a texel past tap 0: 1 inside,
-    1 - frac and frac at the two ends (a box filter of the bilinearly weighted texels)."""
+    """Weight of tap d in [lo, hi] of a PCF box centred ``frac`` past tap 0: 1 inside, 1 - frac / frac at the ends."""
     if d == lo:
         return 1.0 - frac
     if d == hi:
@@ -427,7 +359,7 @@ def shadow_pcf_at(sm: ShadowMapParams, depth_map: Any, c: wp.vec3, bias: float, 
     i0, j0, ax, ay = texel_corner(sm, c)
     r = filter_px / 2
     lo = -r
-    hi = filter_px - r  # filter_px + 1 texel columns, bilinear weights at the two ends
+    hi = filter_px - r
     total = float(0.0)
     wsum = float(0.0)
     for dj in range(lo, hi + 1):
@@ -442,36 +374,33 @@ def shadow_pcf_at(sm: ShadowMapParams, depth_map: Any, c: wp.vec3, bias: float, 
 
 @wp.func
 def shadow_texel_coords(sm: ShadowMapParams, x: wp.vec3) -> wp.vec3:
-    """(fx, fy, depth) of world point x: map coordinates in texels (texel (i, j)'s centre at (i, j)) and linear
-    light-space depth."""
+    """(fx, fy, depth) of x: map coordinates in texels (centre of (i, j) at (i, j)) and linear depth."""
     c = shadow_coords(sm, x)
     return wp.vec3(c[0] * float(sm.width) - 0.5, c[1] * float(sm.height) - 0.5, c[2])
 
 
 @wp.func
 def receiver_plane_gradient(sm: ShadowMapParams, x: wp.vec3, n: wp.vec3, c: wp.vec3) -> wp.vec2:
-    """Light-space depth change per texel (along map x, y) of the plane through x with unit normal n, at x's
-    :func:`shadow_texel_coords` c (local for perspective maps). Zero where the light sees the plane edge-on."""
+    """Depth change per texel (map x, y) of the plane through x with normal n, at c; 0 if seen edge-on."""
     a = wp.vec3(1.0, 0.0, 0.0)
     if wp.abs(n[0]) > 0.9:
         a = wp.vec3(0.0, 1.0, 0.0)
     t1 = wp.normalize(wp.cross(n, a))
     t2 = wp.cross(n, t1)
-    h = sm.texel_world  # about one texel along the plane
+    h = sm.texel_world
     if sm.perspective != 0:
         h = sm.texel_world * wp.max(c[2], 1.0e-6)
     e1 = shadow_texel_coords(sm, x + t1 * h) - c
     e2 = shadow_texel_coords(sm, x + t2 * h) - c
     det = e1[0] * e2[1] - e2[0] * e1[1]
-    if not (wp.abs(det) > 1.0e-6):  # the plane covers (almost) no texels, or non-finite coordinates
+    if not (wp.abs(det) > 1.0e-6):
         return wp.vec2(0.0, 0.0)
     return wp.vec2((e1[2] * e2[1] - e2[2] * e1[1]) / det, (e2[2] * e1[0] - e1[2] * e2[0]) / det)
 
 
 @wp.func
 def near_map_silhouette(depth_map: Any, i0: int, j0: int, lo: int, hi: int) -> bool:
-    """True when a texel (i0 + di, j0 + dj), di and dj in [lo, hi], inside the map is empty (+inf): the box reaches
-    past the outline of everything the light sees."""
+    """True when a texel (i0 + di, j0 + dj), di, dj in [lo, hi], inside the map is empty (+inf)."""
     for dj in range(lo, hi + 1):
         j = j0 + dj
         if j >= 0 and j < map_height(depth_map):
@@ -485,8 +414,7 @@ def near_map_silhouette(depth_map: Any, i0: int, j0: int, lo: int, hi: int) -> b
 
 @wp.func
 def texel_on_outline(depth_map: Any, j: int, i: int) -> bool:
-    """True when a 4-neighbour of texel (i, j) inside the map is empty: the silhouette edge of what the light sees
-    crosses the texel or its border."""
+    """True when a 4-neighbour of texel (i, j) inside the map is empty."""
     w = map_width(depth_map)
     h = map_height(depth_map)
     if i > 0 and not wp.isfinite(texel_depth(depth_map, j, i - 1)):
@@ -503,15 +431,9 @@ def texel_on_outline(depth_map: Any, j: int, i: int) -> bool:
 @wp.func
 def shadow_pcf_contact(sm: ShadowMapParams, depth_map: Any, x: wp.vec3, n: wp.vec3, bias: float,
                        filter_px: int) -> float:
-    """PCF of surface point x (unit normal n facing the light) that is itself a caster, for contacts on the map's
-    silhouette: the box of :func:`shadow_pcf` around x, empty and out-of-map texels left out (the receiver does not
-    reach there, or nothing is known there), each texel compared against the receiver's plane at that texel (depth
-    bias ``bias``, world units); 1 = lit, also when no texel of the box is left.
-
-    Texels on the outline itself (:func:`texel_on_outline`) count only when the box has no other texel: the
-    silhouette edge crosses them, and where it is a contact (a floor meeting a wall) their centre can lie a hair
-    inside the occluder's edge, so close to the receiver's plane that the comparison passes within the bias (the
-    window room's lit crease dots: 0.006-0.03 texel of depth behind the wall)."""
+    """PCF of caster point x (normal n) at a contact on the map's silhouette: the :func:`shadow_pcf` box without
+    empty and out-of-map texels, each compared against the receiver's plane; outline texels count only when no other
+    is left (their centres can lie just inside the occluder). ``bias`` in world units; 1 = lit."""
     c = shadow_texel_coords(sm, x)
     g = receiver_plane_gradient(sm, x, n, c)
     i0 = int(wp.floor(c[0]))
@@ -532,10 +454,10 @@ def shadow_pcf_contact(sm: ShadowMapParams, depth_map: Any, x: wp.vec3, n: wp.ve
             wx = box_tap_weight(di, lo, hi, ax)
             i = i0 + di
             if i < 0 or j < 0 or i >= map_width(depth_map) or j >= map_height(depth_map):
-                continue  # outside the map: nothing known about the receiver there
+                continue
             s = texel_depth(depth_map, j, i)
             if not wp.isfinite(s):
-                continue  # empty: past the receiver's own outline
+                continue
             lit = float(1.0)
             d = c[2] + g[0] * (float(i) - c[0]) + g[1] * (float(j) - c[1])
             if d > s + bias:
@@ -563,20 +485,16 @@ def shadow_pcf_surface(sm: ShadowMapParams, depth_map: Any, x: wp.vec3, n: wp.ve
                        bias: float, filter_px: int, contact: int) -> float:
     """PCF visibility of surface point x with unit normal n facing the light; 1 = lit.
 
-    :func:`shadow_pcf` of x moved ``normal_offset`` (world units) along n, with depth bias ``bias`` (both for a
-    texel at unit depth on perspective maps, where they grow with the receiver's depth like the texels, as the
-    moment maps' normal offset does, and the offset also with 1 / cos of the incidence, at most
-    :data:`SLOPE_OFFSET_MAX` times); where ``contact`` is set (every receiver is also a caster, so it is in the map
-    itself) and the PCF box around x, grown by :data:`CONTACT_RING` texels, reaches an empty texel,
-    :func:`shadow_pcf_contact` with :data:`CONTACT_BIAS_FRACTION` of the bias instead (see the module docstring)."""
+    :func:`shadow_pcf` of x moved ``normal_offset`` (world units; per unit depth on perspective maps, slope-scaled up
+    to :data:`SLOPE_OFFSET_MAX`) along n with depth bias ``bias``; with ``contact`` (every receiver also casts) and an
+    empty texel within :data:`CONTACT_RING` of the box, :func:`shadow_pcf_contact` instead."""
     offset = normal_offset
     depth_bias = bias
-    if sm.perspective != 0:  # both are given for texels at unit depth: scale them to the receiver's texels
+    if sm.perspective != 0:
         z = wp.max(shadow_coords(sm, x)[2], 0.0)
         offset = normal_offset * z
         depth_bias = bias * z
-        # slope scale: at incidence angle a a texel spans 1 / cos(a) of the surface, and the surface's own depths
-        # behind the texel centre run that much further (acne rings on a ground lit at a grazing angle)
+        # a texel spans 1 / cos(incidence) of the surface: slope-scale the offset against acne at grazing angles
         p = wp.transform_point(sm.view, x)
         nv = wp.transform_vector(sm.view, n)
         cos_in = -wp.dot(nv, p) / wp.max(wp.length(p), 1.0e-30)

@@ -1,47 +1,6 @@
-"""Moment soft shadow mapping (Peters et al. 2017, Sec. 4, Appendix D.4) and a brute-force PCSS reference.
-
-Stages:
-
-1. A 128-bit moment shadow map (:func:`~warpscatter.shadows.msm.generate_moment_shadow_map`, ``bits=128``).
-2. ``sat`` (:func:`build_summed_area_table`, Sec. 4.2): every texel's moments go through the quantization transform
-   Theta_4* (Eq. 3, values in [0, 1]), are scaled by (2^32 - 1) / n_t and rounded to uint32, then summed in two passes
-   (per-row prefix sums with one thread per row, per-column prefix sums with one thread per column) in MODULAR uint32
-   arithmetic. n_t = ``max_kernel_px``^2 is the largest number of texels any query covers (28^2 = 784 in the paper,
-   22.4 bits of precision); a box sum over at most n_t texels lies in [0, 2^32 - 1] and is therefore exact despite the
-   wrap-arounds of the table. The table has a zero first row and column: S[j, i] = sum of texels (x < i, y < j).
-3. Per receiver (:func:`moment_soft_visibility_rgb`):
-
-   * Blocker search (Sec. 4.3, 4.5): one table query over the search region, extended to the texel grid; Algorithm 1
-     on the biased moments and the UNBIASED fragment depth z_f gives z_0 = z_f, z_1, z_2 and weights; the average
-     blocker depth is Eq. (4), (eps z_0 + sum_{z_l < z_f} w_l z_l) / (eps + sum_{z_l < z_f} w_l), eps = 1e-3.
-   * Umbra early-out (Sec. 4.5): when sum_{z_l < z_f} w_l > 1 - eps_u (eps_u = 0.01) the visibility is 0.
-   * Penumbra estimation (Fernando 2005) for an axis-aligned rectangular light (below).
-   * Filtering (Sec. 4.4, Fig. 7b): the filter rectangle (fractional corners) is split at the texel grid into nine
-     sub-rectangles (left/middle/right x top/middle/bottom), each holding at most n_t texels; each one's exact
-     integer sum is converted to floating point and weighted by the area of its texels covered by the filter
-     rectangle. The result is the exact area-weighted box filter of the texels (bilinear interpolation of texel
-     averages for a one-texel box).
-   * Theta_4* reverted, weak bias alpha_b = 6e-7 (x n_t / 784 for larger tables) with b* = (0, 0.628, 0, 0.628),
-     Algorithm 1's lower bound at the depth-biased fragment depth, over-darkening (/0.98), visibility = 1 - intensity.
-
-Light models (penumbra and search widths in texels, per map axis; d_r receiver, d_b blocker, d_n near-plane linear
-depths along the light axis; t texel size):
-
-* Directional light, orthographic map: a light of angular size theta (full angle, degrees, per axis) gives a
-  penumbra of width 2 tan(theta/2) (d_r - d_b) scene units; blockers at depths d_n..d_r can shadow within
-  tan(theta/2) (d_r - d_n) of the receiver, the search half-width.
-* Spot light, perspective map: a rectangular light of world size L (per axis) at the projection centre gives a
-  penumbra of L (d_r - d_b) / d_b scene units at the receiver, i.e. L (d_r - d_b) / (d_b d_r t) texels (t at unit
-  depth); the search half-width is L (d_r - d_n) / (2 d_r d_n t) texels.
-
-Search half-widths are clamped to [0.5, max_kernel_px / 2 - 1] (grid extension adds up to one texel per side),
-filter half-widths to [0.5, max_kernel_px / 2], so no query exceeds n_t texels. Regions are clipped to the map and
-averaged over their part inside it. The depth bias grows with the filter size (Sec. 4.4): depth_bias x
-max(1, filter width in texels).
-
-:func:`pcss_visibility` is the brute-force reference: the same search region, the same penumbra estimation and the
-same filter rectangle with the same area weights, but on the plain linear depth map (blocker search = mean depth of
-texels in front of the receiver, filtering = area-weighted percentage-closer test of every texel).
+"""Moment soft shadow mapping (Peters et al. 2017, Sec. 4, Appendix D.4) from an integer summed-area table (Sec.
+4.2: exact for boxes of <= n_t = max_kernel_px^2 texels), and :func:`pcss_visibility`, a brute-force PCSS
+reference. Widths are in texels per map axis; light models and clamps: docs/design/shadows-scene.md.
 """
 
 from __future__ import annotations
@@ -66,33 +25,25 @@ module_options()
 BLOCKER_EPSILON = wp.constant(1.0e-3)
 #: eps_u of Sec. 4.5: umbra when the blocker-search shadow intensity exceeds 1 - eps_u.
 UMBRA_EPSILON = wp.constant(0.01)
-# REFERENCE_KERNEL_PX: the paper's largest kernel, 28 x 28 = 784 texels (Sec. 4.2), for which alpha_b = 6e-7;
-# MAX_KERNEL_PX: the largest supported side (n_t <= 2^16 keeps 16 bits of precision per texel). Both live in
-# .settings with the other limits of render.shadows.
 
 
 @wp.struct
 class SoftShadowParams:
     """Moment soft shadow (and PCSS) settings as kernels see them."""
 
-    msm: MomentShadowParams  # geometry, depth bias, normal offset, over-darkening, channels
+    msm: MomentShadowParams
     light_extent: wp.vec2  # orthographic: tan(theta / 2) per map axis; perspective: half light size (scene units)
-    max_kernel_px: int  # widest region side in texels; n_t = max_kernel_px^2
-    sat_scale: wp.float64  # (2^32 - 1) / n_t: table units per unit of Theta_4*
-    moment_bias: float  # alpha_b of the table
-    blocker_epsilon: float  # eps_z0 of Eq. (4)
-    umbra_epsilon: float  # eps_u of Sec. 4.5
+    max_kernel_px: int  # n_t = max_kernel_px^2
+    sat_scale: wp.float64  # (2^32 - 1) / n_t
+    moment_bias: float  # alpha_b
+    blocker_epsilon: float
+    umbra_epsilon: float
 
-
-# ---------------------------------------------------------------------------------------------------------------------
-# Summed-area table building blocks
-# ---------------------------------------------------------------------------------------------------------------------
 
 
 @wp.func
 def sat_integer(q: float, scale: wp.float64) -> wp.uint32:
-    """round(clamp(q, 0, 1) * scale) as uint32 (NaN -> 0); scale = (2^32 - 1) / n_t."""
-    # Peters 2017, Sec. 4.2 / D.4 (ComputeFixedPrecision)
+    """round(clamp(q, 0, 1) * scale) as uint32 (NaN -> 0); Peters 2017, D.4 ComputeFixedPrecision."""
     qc = q
     if wp.isnan(qc):
         qc = 0.0
@@ -102,8 +53,7 @@ def sat_integer(q: float, scale: wp.float64) -> wp.uint32:
 
 @wp.func
 def sat_texel(texel: wp.vec4, storage: int, scale: wp.float64) -> wp.vec4ui:
-    """A moment-map texel as the integers summed by the table: Theta_4* of its canonical moments, scaled, rounded."""
-    # Peters 2017, Sec. 4.2
+    """A texel as the integers the table sums: Theta_4* of its moments, scaled, rounded (Sec. 4.2)."""
     q = mm.quantization_transform4(mm.load_moments4(texel, storage))
     return wp.vec4ui(sat_integer(q[0], scale), sat_integer(q[1], scale), sat_integer(q[2], scale),
                      sat_integer(q[3], scale))
@@ -111,8 +61,7 @@ def sat_texel(texel: wp.vec4, storage: int, scale: wp.float64) -> wp.vec4ui:
 
 @wp.func
 def sat_box_sum(sat: wp.array3d(dtype=wp.vec4ui), c: int, x0: int, y0: int, x1: int, y1: int) -> wp.vec4ui:
-    """Modular sum of the texels [x0, x1) x [y0, y1) of channel c; exact when the box has <= n_t texels."""
-    # Peters 2017, Fig. 7a (four samples; wrap-arounds cancel, Sec. 4.2)
+    """Modular sum of the texels [x0, x1) x [y0, y1) of channel c; exact for <= n_t texels (Fig. 7a)."""
     return sat[c, y1, x1] - sat[c, y0, x1] - sat[c, y1, x0] + sat[c, y0, x0]
 
 
@@ -132,10 +81,8 @@ def sat_box_average(sat: wp.array3d(dtype=wp.vec4ui), c: int, x0: int, y0: int, 
 
 @wp.func
 def box_segments(a0: float, a1: float, n: int):
-    """Split [a0, a1] (0 <= a0 <= a1 <= n, texel units) at the texel grid into a first partial texel, whole texels
-    and a last partial texel: (starts, ends, per-texel coverage) as vec3i, vec3i, vec3 (empty segments have
-    start == end or weight 0)."""
-    # Peters 2017, Fig. 7b (one axis of the nine sub-rectangles)
+    """Split [a0, a1] (texel units) at the grid into partial, whole, partial texels: (starts, ends, coverage);
+    one axis of Fig. 7b's nine sub-rectangles."""
     i0 = wp.clamp(int(wp.floor(a0)), 0, n - 1)
     i1 = wp.clamp(int(wp.floor(a1)), 0, n - 1)
     if i1 <= i0:
@@ -147,9 +94,7 @@ def box_segments(a0: float, a1: float, n: int):
 @wp.func
 def sat_rectangle_average(sat: wp.array3d(dtype=wp.vec4ui), c: int, x0: float, y0: float, x1: float, y1: float,
                           scale: wp.float64) -> wp.vec4:
-    """Area-weighted average Theta_4* moments over the rectangle [x0, x1] x [y0, y1] (texel units, inside the map,
-    non-empty, at most sqrt(n_t) texels per side): nine exact integer sub-rectangle sums (Fig. 7b)."""
-    # Peters 2017, Sec. 4.4
+    """Area-weighted average Theta_4* over [x0, x1] x [y0, y1] (texels, sides <= sqrt(n_t)); Sec. 4.4, Fig. 7b."""
     n_x = sat.shape[2] - 1
     n_y = sat.shape[1] - 1
     xs, xe, xw = box_segments(x0, x1, n_x)
@@ -167,21 +112,14 @@ def sat_rectangle_average(sat: wp.array3d(dtype=wp.vec4ui), c: int, x0: float, y
 
 @wp.func
 def sat_biased_moments(p: SoftShadowParams, q: wp.vec4) -> wp.vec4:
-    """Average Theta_4* moments from the table -> canonical moments biased with alpha_b and b* = (0,.628,0,.628)."""
-    # Peters 2017, D.4 "undo the quantization transform and apply weak biasing"
+    """Table average -> canonical moments biased with alpha_b and b* (D.4)."""
     return mm.bias_moments4(mm.inverse_quantization_transform4(q), p.moment_bias, mm.BIAS_VECTOR4_QUANTIZED)
 
-
-# ---------------------------------------------------------------------------------------------------------------------
-# Blocker search and penumbra estimation
-# ---------------------------------------------------------------------------------------------------------------------
 
 
 @wp.func
 def average_blocker_depth(b: wp.vec4, z_f: float, eps: float) -> wp.vec2:
-    """(average blocker depth of Eq. (4), blocker shadow intensity sum_{z_l < z_f} w_l) from biased moments b and
-    the unbiased fragment depth z_f (signed depths). Without blockers the result tends to z_f."""
-    # Peters 2017, Eq. (4)
+    """(average blocker depth, blocker intensity sum_{z_l < z_f} w_l) of Peters 2017 Eq. (4); signed depths."""
     depths, weights = mm.msm4_distribution(b, z_f)
     z0 = depths[0]
     num = eps * z0
@@ -197,8 +135,7 @@ def average_blocker_depth(b: wp.vec4, z_f: float, eps: float) -> wp.vec2:
 
 @wp.func
 def search_half_width(p: SoftShadowParams, d_r: float) -> wp.vec2:
-    """Blocker-search half-width in texels (x, y) for a receiver at linear depth d_r (module docstring)."""
-    # Fernando 2005 (PCSS blocker search region), as used by Peters 2017 Sec. 4.3
+    """Blocker-search half-width in texels (x, y) at linear depth d_r (Fernando 2005; Peters 2017 Sec. 4.3)."""
     near = p.msm.near
     k = wp.max(d_r - near, 0.0)
     if p.msm.sm.perspective != 0:
@@ -210,8 +147,7 @@ def search_half_width(p: SoftShadowParams, d_r: float) -> wp.vec2:
 
 @wp.func
 def penumbra_half_width(p: SoftShadowParams, d_r: float, d_b: float) -> wp.vec2:
-    """Filter half-width in texels (x, y) for receiver depth d_r and average blocker depth d_b (linear depths)."""
-    # Fernando 2005 penumbra estimation (Peters 2017, Sec. 4.4 / D.4 EstimatePenumbraSize)
+    """Filter half-width in texels (x, y) for linear depths d_r, d_b (Fernando 2005; D.4 EstimatePenumbraSize)."""
     k = wp.max(d_r - d_b, 0.0)
     if p.msm.sm.perspective != 0:
         k = k / (wp.max(d_b, p.msm.near) * wp.max(d_r, p.msm.near))
@@ -249,28 +185,20 @@ def linear_depth(p: MomentShadowParams, z: float) -> float:
     return (z - p.depth_offset) / p.depth_scale
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Per-receiver soft shadows
-# ---------------------------------------------------------------------------------------------------------------------
-
 
 @wp.func
 def moment_soft_channel_visibility(p: SoftShadowParams, sat: wp.array3d(dtype=wp.vec4ui), c: int, fx: float,
                                    fy: float, d_r: float) -> float:
-    """Moment soft shadow visibility of channel c for a receiver at texel position (fx, fy) and linear depth d_r."""
-    # Peters 2017, Sec. 4.3-4.5 / D.4
+    """Moment soft shadow visibility of channel c at texel position (fx, fy), linear depth d_r (Sec. 4.3-4.5)."""
     n_x = sat.shape[2] - 1
     n_y = sat.shape[1] - 1
     z_f = msmod.signed_depth(p.msm, d_r)
-    # ---- blocker search: one grid-aligned query, unbiased z_f, Eq. (4) ----
     r = search_region(fx, fy, search_half_width(p, d_r), n_x, n_y)
     b = sat_biased_moments(p, sat_box_average(sat, c, r[0], r[1], r[2], r[3], p.sat_scale))
     blocker = average_blocker_depth(b, z_f, p.blocker_epsilon)
     if blocker[1] > 1.0 - p.umbra_epsilon:
-        return 0.0  # umbra early-out (Sec. 4.5)
-    # ---- penumbra estimation ----
+        return 0.0
     hf = penumbra_half_width(p, d_r, linear_depth(p.msm, blocker[0]))
-    # ---- filtering over the nine sub-rectangles (Fig. 7b) ----
     rect = filter_rectangle(fx, fy, hf, n_x, n_y)
     q = sat_rectangle_average(sat, c, rect[0], rect[1], rect[2], rect[3], p.sat_scale)
     bias = p.msm.depth_bias * wp.max(1.0, 2.0 * wp.max(hf[0], hf[1]))
@@ -281,10 +209,7 @@ def moment_soft_channel_visibility(p: SoftShadowParams, sat: wp.array3d(dtype=wp
 @wp.func
 def moment_soft_visibility_rgb(p: SoftShadowParams, sat: wp.array3d(dtype=wp.vec4ui), x: wp.vec3,
                                n: wp.vec3) -> wp.vec3:
-    """Moment soft shadow visibility in [0, 1]^3 of world point x with normal n (R, G, B; equal for 1 channel).
-
-    ``sat`` is :attr:`SummedAreaTable.table`; points outside the map or with non-finite coordinates are lit.
-    """
+    """Moment soft shadow visibility (R, G, B) in [0, 1] of x with normal n; ``sat``: :attr:`SummedAreaTable.table`."""
     cc = msmod.receiver_coords(p.msm, x, n)
     if not msmod.inside_map(cc):
         return wp.vec3(1.0, 1.0, 1.0)
@@ -306,12 +231,7 @@ def moment_soft_visibility(p: SoftShadowParams, sat: wp.array3d(dtype=wp.vec4ui)
 
 @wp.func
 def pcss_visibility(p: SoftShadowParams, depth_map: wp.array2d(dtype=wp.float32), x: wp.vec3, n: wp.vec3) -> float:
-    """Brute-force percentage-closer soft shadows on the plain linear depth map (+inf = empty); 1 = lit.
-
-    Same search region, penumbra estimation, filter rectangle, area weights and filtering depth bias as the moment
-    version; the blocker search averages the texels nearer than d_r - depth_bias (no blocker: lit).
-    """
-    # Fernando 2005, with the region conventions of moment_soft_channel_visibility
+    """Brute-force PCSS (Fernando 2005) on the linear depth map with the moment version's regions; 1 = lit."""
     cc = msmod.receiver_coords(p.msm, x, n)
     if not msmod.inside_map(cc):
         return 1.0
@@ -320,7 +240,6 @@ def pcss_visibility(p: SoftShadowParams, depth_map: wp.array2d(dtype=wp.float32)
     fx = cc[0] * float(n_x)
     fy = cc[1] * float(n_y)
     d_r = cc[2]
-    # ---- blocker search: mean depth of the texels in front of the receiver ----
     r = search_region(fx, fy, search_half_width(p, d_r), n_x, n_y)
     total = float(0.0)
     count = int(0)
@@ -333,7 +252,6 @@ def pcss_visibility(p: SoftShadowParams, depth_map: wp.array2d(dtype=wp.float32)
     if count == 0:
         return 1.0
     hf = penumbra_half_width(p, d_r, total / float(count))
-    # ---- filtering: area-weighted percentage-closer test over the filter rectangle ----
     rect = filter_rectangle(fx, fy, hf, n_x, n_y)
     bias = p.msm.depth_bias * wp.max(1.0, 2.0 * wp.max(hf[0], hf[1]))
     lit = float(0.0)
@@ -349,25 +267,21 @@ def pcss_visibility(p: SoftShadowParams, depth_map: wp.array2d(dtype=wp.float32)
     return wp.clamp(lit / ((rect[2] - rect[0]) * (rect[3] - rect[1])), 0.0, 1.0)
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Kernels (the last input of each is the row offset used by parallel.launch_rows)
-# ---------------------------------------------------------------------------------------------------------------------
-
 
 @wp.kernel
 def _sat_rows_kernel(texels: wp.array3d(dtype=wp.vec4), storage: int, scale: wp.float64,
                      sat: wp.array3d(dtype=wp.vec4ui), offset: int):
-    j = wp.tid() + offset  # one thread per row (D.4 ApplyPrefixSumHorizontal)
+    j = wp.tid() + offset  # D.4 ApplyPrefixSumHorizontal
     for c in range(texels.shape[0]):
         run = wp.vec4ui(wp.uint32(0), wp.uint32(0), wp.uint32(0), wp.uint32(0))
         for i in range(texels.shape[2]):
-            run = run + sat_texel(texels[c, j, i], storage, scale)  # wraps modulo 2^32
+            run = run + sat_texel(texels[c, j, i], storage, scale)
             sat[c, j + 1, i + 1] = run
 
 
 @wp.kernel
 def _sat_columns_kernel(sat: wp.array3d(dtype=wp.vec4ui), offset: int):
-    i = wp.tid() + offset  # one thread per column (D.4 ApplyPrefixSumVertical)
+    i = wp.tid() + offset  # D.4 ApplyPrefixSumVertical
     for c in range(sat.shape[0]):
         run = wp.vec4ui(wp.uint32(0), wp.uint32(0), wp.uint32(0), wp.uint32(0))
         for j in range(1, sat.shape[1]):
@@ -399,10 +313,6 @@ def _pcss_points_kernel(p: SoftShadowParams, depth_map: wp.array2d(dtype=wp.floa
     out[k] = pcss_visibility(p, depth_map, points[k], normals[k])
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Host functions
-# ---------------------------------------------------------------------------------------------------------------------
-
 
 def _kernel_px(max_kernel_px) -> int:
     if isinstance(max_kernel_px, bool) or not isinstance(max_kernel_px, (int, np.integer)) or not (
@@ -419,21 +329,15 @@ def sat_scale(max_kernel_px: int) -> float:
 
 
 def sat_moment_bias(max_kernel_px: int) -> float:
-    """alpha_b of a table: 6e-7 up to n_t = 784 (Sec. 4.2), growing in proportion to n_t beyond (its rounding
-    error does)."""
+    """alpha_b: 6e-7 up to n_t = 784 (Sec. 4.2), then in proportion to n_t, as the rounding error grows."""
     n_t = _kernel_px(max_kernel_px) ** 2
     return float(mm.MOMENT_BIAS4_SAT_UINT32) * max(1.0, n_t / float(REFERENCE_KERNEL_PX**2))
 
 
 @dataclass
 class SummedAreaTable:
-    """Integer summed-area table of a moment shadow map (Sec. 4.2).
-
-    Attributes:
-        table: (C, H + 1, W + 1) ``wp.vec4ui``; S[c, j, i] = modular sum of the integer texels x < i, y < j.
-        max_kernel_px: largest query side; n_t = max_kernel_px^2.
-        msm: the moment shadow map it was built from (geometry, channels).
-    """
+    """Integer summed-area table (C, H + 1, W + 1) ``wp.vec4ui`` of ``msm`` (Sec. 4.2): S[c, j, i] = modular sum
+    of the texels x < i, y < j."""
 
     table: wp.array
     max_kernel_px: int
@@ -478,16 +382,14 @@ def soft_shadow_params(shadow_map: ShadowMap, *, light_size=None, light_angle_de
 
     Args:
         shadow_map: the light's plain :class:`ShadowMap` (transforms, resolution).
-        light_size: perspective (spot) maps: the rectangular light's world size, scalar or (x, y) along the map
-            axes (scene units).
-        light_angle_deg: orthographic (directional) maps: the light's angular size, full angle in degrees, scalar
-            or (x, y), each < 180.
-        max_kernel_px: widest search/filter region side in texels (n_t = max_kernel_px^2; 28 in the paper).
+        light_size: spot (perspective) maps: the light's size in scene units, scalar or (x, y).
+        light_angle_deg: directional (orthographic) maps: full angular size in degrees (< 180), scalar or (x, y).
+        max_kernel_px: widest region side in texels (28 in the paper).
         storage, channels, depth_bias, normal_offset_texels, overdarkening: as in
-            :func:`~warpscatter.shadows.msm.moment_params`; the depth bias is scaled by max(1, filter width).
+            :func:`~warpscatter.shadows.msm.moment_params`.
 
     Raises:
-        ValueError: the light size argument not matching the map's projection, negative sizes, bad kernel size.
+        ValueError: a light size not matching the projection, negative sizes, bad kernel size.
     """
     kpx = _kernel_px(max_kernel_px)
     if shadow_map.perspective:
@@ -517,8 +419,7 @@ def soft_shadow_params(shadow_map: ShadowMap, *, light_size=None, light_angle_de
 
 def build_summed_area_table(msm: MomentShadowMap, max_kernel_px: int = REFERENCE_KERNEL_PX,
                             device=None) -> SummedAreaTable:
-    """Integer summed-area table of ``msm`` (Sec. 4.2, D.4); intended for 128-bit maps (64-bit ones work, with
-    their 16-bit precision).
+    """Integer summed-area table of ``msm`` (Sec. 4.2, D.4), meant for 128-bit maps.
 
     Args:
         msm: an unfiltered moment shadow map (:func:`~warpscatter.shadows.msm.generate_moment_shadow_map`).
@@ -550,11 +451,8 @@ def render_soft_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: int =
                            max_kernel_px: int = REFERENCE_KERNEL_PX, coloured: bool = False,
                            max_translucent_layers: int = 16, timer: StageTimer | None = None,
                            device=None) -> SummedAreaTable:
-    """128-bit moment shadow map (stage ``msm_generate``) and its summed-area table (stage ``msm_sat``).
-
-    Arguments as in :func:`~warpscatter.shadows.msm.generate_moment_shadow_map` and
-    :func:`build_summed_area_table`; ``timer``: the :class:`~warpscatter.stages.StageTimer` of the stages.
-    """
+    """128-bit moment shadow map (stage ``msm_generate``) and its summed-area table (stage ``msm_sat``); arguments
+    as in :func:`~warpscatter.shadows.msm.generate_moment_shadow_map` and :func:`build_summed_area_table`."""
     stage = timer or StageTimer()
     with stage("msm_generate"):
         m = msmod.generate_moment_shadow_map(scene, shadow_map, supersampling=supersampling, bits=128,

@@ -1,21 +1,6 @@
-"""Surface shadows: what every shadow method of ``render.shadows`` reads per pixel, and the per-pixel dispatch.
-
-V_shadow(x) (RGB, for tinted translucent occluders) of a surface point from the selected method:
-
-* ``pcf`` — percentage-closer filtering of the light's shadow map (one texel of normal offset); when every material
-  casts, contacts on the map's silhouette (the creases of a closed room) get receiver-plane PCF without the empty
-  texels (:func:`~warpscatter.shadows.shadow_map.shadow_pcf_surface`);
-* ``msm`` — a filtered 4-moment shadow map with translucent occluders (Peters et al. 2017 Sec. 2-3), bilinear or
-  trilinear in its mip chain at the pixel footprint (D.2);
-* ``msm_soft`` — moment soft shadows from an integer summed-area table (Sec. 4);
-* ``pcss`` — the brute-force soft-shadow reference (blocker search + PCF) for ``msm_soft``;
-* ``msm2015``, ``vsm``, ``evsm`` — the filterable baselines of Peters 2017 Figs. 4 and 5 (original moment shadow
-  maps, variance and exponential variance shadow maps; :mod:`.filterable`), through ``msm``'s pipeline and
-  look-ups (translucent occluders and mip-mapping included);
-* ``none`` — V = 1.
-
-:func:`prepare_shadows` builds the maps a method needs (moment maps and tables get their own stages) into one
-:class:`SurfaceShadows` struct; :func:`surface_visibility` is the per-pixel look-up (public ``@wp.func``).
+"""Surface shadows: V_shadow(x) (RGB) per pixel for every ``render.shadows`` method: ``pcf``, ``msm`` (Peters et al.
+2017 Sec. 2-3), ``msm_soft`` (Sec. 4), ``pcss``, the baselines ``msm2015``, ``vsm``, ``evsm`` (:mod:`.filterable`) or
+``none``. :func:`prepare_shadows` builds :class:`SurfaceShadows`; :func:`surface_visibility` is the public look-up.
 """
 
 from __future__ import annotations
@@ -45,25 +30,24 @@ SHADOW_MODES = {"none": SHADOW_NONE, "pcf": SHADOW_PCF, "msm": SHADOW_MSM, "msm_
 class SurfaceShadows:
     """The arrays and parameters of the selected shadow method (1x1 placeholders for the others)."""
 
-    mode: int  # SHADOW_*
-    sm: ShadowMapParams  # the light's shadow map (pcf, pcss)
+    mode: int
+    sm: ShadowMapParams
     sm_depth: wp.array2d(dtype=wp.float32)
-    sm_translucent: int  # pcf: 1 when the map has translucent casters (then read sm_layers)
-    sm_layers: TranslucentShadowDepths  # pcf with translucent casters (placeholders otherwise)
-    sm_bias: float  # depth bias (scene units)
-    filter_px: int  # PCF box width (texels)
-    contact: int  # 1: every receiver casts (no receiver_only material): contact PCF on the map's silhouette
-    msm: msm.MomentShadowParams  # moment shadow map (msm)
+    sm_translucent: int  # pcf: 1 to read sm_layers
+    sm_layers: TranslucentShadowDepths
+    sm_bias: float  # scene units
+    filter_px: int  # texels
+    contact: int  # 1: every receiver casts: contact PCF on the map's silhouette
+    msm: msm.MomentShadowParams
     msm_texels: wp.array3d(dtype=wp.vec4)
-    msm_mips: wp.array2d(dtype=wp.vec4)  # its mip chain ((C, 1) placeholder without one)
-    soft: soft.SoftShadowParams  # soft shadows (msm_soft, pcss)
-    sat: wp.array3d(dtype=wp.vec4ui)  # msm_soft's summed-area table
+    msm_mips: wp.array2d(dtype=wp.vec4)
+    soft: soft.SoftShadowParams
+    sat: wp.array3d(dtype=wp.vec4ui)
 
 
 @wp.func
 def surface_visibility(sh: SurfaceShadows, x: wp.vec3, n: wp.vec3, dx: wp.vec3, dy: wp.vec3) -> wp.vec3:
-    """RGB light visibility of surface point x (camera-facing normal n, pixel footprint dx, dy: the world vectors
-    to the neighbouring pixels' hits on x's tangent plane, read by mip-mapped ``msm``)."""
+    """RGB light visibility of surface point x (camera-facing normal n, pixel footprint dx, dy on its tangent plane)."""
     if sh.mode == SHADOW_PCF:
         # normal offset of one texel keeps lit surfaces out of their own shadow
         if sh.sm_translucent != 0:
@@ -94,11 +78,11 @@ def prepare_shadows(scene, shadow_map, settings: ShadowsSettings, *, bias_texels
         shadow_map: the light's :class:`~warpscatter.shadows.shadow_map.ShadowMap` (None: no shadows).
         settings: :class:`~warpscatter.shadows.settings.ShadowsSettings` (``render.shadows``).
         bias_texels: depth bias in texel sizes (``render.scattering.shadow_map.bias``).
-        timer: the :class:`~warpscatter.stages.StageTimer` (moment maps and summed-area tables get stages).
+        timer: the :class:`~warpscatter.stages.StageTimer`.
         device: Warp device.
 
     Returns:
-        (SurfaceShadows, info): the struct and a dict of statistics (method, map sizes).
+        (SurfaceShadows, info dict of statistics).
     """
     device = default_device(device)
     mode = SHADOW_MODES[settings.method] if shadow_map is not None else SHADOW_NONE
@@ -118,7 +102,7 @@ def prepare_shadows(scene, shadow_map, settings: ShadowsSettings, *, bias_texels
         sh.sm_layers.depth = sh.sm_layers.opaque = sh.sm_layers.transmittance = sh.sm_depth
     sh.sm_bias = float(bias)
     sh.filter_px = int(settings.filter_px)
-    # receiver_only receivers are not in the map: an empty texel next to them may be lit ground, not their outline
+    # with receiver_only materials an empty texel may be lit ground, not an outline
     sh.contact = int(scene is not None and bool(scene.caster_mask().all()))
     sh.msm = msm.MomentShadowParams()
     sh.msm_texels = wp.zeros((1, 1, 1), dtype=wp.vec4, device=device)

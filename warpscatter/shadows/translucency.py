@@ -1,21 +1,6 @@
-"""Translucent casters in depth maps: what a light ray passes before its first opaque caster (Peters et al. 2017
-Sec. 3.2's transmittance model, for the maps that hold depths rather than moments).
-
-Along a light ray the casters at depths z_0 < z_1 < ... with opacities alpha_k pass the fraction
-prod_{k: z_k < z} (1 - alpha_k) of the light to depth z. Moment shadow maps blend that into one moment vector
-(:mod:`.msm`). The plain shadow map, the marchers that read it and the rectified maps of the prefiltered methods keep
-depths instead, so they keep per texel the depth distribution with TWO depths
-
-    Z = (1 - T) delta_{z_n} + T delta_{z_o},
-
-z_n the nearest caster of any kind, z_o the nearest OPAQUE caster (+inf: none) and T the product of 1 - alpha of the
-translucent casters in front of z_o: visibility is 1 before z_n, T between z_n and z_o, 0 behind z_o. It is exact
-while a texel's translucent casters lie at one depth (one surface, or a thin slab's two faces); between two translucent
-surfaces far apart it already applies both (the depth range between them is darker than it should be).
-
-Materials with opacity >= :data:`OPAQUE_ALPHA` are opaque; below :data:`ALPHA_TEST` they cast nothing (the alpha test
-of Peters 2017 Sec. 3.3). The translucent fragments are found by depth peeling in row bands of bounded memory
-(:func:`peel_row_bands`), shared with the moment shadow maps.
+"""Translucent casters in depth maps (Peters et al. 2017 Sec. 3.2's transmittance model, for maps of depths): per
+texel the two-depth distribution Z = (1 - T) delta_{z_n} + T delta_{z_o}, z_n the nearest caster, z_o the nearest
+OPAQUE one (+inf: none), T the transmittance prod (1 - alpha_k) in front of z_o. Fragments are found by depth peeling.
 """
 
 from __future__ import annotations
@@ -26,14 +11,13 @@ import warp as wp
 from ..raster import coverage_count, rasterize
 from ..scene import CASTER_ALPHA_TEST
 
-#: Alpha test of Peters 2017 Sec. 3.3: translucent fragments with an opacity below 1% are discarded
-#: (:data:`~warpscatter.scene.CASTER_ALPHA_TEST`: such materials are no casters at all).
+#: Alpha test of Peters 2017 Sec. 3.3: fragments with a lower opacity are discarded.
 ALPHA_TEST = wp.constant(CASTER_ALPHA_TEST)
 #: Opacities at or above this are opaque (rendered into the opaque depth pass).
 OPAQUE_ALPHA = 1.0
 #: Memory budget of the depth-peeled translucent layers: a view is peeled in row bands this size.
 TRANSLUCENT_BAND_BYTES = 256 * 2**20
-#: Bytes per peeled sample and layer (int64 key, float32 depth, int32 triangle, merge buffers).
+#: Bytes per peeled sample and layer.
 PEEL_BYTES = 24
 #: Most translucent layers peeled per texel by default (beyond them the farthest are dropped).
 DEFAULT_MAX_LAYERS = 16
@@ -62,13 +46,11 @@ def peel_row_bands(vertices, triangles, view_proj, width: int, height: int, *, m
                    row_multiple: int = 1, clamp_depth: bool = False, clip_near: bool | None = None, device=None):
     """Depth-peel a mesh in row bands of at most :data:`TRANSLUCENT_BAND_BYTES`.
 
-    Each band holds as many layers as its deepest pixel has fragments (a coverage count first), at most
-    ``max_layers``, so the order is exact per pixel up to that count. Band heights are multiples of ``row_multiple``
-    (whole texels of a supersampled view).
+    Each band peels as many layers as its deepest pixel has fragments (at most ``max_layers``); band heights are
+    multiples of ``row_multiple``.
 
     Yields:
-        (y0, y1, k, result): the band's rows [y0, y1), its layer count k (0: no fragment, then ``result`` is None)
-        and the :class:`~warpscatter.raster.RasterResult` of its k layers, nearest first.
+        (y0, y1, k, result): rows [y0, y1), layer count k and their RasterResult, nearest first (None if k = 0).
     """
     counts = coverage_count(vertices, triangles, view_proj, width, height, clamp_depth=clamp_depth,
                             clip_near=clip_near, device=device)
@@ -89,8 +71,7 @@ def peel_row_bands(vertices, triangles, view_proj, width: int, height: int, *, m
 def translucent_depths(vertices, triangles, opacity, view_proj, width: int, height: int, *,
                        max_layers: int = DEFAULT_MAX_LAYERS, clamp_depth: bool = False, clip_near: bool | None = None,
                        device=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The two-depth distribution of every pixel of a view (module doc): NDC depths of the nearest caster and of the
-    nearest opaque caster, and the transmittance of the translucent casters in front of the latter.
+    """The two-depth distribution (module doc) of every pixel of a view.
 
     Args:
         vertices, triangles: the casters (as :func:`~warpscatter.raster.rasterize` takes them).
@@ -100,8 +81,7 @@ def translucent_depths(vertices, triangles, opacity, view_proj, width: int, heig
         device: Warp device.
 
     Returns:
-        (nearest, opaque, transmittance): (height, width) float32 each; NDC depths +inf where empty, transmittance 1
-        where no translucent caster lies in front of the opaque one.
+        (nearest, opaque, transmittance): (height, width) float32; NDC depths +inf where empty.
     """
     tris = np.asarray(triangles)
     a = np.asarray(opacity, np.float64)

@@ -1,21 +1,7 @@
-"""Planar casters whose shadows fall where the camera sees nothing (warpscatter's, not in the papers).
-
-A plane lit from one side shadows only points on its other side, and of those only the ones whose light ray crosses
-the plane inside the material's extent. When the camera lies on the lit side and every view ray (from the camera to
-its G-buffer distance: the stretch the scattering integral covers, and the surface point the shading shadows) either
-stays on that side or passes it beyond the material's bounding box (seen along the light: the view rays past the
-edge of a finite ground, down to the far plane), the plane darkens nothing in the image: a ground plane under
-everything seen. Left in the light's maps it only costs: a directional map is fitted to the casters, so an 80 m
-ground spreads 1024 texels over 80 m where the colonnade's pillars alone get 4x finer ones
-(``configs/colonnade_fourier.yaml`` at 1280x720: fourier's rel. L1 against the exact marcher 2.67 -> 1.79 %, the
-grey fringe beside the sun gone), and its own depth sits just behind every ground pixel in the map's filters.
-
-The test is conservative: a plane is kept whenever a view ray's stretch behind it may reach the material's
-axis-aligned box along the light, and a plane edge-on to the light (or through a spot's position) is kept.
-
-:func:`without_unseen_planes` marks such materials ``receiver_only`` (:class:`~warpscatter.scene.Scene`) in the
-scene the light's maps are built from (``render.scattering.shadow_map.skip_unseen_planes``). The exact-visibility
-BVH keeps them: they block no visible point's light, so the reference is the same either way.
+"""Planar casters whose shadows fall where the camera sees nothing (warpscatter's, not in the papers): such a plane
+(a ground under everything seen) only costs shadow-map resolution, so :func:`without_unseen_planes` marks it
+``receiver_only`` in the scene the light's maps are built from (``render.scattering.shadow_map.skip_unseen_planes``).
+The test is conservative; exact visibility keeps every plane. Rationale and figures: docs/design/shadows-scene.md.
 """
 
 from __future__ import annotations
@@ -37,15 +23,12 @@ module_options()
 PLANE_TOLERANCE = 1e-5
 #: Triangles of a material tested first: a curved mesh is told from a plane without reading all of it.
 PLANE_PROBE_TRIANGLES = 64
-#: View points this far behind a plane (relative to the longest view ray plus the scene's size) still count as on
-#: it: the plane's own pixels, whose G-buffer distance carries float32 rounding.
+#: Relative distance behind a plane still counted as on it (float32 rounding of its own pixels' distances).
 SIDE_TOLERANCE = 1e-4
 
 
 def caster_planes(scene) -> list[tuple[int, np.ndarray, float, np.ndarray, np.ndarray]]:
-    """(material k, unit normal n, offset d, box min, box max) of every casting material whose triangles all lie in
-    one plane n . x + d = 0, with the axis-aligned box of its vertices (scene units;
-    :meth:`~warpscatter.scene.Scene.caster_mask`)."""
+    """(material k, unit normal n, offset d, box min, box max) of every planar casting material n . x + d = 0."""
     mask = scene.caster_mask()
     vertices = np.asarray(scene.vertices)
     planes = []
@@ -53,7 +36,7 @@ def caster_planes(scene) -> list[tuple[int, np.ndarray, float, np.ndarray, np.nd
         tris = np.flatnonzero(mask & (scene.tri_material == k))
         if not len(tris):
             continue
-        plane = triangles_plane(vertices, scene.triangles[tris[:PLANE_PROBE_TRIANGLES]])  # curved meshes fail here
+        plane = triangles_plane(vertices, scene.triangles[tris[:PLANE_PROBE_TRIANGLES]])
         if plane is not None and len(tris) > PLANE_PROBE_TRIANGLES:
             plane = triangles_plane(vertices, scene.triangles[tris])
         if plane is not None:
@@ -62,10 +45,8 @@ def caster_planes(scene) -> list[tuple[int, np.ndarray, float, np.ndarray, np.nd
 
 
 def triangles_plane(vertices: np.ndarray, tris: np.ndarray):
-    """(unit normal n, offset d, box min, box max) of the plane n . x + d = 0 holding every corner of triangles
-    ``tris`` (within :data:`PLANE_TOLERANCE` of their extent), with the corners' box; None if they are not coplanar
-    or have no area."""
-    v = np.asarray(vertices[tris], np.float64)  # (T, 3 corners, 3)
+    """(unit normal n, offset d, box min, box max) of the plane holding triangles ``tris``; None if not coplanar."""
+    v = np.asarray(vertices[tris], np.float64)
     normals = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
     areas = np.linalg.norm(normals, axis=1)
     if not len(areas) or areas.max() <= 0.0:
@@ -80,9 +61,7 @@ def triangles_plane(vertices: np.ndarray, tris: np.ndarray):
 
 
 def lit_side(light, n: np.ndarray, d: float, scale: float) -> float:
-    """+1 or -1: the side of plane (n, d) the light comes from (a directional light's -direction; a spot or point
-    light's position); 0 where the plane holds the light (edge-on to a directional light, or through the light's
-    position): it casts no shadow region to test."""
+    """+1 or -1: the side of plane (n, d) the light comes from; 0 where the plane holds the light."""
     if isinstance(light, DirectionalLight):
         s = -float(n @ light.direction)
         return 0.0 if abs(s) < 1e-6 else float(np.sign(s))
@@ -92,8 +71,7 @@ def lit_side(light, n: np.ndarray, d: float, scale: float) -> float:
 
 @wp.func
 def along_light_to_plane(x: wp.vec3, n: wp.vec3, d: float, directional: int, light: wp.vec3) -> wp.vec3:
-    """Where the light ray through x meets plane n . p + d = 0: along a directional light's travel direction
-    ``light``, or on the line from a spot or point light's position ``light`` (x on the side away from it)."""
+    """Where the light ray through x meets plane n . p + d = 0 (``light``: travel direction or light position)."""
     if directional != 0:
         return x - light * ((wp.dot(n, x) + d) / wp.dot(n, light))
     t = -(wp.dot(n, light) + d) / wp.dot(n, x - light)
@@ -122,9 +100,8 @@ def segment_meets_box(a: wp.vec3, b: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool:
 def plane_shadow_seen_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32), n: wp.vec3, d: float,
                              camera_side: float, tol: float, directional: int, light: wp.vec3, box_lo: wp.vec3,
                              box_hi: wp.vec3, seen: wp.array(dtype=wp.int32), offset: int):
-    """seen[row] = 1 where a pixel's view ray ends behind the plane (n, d), whose normal n points to the light's
-    side, and the stretch behind it, carried along the light onto the plane, meets the material's box. One thread
-    per row; a row whose rays all run away from the plane's far side is skipped whole."""
+    """seen[row] = 1 where a view ray ends behind plane (n, d) (n towards the light) and its stretch behind the
+    plane, carried along the light onto it, meets the material's box. One thread per row."""
     j = wp.tid() + offset
     a = wp.dot(n, cam.right)
     b = wp.dot(n, cam.up)
@@ -139,8 +116,7 @@ def plane_shadow_seen_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.fl
         rate = (xn * a + yn * b + c) * inv_length  # the lit-side distance gained per unit along the ray
         s = distance[j, i]
         if camera_side + s * rate < -tol:
-            # the ray crosses the plane at `cross` (past the material's edge, or the G-buffer would have stopped it
-            # there) and ends behind it; along the light that stretch lands on the segment cross -> end'
+            # the stretch behind the plane, carried along the light, is the segment cross -> end'
             direction = (xn * cam.right + yn * cam.up + cam.forward) * inv_length
             cross = cam.position + (camera_side / -rate) * direction
             end = along_light_to_plane(cam.position + s * direction, n, d, directional, light)
@@ -151,8 +127,7 @@ def plane_shadow_seen_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.fl
 
 def plane_shadow_seen(scene, distance: wp.array, n: np.ndarray, d: float, box_lo: np.ndarray, box_hi: np.ndarray,
                       tol: float) -> bool:
-    """True if plane (n, d), with ``n`` turned to the light's side, may shadow a point of some view ray (module doc):
-    the camera lies behind it, or :func:`plane_shadow_seen_kernel` finds a ray."""
+    """True if plane (n, d), ``n`` towards the light, may shadow a point of some view ray."""
     cam = scene.camera
     camera_side = float(n @ cam.position) + d
     if camera_side < -tol:
@@ -170,13 +145,12 @@ def plane_shadow_seen(scene, distance: wp.array, n: np.ndarray, d: float, box_lo
 
 
 def without_unseen_planes(scene, distance: wp.array) -> tuple[object, list[int]]:
-    """``scene`` with every planar caster that shadows nothing the camera sees marked ``receiver_only`` (module
-    doc), and the materials (= ``scene.meshes`` entries) so marked.
+    """``scene`` with every planar caster that shadows nothing the camera sees marked ``receiver_only``, and the
+    materials so marked.
 
     Args:
         scene: a :class:`~warpscatter.scene.Scene` with a directional, spot or point light.
-        distance: the (H, W) float32 G-buffer distances (scene units along each pixel's unit ray, CONVENTIONS'
-            ``s``), a Warp array on the device the test runs on.
+        distance: the (H, W) float32 G-buffer distances (scene units, CONVENTIONS' ``s``) as a Warp array.
     """
     planes = caster_planes(scene)
     if not planes:
@@ -189,7 +163,7 @@ def without_unseen_planes(scene, distance: wp.array) -> tuple[object, list[int]]
         side = lit_side(scene.light, n, d, scale)
         if side == 0.0:
             continue
-        if tol is None:  # float32 rounding of the G-buffer's distances, of the plane's own pixels above all
+        if tol is None:
             tol = SIDE_TOLERANCE * (float(distance.numpy().max()) + scale)
         if not plane_shadow_seen(scene, distance, side * n, side * d, box_lo, box_hi, tol):
             unseen.append(k)

@@ -1,55 +1,19 @@
-"""Projective rectification of a directional light's shadow map (Klehm 2014 Sec. 4.2, Eq. 12).
+"""Projective rectification of a directional light's shadow map (Klehm 2014 Sec. 4.2, Fig. 4, Eq. 12).
 
-Klehm's "linear" rectification replaces the light's view-projection by ONE 4x4 matrix, so the scene
-is rasterized straight into the rectified shadow map (no resampling) and a world point reaches
-rectified space with a matrix product, as in ordinary shadow mapping. Construction (Klehm 2014
-Sec. 4.2, Fig. 4):
+ONE 4x4 matrix replaces the light's view-projection, so the scene is rasterized straight into the rectified map:
+light view space at the camera position (z = the direction the light TRAVELS, CONVENTIONS.md), rotated about z so
+the bisectrix of the projected frustum corners is +x, then a perspective projection ALONG x with the camera as
+centre. A camera view ray then lies in one row (slope y/x) at one depth (slope z/x) and runs along the columns.
 
-1. light view space with its origin at the camera position, z = the direction the light TRAVELS
-   (CONVENTIONS.md), any x/y completion;
-2. the camera frustum corners projected along the light (their x, y); the two 2D vectors from the
-   camera that span the largest angle give the 2D bisectrix, which is lifted to 3D with z = 0;
-3. the light view is rotated about z so that the bisectrix is the +x axis ("runs left to right");
-4. a perspective projection ALONG x with the camera as centre of projection: near / far = min / max x
-   of the eight frustum corners, left/right = min/max slope y/x, bottom/top = min/max slope z/x of
-   the corners (left = -right by the bisectrix, bottom/top may be skewed).
+Rectified coordinates (as :mod:`.spherical`): u = f (x - n) / ((f - n) x) in [0, 1] (texel i centred at
+(i + 0.5) / cols); v = (s_hi - y/x) / (s_hi - s_lo), row 0 at NDC y = +1; depth = normalised z/x in [0, 1] growing
+along the light, its bounds stretched by the guard band. Depth is clamped when rasterizing (NV_DEPTH_CLAMP), so
+casters before the frustum land at depth 0.
 
-In that space a camera view ray q = t (a, b, c) keeps the slopes y/x = b/a and z/x = c/a, so it lies
-in ONE row (the epipolar slice y/x) at ONE depth (z/x) and runs along the columns from the camera
-outward; a light ray keeps x and y (one texel) while z/x grows along the light (shadow-map depth).
-Rectified coordinates (the same convention as :mod:`.spherical`, so one evaluation serves both):
-
-* u = column coordinate in [0, 1]: the projective depth of x, u = f (x - n) / ((f - n) x) (NDC x
-  of the matrix mapped to [0, 1]); texel i has its centre at u = (i + 0.5) / cols;
-* v = row coordinate in [0, 1], v = (s_hi - y/x) / (s_hi - s_lo): row 0 is NDC y = +1, the top row
-  of the rasterized image;
-* depth = (z/x - zeta_lo) / (zeta_hi - zeta_lo) in [0, 1] growing along the light; the slope bounds
-  are stretched by the guard band (as for the non-linear rectification) so that frustum rays stay
-  off the periodic discontinuity of the Fourier step at depth differences of +-1.
-
-Rasterization clamps depth (NV_DEPTH_CLAMP in the paper), so casters between the light and the
-frustum land at depth 0 and cast the same shadows; only the part behind the centre of projection
-(x <= 0) is clipped (:func:`warpscatter.raster.rasterize` with ``clip_near=False``).
-
-Non-uniform columns: x grows hyperbolically with u, so the world step per texel along a view ray
-varies along the row. Klehm 2014 Eq. 12 models it as a constant growth factor d per texel, found
-from the first three texel centres of a row; since the step of a projective map really grows like
-x^2, :func:`column_lengths` offers the exact per-texel lengths as well (``model="exact"``).
-
-Light-frustum regions (Klehm 2014 Sec. 4.2, end, after split shadow maps): ``regions`` = R > 1 cuts
-the light frustum along x into regions of geometrically increasing size, [n (f/n)^(k/R),
-n (f/n)^((k+1)/R)], each rendered with its own projection into its own block of cols/R columns (same
-rows and depth slopes, so a view ray keeps its row and depth across regions). This counters the x^2
-growth of the texel size, which is severe because n lies on the camera's near plane: f/n is ~1000
-for near = 0.1 and far = 100, and with R = 1 the last column alone covers x in [f/2, f]. The relative
-texel size at a region's far end is R ((f/n)^(1/R) - 1) / cols: 1041/cols for R = 1, 11/cols for R = 8
-(the limit for R -> inf is ln(f/n) / cols). The prefilter's own split regions (Sec. 3.3) are
-independent of these (see :mod:`warpscatter.scattering.prefiltered`).
-
-The projection degenerates when a view ray is parallel to the light, i.e. when the light's epipole
-(or anti-epipole) lies in the image; Klehm then falls back to the resampled (non-linear)
-rectification and also does so for close-to-degenerate cases, detected by the distance of the
-epipole to the screen border (:func:`choose_rectification`).
+Columns are non-uniform (world steps grow like x^2): :func:`column_lengths` gives Klehm's Eq. 12 growth factor or
+the exact lengths. ``regions`` = R > 1 cuts the light frustum along x into geometric regions, each with its own
+projection and block of cols/R columns, against that growth (f/n ~ 1000 with the near plane as n). The projection
+degenerates when an epipole lies in the image: :func:`choose_rectification` then takes the non-linear one.
 """
 
 from __future__ import annotations
@@ -147,11 +111,8 @@ def rectified_ray_depth(rect: ProjectiveRectParams, direction: wp.vec3) -> float
 
 
 def projection_matrix(near: float, far: float, s_lo: float, s_hi: float, zeta_lo: float, zeta_hi: float) -> np.ndarray:
-    """Perspective projection ALONG x (Klehm 2014 Sec. 4.2): light view (x, y, z) -> clip (X, Y, Z, W = x).
-
-    X/W = (f + n)/(f - n) - 2 f n / ((f - n) x) maps x = n, f to -1, +1; Y/W maps the slope y/x from
-    [s_lo, s_hi] to [-1, 1]; Z/W maps the slope z/x from [zeta_lo, zeta_hi] to [-1, 1].
-    """
+    """Perspective projection ALONG x (Klehm 2014 Sec. 4.2): light view (x, y, z) -> clip (X, Y, Z, W = x), mapping
+    x in [n, f], y/x in [s_lo, s_hi] and z/x in [zeta_lo, zeta_hi] to [-1, 1]."""
     m = np.zeros((4, 4))
     m[0, 0] = (far + near) / (far - near)
     m[0, 3] = -2.0 * far * near / (far - near)
@@ -363,17 +324,8 @@ class ProjectiveRectification:
         return self.s_hi - (np.arange(self.rows) + 0.5) / self.rows * (self.s_hi - self.s_lo)
 
     def slice_depth_slope_range(self, slope) -> tuple[np.ndarray, np.ndarray]:
-        """Range [zeta_lo, zeta_hi] of the depth slope z/x of the frustum's view rays in the slice(s) y/x = ``slope``.
-
-        The slice plane through the camera and the light direction cuts the frustum's cone of directions in
-        a 2D cone whose boundary rays cross the far-plane edges; slices that miss it get the global bounds.
-
-        Args:
-            slope: row slopes y/x, any shape.
-
-        Returns:
-            (lo, hi) arrays of the slope's shape (unguarded).
-        """
+        """Unguarded range (lo, hi) of the depth slope z/x of the frustum's view rays in the slice(s) y/x = ``slope``
+        (any shape); slices that miss the frustum's cone of directions get the global bounds."""
         s = np.asarray(slope, dtype=np.float64)
         quad = self.corners[4:][[0, 1, 3, 2]]  # far-plane corners in cyclic order
         lo = np.full(s.shape, np.inf)
@@ -399,19 +351,15 @@ class ProjectiveRectification:
 
 def rasterize_rectified(rect: ProjectiveRectification, vertices, triangles, *, opacity=None, device=None,
                         threads: int | None = None):
-    """Rasterize a triangle mesh straight into the rectified blocker-depth map (Klehm 2014 Sec. 4.2).
-
-    One pass per light-frustum region with that region's matrix (:meth:`ProjectiveRectification.world_to_clip`),
-    depth clamping and no near-plane clipping: casters between the light and the frustum stay in the
-    map at depth 0, casters behind it at depth 1. Empty texels hold 1 (no blocker).
+    """Rasterize a triangle mesh straight into the rectified blocker-depth map (Klehm 2014 Sec. 4.2): one pass per
+    region, depth clamped, no near-plane clipping. Empty texels hold 1 (no blocker).
 
     Args:
         rect: the rectification (its rows x cols is the output size).
         vertices: (N, 3) world positions (numpy or ``wp.array(dtype=wp.vec3)``).
         triangles: (T, 3) vertex indices.
-        opacity: None (all opaque) or (T,) opacity per triangle: with translucent casters each texel holds the
-            two-depth distribution of :mod:`warpscatter.shadows.translucency` (nearest caster, nearest opaque
-            caster, the light share T passing to the latter), found by depth peeling in each region.
+        opacity: None (all opaque) or (T,) opacity per triangle: each texel then holds the two-depth distribution of
+            :mod:`warpscatter.shadows.translucency`, found by depth peeling.
         device: Warp device.
         threads: CPU worker threads of the rasterizer.
 
@@ -449,12 +397,8 @@ def rasterize_rectified(rect: ProjectiveRectification, vertices, triangles, *, o
 
 
 def cross_ratio_factors(rect: ProjectiveRectification) -> tuple[np.ndarray, np.ndarray]:
-    """Growth factor d and first step of every light-frustum region (Klehm 2014 Sec. 4.2, Eq. 12).
-
-    As in the paper, the first three texel centres of a row (of each region) are taken to world space at
-    one common depth, and d is the ratio of the two distances between them; the step between the first
-    two centres is the region's first world step. In light-view x (world distances of one view ray are
-    x / x_direction, so d does not depend on the row or the depth).
+    """Growth factor d and first step of every light-frustum region (Klehm 2014 Sec. 4.2, Eq. 12): the ratio of the
+    distances between a row's first three texel centres at one depth (independent of row and depth in light-view x).
 
     Returns:
         (d, first_step): (regions,) float64 arrays; first_step in light-view x units.
@@ -475,10 +419,8 @@ def column_lengths(rect: ProjectiveRectification, model: str = "exact") -> np.nd
 
     Args:
         rect: the rectification.
-        model: ``"exact"`` X(i + 1) - X(i) of the projective map; ``"cross_ratio"`` Klehm 2014 Eq. 12:
-            Delta d^i within each light-frustum region (i counted from the region's first column), with d and
-            Delta from :func:`cross_ratio_factors`. Eq. 12 assumes a constant growth factor; the true
-            growth of a projective map increases along the row (steps grow like x^2).
+        model: ``"exact"`` X(i + 1) - X(i) of the projective map; ``"cross_ratio"`` Klehm 2014 Eq. 12, Delta d^i
+            within each region (:func:`cross_ratio_factors`), which assumes a constant growth factor.
 
     Returns:
         (cols,) float64 positive widths.
@@ -503,12 +445,8 @@ def column_lengths(rect: ProjectiveRectification, model: str = "exact") -> np.nd
 
 
 def epipole_distance(camera, light_direction) -> tuple[float, str]:
-    """Distance of the light's epipoles from the image, in half image heights on the image plane.
-
-    The epipole is where view rays towards the light (-L) meet the image plane; the anti-epipole where rays
-    along the light (+L) do. Only those in front of the camera count. The image plane is measured in NDC y
-    units (x scaled by the aspect ratio, so distances are isotropic); 0 means inside the image, +inf that
-    no epipole lies in front (the light travels parallel to the image plane).
+    """Distance of the light's epipoles (of -L and +L, in front of the camera) from the image, in half image heights
+    on the image plane (NDC y units; 0: inside the image, +inf: none in front).
 
     Returns:
         (distance, name) with name ``"light"``, ``"anti-light"`` or ``"none"``.
@@ -542,15 +480,9 @@ def choose_rectification(camera, light_direction, requested: str = "auto",
                          margin: float = EPIPOLE_MARGIN, weights_per_ray: bool = False) -> RectificationChoice:
     """Pick the projective or the non-linear rectification (Klehm 2014 Sec. 4.2).
 
-    The projective construction fails when a view ray is parallel to the light (epipole in the image) and
-    degrades as the epipole approaches the image border (the projected frustum spans nearly 180 degrees
-    around the light axis: the row and depth slopes and the column non-linearity blow up). Klehm detects
-    such close-to-degenerate cases by the distance of the epipole to the screen border. ``auto`` uses the
-    projective rectification when every epipole in front of the camera lies at least ``margin`` half image
-    heights outside the image, else the non-linear (resampled) one; with ``weights_per_ray`` (the look-ups weight
-    each view ray by its own transmittance, which the projective map's uneven columns cannot) always the non-linear
-    one. A requested ``projective`` that is impossible (epipole inside the image) falls back to ``nonlinear`` with a
-    warning.
+    ``auto`` takes projective when every epipole in front of the camera lies at least ``margin`` half image heights
+    outside the image (nearer, its slopes blow up), else non-linear; with ``weights_per_ray`` always non-linear (the
+    projective map's uneven columns cannot weight each ray). An impossible ``projective`` falls back with a warning.
 
     Args:
         camera: the camera.

@@ -161,10 +161,7 @@ def reference_ray(rect: NonlinearRectification, method: str = "optimal", camera=
 
 
 #: Share of the rows in the running median over the per-row pixel-median reference rays (``reference_ray:
-#: pixels``): 9 of 1024 rows. Measured on colonnade_fourier with one segment per ray at 640x360 (1024 rows): the
-#: largest jump of a row's reference inclination from its neighbours' 31 deg without (a horizontal line left of the
-#: sun), 5.8 deg over 5 rows, 2.2 deg over 9, 1.7 over 15; rel. L1 (colonnade / canopy / window) 8.05 / 2.23 / 32.8 %
-#: -> 7.98 / 2.22 / 32.7 % over 9 rows.
+#: pixels``): 9 of 1024 rows, against one odd row's reference drawing a line in the image.
 PIXEL_MEDIAN_SHARE = 9.0 / 1024.0
 
 
@@ -177,8 +174,6 @@ def _pixel_median_inclination(rect: NonlinearRectification, camera, stride: int,
     theta_ref = median_per_row(row, np.sin(theta), theta, rect.rows, default)
     # a running median over neighbouring rows: near the epipole a slice holds a few sampled pixels (or none: the
     # default), and one odd reference ray among its neighbours gives the row its own weights, a line in the image
-    # (colonnade_fourier with one segment per ray: a horizontal line left of the sun, -60 % on 3 pixel rows at
-    # 640x360)
     half = int(round(0.5 * (PIXEL_MEDIAN_SHARE * rect.rows - 1.0)))
     if half < 1:
         return theta_ref
