@@ -158,7 +158,7 @@ _BVHS_LOCK = threading.RLock()
 def cached_bvh(vertices, triangles, device: str | None = None) -> wp.Mesh:
     """:func:`build_mesh` of host geometry, reused while the same geometry (by digest) comes back on the same device;
     nothing refits a BVH, so a shared one never changes."""
-    from .csm.compress import geometry_digest
+    from .scene.meshes import geometry_digest
 
     device = default_device(device)
     key = (geometry_digest(vertices, triangles), str(device))

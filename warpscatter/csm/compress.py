@@ -16,7 +16,6 @@ N - 1) and ``seg_start`` (M^2 + 1 int32): texel t owns segments [seg_start[t], s
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import time
@@ -30,6 +29,7 @@ import warp as wp
 
 from .. import parallel
 from ..errors import InputFileError
+from ..scene.meshes import geometry_digest  # noqa: F401  (the digest a CSM file records)
 from ..wpinit import default_device, module_options
 from .depthmaps import DEPTH_LAYERS, FAR_MODES, CubeMapSet, LatLongMapSet, latlong_frames
 from .enumeration import ENUMERATIONS, enumerate_grid, sequence_index
@@ -51,16 +51,6 @@ MAX_CSM_BYTES = 4 * 2**30
 
 class CSMFileError(InputFileError):
     """A CSM file cannot be read or is inconsistent (an InputFileError: a user error, CLI exit code 2)."""
-
-
-def geometry_digest(vertices, triangles) -> str:
-    """SHA-256 (hex) of a mesh as float32 vertices and int32 triangles, so a render refuses another mesh's CSM."""
-    h = hashlib.sha256()
-    h.update(np.ascontiguousarray(np.asarray(vertices, np.float32)).tobytes())
-    h.update(np.ascontiguousarray(np.asarray(triangles, np.int32)).tobytes())
-    return h.hexdigest()
-
-
 
 
 @wp.func
@@ -90,8 +80,6 @@ class StreamState:
     out_depth: wp.array2d(dtype=wp.float32)  # (M^2, max_batch + 1): z_avg of the segments a batch closed
     out_end: wp.array2d(dtype=wp.int32)  # same shape: their i_end
     out_count: wp.array(dtype=wp.int32)  # segments the batch closed per texel
-
-
 
 
 @wp.kernel
@@ -136,8 +124,6 @@ def compress_batch_kernel(
     state.lo[t] = lo
     state.hi[t] = hi
     state.out_count[t] = n
-
-
 
 
 def _check_count(name: str, value) -> int:
@@ -382,8 +368,6 @@ def compress_depth_maps(z_lo, z_hi, batch_maps: int = 64, device: str | None = N
     for s in range(0, n, comp.max_batch):
         comp.push(lo[s: s + comp.max_batch], hi[s: s + comp.max_batch])
     return comp.finish()
-
-
 
 
 @dataclass

@@ -29,6 +29,8 @@ import numpy as np
 import warp as wp
 
 from .. import parallel, raster
+from ..scene.environment_map import latlong_param  # noqa: F401  (public here as well: the maps' inverse mapping)
+from ..scene.lights import light_grid_params, parallelogram_light_samples, segment_light_samples  # noqa: F401
 from ..wpinit import default_device, module_options
 from .enumeration import ENUMERATIONS, enumerate_grid, sequence_index
 from .settings import FAR_MODES
@@ -59,22 +61,6 @@ def latlong_direction(u: float, v: float) -> wp.vec3:
     theta = wp.pi * v
     st = wp.sin(theta)
     return wp.vec3(st * wp.cos(phi), wp.cos(theta), st * wp.sin(phi))
-
-
-@wp.func
-def latlong_param(d: wp.vec3) -> wp.vec2:
-    """Inverse lat-long mapping: direction (any length > 0) -> (u, v) in [0, 1) x [0, 1]."""
-    n = wp.length(d)
-    y = 1.0
-    if n > 0.0:
-        y = wp.clamp(d[1] / n, -1.0, 1.0)
-    phi = wp.atan2(d[2], d[0])
-    if phi < 0.0:
-        phi = phi + 2.0 * wp.pi
-    u = phi / (2.0 * wp.pi)
-    if u >= 1.0:
-        u = 0.0
-    return wp.vec2(u, wp.acos(y) / wp.pi)
 
 
 @wp.func
@@ -423,29 +409,6 @@ def cube_face_frames() -> np.ndarray:
         right /= np.linalg.norm(right)
         out[k] = [right, np.cross(right, f), f]
     return out
-
-
-def light_grid_params(n1: int, n2: int) -> np.ndarray:
-    """Parameters (s, t) in [0, 1]^2 of the centres of an n1 x n2 light-sample grid, (n2, n1, 2)."""
-    s = (np.arange(n1) + 0.5) / n1
-    t = (np.arange(n2) + 0.5) / n2
-    return np.stack(np.meshgrid(s, t), axis=-1)
-
-
-def segment_light_samples(p0, p1, n: int) -> np.ndarray:
-    """Sample points of a linear light (d = 1): n cell centres of the segment p0 -> p1, shape (1, n, 3)."""
-    n = _check_int("n", n, 1, 2**20)
-    s = light_grid_params(n, 1)[..., 0:1]
-    return np.asarray(p0, np.float64) + s * (np.asarray(p1, np.float64) - np.asarray(p0, np.float64))
-
-
-def parallelogram_light_samples(corner, edge_s, edge_t, n1: int, n2: int) -> np.ndarray:
-    """Sample points of an area light: the n1 x n2 cell centres of corner + s edge_s + t edge_t, (n2, n1, 3)."""
-    n1 = _check_int("n1", n1, 1, 2**15)
-    n2 = _check_int("n2", n2, 1, 2**15)
-    st = light_grid_params(n1, n2)
-    c = np.asarray(corner, np.float64)
-    return c + st[..., 0:1] * np.asarray(edge_s, np.float64) + st[..., 1:2] * np.asarray(edge_t, np.float64)
 
 
 @dataclass

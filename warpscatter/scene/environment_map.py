@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..csm.depthmaps import latlong_param
 from ..wpinit import default_device, module_options
 
 module_options()
@@ -30,6 +29,23 @@ class EnvData:
     texel_pdf: wp.array2d(dtype=wp.float32)  # (H, W) density in (u, v)
     marginal_guide: wp.array(dtype=wp.int32)
     conditional_guide: wp.array2d(dtype=wp.int32)
+
+
+@wp.func
+def latlong_param(d: wp.vec3) -> wp.vec2:
+    """Inverse lat-long mapping: direction (any length > 0) -> (u, v) in [0, 1) x [0, 1]."""
+    n = wp.length(d)
+    y = 1.0
+    if n > 0.0:
+        y = wp.clamp(d[1] / n, -1.0, 1.0)
+    phi = wp.atan2(d[2], d[0])
+    if phi < 0.0:
+        phi = phi + 2.0 * wp.pi
+    u = phi / (2.0 * wp.pi)
+    if u >= 1.0:
+        u = 0.0
+    return wp.vec2(u, wp.acos(y) / wp.pi)
+
 
 
 @wp.func

@@ -28,6 +28,39 @@ LOCAL_LIGHT_LINEAR = wp.constant(1)
 LOCAL_LIGHT_VOLUME = wp.constant(2)
 
 
+def _light_samples_count(name: str, value, hi: int) -> int:
+    """An integer sample count in [1, hi] (ValueError naming ``name`` otherwise)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    if not 1 <= int(value) <= hi:
+        raise ValueError(f"{name} must lie in [1, {hi}], got {value}")
+    return int(value)
+
+
+def light_grid_params(n1: int, n2: int) -> np.ndarray:
+    """Parameters (s, t) in [0, 1]^2 of the centres of an n1 x n2 light-sample grid, (n2, n1, 2)."""
+    s = (np.arange(n1) + 0.5) / n1
+    t = (np.arange(n2) + 0.5) / n2
+    return np.stack(np.meshgrid(s, t), axis=-1)
+
+
+def segment_light_samples(p0, p1, n: int) -> np.ndarray:
+    """Sample points of a linear light (d = 1): n cell centres of the segment p0 -> p1, shape (1, n, 3)."""
+    n = _light_samples_count("n", n, 2**20)
+    s = light_grid_params(n, 1)[..., 0:1]
+    return np.asarray(p0, np.float64) + s * (np.asarray(p1, np.float64) - np.asarray(p0, np.float64))
+
+
+def parallelogram_light_samples(corner, edge_s, edge_t, n1: int, n2: int) -> np.ndarray:
+    """Sample points of an area light: the n1 x n2 cell centres of corner + s edge_s + t edge_t, (n2, n1, 3)."""
+    n1 = _light_samples_count("n1", n1, 2**15)
+    n2 = _light_samples_count("n2", n2, 2**15)
+    st = light_grid_params(n1, n2)
+    c = np.asarray(corner, np.float64)
+    return c + st[..., 0:1] * np.asarray(edge_s, np.float64) + st[..., 1:2] * np.asarray(edge_t, np.float64)
+
+
+
 @dataclass(frozen=True)
 class DirectionalLight:
     """Directional light: unit ``direction`` of travel, RGB ``irradiance``."""
@@ -182,7 +215,6 @@ class AreaLight:
 
     def sample_points(self, n1: int, n2: int) -> np.ndarray:
         """(n2, n1, 3) cell centres: the sample points of its cube CSM (Sec. 4.2)."""
-        from ..csm.depthmaps import parallelogram_light_samples
 
         return parallelogram_light_samples(self.corner, self.u, self.v, n1, n2)
 
@@ -245,7 +277,6 @@ class LinearLight:
 
     def sample_points(self, n1: int, n2: int = 1) -> np.ndarray:
         """(1, n1, 3) cell centres of the segment: the sample points of its cube CSM (``n2`` is ignored)."""
-        from ..csm.depthmaps import segment_light_samples
 
         return segment_light_samples(self.start, self.end, n1)
 

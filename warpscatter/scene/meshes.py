@@ -9,6 +9,7 @@ raises :class:`MeshLoadError` (a user error, CLI exit code 2). Transforms (CONVE
 
 from __future__ import annotations
 
+import hashlib
 import io
 import os
 import struct
@@ -31,6 +32,14 @@ _TEXT_FORMATS = (".obj", ".off", ".gltf")
 class MeshLoadError(InputFileError):
     """A mesh file could not be read or holds no valid triangles (an InputFileError: CLI exit code 2)."""
 
+
+
+def geometry_digest(vertices, triangles) -> str:
+    """SHA-256 (hex) of a mesh as float32 vertices and int32 triangles, so a render refuses another mesh's CSM."""
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(np.asarray(vertices, np.float32)).tobytes())
+    h.update(np.ascontiguousarray(np.asarray(triangles, np.int32)).tobytes())
+    return h.hexdigest()
 
 
 @dataclass

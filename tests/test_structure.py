@@ -1,0 +1,136 @@
+"""The shape of the code (issue #51), kept when the next feature lands: kernels take a few structs, files stay short,
+and no module imports from a layer above its own.
+
+The layers, lowest first (docs/guide/architecture.md draws them). A module belongs to the layer of the longest
+prefix below that names it; a module that matches none fails :func:`test_every_module_has_a_layer`, so a new module
+is placed on purpose.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+#: Python package -> its source folder (the CLI installs as warpscatter.cli from the top-level cli/ folder).
+SOURCES = {"warpscatter": ROOT / "warpscatter", "warpscatter.cli": ROOT / "cli"}
+
+LAYERS: list[tuple[str, tuple[str, ...]]] = [
+    # what every layer may use: errors, validation types, Warp set-up, threads, timing, files and their metadata
+    ("runtime", ("warpscatter", "warpscatter.errors", "warpscatter.schema", "warpscatter.wpinit",
+                 "warpscatter.parallel", "warpscatter.fastmath", "warpscatter.heap", "warpscatter.stages",
+                 "warpscatter.resources", "warpscatter.metrics", "warpscatter.provenance", "warpscatter.imageio",
+                 "warpscatter.animation")),
+    # the techniques' settings models and the method registry: no Warp
+    ("settings", ("warpscatter.scattering.settings", "warpscatter.shadows.settings", "warpscatter.csm.settings",
+                  "warpscatter.methods")),
+    # camera, lights, medium, meshes on the host, and their kernel-side parameters
+    ("scene", ("warpscatter.scene",)),
+    # the scene on the device: rasterizer, ray casting, G-buffer
+    ("raster", ("warpscatter.scene.geometry", "warpscatter.raster", "warpscatter.raster_funcs",
+                "warpscatter.raster_scan", "warpscatter.raster_depth", "warpscatter.raster_inputs",
+                "warpscatter.raycast", "warpscatter.gbuffer")),
+    # the papers: shadow maps, single scattering, coherent shadow maps; surface shading
+    ("techniques", ("warpscatter.shadows", "warpscatter.scattering", "warpscatter.csm", "warpscatter.shading")),
+    # a whole config: the models composed, YAML and overrides
+    ("config", ("warpscatter.config", "warpscatter.config_files", "warpscatter.scene.light_configs",
+                "warpscatter.scene.mesh_configs")),
+    # config -> scene -> stages -> images and files
+    ("pipeline", ("warpscatter.pipeline",)),
+    # what users call: the API, animations, sweeps, executors, benchmarks, the gallery, the generated reference
+    ("runs", ("warpscatter.api", "warpscatter.jobs", "warpscatter.sequence", "warpscatter.sweep",
+              "warpscatter.gallery", "warpscatter.bench", "warpscatter.reference")),
+    ("cli", ("warpscatter.cli", "warpscatter.__main__")),
+]
+MAX_KERNEL_PARAMETERS = 12
+MAX_FILE_LINES = 800
+
+
+def _modules() -> list[tuple[str, Path]]:
+    out = []
+    for package, folder in SOURCES.items():
+        for path in sorted(folder.rglob("*.py")):
+            parts = path.relative_to(folder).with_suffix("").parts
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out.append((".".join((package, *parts)), path))
+    return out
+
+
+def layer_of(module: str) -> int | None:
+    """Index into :data:`LAYERS` of a module (the longest matching prefix), or None."""
+    best = None
+    for k, (_, prefixes) in enumerate(LAYERS):
+        for p in prefixes:
+            if (module == p or module.startswith(p + ".")) and (best is None or len(p) > best[1]):
+                best = (k, len(p))
+    return None if best is None else best[0]
+
+
+def imported_modules(module: str, path: Path) -> set[str]:
+    """The warpscatter modules ``module`` imports, at module level or inside functions."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+                names = [f"{target}.{a.name}" for a in node.names] if not node.module else [target]
+            else:
+                names = [node.module or ""]
+        elif isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        else:
+            continue
+        out.update(n for n in names if n == "warpscatter" or n.startswith("warpscatter."))
+    return out
+
+
+def _is_kernel(decorator: ast.expr) -> bool:
+    target = decorator.func if isinstance(decorator, ast.Call) else decorator
+    return isinstance(target, ast.Attribute) and target.attr == "kernel"
+
+
+def test_every_module_has_a_layer():
+    unplaced = [m for m, _ in _modules() if layer_of(m) is None]
+    assert not unplaced, f"place these modules in a layer of tests/test_structure.py: {unplaced}"
+
+
+def test_no_import_up_the_layers():
+    upward = []
+    for module, path in _modules():
+        own = layer_of(module)
+        for target in sorted(imported_modules(module, path)):
+            layer = layer_of(target)
+            if layer is not None and own is not None and layer > own:
+                upward.append(f"{module} ({LAYERS[own][0]}) imports {target} ({LAYERS[layer][0]})")
+    assert not upward, "imports up the layers:\n" + "\n".join(upward)
+
+
+def test_no_kernel_takes_more_than_12_parameters():
+    wide = []
+    for module, path in _modules():
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.FunctionDef) and any(_is_kernel(d) for d in node.decorator_list):
+                if len(node.args.args) > MAX_KERNEL_PARAMETERS:
+                    wide.append(f"{module}.{node.name}: {len(node.args.args)} parameters")
+    assert not wide, (f"kernels over {MAX_KERNEL_PARAMETERS} parameters (pass a few @wp.struct arguments, choose "
+                      "variants on the host or with wp.static):\n" + "\n".join(wide))
+
+
+def test_no_library_file_is_over_800_lines():
+    long = [f"{p.relative_to(ROOT)}: {n} lines" for _, p in _modules()
+            if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_FILE_LINES]
+    assert not long, f"files over {MAX_FILE_LINES} lines (split them by idea):\n" + "\n".join(long)
+
+
+@pytest.mark.parametrize(("module", "expected"), [
+    ("warpscatter.scene.camera", "scene"), ("warpscatter.scene.geometry", "raster"),
+    ("warpscatter.scattering.settings", "settings"), ("warpscatter.scattering.marching", "techniques"),
+    ("warpscatter.cli.render", "cli"), ("warpscatter", "runtime"),
+])
+def test_the_longest_prefix_decides_the_layer(module, expected):
+    assert LAYERS[layer_of(module)][0] == expected
