@@ -596,7 +596,7 @@ def test_packed_storage_renders_the_emulated_image(monkeypatch, method, setting,
 
     import warp as wp
 
-    from warpscatter.scattering import prefiltered
+    from warpscatter.scattering.prefiltered import prefilter
 
     @wp.kernel
     def emulate_rgba8(values: wp.array3d(dtype=float), out: wp.array3d(dtype=float)):
@@ -619,8 +619,8 @@ def test_packed_storage_renders_the_emulated_image(monkeypatch, method, setting,
             "render.scattering.prefiltered.splits=" + ("3" if method == "fourier" else "1"))
     packed, stats, _ = _render(*over)
     with monkeypatch.context() as mp:
-        mp.setattr(prefiltered, "prefilter_weighted", emulated_fourier)
-        mp.setattr(prefiltered, "prefilter_moments", emulated_moments)
+        mp.setattr(prefilter, "prefilter_weighted", emulated_fourier)
+        mp.setattr(prefilter, "prefilter_moments", emulated_moments)
         emulated, stats_e, _ = _render(*over)
     a, b = packed["scattering"], emulated["scattering"]
     assert a.dtype == b.dtype == np.float32 and np.array_equal(a.view(np.uint32), b.view(np.uint32))

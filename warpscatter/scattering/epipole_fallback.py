@@ -11,19 +11,15 @@ resolution.
 The march (:func:`~.marching.march_transmittance_strata`) places its ``epipole_steps`` strata at equal shares of the
 transmittance weight, not at equal lengths as the reference marcher (:mod:`.marching`) does: the rays near the sun
 are sky rays of optical depth ~10, on which a handful of equal-length strata carry most of the weight, and the disc
-came out grainy against the smooth prefiltered surround (per-pixel variation ~6 % against 0.4 % outside,
-colonnade_fourier at 640x360; 0.85 % now, the 512-step reference's own noise). ``jitter`` picks per-pixel or the
-fixed pattern; the render methods pass ``ScatteringSettings.march_jitter``, fixed by default (less grain still: at
-320x180 the disc's pixel-to-pixel variation 1.6 % per-pixel, 0.93 % fixed). Each sample reads the map with 2 x 2
-percentage-closer filtering (:func:`~.marching.map_pcf_at`): near the sun the rays run almost along the light, so a
-shaft edge crossing one stratum's nearest texel stepped whole columns of pixels at once (a comb and a staircase along
-the shafts of ``colonnade_sunset`` frame 40: rel. L1 in those boxes 11.7 / 3.9 % -> 5.8 / 2.6 % against the
-1024-step shadow-map marcher at 320x180).
+came out grainy against the smooth prefiltered surround. ``jitter`` picks per-pixel or the fixed pattern; the render
+methods pass ``ScatteringSettings.march_jitter``, fixed by default (less grain still). Each sample reads the map with
+2 x 2 percentage-closer filtering (:func:`~.marching.map_pcf_at`): near the sun the rays run almost along the light,
+so a shaft edge crossing one stratum's nearest texel stepped whole columns of pixels at once (a comb and a staircase
+along the shafts of ``colonnade_sunset``).
 
 The directional look-up skips the pixels inside the inner cones (:class:`MarchedCones`, :func:`wholly_marched`: the
-march's own test), whose value the march replaces whatever it was: fourier at 1920x1080 on the colonnade, evaluate
-stage 196 -> 183 ms. Images are unchanged inside the disc; a few pixels of the blend band that the sparse look-up
-interpolated from a skipped corner are now looked up (16 of 57600 at 320x180, 1.7e-7 rel. L1).
+march's own test), whose value the march replaces whatever it was. The figures behind these choices:
+docs/benchmarks.md, "The epipole fallback".
 """
 
 from __future__ import annotations

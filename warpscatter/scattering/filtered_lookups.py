@@ -75,15 +75,9 @@ RAY_END_LIT = wp.constant(2)
 #: in front of it while the next sample was already behind the ray: its answer 0 drew a dark notch at the pillar's edge
 #: (colonnade_fourier.yaml at 1280x720), saw teeth and a dark wedge beside the sun (colonnade_sunset frame 20), and
 #: lit-ended rays on a pillar's silhouette came out black. The tolerance keeps surfaces that are their own blockers
-#: decided (the window room's ceiling: a median 0.00036 behind the ray); asked without it the room's dark ceiling took
-#: bright specks (320x180, moments4: 50 -> 133 pixels over half the image mean where the exact is black). Longer rays
-#: keep the whole texels' answer: guarding every ray drew dotted creases along the room's walls (at any tolerance from
-#: 0.003 to 0.03), and 64 texels brought specks back (+8 pixels at 960x540, measured with lit-ended rays guarded at any
-#: length). Measured at 320x180 against the exact marcher, notch pixels fourier / moments6 at frame 20: 24 texels left
-#: the wedge (5 / 3), 32 and 48 remove it; tolerances 0.0005 / 0.002 / 0.01 all remove the notches. Bench fidelity's 21
-#: directional cases (960x540, 1024^2, exact 1024-step references; fourier, moments4, moments6) with 32 texels and
-#: 0.002: only own-light cells move, geometric mean of the 63 ratios 1.0002, the worst +0.3 % (terrain moments6 1.506 ->
-#: 1.510 %).
+#: decided (the window room's ceiling: a median 0.00036 behind the ray); without it the room's dark ceiling took
+#: bright specks. Longer rays keep the whole texels' answer: guarding every ray drew dotted creases along the room's
+#: walls, and 64 texels brought specks back (the figures: docs/benchmarks.md, "Guard column").
 GUARD_COLUMN_TEXELS = wp.constant(32.0)
 GUARD_COLUMN_DEPTH_TOLERANCE = wp.constant(0.002)
 
@@ -185,7 +179,7 @@ def row_bounds(db: DepthBounds, u_end: float, v: float, z_r: float, window: wp.v
     The texels are the prefix through the footprint's left column: every whole texel the look-up reads. The partial
     texel after it (weight ax) is the last one before the look-up's end, where the surface the ray ends on is its
     own blocker (``end_offset``'s zone): its depths, a hair behind the ray's, would keep rays on a shadowed ceiling
-    from the exact 0 (bench fidelity, dark room: fourier 24.4 -> 16.7 %, moments6 35.9 -> 21.2 % without it), and a
+    from the exact 0 (the dark room: docs/benchmarks.md, "Fourier look-up"), and a
     hair in front, rays on lit surfaces from the exact 1. A ray ending in shadow must clear the lit answer through it
     too: near a low sun that texel is a long stretch of ray, in the shadow of the pillar the ray ends on, and
     answering it lit drew bright saw teeth beside the sun (colonnade_sunset). The shadowed answer reads through the
@@ -286,10 +280,9 @@ def prefiltered_visibility(filtered_basis: Any, tables: FourierTables, u: float,
         window: the rows read (:func:`window_footprint`): (first row, rows, 1 when they wrap around the full
             azimuth circle, else 0: clamp).
     """
-    # the four-tap case of fourier_taps_visibility written out: 1.5x faster on the CPU (measured). Per row the two
-    # columns i0, i1 are one contiguous run of 2 M values; the row and column offsets are loop invariants the
-    # compiler hoists (an explicit flat index into a 1-D view measured 1.5x slower), and 2 / c comes from a table
-    # (no division per pair)
+    # the four-tap case of fourier_taps_visibility written out, faster on the CPU (docs/benchmarks.md). Per row the
+    # two columns i0, i1 are one contiguous run of 2 M values; the row and column offsets are loop invariants the
+    # compiler hoists, and 2 / c comes from a table (no division per pair)
     j0, j1, ay, i0, i1, ax = window_footprint(window, filtered_basis.shape[1], u, v)
     num = filtered_basis.shape[2]
     w00 = (1.0 - ax) * (1.0 - ay)
@@ -481,7 +474,7 @@ def fourier_four_columns(filtered_basis: Any, tables: FourierTables, j0: int, j1
                          i1: int, wa: wp.vec2, wb: wp.vec2, w0: wp.vec2, w1: wp.vec2, rotation: wp.vec4) -> float:
     """a(z_r) . sum of the filtered-basis vectors of columns ca, cb, i0, i1 in rows j0 and j1, weighted (row j0, row
     j1) by wa, wb, w0, w1: the look-up of up to three segments in one pass over the M coefficients (one rotation
-    per pair; measured 1.3x faster than one pass per column at 1080p). ``rotation`` = (cos, sin of pi z_r, cos, sin
+    per pair; faster than one pass per column, docs/benchmarks.md). ``rotation`` = (cos, sin of pi z_r, cos, sin
     of 2 pi z_r)."""
     num = filtered_basis.shape[2]
     cv = tables.code_values
@@ -786,32 +779,10 @@ def evaluate_points(filtered_basis, rect: NonlinearRectification, points, sigma_
 
 
 __all__ = [
-    "DepthBounds",
-    "row_bounds",
-    "RAY_END_UNKNOWN",
-    "RAY_END_IN_SHADOW",
-    "RAY_END_LIT",
-    "GUARD_COLUMN_TEXELS",
-    "GUARD_COLUMN_DEPTH_TOLERANCE",
-    "rows_undecided",
-    "mix_row_answers",
-    "MAX_TAPS",
-    "FilteredBasisArrays",
-    "FilteredMomentArrays",
-    "FilteredMoments",
-    "FourierTables",
-    "add_split_row_taps",
-    "bilinear_moments",
-    "evaluate_points",
-    "evaluate_visibility",
-    "filtered_basis_arrays",
-    "fourier_taps_visibility",
-    "fourier_visibility",
-    "moments_visibility",
-    "prefiltered_visibility",
-    "prefiltered_visibility_split",
-    "split_visibility",
-    "texel_footprint",
-    "whole_rows",
-    "window_footprint",
+    "add_split_row_taps", "bilinear_moments", "DepthBounds", "evaluate_points", "evaluate_visibility",
+    "filtered_basis_arrays", "FilteredBasisArrays", "FilteredMomentArrays", "FilteredMoments",
+    "fourier_taps_visibility", "fourier_visibility", "FourierTables", "GUARD_COLUMN_DEPTH_TOLERANCE",
+    "GUARD_COLUMN_TEXELS", "MAX_TAPS", "mix_row_answers", "moments_visibility", "prefiltered_visibility",
+    "prefiltered_visibility_split", "RAY_END_IN_SHADOW", "RAY_END_LIT", "RAY_END_UNKNOWN", "row_bounds",
+    "rows_undecided", "split_visibility", "texel_footprint", "whole_rows", "window_footprint",
 ]

@@ -31,51 +31,34 @@ channel; a coloured medium integrates each channel with its own extinction.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 import warp as wp
 
-from ..parallel import launch_rows
-from ..scene.camera import CameraParams
-from ..scene.lights import LightParams, light_params
+from ..scene.lights import LightParams
 from ..scene.medium import MediumParams, phase_eval
-from ..stages import StageTimer
-from ..wpinit import default_device, module_options
-from .caster_culling import cull_unseen_casters, end_faces_away
-from .epipole_fallback import epipole_pixel_fraction, epipole_regions, march_epipole_regions
+from ..wpinit import module_options
 from .filtered_lookups import (
     RAY_END_UNKNOWN,
     DepthBounds,
-    depth_bounds_of,
     mix_row_answers,
     row_bounds,
     rows_undecided,
     taps_visibility,
     window_footprint,
 )
-from .filtered_textures import FilteredBasisArrays, FilteredMomentArrays
-from .prefix_sums import prefilter_moments, prefilter_weighted
 from .ray_weights import segment_columns, segment_sums
-from .rectify_local import (
-    coloured_emission,
-    emission_peaks,
-    resample_spot_shadow_map,
-    spot_rectification,
-    spot_texel_weights,
-)
-from .row_mips import RowMips, level_window, pixel_mip_level, row_mip_chain, stacked_row_means
-from .settings import EVALUATE_DEPTH_TOLERANCE, SPOT_SEGMENTS
-from .sparse_evaluation import PixelSet, evaluate_sparse, set_pixel
+from .row_mips import RowMips
+from .settings import SPOT_SEGMENTS
 
 module_options()
 
 #: Gauss-Legendre panels of a view ray's own weight table, uniform in psi.
 LOCAL_PANELS = 16
 local_table = wp.types.vector(length=LOCAL_PANELS + 1, dtype=wp.float32)
-#: 2-point Gauss-Legendre nodes +-1/sqrt(3) on [-1, 1] (weights 1): 16 panels of two points measured as accurate as
-#: 8 of four on the fence (the filter factor needs the finer panels, the density is smooth) at the same cost.
+#: 2-point Gauss-Legendre nodes +-1/sqrt(3) on [-1, 1] (weights 1): the filter factor needs many panels, the density
+#: is smooth (docs/benchmarks.md, "Spot look-up quadrature").
 GL2_X = wp.constant(0.5773502691896258)
 
 
@@ -224,9 +207,8 @@ def filter_factors(rays: SpotRays, k0: int, maps: int, j: int, table: local_tabl
     """Row j's filter factors E_tau / E of maps k0 .. k0 + maps - 1 (components 0 .. maps - 1) for the ray's weight
     table: per panel of the table, the tau-weighted reference mean times the ray's own weight in it. The look-up
     segments of :func:`spot_row_weights` are too coarse for this: where a ray crosses the cone's edge or a textured
-    spot's detail its density falls differently from the reference's inside a segment (the unshadowed textured
-    fence at 320x180: 0.96 % rel. L1 per segment, 0.29 % per panel; splitting the panels further with the table
-    interpolated linearly was worse, 0.79 %). ``x_end``: the prefix column of the ray's end (psi_end)."""
+    spot's detail its density falls differently from the reference's inside a segment (docs/benchmarks.md, "Spot
+    look-up quadrature"). ``x_end``: the prefix column of the ray's end (psi_end)."""
     dpsi = rays.psi_span / float(rays.sums.shape[1])
     d_prev = float(0.0)
     f_prev = wp.vec3(0.0, 0.0, 0.0)
@@ -282,96 +264,76 @@ def spot_visibility(texels: Any, rays: SpotRays, k: int, j0: int, j1: int, ay: f
     return mix_row_answers(bounded, r, ay * f1 / tex)  # row j1's share of the look-up's weight
 
 
+@wp.struct
+class SpotLookUp:
+    """A spot light's filtered maps and how a view ray reads them (the evaluate kernel's argument)."""
+
+    rays: SpotRays
+    bounds: DepthBounds  # per-row prefix depth bounds of map 0
+    mips: RowMips  # the maps' row mip levels and whether their rows wrap around
+    beta: float  # moment overestimation weight (0 for Fourier)
+    maps: int  # filtered maps: 1, or 3 for a coloured spot texture (one per channel)
+
+
 @wp.func
-def spot_radiance(texels_r: Any, texels_g: Any, texels_b: Any, maps: int, rays: SpotRays, bounds: DepthBounds,
-                  window: wp.vec3i, beta: float, light: LightParams, med: MediumParams, cl: wp.vec3, theta: float,
-                  psi_end: float) -> wp.vec3:
-    """In-scattered radiance of the view ray of inclination theta whose look-up ends at rectified ``cl`` (its psi at
-    ``psi_end``), read in the row ``window`` (module doc; a coloured medium: each channel with its own extinction,
-    weight table and cuts)."""
+def ray_span(rays: SpotRays, theta: float, psi_end: float):
+    """(panel width h in psi, the prefix column of psi_end, sigma_s I -> radiance scale 1 / (D sin(theta))) of the view
+    ray of inclination theta whose look-up ends at psi_end."""
     h = (psi_end - rays.psi_lo) / float(LOCAL_PANELS)
-    xe = (psi_end - rays.psi_lo) * float(rays.sums.shape[1]) / rays.psi_span - 1.0  # prefix column of psi_end
+    xe = (psi_end - rays.psi_lo) * float(rays.sums.shape[1]) / rays.psi_span - 1.0
     scale = 1.0 / (rays.light_distance * wp.max(wp.sin(theta), 1.0e-6))
+    return h, xe, scale
+
+
+@wp.func
+def spot_radiance(texels_r: Any, texels_g: Any, texels_b: Any, look: SpotLookUp, window: wp.vec3i,
+                  light: LightParams, med: MediumParams, cl: wp.vec3, theta: float, psi_end: float) -> wp.vec3:
+    """In-scattered radiance in a grey medium of the view ray of inclination theta whose look-up ends at rectified
+    ``cl`` (its psi at ``psi_end``), read in the row ``window`` (module doc)."""
+    rays = look.rays
+    h, xe, scale = ray_span(rays, theta, psi_end)
     z_r = cl[2]
-    if med.coloured == 0:
-        table = ray_weight_table(rays, med.sigma_t, med.phase_id, med.g, theta, rays.psi_lo, psi_end)
-        j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd = spot_lookup(rays, bounds, cl, window, table, h)
-        fac = ((1.0 - ay) * filter_factors(rays, 0, maps, j0, table, h, xe)
-               + ay * filter_factors(rays, 0, maps, j1, table, h, xe))
-        v = spot_visibility(texels_r, rays, 0, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
-        e = wp.vec3(v * fac[0], v * fac[0], v * fac[0])
-        if maps == 3:
-            vg = spot_visibility(texels_g, rays, 1, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
-            vb = spot_visibility(texels_b, rays, 2, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
-            e = wp.vec3(v * fac[0], vg * fac[1], vb * fac[2])
-        return wp.cw_mul(light.radiance * (med.sigma_s * table[LOCAL_PANELS] * scale), e)
+    table = ray_weight_table(rays, med.sigma_t, med.phase_id, med.g, theta, rays.psi_lo, psi_end)
+    j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd = spot_lookup(rays, look.bounds, cl, window, table, h)
+    fac = ((1.0 - ay) * filter_factors(rays, 0, look.maps, j0, table, h, xe)
+           + ay * filter_factors(rays, 0, look.maps, j1, table, h, xe))
+    v = spot_visibility(texels_r, rays, 0, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, look.beta)
+    e = wp.vec3(v * fac[0], v * fac[0], v * fac[0])
+    if look.maps == 3:
+        vg = spot_visibility(texels_g, rays, 1, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, look.beta)
+        vb = spot_visibility(texels_b, rays, 2, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, look.beta)
+        e = wp.vec3(v * fac[0], vg * fac[1], vb * fac[2])
+    return wp.cw_mul(light.radiance * (med.sigma_s * table[LOCAL_PANELS] * scale), e)
+
+
+@wp.func
+def spot_radiance_rgb(texels_r: Any, texels_g: Any, texels_b: Any, look: SpotLookUp, window: wp.vec3i,
+                      light: LightParams, med: MediumParams, cl: wp.vec3, theta: float, psi_end: float) -> wp.vec3:
+    """:func:`spot_radiance` in a coloured medium: each channel with its own extinction, weight table and cuts."""
+    rays = look.rays
+    h, xe, scale = ray_span(rays, theta, psi_end)
+    z_r = cl[2]
     kg = int(0)
     kb = int(0)
-    if maps == 3:
+    if look.maps == 3:
         kg = 1
         kb = 2
     e = wp.vec3(0.0, 0.0, 0.0)
     for ch in range(3):
         table = ray_weight_table(rays, med.sigma_t_rgb[ch], med.phase_id, med.g, theta, rays.psi_lo, psi_end)
-        j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd = spot_lookup(rays, bounds, cl, window, table, h)
+        j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd = spot_lookup(rays, look.bounds, cl, window, table, h)
         v = float(0.0)
         if ch == 0:
-            v = spot_visibility(texels_r, rays, 0, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+            v = spot_visibility(texels_r, rays, 0, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, look.beta)
         elif ch == 1:
-            v = spot_visibility(texels_g, rays, kg, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+            v = spot_visibility(texels_g, rays, kg, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, look.beta)
         else:
-            v = spot_visibility(texels_b, rays, kb, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, beta)
+            v = spot_visibility(texels_b, rays, kb, j0, j1, ay, i0, i1, ax, x, cut, esum, m, bnd, z_r, look.beta)
         k = ch * kg  # this channel's map: its own, or map 0 of a grey texture
         fc = ((1.0 - ay) * filter_factors(rays, k, 1, j0, table, h, xe)
               + ay * filter_factors(rays, k, 1, j1, table, h, xe))
         e[ch] = table[LOCAL_PANELS] * v * fc[0]
     return wp.cw_mul(light.radiance, wp.cw_mul(med.sigma_s_rgb, e)) * scale
-
-
-@wp.kernel
-def evaluate_spot_kernel(
-    cam: CameraParams,
-    coords: wp.array2d(dtype=wp.vec3),  # the rectified (u, v, z_r) of every pixel's view-ray end
-    texels_r: Any,  # FilteredBasisArrays or FilteredMomentArrays of map 0
-    texels_g: Any,  # map 1 (a coloured texture) or map 0 again
-    texels_b: Any,
-    maps: int,  # 1 or 3
-    rays: SpotRays,
-    bounds: DepthBounds,
-    mips: RowMips,  # the maps' row mip levels and whether their rows wrap around
-    beta: float,
-    light: LightParams,  # radiance: the emission peak per channel
-    med: MediumParams,
-    out: wp.array2d(dtype=wp.vec3),
-    pixels: PixelSet,  # the pixels to evaluate (sparse_evaluation)
-    offset: int,
-):
-    a, b = wp.tid()
-    j, i, listed = set_pixel(pixels, cam.height, cam.width, a + offset, b)
-    if not listed:
-        return
-    c = coords[j, i]
-    theta = rays.theta_hi - c[2] * rays.theta_len
-    u_end = wp.min(c[0], 1.0)  # past the map's last column the spot's cone has ended
-    psi_end = wp.min(rays.psi_lo + u_end * rays.psi_span, theta - 1.0e-6)
-    result = wp.vec3(0.0, 0.0, 0.0)
-    if psi_end > rays.psi_lo:
-        cl = wp.vec3(u_end, c[1], c[2])
-        lv = pixel_mip_level(mips, coords, j, i)
-        level = int(lv[0])
-        result = spot_radiance(texels_r, texels_g, texels_b, maps, rays, bounds, level_window(mips, level), beta,
-                               light, med, cl, theta, psi_end)
-        if lv[1] > 0.0:  # between two levels: blend (row_mips)
-            upper = spot_radiance(texels_r, texels_g, texels_b, maps, rays, bounds, level_window(mips, level + 1),
-                                  beta, light, med, cl, theta, psi_end)
-            result = result + lv[1] * (upper - result)
-    out[j, i] = result
-
-
-wp.overload(evaluate_spot_kernel, {"texels_r": FilteredBasisArrays, "texels_g": FilteredBasisArrays,
-                                   "texels_b": FilteredBasisArrays})
-wp.overload(evaluate_spot_kernel, {"texels_r": FilteredMomentArrays, "texels_g": FilteredMomentArrays,
-                                   "texels_b": FilteredMomentArrays})
 
 
 def spot_rays(rect, settings, sums: np.ndarray, device) -> SpotRays:
@@ -387,127 +349,14 @@ def spot_rays(rect, settings, sums: np.ndarray, device) -> SpotRays:
     return r
 
 
-def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
-    """The spot-light branch of :func:`.prefiltered.render` (its arguments, results and debug outputs). Stages
-    ``rectify``, ``pixel_coords``, ``caster_culling``, ``prefilter``, ``evaluate``, ``epipole``.
+def __getattr__(name: str):
+    # the spot pass moved to warpscatter.scattering.prefiltered.spot; its names stay importable from here
+    if name in ("render_spot", "evaluate_spot_kernel"):
+        from .prefiltered import spot
 
-    Raises:
-        ValueError: for ``rectification: projective``, ``splits`` > 1 or ``overestimation: adaptive``, which need
-            a directional light.
-    """
-    from .prefiltered import add_debug_images, coords_of_every_pixel, map_depth, pixel_coords
-
-    device = default_device(frame.device)
-    scene, gbuffer, shadow_map = frame.scene, frame.gbuffer, frame.shadow_map
-    p = settings.prefiltered
-    if p.rectification == "projective":
-        raise ValueError("render.scattering.prefiltered.rectification: 'projective' needs a directional light; a spot "
-                         "light uses the non-linear rectification (auto or nonlinear)")
-    if p.splits > 1:
-        raise ValueError("render.scattering.prefiltered.splits: a spot light's look-ups need whole rows (splits 1)")
-    cam, light = scene.camera, scene.light
-    cols, rows = settings.shadow_map.size
-    lparams = light_params(light, device)
-    with stage("rectify"):
-        rect = spot_rectification(cam, light, rows=rows, cols=cols, guard_band=p.guard_band)
-        rectified, emission = resample_spot_shadow_map(rect, shadow_map, light, lparams, device=device)
-    lparams.radiance = wp.vec3(*emission_peaks(light).astype(np.float32))  # the filter is relative to the peak
-    every_pixel = coords_of_every_pixel(settings, frame.aovs)
-    with stage("pixel_coords"):
-        coords = (pixel_coords(rect, cam, gbuffer.distance, device=device) if every_pixel else
-                  wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device))
-    map_before_culling = map_depth(rectified).copy() if "rectified_map" in frame.aovs else None
-    culled = None
-    if settings.culls_casters:
-        with stage("caster_culling"):
-            culled = cull_unseen_casters(rectified, rect, coords, bias=p.caster_culling_bias, device=device,
-                                         mip_levels=p.mip_levels,
-                                         faces_away=end_faces_away(cam, gbuffer, lparams, device))
-    maps = 3 if coloured_emission(light) else 1
-    depth_warp = p.depth_warp_for(settings.method, cols)
-    with stage("prefilter"):
-        sigma_ref = float(min(scene.medium.sigma_t_rgb))  # the slowest decay of every channel
-        weights = spot_texel_weights(rect, sigma_ref, scene.medium)
-        filtered = emission[..., :maps].transpose(2, 0, 1) * weights[None]  # (maps, rows, cols)
-        textures = []
-        for k in range(maps):
-            if settings.method == "fourier":
-                textures.append(prefilter_weighted(rectified, settings.fourier.coefficients,
-                                                   bits=settings.fourier.storage_bits, texel_weights=filtered[k],
-                                                   depth_warp=depth_warp, device=device))
-            else:
-                textures.append(prefilter_moments(rectified, settings.num_moments,
-                                                  storage_bits=settings.moment_storage_bits,
-                                                  texel_weights=filtered[k], depth_warp=depth_warp, device=device))
-        bounds = depth_bounds_of(rectified, p.depth_bounds, device)
-        chains = [row_mip_chain(t, None, bounds.bounds if k == 0 else wp.zeros((1, 1), dtype=wp.vec2, device=device),
-                                p.mip_levels, device) for k, t in enumerate(textures)]
-        textures, bounds.bounds = [ch.texture for ch in chains], chains[0].bounds
-        mips = chains[0].params(rect.full_circle)
-    with stage("evaluate"):
-        overestimation = settings.moments.overestimation
-        # the view rays' angle to a spot's light varies along them: one overestimation weight for all (settings)
-        beta = 0.0 if settings.method == "fourier" else settings.moments.spot_beta(settings.num_moments)
-        if beta < 0.0:
-            raise ValueError("render.scattering.moments.overestimation: 'adaptive' needs a directional light (Peters "
-                             "2017 Sec. 5.3.1 weighs the light and view directions); give a number for a spot light")
-        sums = np.cumsum(np.concatenate([weights[None], filtered]), axis=2, dtype=np.float64)
-        rays = spot_rays(rect, p, stacked_row_means(sums, mips.levels, axis=1), device)
-        out = wp.empty((cam.height, cam.width), dtype=wp.vec3, device=device)
-        arrays = [t.arrays() for t in textures]
-        arrays += [arrays[0]] * (3 - len(arrays))
-        inputs = [cam.params(), coords, *arrays, maps, rays, bounds, mips, beta, lparams, scene.medium.params(), out]
-
-        def look_up(pixels: PixelSet, dim: tuple[int, int]) -> None:
-            if not every_pixel:  # the coordinates of the same pixels first
-                pixel_coords(rect, cam, gbuffer.distance, device, pixels=pixels, dim=dim, out=coords)
-            launch_rows(evaluate_spot_kernel, dim, [*inputs, pixels], device=device)
-
-        sparse = evaluate_sparse(look_up, gbuffer.distance, out, p.evaluate_stride, p.evaluate_tolerance,
-                                 EVALUATE_DEPTH_TOLERANCE, levels=p.evaluate_levels_for(cam.height, spot=True),
-                                 device=device)
-    # auto marches no disc under a spot (settings: its light's 1/d^2 peak made the marched disc the noisier part)
-    regions = (epipole_regions(cam, rect.light_direction, p.epipole_angle_deg, p.epipole_block)
-               if p.epipole_fallback is True else [])
-    epipole_marched = 1.0
-    if regions:
-        with stage("epipole"):
-            epipole_marched = march_epipole_regions(
-                scene, gbuffer, shadow_map, regions, out, steps=p.epipole_steps, seed=settings.seed,
-                shadow_bias_texels=settings.shadow_map.bias, jitter=settings.march_jitter, stride=p.epipole_stride,
-                tolerance=p.evaluate_tolerance, device=device)
-    info = {
-        "rectification": "nonlinear",
-        "rectification_reason": "spot light: angles at the light as columns",
-        "rectified_map": [cols, rows],
-        "basis": settings.method,
-        **({"coefficients": settings.fourier.coefficients} if settings.method == "fourier" else
-           {"overestimation": overestimation if overestimation is not None else round(beta, 4)}),
-        "bits_per_texel": settings.filtered_bits_per_texel,
-        "segments": int(rays.segments),
-        "depth_bounds": p.depth_bounds,
-        "depth_warp": depth_warp,
-        "mip_levels": mips.levels,
-        "end_offset": float(rays.end_offset),
-        "evaluate_stride": sparse.stride,
-        "evaluate_levels": sparse.levels,
-        "evaluated_fraction": round(sparse.evaluated_fraction, 4),
-        "resample_filter": "supersample",  # a spot's texels: bilinear spot-map taps along psi (rectify_local)
-        "caster_culling": culled is not None,
-        **({} if culled is None else {"culled_texel_fraction": round(culled, 4)}),
-        "filtered_map_bytes": sum(t.nbytes for t in textures),
-        "filtered_maps": maps,  # one per colour channel of a coloured spot texture
-        "epipole_blocks": [[*r.rect, r.name] for r in regions],
-        "epipole_angle_deg": round(regions[0].inner_deg, 3) if regions else None,
-        "epipole_raymarched_fraction": round(epipole_pixel_fraction(cam, regions), 4),
-        "epipole_marched_share": round(epipole_marched, 4),
-        "full_circle": rect.full_circle,
-        # the angles at the light (from the baseline towards the camera) the columns cover, and the baseline's length
-        "map_angles_deg": [round(math.degrees(rect.psi_lo), 3), round(math.degrees(rect.psi_lo + rect.r_max), 3)],
-        "light_distance": round(rect.light_distance, 4),
-    }
-    add_debug_images(info, frame, coords, regions, rectified, map_before_culling, mips, sparse)
-    return out, info
+        return getattr(spot, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["SpotRays", "evaluate_spot_kernel", "render_spot", "spot_rays"]
+__all__ = ["LOCAL_PANELS", "SpotLookUp", "SpotRays", "ray_weight_table", "spot_radiance", "spot_radiance_rgb",
+           "spot_rays"]

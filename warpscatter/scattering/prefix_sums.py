@@ -264,11 +264,9 @@ def group_rotation(z: float, m0: int):
 
 
 #: (sin, cos) pairs one thread of the fused filter carries in registers (a compile-time constant so the
-#: pair loop unrolls and the running state never leaves registers: 2.8x faster than a dynamic loop). 32: up to 64
-#: coefficients in one thread, which writes each texel's values in one pass and takes one sine and one cosine per
-#: texel (with 8 two threads each wrote half of every 32-coefficient texel and took four trigonometric calls: 1024^2,
-#: two cores, 61-63 -> 37-39 ms; with 16, 48 and 64 coefficients took two threads: 88 / 99 ms, with 32 52 / 73 ms,
-#: 32 coefficients the same 41-43 ms, the values bit-identical; the rows still give every core hundreds of threads).
+#: pair loop unrolls and the running state never leaves registers). 32: up to 64 coefficients in one thread, which
+#: writes each texel's values in one pass and takes one sine and one cosine per texel; the rows still give every core
+#: hundreds of threads (the timings: docs/benchmarks.md, "Fused prefilter registers").
 PAIRS_PER_THREAD = 32
 filter_state = wp.types.vector(length=2 * PAIRS_PER_THREAD, dtype=wp.float32)
 

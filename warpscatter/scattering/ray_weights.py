@@ -3,11 +3,8 @@
 Klehm 2014 Sec. 3.2 weights the prefix sums of a row (epipolar slice) by the transmittance of ONE reference ray,
 u_i = exp(-tau_j i) with tau_j = sigma_t Delta_ref, because a texel's world length Delta = Delta_perp / sin(theta)
 differs between the slice's view rays. Every other ray then weights its texels with the wrong decay. Near the epipole
-(sin(theta) -> 0) and in optically thick views the error dominates the method's: measured against the exact
-reference with EXACT hard visibility on the rectified map (no basis at all; numpy, the look-up ending one texel
-early, the map's radius fitted to the pixels), the single reference ray costs 11 %
-rel. L1 on the bench colonnade, 2.3 % on the canopy and 25 % on the window room, against 3.6 / 1.0 / 1.3 % with
-each ray's own weights.
+(sin(theta) -> 0) and in optically thick views the error dominates the method's (with exact hard visibility on the
+rectified map, several times the error of each ray's own weights: docs/benchmarks.md, "Per-ray weights").
 
 warpscatter's correction (not in the papers) reads the SAME texture a few more times. Let A(c) be the stored
 normalised prefix mean through column c and D(c) = sum_{i<=c} w_i its reference weight sum (analytic:

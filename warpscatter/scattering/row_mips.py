@@ -48,11 +48,9 @@ from .settings import MAX_MIP_LEVELS
 module_options()
 
 
-#: Added to a pixel's level (a GPU sampler's LOD bias). Measured against supersampled exact renders (the pixels'
-#: mean; rel. L1, fourier / moments6, 8 levels): the stained-glass spot at 320x180 none 4.28 / 4.24 %, bias 0
-#: 3.03 / 3.12 %, -0.5 2.70 / 2.68 %, -1 2.73 / 2.70 %; the sunlit colonnade (960x540), a sun behind a fence (960x540)
-#: and the canopy (320x180) within 0.005 % of none at -0.5 (bias 0: up to +0.005 %). The GPU rule with a trilinear
-#: blend towards the coarser level blurs about half a level more than the pixel's own box.
+#: Added to a pixel's level (a GPU sampler's LOD bias): the GPU rule with a trilinear blend towards the coarser level
+#: blurs about half a level more than the pixel's own box (chosen against supersampled exact renders:
+#: docs/benchmarks.md, "Row mip level bias").
 MIP_LEVEL_BIAS = wp.constant(-0.5)
 
 

@@ -38,8 +38,7 @@ module_options()
 
 #: Each coarser level's cells interpolate within this factor of the next finer level's radiance tolerance: a coarse
 #: cell spans twice the pixels, and the node it fills is a corner of the finer cells, its error carried into theirs
-#: (1080p canopy, moments6 against the exact reference with 2 levels: tolerance 0.02 at both 0.6071 %, 0.01 at the
-#: coarse one 0.6069 %, one level 0.6070 %).
+#: (measured: docs/benchmarks.md, "Sparse evaluation").
 COARSER_TOLERANCE = 0.5
 
 #: ``PixelSet.mode``: every pixel of the image.
@@ -107,18 +106,25 @@ def channel_max(v: wp.vec3) -> float:
     return wp.max(v[0], wp.max(v[1], v[2]))
 
 
+@wp.struct
+class GridPass:
+    """One pass of :func:`evaluate_sparse`: which cells it interpolates, how strictly, and what it divides out."""
+
+    stride: int  # pixels between the nodes whose cells are interpolated
+    fine: int  # pixels between the pixels filled (1: every pixel; else the nodes of the next finer grid)
+    tolerance: float  # largest spread of the corners' radiance, relative to the largest
+    depth_tolerance: float  # largest relative camera-distance difference of a corner
+    check_end_zone: int  # 1: a cell with a corner in end_zone is not interpolated
+    end_zone: wp.array2d(dtype=wp.int32)  # 1 where the look-up left the pixel to the marcher (check_end_zone)
+    scaled: int  # 1: the test and the interpolation see the radiance divided by scale
+    scale: wp.array2d(dtype=wp.float32)  # a positive per-pixel factor of the radiance, interpolated apart (scaled)
+
+
 @wp.kernel
 def interpolate_grid_kernel(
-    stride: int,  # pixels between the nodes whose cells are interpolated
-    fine: int,  # pixels between the pixels filled (1: every pixel; else the nodes of the next finer grid)
-    tolerance: float,  # largest spread of the corners' radiance, relative to the largest
-    depth_tolerance: float,  # largest relative camera-distance difference of a corner
+    grid: GridPass,
     distance: wp.array2d(dtype=wp.float32),  # the G-buffer's camera distance
-    end_zone: wp.array2d(dtype=wp.int32),  # 1 where the look-up left the pixel to the marcher (check_end_zone)
-    check_end_zone: int,
     out: wp.array2d(dtype=wp.vec3),  # in: the grid nodes' radiance; out: the interpolated pixels'
-    scale: wp.array2d(dtype=wp.float32),  # (scaled) a positive per-pixel factor of the radiance, interpolated apart
-    scaled: int,
     columns: wp.array2d(dtype=wp.int32),  # out: per filled row, the pixels to evaluate directly
     counts: wp.array(dtype=wp.int32),  # out: per filled row, how many
     offset: int,
@@ -127,6 +133,8 @@ def interpolate_grid_kernel(
     # spread once per cell): every filled pixel that is not a node of the stride grid is interpolated or listed
     # (module doc)
     a = wp.tid() + offset
+    stride = grid.stride
+    fine = grid.fine
     height = distance.shape[0]
     width = distance.shape[1]
     j = grid_node(a, fine, height)
@@ -142,20 +150,21 @@ def interpolate_grid_kernel(
         c01 = out[y0, x1]
         c10 = out[y1, x0]
         c11 = out[y1, x1]
-        if scaled != 0:  # the radiance without its factor: the test and the interpolation see the smooth rest
-            c00 = c00 / scale[y0, x0]
-            c01 = c01 / scale[y0, x1]
-            c10 = c10 / scale[y1, x0]
-            c11 = c11 / scale[y1, x1]
+        if grid.scaled != 0:  # the radiance without its factor: the test and the interpolation see the smooth rest
+            c00 = c00 / grid.scale[y0, x0]
+            c01 = c01 / grid.scale[y0, x1]
+            c10 = c10 / grid.scale[y1, x0]
+            c11 = c11 / grid.scale[y1, x1]
         m00 = channel_max(c00)
         m01 = channel_max(c01)
         m10 = channel_max(c10)
         m11 = channel_max(c11)
         hi = wp.max(wp.max(m00, m01), wp.max(m10, m11))
         lo = wp.min(wp.min(m00, m01), wp.min(m10, m11))
-        agree = hi - lo <= tolerance * hi
-        if check_end_zone != 0:
-            if end_zone[y0, x0] != 0 or end_zone[y0, x1] != 0 or end_zone[y1, x0] != 0 or end_zone[y1, x1] != 0:
+        agree = hi - lo <= grid.tolerance * hi
+        if grid.check_end_zone != 0:
+            if (grid.end_zone[y0, x0] != 0 or grid.end_zone[y0, x1] != 0 or grid.end_zone[y1, x0] != 0
+                    or grid.end_zone[y1, x1] != 0):
                 agree = False
         d00 = distance[y0, x0]
         d01 = distance[y0, x1]
@@ -175,13 +184,13 @@ def interpolate_grid_kernel(
                 fx = float(i - x0) / float(x1 - x0)
             if agree:
                 depth = distance[j, i]
-                if (near(d00, depth, depth_tolerance) and near(d01, depth, depth_tolerance)
-                        and near(d10, depth, depth_tolerance) and near(d11, depth, depth_tolerance)):
+                if (near(d00, depth, grid.depth_tolerance) and near(d01, depth, grid.depth_tolerance)
+                        and near(d10, depth, grid.depth_tolerance) and near(d11, depth, grid.depth_tolerance)):
                     top = c00 * (1.0 - fx) + c01 * fx
                     bottom = c10 * (1.0 - fx) + c11 * fx
                     value = top * (1.0 - fy) + bottom * fy
-                    if scaled != 0:
-                        value = value * scale[j, i]
+                    if grid.scaled != 0:
+                        value = value * grid.scale[j, i]
                     out[j, i] = value
                     continue
             columns[a, n] = i
@@ -312,18 +321,20 @@ def evaluate_sparse(launch: Callable[[PixelSet, tuple[int, int]], None], distanc
     strides = [int(stride) * 2 ** k for k in reversed(range(levels))]  # coarse to fine
     gh, gw = grid_size(h, strides[0]), grid_size(w, strides[0])
     launch(pixel_set(PIXELS_GRID, strides[0], device=device), (gh, gw))
-    zone = end_zone if end_zone is not None else wp.zeros((1, 1), dtype=wp.int32, device=device)
-    factor = scale if scale is not None else wp.zeros((1, 1), dtype=wp.float32, device=device)
     passes = []
     for n, (coarse, fine) in enumerate(zip(strides, [*strides[1:], 1], strict=True)):
         pass_tolerance = float(tolerance) * COARSER_TOLERANCE ** (levels - 1 - n)  # the last pass: tolerance
         rows = grid_size(h, fine)
         columns = wp.empty((rows, w), dtype=wp.int32, device=device)
         counts = wp.empty(rows, dtype=wp.int32, device=device)
-        launch_rows(interpolate_grid_kernel, rows,
-                    [int(coarse), int(fine), pass_tolerance, float(depth_tolerance), distance, zone,
-                     int(end_zone is not None), out, factor, int(scale is not None and fine > 1), columns, counts],
-                    device=device)
+        grid = GridPass()
+        grid.stride, grid.fine = int(coarse), int(fine)
+        grid.tolerance, grid.depth_tolerance = pass_tolerance, float(depth_tolerance)
+        if end_zone is not None:
+            grid.check_end_zone, grid.end_zone = 1, end_zone
+        if scale is not None and fine > 1:  # the last level interpolates the radiance as it is
+            grid.scaled, grid.scale = 1, scale
+        launch_rows(interpolate_grid_kernel, rows, [grid, distance, out, columns, counts], device=device)
         listed = counts.numpy().copy()
         total = int(listed.sum())
         pixels = None
@@ -341,6 +352,7 @@ def evaluate_sparse(launch: Callable[[PixelSet, tuple[int, int]], None], distanc
 
 __all__ = [
     "COARSER_TOLERANCE",
+    "GridPass",
     "PIXELS_ALL",
     "PIXELS_GRID",
     "PIXELS_LISTED",

@@ -1,0 +1,103 @@
+"""The ``prefilter`` pass (Klehm 2014 Sec. 3, Listings 1-3; Peters 2017 Sec. 5): the rectified depth's Fourier basis
+or moments fused into per-row prefix sums, plain or weighted by the transmittance along the row's reference ray; the
+projective map's columns are uneven, so its weights are per texel (Eq. 12: exact column lengths, or the paper's
+constant growth factor d with ``projective_weights: cross_ratio``); rows may be split into ``splits`` regions filtered
+independently (Sec. 3.3). The texture is stored as configured (float32, RGBA8, or the moment storage modes), its row
+mip levels follow (Peters 2017 D.5, :mod:`..row_mips`), and the per-row prefix depth bounds
+(:func:`~..filtered_lookups.depth_bounds_of`) let the look-up skip wholly lit or shadowed rays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..filtered_lookups import DepthBounds, depth_bounds_of
+from ..filtered_textures import FilteredBasis, FilteredMoments
+from ..prefix_sums import prefilter_moments, prefilter_weighted
+from ..rectify_nonlinear import NonlinearRectification, reference_ray
+from ..rectify_projective import column_lengths, cross_ratio_factors, reference_rays
+from ..row_mips import RowMipChain, row_mip_chain
+from ..settings import PrefilteredSettings, ScatteringSettings
+
+
+@dataclass
+class Prefiltered:
+    """The ``prefilter`` pass's result: the filtered map and how rays weight it."""
+
+    texture: FilteredBasis | FilteredMoments  # with its row mip levels stacked along its rows
+    bounds: DepthBounds  # per-row prefix depth bounds, mip levels included
+    chain: RowMipChain  # the row mip levels (and each row's reference optical step)
+    segments: int  # per-ray look-up segments (ray_weights)
+    segment_depth: float  # their depth (0: one segment)
+    depth_warp: float  # the depth warp of the basis
+    sigma_ref: float  # extinction of the prefix sums' weights (1/unit, weights_extinction)
+    light_behind: bool  # the light travels the way the camera looks (the sun behind it)
+    info: dict  # the weights' description (row_weights)
+
+
+def prefilter_map(rectified, settings: ScatteringSettings, scene, device) -> Prefiltered:
+    """Prefilter a frame's :class:`~.rectify.Rectified` map (module doc)."""
+    p, rect, cam, medium = settings.prefiltered, rectified.rect, scene.camera, scene.medium
+    cols = settings.shadow_map.size[0]
+    # the light travels the way the camera looks (the sun behind it): the moment methods' segments are adaptive
+    light_behind = bool(np.dot(scene.light.direction, cam.forward) > 0.0)
+    segments = p.segments_for(rectified.nonlinear, medium.coloured, settings.method, light_behind)
+    segment_depth = p.segment_depth_for(settings.method, light_behind, medium.coloured) if segments > 1 else 0.0
+    depth_warp = p.depth_warp_for(settings.method, cols)
+    sigma_ref = weights_extinction(medium, segments)
+    tau, lengths, info = row_weights(rect, p, sigma_ref, cam, segments)
+    if settings.method == "fourier":
+        texture = prefilter_weighted(rectified.depth, settings.fourier.coefficients, tau, lengths, splits=p.splits,
+                                     bits=settings.fourier.storage_bits, depth_warp=depth_warp, device=device)
+    else:
+        texture = prefilter_moments(rectified.depth, settings.num_moments, tau, lengths,
+                                    storage_bits=settings.moment_storage_bits, depth_warp=depth_warp, device=device)
+    bounds = depth_bounds_of(rectified.depth, p.depth_bounds, device)
+    chain = row_mip_chain(texture, tau, bounds.bounds, p.mip_levels, device)
+    bounds.bounds = chain.bounds
+    return Prefiltered(chain.texture, bounds, chain, segments, segment_depth, depth_warp, sigma_ref, light_behind,
+                       info)
+
+
+def row_weights(rect, settings: PrefilteredSettings, sigma_t: float, camera=None,
+                segments: int = 1) -> tuple[np.ndarray, np.ndarray | None, dict]:
+    """Per-row optical steps and per-column lengths of the prefilter weights (Klehm 2014 Sec. 3.2, Eq. 11-12).
+
+    Non-linear rectification: uniform columns, tau_j = sigma_t Delta_ref of the row's reference ray. Projective:
+    column lengths l_i = dX_i / dX_0 (exact, or Eq. 12's Delta d^i per region) and tau_j = sigma_t times the
+    reference ray's world length of column 0 (dX_0 sqrt(1 + s^2 + zeta_ref^2)). ``camera`` is needed by the
+    ``"pixels"`` reference ray; ``segments``, the per-ray segments of the look-ups, picks the auto reference ray
+    (:meth:`~..settings.PrefilteredSettings.reference_for`).
+
+    Returns:
+        (optical_step (rows,) float32, column_length (cols,) float64 or None, info dict).
+    """
+    transmittance = settings.weighting == "transmittance"
+    reference = settings.reference_for(segments)
+    if isinstance(rect, NonlinearRectification):
+        tau = reference_ray(rect, reference, camera).optical_steps(sigma_t) if transmittance else None
+        return tau, None, {"reference_ray": reference}
+    lengths = column_lengths(rect, "exact" if settings.projective_weights == "exact" else "cross_ratio")
+    info = {"reference_ray": reference, "projective_weights": settings.projective_weights}
+    if settings.projective_weights == "cross_ratio":
+        info["cross_ratio_d"] = [round(float(d), 6) for d in cross_ratio_factors(rect)[0]]
+    tau = np.zeros(rect.rows, np.float32)
+    if transmittance:
+        scale = reference_rays(rect, reference, camera).length_scale
+        tau = (sigma_t * lengths[0] * scale).astype(np.float32)
+    return tau, lengths / lengths[0], info
+
+
+def weights_extinction(medium, segments: int) -> float:
+    """The extinction of the prefix sums' transmittance weights (1/unit): a grey medium's own. A coloured medium's
+    least channel extinction with per-ray segments (each channel then weights its rays with its own extinction, and
+    every channel decays at least as fast as the reference: convex taps, :mod:`..ray_weights`), else the channels'
+    mean (one weighting for all channels: the approximation of the projective map and of ``segments: 1``)."""
+    if medium.coloured and segments > 1:
+        return float(min(medium.sigma_t_rgb))
+    return medium.extinction
+
+
+__all__ = ["Prefiltered", "prefilter_map", "row_weights", "weights_extinction"]

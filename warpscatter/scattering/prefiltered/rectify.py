@@ -1,0 +1,108 @@
+"""The ``rectify`` pass: the light's view of the scene in rectified coordinates for this camera and light (module
+doc of :mod:`warpscatter.scattering.prefiltered`).
+
+* ``projective`` (Klehm 2014 Sec. 4.2): one 4x4 matrix per light-frustum region; the scene is rasterized straight
+  into the rectified map with depth clamping (:mod:`..rectify_projective`);
+* ``nonlinear`` (Peters 2017 Sec. 5.1.1, App. A): bounds in spherical light coordinates and the light's shadow map
+  resampled into them (:mod:`..rectify_nonlinear`): point taps, supersampled (``resample_filter: supersample``), or
+  filtered during resampling (``moments``, Peters 2017 Sec. 5.2: :func:`resample_filtered`);
+* ``auto``: projective unless the light's epipole (or anti-epipole) lies in the image or near it
+  (:func:`~..rectification.build_rectification`, Klehm's criterion for (close to) degenerate cases).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from ...shadows import translucency
+from ...stages import StageTimer
+from .. import rectify_nonlinear
+from ..rectification import build_rectification
+from ..rectify_nonlinear import NonlinearRectification, resample_shadow_map
+from ..rectify_projective import ProjectiveRectification, rasterize_rectified
+from ..settings import MAX_RESAMPLE_FILTER_PX, PrefilteredSettings
+
+
+@dataclass
+class Rectified:
+    """The ``rectify`` pass's result."""
+
+    rect: ProjectiveRectification | NonlinearRectification  # the rectification
+    choice: object  # why it was chosen (:func:`~..rectification.build_rectification`)
+    depth: object  # the rectified depth map (a (rows, cols) wp.array or a SparseRectifiedDepth)
+    info: dict = field(default_factory=dict)  # resample_filter, resample_samples, resample_filter_px
+
+    @property
+    def nonlinear(self) -> bool:
+        """Whether the rectification is the non-linear one (columns: equal steps along each view ray)."""
+        return isinstance(self.rect, NonlinearRectification)
+
+
+def rectify_map(frame, p: PrefilteredSettings, size: tuple[int, int], stage: StageTimer, device) -> Rectified:
+    """Choose the rectification of ``frame`` and rectify its light's view (stage ``rectify``; ``resample_msm`` too
+    when filtering during resampling). ``size``: (cols, rows) of the rectified map."""
+    scene, shadow_map = frame.scene, frame.shadow_map
+    cols, rows = size
+    samples = 0
+    with stage("rectify"):
+        rect, choice = build_rectification(scene, p, rows, cols)
+        nonlinear = isinstance(rect, NonlinearRectification)
+        filtered_resampling = nonlinear and p.resample_filter == "moments"
+        depth = None
+        if not nonlinear:
+            casters = scene.casters()
+            depth = rasterize_rectified(rect, casters.vertices, casters.triangles,
+                                        opacity=translucency.triangle_opacity(casters), device=device)
+        elif not filtered_resampling:
+            if p.resample_filter == "supersample":
+                samples = rectify_nonlinear.radial_samples_for(rect, shadow_map.texel_world)
+            depth = resample_shadow_map(
+                rect, shadow_map.depth, shadow_map.view_projection, depth="linear", world_to_view=shadow_map.view,
+                radial_samples=samples, device=device,
+                translucency=(shadow_map.opaque_depth, shadow_map.transmittance) if shadow_map.translucent else None)
+    info = {"resample_filter": p.resample_filter if nonlinear else "none"}
+    if nonlinear and p.resample_filter == "supersample":
+        info["resample_samples"] = samples
+    if filtered_resampling:
+        depth, info["resample_filter_px"] = resample_filtered(scene, rect, shadow_map, p, stage, device)
+    return Rectified(rect, choice, depth, info)
+
+
+def resample_filtered(scene, rect: NonlinearRectification, shadow_map, settings: PrefilteredSettings,
+                      stage: StageTimer, device) -> tuple:
+    """Filtering during resampling (Peters 2017 Sec. 5.2): stage ``resample_msm`` generates the light view's
+    128-bit 4-moment map (2x2 supersampled, :func:`~warpscatter.shadows.msm.generate_moment_shadow_map`) and
+    Gaussian-filters it (``resample_filter_px``, default the radial rectified texel footprint); stage ``rectify``
+    resamples it with Algorithm 2 (:func:`~..rectify_nonlinear.resample_moment_shadow_map`).
+
+    Returns:
+        (:class:`~..rectify_nonlinear.SparseRectifiedDepth`, the Gaussian width used in shadow-map texels).
+    """
+    from ...shadows import msm as msm_maps
+
+    filter_px = settings.resample_filter_px
+    if filter_px is None:
+        filter_px = int(np.clip(round(rectify_nonlinear.resample_footprint_texels(rect, shadow_map.texel_world)), 1,
+                                MAX_RESAMPLE_FILTER_PX))
+    with stage("resample_msm"):
+        moments = msm_maps.filter_moment_shadow_map(
+            msm_maps.generate_moment_shadow_map(scene, shadow_map, supersampling=2, bits=128, device=device),
+            filter_px, device=device)
+    with stage("rectify"):
+        depth = shadow_map.depth.numpy() if isinstance(shadow_map.depth, wp.array) else np.asarray(shadow_map.depth)
+        finite = depth[np.isfinite(depth)]
+        farthest = float(finite.max()) if finite.size else None  # the map's farthest caster (linear light depth)
+        return (rectify_nonlinear.resample_moment_shadow_map(rect, moments, farthest_caster=farthest, device=device),
+                int(filter_px))
+
+
+def map_depth(rectified) -> np.ndarray:
+    """(rows, cols) float32 rectified depth of a map (its first depth when it holds two)."""
+    depth = rectified.z1 if isinstance(rectified, rectify_nonlinear.SparseRectifiedDepth) else rectified
+    return depth.numpy()
+
+
+__all__ = ["Rectified", "map_depth", "rectify_map", "resample_filtered"]
