@@ -128,8 +128,8 @@ def _csm_rules(config: Any) -> list[str]:
     return problems + _csm_objects_rules(config)
 
 
-_PREFILTERED_MODULES = ("warpscatter.scattering.rectify_nonlinear", "warpscatter.scattering.rectify_local",
-                        "warpscatter.scattering.rectify_projective",
+_PREFILTERED_MODULES = ("warpscatter.scattering.rectify.nonlinear", "warpscatter.scattering.rectify.local",
+                        "warpscatter.scattering.rectify.projective",
                         "warpscatter.scattering.prefix_sums", "warpscatter.scattering.filtered_lookups",
                         "warpscatter.scattering.caster_culling", "warpscatter.scattering.epipole_fallback",
                         "warpscatter.scattering.prefiltered", "warpscatter.scattering.prefiltered_spot")

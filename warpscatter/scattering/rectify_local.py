@@ -1,13 +1,11 @@
 """Non-linear rectification of a spot light's shadow map (Klehm 2014 Sec. 3.2, local lights).
 
 Transitional (issue #51): the code moved to :mod:`warpscatter.scattering.rectify`; this module re-exports the names
-its importers use and goes away once they import from the package. It also keeps the old name loadable as a Warp
-module (``wp.load_module``, :data:`warpscatter.methods._PREFILTERED_MODULES`): see :func:`~.rectify.alias_warp_module`.
+its importers use and goes away once they import from the package.
 """
 
 from __future__ import annotations
 
-from .rectify import alias_warp_module
 from .rectify.local import (
     FAR_PLANE_SAMPLES,
     REFERENCE_ROW_REACH,
@@ -26,5 +24,3 @@ __all__ = [
     "resample_spot_kernel", "resample_spot_shadow_map", "resample_spot_translucent_kernel", "spot_rectification",
     "spot_texel_weights",
 ]
-
-alias_warp_module(__name__, "warpscatter.scattering.rectify.local")

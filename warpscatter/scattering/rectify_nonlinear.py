@@ -1,13 +1,11 @@
 """Non-linear rectification of a directional light (Peters 2017 Sec. 5.1.1, 5.2, App. A).
 
 Transitional (issue #51): the code moved to :mod:`warpscatter.scattering.rectify`; this module re-exports the names
-its importers use and goes away once they import from the package. It also keeps the old name loadable as a Warp
-module (``wp.load_module``, :data:`warpscatter.methods._PREFILTERED_MODULES`): see :func:`~.rectify.alias_warp_module`.
+its importers use and goes away once they import from the package.
 """
 
 from __future__ import annotations
 
-from .rectify import alias_warp_module
 from .rectify.bounds import (
     TWO_PI,
     NonlinearRectification,
@@ -76,5 +74,3 @@ __all__ = [
     "resample_translucent_kernel", "sentinel_gap_depth", "split_point", "tap_caster", "tap_part", "tap_parts",
     "tap_range", "tap_split", "texel_light_ray", "world_to_rectified",
 ]
-
-alias_warp_module(__name__, "warpscatter.scattering.rectify.nonlinear")

@@ -1,13 +1,11 @@
 """Projective rectification of a directional light (Klehm 2014 Sec. 4.2, Eq. 12).
 
 Transitional (issue #51): the code moved to :mod:`warpscatter.scattering.rectify`; this module re-exports the names
-its importers use and goes away once they import from the package. It also keeps the old name loadable as a Warp
-module (``wp.load_module``, :data:`warpscatter.methods._PREFILTERED_MODULES`): see :func:`~.rectify.alias_warp_module`.
+its importers use and goes away once they import from the package.
 """
 
 from __future__ import annotations
 
-from .rectify import alias_warp_module
 from .rectify.projective import (
     ProjectiveRectification,
     ProjectiveRectParams,
@@ -35,5 +33,3 @@ __all__ = [
     "projection_matrix", "rasterize_rectified", "rectified_ray_depth", "rectified_to_world", "reference_rays",
     "region_near_far", "world_to_rectified",
 ]
-
-alias_warp_module(__name__, "warpscatter.scattering.rectify.projective")

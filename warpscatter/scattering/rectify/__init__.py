@@ -11,18 +11,3 @@ one depth (Klehm 2014 Sec. 3.2, 4.2; Peters 2017 Sec. 5.1.1, 5.2, App. A).
 
 Layers: spherical <- bounds <- reference_rays; spherical <- taps <- nonlinear, local; bounds <- projective.
 """
-
-
-def alias_warp_module(old_name: str, new_name: str) -> None:
-    """Make ``wp.load_module(old_name)`` load the Warp module ``new_name`` (transitional, issue #51).
-
-    Warp finds a module's kernels by the Python module that defined them; the transitional re-export modules
-    (``rectify_nonlinear``, ``rectify_local``, ``rectify_projective``) define none, yet
-    :data:`warpscatter.methods._PREFILTERED_MODULES` names them for compiling before a render. The alias compiles
-    the new module under the old name (the same build, so no extra compile); it goes when that list names the
-    :mod:`warpscatter.scattering.rectify` modules.
-    """
-    import warp as wp
-    from warp._src.context import user_modules  # Warp 1.19: the registry wp.load_module reads by name
-
-    user_modules.setdefault(old_name, wp.get_module(new_name))
