@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import typing
+from abc import abstractmethod
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal, Optional, Union
 
@@ -64,10 +65,11 @@ class LightSettings(SettingsModel):
     #: Keys of the section that another key replaces when an override sets it (see :meth:`keys_replaced_by`).
     ALTERNATIVE_KEYS: ClassVar[tuple[tuple[str, ...], ...]] = ()
 
+    @abstractmethod
     def describe(self) -> str:
         """One line: the light type and its settings (``warpscatter validate``)."""
-        raise NotImplementedError
 
+    @abstractmethod
     def build(self) -> Any:
         """The host light of :mod:`warpscatter.scene.lights` (textures and maps read from their files).
 
@@ -75,7 +77,6 @@ class LightSettings(SettingsModel):
             InputFileError: a texture or map that cannot be read or holds values that are not radiance.
             ConfigError: an image the light cannot use.
         """
-        raise NotImplementedError
 
     @classmethod
     def keys_replaced_by(cls, key: str) -> tuple[str, ...]:
