@@ -182,7 +182,7 @@ def sky(width: int = 64, height: int = 32) -> np.ndarray:
 
 def _write_images(out: Path) -> None:
     try:
-        from warpscatter.imageio import write_exr, write_png
+        from warpscatter.io.images import write_exr, write_png
     except ImportError:  # a checkout without the image module: plain OpenImageIO
         import OpenImageIO as oiio
 

@@ -22,11 +22,11 @@ import click
 
 from warpscatter.config import Config, load_config
 from warpscatter.errors import ConfigError, WarpscatterError
-from warpscatter.resources import bundled_config
+from warpscatter.io.resources import bundled_config
 from warpscatter.scene.light_configs import format_value
 
 if TYPE_CHECKING:
-    from warpscatter.stages import Estimate
+    from warpscatter.runtime.stages import Estimate
 
 EXIT_FAILURE = 1
 EXIT_INVALID = 2
@@ -83,7 +83,7 @@ def executor_options(default: str):
 
 
 def _add_executor_options(f, default: str):
-    from warpscatter.jobs import EXECUTORS
+    from warpscatter.runs.jobs import EXECUTORS
 
     options = [
         click.option("--executor", type=click.Choice(EXECUTORS), default=default, show_default=True,
@@ -100,8 +100,8 @@ def _add_executor_options(f, default: str):
 
 
 def make_executor(kind: str, workers: int | None, address: str | None, tasks: int, debug: bool):
-    from warpscatter.jobs import make_executor
-    from warpscatter.parallel import thread_count
+    from warpscatter.runs.jobs import make_executor
+    from warpscatter.runtime.parallel import thread_count
 
     if workers is None and kind != "inline" and not address:
         workers = max(1, min(thread_count(), tasks))
@@ -130,7 +130,7 @@ def setup(verbose: int, quiet: bool, device: str | None = None, threads: int | N
         return None
     import warp as wp
 
-    from warpscatter.wpinit import init
+    from warpscatter.runtime.device import init
 
     wp.config.log_level = wp.LOG_INFO if verbose else wp.LOG_WARNING  # this process is ours: Warp quiet by default
     init(quiet_native=verbose < 2)
@@ -173,7 +173,7 @@ def eta_text(stage: str | None, estimate: Estimate) -> str:
 
 class ProgressDisplay:
     """``progress(stage, fraction)`` callback drawing on stderr, with the time left from an
-    :class:`~warpscatter.stages.EtaEstimator` (each stage's own measured rate; the stages still to come from
+    :class:`~warpscatter.runtime.stages.EtaEstimator` (each stage's own measured rate; the stages still to come from
     ``expected``, e.g. the timings of the previous render of the same output).
 
     On a terminal: a tqdm bar per stage (percentage, the stage's elapsed time and the ETA; ``prefix`` in front, e.g.
@@ -187,13 +187,13 @@ class ProgressDisplay:
         stream: where to draw (default: stderr).
         interval: seconds between plain lines (default :data:`PLAIN_PROGRESS_INTERVAL`); 0 draws every report.
         prefix: text in front of the stage name.
-        expected: stage -> seconds of an earlier run, in order (see :class:`~warpscatter.stages.EtaEstimator`).
+        expected: stage -> seconds of an earlier run, in order (see :class:`~warpscatter.runtime.stages.EtaEstimator`).
         every_stage: without a terminal, a line for every stage that starts (``-v``).
     """
 
     def __init__(self, enabled: bool = True, stream=None, interval: float | None = None, prefix: str = "",
                  expected=None, every_stage: bool = False):
-        from warpscatter.stages import EtaEstimator
+        from warpscatter.runtime.stages import EtaEstimator
 
         self.stream = stream if stream is not None else sys.stderr
         self.enabled = enabled

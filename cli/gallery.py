@@ -1,4 +1,4 @@
-"""``warpscatter gallery``: render the pictures the docs show (:func:`warpscatter.gallery.build`).
+"""``warpscatter gallery``: render the pictures the docs show (:func:`warpscatter.runs.gallery.build`).
 
 Registered on the application in :mod:`.main`; the options, logging set-up and exit codes are the other commands'
 (:mod:`.common`).
@@ -41,7 +41,7 @@ def gallery(ctx, output_dir: Path, bench_dir: Path | None, quick: bool, verbose,
     error images (compare_quickstart.png, methods/), the bench charts of --bench-dir (bench/), and gallery.json,
     what made each image. About 3 minutes on two shared cores (--quick: seconds, compile aside).
     """
-    from warpscatter.gallery import bench_files, build
+    from warpscatter.runs.gallery import bench_files, build
 
     debug = debug or (ctx.obj or {}).get("debug", False)
     device = setup(verbose, quiet, device, threads, kernels=True)

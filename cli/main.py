@@ -43,9 +43,9 @@ def main(ctx: click.Context, debug: bool) -> None:
     """
     ctx.obj = {"debug": debug}
     _terminate_like_interrupt()
-    from warpscatter.heap import keep_freed_memory_unless_disabled
+    from warpscatter.runtime.heap import keep_freed_memory_unless_disabled
 
-    keep_freed_memory_unless_disabled()  # repeated frames reuse their buffers' pages (warpscatter.heap)
+    keep_freed_memory_unless_disabled()  # repeated frames reuse their buffers' pages (warpscatter.runtime.heap)
 
 
 def _terminate_like_interrupt() -> None:

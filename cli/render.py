@@ -13,7 +13,7 @@ import click
 from warpscatter import methods
 from warpscatter.config import Config
 from warpscatter.errors import ConfigError, WarpscatterError
-from warpscatter.resources import in_package
+from warpscatter.io.resources import in_package
 
 from .common import (
     EXIT_FAILURE,
@@ -141,7 +141,7 @@ def render(ctx, config_paths, output_dir, overrides, method, name, seed, frames,
     frame_lists = {}
     for path, config in zip(config_paths, configs, strict=True):
         if config.animation is not None:
-            from warpscatter.sequence import parse_frames
+            from warpscatter.runs.animation import parse_frames
 
             try:
                 frame_lists[path] = parse_frames(frames, *config.animation.frame_range)
@@ -228,7 +228,7 @@ def _render_summary(config: Config, device: str | None, files: list[Path], hidde
 
 def _render_animation(config, frames, out_dir, progress, quiet, debug, force, preview, executor_args) -> int:
     """Render one animated config's frames; print what was rendered, skipped and failed; return an exit code."""
-    from warpscatter.sequence import render_animation
+    from warpscatter.runs.animation import render_animation
 
     kind, workers, address = executor_args
     executor = make_executor(kind, workers, address, len(frames), debug)

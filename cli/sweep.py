@@ -41,7 +41,7 @@ def sweep(ctx, sweep_path, output_dir, overrides, executor, workers, address, ve
     A failed case is reported with its error; the others go on (exit 1 when any failed).
     """
     from warpscatter.config import parse_override
-    from warpscatter.sweep import load_sweep, rows_table, run_sweep, sweep_cases
+    from warpscatter.runs.sweep import load_sweep, rows_table, run_sweep, sweep_cases
 
     debug = debug or ctx.obj.get("debug", False)
     setup(verbose, quiet)

@@ -93,7 +93,7 @@ def schema(output, verbose, quiet, debug) -> None:
     if output is None:
         click.echo(text, nl=False)
         return
-    from warpscatter.imageio import write_file_atomic
+    from warpscatter.io.images import write_file_atomic
 
     try:
         output.parent.mkdir(parents=True, exist_ok=True)

@@ -400,7 +400,7 @@ def shrink_cli_args(args: list[str]) -> list[str]:
 
 
 def shrink_module_args(module: str, args: list[str]) -> list[str]:
-    """``python -m warpscatter.gallery`` runs with ``--quick``."""
+    """``python -m warpscatter.runs.gallery`` runs with ``--quick``."""
     if module.endswith(".gallery") and "--quick" not in args and not any(a in ("-h", "--help") for a in args):
         return [*args, "--quick"]
     return args

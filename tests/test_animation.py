@@ -14,13 +14,13 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from warpscatter.animation import AnimationSettings, Track, frame_name, track_value
 from warpscatter.cli.main import main
 from warpscatter.config import load_config
+from warpscatter.config.animation import AnimationSettings, Track, frame_name, track_value
 from warpscatter.errors import ConfigError
-from warpscatter.imageio import read_image
-from warpscatter.jobs import InlineExecutor, LocalExecutor, RenderTask, make_executor, run_tasks, task_for
-from warpscatter.sequence import parse_frames, render_animation
+from warpscatter.io.images import read_image
+from warpscatter.runs.animation import parse_frames, render_animation
+from warpscatter.runs.jobs import InlineExecutor, LocalExecutor, RenderTask, make_executor, run_tasks, task_for
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -261,7 +261,7 @@ def test_a_csm_of_unmoved_occluders_is_built_once_per_process():
 
 
 def test_a_progressive_frame_counts_as_done_only_when_complete(animated, tmp_path, monkeypatch):
-    from warpscatter.jobs import finished
+    from warpscatter.runs.jobs import finished
 
     task = task_for(load_config(animated).at_frame(1), "sun.0001", tmp_path)
     render_animation(load_config(animated), tmp_path, frames=[1], preview="none")
@@ -295,7 +295,7 @@ def test_sweep_cases_that_change_the_scene_get_their_own_reference(tmp_path):
              "reference": {"render.scattering.method": "raymarch", "render.scattering.steps": 16}}
     path = tmp_path / "sweep.yaml"
     path.write_text(yaml.safe_dump(sweep))
-    from warpscatter.sweep import load_sweep, run_sweep, sweep_cases
+    from warpscatter.runs.sweep import load_sweep, run_sweep, sweep_cases
 
     cases, references = sweep_cases(load_sweep(path))
     assert sorted(references) == ["quickstart reference (width=20)", "quickstart reference (width=24)"]

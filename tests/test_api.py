@@ -63,7 +63,7 @@ def test_render_a_path_with_overrides_in_a_scoped_device(tmp_path):
 def test_device_follows_warp(monkeypatch):
     import warp as wp
 
-    from warpscatter.wpinit import default_device
+    from warpscatter.runtime.device import default_device
 
     monkeypatch.delenv("WARPSCATTER_DEVICE", raising=False)
     with wp.ScopedDevice("cpu"):
@@ -159,7 +159,7 @@ def test_layered_exr(tmp_path):
     assert sorted(channels) == sorted(("R", "G", "B", "scattering.R", "scattering.G", "scattering.B", "surface.R",
                                        "surface.G", "surface.B", "depth.Z"))  # OpenEXR orders them by name
     assert attrs["warpscatter:layers"] == "color,scattering,surface,depth"
-    pixels = warpscatter.imageio.read_image(tmp_path / "quickstart.exr")
+    pixels = warpscatter.io.images.read_image(tmp_path / "quickstart.exr")
     channel = {name: pixels[..., k] for k, name in enumerate(channels)}
     np.testing.assert_array_equal(channel["depth.Z"], result.images["depth"])
     np.testing.assert_array_equal(np.stack([channel[f"scattering.{c}"] for c in "RGB"], axis=2),

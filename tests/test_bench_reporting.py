@@ -199,7 +199,7 @@ def test_source_commit_never_fails(monkeypatch):
     def broken(*args, **kwargs):
         raise subprocess.TimeoutExpired("git", 2.0)
 
-    from warpscatter import provenance
+    from warpscatter.io import provenance
 
     monkeypatch.setattr(provenance.subprocess, "run", broken)
     provenance.source_commit.cache_clear()

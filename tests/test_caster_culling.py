@@ -9,13 +9,15 @@ from scipy import ndimage
 
 from warpscatter.bench import bench_scene_config, errors
 from warpscatter.config import ConfigError, load_config
-from warpscatter.gbuffer import gbuffer_raster
 from warpscatter.pipeline import render_images
-from warpscatter.scattering import caster_culling as cc
+from warpscatter.raster.gbuffer import gbuffer_raster
 from warpscatter.scattering import prefiltered as pre
-from warpscatter.scattering.rectification import build_rectification
-from warpscatter.scattering.rectify_nonlinear import NonlinearRectification, SparseRectifiedDepth, resample_shadow_map
-from warpscatter.scattering.rectify_projective import rasterize_rectified
+from warpscatter.scattering.rectify import caster_culling as cc
+from warpscatter.scattering.rectify.bounds import NonlinearRectification
+from warpscatter.scattering.rectify.nonlinear import resample_shadow_map
+from warpscatter.scattering.rectify.params import build_rectification
+from warpscatter.scattering.rectify.projective import rasterize_rectified
+from warpscatter.scattering.rectify.taps import SparseRectifiedDepth
 from warpscatter.scattering.settings import PrefilteredSettings, ScatteringSettings
 from warpscatter.scene import DeviceGeometry, build_scene
 from warpscatter.scene.lights import light_params

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from warpscatter import __version__
 from warpscatter.cli.main import ProgressDisplay, main, timing_table
-from warpscatter.imageio import write_outputs
+from warpscatter.io.images import write_outputs
 
 CONFIG = {
     "scene": {"meshes": [{"path": "meshes/box.obj"}]},

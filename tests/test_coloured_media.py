@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from conftest import quad, render_method
 
-from warpscatter.gbuffer import gbuffer_raycast
+from warpscatter.raster.gbuffer import gbuffer_raycast
 from warpscatter.scene import DeviceGeometry, Scene
 from warpscatter.scene.camera import Camera
 from warpscatter.scene.lights import DirectionalLight

@@ -382,7 +382,7 @@ def test_output_compression(tmp_path):
 
 
 def test_output_compression_matches_the_image_writer():
-    imageio = pytest.importorskip("warpscatter.imageio")
+    imageio = pytest.importorskip("warpscatter.io.images")
     assert cfgmod.EXR_COMPRESSIONS == imageio.EXR_COMPRESSIONS
     assert cfgmod.OutputConfig().compression == imageio.DEFAULT_EXR_COMPRESSION
 

@@ -5,7 +5,6 @@ import pytest
 import trimesh
 import warp as wp
 
-from warpscatter import raster
 from warpscatter.csm.depthmaps import (
     LatLongMapSet,
     bounding_sphere,
@@ -13,7 +12,8 @@ from warpscatter.csm.depthmaps import (
     latlong_frames,
     latlong_param,
 )
-from warpscatter.raycast import build_mesh, raycast_depth
+from warpscatter.raster import rasterizer as raster
+from warpscatter.raster.raycast import build_mesh, raycast_depth
 
 
 def bumpy_mesh_with_moon():

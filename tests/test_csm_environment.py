@@ -14,8 +14,8 @@ from warpscatter.csm.brdf import brdf_eval, brdf_pdf, brdf_sample
 from warpscatter.csm.depthmaps import latlong_param
 from warpscatter.csm.direct_lighting import ProgressiveAccumulator
 from warpscatter.csm.environment import shade_environment
-from warpscatter.imageio import read_image
-from warpscatter.raycast import build_mesh
+from warpscatter.io.images import read_image
+from warpscatter.raster.raycast import build_mesh
 from warpscatter.scene.environment_map import (
     EnvData,
     EnvironmentMap,

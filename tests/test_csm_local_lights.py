@@ -9,7 +9,7 @@ import trimesh
 from warpscatter.csm import build_csm, build_cube_csm
 from warpscatter.csm.direct_lighting import DirectLighting
 from warpscatter.csm.local_lights import check_light_csm, shade_local_light
-from warpscatter.raycast import build_mesh
+from warpscatter.raster.raycast import build_mesh
 from warpscatter.scene.lights import AreaLight, LinearLight
 
 UP = np.array([0.0, 1.0, 0.0])

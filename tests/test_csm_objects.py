@@ -10,7 +10,7 @@ import warpscatter
 from warpscatter.config import load_config
 from warpscatter.csm import occluders
 from warpscatter.errors import ConfigError
-from warpscatter.metrics import errors
+from warpscatter.io.metrics import errors
 
 ROOT = Path(__file__).resolve().parent.parent
 OBJECTS = ROOT / "configs" / "csm_objects.yaml"

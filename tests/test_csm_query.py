@@ -23,7 +23,7 @@ from warpscatter.csm.query import (
     csm_visibility_roulette,
     csm_visibility_to_point,
 )
-from warpscatter.raycast import build_mesh, occluded
+from warpscatter.raster.raycast import build_mesh, occluded
 
 KW = {"n1": 16, "n2": 8, "resolution": 32}
 

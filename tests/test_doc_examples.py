@@ -29,7 +29,7 @@ so that the data it validates has the camera at most ``doc_examples.MAX_SIDE`` p
 kept, the default size included) and shadow maps at most ``MAX_SHADOW_MAP`` texels. Every path into a render
 (YAML file, dict, ``--set``, ``model_copy``, a sweep's cases, the workers of an executor, which receive validated
 data) goes through it. ``warpscatter bench`` gets ``--quick --repeats 1 --warmup 0`` and
-``python -m warpscatter.gallery`` ``--quick`` appended.
+``python -m warpscatter.runs.gallery`` ``--quick`` appended.
 """
 
 from __future__ import annotations

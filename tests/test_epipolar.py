@@ -1,5 +1,5 @@
-"""Epipolar sampling (warpscatter.scattering.epipolar; Engelhardt & Dachsbacher 2010) against per-pixel ray marching."""
-
+"""Epipolar sampling (warpscatter.scattering.epipolar.method; Engelhardt & Dachsbacher 2010) against per-pixel ray
+marching."""
 from __future__ import annotations
 
 import logging
@@ -14,19 +14,19 @@ from hypothesis import strategies as st
 
 from warpscatter.config import load_config
 from warpscatter.errors import ConfigError
-from warpscatter.gbuffer import gbuffer_raster
 from warpscatter.pipeline import render_images
-from warpscatter.scattering import epipolar as ep
-from warpscatter.scattering import epipolar_textures as et
-from warpscatter.scattering import epipolar_upsampling as eu
+from warpscatter.raster.gbuffer import gbuffer_raster
+from warpscatter.runtime.device import default_device, module_options
 from warpscatter.scattering import marching
-from warpscatter.scattering.epipolar_lines import epipolar_lines, light_texture_level
+from warpscatter.scattering.epipolar import method as ep
+from warpscatter.scattering.epipolar import textures as et
+from warpscatter.scattering.epipolar import upsampling as eu
+from warpscatter.scattering.epipolar.lines import epipolar_lines, light_texture_level
 from warpscatter.scene import DeviceGeometry, build_scene
 from warpscatter.scene.camera import Camera, CameraParams
 from warpscatter.scene.lights import DirectionalLight, SpotLight
 from warpscatter.scene.medium import Medium
 from warpscatter.shadows.shadow_map import render_shadow_map, shadow_coords
-from warpscatter.wpinit import default_device, module_options
 
 module_options()
 

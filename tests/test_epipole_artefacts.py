@@ -1,6 +1,7 @@
 """Artefacts of prefiltered single scattering with the sun in view (issue #13, ``configs/colonnade_fourier.yaml``):
-the ray-marched disc around the sun (:mod:`warpscatter.scattering.epipole_fallback`) and the resampling of the
-shadow map into the non-linear rectification (:func:`warpscatter.scattering.rectify_nonlinear.resample_shadow_map`)."""
+the ray-marched disc around the sun (:mod:`warpscatter.scattering.prefiltered.epipole_regions`) and the resampling
+of the shadow map into the non-linear rectification
+(:func:`warpscatter.scattering.rectify.nonlinear.resample_shadow_map`)."""
 
 from pathlib import Path
 
@@ -9,15 +10,8 @@ import pytest
 import warp as wp
 
 from warpscatter.config import load_config
-from warpscatter.gbuffer import gbuffer_raster
 from warpscatter.pipeline import render_images
-from warpscatter.scattering.epipole_fallback import (
-    MarchedCones,
-    epipole_regions,
-    march_epipole_regions,
-    marched_cones,
-    wholly_marched,
-)
+from warpscatter.raster.gbuffer import gbuffer_raster
 from warpscatter.scattering.marching import (
     Marcher,
     march_along,
@@ -25,7 +19,15 @@ from warpscatter.scattering.marching import (
     marcher_params,
     visibility_params,
 )
-from warpscatter.scattering.rectify_nonlinear import NonlinearRectification, reference_ray
+from warpscatter.scattering.prefiltered.epipole_regions import (
+    MarchedCones,
+    epipole_regions,
+    march_epipole_regions,
+    marched_cones,
+    wholly_marched,
+)
+from warpscatter.scattering.rectify.bounds import NonlinearRectification
+from warpscatter.scattering.rectify.reference_rays import reference_ray
 from warpscatter.scene import DeviceGeometry, build_scene
 from warpscatter.scene.camera import CameraParams, pixel_ray_direction
 from warpscatter.shadows.shadow_map import render_shadow_map

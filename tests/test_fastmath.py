@@ -3,8 +3,8 @@
 import numpy as np
 import warp as wp
 
-from warpscatter.fastmath import fast_atan2
-from warpscatter.wpinit import module_options
+from warpscatter.runtime.device import module_options
+from warpscatter.runtime.fastmath import fast_atan2
 
 module_options()
 

@@ -10,9 +10,9 @@ import pytest
 import warpscatter
 from warpscatter.config import sun_direction
 from warpscatter.errors import ConfigError
-from warpscatter.metrics import errors
+from warpscatter.io.metrics import errors
+from warpscatter.io.resources import bundled_configs
 from warpscatter.pipeline.supersample import box_filter
-from warpscatter.resources import bundled_configs
 
 ROOT = Path(__file__).resolve().parent.parent
 QUICKSTART = ROOT / "configs" / "quickstart.yaml"

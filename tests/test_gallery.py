@@ -10,7 +10,7 @@ from click.testing import CliRunner
 
 from warpscatter.api import load_config
 from warpscatter.cli.gallery import gallery
-from warpscatter.gallery import (
+from warpscatter.runs.gallery import (
     COMPARED,
     REFERENCE_NAME,
     SHOWCASES,

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warpscatter import gbuffer, raster
 from warpscatter.config import load_config
-from warpscatter.gbuffer import GBufferArrays, gbuffer_raster, gbuffer_raycast
+from warpscatter.raster import gbuffer
+from warpscatter.raster import rasterizer as raster
+from warpscatter.raster.gbuffer import GBufferArrays, gbuffer_raster, gbuffer_raycast
 from warpscatter.scene import DeviceGeometry, MeshArrays, build_scene
 from warpscatter.scene.camera import Camera, CameraParams, far_plane_distance, pixel_ray_direction
 

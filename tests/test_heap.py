@@ -1,5 +1,5 @@
-"""warpscatter.heap: freed frame-sized buffers stay in the heap, so the next frame's allocation does not fault in
-fresh pages."""
+"""warpscatter.runtime.heap: freed frame-sized buffers stay in the heap, so the next frame's allocation does not fault
+in fresh pages."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import threading
 import pytest
 import warp as wp
 
-from warpscatter.heap import (
+from warpscatter.runtime.heap import (
     CACHE_LIMIT_BYTES,
     CachingHostAllocator,
     default_cache_limit,
@@ -25,7 +25,7 @@ from warpscatter.heap import (
 _FAULTS = textwrap.dedent("""
     import resource, sys
     import numpy as np
-    from warpscatter.heap import keep_freed_memory
+    from warpscatter.runtime.heap import keep_freed_memory
     if sys.argv[1] == "keep":
         assert keep_freed_memory()
     np.ones(64 << 18, dtype=np.float32)  # 64 MB: above glibc's mmap threshold
@@ -168,8 +168,8 @@ def test_warp_arrays_reuse_freed_blocks_through_the_cpu_device():
 _WARP_FAULTS = textwrap.dedent("""
     import resource, sys
     import warp as wp
-    from warpscatter.heap import keep_freed_memory_unless_disabled
-    from warpscatter.wpinit import init
+    from warpscatter.runtime.heap import keep_freed_memory_unless_disabled
+    from warpscatter.runtime.device import init
     keep_freed_memory_unless_disabled()  # as the CLI: before Warp starts (installed by init)
     init()
     n = (128 << 20) // 4  # 128 MB: a 1080p fourier frame's filtered basis
@@ -193,7 +193,7 @@ def test_the_cli_setting_starts_no_warp_and_installs_the_allocator_with_it():
     script = textwrap.dedent("""
         import warp as wp
         from warpscatter import wpinit
-        from warpscatter.heap import CachingHostAllocator, keep_freed_memory_unless_disabled
+        from warpscatter.runtime.heap import CachingHostAllocator, keep_freed_memory_unless_disabled
         keep_freed_memory_unless_disabled()
         assert not wpinit.initialised()
         wpinit.init()

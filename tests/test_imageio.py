@@ -1,4 +1,4 @@
-"""Image files (warpscatter.imageio): EXR round trips, sRGB previews, row order, atomic all-or-nothing writes."""
+"""Image files (warpscatter.io.images): EXR round trips, sRGB previews, row order, atomic all-or-nothing writes."""
 
 import threading
 
@@ -6,8 +6,9 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from warpscatter import __version__, imageio
-from warpscatter.imageio import (
+from warpscatter import __version__
+from warpscatter.io import images as imageio
+from warpscatter.io.images import (
     DEFAULT_EXR_COMPRESSION,
     EXR_COMPRESSIONS,
     ImageWriteError,

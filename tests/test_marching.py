@@ -7,14 +7,14 @@ import pytest
 import warp as wp
 from conftest import make_scene, march, quad
 
-from warpscatter.gbuffer import gbuffer_raycast
+from warpscatter.raster.gbuffer import gbuffer_raycast
+from warpscatter.runtime.device import default_device, module_options
 from warpscatter.scattering import marching as rm
 from warpscatter.scene import DeviceGeometry
 from warpscatter.scene.camera import Camera, CameraParams, pixel_ray_direction
 from warpscatter.scene.lights import DirectionalLight, LightParams
 from warpscatter.scene.medium import Medium, transmittance_integral
 from warpscatter.shadows.shadow_map import ShadowMapParams, render_shadow_map, shadow_coords
-from warpscatter.wpinit import default_device, module_options
 
 module_options()
 

@@ -14,8 +14,8 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from scipy.linalg import solve_triangular
 
+from warpscatter.runtime.device import module_options
 from warpscatter.shadows import moments
-from warpscatter.wpinit import module_options
 
 module_options()
 

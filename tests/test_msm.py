@@ -16,13 +16,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from warpscatter.raster import linearize_depth, rasterize
+from warpscatter.raster.rasterizer import linearize_depth, rasterize
+from warpscatter.runtime.device import module_options
 from warpscatter.scene.camera import Camera, CameraParams, look_at_basis, orthographic_matrix, view_matrix
 from warpscatter.shading import pixel_footprint
 from warpscatter.shadows import moments as mm
 from warpscatter.shadows import msm, translucency
 from warpscatter.shadows.shadow_map import ShadowMap, ShadowMapParams, shadow_pcf
-from warpscatter.wpinit import module_options
 
 module_options()
 

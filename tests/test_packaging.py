@@ -1,7 +1,7 @@
 """Packaging (issue #14): what a wheel ships, checked against pyproject.toml without building one.
 
 The wheel itself is built, installed and run by ``.ci/wheel_check`` (a CI step); these tests keep the declarations
-complete: every bundled config and asset is package data, ``warpscatter.resources`` finds them in both layouts
+complete: every bundled config and asset is package data, ``warpscatter.io.resources`` finds them in both layouts
 (source checkout and installed package), the version lives in one place, LICENSE and ``py.typed`` ship.
 """
 
@@ -19,7 +19,7 @@ import pytest
 import yaml
 
 import warpscatter
-from warpscatter import resources
+from warpscatter.io import resources
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warpscatter import parallel
+from warpscatter.runtime import parallel
 
 
 @wp.kernel

@@ -11,9 +11,9 @@ from conftest import make_scene, quad
 
 from warpscatter.cli.main import main
 from warpscatter.config import ConfigError, load_config
-from warpscatter.gbuffer import gbuffer_raster
-from warpscatter.imageio import read_image
+from warpscatter.io.images import read_image
 from warpscatter.pipeline import render, render_images
+from warpscatter.raster.gbuffer import gbuffer_raster
 from warpscatter.scene import DeviceGeometry, build_scene
 from warpscatter.scene.camera import Camera
 from warpscatter.scene.lights import DirectionalLight
@@ -50,7 +50,7 @@ def test_every_bundled_config_renders(config):
                                                   "render.lighting.samples=4", "render.lighting.passes=2",
                                                   "render.lighting.csm.maps=[16,8]",
                                                   "render.lighting.csm.resolution=32"])
-    if cfg.animation is not None:  # an animated config renders frame by frame (warpscatter.sequence)
+    if cfg.animation is not None:  # an animated config renders frame by frame (warpscatter.runs.animation)
         with pytest.raises(ConfigError, match="animation: the config is a sequence"):
             render(cfg, write=False)
         cfg = cfg.at_frame(cfg.animation.frame_numbers[-1])
@@ -155,7 +155,7 @@ def test_pcf_keeps_the_creases_of_a_closed_room_dark():
     texels past the outline, compared one depth against the walls (steep in light space) and let the bias pass
     the walls' texels next to the contact. Contact PCF keeps them dark, also where a wall texel on the outline has
     its centre a hair inside the wall's edge (it counts only when the box has no other texel)."""
-    from warpscatter.raycast import shadow_ray_visibility
+    from warpscatter.raster.raycast import shadow_ray_visibility
 
     scene, geo, gb, sm, surface, _, p, n = _pcf_surfaces("window.yaml")
     hit = gb.material.numpy() >= 0
@@ -239,7 +239,7 @@ def test_pcf_offsets_follow_the_spot_lights_texel_size():
     """configs/spot.yaml (issue #13, the dotted stripes): a spot's shadow map is perspective, so its texels grow with
     the distance; a normal offset and depth bias sized for a texel at unit distance left most of the lit ground partly
     self-shadowed. They now grow with the receiver's depth, as the moment maps' offset does."""
-    from warpscatter.raycast import shadow_ray_visibility
+    from warpscatter.raster.raycast import shadow_ray_visibility
 
     scene, geo, gb, _, shadowed, unshadowed, p, n = _pcf_surfaces("spot.yaml")
     hit = gb.material.numpy() >= 0

@@ -13,12 +13,12 @@ from warpscatter.config import load_config
 from warpscatter.csm import geometry_digest, load_csm
 from warpscatter.csm.occluders import scene_occluders
 from warpscatter.errors import ConfigError
-from warpscatter.imageio import read_image, write_exr
+from warpscatter.io.images import read_image, write_exr
 from warpscatter.pipeline import StageTimer, render
 from warpscatter.pipeline import lighting as lighting_module
 from warpscatter.pipeline.lighting import pass_seed, render_lighting
+from warpscatter.runtime.device import default_device
 from warpscatter.scene import build_scene
-from warpscatter.wpinit import default_device
 
 ROOT = Path(__file__).resolve().parents[1]
 GATE = ROOT / "configs" / "csm_gate.yaml"

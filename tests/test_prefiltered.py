@@ -12,12 +12,12 @@ import warp as wp
 from warpscatter.bench import bench_scene_config
 from warpscatter.config import load_config
 from warpscatter.pipeline import render_images
-from warpscatter.scattering import filtered_lookups as fl
-from warpscatter.scattering import prefix_sums as pf
-from warpscatter.scattering import rectify_projective as rp
+from warpscatter.scattering.prefiltered import filtered_lookups as fl
+from warpscatter.scattering.prefiltered import prefix_sums as pf
 from warpscatter.scattering.prefiltered import row_weights
-from warpscatter.scattering.rectify_nonlinear import NonlinearRectification
-from warpscatter.scattering.rectify_projective import ProjectiveRectification
+from warpscatter.scattering.rectify import reference_rays
+from warpscatter.scattering.rectify.bounds import NonlinearRectification
+from warpscatter.scattering.rectify.projective import ProjectiveRectification
 from warpscatter.scattering.settings import FOURIER_COEFFICIENTS, MAX_SPLITS, PrefilteredSettings, ScatteringSettings
 from warpscatter.scene import build_scene
 from warpscatter.scene.camera import Camera
@@ -159,7 +159,7 @@ def test_row_weights_give_world_optical_thickness():
         assert lengths is None and tau.shape == (32,) and np.all(tau > 0.0)
         tau, lengths, info = row_weights(proj, settings, sigma, cam)
         assert info["projective_weights"] == "exact" and lengths[0] == 1.0
-        ref = rp.reference_rays(proj, method, cam)
+        ref = reference_rays.reference_rays(proj, method, cam)
         x = proj.column_to_x(np.arange(257, dtype=np.float64))
         world = np.diff(x)[None, :] * ref.length_scale[:, None]  # world length of every texel along the ray
         np.testing.assert_allclose(tau[:, None] * lengths[None, :], sigma * world, rtol=1e-6)
@@ -490,8 +490,8 @@ def test_lit_ray_ends_agree_with_shadow_rays(config):
     """prefiltered.lit_ray_ends against exact shadow rays from the G-buffer's end points (surfaces facing the sun and
     unblocked towards it) at 160x90 with a 1024^2 map. Measured agreement over the surface pixels: window room 0.998,
     colonnade 0.995, gate 0.982 (the map's texels at silhouettes); every sky pixel counts as lit."""
-    from warpscatter.gbuffer import gbuffer_raster
-    from warpscatter.raycast import build_mesh, shadow_ray_visibility
+    from warpscatter.raster.gbuffer import gbuffer_raster
+    from warpscatter.raster.raycast import build_mesh, shadow_ray_visibility
     from warpscatter.scattering.prefiltered import lit_ray_ends
     from warpscatter.scene import DeviceGeometry
     from warpscatter.shadows.shadow_map import render_shadow_map
@@ -560,7 +560,7 @@ def test_wholly_shadowed_rays_are_dark_and_lit_rays_closer(method, lit_bound):
     from conftest import render_method
     from test_translucent_scattering import _closed_form, _slab_scene
 
-    from warpscatter.gbuffer import gbuffer_raycast
+    from warpscatter.raster.gbuffer import gbuffer_raycast
     from warpscatter.scene import DeviceGeometry
     from warpscatter.shadows.shadow_map import render_shadow_map
 
@@ -731,7 +731,7 @@ def test_canopy_moments_has_no_seam_below_the_epipole():
 def test_epipole_region_rectangles_hold_every_pixel_of_the_cone():
     """Random cameras and light directions (epipole inside, near the border, outside, behind): every pixel whose ray
     lies inside a region's outer cone is inside its rectangle, and no region is reported for a cone off the image."""
-    from warpscatter.scattering.epipole_fallback import epipole_regions
+    from warpscatter.scattering.prefiltered.epipole_regions import epipole_regions
 
     rng = np.random.default_rng(7)
     for _ in range(60):
@@ -849,7 +849,7 @@ def test_map_fitted_to_the_casters_is_finer_where_the_shadows_are():
     """map_radius: casters ends the non-linear map at the farthest caster (rays' texels beyond it are lit): the
     colonnade's pillars get ~3x the columns, and with nearest-depth resampling the error against the exact marcher
     drops (with the supersampled resampling it is about even)."""
-    from warpscatter.scattering.rectify_nonlinear import caster_radius
+    from warpscatter.scattering.rectify.bounds import caster_radius
     from warpscatter.scene.camera import Camera
 
     cam = Camera(position=(0.0, 0.0, 0.0), look_at=(0.0, 0.0, -1.0), up=(0.0, 1.0, 0.0), fov_y=60.0, width=8,

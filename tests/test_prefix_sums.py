@@ -1,4 +1,4 @@
-"""Tests of the Fourier and moment prefix sums and their look-ups (warpscatter.scattering.prefix_sums,
+"""Tests of the Fourier and moment prefix sums and their look-ups (warpscatter.scattering.prefiltered.prefix_sums,
 filtered_lookups; Klehm 2014 Sec. 3, Eq. 8-11, App. A)."""
 
 from __future__ import annotations
@@ -9,14 +9,15 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warpscatter.scattering import filtered_lookups as fl
-from warpscatter.scattering import filtered_textures as ft
-from warpscatter.scattering import prefix_sums as pf
-from warpscatter.scattering.rectify_nonlinear import NonlinearRectification, reference_ray
+from warpscatter.runtime.device import default_device, module_options
+from warpscatter.scattering.prefiltered import filtered_lookups as fl
+from warpscatter.scattering.prefiltered import prefix_sums as pf
+from warpscatter.scattering.prefiltered import textures as ft
+from warpscatter.scattering.rectify.bounds import NonlinearRectification
+from warpscatter.scattering.rectify.reference_rays import reference_ray
 from warpscatter.scene.camera import Camera
 from warpscatter.shadows import moment_storage as ms
 from warpscatter.shadows import moments as mm
-from warpscatter.wpinit import default_device, module_options
 
 module_options()
 
@@ -251,7 +252,7 @@ def test_moment_textures_have_the_real_dtype_and_bytes(m, bits):
 def test_packed_moments_decode_to_the_emulation_bit_for_bit(m, bits):
     """The codes of every mode decode to exactly the float32 texels of the previous emulation (the same filter with
     every value rounded to the fixed point and kept in float32): plain and two-depth texels, uneven columns."""
-    from warpscatter.scattering.rectify_nonlinear import SparseRectifiedDepth
+    from warpscatter.scattering.rectify.taps import SparseRectifiedDepth
 
     rng = np.random.default_rng(m * bits)
     rows, cols = 7, 90
@@ -572,7 +573,7 @@ def test_bad_input_raises():
 
 
 def _sparse(z1, z2, w2):
-    from warpscatter.scattering.rectify_nonlinear import SparseRectifiedDepth
+    from warpscatter.scattering.rectify.taps import SparseRectifiedDepth
 
     dev = wp.get_device()
     return SparseRectifiedDepth(*(wp.array(np.ascontiguousarray(a, np.float32), dtype=wp.float32, device=dev)
@@ -640,7 +641,7 @@ def test_filtered_resampling_and_mipmapped_shadows_through_the_pipeline():
 def test_depth_bounds_are_the_rows_prefix_min_and_max():
     """Issue #13: the per-row prefix bounds behind the wholly lit / shadowed look-ups, against numpy, for one depth
     and for the two-depth texels (both depths count when the second has weight)."""
-    from warpscatter.scattering.rectify_nonlinear import SparseRectifiedDepth
+    from warpscatter.scattering.rectify.taps import SparseRectifiedDepth
 
     rng = np.random.default_rng(3)
     z1 = rng.uniform(0.2, 0.9, (5, 40)).astype(np.float32)

@@ -267,7 +267,7 @@ def test_bundled_gate_obj():
 
 
 def test_make_assets_reproduces_the_bundled_files(tmp_path):
-    from warpscatter.imageio import read_image
+    from warpscatter.io.images import read_image
 
     spec = importlib.util.spec_from_file_location("make_assets", ROOT / "assets" / "make_assets.py")
     module = importlib.util.module_from_spec(spec)

@@ -1,5 +1,5 @@
-"""The time left of a render (warpscatter.stages.EtaEstimator) and how the CLI shows it, on synthetic timings: every
-time is passed in, nothing is timed."""
+"""The time left of a render (warpscatter.runtime.stages.EtaEstimator) and how the CLI shows it, on synthetic timings:
+every time is passed in, nothing is timed."""
 
 import io
 import json
@@ -7,7 +7,7 @@ import json
 import pytest
 
 from warpscatter.cli.main import ProgressDisplay, _previous_timings, eta_text, timing_table
-from warpscatter.stages import Estimate, EtaEstimator
+from warpscatter.runtime.stages import Estimate, EtaEstimator
 
 
 def feed(eta: EtaEstimator, reports) -> EtaEstimator:

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 import warpscatter
 import warpscatter.pipeline
 from warpscatter.cli.main import main
-from warpscatter.wpinit import warp_log, warp_messages
+from warpscatter.runtime.device import warp_log, warp_messages
 
 ROOT = Path(__file__).resolve().parent.parent
 QUICKSTART = ROOT / "configs" / "quickstart.yaml"

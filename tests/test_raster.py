@@ -1,4 +1,4 @@
-"""Tests of warpscatter.raster: agreement with BVH ray casting, watertightness of the fill rule,
+"""Tests of warpscatter.raster.rasterizer: agreement with BVH ray casting, watertightness of the fill rule,
 clipping, depth clamping, depth peeling, pixel conventions and input validation."""
 
 import numpy as np
@@ -6,7 +6,8 @@ import pytest
 import trimesh
 import warp as wp
 
-from warpscatter import raster, raycast
+from warpscatter.raster import rasterizer as raster
+from warpscatter.raster import raycast
 from warpscatter.scene.camera import Camera, look_at_basis, orthographic_matrix, perspective_matrix, view_matrix
 
 # ---- scenes and helpers ------------------------------------------------------------------------------

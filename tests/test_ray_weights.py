@@ -1,12 +1,13 @@
-"""Per-ray transmittance weights of the prefiltered look-ups (:mod:`warpscatter.scattering.ray_weights`)."""
+"""Per-ray transmittance weights of the prefiltered look-ups (:mod:`warpscatter.scattering.prefiltered.ray_weights`)."""
 
 import numpy as np
 import pytest
 import warp as wp
 
-from warpscatter.scattering import filtered_lookups as fl
-from warpscatter.scattering.ray_weights import RayWeights, ray_weights
-from warpscatter.scattering.rectify_nonlinear import NonlinearRectification, reference_ray
+from warpscatter.scattering.prefiltered import filtered_lookups as fl
+from warpscatter.scattering.prefiltered.ray_weights import RayWeights, ray_weights
+from warpscatter.scattering.rectify.bounds import NonlinearRectification
+from warpscatter.scattering.rectify.reference_rays import reference_ray
 from warpscatter.scattering.settings import MAX_SEGMENTS, PrefilteredSettings
 from warpscatter.scene.camera import Camera
 

@@ -1,11 +1,12 @@
-"""Tests of warpscatter.raycast: BVH ray queries as @wp.func building blocks, and the per-pixel
+"""Tests of warpscatter.raster.raycast: BVH ray queries as @wp.func building blocks, and the per-pixel
 depth references (NDC depth through any matrix, camera hit distances) against analytic planes."""
 
 import numpy as np
 import pytest
 import warp as wp
 
-from warpscatter import raster, raycast
+from warpscatter.raster import rasterizer as raster
+from warpscatter.raster import raycast
 from warpscatter.scene.camera import Camera, look_at_basis, orthographic_matrix, view_matrix
 
 

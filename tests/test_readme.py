@@ -31,7 +31,7 @@ def test_kernel_example_gives_the_shadows_it_states(tmp_path, monkeypatch):
 def test_marcher_example_matches_the_library_marcher(tmp_path, monkeypatch):
     # the user kernel marches with the library's estimator: every camera pixel's ray, with ray k the random stream
     # of pixel k, against the method's marcher (the directions differ by float rounding only)
-    from warpscatter.gbuffer import gbuffer_raster
+    from warpscatter.raster.gbuffer import gbuffer_raster
     from warpscatter.scattering.raymarch import march_pixels
     from warpscatter.scene import DeviceGeometry
 

@@ -6,8 +6,8 @@ import pytest
 from warpscatter.bench import bench_scene_config, errors
 from warpscatter.config import Config, ConfigError
 from warpscatter.csm.occluders import scene_occluders
-from warpscatter.gbuffer import gbuffer_raster
 from warpscatter.pipeline import render_images
+from warpscatter.raster.gbuffer import gbuffer_raster
 from warpscatter.scene import DeviceGeometry, Scene, build_scene
 from warpscatter.scene.camera import Camera
 from warpscatter.scene.lights import DirectionalLight

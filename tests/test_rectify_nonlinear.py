@@ -1,4 +1,4 @@
-"""Tests of the non-linear epipolar rectification (warpscatter.scattering.rectify_nonlinear; Peters 2017 Sec. 5.1.1,
+"""Tests of the non-linear epipolar rectification (warpscatter.scattering.rectify; Peters 2017 Sec. 5.1.1,
 App. A)."""
 
 from __future__ import annotations
@@ -9,11 +9,13 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warpscatter.scattering import rectify_nonlinear as rectify
+from warpscatter.runtime.device import default_device, module_options
+from warpscatter.scattering.rectify import bounds, nonlinear, spherical
 from warpscatter.scattering.rectify import nonlinear as rectify_nl
-from warpscatter.scattering.rectify_nonlinear import NonlinearRectification, reference_ray, resample_shadow_map
+from warpscatter.scattering.rectify.bounds import NonlinearRectification
+from warpscatter.scattering.rectify.nonlinear import resample_shadow_map
+from warpscatter.scattering.rectify.reference_rays import reference_ray
 from warpscatter.scene.camera import Camera, look_at_basis, orthographic_matrix, view_matrix
-from warpscatter.wpinit import default_device, module_options
 
 module_options()
 
@@ -133,8 +135,8 @@ def test_bounds_contain_frustum(kind):
             -c[:, 0].min(),
         )
         ez = rect.light_direction
-        assert rect.light_in_view == rectify.direction_in_frustum(cam, ez)
-        assert rect.flipped_light_in_view == rectify.direction_in_frustum(cam, -ez)
+        assert rect.light_in_view == bounds.direction_in_frustum(cam, ez)
+        assert rect.flipped_light_in_view == bounds.direction_in_frustum(cam, -ez)
         if rect.light_in_view:
             assert rect.theta_min == 0.0
         if rect.flipped_light_in_view:
@@ -210,7 +212,7 @@ def test_kernel_funcs_match_host():
 
     @wp.kernel
     def user_kernel(
-        rect: rectify.NonlinearRectParams,
+        rect: spherical.NonlinearRectParams,
         pts: wp.array(dtype=wp.vec3),
         dirs: wp.array(dtype=wp.vec3),
         coords: wp.array(dtype=wp.vec3),
@@ -218,10 +220,10 @@ def test_kernel_funcs_match_host():
         ray_depth: wp.array(dtype=float),
     ):
         n = wp.tid()
-        c = rectify.world_to_rectified(rect, pts[n])
+        c = spherical.world_to_rectified(rect, pts[n])
         coords[n] = c
-        back[n] = rectify.rectified_to_world(rect, c)
-        ray_depth[n] = rectify.rectified_ray_depth(rect, dirs[n])
+        back[n] = spherical.rectified_to_world(rect, c)
+        ray_depth[n] = spherical.rectified_ray_depth(rect, dirs[n])
 
     device = default_device()
     worst = np.zeros(3)
@@ -263,9 +265,9 @@ def test_pixel_rays_constant_in_float32_kernel():
     """Same property through the kernel path: v and depth stay constant along pixel rays (t >= near)."""
 
     @wp.kernel
-    def coords_kernel(rect: rectify.NonlinearRectParams, pts: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
+    def coords_kernel(rect: spherical.NonlinearRectParams, pts: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
         n = wp.tid()
-        out[n] = rectify.world_to_rectified(rect, pts[n])
+        out[n] = spherical.world_to_rectified(rect, pts[n])
 
     device = default_device()
     worst = 0.0
@@ -457,7 +459,7 @@ def test_supersampling_rows_do_not_depend_on_the_thread_split(monkeypatch, trans
     offset: one thread, three threads (chunks of another size, a row count that does not divide evenly) and a thread
     per texel (span 1, as on CUDA) give the same texels bit for bit, and every texel is written (none keeps
     wp.empty's garbage: each one is a depth in [0, 1])."""
-    import warpscatter.parallel as parallel
+    import warpscatter.runtime.parallel as parallel
 
     light = np.array([-0.3, -0.8, -0.5])
     light = light / np.linalg.norm(light)
@@ -470,7 +472,7 @@ def test_supersampling_rows_do_not_depend_on_the_thread_split(monkeypatch, trans
     args = {"depth": "linear", "world_to_view": view, "radial_samples": 2}
     if translucent:
         args["translucency"] = (depth, np.full_like(depth, 0.5))
-    assert rectify.radial_span(rect.cols, "cpu") == rect.cols
+    assert nonlinear.radial_span(rect.cols, "cpu") == rect.cols
     runs = []
     for threads, span in ((1, None), (3, None), (2, 1)):
         monkeypatch.setattr(parallel, "thread_count", lambda n=threads: n)
@@ -566,7 +568,7 @@ def test_filtered_resampling_recovers_a_two_surface_texel():
     g = msm.map_geometry(sm_dummy.shadow_map)
     za, zb = g.depth_scale * d_a + g.depth_offset, g.depth_scale * d_b + g.depth_offset
     b = (1.0 - w) * za ** np.arange(1, 5) + w * zb ** np.arange(1, 5)
-    sparse = rectify.resample_moment_shadow_map(rect, _synthetic_moment_map(view, proj, np.tile(b, (16, 16, 1))))
+    sparse = nonlinear.resample_moment_shadow_map(rect, _synthetic_moment_map(view, proj, np.tile(b, (16, 16, 1))))
     got = sparse.numpy()
     expect = [resample_shadow_map(rect, np.full((16, 16), d, np.float32), proj @ view, depth="linear",
                                   world_to_view=view).numpy() for d in (d_a, d_b)]
@@ -576,11 +578,11 @@ def test_filtered_resampling_recovers_a_two_surface_texel():
     assert np.abs(got[..., 1] - expect[1]).max() < 2e-4  # measured 2.5e-5
     assert np.abs(got[..., 2] - w).max() < 1e-4  # measured 1.5e-5
     # a single caster (zero variance up to float32 rounding) is delta_{b_1}: the nearest depth, w_2 ~ 0
-    one = rectify.resample_moment_shadow_map(rect, _synthetic_moment_map(
+    one = nonlinear.resample_moment_shadow_map(rect, _synthetic_moment_map(
         view, proj, np.tile(za ** np.arange(1, 5), (16, 16, 1)))).numpy()
     assert one[..., 2].max() < 1e-5 and np.abs(one[..., 0] - expect[0]).max() < 1e-5  # measured 1.6e-7, 2.6e-7
     # the cleared far plane (z = +1) is "no blocker"
-    empty = rectify.resample_moment_shadow_map(rect, _synthetic_moment_map(view, proj, np.ones((16, 16, 4)))).numpy()
+    empty = nonlinear.resample_moment_shadow_map(rect, _synthetic_moment_map(view, proj, np.ones((16, 16, 4)))).numpy()
     assert np.all(empty[..., 0] == 1.0) and np.all(empty[..., 1] == 1.0)
 
 
@@ -601,15 +603,15 @@ def test_filtered_resampling_reads_the_pulled_down_far_plane_as_no_blocker():
     for w in np.linspace(0.3, 0.99, 24):  # weight of the empty texels in the filter footprint
         b = 0.5 * (1.0 - w) * (za ** np.arange(1, 5) + zb ** np.arange(1, 5)) + w
         m = _synthetic_moment_map(view, proj, np.tile(b, (16, 16, 1)))
-        got = rectify.resample_moment_shadow_map(rect, m, farthest_caster=farthest).numpy()
+        got = nonlinear.resample_moment_shadow_map(rect, m, farthest_caster=farthest).numpy()
         upper.append(got[..., 1])
         lower.append(got[..., 0])
     upper, lower = np.array(upper), np.array(lower)
     assert upper.min() > 0.99  # measured 0.9996; the fixed threshold gave the far plane's depth up to w = 0.94
     assert np.abs(np.diff(upper, axis=0)).max() < 0.01  # no switch between neighbouring weights
     two = _synthetic_moment_map(view, proj, np.tile(0.5 * (za ** np.arange(1, 5) + zb ** np.arange(1, 5)), (16, 16, 1)))
-    with_limit = rectify.resample_moment_shadow_map(rect, two, farthest_caster=farthest).numpy()
-    assert np.array_equal(with_limit, rectify.resample_moment_shadow_map(rect, two).numpy())  # casters: as before
+    with_limit = nonlinear.resample_moment_shadow_map(rect, two, farthest_caster=farthest).numpy()
+    assert np.array_equal(with_limit, nonlinear.resample_moment_shadow_map(rect, two).numpy())  # casters: as before
     assert np.ptp(lower, axis=0).max() < 1e-3  # the nearer depth (Algorithm 2's z_1 ~ -0.383) barely moves
 
 
@@ -621,7 +623,7 @@ def test_filtered_resampling_degenerate_moments_stay_finite():
     tex[::3] = np.nan
     tex[1::3, ::2] = [0.2, 0.04 - 1e-9, 0.008, 0.0016]  # negative variance
     tex[2::3, 1::2] = [1e30, -1e30, 1e30, np.inf]
-    got = rectify.resample_moment_shadow_map(rect, _synthetic_moment_map(view, proj, tex)).numpy()
+    got = nonlinear.resample_moment_shadow_map(rect, _synthetic_moment_map(view, proj, tex)).numpy()
     assert np.all(np.isfinite(got)) and got.min() >= 0.0 and got.max() <= 1.0
 
 
@@ -653,7 +655,7 @@ def test_filtered_resampling_shrinks_the_stripes_of_a_straight_slanted_edge(tmp_
     exact = lit_nearest(2048, n * k)[0].reshape(n, k, n, k).mean(axis=(1, 3))
     nearest, sm, rect = lit_nearest(64, n)
     m = msm.filter_moment_shadow_map(msm.generate_moment_shadow_map(scene, sm, supersampling=2, bits=128), 1)
-    sp = rectify.resample_moment_shadow_map(rect, m).numpy()
+    sp = nonlinear.resample_moment_shadow_map(rect, m).numpy()
     filtered = (1.0 - sp[..., 2]) * (sp[..., 0] >= 1.0) + sp[..., 2] * (sp[..., 1] >= 1.0)
     edge = ((exact > 0.0) & (exact < 1.0)) | (nearest != exact)
     assert edge.sum() > 50

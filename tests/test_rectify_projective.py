@@ -1,4 +1,4 @@
-"""Tests of Klehm 2014's projective rectification (warpscatter.scattering.rectify_projective; Sec. 4.2, Eq. 12)."""
+"""Tests of Klehm 2014's projective rectification (warpscatter.scattering.rectify; Sec. 4.2, Eq. 12)."""
 
 from __future__ import annotations
 
@@ -10,12 +10,12 @@ import pytest
 import trimesh
 import warp as wp
 
-from warpscatter import raster
-from warpscatter.raycast import build_mesh, ray_hit
-from warpscatter.scattering import rectify_projective as rp
-from warpscatter.scattering.rectify_projective import ProjectiveRectification
+from warpscatter.raster import rasterizer as raster
+from warpscatter.raster.raycast import build_mesh, ray_hit
+from warpscatter.runtime.device import default_device, module_options
+from warpscatter.scattering.rectify import projective, reference_rays
+from warpscatter.scattering.rectify.projective import ProjectiveRectification
 from warpscatter.scene.camera import Camera
-from warpscatter.wpinit import default_device, module_options
 
 module_options()
 
@@ -49,7 +49,7 @@ def _side_cases(n: int, seed: int):
     while made < n:
         cam = _camera(rng)
         light = _unit(rng)
-        if rp.epipole_distance(cam, light)[0] < 0.05:
+        if projective.epipole_distance(cam, light)[0] < 0.05:
             continue
         made += 1
         yield rng, cam, light
@@ -167,13 +167,13 @@ def test_kernel_funcs_match_host():
     """A user kernel calls the public @wp.funcs; float32 results match the float64 host transforms."""
 
     @wp.kernel
-    def user_kernel(rect: rp.ProjectiveRectParams, pts: wp.array(dtype=wp.vec3), dirs: wp.array(dtype=wp.vec3),
+    def user_kernel(rect: projective.ProjectiveRectParams, pts: wp.array(dtype=wp.vec3), dirs: wp.array(dtype=wp.vec3),
                     coords: wp.array(dtype=wp.vec3), back: wp.array(dtype=wp.vec3), ray_depth: wp.array(dtype=float)):
         n = wp.tid()
-        c = rp.world_to_rectified(rect, pts[n])
+        c = projective.world_to_rectified(rect, pts[n])
         coords[n] = c
-        back[n] = rp.rectified_to_world(rect, c)
-        ray_depth[n] = rp.rectified_ray_depth(rect, dirs[n])
+        back[n] = projective.rectified_to_world(rect, c)
+        ray_depth[n] = projective.rectified_ray_depth(rect, dirs[n])
 
     device = default_device()
     worst = np.zeros(3)
@@ -199,18 +199,18 @@ def test_kernel_funcs_match_host():
 
 
 @wp.kernel
-def _light_ray_depth_kernel(mesh: wp.uint64, rect: rp.ProjectiveRectParams, start: float,
+def _light_ray_depth_kernel(mesh: wp.uint64, rect: projective.ProjectiveRectParams, start: float,
                             out: wp.array2d(dtype=float)):
     # brute force: the light ray of texel (j, i) cast from far upstream along the light; first hit -> depth
     j, i = wp.tid()
     c = wp.vec3((float(i) + 0.5) / float(rect.cols), (float(j) + 0.5) / float(rect.rows), 0.0)
-    p = rp.rectified_to_world(rect, c)  # depth 0: the texel's light ray at slope zeta_lo
+    p = projective.rectified_to_world(rect, c)  # depth 0: the texel's light ray at slope zeta_lo
     ez = wp.vec3(rect.to_light[2, 0], rect.to_light[2, 1], rect.to_light[2, 2])
     origin = p - ez * start
     t, tri = ray_hit(mesh, origin, ez, 1.0e6)
     result = float(1.0)
     if tri >= 0:
-        result = wp.clamp(rp.world_to_rectified(rect, origin + ez * t)[2], 0.0, 1.0)
+        result = wp.clamp(projective.world_to_rectified(rect, origin + ez * t)[2], 0.0, 1.0)
     out[j, i] = result
 
 
@@ -240,7 +240,7 @@ def test_rasterized_map_matches_light_ray_casts():
     mesh = build_mesh(v, f, device)
     for regions in (1, 3):
         rect = ProjectiveRectification.from_camera(cam, light, rows=90, cols=120, regions=regions)
-        got = rp.rasterize_rectified(rect, v, f, device=device).numpy()
+        got = projective.rasterize_rectified(rect, v, f, device=device).numpy()
         ref = wp.empty((rect.rows, rect.cols), dtype=float, device=device)
         wp.launch(_light_ray_depth_kernel, (rect.rows, rect.cols), [mesh.id, rect.params(), 100.0, ref],
                   device=device)
@@ -286,7 +286,7 @@ def test_reference_rays_lie_in_their_slice():
     for _rng, cam, light in _side_cases(20, 7):
         rect = ProjectiveRectification.from_camera(cam, light, rows=48, cols=64)
         for method in ("optimal", "bisectrix", "mean", "pixels"):
-            ref = rp.reference_rays(rect, method, cam, pixel_stride=2)
+            ref = reference_rays.reference_rays(rect, method, cam, pixel_stride=2)
             q = ref.direction @ rect.to_light.T
             np.testing.assert_allclose(q[:, 1] / q[:, 0], ref.slope, atol=1e-9)
             np.testing.assert_allclose(q[:, 2] / q[:, 0], ref.zeta_ref, atol=1e-9)
@@ -297,7 +297,7 @@ def test_reference_rays_lie_in_their_slice():
                 width = 2.0 * (rect.zeta_max - rect.zeta_min) / rect.rows
                 assert np.all(ref.zeta_ref >= ref.zeta_lo - width) and np.all(ref.zeta_ref <= ref.zeta_hi + width)
         # optimal: k_ref = sqrt(k(omega_min) k(omega_max)) (Klehm 2014 Sec. 3.2)
-        ref = rp.reference_rays(rect, "optimal")
+        ref = reference_rays.reference_rays(rect, "optimal")
         h = np.sqrt(1.0 + ref.slope**2)
         k_near = _k(h, np.clip(0.0, ref.zeta_lo, ref.zeta_hi))
         k_far = np.minimum(_k(h, ref.zeta_lo), _k(h, ref.zeta_hi))
@@ -332,15 +332,15 @@ def test_cross_ratio_factor_and_column_lengths():
                  near=0.1, far=100.0)
     for regions in (1, 4, 16):
         rect = ProjectiveRectification.from_camera(cam, [0.6, -0.5, 0.2], rows=32, cols=1024, regions=regions)
-        d, first = rp.cross_ratio_factors(rect)
+        d, first = projective.cross_ratio_factors(rect)
         starts, b = rect.region_columns(), rect.region_bounds()
         for k in range(regions):
             x = rect.column_to_x(starts[k] + np.array([0.5, 1.5, 2.5]))
             assert d[k] == pytest.approx((x[2] - x[1]) / (x[1] - x[0]), rel=1e-9)
             assert first[k] == pytest.approx(x[1] - x[0], rel=1e-9)
             assert b[k + 1] / b[k] == pytest.approx((rect.far / rect.near) ** (1.0 / regions), rel=1e-9)
-        exact = rp.column_lengths(rect, "exact")
-        eq12 = rp.column_lengths(rect, "cross_ratio")
+        exact = projective.column_lengths(rect, "exact")
+        eq12 = projective.column_lengths(rect, "cross_ratio")
         assert exact.sum() == pytest.approx(rect.far - rect.near, rel=1e-9)
         assert np.all(exact > 0) and np.all(eq12 > 0)
         # the true growth factor increases along a region, so Eq. 12 covers less x: measured sum ratios
@@ -350,9 +350,9 @@ def test_cross_ratio_factor_and_column_lengths():
         if regions == 16:
             assert ratio > 0.9
     with pytest.raises(ValueError, match="model"):
-        rp.column_lengths(rect, "linear")
+        projective.column_lengths(rect, "linear")
     with pytest.raises(ValueError, match="camera"):
-        rp.reference_rays(rect, "pixels")
+        reference_rays.reference_rays(rect, "pixels")
 
 
 # ---- automatic choice ------------------------------------------------------------------------------------------
@@ -363,9 +363,9 @@ def test_auto_choice_follows_the_epipole(caplog):
                  near=0.1, far=100.0)
     fwd = cam.forward
     with caplog.at_level(logging.INFO, logger="warpscatter"):
-        into_view = rp.choose_rectification(cam, [0.35, -0.3, -1.0])  # light in front, travelling at the camera
-        behind = rp.choose_rectification(cam, fwd + np.array([0.0, -0.2, 0.0]))  # light behind the camera
-        side = rp.choose_rectification(cam, [0.6, -0.5, 0.2])
+        into_view = projective.choose_rectification(cam, [0.35, -0.3, -1.0])  # light in front, travelling at the camera
+        behind = projective.choose_rectification(cam, fwd + np.array([0.0, -0.2, 0.0]))  # light behind the camera
+        side = projective.choose_rectification(cam, [0.6, -0.5, 0.2])
     assert into_view.kind == "nonlinear" and into_view.epipole_distance == 0.0
     assert "light epipole inside" in into_view.reason
     assert behind.kind == "nonlinear" and "anti-light" in behind.reason
@@ -375,18 +375,18 @@ def test_auto_choice_follows_the_epipole(caplog):
     right, up, _ = cam.basis
     t = math.tan(math.radians(cam.fov_y) / 2.0)
     edge = -(fwd + 1.3 * t * up)  # light epipole 0.3 half image heights above the image
-    dist, which = rp.epipole_distance(cam, edge)
+    dist, which = projective.epipole_distance(cam, edge)
     assert which == "light" and dist == pytest.approx(0.3, rel=1e-9)
-    assert rp.choose_rectification(cam, edge).kind == "nonlinear"
-    assert rp.choose_rectification(cam, edge, margin=0.2).kind == "projective"
-    assert rp.choose_rectification(cam, edge, "projective").kind == "projective"
+    assert projective.choose_rectification(cam, edge).kind == "nonlinear"
+    assert projective.choose_rectification(cam, edge, margin=0.2).kind == "projective"
+    assert projective.choose_rectification(cam, edge, "projective").kind == "projective"
     with caplog.at_level(logging.WARNING, logger="warpscatter"):
-        forced = rp.choose_rectification(cam, [0.35, -0.3, -1.0], "projective")
+        forced = projective.choose_rectification(cam, [0.35, -0.3, -1.0], "projective")
     assert forced.kind == "nonlinear" and "impossible" in forced.reason
-    assert rp.choose_rectification(cam, [0.6, -0.5, 0.2], "nonlinear").kind == "nonlinear"
+    assert projective.choose_rectification(cam, [0.6, -0.5, 0.2], "nonlinear").kind == "nonlinear"
     perpendicular = np.cross(fwd, up)
-    assert rp.epipole_distance(cam, perpendicular) == (math.inf, "none")
+    assert projective.epipole_distance(cam, perpendicular) == (math.inf, "none")
     with pytest.raises(ValueError, match="rectification"):
-        rp.choose_rectification(cam, [0.6, -0.5, 0.2], "linear")
+        projective.choose_rectification(cam, [0.6, -0.5, 0.2], "linear")
     with pytest.raises(ValueError, match="margin"):
-        rp.choose_rectification(cam, [0.6, -0.5, 0.2], margin=-1.0)
+        projective.choose_rectification(cam, [0.6, -0.5, 0.2], margin=-1.0)

@@ -1,6 +1,6 @@
 """The generated config reference (docs/reference/config.md) against the settings models, the registry and the
-procedural generators (warpscatter.reference): every key documented, nothing stale, the example config valid, every
-method named in the README's method list and in a heading of docs/methods/."""
+procedural generators (warpscatter.config.reference): every key documented, nothing stale, the example config valid,
+every method named in the README's method list and in a heading of docs/methods/."""
 
 import re
 import typing
@@ -10,8 +10,8 @@ import pytest
 import yaml
 from pydantic import BaseModel
 
-from warpscatter import methods, reference
-from warpscatter.config import Config
+from warpscatter import methods
+from warpscatter.config import Config, reference
 
 ROOT = Path(__file__).resolve().parent.parent
 README = (ROOT / "README.md").read_text(encoding="utf-8")
@@ -45,7 +45,7 @@ def test_generated_blocks_are_current(name):
     got = reference.readme_block(PAGE, name)
     assert got is not None, f"{reference.REFERENCE_PAGE} lacks the <!-- generated: {name} --> block"
     assert got == reference.BLOCKS[name](), (f"{reference.REFERENCE_PAGE}: block {name!r} is stale: "
-                                             f"python -m warpscatter.reference {reference.REFERENCE_PAGE}")
+                                             f"python -m warpscatter.config.reference {reference.REFERENCE_PAGE}")
 
 
 def test_generator_reference_lists_every_parameter():

@@ -290,7 +290,7 @@ def test_mesh_files_beyond_the_size_limit_are_refused(tmp_path, monkeypatch):
 
 
 def _raw_exr(path: Path, pixels) -> Path:
-    """An EXR holding exactly ``pixels`` (NaN, inf, negative: warpscatter.imageio refuses to write those)."""
+    """An EXR holding exactly ``pixels`` (NaN, inf, negative: warpscatter.io.images refuses to write those)."""
     pixels = np.asarray(pixels, np.float32)
     h, w, c = pixels.shape
     out = oiio.ImageOutput.create(str(path))
@@ -371,7 +371,7 @@ def test_cli_environment_map_that_is_not_radiance_is_a_user_error(tmp_path, valu
 
 
 def test_light_texture_grey_and_alpha_is_read_as_grey(tmp_path):
-    from warpscatter.imageio import read_radiance_image
+    from warpscatter.io.images import read_radiance_image
 
     pixels = np.stack([np.full((2, 3), 0.25, np.float32), np.full((2, 3), -7.0, np.float32)], axis=2)  # alpha < 0
     tex = read_radiance_image(_raw_exr(tmp_path / "ga.exr", pixels), key="light.texture")

@@ -12,8 +12,8 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from warpscatter import imageio
-from warpscatter.imageio import ImageWriteError, _host_tag, read_image, remove_stale_temporaries, write_outputs
+from warpscatter.io import images as imageio
+from warpscatter.io.images import ImageWriteError, _host_tag, read_image, remove_stale_temporaries, write_outputs
 
 AOVS = ["scattering", "surface", "depth"]
 #: The output set in output order: colour EXR, PNG, the AOVs, the sidecar.

@@ -1,6 +1,6 @@
-"""Row mip-maps of the prefiltered textures (Peters 2017 D.5; warpscatter.scattering.row_mips): the levels hold the
-row-pair means of the level before in every storage, the per-row look-up data follows, a pixel's level follows its
-row footprint, the look-ups read the level's rows, caster culling keeps what the levels read, and renders with mips
+"""Row mip-maps of the prefiltered textures (Peters 2017 D.5; warpscatter.scattering.prefiltered.row_mips): the levels
+hold the row-pair means of the level before in every storage, the per-row look-up data follows, a pixel's level follows
+its row footprint, the look-ups read the level's rows, caster culling keeps what the levels read, and renders with mips
 stay within the measured bounds of the exact marcher, changing only pixels whose footprint spans more than a row."""
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ import warp as wp
 
 import warpscatter as ws
 from warpscatter.errors import ConfigError
-from warpscatter.scattering import filtered_lookups as fl
-from warpscatter.scattering import prefix_sums as pf
-from warpscatter.scattering import row_mips as rm
-from warpscatter.scattering.filtered_textures import FOURIER_UNORM_LEVELS
+from warpscatter.scattering.prefiltered import filtered_lookups as fl
+from warpscatter.scattering.prefiltered import prefix_sums as pf
+from warpscatter.scattering.prefiltered import row_mips as rm
+from warpscatter.scattering.prefiltered.textures import FOURIER_UNORM_LEVELS
 
 ROWS, COLS = 16, 24
 

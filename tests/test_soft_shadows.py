@@ -14,11 +14,11 @@ from conftest import make_scene, quad
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from warpscatter.raster import linearize_depth, rasterize
+from warpscatter.raster.rasterizer import linearize_depth, rasterize
+from warpscatter.runtime.device import module_options
 from warpscatter.scene.camera import look_at_basis, orthographic_matrix, perspective_matrix, view_matrix
 from warpscatter.shadows import msm, soft
 from warpscatter.shadows.shadow_map import ShadowMap
-from warpscatter.wpinit import module_options
 
 module_options()
 

@@ -41,7 +41,7 @@ def run_field(values: np.ndarray, distance: np.ndarray, stride: int, tolerance: 
     vals = wp.array(values.astype(np.float32), dtype=wp.vec3)
     out = wp.array(np.full((h, w, 3), np.nan, np.float32), dtype=wp.vec3)
     visits = wp.zeros((h, w), dtype=wp.int32)
-    from warpscatter.parallel import launch_rows
+    from warpscatter.runtime.parallel import launch_rows
 
     def launch(pixels, dim):
         launch_rows(field_kernel, dim, [vals, out, visits, pixels])
@@ -324,7 +324,7 @@ def test_the_cli_writes_the_evaluated_pixels_and_other_methods_refuse_them(tmp_p
     from warpscatter.cli.main import main
     from warpscatter.config import load_config
     from warpscatter.errors import ConfigError
-    from warpscatter.resources import bundled_config
+    from warpscatter.io.resources import bundled_config
 
     config = bundled_config("canopy_moments")
     over = ["camera.width=160", "camera.height=90", "render.scattering.shadow_map.resolution=256",

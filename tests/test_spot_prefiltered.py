@@ -13,8 +13,8 @@ from scipy.integrate import quad
 
 import warpscatter as ws
 from warpscatter.errors import ConfigError
-from warpscatter.scattering.prefiltered_spot import LOCAL_PANELS, SpotRays, ray_weight_table
-from warpscatter.scattering.rectify_local import spot_rectification, spot_texel_weights
+from warpscatter.scattering.prefiltered.spot_lookups import LOCAL_PANELS, SpotRays, ray_weight_table
+from warpscatter.scattering.rectify.local import spot_rectification, spot_texel_weights
 from warpscatter.scene import build_scene
 
 SPOT = "configs/spot.yaml"
@@ -107,7 +107,7 @@ def test_opaque_spot_map_keeps_the_general_paths_result(spot_scene):
     selects; the emission filter is the same."""
     import dataclasses
 
-    from warpscatter.scattering.rectify_local import resample_spot_shadow_map
+    from warpscatter.scattering.rectify.local import resample_spot_shadow_map
     from warpscatter.scene.lights import light_params
     from warpscatter.shadows.shadow_map import render_shadow_map
 

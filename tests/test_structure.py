@@ -19,29 +19,23 @@ SOURCES = {"warpscatter": ROOT / "warpscatter", "warpscatter.cli": ROOT / "cli"}
 
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
     # what every layer may use: errors, validation types, Warp set-up, threads, timing, files and their metadata
-    ("runtime", ("warpscatter", "warpscatter.errors", "warpscatter.schema", "warpscatter.wpinit",
-                 "warpscatter.parallel", "warpscatter.fastmath", "warpscatter.heap", "warpscatter.stages",
-                 "warpscatter.resources", "warpscatter.metrics", "warpscatter.provenance", "warpscatter.imageio",
-                 "warpscatter.animation")),
+    ("runtime", ("warpscatter", "warpscatter.errors", "warpscatter.schema", "warpscatter.moved", "warpscatter.runtime",
+                 "warpscatter.io")),
     # the techniques' settings models and the method registry: no Warp
     ("settings", ("warpscatter.scattering.settings", "warpscatter.shadows.settings", "warpscatter.csm.settings",
                   "warpscatter.methods")),
     # camera, lights, medium, meshes on the host, and their kernel-side parameters
     ("scene", ("warpscatter.scene",)),
     # the scene on the device: rasterizer, ray casting, G-buffer
-    ("raster", ("warpscatter.scene.geometry", "warpscatter.raster", "warpscatter.raster_funcs",
-                "warpscatter.raster_scan", "warpscatter.raster_depth", "warpscatter.raster_inputs",
-                "warpscatter.raycast", "warpscatter.gbuffer")),
+    ("raster", ("warpscatter.scene.geometry", "warpscatter.raster")),
     # the papers: shadow maps, single scattering, coherent shadow maps; surface shading
     ("techniques", ("warpscatter.shadows", "warpscatter.scattering", "warpscatter.csm", "warpscatter.shading")),
-    # a whole config: the models composed, YAML and overrides
-    ("config", ("warpscatter.config", "warpscatter.config_files", "warpscatter.scene.light_configs",
-                "warpscatter.scene.mesh_configs")),
+    # a whole config: the models composed, YAML and overrides, animation tracks, the generated reference
+    ("config", ("warpscatter.config", "warpscatter.scene.light_configs", "warpscatter.scene.mesh_configs")),
     # config -> scene -> stages -> images and files
     ("pipeline", ("warpscatter.pipeline",)),
-    # what users call: the API, animations, sweeps, executors, benchmarks, the gallery, the generated reference
-    ("runs", ("warpscatter.api", "warpscatter.jobs", "warpscatter.sequence", "warpscatter.sweep",
-              "warpscatter.gallery", "warpscatter.bench", "warpscatter.reference")),
+    # what users call: the API, animations, sweeps, executors, benchmarks, the gallery
+    ("runs", ("warpscatter.api", "warpscatter.runs", "warpscatter.bench")),
     ("cli", ("warpscatter.cli", "warpscatter.__main__")),
 ]
 MAX_KERNEL_PARAMETERS = 12
@@ -149,3 +143,41 @@ def test_kernel_factories_are_counted():
     tree = ast.parse("import warp as wp\ndef make():\n    def k(a: int, b: int):\n        pass\n"
                      "    return wp.kernel(k)\n@wp.kernel\ndef d(x: int):\n    pass\n")
     assert sorted(f.name for f in _kernel_functions(tree)) == ["d", "k"]
+
+
+@pytest.mark.parametrize("old", sorted(__import__("warpscatter.moved", fromlist=["MOVED"]).MOVED))
+def test_old_module_paths_still_import(old):
+    """A module path from before the packages imports as the module at its new path, with a DeprecationWarning that
+    names the new path; the new module keeps its own name and spec."""
+    import importlib
+    import sys
+    import warnings
+
+    from warpscatter.moved import MOVED
+
+    sys.modules.pop(old, None)
+    new = importlib.import_module(MOVED[old])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        module = importlib.import_module(old)
+    assert module is new
+    assert module.__name__ == MOVED[old] and module.__spec__.name == MOVED[old]
+    assert any(issubclass(w.category, DeprecationWarning) and MOVED[old] in str(w.message) for w in caught)
+
+
+def test_packages_that_took_a_module_name_forward_its_attributes():
+    """``warpscatter.raster`` and ``warpscatter.scattering.epipolar`` were modules: their names still resolve."""
+    import warnings
+
+    import warpscatter.raster
+    import warpscatter.scattering.epipolar
+    from warpscatter.raster import rasterizer
+    from warpscatter.scattering.epipolar import method
+
+    with pytest.warns(DeprecationWarning, match="warpscatter.raster.rasterizer.empty_array"):
+        assert warpscatter.raster.empty_array is rasterizer.empty_array
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert warpscatter.scattering.epipolar.render is method.render  # the method's entry: no warning
+    with pytest.raises(AttributeError):
+        warpscatter.raster.no_such_name  # noqa: B018

@@ -12,14 +12,14 @@ import pytest
 import warp as wp
 from conftest import quad, render_method
 
-from warpscatter.gbuffer import gbuffer_raycast
+from warpscatter.raster.gbuffer import gbuffer_raycast
+from warpscatter.runtime.device import module_options
 from warpscatter.scene import DeviceGeometry, Scene
 from warpscatter.scene.camera import Camera
 from warpscatter.scene.lights import DirectionalLight
 from warpscatter.scene.medium import Medium
 from warpscatter.shadows.shadow_map import render_shadow_map
 from warpscatter.shadows.surface import SurfaceShadows, surface_visibility
-from warpscatter.wpinit import module_options
 
 module_options()
 
@@ -127,7 +127,7 @@ def test_pcf_surface_shadows_pass_the_translucent_casters_light(opacity, two_sid
 
 
 def test_warped_depth_is_a_monotone_map_of_the_unit_interval():
-    from warpscatter.scattering.filtered_textures import check_depth_warp, warped_depth
+    from warpscatter.scattering.prefiltered.textures import check_depth_warp, warped_depth
 
     @wp.kernel
     def warp_kernel(z: wp.array(dtype=float), c: float, out: wp.array(dtype=float)):

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from warpscatter.config import load_config
-from warpscatter.gbuffer import gbuffer_raster
+from warpscatter.io.resources import bundled_config
 from warpscatter.pipeline import render_images
-from warpscatter.resources import bundled_config
+from warpscatter.raster.gbuffer import gbuffer_raster
 from warpscatter.scene import DeviceGeometry, Scene, build_scene
 from warpscatter.scene.camera import Camera
 from warpscatter.scene.lights import DirectionalLight, PointLight, SpotLight

@@ -16,6 +16,10 @@ code); the settings models (``warpscatter.config`` and each technique's ``settin
 
 __version__ = "0.1.0"
 
+from . import moved as _moved  # noqa: E402  (module paths from before issue #51 still import, with a warning)
+
+_moved.install()
+
 _LAZY = {
     "render": "warpscatter.api",
     "load_config": "warpscatter.api",
@@ -23,10 +27,10 @@ _LAZY = {
     "Config": "warpscatter.config",
     "ConfigError": "warpscatter.errors",
     "RenderResult": "warpscatter.pipeline",
-    "render_animation": "warpscatter.sequence",
-    "load_sweep": "warpscatter.sweep",
-    "run_sweep": "warpscatter.sweep",
-    "make_executor": "warpscatter.jobs",
+    "render_animation": "warpscatter.runs.animation",
+    "load_sweep": "warpscatter.runs.sweep",
+    "run_sweep": "warpscatter.runs.sweep",
+    "make_executor": "warpscatter.runs.jobs",
 }
 
 

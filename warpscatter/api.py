@@ -74,7 +74,7 @@ def render(config: ConfigSource, overrides: Overrides = (), *, out_dir: str | Pa
             is set.
         progress: optional ``progress(stage, fraction)`` callback.
         verbose: let Warp print its messages (banner, module loads) as it does by default
-            (:func:`warpscatter.wpinit.warp_messages`).
+            (:func:`.runtime.device.warp_messages`).
 
     Returns:
         :class:`~warpscatter.pipeline.RenderResult`: ``images`` (name -> float32 numpy array: ``color``,
@@ -86,7 +86,7 @@ def render(config: ConfigSource, overrides: Overrides = (), *, out_dir: str | Pa
         ImageWriteError: an output file could not be written (the previous files are left as they were).
     """
     cfg = config.revalidated() if isinstance(config, Config) and not overrides else load_config(config, overrides)
-    from .wpinit import warp_messages
+    from .runtime.device import warp_messages
 
     with warp_messages(verbose):
         from .pipeline import render as render_config
@@ -98,7 +98,7 @@ def clear_caches() -> None:
     """Drop what this process keeps between renders: loaded and generated meshes, BVHs of exact visibility and
     built coherent shadow maps (they are rebuilt when needed; a long-lived process calls this to free memory)."""
     from .csm.occluders import clear_csm_cache
-    from .raycast import clear_bvh_cache
+    from .raster.raycast import clear_bvh_cache
     from .scene.meshes import clear_mesh_cache
 
     clear_mesh_cache()

@@ -130,9 +130,12 @@ def _csm_rules(config: Any) -> list[str]:
 
 _PREFILTERED_MODULES = ("warpscatter.scattering.rectify.nonlinear", "warpscatter.scattering.rectify.local",
                         "warpscatter.scattering.rectify.projective",
-                        "warpscatter.scattering.prefix_sums", "warpscatter.scattering.filtered_lookups",
-                        "warpscatter.scattering.caster_culling", "warpscatter.scattering.epipole_fallback",
-                        "warpscatter.scattering.prefiltered", "warpscatter.scattering.prefiltered_spot")
+                        "warpscatter.scattering.prefiltered.prefix_sums",
+                        "warpscatter.scattering.prefiltered.filtered_lookups",
+                        "warpscatter.scattering.rectify.caster_culling",
+                        "warpscatter.scattering.prefiltered.epipole_regions",
+                        "warpscatter.scattering.prefiltered.evaluate",
+                        "warpscatter.scattering.prefiltered.spot_lookups")
 _PREFILTERED_AOVS = ("rectified", "epipole_mask", "rectified_map", "mip_level", "evaluated_pixels")
 _LIGHTING_MODULES = ("warpscatter.csm.brdf", "warpscatter.csm.compress", "warpscatter.csm.depthmaps",
                      "warpscatter.csm.query", "warpscatter.csm.environment", "warpscatter.csm.local_lights")
@@ -160,8 +163,8 @@ SCATTERING: dict[str, Method] = {m.name: m for m in (
     Method("epipolar", "scattering", "Engelhardt & Dachsbacher 2010, epipolar sampling",
            "ray marching at a few percent of the pixels on epipolar lines, bilateral upsampling", CLASSIC_LIGHTS,
            sections=("epipolar",), visibility=VISIBILITY_CONFIGURABLE,
-           modules=("warpscatter.scattering.epipolar_textures", "warpscatter.scattering.epipolar_upsampling",
-                    "warpscatter.scattering.epipolar"), entry="warpscatter.scattering.epipolar:render",
+           modules=("warpscatter.scattering.epipolar.textures", "warpscatter.scattering.epipolar.upsampling",
+                    "warpscatter.scattering.epipolar.method"), entry="warpscatter.scattering.epipolar.method:render",
            debug_aovs=("epipolar_samples",), validate=_epipolar_rules),
 )}
 
@@ -177,10 +180,10 @@ LIGHTING: dict[str, Method] = {m.name: m for m in (
 )}
 
 #: Warp modules every classic render launches (rasterizer, G-buffer, surface shadows and shading).
-CLASSIC_MODULES = ("warpscatter.raster", "warpscatter.gbuffer", "warpscatter.shadows.msm", "warpscatter.shadows.soft",
-                   "warpscatter.shadows.unseen_planes", "warpscatter.shading")
+CLASSIC_MODULES = ("warpscatter.raster.rasterizer", "warpscatter.raster.gbuffer", "warpscatter.shadows.msm",
+                   "warpscatter.shadows.soft", "warpscatter.shadows.unseen_planes", "warpscatter.shading")
 #: Warp modules every lighting render launches besides the method's.
-LIGHTING_BASE_MODULES = ("warpscatter.raster", "warpscatter.gbuffer")
+LIGHTING_BASE_MODULES = ("warpscatter.raster.rasterizer", "warpscatter.raster.gbuffer")
 
 
 def get(kind: str, name: str) -> Method:

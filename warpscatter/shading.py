@@ -10,13 +10,13 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .gbuffer import GBufferArrays
-from .parallel import launch_rows
+from .raster.gbuffer import GBufferArrays
+from .runtime.device import default_device, module_options
+from .runtime.parallel import launch_rows
 from .scene.camera import CameraParams, pixel_ray_direction
 from .scene.lights import LightParams, light_params, light_sample
 from .scene.medium import MediumParams, view_transmittance
 from .shadows.surface import SHADOW_MSM, SHADOW_NONE, SurfaceShadows, no_shadows, surface_visibility
-from .wpinit import default_device, module_options
 
 module_options()
 
@@ -113,7 +113,7 @@ def shade_and_compose(scene, gbuffer, scattering: wp.array, *, shadows: SurfaceS
 
     Args:
         scene: the :class:`~warpscatter.scene.Scene`.
-        gbuffer: the camera :class:`~warpscatter.gbuffer.GBuffer`.
+        gbuffer: the camera :class:`~.raster.gbuffer.GBuffer`.
         scattering: (H, W) vec3 L_scat.
         shadows: :class:`~warpscatter.shadows.surface.SurfaceShadows` from
             :func:`~warpscatter.shadows.surface.prepare_shadows` (None: no shadows).

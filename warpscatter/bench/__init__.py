@@ -26,8 +26,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from ..stages import ProgressFn
-from ..wpinit import init
+from ..runtime.device import init
+from ..runtime.stages import ProgressFn
 from .compare import compare_reports, load_bench_json
 from .report import BenchReport, errors, machine_meta, measure, thread_limit
 from .scenes import bench_light_texture, bench_scene_config, render_timed, scattering_rows

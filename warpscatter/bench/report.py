@@ -48,10 +48,10 @@ from typing import Callable
 import numpy as np
 import warp as wp
 
-from ..imageio import json_ready
-from ..metrics import errors
-from ..provenance import cpu_model, machine, package_version, source_commit, timestamp
-from ..wpinit import default_device
+from ..io.images import json_ready
+from ..io.metrics import errors
+from ..io.provenance import cpu_model, machine, package_version, source_commit, timestamp
+from ..runtime.device import default_device
 
 #: The JSON layout's name and version (``format`` key).
 FORMAT = "warpscatter-bench/2"
@@ -364,8 +364,8 @@ class BenchReport:
 
 
 def _write_atomic(path: Path, write: Callable, newline: str | None = None) -> Path:
-    """Write a text file through ``write(file object)``, atomically (:func:`warpscatter.imageio.write_file_atomic`)."""
-    from ..imageio import write_file_atomic
+    """Write a text file through ``write(file object)``, atomically (:func:`..io.images.write_file_atomic`)."""
+    from ..io.images import write_file_atomic
 
     def text(tmp: Path) -> None:
         with open(tmp, "w", encoding="utf-8", newline=newline) as f:
@@ -393,7 +393,7 @@ def save_figure(fig, path: Path, layout: bool = True) -> Path:
     ``layout``: apply ``tight_layout`` first (False: the caller laid the figure out)."""
     import matplotlib.pyplot as plt
 
-    from ..imageio import write_file_atomic
+    from ..io.images import write_file_atomic
 
     if layout:
         fig.tight_layout()
@@ -616,7 +616,7 @@ def chart_error_images(report: BenchReport, name: str, reference: np.ndarray, im
 
 def machine_meta() -> dict:
     """The machine and software of a run: CPU, cores, threads, device, OS, versions, git commit, UTC time (ISO 8601)."""
-    from ..parallel import thread_count
+    from ..runtime.parallel import thread_count
 
     commit, dirty = source_commit()
     host = machine()

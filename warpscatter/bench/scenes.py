@@ -9,8 +9,8 @@ import numpy as np
 import yaml
 
 from .. import methods
+from ..io.resources import bundled_asset, bundled_config
 from ..pipeline import StageTimer, compile_kernels, render_images
-from ..resources import bundled_asset, bundled_config
 from ..scene import build_scene
 from .report import errors, stage_medians
 
@@ -31,7 +31,7 @@ def bench_light_texture() -> Path:
         pass
     import tempfile
 
-    from ..imageio import write_png
+    from ..io.images import write_png
 
     path = Path(tempfile.gettempdir()) / "warpscatter-bench-cookie.png"
     if not path.is_file():
@@ -59,7 +59,7 @@ def bench_scene_config(name: str, width: int, height: int, leaves: int | None = 
         **render: the config's ``render`` section (replaces the file's).
 
     Raises:
-        FileNotFoundError: the bundled configs are not installed (see :mod:`warpscatter.resources`).
+        FileNotFoundError: the bundled configs are not installed (see :mod:`..io.resources`).
     """
     from ..config import Config
 

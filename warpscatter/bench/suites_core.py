@@ -14,14 +14,15 @@ import time
 import numpy as np
 import warp as wp
 
-from ..stages import ProgressFn
-from ..wpinit import default_device
+from ..runtime.device import default_device
+from ..runtime.stages import ProgressFn
 from .report import BenchReport, errors, measure, thread_limit
 from .scenes import _dense_mesh, bench_scene_config, render_timed
 
 
 def suite_raster(report: BenchReport, repeats: int, warmup: int, quick: bool, progress: ProgressFn | None):
-    from .. import raster, raycast
+    from ..raster import rasterizer as raster
+    from ..raster import raycast
     from ..scene.camera import Camera
 
     size = 256 if quick else 1024
@@ -119,8 +120,8 @@ def suite_parallel(report: BenchReport, repeats: int, warmup: int, quick: bool, 
     """Speed-up of all threads over one: the rasterizer, and every stage of each render in :data:`SCALING_RENDERS`
     at 1920x1080 with 1024^2 maps (``--quick``: 320x180, 256^2). Each render row carries the per-stage times with
     all threads (``stages_ms``), with one (``extra.stages_ms_1_thread``) and their ratio (``extra.scaling``)."""
-    from .. import raster
-    from ..parallel import thread_count
+    from ..raster import rasterizer as raster
+    from ..runtime.parallel import thread_count
     from ..scene.camera import Camera
 
     n = thread_count()

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from ..resources import bundled_asset, bundled_config
-from ..stages import ProgressFn
+from ..io.resources import bundled_asset, bundled_config
+from ..runtime.stages import ProgressFn
 from .report import BenchReport, errors, measure
 from .scenes import _bumpy_sphere
 
@@ -25,8 +25,8 @@ def suite_csm(report: BenchReport, repeats: int, warmup: int, quick: bool, progr
     """Ritschel 2007 Tables 1-2: compression vs N and enumeration; queries/s against BVH shadow rays."""
     from ..csm import build_csm, csm_device_data
     from ..csm.query import visibility_kernel
-    from ..parallel import launch_rows
-    from ..raycast import build_mesh, shadow_ray_visibility
+    from ..raster.raycast import build_mesh, shadow_ray_visibility
+    from ..runtime.parallel import launch_rows
 
     verts, tris = _bumpy_sphere(60 if quick else 246)
     res = 64 if quick else 128

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..stages import ProgressFn
+from ..runtime.stages import ProgressFn
 from .report import BenchReport, chart_title, log_ticks, pyplot, save_figure
 from .scenes import bench_scene_config, render_timed
 from .suites_pareto import REFERENCE_SEEDS, exact_reference, rel_l1, technique_ms

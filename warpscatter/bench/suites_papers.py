@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 
-from ..stages import ProgressFn
+from ..runtime.stages import ProgressFn
 from .report import BenchReport
 from .scenes import _bumpy_sphere, bench_scene_config, render_timed
 from .suites_pareto import exact_reference, rel_l1, technique_ms

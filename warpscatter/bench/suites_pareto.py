@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..stages import ProgressFn
+from ..runtime.stages import ProgressFn
 from .report import BenchReport, hbar_chart
 from .scenes import bench_scene_config, median_stages, render_timed
 
@@ -56,8 +56,8 @@ def exact_reference(name: str, width: int, height: int, steps: int, stride: int,
     """The exact marcher on every ``stride``-th pixel of a bench scene, twice; returns (mean reference (Hs, Ws, 3)
     float64, its estimated own rel. L1 error, seconds)."""
     from .. import methods
-    from ..gbuffer import gbuffer_raycast
     from ..pipeline import compile_kernels
+    from ..raster.gbuffer import gbuffer_raycast
     from ..scattering.marching import marcher_params, visibility_params
     from ..scattering.raymarch import march_pixel_subset
     from ..scene import DeviceGeometry, build_scene
@@ -130,7 +130,7 @@ def _seconds(stages_ms: dict) -> dict:
 
 def _write_seconds(images: dict) -> float:
     """Seconds to write one frame's outputs (every AOV, the default compression) into a temporary folder."""
-    from ..imageio import write_outputs
+    from ..io.images import write_outputs
 
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()

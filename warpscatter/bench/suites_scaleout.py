@@ -1,4 +1,4 @@
-"""Bench suite ``scaleout``: an animation's frames through each executor (:mod:`warpscatter.jobs`).
+"""Bench suite ``scaleout``: an animation's frames through each executor (:mod:`..runs.jobs`).
 
 The bundled ``colonnade_sunset`` animation (60 frames at 640x360, fourier; ``--quick``: 6 frames at 160x90), every
 frame's output set written to a temporary folder, rendered by: a plain loop in this process (``inline``), local
@@ -17,8 +17,8 @@ import tempfile
 import time
 
 from ..config import load_config
-from ..jobs import make_executor, run_tasks, task_for
-from ..stages import ProgressFn
+from ..runs.jobs import make_executor, run_tasks, task_for
+from ..runtime.stages import ProgressFn
 from .report import BenchReport
 from .scenes import bundled_config
 

@@ -11,8 +11,8 @@ import numpy as np
 import warp as wp
 
 from ..config import Config
-from ..parallel import chunks, run_parallel, thread_count
-from ..stages import ProgressFn
+from ..runtime.parallel import chunks, run_parallel, thread_count
+from ..runtime.stages import ProgressFn
 from .report import BenchReport, errors, measure
 from .scenes import bench_scene_config, render_timed, scattering_rows
 
@@ -65,7 +65,7 @@ def prefix_sum_rows(report: BenchReport, modes, size: int, repeats: int, warmup:
     bytes written per second, against the faster memcpy (``x_memcpy``; the paper's GPU: 1.3x for 64-bit four moments,
     2.1x for six). Returns the rows added.
     """
-    from ..scattering.prefix_sums import prefilter_moments, prefilter_weighted
+    from ..scattering.prefiltered.prefix_sums import prefilter_moments, prefilter_weighted
 
     depth = wp.array(bench_rectified_depth(size), dtype=wp.float32)
     tau = np.full(size, 4.0 / size, np.float32)  # optical depth 4 over a row

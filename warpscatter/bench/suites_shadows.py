@@ -15,8 +15,8 @@ import numpy as np
 
 from ..config import Config
 from ..pipeline import render_images
+from ..runtime.stages import ProgressFn
 from ..scene import build_scene
-from ..stages import ProgressFn
 from .report import BenchReport, errors
 from .scenes import render_timed
 

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .. import parallel
-from ..wpinit import default_device
+from ..runtime import parallel
+from ..runtime.device import default_device
 from .compress import KIND_CUBE, KIND_LATLONG, CoherentShadowMap
 from .query import FILTERS, CSMData, CSMObjects, csm_device_data, visibility_kernel
 

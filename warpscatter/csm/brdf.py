@@ -25,7 +25,7 @@ import math
 import numpy as np
 import warp as wp
 
-from ..wpinit import default_device, module_options
+from ..runtime.device import default_device, module_options
 
 module_options()
 

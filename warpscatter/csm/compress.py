@@ -27,10 +27,10 @@ from struct import error as struct_error
 import numpy as np
 import warp as wp
 
-from .. import parallel
 from ..errors import InputFileError
+from ..runtime import parallel
+from ..runtime.device import default_device, module_options
 from ..scene.meshes import geometry_digest  # noqa: F401  (the digest a CSM file records)
-from ..wpinit import default_device, module_options
 from .depthmaps import DEPTH_LAYERS, FAR_MODES, CubeMapSet, LatLongMapSet, latlong_frames
 from .enumeration import ENUMERATIONS, enumerate_grid, sequence_index
 from .settings import CSMBuildSettings

@@ -11,7 +11,7 @@ bounding sphere's centre c, with frame
     right = (sin phi, 0, -cos phi),  up = (-cos theta cos phi, sin theta, -cos theta sin phi)   (right x up = dir):
 
 NDC x = <p - c, right> / R, y = <p - c, up> / R, LINEAR depth q_z = R - <p - c, dir> in [0, 2R]. Texel centres as
-in :mod:`warpscatter.raster`. The frame varies smoothly, so neighbouring maps are coherent.
+in :mod:`..raster.rasterizer`. The frame varies smoothly, so neighbouring maps are coherent.
 
 Per texel z_lo = z1 and z_hi = z2 (``"z1z2"``, any mesh) or z3 (``"z1z3"``, closed two-manifolds) bound the stored
 depth (Sec. 3.1, Fig. 3), peeled by the exact rasterizer (bitwise ``rasterize(..., clamp_depth=True)``). A missing
@@ -28,10 +28,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from .. import parallel, raster
+from ..raster import rasterizer as raster
+from ..runtime import parallel
+from ..runtime.device import default_device, module_options
 from ..scene.environment_map import latlong_param  # noqa: F401  (public here as well: the maps' inverse mapping)
 from ..scene.lights import light_grid_params, parallelogram_light_samples, segment_light_samples  # noqa: F401
-from ..wpinit import default_device, module_options
 from .enumeration import ENUMERATIONS, enumerate_grid, sequence_index
 from .settings import FAR_MODES
 

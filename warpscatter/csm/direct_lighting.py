@@ -20,9 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .. import parallel
-from ..raycast import occluded
-from ..wpinit import default_device, module_options
+from ..raster.raycast import occluded
+from ..runtime import parallel
+from ..runtime.device import default_device, module_options
 from .batch import object_arrays
 from .brdf import MaterialTable
 from .compress import KIND_LATLONG, CoherentShadowMap

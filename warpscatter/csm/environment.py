@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..runtime.device import module_options
 from ..scene.environment_map import EnvData, EnvironmentMap, env_lookup_uv, env_pdf_uv, env_sample_uv
-from ..wpinit import module_options
 from .brdf import MaterialData, shading_eval, shading_pdf, shading_point, shading_sample
 from .depthmaps import latlong_param
 from .direct_lighting import (

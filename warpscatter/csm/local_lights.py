@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..runtime.device import module_options
 from ..scene.lights import (
     LOCAL_LIGHT_LINEAR,
     LOCAL_LIGHT_VOLUME,
@@ -29,7 +30,6 @@ from ..scene.lights import (
     area_light_radiance,
     area_light_sample_st,
 )
-from ..wpinit import module_options
 from .brdf import MaterialData, shading_eval, shading_pdf, shading_point, shading_sample
 from .compress import KIND_CUBE, CoherentShadowMap
 from .direct_lighting import (

@@ -10,7 +10,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..stages import ReportFn
+from ..runtime.stages import ReportFn
 from .compress import (
     KIND_CUBE,
     KIND_LATLONG,

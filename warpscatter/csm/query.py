@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from ..wpinit import default_device, module_options
+from ..runtime.device import default_device, module_options
 from . import settings
 from .compress import KIND_CUBE, CoherentShadowMap
 from .depthmaps import cube_face_frames, latlong_param

@@ -22,9 +22,9 @@ import numpy as np
 from .. import __version__
 from ..config import Config
 from ..errors import ConfigError
-from ..imageio import OWN_SIZE_AOVS
-from ..stages import ProgressFn, StageTimer
-from ..wpinit import default_device
+from ..io.images import OWN_SIZE_AOVS
+from ..runtime.device import default_device
+from ..runtime.stages import ProgressFn, StageTimer
 from .classic import render_images
 from .common import check_finite, compile_kernels
 from .frame import Frame
@@ -62,8 +62,8 @@ def sidecar(config: Config, device: str, timings: dict, stats: dict, files: list
     seed, device and thread count, versions, machine, source commit, command line, time) and what it measured
     (per-stage timings in seconds, without the ``write`` stage that is running then; statistics). ``complete`` is
     False for the intermediate outputs of a progressive render (a resumed run renders such a frame again)."""
-    from ..parallel import thread_count
-    from ..provenance import provenance
+    from ..io.provenance import provenance
+    from ..runtime.parallel import thread_count
 
     lighting = config.render.lighting
     seed = lighting.seed if lighting.method is not None else config.render.scattering.seed
@@ -102,7 +102,7 @@ def render(config: Config, out_dir: Path | None = None, progress: ProgressFn | N
         NonFiniteImageError: an image with NaN or infinite pixels (a bug).
     """
     from ..csm.compress import CSMFileError
-    from ..imageio import write_outputs
+    from ..io.images import write_outputs
     from ..scene import build_scene, object_meshes
 
     config = config.revalidated()

@@ -19,14 +19,14 @@ from dataclasses import replace
 import numpy as np
 
 from .. import methods
-from ..gbuffer import gbuffer_raster, gbuffer_raycast
+from ..raster.gbuffer import gbuffer_raster, gbuffer_raycast
+from ..runtime.device import default_device
+from ..runtime.stages import StageTimer
 from ..scene import DeviceGeometry
 from ..shading import ambient_radiance, shade_and_compose
 from ..shadows.shadow_map import render_shadow_map
 from ..shadows.surface import prepare_shadows
 from ..shadows.unseen_planes import without_unseen_planes
-from ..stages import StageTimer
-from ..wpinit import default_device
 from .common import check_finite, compile_kernels
 from .frame import Frame
 
@@ -96,7 +96,7 @@ def render_images(scene, settings, *, timer: StageTimer | None = None, device=No
             stages once per cube face and adds the faces' images).
         settings: the validated ``render`` section (:class:`~warpscatter.config.RenderSettings`: scattering,
             surfaces, shadows).
-        timer: a :class:`~warpscatter.stages.StageTimer` (created if None).
+        timer: a :class:`~..runtime.stages.StageTimer` (created if None).
         device: Warp device.
         aovs: the requested outputs (``output.aovs``); the method's debug outputs among them are made and returned
             with the images.

@@ -8,7 +8,7 @@ import numpy as np
 import warp as wp
 
 from ..errors import NonFiniteImageError
-from ..wpinit import default_device
+from ..runtime.device import default_device
 
 
 def compile_kernels(modules, device=None) -> None:
@@ -16,7 +16,7 @@ def compile_kernels(modules, device=None) -> None:
     :attr:`~warpscatter.methods.Method.modules`, before any launch (threads would otherwise compile them at once).
 
     Args:
-        modules: module names (``"warpscatter.raster"``) or module objects.
+        modules: module names (``"warpscatter.raster.rasterizer"``) or module objects.
         device: Warp device.
     """
     device = default_device(device)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import warp as wp
 
-from ..wpinit import default_device
+from ..runtime.device import default_device
 
 
 @dataclass
@@ -15,7 +15,7 @@ class Frame:
 
     Attributes:
         scene: the :class:`~warpscatter.scene.Scene`.
-        gbuffer: the camera :class:`~warpscatter.gbuffer.GBuffer` (hit distance s per pixel).
+        gbuffer: the camera :class:`~..raster.gbuffer.GBuffer` (hit distance s per pixel).
         geometry: the scene's :class:`~warpscatter.scene.DeviceGeometry` (its casters' BVH for exact visibility);
             None when the method does not cast shadow rays.
         shadow_map: the light's :class:`~warpscatter.shadows.shadow_map.ShadowMap`, or None.

@@ -11,7 +11,7 @@ Stages (names as in the CLI's timing table):
   environment light, depth cube maps at the light's sample points for an area or linear light
   (:mod:`warpscatter.csm.occluders`), and put on the device.
   ``bvh`` (method ``raytrace``): the ``wp.Mesh`` of the same occluders, for exact shadow rays (the reference).
-- ``gbuffer``: the rasterized camera G-buffer (:func:`warpscatter.gbuffer.gbuffer_raster`), the same for both
+- ``gbuffer``: the rasterized camera G-buffer (:func:`..raster.gbuffer.gbuffer_raster`), the same for both
   methods so that they differ only by the visibility query.
 - ``setup``: the estimator, once for all passes (:class:`~warpscatter.csm.direct_lighting.DirectLighting`): the
   visible pixels' points, normals, view directions and materials, the material table and the light are checked and
@@ -46,12 +46,12 @@ from ..csm.direct_lighting import DirectLighting, ProgressiveAccumulator
 from ..csm.occluders import prepare_csm, scene_occluders, texel_size
 from ..csm.query import csm_device_data
 from ..csm.settings import LightingSettings
-from ..gbuffer import gbuffer_raster
-from ..raycast import cached_bvh
+from ..raster.gbuffer import gbuffer_raster
+from ..raster.raycast import cached_bvh
+from ..runtime.device import default_device
+from ..runtime.stages import StageTimer
 from ..scene import DeviceGeometry
 from ..scene.lights import EnvironmentLight
-from ..stages import StageTimer
-from ..wpinit import default_device
 from .common import check_finite, compile_kernels
 
 
@@ -106,7 +106,7 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
         scene: a :class:`~warpscatter.scene.Scene` whose light is an environment, area or linear light.
         settings: :class:`~warpscatter.csm.settings.LightingSettings` (``render.lighting``; ``method`` csm or
             raytrace).
-        stage: the :class:`~warpscatter.stages.StageTimer` (created if None).
+        stage: the :class:`~..runtime.stages.StageTimer` (created if None).
         on_pass: ``on_pass(images, passes_done, passes)`` every ``write_every`` passes before the last.
         device: Warp device.
         objects: with ``settings.csm.objects`` ``per_mesh``: the casting meshes as rigid objects, ``(mesh,

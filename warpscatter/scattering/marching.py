@@ -38,6 +38,7 @@ import weakref
 
 import warp as wp
 
+from ..runtime.device import default_device, module_options
 from ..scene.camera import CameraParams, pixel_ray_direction
 from ..scene.lights import LIGHT_DIRECTIONAL, LightParams, faces_away_from_light, light_params, light_sample
 from ..scene.medium import (
@@ -59,7 +60,6 @@ from ..shadows.shadow_map import (
     shadow_visibility_at,
     texel_depth,
 )
-from ..wpinit import default_device, module_options
 from .settings import JITTERS, VISIBILITY_MODES
 
 module_options()

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..parallel import launch_rows
+from ..runtime.device import default_device, module_options
+from ..runtime.parallel import launch_rows
+from ..runtime.stages import StageTimer
 from ..scene.camera import CameraParams, pixel_ray_direction
-from ..stages import StageTimer
-from ..wpinit import default_device, module_options
 from .marching import (
     Marcher,
     march_ray,
@@ -149,7 +149,7 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
             light's shadow map (``visibility: shadow_map``).
         settings: :class:`~warpscatter.scattering.settings.ScatteringSettings` (``steps``, ``seed``, ``jitter``,
             ``visibility``, ``shadow_map.bias``).
-        stage: the :class:`~warpscatter.stages.StageTimer` (stage ``scattering``).
+        stage: the :class:`~..runtime.stages.StageTimer` (stage ``scattering``).
 
     Returns:
         ((H, W) vec3 L_scat, {}).

@@ -41,7 +41,7 @@ MOMENT_STORAGE_BITS = {4: (64, 128), 6: (64, 96, 192)}
 #: Default angular radius (degrees) of the ray-marched disc around an epipole in view (Klehm 2014 Fig. 8).
 EPIPOLE_ANGLE_DEG = 8.0
 MAX_EPIPOLE_ANGLE_DEG = 60.0
-#: ``rectification: auto`` (:func:`~.rectify_projective.choose_rectification`) picks projective when every epipole
+#: ``rectification: auto`` (:func:`~.rectify.choose_rectification`) picks projective when every epipole
 #: in front of the camera lies at least this far outside the image, in half image heights on the image plane (NDC y;
 #: x scaled by the aspect ratio): there projective stays within ~15 % of non-linear's error.
 EPIPOLE_MARGIN = 1.0
@@ -50,7 +50,7 @@ MAX_REGIONS = 16
 #: Most split regions of a row (Klehm 2014 Sec. 3.3 uses up to 4).
 MAX_SPLITS = 16
 #: Resampling filters of the non-linear rectification (Peters 2017 Sec. 5.2) and the widest Gaussian (texels); the
-#: default, supersample (:func:`~.rectify_nonlinear.resample_shadow_map`), removes the nearest depths' radial streaks
+#: default, supersample (:func:`~.rectify.resample_shadow_map`), removes the nearest depths' radial streaks
 #: as the moments filter does, at a fraction of its cost.
 RESAMPLE_FILTERS = ("none", "supersample", "moments")
 MAX_RESAMPLE_FILTER_PX = 64
@@ -67,7 +67,7 @@ EPIPOLE_STEPS = 64
 #: The epipole region is marched on every EPIPOLE_STRIDE-th pixel and where its grid cells cannot interpolate (the
 #: evaluate_stride rule: :mod:`~warpscatter.scattering.sparse_evaluation`): the sky round the sun is smooth.
 EPIPOLE_STRIDE = 2
-#: Per-ray transmittance segments of the prefiltered look-ups by default (:mod:`.ray_weights`).
+#: Per-ray transmittance segments of the prefiltered look-ups by default (:mod:`.prefiltered.ray_weights`).
 SEGMENTS = 3
 #: The moment methods' most adaptive per-ray segments with the light behind the camera (with SEGMENT_DEPTH); with
 #: the light ahead they keep SEGMENTS fixed, as more made their own-light cases worse.
@@ -83,7 +83,7 @@ SEGMENT_DEPTH = 0.15
 #: Per-ray segments of the moment methods in a coloured medium, where each channel weights its rays with its own
 #: extinction against prefix sums weighted with the least one (:func:`~.prefiltered.weights_extinction`).
 COLOURED_SEGMENTS = 5
-#: Per-ray segments under a spot light (:mod:`.prefiltered_spot`; it always weights each ray by its own
+#: Per-ray segments under a spot light (:mod:`.prefiltered.spot_lookups`; it always weights each ray by its own
 #: in-scattering); 6 costs the same as 4.
 SPOT_SEGMENTS = 6
 MAX_SEGMENTS = 8

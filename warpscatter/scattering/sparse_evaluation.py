@@ -31,8 +31,8 @@ from typing import Callable
 import numpy as np
 import warp as wp
 
-from ..parallel import launch_rows
-from ..wpinit import default_device, module_options
+from ..runtime.device import default_device, module_options
+from ..runtime.parallel import launch_rows
 
 module_options()
 

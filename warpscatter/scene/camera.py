@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from ..wpinit import module_options
+from ..runtime.device import module_options
 
 module_options()
 

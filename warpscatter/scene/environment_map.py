@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..wpinit import default_device, module_options
+from ..runtime.device import default_device, module_options
 
 module_options()
 

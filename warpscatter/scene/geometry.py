@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
-from ..wpinit import default_device, module_options
+from ..runtime.device import default_device, module_options
 
 if TYPE_CHECKING:
     from . import Scene
@@ -50,9 +50,9 @@ class DeviceGeometry:
 
     @property
     def mesh(self) -> wp.Mesh:
-        """The BVH (``wp.Mesh``) over the triangles, built or reused (:func:`warpscatter.raycast.cached_bvh`)."""
+        """The BVH (``wp.Mesh``) over the triangles, built or reused (:func:`..raster.raycast.cached_bvh`)."""
         if self._mesh is None:
-            from ..raycast import cached_bvh
+            from ..raster.raycast import cached_bvh
 
             self._mesh = cached_bvh(*self._host, device=self.device)
         return self._mesh
@@ -69,7 +69,7 @@ class DeviceGeometry:
         if self._shadow_mesh is None:
             if self._casters.triangle_count == 0:
                 raise ValueError("scene: every mesh is receiver_only, so nothing casts a shadow")
-            from ..raycast import cached_bvh
+            from ..raster.raycast import cached_bvh
 
             self._shadow_mesh = cached_bvh(self._casters.vertices, self._casters.triangles, device=self.device)
         return self._shadow_mesh

@@ -51,10 +51,10 @@ def format_value(v: Any) -> str:
 
 
 def _texture(path: Path | None) -> Any:
-    """The image of a light's ``texture`` key, or None (:func:`~warpscatter.imageio.read_radiance_image`)."""
+    """The image of a light's ``texture`` key, or None (:func:`~..io.images.read_radiance_image`)."""
     if path is None:
         return None
-    from ..imageio import read_radiance_image
+    from ..io.images import read_radiance_image
 
     return read_radiance_image(path, key="light.texture")
 
@@ -216,7 +216,7 @@ class EnvironmentLightConfig(LightSettings):
     def build(self) -> Any:
         import numpy as np
 
-        from ..imageio import read_radiance_image
+        from ..io.images import read_radiance_image
         from .environment_map import EnvironmentMap
         from .lights import EnvironmentLight
 

@@ -15,7 +15,7 @@ from typing import Union
 import numpy as np
 import warp as wp
 
-from ..wpinit import default_device, module_options
+from ..runtime.device import default_device, module_options
 from .camera import look_at_basis, normalize, perspective_matrix, view_matrix
 from .environment_map import EnvironmentMap, cdf_search, cdf_search_row
 

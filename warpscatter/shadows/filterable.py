@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..wpinit import module_options
+from ..runtime.device import module_options
 from . import moments as mm
 
 module_options()

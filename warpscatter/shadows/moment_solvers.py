@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..wpinit import module_options
+from ..runtime.device import module_options
 from .moment_storage import (
     BIAS_VECTOR4_FLOAT32,
     _sanitize_moment,

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import warp as wp
 
-from ..wpinit import module_options
+from ..runtime.device import module_options
 
 module_options()
 

@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..parallel import launch_rows
-from ..wpinit import default_device, module_options
+from ..runtime.device import default_device, module_options
+from ..runtime.parallel import launch_rows
 from .moment_solvers import (
     DIVDIFF_FLOOR,
     LEADING_COEFF_FLOOR,

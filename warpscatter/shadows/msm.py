@@ -10,10 +10,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 import warp as wp
 
-from ..parallel import launch_rows
-from ..raster import MAX_RESOLUTION, linearize_depth, ndc_to_view_depth, rasterize
-from ..stages import StageTimer
-from ..wpinit import default_device, module_options
+from ..raster.rasterizer import MAX_RESOLUTION, linearize_depth, ndc_to_view_depth, rasterize
+from ..runtime.device import default_device, module_options
+from ..runtime.parallel import launch_rows
+from ..runtime.stages import StageTimer
 from . import filterable
 from . import moments as mm
 from .msm_texels import (  # noqa: F401 (the texel operations are part of this module's API)

@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from ..runtime.device import default_device, module_options
 from ..scene.camera import look_at_basis, orthographic_matrix, perspective_matrix, view_matrix
 from ..scene.lights import DirectionalLight
-from ..wpinit import default_device, module_options
 
 module_options()
 
@@ -156,7 +156,7 @@ def render_shadow_map(scene, resolution, device=None, max_translucent_layers: in
         max_translucent_layers: most translucent fragments per texel (default
             :data:`~.translucency.DEFAULT_MAX_LAYERS`).
     """
-    from ..raster import linearize_depth, rasterize_linear_depth
+    from ..raster.rasterizer import linearize_depth, rasterize_linear_depth
     from . import translucency
 
     w, h = (resolution, resolution) if np.isscalar(resolution) else tuple(resolution)

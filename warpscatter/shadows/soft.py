@@ -10,9 +10,9 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from ..parallel import launch_rows
-from ..stages import StageTimer
-from ..wpinit import default_device, module_options
+from ..runtime.device import default_device, module_options
+from ..runtime.parallel import launch_rows
+from ..runtime.stages import StageTimer
 from . import moments as mm
 from . import msm as msmod
 from .msm import MomentShadowMap, MomentShadowParams

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..stages import StageTimer
-from ..wpinit import default_device, module_options
+from ..runtime.device import default_device, module_options
+from ..runtime.stages import StageTimer
 from . import msm, soft
 from .settings import ShadowsSettings
 from .shadow_map import ShadowMapParams, TranslucentShadowDepths, shadow_pcf_surface
@@ -78,7 +78,7 @@ def prepare_shadows(scene, shadow_map, settings: ShadowsSettings, *, bias_texels
         shadow_map: the light's :class:`~warpscatter.shadows.shadow_map.ShadowMap` (None: no shadows).
         settings: :class:`~warpscatter.shadows.settings.ShadowsSettings` (``render.shadows``).
         bias_texels: depth bias in texel sizes (``render.scattering.shadow_map.bias``).
-        timer: the :class:`~warpscatter.stages.StageTimer`.
+        timer: the :class:`~..runtime.stages.StageTimer`.
         device: Warp device.
 
     Returns:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..raster import coverage_count, rasterize
+from ..raster.rasterizer import coverage_count, rasterize
 from ..scene import CASTER_ALPHA_TEST
 
 #: Alpha test of Peters 2017 Sec. 3.3: fragments with a lower opacity are discarded.
@@ -74,9 +74,9 @@ def translucent_depths(vertices, triangles, opacity, view_proj, width: int, heig
     """The two-depth distribution (module doc) of every pixel of a view.
 
     Args:
-        vertices, triangles: the casters (as :func:`~warpscatter.raster.rasterize` takes them).
+        vertices, triangles: the casters (as :func:`~..raster.rasterizer.rasterize` takes them).
         opacity: (T,) opacity per triangle (:func:`triangle_opacity`).
-        view_proj, width, height, clamp_depth, clip_near: as :func:`~warpscatter.raster.rasterize`.
+        view_proj, width, height, clamp_depth, clip_near: as :func:`~..raster.rasterizer.rasterize`.
         max_layers: most translucent fragments per pixel (:func:`peel_row_bands`).
         device: Warp device.
 

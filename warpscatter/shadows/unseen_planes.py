@@ -11,10 +11,10 @@ from dataclasses import replace
 import numpy as np
 import warp as wp
 
-from ..parallel import launch_rows
+from ..runtime.device import module_options
+from ..runtime.parallel import launch_rows
 from ..scene.camera import CameraParams, pixel_ray_factors
 from ..scene.lights import DirectionalLight
-from ..wpinit import module_options
 
 module_options()
 

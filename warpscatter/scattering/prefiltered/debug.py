@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..epipole_fallback import epipole_weights
-from ..row_mips import RowMips, pixel_mip_levels
 from ..sparse_evaluation import SparseEvaluation
+from .epipole_regions import epipole_weights
 from .rectify import map_depth
+from .row_mips import RowMips, pixel_mip_levels
 
 
 def add_debug_images(info: dict, frame, coords, regions, rectified, map_before_culling,

@@ -4,7 +4,7 @@
   precision is low: light bleeds into a ring around the epipole (Klehm 2014 Sec. 5, Fig. 8). The pixels whose view
   ray lies within ``epipole_angle_deg`` of the light direction (or its flip), at least Klehm's block of
   ``epipole_block`` pixels, are marched and blended linearly in the angle with the look-up over a band of
-  ``EPIPOLE_BLEND`` times that radius (:mod:`..epipole_fallback`). An angle rather than a pixel count keeps the region
+  ``EPIPOLE_BLEND`` times that radius (:mod:`.epipole_regions`). An angle rather than a pixel count keeps the region
   the same at every resolution.
 * Rays ending in shadow whose whole extent lies within their end surface's own zone (``end_offset``; flagged by the
   look-up, :mod:`.evaluate`) have nothing to look up: they are marched as the disc is.
@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from ...stages import StageTimer
-from ..epipole_fallback import march_epipole_regions, march_flagged_pixels
+from ...runtime.stages import StageTimer
+from .epipole_regions import march_epipole_regions, march_flagged_pixels
 
 
 def march_epipole(frame, settings, regions: list, radiance: wp.array, end_zone: wp.array | None,

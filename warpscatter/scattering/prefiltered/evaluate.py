@@ -21,27 +21,27 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from ...parallel import launch_rows
+from ...runtime.device import MODULE_OPTIONS, default_device
+from ...runtime.parallel import launch_rows
 from ...scene.camera import CameraParams, pixel_ray_direction
 from ...scene.lights import LightParams, faces_away_from_light, light_params
 from ...scene.medium import MediumParams, coloured_scattering, phase_eval, transmittance_integral
-from ...wpinit import MODULE_OPTIONS, default_device
-from ..caster_culling import end_faces_away
-from ..epipole_fallback import MarchedCones, marched_cones, wholly_marched
-from ..filtered_lookups import RAY_END_IN_SHADOW, RAY_END_LIT, RAY_END_UNKNOWN, DepthBounds
-from ..filtered_textures import FilteredBasis, FilteredBasisArrays, FilteredMomentArrays
 from ..marching import Visibility, end_surface_at, stretch_visibility, visibility_params
-from ..ray_weights import ChannelRayWeights, RayWeights, looked_up_share, ray_weights
-from ..rectification import RectificationParams, rectification_params, rectified_coords, wrap_rows
-from ..rectify_nonlinear import NonlinearRectification
-from ..row_mips import RowMips, pixel_mip_level
+from ..rectify.bounds import NonlinearRectification
+from ..rectify.caster_culling import end_faces_away
+from ..rectify.params import RectificationParams, rectification_params, rectified_coords, wrap_rows
 from ..settings import END_SAMPLES_MIN_DEG, EVALUATE_DEPTH_TOLERANCE, ScatteringSettings
 from ..sparse_evaluation import PIXELS_ALL, PIXELS_GRID, PixelSet, evaluate_sparse, grid_size, pixel_set, set_pixel
+from .epipole_regions import MarchedCones, marched_cones, wholly_marched
+from .filtered_lookups import RAY_END_IN_SHADOW, RAY_END_LIT, RAY_END_UNKNOWN, DepthBounds
 from .lookups import STRETCH_MIN_WEIGHT, left_out_start, mipped_visibility, ray_ends_lit, with_left_out_stretch
+from .ray_weights import ChannelRayWeights, RayWeights, looked_up_share, ray_weights
+from .row_mips import RowMips, pixel_mip_level
+from .textures import FilteredBasis, FilteredBasisArrays, FilteredMomentArrays
 
-#: The Warp module of the package's fixed per-pixel kernels (named after the package: one compile for them all, and
-#: the name the method registry preloads). The look-up's variants each compile in a module of their own, on first use.
-KERNELS = __package__
+#: The Warp module of the fixed per-pixel kernels (this module: the method registry preloads it). The look-up's
+#: variants each compile in a module of their own, on first use.
+KERNELS = __name__
 wp.set_module_options(MODULE_OPTIONS, module=KERNELS)
 
 
@@ -243,8 +243,8 @@ def lit_ray_ends(scene, gbuffer, shadow_map, bias_texels: float, faces_away: wp.
     """(H, W) int32 Warp array: 1 where the pixel's view ray ends lit (on no surface, or on a surface facing the light
     that the shadow map sees, ``bias_texels`` of depth bias), 0 where it ends in shadow. A look-up of a ray ending lit
     may end nearer its end (``prefiltered.end_offset``, :data:`~..settings.END_OFFSET_LIT`): a lit surface shadows its
-    own ray only through the texel's filtering. ``faces_away``: :func:`~..caster_culling.end_faces_away` of the frame
-    if already made. The look-up kernel makes the same test at the pixels it evaluates; this is the every-pixel
+    own ray only through the texel's filtering. ``faces_away``: :func:`~..rectify.caster_culling.end_faces_away` of the
+    frame if already made. The look-up kernel makes the same test at the pixels it evaluates; this is the every-pixel
     form."""
     device = default_device(device)
     cam = scene.camera
@@ -267,7 +267,7 @@ class Evaluation:
         rect: the frame's rectification (:mod:`.rectify`).
         filtered: the frame's :class:`~.prefilter.Prefiltered` map.
         coords: every pixel's rectified coordinates (:func:`pixel_coords`), or None: computed at the pixels evaluated.
-        regions: the epipole regions ray-marched afterwards (:func:`~..epipole_fallback.epipole_regions`).
+        regions: the epipole regions ray-marched afterwards (:func:`~.epipole_regions.epipole_regions`).
     """
 
     def __init__(self, frame, settings: ScatteringSettings, rect, filtered, coords: wp.array | None, regions: list,

@@ -10,10 +10,12 @@ from typing import Any
 
 import warp as wp
 
+from ...runtime.device import module_options
 from ...scene.lights import LightParams, light_sample
 from ...shadows import moments as mm
-from ...wpinit import module_options
-from ..filtered_lookups import (
+from ..marching import Visibility, point_visibility
+from ..settings import END_STRETCH_MIN_WEIGHT
+from .filtered_lookups import (
     DepthBounds,
     fourier_visibility,
     mix_row_answers,
@@ -21,11 +23,9 @@ from ..filtered_lookups import (
     row_bounds,
     rows_undecided,
 )
-from ..filtered_textures import FilteredBasisArrays, FilteredMomentArrays
-from ..marching import Visibility, point_visibility
-from ..ray_weights import RayWeights, inside_map_fraction
-from ..row_mips import RowMips, level_window
-from ..settings import END_STRETCH_MIN_WEIGHT
+from .ray_weights import RayWeights, inside_map_fraction
+from .row_mips import RowMips, level_window
+from .textures import FilteredBasisArrays, FilteredMomentArrays
 
 module_options()
 
@@ -67,10 +67,10 @@ def representation_visibility(texels: FilteredMomentArrays, weights: RayWeights,
 def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, window: wp.vec3i, beta: wp.vec4,
                    light_direction: wp.vec3, view_direction: wp.vec3, ray_end: int) -> float:
     """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a Fourier texture or a moment map
-    (:func:`representation_visibility`) read in the row ``window`` (a mip level, :func:`~..row_mips.level_window`),
-    its texels weighted as ``weights`` says (:mod:`..ray_weights`), those beyond the map lit; a ray wholly lit or
+    (:func:`representation_visibility`) read in the row ``window`` (a mip level, :func:`~.row_mips.level_window`),
+    its texels weighted as ``weights`` says (:mod:`.ray_weights`), those beyond the map lit; a ray wholly lit or
     wholly shadowed by the ``bounds`` is answered without the reconstruction (``ray_end``: what is known of the
-    ray's end point, :func:`~..filtered_lookups.row_bounds`)."""
+    ray's end point, :func:`~.filtered_lookups.row_bounds`)."""
     inside = inside_map_fraction(weights, c[0], c[2])
     u = c[0]
     if inside < 1.0:
@@ -91,8 +91,8 @@ def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.
 def mipped_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, mips: RowMips, level: wp.vec2,
                       c: wp.vec3, beta: wp.vec4, light_direction: wp.vec3, view_direction: wp.vec3,
                       ray_end: int) -> float:
-    """:func:`map_visibility` at a pixel's mip ``level`` (:func:`~..row_mips.pixel_mip_level`: level, share of the
-    next): the two levels' visibilities blended (trilinear filtering, Peters 2017 D.5; :mod:`..row_mips`)."""
+    """:func:`map_visibility` at a pixel's mip ``level`` (:func:`~.row_mips.pixel_mip_level`: level, share of the
+    next): the two levels' visibilities blended (trilinear filtering, Peters 2017 D.5; :mod:`.row_mips`)."""
     lv = int(level[0])
     f = map_visibility(texels, weights, bounds, c, level_window(mips, lv), beta, light_direction, view_direction,
                        ray_end)
@@ -113,7 +113,7 @@ def left_out_start(weights: RayWeights, u: float, s: float) -> float:
 @wp.func
 def with_left_out_stretch(f: float, share: float, v_end: float) -> float:
     """Visible fraction of a view ray whose look-up gave f over ``share`` of its own transmittance weight
-    (:func:`~..ray_weights.looked_up_share`) and whose left-out end stretch (:func:`left_out_start`) has visibility
+    (:func:`~.ray_weights.looked_up_share`) and whose left-out end stretch (:func:`left_out_start`) has visibility
     v_end."""
     return f * share + (1.0 - share) * v_end
 

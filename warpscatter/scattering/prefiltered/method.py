@@ -6,16 +6,16 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ...runtime.device import default_device
+from ...runtime.stages import StageTimer
 from ...scene.lights import DirectionalLight, SpotLight, light_params
-from ...stages import StageTimer
-from ...wpinit import default_device
-from ..caster_culling import cull_unseen_casters, end_faces_away
-from ..epipole_fallback import epipole_pixel_fraction, epipole_regions
-from ..rectification import wrap_rows
-from ..rectify_projective import ProjectiveRectification
+from ..rectify.caster_culling import cull_unseen_casters, end_faces_away
+from ..rectify.params import wrap_rows
+from ..rectify.projective import ProjectiveRectification
 from ..settings import ScatteringSettings
 from .debug import add_debug_images
 from .epipole import march_epipole
+from .epipole_regions import epipole_pixel_fraction, epipole_regions
 from .evaluate import Evaluation, coords_of_every_pixel, pixel_coords
 from .prefilter import prefilter_map
 from .rectify import map_depth, rectify_map
@@ -33,7 +33,8 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
         settings: :class:`~warpscatter.scattering.settings.ScatteringSettings`; ``method`` selects the basis,
             ``shadow_map.resolution`` is also the rectified map's size (columns: texels along each view ray, rows:
             epipolar slices).
-        stage: the :class:`~warpscatter.stages.StageTimer` (stages ``rectify``, ``resample_msm``, ``pixel_coords``,
+        stage: the :class:`~warpscatter.runtime.stages.StageTimer` (stages ``rectify``, ``resample_msm``,
+        ``pixel_coords``,
             ``caster_culling``, ``prefilter``, ``evaluate``, ``epipole``).
 
     Debug outputs (``frame.aovs``, in ``info["debug_images"]``): ``rectified`` the (H, W, 3) look-up coordinates

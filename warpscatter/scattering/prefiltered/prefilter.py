@@ -3,8 +3,8 @@ or moments fused into per-row prefix sums, plain or weighted by the transmittanc
 projective map's columns are uneven, so its weights are per texel (Eq. 12: exact column lengths, or the paper's
 constant growth factor d with ``projective_weights: cross_ratio``); rows may be split into ``splits`` regions filtered
 independently (Sec. 3.3). The texture is stored as configured (float32, RGBA8, or the moment storage modes), its row
-mip levels follow (Peters 2017 D.5, :mod:`..row_mips`), and the per-row prefix depth bounds
-(:func:`~..filtered_lookups.depth_bounds_of`) let the look-up skip wholly lit or shadowed rays.
+mip levels follow (Peters 2017 D.5, :mod:`.row_mips`), and the per-row prefix depth bounds
+(:func:`~.filtered_lookups.depth_bounds_of`) let the look-up skip wholly lit or shadowed rays.
 """
 
 from __future__ import annotations
@@ -13,13 +13,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..filtered_lookups import DepthBounds, depth_bounds_of
-from ..filtered_textures import FilteredBasis, FilteredMoments
-from ..prefix_sums import prefilter_moments, prefilter_weighted
-from ..rectify_nonlinear import NonlinearRectification, reference_ray
-from ..rectify_projective import column_lengths, cross_ratio_factors, reference_rays
-from ..row_mips import RowMipChain, row_mip_chain
+from ..rectify.bounds import NonlinearRectification
+from ..rectify.projective import column_lengths, cross_ratio_factors
+from ..rectify.reference_rays import reference_ray, reference_rays
 from ..settings import PrefilteredSettings, ScatteringSettings
+from .filtered_lookups import DepthBounds, depth_bounds_of
+from .prefix_sums import prefilter_moments, prefilter_weighted
+from .row_mips import RowMipChain, row_mip_chain
+from .textures import FilteredBasis, FilteredMoments
 
 
 @dataclass
@@ -93,7 +94,7 @@ def row_weights(rect, settings: PrefilteredSettings, sigma_t: float, camera=None
 def weights_extinction(medium, segments: int) -> float:
     """The extinction of the prefix sums' transmittance weights (1/unit): a grey medium's own. A coloured medium's
     least channel extinction with per-ray segments (each channel then weights its rays with its own extinction, and
-    every channel decays at least as fast as the reference: convex taps, :mod:`..ray_weights`), else the channels'
+    every channel decays at least as fast as the reference: convex taps, :mod:`.ray_weights`), else the channels'
     mean (one weighting for all channels: the approximation of the projective map and of ``segments: 1``)."""
     if medium.coloured and segments > 1:
         return float(min(medium.sigma_t_rgb))

@@ -2,12 +2,12 @@
 doc of :mod:`warpscatter.scattering.prefiltered`).
 
 * ``projective`` (Klehm 2014 Sec. 4.2): one 4x4 matrix per light-frustum region; the scene is rasterized straight
-  into the rectified map with depth clamping (:mod:`..rectify_projective`);
+  into the rectified map with depth clamping (:mod:`..rectify`);
 * ``nonlinear`` (Peters 2017 Sec. 5.1.1, App. A): bounds in spherical light coordinates and the light's shadow map
-  resampled into them (:mod:`..rectify_nonlinear`): point taps, supersampled (``resample_filter: supersample``), or
+  resampled into them (:mod:`..rectify`): point taps, supersampled (``resample_filter: supersample``), or
   filtered during resampling (``moments``, Peters 2017 Sec. 5.2: :func:`resample_filtered`);
 * ``auto``: projective unless the light's epipole (or anti-epipole) lies in the image or near it
-  (:func:`~..rectification.build_rectification`, Klehm's criterion for (close to) degenerate cases).
+  (:func:`~..rectify.params.build_rectification`, Klehm's criterion for (close to) degenerate cases).
 """
 
 from __future__ import annotations
@@ -17,12 +17,18 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
+from ...runtime.stages import StageTimer
 from ...shadows import translucency
-from ...stages import StageTimer
-from .. import rectify_nonlinear
-from ..rectification import build_rectification
-from ..rectify_nonlinear import NonlinearRectification, resample_shadow_map
-from ..rectify_projective import ProjectiveRectification, rasterize_rectified
+from ..rectify.bounds import NonlinearRectification
+from ..rectify.nonlinear import (
+    radial_samples_for,
+    resample_footprint_texels,
+    resample_moment_shadow_map,
+    resample_shadow_map,
+)
+from ..rectify.params import build_rectification
+from ..rectify.projective import ProjectiveRectification, rasterize_rectified
+from ..rectify.taps import SparseRectifiedDepth
 from ..settings import MAX_RESAMPLE_FILTER_PX, PrefilteredSettings
 
 
@@ -31,7 +37,7 @@ class Rectified:
     """The ``rectify`` pass's result."""
 
     rect: ProjectiveRectification | NonlinearRectification  # the rectification
-    choice: object  # why it was chosen (:func:`~..rectification.build_rectification`)
+    choice: object  # why it was chosen (:func:`~..rectify.params.build_rectification`)
     depth: object  # the rectified depth map (a (rows, cols) wp.array or a SparseRectifiedDepth)
     info: dict = field(default_factory=dict)  # resample_filter, resample_samples, resample_filter_px
 
@@ -58,7 +64,7 @@ def rectify_map(frame, p: PrefilteredSettings, size: tuple[int, int], stage: Sta
                                         opacity=translucency.triangle_opacity(casters), device=device)
         elif not filtered_resampling:
             if p.resample_filter == "supersample":
-                samples = rectify_nonlinear.radial_samples_for(rect, shadow_map.texel_world)
+                samples = radial_samples_for(rect, shadow_map.texel_world)
             depth = resample_shadow_map(
                 rect, shadow_map.depth, shadow_map.view_projection, depth="linear", world_to_view=shadow_map.view,
                 radial_samples=samples, device=device,
@@ -76,16 +82,16 @@ def resample_filtered(scene, rect: NonlinearRectification, shadow_map, settings:
     """Filtering during resampling (Peters 2017 Sec. 5.2): stage ``resample_msm`` generates the light view's
     128-bit 4-moment map (2x2 supersampled, :func:`~warpscatter.shadows.msm.generate_moment_shadow_map`) and
     Gaussian-filters it (``resample_filter_px``, default the radial rectified texel footprint); stage ``rectify``
-    resamples it with Algorithm 2 (:func:`~..rectify_nonlinear.resample_moment_shadow_map`).
+    resamples it with Algorithm 2 (:func:`~..resample_moment_shadow_map`).
 
     Returns:
-        (:class:`~..rectify_nonlinear.SparseRectifiedDepth`, the Gaussian width used in shadow-map texels).
+        (:class:`~..SparseRectifiedDepth`, the Gaussian width used in shadow-map texels).
     """
     from ...shadows import msm as msm_maps
 
     filter_px = settings.resample_filter_px
     if filter_px is None:
-        filter_px = int(np.clip(round(rectify_nonlinear.resample_footprint_texels(rect, shadow_map.texel_world)), 1,
+        filter_px = int(np.clip(round(resample_footprint_texels(rect, shadow_map.texel_world)), 1,
                                 MAX_RESAMPLE_FILTER_PX))
     with stage("resample_msm"):
         moments = msm_maps.filter_moment_shadow_map(
@@ -95,13 +101,13 @@ def resample_filtered(scene, rect: NonlinearRectification, shadow_map, settings:
         depth = shadow_map.depth.numpy() if isinstance(shadow_map.depth, wp.array) else np.asarray(shadow_map.depth)
         finite = depth[np.isfinite(depth)]
         farthest = float(finite.max()) if finite.size else None  # the map's farthest caster (linear light depth)
-        return (rectify_nonlinear.resample_moment_shadow_map(rect, moments, farthest_caster=farthest, device=device),
+        return (resample_moment_shadow_map(rect, moments, farthest_caster=farthest, device=device),
                 int(filter_px))
 
 
 def map_depth(rectified) -> np.ndarray:
     """(rows, cols) float32 rectified depth of a map (its first depth when it holds two)."""
-    depth = rectified.z1 if isinstance(rectified, rectify_nonlinear.SparseRectifiedDepth) else rectified
+    depth = rectified.z1 if isinstance(rectified, SparseRectifiedDepth) else rectified
     return depth.numpy()
 
 

@@ -1,6 +1,6 @@
 """The prefiltered methods under a spot light (Klehm 2014 Sec. 3.2, "Local Lights"): the same steps on
-:mod:`..rectify_local`'s map (rows: epipolar planes through the light and the camera, columns: the angle psi at the
-light, texels weighted by the spot's cone and texture), the look-up's mathematics in :mod:`..prefiltered_spot`.
+:mod:`..rectify`'s map (rows: epipolar planes through the light and the camera, columns: the angle psi at the
+light, texels weighted by the spot's cone and texture), the look-up's mathematics in :mod:`.spot_lookups`.
 The projective rectification, ``splits`` > 1 and adaptive overestimation need a directional light.
 """
 
@@ -10,32 +10,32 @@ import math
 import numpy as np
 import warp as wp
 
-from ...parallel import launch_rows
+from ...runtime.device import MODULE_OPTIONS, default_device
+from ...runtime.parallel import launch_rows
+from ...runtime.stages import StageTimer
 from ...scene.camera import CameraParams
 from ...scene.lights import LightParams, light_params
 from ...scene.medium import MediumParams
-from ...stages import StageTimer
-from ...wpinit import MODULE_OPTIONS, default_device
-from ..caster_culling import cull_unseen_casters, end_faces_away
-from ..epipole_fallback import epipole_pixel_fraction, epipole_regions
-from ..filtered_lookups import depth_bounds_of
-from ..filtered_textures import FilteredBasis, FilteredBasisArrays, FilteredMomentArrays
-from ..prefiltered_spot import SpotLookUp, spot_radiance, spot_radiance_rgb, spot_rays
-from ..prefix_sums import prefilter_moments, prefilter_weighted
-from ..rectify_local import (
+from ..rectify.caster_culling import cull_unseen_casters, end_faces_away
+from ..rectify.local import (
     coloured_emission,
     emission_peaks,
     resample_spot_shadow_map,
     spot_rectification,
     spot_texel_weights,
 )
-from ..row_mips import level_window, pixel_mip_level, row_mip_chain, stacked_row_means
 from ..settings import EVALUATE_DEPTH_TOLERANCE
 from ..sparse_evaluation import PixelSet, evaluate_sparse, set_pixel
 from .debug import add_debug_images
 from .epipole import march_epipole
+from .epipole_regions import epipole_pixel_fraction, epipole_regions
 from .evaluate import coords_of_every_pixel, pixel_coords
+from .filtered_lookups import depth_bounds_of
+from .prefix_sums import prefilter_moments, prefilter_weighted
 from .rectify import map_depth
+from .row_mips import level_window, pixel_mip_level, row_mip_chain, stacked_row_means
+from .spot_lookups import SpotLookUp, spot_radiance, spot_radiance_rgb, spot_rays
+from .textures import FilteredBasis, FilteredBasisArrays, FilteredMomentArrays
 
 
 @functools.cache

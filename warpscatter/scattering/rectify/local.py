@@ -28,7 +28,7 @@ it; a coloured texture needs one filtered map per channel (the paper: "triples s
 costs").
 
 Per-texel weights of the prefix sums (:func:`spot_texel_weights`) and the per-ray look-ups:
-:mod:`warpscatter.scattering.prefiltered_spot`.
+:mod:`..prefiltered.spot_lookups`.
 """
 
 from __future__ import annotations
@@ -39,9 +39,9 @@ import math
 import numpy as np
 import warp as wp
 
-from ...parallel import launch_rows
+from ...runtime.device import default_device, module_options
+from ...runtime.parallel import launch_rows
 from ...scene.lights import LightParams, light_sample
-from ...wpinit import default_device, module_options
 from .bounds import NonlinearRectification
 from .spherical import NonlinearRectParams
 from .taps import (

@@ -27,11 +27,11 @@ import math
 import numpy as np
 import warp as wp
 
-from ...parallel import launch_rows
+from ...runtime.device import default_device, module_options
+from ...runtime.parallel import launch_rows
 from ...shadows import moments as mm
 from ...shadows.msm import MomentShadowMap, MomentShadowParams, sample_bilinear4
 from ...shadows.shadow_map import shadow_coords
-from ...wpinit import default_device, module_options
 from .bounds import NonlinearRectification
 from .spherical import NonlinearRectParams, light_ray_point, rectified_blocker_depth, texel_light_ray
 from .taps import (

@@ -25,10 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from ... import raster
+from ...raster import rasterizer as raster
+from ...runtime.device import default_device, module_options
 from ...scene.camera import normalize
-from ...wpinit import default_device, module_options
-from ..prefix_sums import split_columns
+from ..prefiltered.prefix_sums import split_columns
 from ..settings import EPIPOLE_MARGIN, MAX_REGIONS
 from .bounds import perpendicular_basis, unit_light_direction, widest_pair
 from .taps import SparseRectifiedDepth

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from ...fastmath import fast_atan2
-from ...wpinit import module_options
+from ...runtime.device import module_options
+from ...runtime.fastmath import fast_atan2
 
 module_options()
 

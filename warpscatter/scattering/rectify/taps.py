@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from ...runtime.device import module_options
 from ...scene.lights import LightParams
-from ...wpinit import module_options
 from .spherical import NonlinearRectParams
 
 module_options()

@@ -1,0 +1,2 @@
+"""Many renders: executors (:mod:`.jobs`), animations (:mod:`.animation`), parameter sweeps (:mod:`.sweep`) and the
+docs' gallery (:mod:`.gallery`)."""
