@@ -93,10 +93,10 @@ def test_missing_bundled_file_names_the_path_and_the_folder():
 
 
 def _load_resources_from(package_dir: Path):
-    """``warpscatter/resources.py`` imported as if it lay in ``package_dir`` (a copy: the layout of an install)."""
-    package_dir.mkdir(parents=True, exist_ok=True)
-    shutil.copy(ROOT / "warpscatter" / "resources.py", package_dir / "resources.py")
-    spec = importlib.util.spec_from_file_location("_resources_copy", package_dir / "resources.py")
+    """``warpscatter/io/resources.py`` imported as if it lay in ``package_dir`` (a copy: the layout of an install)."""
+    (package_dir / "io").mkdir(parents=True, exist_ok=True)
+    shutil.copy(ROOT / "warpscatter" / "io" / "resources.py", package_dir / "io" / "resources.py")
+    spec = importlib.util.spec_from_file_location("_resources_copy", package_dir / "io" / "resources.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

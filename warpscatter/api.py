@@ -11,8 +11,7 @@
     cfg = warpscatter.load_config({"scene": {...}, "camera": {...}, "light": {...}})
     result = warpscatter.render(cfg, out_dir="out")   # also writes NAME.exr, NAME.png, the AOVs and NAME.json
 
-A :class:`Config` (possibly changed in place) is validated again before any work. The device is ``device``, else
-``WARPSCATTER_DEVICE``, else ``wp.get_device()``.
+A :class:`Config` (possibly changed in place) is validated again before any work.
 """
 
 from __future__ import annotations
@@ -61,20 +60,16 @@ def render(config: ConfigSource, overrides: Overrides = (), *, out_dir: str | Pa
            progress=None, verbose: bool = False):
     """Render a config and return its images; write the output files only when ``out_dir`` is given.
 
-    Quiet by default: Warp's banner and module-load lines go to the ``warpscatter.warp`` logger (INFO) and its
-    no-CUDA-driver warning to ``warpscatter`` (DEBUG); Warp's warnings and errors still show, and its logger and log
-    level are restored afterwards. ``verbose=True`` lets Warp print as it does by default.
-
     Args:
-        config: a YAML file path, a plain dict or a :class:`Config` (validated again: see the module docstring).
+        config: a YAML file path, a plain dict or a :class:`Config` (validated again: it may have changed in place).
         overrides: as in :func:`load_config`.
         out_dir: write ``NAME.exr``, ``NAME.png``, the AOVs of ``output.aovs`` and the ``NAME.json`` sidecar here
             (``NAME`` is :attr:`Config.output_name`); None (default) writes nothing.
-        device: a Warp device or its name; None follows Warp (``wp.get_device()``) unless ``WARPSCATTER_DEVICE``
-            is set.
+        device: a Warp device or its name; None: ``WARPSCATTER_DEVICE`` if set, else Warp's ``wp.get_device()``.
         progress: optional ``progress(stage, fraction)`` callback.
-        verbose: let Warp print its messages (banner, module loads) as it does by default
-            (:func:`.runtime.device.warp_messages`).
+        verbose: let Warp print its banner and module loads as it does by default. Quiet (default): they go to the
+            ``warpscatter.warp`` logger (INFO), the no-CUDA-driver warning to ``warpscatter`` (DEBUG); Warp's
+            warnings and errors still show (:func:`.runtime.device.warp_messages`).
 
     Returns:
         :class:`~warpscatter.pipeline.RenderResult`: ``images`` (name -> float32 numpy array: ``color``,

@@ -1,10 +1,7 @@
-"""The method registry: every render method is one :class:`Method` record.
-
-A record names the method, its paper, the light types and settings it uses, what the pipeline builds for it, its Warp
-modules and its entry point (loaded on first use, so validation stays Warp-free). Scattering methods:
-``render(frame, settings, stage) -> (l_scat, info)``, ``l_scat`` an (H, W) ``wp.vec3`` array; lighting methods:
-``render(scene, settings, stage, on_pass) -> (images, stats)``. A new method: its module, its settings section, a
-record here (with a ``validate`` hook), a test and a README section.
+"""The method registry: every render method is one :class:`Method` record, its entry point loaded on first use (so
+validation stays Warp-free). Scattering methods: ``render(frame, settings, stage) -> (l_scat, info)``, ``l_scat`` an
+(H, W) ``wp.vec3`` array; lighting methods: ``render(scene, settings, stage, on_pass) -> (images, stats)``. A new
+method: its module, its settings section, a record here (with a ``validate`` hook), a test and a README section.
 """
 
 from __future__ import annotations

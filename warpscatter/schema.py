@@ -296,11 +296,9 @@ def unwrap(tp):
 
 
 def _display_loc(loc: tuple, root: type[BaseModel]) -> tuple[tuple, type | None, bool]:
-    """Drop union segments (discriminator tags, alternative names) from a pydantic error location under ``root``.
-
-    Returns the user-facing key path, the model class at its end (or None) and whether the error is one alternative
-    of a plain union.
-    """
+    """Drop union segments (discriminator tags, alternative names) from a pydantic error location under ``root``:
+    the user-facing key path, the model class at its end (or None) and whether the error is one alternative of a
+    plain union."""
     out: list = []
     tp: Any = root
     alternative = False

@@ -1,22 +1,13 @@
-"""Benchmark suites: ``warpscatter bench [SUITE]``.
+"""Benchmark suites (:data:`SUITES`): ``warpscatter bench [SUITE]``.
 
-Every suite times library stages the way a render runs them: a warm-up run first (kernel compile is measured
-apart, as the ``compile`` figure of the first load in the process), then the median of ``repeats`` runs per stage.
-Each case is rendered once per run. Rows carry the error against the exact reference where one applies (relative
-L1 = sum|a - b| / sum|b| and RMSE over all pixels and channels) and the speed-up over the brute-force ray marcher
-measured in the SAME run. Scenes are the bundled configs (``configs/*.yaml``, :mod:`.scenes`) at bench sizes.
+Every suite times library stages the way a render runs them: a warm-up run first (kernel compile measured apart, as
+``compile``), then the median of ``repeats`` runs per stage, each case rendered once per run. Rows carry the error
+against the exact reference where one applies (relative L1 = sum|a - b| / sum|b| and RMSE over all pixels and
+channels) and the speed-up over the brute-force ray marcher measured in the SAME run. Scenes: :mod:`.scenes`.
 
-Output: a terminal table (:meth:`BenchReport.table`), ``bench-<suite>.json`` (every repeat's time, spread, machine,
-versions, commit, time stamp) and ``bench-<suite>.csv`` (layouts: :mod:`.report`) and, when matplotlib is installed
-(the ``plot`` extra), ``bench-<suite>.png`` and, for suites with errors, ``bench-<suite>-error-time.png``.
-:func:`compare_reports` (:mod:`.compare`) sets two bench JSONs side by side.
-
-Suites (:data:`SUITES`, one record each): ``raster``, ``reference``, ``parallel`` (:mod:`.suites_core`),
-``prefiltered``, ``moments``, ``epipolar`` (:mod:`.suites_scattering`), ``csm`` (:mod:`.suites_csm`), ``fidelity``
-(:mod:`.suites_fidelity`), ``pareto`` (:mod:`.suites_pareto`), ``papers`` (:mod:`.suites_papers`), ``filterable``
-(:mod:`.suites_shadows`), ``scaleout`` (:mod:`.suites_scaleout`).
-
-``quick=True`` shrinks every size (for smoke tests and CI); figures for notes come from full runs.
+Output: a terminal table (:meth:`BenchReport.table`), ``bench-<suite>.json`` and ``bench-<suite>.csv`` (layouts:
+:mod:`.report`) and, with matplotlib (the ``plot`` extra), charts; :func:`compare_reports` (:mod:`.compare`) sets two
+bench JSONs side by side. ``quick=True`` shrinks every size (smoke tests and CI); figures come from full runs.
 """
 
 from __future__ import annotations

@@ -8,13 +8,12 @@ whose median equals a figure of the row as ``timing`` (:func:`spread`); rows not
 
     {"format": "warpscatter-bench/2", "suite": ..., "meta": {...}, "rows": [row, ...]}
 
-``meta``: :func:`machine_meta` (cpu, cores, threads, os, python, warp, numpy, openimageio, warpscatter, commit,
-git_dirty, device, timestamp) plus the run's suite, repeats, warmup, quick and argv, plus the suite's own figures.
-Each row: ``name``, ``params``, ``case`` (:func:`case_label`, the key :mod:`.compare` matches on), ``median_ms``
-(the suite's headline figure: for renders the sum of the stage medians), ``stages_ms`` (stage medians), ``speedup``,
-``rel_l1``, ``rmse``, ``extra`` and ``timing``: ``{"total": S, "stages": {stage: S}}`` with S = :func:`spread`
-(``repeats_ms``: every repeat's time, ``n``, ``median_ms``, ``min_ms``, ``max_ms``, ``q1_ms``, ``q3_ms``,
-``iqr_ms``; ``total.repeats_ms`` of a render are the per-repeat sums of its stages).
+``meta``: :data:`RUN_KEYS` (:func:`machine_meta` and the run's settings) plus the suite's own figures. Each row:
+``name``, ``params``, ``case`` (:func:`case_label`, the key :mod:`.compare` matches on), ``median_ms`` (the suite's
+headline figure: for renders the sum of the stage medians), ``stages_ms`` (stage medians), ``speedup``, ``rel_l1``,
+``rmse``, ``extra`` and ``timing``: ``{"total": S, "stages": {stage: S}}`` with S = :func:`spread` (``repeats_ms``:
+every repeat's time, ``n``, ``median_ms``, ``min_ms``, ``max_ms``, ``q1_ms``, ``q3_ms``, ``iqr_ms``;
+``total.repeats_ms`` of a render are the per-repeat sums of its stages).
 
 ``bench-<suite>.csv`` (:data:`CSV_COLUMNS`): long format, one line per (row, stage), the row's total first with
 ``stage = "total"``; load with ``pandas.read_csv`` and filter or pivot on ``stage``::
@@ -87,9 +86,8 @@ def _claim(median_ms) -> list[float] | None:
 
 
 def measure(fn: Callable[[], object], repeats: int, warmup: int) -> dict:
-    """Run ``fn`` warmup times untimed, then ``repeats`` times; return median/min/all times (seconds).
-
-    The repeats are recorded for the next :meth:`BenchReport.add` whose ``median_ms`` is ``1e3 * median_s``."""
+    """Run ``fn`` warmup times untimed, then ``repeats`` times: median/min/all times (s), the repeats recorded for the
+    next :meth:`BenchReport.add` whose ``median_ms`` is ``1e3 * median_s``."""
     for _ in range(warmup):
         fn()
         wp.synchronize()

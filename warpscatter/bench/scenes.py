@@ -48,8 +48,7 @@ def bench_scene_config(name: str, width: int, height: int, leaves: int | None = 
     """A validated config of a bench scene: the bundled config at ``width`` x ``height`` with the bench's ``render``.
 
     Args:
-        name: a key of :data:`SCENES` (``colonnade``, ``canopy``, ``window``, ``quickstart``, ``terrain``, ``gate``,
-            ``gate_translucent``, ``colonnade_spot``).
+        name: a key of :data:`SCENES`.
         width, height: image size in pixels.
         leaves: leaf quads of the canopy (None: the config's).
         receiver_only_ground: mark the ground plane ``receiver_only`` (the exact image is unchanged).

@@ -1,11 +1,5 @@
-"""Bench suites of the building blocks: ``raster``, ``reference`` and ``parallel``.
-
-* ``raster``    — depth map of a >= 1M-triangle mesh: the Warp rasterizer against BVH ray casting (``wp.Mesh``)
-  and Embree (embreex, the ``peers`` extra) when installed.
-* ``reference`` — the ray marcher at 1920x1080, 128 steps, with shadow-map and exact visibility.
-* ``parallel``  — speed-up of split CPU launches (1 thread against all): the rasterizer, and each stage of the
-  marcher's, fourier's, moments6's and epipolar's 1920x1080 renders.
-"""
+"""Bench suites of the building blocks (:data:`warpscatter.bench.SUITES` describes them): ``raster`` (with Embree,
+through embreex of the ``peers`` extra, when installed), ``reference`` and ``parallel``."""
 
 from __future__ import annotations
 

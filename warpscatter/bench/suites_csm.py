@@ -1,11 +1,5 @@
-"""Bench suite of coherent shadow maps (Ritschel 2007): ``csm``.
-
-Compression ratio, precompute time and memory against the map count N and the enumeration (Tables 1-2);
-visibility queries per second (random and coherent directions) against BVH shadow rays; the ``csm`` render
-method's time per progressive pass and error against ``raytrace`` in the same run, at equal samples and passes, with
-the CSM's build reported apart as a precompute (``meta.bar``: the issue's bar on the largest scene, >= 100k occluder
-triangles in full mode).
-"""
+"""Bench suite ``csm`` of coherent shadow maps (Ritschel 2007): the maps' compression, precompute and queries
+(:func:`suite_csm`) and the ``csm`` render method against ``raytrace`` (``meta.bar``: the issue's bar)."""
 
 from __future__ import annotations
 

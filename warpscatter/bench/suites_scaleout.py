@@ -1,13 +1,11 @@
 """Bench suite ``scaleout``: an animation's frames through each executor (:mod:`..runs.jobs`).
 
-The bundled ``colonnade_sunset`` animation (60 frames at 640x360, fourier; ``--quick``: 6 frames at 160x90), every
-frame's output set written to a temporary folder, rendered by: a plain loop in this process (``inline``), local
-worker processes (1 and 2), and a Dask ``LocalCluster`` of 2 workers (when Dask distributed is installed). Per
-executor: frames/s over the run, the median render time of a frame as its worker measured it, and the overhead
-per task against the plain loop: (wall time x workers - the sum of the tasks' own times) / frames, the time a
-worker slot spent on anything but rendering (scheduling, pickling, idling at the end). Starting the executor and
-a first warm-up frame per worker (spawning processes, importing Warp, loading kernels) are timed apart
-(``startup_s``).
+The bundled ``colonnade_sunset`` animation (60 frames at 640x360, fourier; ``--quick``: 6 frames at 160x90), output
+sets written to a temporary folder, by each of :data:`EXECUTOR_CASES` (Dask when installed). Per executor: frames/s
+over the run, the median render time of a frame as its worker measured it, and the overhead per task against the
+plain loop, (wall time x workers - the sum of the tasks' own times) / frames: a worker slot's time on anything but
+rendering (scheduling, pickling, idling at the end). Starting the executor and a first warm-up frame per worker
+(spawning processes, importing Warp, loading kernels) are timed apart (``startup_s``).
 """
 
 from __future__ import annotations

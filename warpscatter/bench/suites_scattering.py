@@ -1,9 +1,6 @@
-"""Bench suites of the single-scattering methods: ``prefiltered`` (fourier, Klehm 2014: stage times against map
-size, output size and basis count, errors, scene complexity), ``moments`` (fourier, moments4, moments6 of Peters 2017
-and the marcher on three scenes; prefix-sum throughput against a memcpy, App. C; soft shadows) and ``epipolar``
-(Engelhardt 2010 under a textured spot). Prefiltered rows also report ``filtered_map_MB``, ``prefilter_GBps`` and
-``evaluate_ns_per_px``.
-"""
+"""Bench suites of the single-scattering methods (:data:`warpscatter.bench.SUITES` describes them): ``prefiltered``,
+``moments`` and ``epipolar``. Prefiltered rows also report ``filtered_map_MB``, ``prefilter_GBps`` and
+``evaluate_ns_per_px``."""
 
 from __future__ import annotations
 

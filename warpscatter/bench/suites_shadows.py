@@ -1,12 +1,11 @@
 """Bench suite ``filterable``: light leaking of the filterable shadow maps, after Peters 2017 Fig. 4.
 
 A bird's-eye view of a ground with a slatted fence, a thin wall behind it and a floating direction sign above it,
-under a high sun (a scene chosen, as the paper's, to provoke artifacts: where the fence's, the wall's and the sign's
-shadows meet, two or three occluder depths share a filter region). Surface shadows from PCF (the reference) and
-from every filterable format (:mod:`warpscatter.shadows.filterable`: msm 64/128, msm2015 64/128, vsm 32/64,
-evsm 64/128) with the same Gaussian width; no medium. Per format: the shadow stages' time, the rel. L1 / RMSE of
-the surface image against PCF's, and the light leaking: the visibility V = surface / unshadowed surface above
-PCF's where PCF is in umbra (V_pcf < 0.02), its mean and 99th percentile (the paper's insets, in numbers).
+under a high sun (as the paper's, chosen to provoke artifacts: where their shadows meet, two or three occluder depths
+share a filter region). Surface shadows from PCF (the reference) and from each format of :data:`FORMAT_CASES` with the
+same Gaussian width; no medium. Per format: the shadow stages' time, the rel. L1 / RMSE of the surface image against
+PCF's, and the light leaking: the visibility V = surface / unshadowed surface above PCF's where PCF is in umbra
+(V_pcf < 0.02), its mean and 99th percentile (the paper's insets, in numbers).
 """
 
 from __future__ import annotations

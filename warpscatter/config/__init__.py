@@ -1,11 +1,10 @@
 """Typed pipeline configuration: the whole config's models, validation and clear errors.
 
-A YAML config (schema: ``docs/conventions.md``) is patched with ``KEY=VALUE`` overrides
-(:mod:`.files`, re-exported here) and validated by these pydantic v2 models, which compose the
-techniques' and the scene's settings models; a method's own rules are its registry record's
-(:attr:`warpscatter.methods.Method.validate`). Unknown keys are refused, relative paths resolve against the config
-file's folder, and every problem is reported at once as ``key.path: reason`` lines in a :class:`ConfigError`. No Warp
-import: validating is fast.
+A YAML config (schema: ``docs/conventions.md``) is patched with ``KEY=VALUE`` overrides (:mod:`.files`, re-exported
+here) and validated by these pydantic v2 models, which compose the techniques' and the scene's settings models; a
+method's own rules are its registry record's (:attr:`warpscatter.methods.Method.validate`). Unknown keys are refused,
+relative paths resolve against the config file's folder, and every problem is reported at once as
+``key.path: reason`` lines in a :class:`ConfigError`. No Warp import: validating is fast.
 """
 
 
@@ -130,10 +129,8 @@ __all__ = [
 
 #: Image outputs a render writes by default (``output.aovs``); ``color`` is always written.
 STANDARD_AOVS = ("color", "scattering", "surface", "depth")
-#: Debug outputs (``output.aovs``, written only when asked), each made by the scattering methods that list it
-#: (:attr:`warpscatter.methods.Method.debug_aovs`): ``rectified`` (u, v, z_r) look-up coordinates, ``epipole_mask``
-#: (1: marched, 0: prefiltered), ``rectified_map`` (map-sized depth and culled-texel mask), ``mip_level``,
-#: ``evaluated_pixels`` (1: look-up ran, 0: interpolated) and ``epipolar_samples`` (ray-march steps per pixel).
+#: Debug outputs (``output.aovs``, written only when asked) of the scattering methods that list them in
+#: :attr:`warpscatter.methods.Method.debug_aovs` (described in docs/guide/outputs.md and the method pages).
 DEBUG_AOVS = ("rectified", "epipole_mask", "rectified_map", "mip_level", "evaluated_pixels", "epipolar_samples")
 #: Image outputs a render can write (``output.aovs``).
 AOV_NAMES = STANDARD_AOVS + DEBUG_AOVS
@@ -474,31 +471,22 @@ class Config(SettingsModel):
         return self.output.name.format(config=stem, method=self.method)
 
     def model_copy(self, *, update: dict[str, Any] | None = None, deep: bool = False) -> Config:
-        """A copy; with ``update`` (top-level keys) validated like a loaded config (unlike pydantic's ``model_copy``).
-
-        Raises:
-            ConfigError: listing every problem of the updated config as ``key.path: reason``.
-        """
+        """A copy; with ``update`` (top-level keys) validated like a loaded config (unlike pydantic's ``model_copy``):
+        :class:`ConfigError` lists every problem of the updated config."""
         if not update:
             return super().model_copy(deep=deep)
         data = {**self.model_dump(), **update}
         return validated_config(data, self._config_dir, self._source)
 
     def revalidated(self) -> Config:
-        """This config validated again as a whole (after in-place assignments); returns a new, valid config.
-
-        Raises:
-            ConfigError: listing every problem as ``key.path: reason``.
-        """
+        """This config validated again as a whole (after in-place assignments): a new, valid config, else a
+        :class:`ConfigError` listing every problem."""
         return validated_config(self.model_dump(), self._config_dir, self._source)
 
     @classmethod
     def from_dict(cls, data: dict, config_dir: str | Path | None = None) -> Config:
-        """Validate a plain dict; relative paths resolve against ``config_dir`` (default: cwd).
-
-        Raises:
-            ConfigError: listing every problem as ``key.path: reason``.
-        """
+        """Validate a plain dict (:class:`ConfigError` lists every problem); relative paths resolve against
+        ``config_dir`` (default: cwd)."""
         return validated_config(data, config_dir)
 
     def model_dump_yaml(self) -> str:
@@ -538,11 +526,8 @@ def _is_int(value: Any) -> bool:
 def validated_config(data: Any, config_dir: str | Path | None, source: Path | None = None,
                      key_lines: dict[tuple, int] | None = None, overridden: tuple = (),
                      named: Path | None = None) -> Config:
-    """Validate config data; relative paths resolve against ``config_dir`` (default: cwd).
-
-    Raises:
-        ConfigError: listing every problem as ``key.path: reason`` (with YAML line numbers where given).
-    """
+    """Validate config data; relative paths resolve against ``config_dir`` (default: cwd). :class:`ConfigError` lists
+    every problem as ``key.path: reason`` (with YAML line numbers where given)."""
     try:
         return Config.model_validate(data, context={"config_dir": config_dir, "source": source})
     except ValidationError as exc:
@@ -556,16 +541,15 @@ def load_config(path: str | Path, overrides: Iterable[str] | Mapping[str, Any] =
 
     Args:
         path: the YAML file; relative paths inside it resolve against its folder.
-        overrides: ``KEY=VALUE`` strings applied in order before validation
-            (``camera.position=[0,1,2]``, ``scene.meshes.0.material.opacity=0.5``), or a mapping of dotted keys
-            to values; relative paths in them resolve against the config file's folder too.
+        overrides: ``KEY=VALUE`` strings applied in order before validation (``camera.position=[0,1,2]``), or a
+            mapping of dotted keys to values; relative paths in them resolve against the config file's folder too.
 
     Returns:
         The validated :class:`Config`, with absolute paths and ``config_dir`` set.
 
     Raises:
-        ConfigError: the file cannot be read or parsed, an override is malformed, or the config is
-            invalid; the message names the file and lists every problem as ``key.path: reason``.
+        ConfigError: the file cannot be read or parsed, an override is malformed, or the config is invalid; the
+            message names the file and lists every problem as ``key.path: reason``.
     """
     path = Path(path)
     data, text = read_config_data(path)

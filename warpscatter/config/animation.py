@@ -1,21 +1,10 @@
-"""Animated configs: keyframed tracks over config keys, a frame range and rate; the config of each frame.
+"""Animated configs: keyframed tracks over config keys, a frame range and rate; the config of each frame (an example
+``animation`` section: docs/guide/runs.md).
 
-A config with an ``animation`` section renders a sequence. Each track animates one config key (a dotted path, as
-``--set`` takes it) with keyframes ``frame: value``, interpolated per frame::
-
-    animation:
-      frames: 60                  # frames 1..60 (or [start, end])
-      fps: 24
-      interpolation: smooth       # default of the tracks: linear | smooth (ease in and out at every key)
-      tracks:
-        light.direction: {1: [0.8, -0.35, 1.0], 60: [-0.8, -0.35, 1.0]}
-        camera.position: {keys: {1: [0, 2, -14], 60: [0, 2, -8]}, interpolation: linear}
-        medium.sigma_t: {1: 0.05, 30: 0.12, 60: 0.05}
-        scene.meshes.1.transform.rotate_deg: {1: [0, 0, 0], 60: [0, 90, 0]}
-
-Numbers and lists interpolate per component (directions are normalised on validation); integer keys round to
-integers; strings and booleans hold the last key's value. Outside the keys a track holds its end value. Each frame's
-config is validated like a loaded one. No Warp import.
+Each track animates one config key (a dotted path, as ``--set`` takes it) with keyframes ``frame: value``. Numbers and
+lists interpolate per component (directions are normalised on validation); integer keys round to integers; strings
+and booleans hold the last key's value. Outside the keys a track holds its end value. Each frame's config is
+validated like a loaded one. No Warp import.
 """
 
 from __future__ import annotations

@@ -33,12 +33,10 @@ class _YAMLKeyError(yaml.MarkedYAMLError):
 
 class _Loader(yaml.SafeLoader):
     """SafeLoader that rejects duplicate keys, reads ``1e-3`` as a float (YAML 1.2), and refuses documents that cannot
-    be plain config data.
-
-    Alias bombs: each node's expanded size is computed once while composing and the document is refused when the
-    total passes :data:`MAX_YAML_NODES` (and for recursive aliases); a budget on the expanded size bounds exactly what
-    costs time later, and keeps aliases usable for sharing. Collection keys are refused with their key path, and with
-    ``string_keys_at_top`` so are non-string top-level keys (numbers stay allowed below: animation keyframes).
+    be plain config data: collection keys (with their key path), non-string top-level keys with ``string_keys_at_top``
+    (numbers stay allowed below: animation keyframes), and alias bombs: each node's expanded size is computed once
+    while composing and the document is refused when the total passes :data:`MAX_YAML_NODES` (or an alias recurses),
+    a budget that bounds exactly what costs time later and keeps aliases usable for sharing.
     """
 
     string_keys_at_top = False

@@ -1,15 +1,13 @@
 """The config reference of the docs, generated from the settings models, the method registry and the generators.
 
-Every key of a config is written once, in a settings model with its type, range, default and
-``Field(description=...)``; :func:`config_reference` turns the models into Markdown tables (one per section),
-:func:`method_table` lists the registry (:mod:`warpscatter.methods`) and :func:`generator_reference` the
-parameters of the procedural generators (:data:`warpscatter.scene.procedural.GENERATORS`: their signatures and the
-``Args:`` sections of their docstrings). ``docs/reference/config.md`` holds them between
-``<!-- generated: NAME -->`` markers; a test fails when they differ from what the code says. Regenerate with::
+Every key of a config is written once, in a settings model with its type, range, default and ``Field(description=...)``;
+:func:`config_reference` turns the models into Markdown tables (one per section), :func:`method_table` lists the
+registry (:mod:`warpscatter.methods`) and :func:`generator_reference` the parameters of the procedural generators
+(:data:`warpscatter.scene.procedural.GENERATORS`: their signatures and the ``Args:`` sections of their docstrings).
+``docs/reference/config.md`` holds them between ``<!-- generated: NAME -->`` markers; a test fails when they differ
+from what the code says. No Warp import. Regenerate with::
 
     python -m warpscatter.config.reference docs/reference/config.md
-
-This module does not import Warp.
 """
 
 from __future__ import annotations

@@ -28,7 +28,6 @@ def _vec3_rows(a, name: str, n: int | None = None) -> np.ndarray:
 
 
 def _directions(directions, n: int) -> np.ndarray:
-    """Checked (n, 3) float32 non-zero directions."""
     d = _vec3_rows(directions, "directions", n)
     if np.any(np.all(d == 0.0, axis=1)):
         raise ValueError("directions must be non-zero")
@@ -54,8 +53,8 @@ def _filter_mode(filter: str) -> int:
 
 
 def _run_query(csm, points, queries, dtype, bias, mode, seed, device, threads) -> np.ndarray:
-    """Upload checked query arrays and launch :func:`visibility_kernel` over their K rows against ``csm`` (a CSM
-    struct), ``queries`` of Warp type ``dtype``; returns out, (K,) float32."""
+    """Launch :func:`visibility_kernel` over K checked queries (of Warp type ``dtype``) against the CSM struct ``csm``;
+    (K,) float32."""
     out = wp.empty(points.shape[0], dtype=wp.float32, device=device)
     parallel.launch_rows(
         visibility_kernel, points.shape[0],
@@ -77,7 +76,7 @@ def csm_visibility_batch(
     device: str | None = None,
     threads: int | None = None,
 ) -> np.ndarray:
-    """Visibility of many (point, direction) pairs against one CSM.
+    """Visibility of many (point, direction) pairs against one CSM: (K,) float32 in [0, 1] (1 = lit).
 
     Args:
         csm: the coherent shadow map (object space = the space of the points).
@@ -86,11 +85,7 @@ def csm_visibility_batch(
         filter: ``"nearest"``, ``"pcf"`` or ``"roulette"``.
         bias: depth bias in scene units (>= 0).
         seed: random seed of the roulette filter.
-        device: Warp device.
-        threads: CPU worker threads.
-
-    Returns:
-        (K,) float32 visibility in [0, 1] (1 = lit).
+        device, threads: Warp device and CPU worker threads.
 
     Raises:
         ValueError: malformed points/directions, zero directions, unknown filter, negative or non-finite bias.
@@ -110,10 +105,8 @@ MAX_OBJECT_CONDITION_INVERSE = 1.0e-6
 
 
 def object_arrays(objects, device) -> tuple[wp.array, wp.array]:
-    """Device arrays of rigid objects (Sec. 4.6): their lat-long CSMs and world -> object matrices T^-1.
-
-    Args:
-        objects: sequence of ``(csm, transform)``: a lat-long CSM and its 4x4 object -> world matrix (None: identity).
+    """Device arrays of rigid objects (Sec. 4.6), ``(csm, transform)`` pairs of a lat-long CSM and its 4x4 object ->
+    world matrix (None: identity): the CSMs and the world -> object matrices T^-1.
 
     Raises:
         ValueError: a transform that is not a finite, invertible affine 4x4 matrix, or a cube CSM.
@@ -145,14 +138,12 @@ def csm_objects_visibility_batch(
     device: str | None = None,
     threads: int | None = None,
 ) -> np.ndarray:
-    """Visibility of (point, direction) pairs against several rigid objects, each with its CSM and placement.
+    """Visibility of (point, direction) pairs against several rigid objects, each with its CSM and placement: (K,)
+    float32 product of the objects' visibilities.
 
     Args:
         objects: sequence of ``(csm, transform)``: CSM and 4x4 object -> world matrix (None = identity).
         points, directions, filter, bias, seed, device, threads: as in :func:`csm_visibility_batch` (world space).
-
-    Returns:
-        (K,) float32 product of the objects' visibilities.
 
     Raises:
         ValueError: as :func:`csm_visibility_batch`, plus an empty object list or a singular / non-affine T.
@@ -182,19 +173,13 @@ def csm_local_visibility_batch(
     device: str | None = None,
     threads: int | None = None,
 ) -> np.ndarray:
-    """Visibility between points and light points of a fixed local light (a ``"cube"`` CSM).
+    """Visibility (K,) float32 in [0, 1] between points and light points of a fixed local light (a ``"cube"`` CSM).
 
     Args:
         csm: cube CSM from :func:`~warpscatter.csm.compress.build_cube_csm`.
         points: (K, 3) query points.
         light_params: (K, 2) light parameters x in [0, 1]^2 (second one ignored for linear lights, n2 = 1).
-        filter: ``"nearest"``, ``"pcf"`` or ``"roulette"``.
-        bias: depth bias in scene units (>= 0).
-        seed: random seed of the roulette filter.
-        device, threads: Warp device and CPU worker threads.
-
-    Returns:
-        (K,) float32 visibility in [0, 1].
+        filter, bias, seed, device, threads: as in :func:`csm_visibility_batch`.
 
     Raises:
         ValueError: a non-cube CSM, malformed inputs, light parameters outside [0, 1], unknown filter, bad bias.

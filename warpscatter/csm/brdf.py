@@ -14,8 +14,7 @@ the camera-facing normal. f_r is in 1/sr, 0 below the surface.
   preintegrated albedo lum(rho_i) |w_i|^e_i 2 pi / (e_i + 2) (Sec. 5.1). Phong is the lobe C = (-1, -1, 1),
   rho = k_s (e + 2) / (2 pi), so both agree exactly.
 
-:class:`ShadingPoint` holds what does not change between a point's samples (frame, lobe axes, roulette weights);
-``material_*`` are the one-direction form of ``shading_*``.
+``material_*`` are the one-direction form of ``shading_*`` (:class:`ShadingPoint`: what a point's samples share).
 """
 
 from __future__ import annotations
@@ -35,12 +34,14 @@ MAX_LOBES = 4
 
 @wp.struct
 class MaterialData:
-    """A table of materials as kernels see it (build with :class:`MaterialTable`)."""
+    """A table of M materials as kernels see it (build with :class:`MaterialTable`): (M,) diffuse reflectance ``kd``
+    and ``lobe_count`` (0 .. MAX_LOBES), (M, MAX_LOBES) ``lobes`` (C_x, C_y, C_z, exponent e) and their RGB scale
+    ``lobe_rho`` (1/sr)."""
 
-    kd: wp.array(dtype=wp.vec3)  # (M,) diffuse reflectance k_d
-    lobe_count: wp.array(dtype=wp.int32)  # (M,) lobes in use, 0 .. MAX_LOBES
-    lobes: wp.array2d(dtype=wp.vec4)  # (M, MAX_LOBES) per lobe (C_x, C_y, C_z, exponent e)
-    lobe_rho: wp.array2d(dtype=wp.vec3)  # (M, MAX_LOBES) per lobe RGB scale rho (1/sr)
+    kd: wp.array(dtype=wp.vec3)
+    lobe_count: wp.array(dtype=wp.int32)
+    lobes: wp.array2d(dtype=wp.vec4)
+    lobe_rho: wp.array2d(dtype=wp.vec3)
 
 
 
@@ -148,8 +149,7 @@ def brdf_eval(n: wp.vec3, wo: wp.vec3, wi: wp.vec3, kd: wp.vec3, ks: wp.vec3, ex
 @wp.func
 def brdf_sample(n: wp.vec3, wo: wp.vec3, kd: wp.vec3, ks: wp.vec3, exponent: float, xi: wp.vec2,
                 choice: float) -> wp.vec3:
-    """Sample the BRDF (Sec. 5.1): roulette ``choice`` picks the Phong lobe with :func:`specular_probability`,
-    else the cosine lobe."""
+    """Sample the BRDF (Sec. 5.1): ``choice`` picks the Phong lobe with :func:`specular_probability`, else Lambert."""
     if choice < specular_probability(kd, ks):
         return phong_sample(n, wo, exponent, xi)
     return lambert_sample(n, xi)
@@ -186,31 +186,32 @@ def lafortune_lobe_weight(axis: wp.vec3, rho: wp.vec3, exponent: float) -> float
     return wp.max(luminance(rho), 0.0) * wp.pow(a, exponent) * 2.0 * wp.pi / (exponent + 2.0)
 
 
-# Per-point shading state: computed once per point, shared by its 2 S samples.
-
-#: MAX_LOBES x 3 rows, one per lobe.
 LobeRows = wp.types.matrix(shape=(MAX_LOBES, 3), dtype=wp.float32)
 
 
 @wp.struct
 class ShadingPoint:
-    """Material ``m`` at one surface point seen from ``wo`` (:func:`shading_point`)."""
+    """Material ``m`` at one surface point seen from ``wo`` (:func:`shading_point`), shared by the point's samples:
+    unit normal ``n`` and (``t``, ``b``) = orthonormal_basis(n), ``diffuse`` = k_d / pi, diffuse roulette weight
+    ``wd`` = max(lum(k_d), 0); per lobe (rows of MAX_LOBES x 3 matrices) the :func:`lafortune_axis` (world space, not
+    normalised), ``unit_axis`` with its basis (``axis_t``, ``axis_b``), ``rho`` (1/sr), ``exponent`` and the
+    :func:`lafortune_lobe_weight`; normalisers ``total_pdf`` = wd + the weights > 0 and ``total_sample`` = wd + all."""
 
-    n: wp.vec3  # unit normal
-    t: wp.vec3  # orthonormal_basis(n)
+    n: wp.vec3
+    t: wp.vec3
     b: wp.vec3
-    diffuse: wp.vec3  # k_d / pi
-    wd: float  # diffuse roulette weight max(lum(k_d), 0)
+    diffuse: wp.vec3
+    wd: float
     lobe_count: int
-    axis: LobeRows  # lafortune_axis of each lobe (world space, not normalised)
-    unit_axis: LobeRows  # the axes normalised (the Phong sampler's axis)
-    axis_t: LobeRows  # orthonormal_basis of each unit axis
+    axis: LobeRows
+    unit_axis: LobeRows
+    axis_t: LobeRows
     axis_b: LobeRows
-    rho: LobeRows  # lobe RGB scale (1/sr)
+    rho: LobeRows
     exponent: wp.vec4
-    weight: wp.vec4  # lafortune_lobe_weight of each lobe
-    total_pdf: float  # wd + the weights > 0 (the normaliser of material_pdf)
-    total_sample: float  # wd + every weight (the normaliser of material_sample)
+    weight: wp.vec4
+    total_pdf: float
+    total_sample: float
 
 
 @wp.func

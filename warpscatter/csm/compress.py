@@ -6,12 +6,8 @@ layers, Fig. 3). The compressor extends a piecewise-constant segment from i0 to 
     max {z_lo(i0), ..., z_lo(i_end)}  <  min {z_hi(i0), ..., z_hi(i_end)}                         (Eq. 1)
 
 and stores (z_avg, i_end), z_avg the float32 midpoint kept inside the interval (Fig. 4); greedy extension gives the
-fewest segments. z_hi = +inf bounds nothing; z_lo = z_hi (coincident surfaces) forms a one-map segment.
-
-Output: the lists of all texels concatenated (``seg_depth`` float32, ``seg_end`` int32 ascending per texel, the last
-N - 1) and ``seg_start`` (M^2 + 1 int32): texel t owns segments [seg_start[t], seg_start[t + 1]).
-:class:`StreamingCompressor` works in batches of maps with O(M^2 x batch) memory; :func:`build_csm` and
-:func:`build_cube_csm` (Sec. 3.3) render and compress map sets; :func:`save_csm` / :func:`load_csm` handle ``.npz``.
+fewest segments (:class:`SegmentLists`). z_hi = +inf bounds nothing; z_lo = z_hi (coincident surfaces) forms a
+one-map segment. :class:`StreamingCompressor` needs O(M^2 x batch) memory.
 """
 
 from __future__ import annotations
@@ -73,13 +69,14 @@ def segment_depth(lo: float, hi: float) -> float:
 
 @wp.struct
 class StreamState:
-    """Per-texel state of a streaming compression (held by :class:`StreamingCompressor` for the whole run)."""
+    """Per-texel state of a streaming compression: the open segment's running max z_lo and min z_hi (``lo``,
+    ``hi``), and the z_avg, i_end (M^2, max_batch + 1) and count of the segments the last batch closed."""
 
-    lo: wp.array(dtype=wp.float32)  # open segment: running max z_lo
-    hi: wp.array(dtype=wp.float32)  # open segment: running min z_hi
-    out_depth: wp.array2d(dtype=wp.float32)  # (M^2, max_batch + 1): z_avg of the segments a batch closed
-    out_end: wp.array2d(dtype=wp.int32)  # same shape: their i_end
-    out_count: wp.array(dtype=wp.int32)  # segments the batch closed per texel
+    lo: wp.array(dtype=wp.float32)
+    hi: wp.array(dtype=wp.float32)
+    out_depth: wp.array2d(dtype=wp.float32)
+    out_end: wp.array2d(dtype=wp.int32)
+    out_count: wp.array(dtype=wp.int32)
 
 
 @wp.kernel
@@ -91,8 +88,7 @@ def compress_batch_kernel(
     state: StreamState,
     offset: int,
 ):
-    """Texel t: push maps first .. first + rows - 1 through the open segment; write the segments that close to
-    state.out_*[t, :state.out_count[t]]."""
+    """Texel t: push maps first .. first + rows - 1 through the open segment; the segments closed go to state.out_*."""
     t = wp.tid() + offset
     lo = state.lo[t]
     hi = state.hi[t]
@@ -127,7 +123,6 @@ def compress_batch_kernel(
 
 
 def _check_count(name: str, value) -> int:
-    """``value`` as an int, or ValueError unless it is an integer >= 1 (bool excluded)."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
         raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
     return int(value)
@@ -135,18 +130,9 @@ def _check_count(name: str, value) -> int:
 
 @dataclass
 class CompressionStats:
-    """What a compression produced and cost.
-
-    Attributes:
-        num_maps: N.
-        num_texels: M^2.
-        num_segments: total segments S.
-        compressed_bytes: 8 S + 4 (M^2 + 1).
-        uncompressed_bytes: 4 N M^2 (a plain float32 shadow map per map).
-        peak_working_bytes: most working memory held at once (output excluded); independent of N.
-        seconds_render: time spent rendering depth maps (0 when maps were given).
-        seconds_compress: time spent compressing and assembling.
-    """
+    """What a compression of N maps of M^2 texels into S segments produced and cost: ``compressed_bytes`` = 8 S +
+    4 (M^2 + 1), ``uncompressed_bytes`` = 4 N M^2 (float32 maps), ``peak_working_bytes`` = the most working memory
+    held at once (output excluded; independent of N), seconds rendering (0 when maps were given) and compressing."""
 
     num_maps: int
     num_texels: int
@@ -174,7 +160,7 @@ class SegmentLists:
     Attributes:
         seg_start: (M^2 + 1,) int32 lookup texture; texel t owns segments [seg_start[t], seg_start[t + 1]).
         seg_depth: (S,) float32 z_avg per segment.
-        seg_end: (S,) int32 last sequence index i_end covered by each segment (inclusive).
+        seg_end: (S,) int32 last sequence index i_end of each segment (inclusive; ascending per texel, the last N - 1).
         num_maps: N.
     """
 
@@ -205,15 +191,8 @@ class SegmentLists:
 
 
 class StreamingCompressor:
-    """Compress a sequence of N depth maps pushed in batches (in sequence order) into :class:`SegmentLists`.
-
-    Args:
-        num_texels: texels per map (M^2).
-        num_maps: total number of maps N that will be pushed.
-        max_batch: largest batch that :meth:`push` will receive.
-        device: Warp device.
-        threads: CPU threads for the per-texel kernel.
-    """
+    """Compress ``num_maps`` = N depth maps of ``num_texels`` = M^2 texels, pushed in sequence order in batches of
+    at most ``max_batch`` maps, into :class:`SegmentLists` (``threads``: CPU threads of the per-texel kernel)."""
 
     def __init__(self, num_texels: int, num_maps: int, max_batch: int, device: str | None = None,
                  threads: int | None = None):
@@ -236,7 +215,6 @@ class StreamingCompressor:
         self._state.out_count = wp.zeros(t, dtype=wp.int32, device=self.device)
         self._counts = np.zeros(t, dtype=np.int64)  # segments per texel so far
         self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (texel, depth, end) per batch
-        #: bytes of the per-texel state and emission buffers (held for the whole run)
         st = self._state
         held = (st.lo, st.hi, st.out_depth, st.out_end, st.out_count)
         self.working_bytes = sum(a.capacity for a in held) + self._counts.nbytes
@@ -308,11 +286,8 @@ class StreamingCompressor:
         return self.pushed == self.num_maps
 
     def finish(self) -> SegmentLists:
-        """Assemble the per-batch chunks into per-texel segment lists (counting sort, O(output)).
-
-        Raises:
-            ValueError: fewer than ``num_maps`` maps were pushed.
-        """
+        """Assemble the per-batch chunks into per-texel segment lists (counting sort, O(output)); ValueError before
+        all ``num_maps`` maps were pushed."""
         if not self.done:
             raise ValueError(f"finish() after {self.pushed} of {self.num_maps} maps")
         t0 = time.perf_counter()
@@ -349,14 +324,8 @@ class StreamingCompressor:
 
 
 def compress_depth_maps(z_lo, z_hi, batch_maps: int = 64, device: str | None = None) -> SegmentLists:
-    """Compress a whole in-memory depth-map sequence (convenience over :class:`StreamingCompressor`).
-
-    Args:
-        z_lo: (N, M, M) or (N, M^2) lower depths in sequence order, +inf where empty.
-        z_hi: same shape, upper depths, z_hi >= z_lo (+inf = unbounded).
-        batch_maps: maps per batch (>= 1); the result does not depend on it.
-        device: Warp device.
-    """
+    """Compress a whole in-memory depth-map sequence (:class:`StreamingCompressor`, ``batch_maps`` maps at a time,
+    which the result does not depend on): ``z_lo``, ``z_hi`` as for :meth:`StreamingCompressor.push`."""
     lo = np.asarray(z_lo, dtype=np.float32)
     hi = np.asarray(z_hi, dtype=np.float32)
     if lo.shape != hi.shape or lo.ndim not in (2, 3) or lo.shape[0] < 1:
@@ -377,16 +346,11 @@ class CoherentShadowMap:
 
     Attributes:
         kind: ``"latlong"`` or ``"cube"``.
-        n1, n2: grid of the maps' locations (lat-long azimuth x polar, or light samples).
-        resolution: map size M.
-        center: (3,) float64 bounding-sphere centre (object space).
-        radius: bounding-sphere radius R; lat-long maps span [-R, R]^2 and depths [0, 2R].
-        enumeration, depth_layers, far: map order and the depths bounding the stored value.
-        map_index: (n2, n1) int32 sequence index of each grid cell.
-        lists: the compressed :class:`SegmentLists`.
-        stats: :class:`CompressionStats` of the build (None when loaded).
-        light_samples: cube only: (n1 n2, 3) sample positions, entry b n1 + a for cell (a, b).
-        near: cube only: near-plane distance of the faces.
+        n1, n2, resolution, center, radius, enumeration, depth_layers, far, map_index: as
+            :class:`~warpscatter.csm.depthmaps.LatLongMapSet` (lat-long maps span [-R, R]^2 and depths [0, 2R]) or
+            :class:`~warpscatter.csm.depthmaps.CubeMapSet` (n1 x n2 light samples).
+        lists, stats: the compressed :class:`SegmentLists`; :class:`CompressionStats` of the build (None when loaded).
+        light_samples, near: cube only: (n1 n2, 3) sample positions (entry b n1 + a) and the faces' near plane.
         geometry: :func:`geometry_digest` of the source mesh (None if not stored).
     """
 
@@ -461,21 +425,17 @@ def build_csm(
     threads: int | None = None,
     **fields,
 ) -> CoherentShadowMap:
-    """Render the lat-long depth-map set of a mesh batch by batch and compress it as it streams.
+    """Render the lat-long depth-map set of a mesh batch by batch and compress it as it streams: a
+    :class:`CoherentShadowMap` with its :class:`CompressionStats`.
 
     Args:
-        vertices: (V, 3) object-space positions.
-        triangles: (T, 3) vertex indices.
+        vertices, triangles: (V, 3) object-space positions and (T, 3) vertex indices.
         settings: :class:`~warpscatter.csm.settings.CSMBuildSettings` (``maps``, ``resolution``, ``enumeration``,
             ``layers``, ``far``, ``batch``).
         center, radius: bounding sphere (default: fitted to the vertices).
         progress: called as ``progress(fraction)`` after each batch, fraction of maps done.
-        device: Warp device.
-        threads: CPU worker threads.
+        device, threads: Warp device and CPU worker threads.
         **fields: fields replacing those of ``settings``, e.g. ``maps=(64, 32)``.
-
-    Returns:
-        :class:`CoherentShadowMap` with its :class:`CompressionStats`.
     """
     s = build_settings(settings, **fields)
     batch_maps = _check_batch(s.batch, progress)
@@ -536,17 +496,14 @@ def build_cube_csm(
     device: str | None = None,
     **fields,
 ) -> CoherentShadowMap:
-    """Compress the depth cube maps of a fixed local light (Sec. 3.3, 4.2), streaming in batches.
+    """Compress the depth cube maps of a fixed local light (Sec. 3.3, 4.2), streaming in batches, into a
+    :class:`CoherentShadowMap` of kind ``"cube"``.
 
     Args:
-        vertices: (V, 3) object positions; triangles: (T, 3) vertex indices.
+        vertices, triangles, progress, device, **fields: as for :func:`build_csm`.
         samples: (n2, n1, 3) light sample grid or (n, 3) row.
         settings: as for :func:`build_csm` (``resolution`` is the face size M; ``maps`` is not read).
         near: near-plane distance (default 1e-3 R).
-        progress, device, **fields: as for :func:`build_csm`.
-
-    Returns:
-        :class:`CoherentShadowMap` of kind ``"cube"``.
     """
     s = build_settings(settings, **fields)
     batch_maps = _check_batch(s.batch, progress)
@@ -657,7 +614,7 @@ def load_csm(path: str | os.PathLike) -> CoherentShadowMap:
 
     Raises:
         CSMFileError: missing or unreadable file, sizes beyond the file or :data:`MAX_CSM_BYTES`, wrong version,
-            arrays, dtypes or sizes, or segment lists and enumeration tables that are inconsistent.
+            arrays, dtypes or sizes, inconsistent segment lists or enumeration tables.
     """
     path = os.fspath(path)
     if not os.path.isfile(path):

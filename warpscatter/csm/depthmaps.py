@@ -14,11 +14,10 @@ NDC x = <p - c, right> / R, y = <p - c, up> / R, LINEAR depth q_z = R - <p - c, 
 in :mod:`..raster.rasterizer`. The frame varies smoothly, so neighbouring maps are coherent.
 
 Per texel z_lo = z1 and z_hi = z2 (``"z1z2"``, any mesh) or z3 (``"z1z3"``, closed two-manifolds) bound the stored
-depth (Sec. 3.1, Fig. 3), peeled by the exact rasterizer (bitwise ``rasterize(..., clamp_depth=True)``). A missing
-upper surface takes ``far``: ``"sphere"``, the paper's spherical far plane R + sqrt(R^2 - r^2) (receivers behind the
-object stay shadowed), or ``"infinite"`` (longer segments; receivers behind may be wrongly lit). Empty texels hold
-+inf twice. Maps are rendered in batches: O(layers x batch x M^2) memory. Fixed local lights (Sec. 3.3, 4.2):
-:class:`CubeMapSet`.
+depth (Sec. 3.1, Fig. 3), peeled by the exact rasterizer (bitwise as ``rasterize(..., clamp_depth=True)``). A
+missing upper surface takes ``far``: ``"sphere"``, the paper's spherical far plane R + sqrt(R^2 - r^2) (receivers
+behind the object stay shadowed), or ``"infinite"`` (longer segments; receivers behind may be wrongly lit). Empty
+texels hold +inf twice. Fixed local lights (Sec. 3.3, 4.2): :class:`CubeMapSet`.
 """
 
 from __future__ import annotations
@@ -54,10 +53,7 @@ _TWO_PI = 2.0 * np.pi
 
 @wp.func
 def latlong_direction(u: float, v: float) -> wp.vec3:
-    """Lat-long mapping D of Ritschel 2007 Sec. 4.1: parameters (u, v) in [0, 1]^2 -> unit direction.
-
-    phi = 2 pi u, theta = pi v measured from +Y; returns (sin theta cos phi, cos theta, sin theta sin phi).
-    """
+    """Lat-long mapping D (Sec. 4.1): (u, v) in [0, 1]^2 -> unit direction, phi = 2 pi u, theta = pi v from +Y."""
     phi = 2.0 * wp.pi * u
     theta = wp.pi * v
     st = wp.sin(theta)
@@ -102,8 +98,8 @@ def peel_maps_kernel(
     batch: int,
     offset: int,
 ):
-    """One depth-peeling pass over many maps: thread (m, k) scans triangles [k batch, (k + 1) batch) into map
-    m + offset. Every vertex lies inside the maps (checked on the host), so no clipping is needed."""
+    """One depth-peeling pass: thread (m, k) scans triangles [k batch, (k + 1) batch) into map m + offset (no
+    clipping: every vertex lies inside the maps)."""
     m, k = wp.tid()
     m = m + offset
     vp = view_proj[m]
@@ -150,11 +146,8 @@ def resolve_depths_kernel(
 
 
 def latlong_frames(n1: int, n2: int) -> np.ndarray:
-    """Image frames of the N1 x N2 lat-long maps (host mirror of :func:`latlong_direction`).
-
-    Returns:
-        (n2 * n1, 3, 3) float64; entry b * n1 + a holds the rows (right, up, dir) of cell (a, b).
-    """
+    """Image frames of the N1 x N2 lat-long maps: (n2 * n1, 3, 3) float64, entry b * n1 + a the rows (right, up,
+    dir) of cell (a, b)."""
     a = np.arange(n1, dtype=np.float64)
     b = np.arange(n2, dtype=np.float64)
     phi = _TWO_PI * (a + 0.5) / n1
@@ -168,17 +161,9 @@ def latlong_frames(n1: int, n2: int) -> np.ndarray:
 
 
 def ortho_view_proj(center, radius: float, frame: np.ndarray) -> np.ndarray:
-    """World -> clip matrix of orthographic maps: NDC x, y = <p - c, right | up> / R, z = -<p - c, dir> / R;
-    linear depth is (z_ndc + 1) R.
-
-    Args:
-        center: (3,) bounding-sphere centre.
-        radius: bounding-sphere radius R (> 0).
-        frame: (3, 3) rows (right, up, dir), or (K, 3, 3) for K maps at once.
-
-    Returns:
-        (4, 4) float64 matrix, or (K, 4, 4) for stacked frames.
-    """
+    """World -> clip float64 matrix (4, 4) of an orthographic map of the sphere (``center``, ``radius`` R) with
+    ``frame`` rows (right, up, dir), or (K, 4, 4) for (K, 3, 3) frames: NDC x, y = <p - c, right | up> / R,
+    z = -<p - c, dir> / R; linear depth is (z_ndc + 1) R."""
     c = np.asarray(center, dtype=np.float64)
     f = np.asarray(frame, dtype=np.float64)
     rows = f * np.array([1.0, 1.0, -1.0])[:, None]  # (..., 3, 3): right, up, -dir
@@ -207,7 +192,6 @@ def _check_int(name: str, value, lo: int, hi: int) -> int:
 
 
 def _check_options(resolution, enumeration: str, depth_layers: str, far: str) -> int:
-    """Validate the options shared by all depth-map sets; returns the resolution as int."""
     resolution = _check_int("resolution", resolution, 1, 8192)
     if enumeration not in ENUMERATIONS:
         raise ValueError(f"enumeration must be one of {ENUMERATIONS}, got {enumeration!r}")
@@ -219,7 +203,6 @@ def _check_options(resolution, enumeration: str, depth_layers: str, far: str) ->
 
 
 def _set_fields(v: np.ndarray, t: np.ndarray, n1: int, n2: int, enumeration: str, depth_layers: str, far: str) -> dict:
-    """The fields every depth-map set fills alike: options, enumeration tables and the float32 / int32 mesh."""
     order = enumerate_grid(n1, n2, enumeration)
     return {
         "enumeration": enumeration, "depth_layers": depth_layers, "far": far, "order": order,
@@ -247,14 +230,10 @@ class LatLongMapSet:
     """The N1 x N2 orthographic depth maps of a mesh for distant (and semi-local) lights, in sequence order.
 
     Attributes:
-        n1: azimuth cells N1 (grid axis a, fastest in scan-line order).
-        n2: polar cells N2 (grid axis b, theta from +Y).
+        n1, n2: azimuth cells N1 (grid axis a, fastest in scan-line order), polar cells N2 (axis b, theta from +Y).
         resolution: map size M in texels (M x M).
-        center: (3,) float64 bounding-sphere centre.
-        radius: bounding-sphere radius R (scene units): the maps' half extent and half depth range.
-        enumeration: ``"scanline"``, ``"zigzag"`` or ``"hilbert"``.
-        depth_layers: ``"z1z2"`` or ``"z1z3"``.
-        far: ``"sphere"`` or ``"infinite"``.
+        center, radius: (3,) float64 bounding-sphere centre and radius R (the maps' half extent and half depth range).
+        enumeration, depth_layers, far: the options of :meth:`create`.
         order: (N, 2) int64 cells (a, b) by sequence index.
         map_index: (n2, n1) int32 sequence index of each cell.
         frames: (N, 3, 3) float64 rows (right, up, dir) per cell b * n1 + a.
@@ -274,7 +253,6 @@ class LatLongMapSet:
     vertices: np.ndarray = field(repr=False)
     triangles: np.ndarray = field(repr=False)
     _device: dict = field(default_factory=dict, repr=False)
-    #: bytes of the device arrays (matrices, peeled keys, depths) the last :meth:`render_device` call allocated
     last_working_bytes: int = field(default=0, repr=False)
 
     @classmethod
@@ -295,16 +273,12 @@ class LatLongMapSet:
         """Discretise the lat-long domain around a mesh.
 
         Args:
-            vertices: (V, 3) object-space positions.
-            triangles: (T, 3) integer vertex indices.
-            n1: azimuth cells (>= 1).
-            n2: polar cells (>= 1).
+            vertices, triangles: (V, 3) object-space positions, (T, 3) integer vertex indices.
+            n1, n2: azimuth and polar cells (>= 1).
             resolution: map size M (1 .. 8192).
-            enumeration: sequence order of the maps (see :mod:`warpscatter.csm.enumeration`).
-            depth_layers: ``"z1z2"`` (any mesh) or ``"z1z3"`` (closed two-manifolds).
-            far: depth used where the upper surface is missing: ``"sphere"`` or ``"infinite"``.
-            center: bounding-sphere centre (default: the bounding-box midpoint).
-            radius: bounding-sphere radius (default: the farthest vertex, padded by RADIUS_PADDING).
+            enumeration: sequence order of the maps (:mod:`warpscatter.csm.enumeration`).
+            depth_layers, far: ``"z1z2"`` or ``"z1z3"``; ``"sphere"`` or ``"infinite"`` (module docstring).
+            center, radius: bounding sphere (default: the bounding-box midpoint and the farthest vertex, padded).
 
         Raises:
             ValueError: bad sizes or option names, malformed mesh, or vertices outside the given sphere.
@@ -355,8 +329,8 @@ class LatLongMapSet:
         return self._device[device]
 
     def render_device(self, start: int, stop: int, device: str | None = None, threads: int | None = None):
-        """Depths (z_lo, z_hi) of the maps [start, stop) as ``wp.array2d(float32)`` (stop - start, M * M), linear
-        (scene units, +inf = empty), texel y * M + x."""
+        """Linear depths (z_lo, z_hi) of the maps [start, stop) as ``wp.array2d(float32)`` (stop - start, M * M),
+        texel y * M + x, +inf = empty. Sets :attr:`last_working_bytes` (the device arrays it allocated)."""
         device = default_device(device)
         n = self.num_maps
         if not (0 <= start < stop <= n):
@@ -422,10 +396,8 @@ class CubeMapSet:
 
     Attributes:
         n1, n2: light-sample grid; N = n1 n2 samples, 6N maps.
-        resolution: face size M.
         samples: (N, 3) float64 sample positions, entry b n1 + a for grid cell (a, b).
-        center, radius: the object's bounding sphere.
-        near: near-plane distance of the faces.
+        resolution, center, radius, near: face size M, the object's bounding sphere, the faces' near plane.
         enumeration, depth_layers, far, order, map_index: as for :class:`LatLongMapSet` (over the sample grid).
     """
 
@@ -460,12 +432,10 @@ class CubeMapSet:
         """Set up the cube maps of a light given by its sample points.
 
         Args:
-            vertices: (V, 3) object positions.
-            triangles: (T, 3) vertex indices.
+            vertices, triangles, enumeration, depth_layers, far: as for :meth:`LatLongMapSet.create`.
             samples: (n2, n1, 3) grid (or (n, 3) row) of light sample positions, e.g. from
                 :func:`segment_light_samples` or :func:`parallelogram_light_samples`.
             resolution: face size M (1 .. 8192).
-            enumeration, depth_layers, far: as for :meth:`LatLongMapSet.create`.
             near: near-plane distance (> 0; default 1e-3 R).
 
         Raises:

@@ -1,14 +1,11 @@
 """What the Monte-Carlo direct-lighting estimators share (Ritschel et al. 2007 Sec. 5): the surface points, the
 visibility source, the strata and the progressive average.
 
-The estimators (environment maps, :mod:`.environment`; area and linear lights, :mod:`.local_lights`) shade K surface
-points with S = s^2 jittered strata (Sec. 5.1). Visibility modes: ``VIS_CSM`` (a lat-long CSM towards a distant
-direction, Sec. 4.1, or a local light's cube CSM, Sec. 4.2), ``VIS_SEMI_LOCAL`` (a lat-long CSM towards a local
-light's point, Sec. 4.3), ``VIS_OBJECTS`` (rigid objects, each CSM queried with D' = D T^-1, Sec. 4.6),
-``VIS_MESH`` (shadow rays, the reference) and ``VIS_NONE``. :class:`DirectLighting` uploads the inputs once and shades
-any number of passes; :class:`ProgressiveAccumulator` averages them (Sec. 5.2).
-
-The per-sample functions are inlined: an out-of-line call copies its struct arguments on the CPU.
+The estimators (:mod:`.environment`, :mod:`.local_lights`) shade K surface points with S = s^2 jittered strata
+(Sec. 5.1). Visibility modes: ``VIS_CSM`` (a lat-long CSM towards a distant direction, Sec. 4.1, or a local light's
+cube CSM, Sec. 4.2), ``VIS_SEMI_LOCAL`` (a lat-long CSM towards a local light's point, Sec. 4.3), ``VIS_OBJECTS``
+(rigid objects, each CSM queried with D' = D T^-1, Sec. 4.6), ``VIS_MESH`` (shadow rays, the reference) and
+``VIS_NONE``. The per-sample functions are inlined: an out-of-line call copies its struct arguments on the CPU.
 """
 
 from __future__ import annotations
@@ -30,7 +27,6 @@ from .query import FILTERS, CSMData, CubeCSMData, csm_device_data, csm_visibilit
 
 module_options()
 
-#: ``LightVisibility.mode``.
 VIS_NONE = wp.constant(0)
 VIS_CSM = wp.constant(1)
 VIS_MESH = wp.constant(2)
@@ -40,29 +36,35 @@ VIS_OBJECTS = wp.constant(4)
 
 @wp.struct
 class SurfacePoints:
-    """The points an estimator shades, as kernels see them (:func:`surface_points`)."""
+    """The points an estimator shades, as kernels see them (:func:`surface_points`): positions (scene units; with a
+    lat-long CSM in its object space), normals and directions to the viewer (any non-zero length), material rows."""
 
-    points: wp.array(dtype=wp.vec3)  # positions (scene units; with a lat-long CSM in its object space)
-    normals: wp.array(dtype=wp.vec3)  # surface normals (any non-zero length)
-    view_dirs: wp.array(dtype=wp.vec3)  # towards the viewer (any non-zero length)
-    material_index: wp.array(dtype=wp.int32)  # rows of the MaterialTable
+    points: wp.array(dtype=wp.vec3)
+    normals: wp.array(dtype=wp.vec3)
+    view_dirs: wp.array(dtype=wp.vec3)
+    material_index: wp.array(dtype=wp.int32)
 
 
 @wp.struct
 class LightVisibility:
-    """The visibility source of an estimator, as kernels see it (:func:`light_visibility`)."""
+    """The visibility source of an estimator, as kernels see it (:func:`light_visibility`): ``mode`` (a VIS_*
+    constant); the lat-long CSM (VIS_CSM of a distant light, VIS_SEMI_LOCAL) or cube CSM (VIS_CSM of a local light),
+    1x1 placeholders otherwise; a FILTER_* ``filter_mode``, depth ``bias`` and normal offset ``eps`` (scene units);
+    the occluders' BVH ``mesh`` (VIS_MESH); for VIS_OBJECTS each object's lat-long CSM (object space), world ->
+    object matrix T^-1 and depth bias (object units), and a ``world_bias`` (scene units) taken to each object's space
+    along the query."""
 
-    mode: int  # VIS_NONE, VIS_CSM, VIS_MESH, VIS_SEMI_LOCAL or VIS_OBJECTS
-    latlong: CSMData  # VIS_CSM of a distant light, VIS_SEMI_LOCAL: the lat-long CSM (a 1x1 placeholder otherwise)
-    cube: CubeCSMData  # VIS_CSM of a local light: its cube CSM (a 1x1 placeholder otherwise)
-    filter_mode: int  # FILTER_NEAREST, FILTER_PCF or FILTER_ROULETTE
-    bias: float  # CSM depth bias (scene units)
-    mesh: wp.uint64  # VIS_MESH: the occluders' BVH
-    eps: float  # offset of the query point along the normal (scene units)
-    objects: wp.array(dtype=CSMData)  # VIS_OBJECTS: each object's lat-long CSM (object space)
-    to_object: wp.array(dtype=wp.mat44)  # VIS_OBJECTS: each object's world -> object matrix T^-1
-    object_bias: wp.array(dtype=float)  # VIS_OBJECTS: each object's depth bias (its object-space units)
-    world_bias: float  # VIS_OBJECTS: a depth bias in scene units, taken to each object's space along the query
+    mode: int
+    latlong: CSMData
+    cube: CubeCSMData
+    filter_mode: int
+    bias: float
+    mesh: wp.uint64
+    eps: float
+    objects: wp.array(dtype=CSMData)
+    to_object: wp.array(dtype=wp.mat44)
+    object_bias: wp.array(dtype=float)
+    world_bias: float
 
 
 @wp.func(inline=True)
@@ -94,7 +96,7 @@ def stratum_sample(k: int, s: int, jitter: wp.vec2) -> wp.vec2:
 
 @wp.func
 def surface_point(surf: SurfacePoints, k: int):
-    """Point k of ``surf``: (position, unit normal, unit direction towards the viewer, material index)."""
+    """Point k of ``surf``: (position, unit normal, unit direction to the viewer, material index)."""
     return surf.points[k], wp.normalize(surf.normals[k]), wp.normalize(surf.view_dirs[k]), surf.material_index[k]
 
 
@@ -120,11 +122,8 @@ class ProgressiveAccumulator:
         self.passes = 0
 
     def add(self, frame) -> np.ndarray:
-        """Add one pass (any shape, the same for every pass) and return the running mean (float32).
-
-        Raises:
-            ValueError: a shape differing from the earlier passes, or non-finite values.
-        """
+        """Add one pass (any shape, the same for every pass) and return the running mean (float32); ValueError for
+        another shape or non-finite values."""
         f = np.asarray(frame, dtype=np.float64)
         if not np.all(np.isfinite(f)):
             raise ValueError("frame contains non-finite values")
@@ -198,15 +197,8 @@ def placeholder_csms(device: str) -> tuple[CSMData, CubeCSMData]:
 
 def surface_inputs(points, normals, albedo, *, view_dirs=None, specular=None, exponent=1.0, materials=None,
                    material_index=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, MaterialTable]:
-    """Check and normalise the per-point inputs: Lambert + Phong per point, or a :class:`MaterialTable` with
-    ``material_index``.
-
-    Returns:
-        (points, normals, view_dirs, material_index (K,) int32, materials).
-
-    Raises:
-        ValueError: malformed arrays, zero normals or view directions, negative exponents, indices out of range.
-    """
+    """Checked per-point inputs (points, normals, view_dirs, material_index (K,) int32, materials) of Lambert + Phong
+    per point, or of a :class:`MaterialTable` with ``material_index``; ValueError for malformed ones."""
     p = _rows3(points, "points", None)
     k = p.shape[0]
     n = _rows3(normals, "normals", k)
@@ -249,8 +241,7 @@ def check_strata(samples) -> int:
 
 
 def check_visibility_source(filter: str, bias, ray_eps, csm, mesh, objects=None) -> None:
-    """Check the visibility inputs; ValueError for an unknown filter, a bad bias / ray_eps, more than one source,
-    or a ``mesh`` that is not a ``wp.Mesh``."""
+    """ValueError for an unknown filter, a bad bias / ray_eps, several sources or a ``mesh`` not a ``wp.Mesh``."""
     if sum(x is not None for x in (csm, mesh, objects)) > 1:
         raise ValueError("give at most one of csm, mesh and objects as the visibility source")
     if objects is not None and not list(objects):
@@ -327,7 +318,7 @@ def launch_points(kernel, count: int, inputs: list, device: str, threads: int | 
 
 def shade_points(kernel, surface: tuple, light_data, strata: int, vis: LightVisibility, table: MaterialTable,
                  seed: int, device: str, threads: int | None) -> np.ndarray:
-    """Launch an estimator over the points of ``surface`` split across CPU threads; (K, 3) float32 radiance."""
+    """Launch an estimator over the points of ``surface``; (K, 3) float32 radiance."""
     p, n, wo, idx = surface
     k = p.shape[0]
     out = wp.zeros(k, dtype=wp.vec3, device=device)
@@ -347,16 +338,11 @@ class ShadingOptions:
         objects: rigid objects (Sec. 4.6): ``(csm, transform)`` pairs, object -> world 4x4. At most one of
             csm / mesh / objects; none: no occlusion.
         object_bias: one depth bias per object (object-space units); default: ``bias`` taken into each object.
-        view_dirs: (K, 3) or (3,) directions towards the viewer (default: the normal).
-        specular: (K, 3) or (3,) Phong reflectance k_s (default 0).
-        exponent: (K,) or scalar Phong exponent n >= 0.
-        materials: a :class:`~warpscatter.csm.brdf.MaterialTable` instead of albedo / specular / exponent.
-        material_index: (K,) rows into ``materials`` (default 0).
+        view_dirs, specular, exponent: (K, 3) or (3,) directions to the viewer (default: the normal), Phong k_s
+            (default 0), (K,) or scalar Phong exponent n >= 0; or ``materials`` (a
+            :class:`~warpscatter.csm.brdf.MaterialTable`) and their (K,) ``material_index`` (default 0).
         filter: CSM filter ``"nearest"``, ``"pcf"`` or ``"roulette"`` (Sec. 4.5).
-        bias: CSM depth bias (scene units, >= 0).
-        ray_eps: offset of the query point along the normal (scene units, >= 0).
-        device: Warp device.
-        threads: CPU worker threads.
+        bias, ray_eps: CSM depth bias and offset of the query point along the normal (scene units, >= 0).
     """
 
     samples: int
@@ -383,15 +369,8 @@ def shading_options(options: ShadingOptions | None, keywords: dict) -> ShadingOp
 
 class DirectLighting:
     """Monte-Carlo direct lighting of fixed surface points under one light, set up once for any number of passes
-    (Ritschel 2007 Sec. 5.2); :meth:`shade` launches one pass per seed.
-
-    Args:
-        points, normals, albedo, light: as :func:`shade_direct`.
-        options: :class:`ShadingOptions`, or its fields as keyword arguments.
-
-    Raises:
-        ValueError: as :func:`shade_direct`.
-    """
+    (Ritschel 2007 Sec. 5.2; average them with :class:`ProgressiveAccumulator`); :meth:`shade` launches one pass per
+    seed. Arguments and errors as :func:`shade_direct`."""
 
     def __init__(self, points, normals, albedo, light, options: ShadingOptions | None = None, **keywords):
         from ..scene.environment_map import EnvironmentMap
@@ -448,19 +427,16 @@ class DirectLighting:
 
 def shade_direct(points, normals, albedo, light, options: ShadingOptions | None = None, *, seed: int = 0,
                  **keywords) -> np.ndarray:
-    """Direct lighting at surface points from any Monte-Carlo light (Ritschel 2007 Sec. 4.2, 5), one pass.
+    """Direct lighting at surface points from any Monte-Carlo light (Ritschel 2007 Sec. 4.2, 5), one pass: (K, 3)
+    float32 outgoing radiance towards ``view_dirs``.
 
     Args:
-        points: (K, 3) surface positions (scene units; in the lat-long ``csm``'s object space).
-        normals: (K, 3) surface normals (any non-zero length).
+        points, normals: (K, 3) positions (scene units; in a lat-long ``csm``'s object space) and normals (non-zero).
         albedo: (K, 3) or (3,) diffuse reflectance k_d (Lambert f = k_d / pi); None with ``materials``.
         light: an environment map or :class:`~warpscatter.scene.lights.EnvironmentLight`, an
             :class:`~warpscatter.scene.lights.AreaLight` or a :class:`~warpscatter.scene.lights.LinearLight`.
         options: :class:`ShadingOptions`, or its fields as keyword arguments.
-        seed: random seed of this pass (a different one per progressive pass).
-
-    Returns:
-        (K, 3) float32 outgoing radiance towards ``view_dirs``.
+        seed: random seed of this pass (one per progressive pass).
 
     Raises:
         ValueError: malformed inputs, a bad ``samples``, several visibility sources, a CSM that does not fit the

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .settings import ENUMERATIONS  # the names accepted by enumerate_grid
+from .settings import ENUMERATIONS
 
 #: Largest number of cells of one grid (int32 sequence indices everywhere else).
 MAX_CELLS = 2**31 - 1
@@ -53,10 +53,10 @@ def _gilbert(x: int, y: int, ax: int, ay: int, bx: int, by: int, out: list) -> N
         h = abs(bx + by)
         dax, day = int(np.sign(ax)), int(np.sign(ay))  # unit major direction
         dbx, dby = int(np.sign(bx)), int(np.sign(by))  # unit orthogonal direction
-        if h == 1:  # trivial row fill
+        if h == 1:
             out.extend((x + k * dax, y + k * day) for k in range(w))
             continue
-        if w == 1:  # trivial column fill
+        if w == 1:
             out.extend((x + k * dbx, y + k * dby) for k in range(h))
             continue
         ax2, ay2 = ax // 2, ay // 2
@@ -91,15 +91,8 @@ def hilbert_order(n1: int, n2: int) -> np.ndarray:
 
 
 def enumerate_grid(n1: int, n2: int, method: str = "hilbert") -> np.ndarray:
-    """Cells (a, b) of the n1 x n2 grid in the sequence order of ``method``.
-
-    Args:
-        n1: cells along the first (fastest) grid axis (>= 1).
-        n2: cells along the second grid axis (>= 1).
-        method: one of :data:`ENUMERATIONS`.
-
-    Returns:
-        (n1 * n2, 2) int64 array ``order``; ``order[i]`` is the cell of sequence index i.
+    """Cells (a, b) of the n1 x n2 grid (n1 along the fastest axis, both >= 1) in the sequence order of ``method``
+    (one of :data:`ENUMERATIONS`): (n1 * n2, 2) int64 ``order``, ``order[i]`` the cell of sequence index i.
 
     Raises:
         ValueError: unknown ``method`` or invalid sizes.
@@ -114,11 +107,8 @@ def enumerate_grid(n1: int, n2: int, method: str = "hilbert") -> np.ndarray:
 
 
 def sequence_index(order: np.ndarray, n1: int, n2: int) -> np.ndarray:
-    """Inverse of an enumeration: the (n2, n1) int32 table ``index[b, a]`` = sequence index of cell (a, b).
-
-    Raises:
-        ValueError: ``order`` is not a bijection onto the n1 x n2 grid.
-    """
+    """Inverse of an enumeration: the (n2, n1) int32 table ``index[b, a]`` = sequence index of cell (a, b);
+    ValueError unless ``order`` is a bijection onto the n1 x n2 grid."""
     n1, n2 = _check_dims(n1, n2)
     order = np.asarray(order)
     if order.shape != (n1 * n2, 2):

@@ -99,12 +99,8 @@ def shade_environment_kernel(
 
 def shade_environment(points, normals, albedo, env: EnvironmentMap, **options) -> np.ndarray:
     """Direct lighting from an environment map at surface points (Ritschel 2007 Sec. 5), one pass of
-    :func:`~warpscatter.csm.direct_lighting.shade_direct` (``csm`` must be lat-long).
-
-    Raises:
-        ValueError: ``env`` is not an :class:`~warpscatter.scene.environment_map.EnvironmentMap`, or as
-            :func:`~warpscatter.csm.direct_lighting.shade_direct`.
-    """
+    :func:`~warpscatter.csm.direct_lighting.shade_direct` (arguments and errors; ``csm`` must be lat-long), checking
+    that ``env`` is an :class:`~warpscatter.scene.environment_map.EnvironmentMap` first."""
     if not isinstance(env, EnvironmentMap):
         raise ValueError(f"env must be an EnvironmentMap, got {type(env).__name__}")
     return shade_direct(points, normals, albedo, env, **options)

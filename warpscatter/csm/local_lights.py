@@ -54,7 +54,7 @@ module_options()
 @wp.func(inline=True)
 def local_visibility(vis: LightVisibility, x: wp.vec3, n: wp.vec3, y: wp.vec3, st: wp.vec2, xi: wp.vec4) -> float:
     """V between surface point ``x`` and the light point ``y`` of parameters ``st`` for each visibility mode (shadow
-    rays stop just short of y). Inlined into the estimator."""
+    rays stop just short of y)."""
     o = x + vis.eps * n
     if vis.mode == VIS_CSM:
         return csm_local_visibility_filtered(vis.cube, o, st, vis.bias, vis.filter_mode, xi)
@@ -144,13 +144,9 @@ def shade_local_light_kernel(
 
 
 def shade_local_light(points, normals, albedo, light: AreaLight | LinearLight | VolumeLight, **options) -> np.ndarray:
-    """Direct lighting from an area or linear light at surface points (Ritschel 2007 Sec. 4.2, 5), one pass of
-    :func:`~warpscatter.csm.direct_lighting.shade_direct`; ``csm`` is the light's cube CSM or a lat-long CSM.
-
-    Raises:
-        ValueError: ``light`` is not an :class:`~warpscatter.scene.lights.AreaLight` or
-            :class:`~warpscatter.scene.lights.LinearLight`, or as :func:`~warpscatter.csm.direct_lighting.shade_direct`.
-    """
+    """Direct lighting from an area, linear or volume light at surface points (Ritschel 2007 Sec. 4.2, 5), one pass
+    of :func:`~warpscatter.csm.direct_lighting.shade_direct` (arguments and errors; ``csm``: the light's cube CSM or
+    a lat-long CSM), checking the light's type first."""
     if not isinstance(light, (AreaLight, LinearLight, VolumeLight)):
         raise ValueError(f"light must be an AreaLight, LinearLight or VolumeLight, got {type(light).__name__}")
     return shade_direct(points, normals, albedo, light, **options)

@@ -45,11 +45,8 @@ def csm_kind_for(light, local_lights: str = "cube") -> str:
 
 def check_csm_for_scene(csm: CoherentShadowMap, light, vertices, triangles, where: str = "csm",
                         local_lights: str = "cube") -> None:
-    """Refuse a CSM whose kind, geometry (digest, else bounding sphere) or cube light samples do not fit.
-
-    Raises:
-        CSMFileError: naming ``where`` and the mismatch.
-    """
+    """Raise :class:`CSMFileError` (naming ``where`` and the mismatch) for a CSM whose kind, geometry (digest, else
+    bounding sphere) or cube light samples do not fit."""
     from .depthmaps import bounding_sphere
 
     want = csm_kind_for(light, local_lights)
@@ -78,14 +75,14 @@ def check_csm_for_scene(csm: CoherentShadowMap, light, vertices, triangles, wher
 
 def prepare_csm(light, settings: CSMBuildSettings, vertices, triangles, *, progress: ReportFn | None = None,
                 device=None) -> CoherentShadowMap:
-    """Load (and check) ``settings.file`` or build the CSM of the occluders for ``light``.
+    """Load (and check) ``settings.file`` or build the CSM of the occluders for ``light``; built CSMs are kept for
+    later renders (:data:`BUILT_CACHE_BYTES`).
 
     Args:
         light: the scene's environment, area or linear light.
         settings: :class:`~warpscatter.csm.settings.CSMBuildSettings` (``render.lighting.csm``).
         vertices, triangles: the occluders (:func:`scene_occluders`).
-        progress: ``progress(fraction)`` of the build.
-        device: Warp device.
+        progress, device: ``progress(fraction)`` of the build and the Warp device.
 
     Raises:
         CSMFileError: an unreadable, corrupt or mismatched file (the message names it).
@@ -113,7 +110,7 @@ def prepare_csm(light, settings: CSMBuildSettings, vertices, triangles, *, progr
 
 
 def _held_bytes(csm: CoherentShadowMap) -> int:
-    """What a cached CSM holds: its compressed segment lists on the host and once per device it was put on."""
+    """Bytes of a cached CSM's segment lists, on the host and once per device it was put on."""
     return csm.stats.compressed_bytes * (1 + len(getattr(csm, "_device_cache", {}) or {}))
 
 

@@ -10,9 +10,9 @@ those 16 comparisons picked with its PCF weight, so its expectation is the PCF v
 
 Semi-local lights (Sec. 4.3) use d = l - p; rigid objects (Sec. 4.6) are queried with D' = D T^-1
 (:func:`csm_object_space`), their visibilities multiplied. Fixed local lights (Sec. 3.3, 4.2) use ``"cube"`` CSMs:
-the nearest light sample o, the cube face of p - o, map k N + i. Both kinds share the filters: generic @wp.funcs over
-the CSM struct with two per-kind overloads (``_texel_test``, ``_map_footprint``). The filtered queries are inlined
-(the struct holds six arrays, which an out-of-line call copies on the CPU). Batches: :mod:`warpscatter.csm.batch`.
+the nearest light sample o, the cube face of p - o, map k N + i. Both kinds share the filters (generic over the CSM
+struct, with per-kind overloads of ``_texel_test`` and ``_map_footprint``), inlined because an out-of-line call
+copies the struct's arrays on the CPU. Batches: :mod:`warpscatter.csm.batch`.
 """
 
 from __future__ import annotations
@@ -38,32 +38,39 @@ FILTERS = {name: code for code, name in enumerate(settings.FILTERS)}
 
 @wp.struct
 class CSMData:
-    """A coherent shadow map as kernels see it (build with :func:`csm_device_data`)."""
+    """A lat-long coherent shadow map as kernels see it (build with :func:`csm_device_data`): the bounding sphere
+    (``center`` in object space, ``radius`` R: maps span [-R, R]^2, depth 0 at the map plane), map size
+    ``resolution`` M, ``n1`` azimuth x ``n2`` polar cells (``num_maps`` N), per cell b n1 + a the ``frames`` rows
+    (right, up, dir) and sequence index i (``map_index``), and the segment lists (``seg_start``: M^2 + 1 lookup
+    texture; ``seg_depth``: z_avg; ``seg_end``: i_end, inclusive)."""
 
-    center: wp.vec3  # bounding-sphere centre, object space
-    radius: float  # bounding-sphere radius R: maps span [-R, R]^2, depth 0 at the map plane
-    resolution: int  # map size M
-    n1: int  # azimuth cells
-    n2: int  # polar cells
-    num_maps: int  # N = n1 n2
-    frames: wp.array(dtype=wp.mat33)  # per cell b n1 + a: rows (right, up, dir)
-    map_index: wp.array(dtype=wp.int32)  # per cell b n1 + a: sequence index i
-    seg_start: wp.array(dtype=wp.int32)  # M^2 + 1 lookup texture into the segment arrays
-    seg_depth: wp.array(dtype=wp.float32)  # z_avg per segment
-    seg_end: wp.array(dtype=wp.int32)  # i_end per segment (inclusive)
+    center: wp.vec3
+    radius: float
+    resolution: int
+    n1: int
+    n2: int
+    num_maps: int
+    frames: wp.array(dtype=wp.mat33)
+    map_index: wp.array(dtype=wp.int32)
+    seg_start: wp.array(dtype=wp.int32)
+    seg_depth: wp.array(dtype=wp.float32)
+    seg_end: wp.array(dtype=wp.int32)
 
 
 @wp.struct
 class CubeCSMData:
-    """A depth-cube-map CSM of a fixed local light as kernels see it (build with :func:`csm_device_data`)."""
+    """A depth-cube-map CSM of a fixed local light as kernels see it (build with :func:`csm_device_data`): face size
+    ``resolution`` M, light-sample grid ``n1`` x ``n2`` (n2 = 1 for linear lights) of ``num_samples`` N (6N maps,
+    map k N + i = face k of sample i), the 6 ``faces`` rows (right, up, forward), per cell b n1 + a the sample
+    position and sequence index i, and the segment lists as in :class:`CSMData`."""
 
-    resolution: int  # cube face size M
-    n1: int  # light-sample grid, first axis
-    n2: int  # light-sample grid, second axis (1 for linear lights)
-    num_samples: int  # N = n1 n2; the CSM holds 6N maps, map k N + i = face k of sample i
-    faces: wp.array(dtype=wp.mat33)  # 6 face frames: rows (right, up, forward)
-    samples: wp.array(dtype=wp.vec3)  # per cell b n1 + a: sample position
-    map_index: wp.array(dtype=wp.int32)  # per cell b n1 + a: sample sequence index i
+    resolution: int
+    n1: int
+    n2: int
+    num_samples: int
+    faces: wp.array(dtype=wp.mat33)
+    samples: wp.array(dtype=wp.vec3)
+    map_index: wp.array(dtype=wp.int32)
     seg_start: wp.array(dtype=wp.int32)
     seg_depth: wp.array(dtype=wp.float32)
     seg_end: wp.array(dtype=wp.int32)
@@ -152,9 +159,6 @@ def roulette_numbers(filter_mode: int, seed: int, query: int) -> wp.vec4:
     return wp.vec4(0.0)
 
 
-# The filters of both kinds (Sec. 4.5); per kind, overloads of _texel_test and _map_footprint do what differs.
-
-
 @wp.func
 def _texel_stencil(sx: float, sy: float) -> tuple[wp.vec2i, wp.vec2]:
     """Lower-corner texel (x0, y0) of the 2x2 stencil at filter coordinates (sx, sy) and the fractions past it."""
@@ -165,7 +169,6 @@ def _texel_stencil(sx: float, sy: float) -> tuple[wp.vec2i, wp.vec2]:
 
 @wp.func
 def _map_pcf(csm: Any, cell: int, p: wp.vec3, bias: float) -> float:
-    """Bilinear percentage-closer filter over the 4 texels around ``p`` in the map of ``cell``."""
     sequence, s = _map_footprint(csm, cell, p)
     if sequence < 0:
         return 1.0
@@ -235,7 +238,7 @@ def csm_bilinear_cells_uv(csm: CSMData, uv: wp.vec2) -> tuple[wp.vec4i, wp.vec2]
 
 @wp.func
 def csm_bilinear_cells(csm: CSMData, d: wp.vec3) -> tuple[wp.vec4i, wp.vec2]:
-    """The 2^2 cells around direction ``d`` and the bilinear weights (fa, fb), as :func:`csm_bilinear_cells`."""
+    """The 2^2 cells around direction ``d`` and their bilinear weights (fa, fb), as :func:`grid_bilinear`."""
     return csm_bilinear_cells_uv(csm, latlong_param(d))
 
 
@@ -263,7 +266,6 @@ def csm_texel_visibility(csm: CSMData, sequence: int, x: int, y: int, depth: flo
 
 @wp.func
 def _texel_test(csm: CSMData, sequence: int, x: int, y: int, depth: float, bias: float) -> float:
-    """Lat-long overload of the filters' texel test: :func:`csm_texel_visibility`."""
     return csm_texel_visibility(csm, sequence, x, y, depth, bias)
 
 
@@ -397,7 +399,6 @@ def csm_cube_texel_visibility(csm: CubeCSMData, sequence: int, x: int, y: int, d
 
 @wp.func
 def _texel_test(csm: CubeCSMData, sequence: int, x: int, y: int, depth: float, bias: float) -> float:  # noqa: F811
-    """Cube overload of the filters' texel test: :func:`csm_cube_texel_visibility`."""
     return csm_cube_texel_visibility(csm, sequence, x, y, depth, bias)
 
 

@@ -14,16 +14,11 @@ from pydantic import Field, ValidationInfo, field_validator
 from .. import methods
 from ..schema import MAX_COORD, Bool, Float, Int, PathStr, Seed, SettingsModel, existing_file, resolve_path
 
-#: Orders of the map grid along the compressed sequence (:mod:`.enumeration`).
+#: The option values of the fields below (their descriptions say what each means).
 ENUMERATIONS = ("scanline", "zigzag", "hilbert")
-#: Depth layers kept per texel: the first and second surface, or the first and third (closed meshes).
 DEPTH_LAYERS = ("z1z2", "z1z3")
-#: Far depth of texels without a second surface: the bounding sphere, or infinity.
 FAR_MODES = ("sphere", "infinite")
-#: CSM filters (Sec. 4.5): nearest map and texel, PCF over 4 maps x 4 texels, or one of those picked by roulette.
 FILTERS = ("nearest", "pcf", "roulette")
-#: Visibility of area / linear lights: depth cube maps at the light's samples (Sec. 4.2) or the lat-long CSM
-#: queried towards each light point (semi-local lights, Sec. 4.3).
 LOCAL_LIGHT_MODES = ("cube", "semi_local")
 #: Limits of the build parameters.
 MAX_MAP_GRID = 1024
@@ -33,7 +28,6 @@ MAX_RESOLUTION = 4096
 MAX_BATCH = 4096
 
 
-#: ``render.lighting.csm.objects``: one CSM of the whole scene, or one per casting mesh (rigid objects, Sec. 4.6).
 CSM_OBJECTS = ("scene", "per_mesh")
 
 

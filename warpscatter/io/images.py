@@ -1,10 +1,9 @@
 """Image files through OpenImageIO: linear EXR, sRGB PNG previews, reading, and the render output set.
 
 Conventions (CONVENTIONS.md, "Images"): arrays are ``(H, W)`` or ``(H, W, C)`` float32, row 0 is the top row.
-EXRs hold linear float32 exactly (lossless :data:`EXR_COMPRESSIONS`); PNG previews are exposure-scaled, clamped and
-sRGB-encoded to 8 bits. Every write is atomic (temporary file, fsync, :func:`os.replace`); :func:`write_outputs`
-replaces a whole output set all or nothing, and :func:`remove_stale_temporaries` cleans up after killed writers.
-Non-finite pixels are refused.
+EXRs hold linear float32 exactly; PNG previews are exposure-scaled, clamped and sRGB-encoded to 8 bits. Every write
+is atomic (temporary file, fsync, :func:`os.replace`), a whole output set all or nothing; non-finite pixels are
+refused.
 """
 
 from __future__ import annotations
@@ -55,10 +54,9 @@ AOV_CHANNELS = {"color": 3, "scattering": 3, "surface": 3, "depth": 1, "rectifie
 #: Outputs with their own size (a texture, not the image): exempt from the same-size check.
 OWN_SIZE_AOVS = ("rectified_map",)
 
-#: The lossless EXR compressions (OpenImageIO names) accepted for ``output.compression``; the lossy ones are left
-#: out because the EXRs hold exact float32 values. Timings: docs/design/csm-core.md.
+#: The lossless EXR compressions (OpenImageIO names) of ``output.compression``. Timings: docs/design/csm-core.md.
 EXR_COMPRESSIONS = ("none", "rle", "zips", "zip", "piz")
-#: ``none``: the least CPU per render; ``rle`` is a third smaller for 1.3-2x the time.
+#: The least CPU per render.
 DEFAULT_EXR_COMPRESSION = "none"
 
 #: PNG (zlib) settings of the previews: fast over small (docs/design/csm-core.md).
@@ -103,11 +101,8 @@ _BUCKET_SHIFT = 16  # 2^16 consecutive float32 values per table entry: less than
 
 @functools.cache
 def _srgb8_tables() -> tuple[np.ndarray, np.ndarray] | None:
-    """Tables giving :func:`_srgb8_reference` of every float32 in [0, 1] from its bit pattern ``b``.
-
-    A bucket of 2^16 consecutive float32 values never holds two of the 255 code steps, so
-    ``code = base[b >> 16] + (b >= step[b >> 16])``. Returns None should a bucket hold more than one step.
-    """
+    """Tables giving :func:`_srgb8_reference` of every float32 in [0, 1] from its bit pattern ``b``:
+    ``code = base[b >> 16] + (b >= step[b >> 16])``; None should a bucket hold more than one code step."""
     starts = np.arange((_ONE_BITS >> _BUCKET_SHIFT) + 1, dtype=np.int64) << _BUCKET_SHIFT
     ends = np.minimum(starts + (1 << _BUCKET_SHIFT) - 1, _ONE_BITS)
 
@@ -205,10 +200,9 @@ def _process_alive(pid: int) -> bool:
 def remove_stale_temporaries(folder: str | Path) -> list[Path]:
     """Clean up after writers that did not finish; return the temporaries and backups removed or moved back.
 
-    Temporaries of dead processes (and this process's unused ones) are removed. A dead writer's backups are moved
-    back when its temporaries remain (it stopped before its last rename) and removed otherwise. Files of running
-    processes and of other machines (the host is in the name) are left alone.
-    """
+    Temporaries of dead processes (and this process's unused ones) are removed; a dead writer's backups are moved
+    back when its temporaries remain (it stopped before its last rename), else removed. Files of running processes
+    and of other machines (the host is in the name) are left alone."""
     removed: list[Path] = []
     try:
         entries = list(os.scandir(folder))
@@ -420,8 +414,7 @@ def _set_aside(final: Path, backup: Path) -> bool:
 
 
 def _roll_back(commits: list[tuple[Path, Path, Path]], temps: list[Path]) -> list[str]:
-    """Undo a partly renamed set from the files' state: targets get their backups back, temporaries are removed.
-    Returns what could not be undone (empty when the previous set is back)."""
+    """Undo a partly renamed set (backups back, temporaries removed); return what could not be undone."""
     problems = []
     for final, tmp, backup in reversed(commits):
         try:
@@ -490,24 +483,18 @@ def _write_all(jobs: list[tuple[Path, Callable[[Path], None]]]) -> list[Path]:
 
 
 def write_file_atomic(path: str | Path, write: Callable[[Path], None]) -> Path:
-    """Write one file atomically through ``write(temporary)``; the previous file survives any failure.
-
-    Raises:
-        ImageWriteError: the file could not be written (the message names it and the reason).
-    """
+    """Write one file atomically through ``write(temporary)``; the previous file survives any failure
+    (:class:`ImageWriteError` naming the file and the reason)."""
     return _write_all([(Path(path), write)])[0]
 
 
 def write_exr(path: str | Path, image: np.ndarray, compression: str = DEFAULT_EXR_COMPRESSION) -> Path:
-    """Write a linear float image to an OpenEXR file, atomically (32-bit float, lossless).
+    """Write a linear float image to an OpenEXR file, atomically (32-bit float, lossless); returns the path.
 
     Args:
         path: target file (``warpscatter.exr``); its folder must exist.
         image: (H, W) gray, or (H, W, C) with C in 1..4 (RGB/RGBA), row 0 = top; converted to float32.
-        compression: one of :data:`EXR_COMPRESSIONS` (all lossless).
-
-    Returns:
-        The written path.
+        compression: one of :data:`EXR_COMPRESSIONS`.
 
     Raises:
         ValueError: bad shape, non-finite values or an unknown compression.
@@ -520,15 +507,13 @@ def write_exr(path: str | Path, image: np.ndarray, compression: str = DEFAULT_EX
 
 
 def write_png(path: str | Path, linear_rgb: np.ndarray, exposure: float = 1.0) -> Path:
-    """Write an 8-bit sRGB preview of a linear image, atomically: round(255 * srgb_encode(clamp(v * exposure))).
+    """Write an 8-bit sRGB preview round(255 * srgb_encode(clamp(v * exposure))) of a linear image, atomically;
+    returns the path.
 
     Args:
         path: target file (``warpscatter.png``, or any 8-bit format OpenImageIO writes, e.g. ``warpscatter.jpg``).
         linear_rgb: (H, W) gray or (H, W, C) with C in 1..4, linear light, row 0 = top.
         exposure: scale applied before clamping (> 0).
-
-    Returns:
-        The written path.
 
     Raises:
         ValueError: bad shape, non-finite values, or exposure <= 0.
@@ -553,31 +538,24 @@ def write_outputs(
     sidecar: Mapping[str, object] | None = None,
     layered: bool = False,
 ) -> list[Path]:
-    """Write a render's output set (CONVENTIONS.md "Config and output contract"), all or nothing.
+    """Write a render's output set (CONVENTIONS.md "Config and output contract"), all or nothing; returns the paths.
 
-    Files: ``NAME.exr`` and ``NAME.png`` always, then one ``NAME.<aov>.exr`` per requested AOV, then ``NAME.json``
-    when a sidecar is given; with ``layered``, image-sized AOVs are layers of ``NAME.exr``. On any failure or
-    interruption the previous files come back.
+    Files: ``NAME.exr`` and ``NAME.png`` always, one ``NAME.<aov>.exr`` per requested AOV, ``NAME.json`` when a sidecar
+    is given; with ``layered``, image-sized AOVs are layers of ``NAME.exr``. On any failure the previous files return.
 
     Args:
-        out_dir: output folder (created if missing).
-        name: file stem.
+        out_dir, name: output folder (created if missing) and file stem.
         images: arrays by AOV name; ``color`` is required, and every requested AOV must be present.
             All but :data:`OWN_SIZE_AOVS` must share (H, W); one-channel images may be (H, W) or (H, W, 1).
         aovs: requested AOV names out of :data:`AOV_CHANNELS` (each written as ``NAME.<aov>.exr``).
-        exposure: PNG preview exposure (> 0).
-        compression: EXR compression, one of :data:`EXR_COMPRESSIONS` (all lossless).
+        exposure, compression: as :func:`write_png` and :func:`write_exr`.
         metadata: header attributes of every EXR (e.g. ``worldToCamera``: a 4x4 numpy matrix; text; numbers);
             each EXR also gets ``warpscatter:aov``, its output's name.
         sidecar: plain data written as ``NAME.json`` with the set (numpy values and paths converted).
         layered: one multi-layer ``NAME.exr`` instead of one file per AOV.
 
-    Returns:
-        The written paths.
-
     Raises:
-        ValueError: unknown/missing AOV, mismatched shapes, non-finite pixels, bad exposure, compression
-            or name.
+        ValueError: unknown/missing AOV, mismatched shapes, non-finite pixels, bad exposure, compression or name.
         ImageWriteError: a file could not be written or renamed in; the previous files are kept (or the message
             names the backups if the rollback failed).
     """
@@ -628,15 +606,9 @@ def write_outputs(
     return _write_all(jobs)
 
 
-# ---- reading ---------------------------------------------------------------------------------------
-
-
 def read_image(path: str | Path) -> np.ndarray:
     """Read an image as linear float32 (H, W, C), row 0 = top; integer files are decoded from sRGB unless linear.
-
-    Raises:
-        OSError: the file cannot be opened or read (message names the file and OpenImageIO's error).
-    """
+    OSError (naming the file and OpenImageIO's error) when it cannot be read."""
     path = Path(path)
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
@@ -658,11 +630,8 @@ def read_image(path: str | Path) -> np.ndarray:
 
 
 def read_radiance_image(path: str | Path, key: str | None = None) -> np.ndarray:
-    """Read radiance values (a light texture, an environment map) as linear float32 (H, W, 3), finite and >= 0.
-
-    Args:
-        path: the image file (any format :func:`read_image` reads).
-        key: the config key that named it (``light.texture``), put in front of the message.
+    """Read radiance values (a light texture, an environment map) as linear float32 (H, W, 3), finite and >= 0;
+    ``key``: the config key that named ``path`` (``light.texture``), put in front of the message.
 
     Raises:
         InputFileError: the file cannot be read, or holds non-finite or negative values (the message names the file,

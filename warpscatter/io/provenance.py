@@ -1,7 +1,5 @@
 """What made an output: software versions, the machine, the source commit and the time, for sidecars and reports.
-
-Every value is gathered without failing: what cannot be found is ``None``.
-"""
+Every value is gathered without failing: what cannot be found is ``None``."""
 
 from __future__ import annotations
 
@@ -53,7 +51,7 @@ def _git(root: Path, *args: str) -> str | None:
 def source_commit() -> tuple[str | None, bool | None]:
     """(HEAD commit, whether tracked files differ from it) of the git checkout warpscatter is imported from, or
     (None, None) when it is not one (an installed wheel: a site-packages inside another repository never counts)."""
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]
     top = _git(root, "rev-parse", "--show-toplevel")
     if top is None or Path(top).resolve() != root:
         return None, None
@@ -88,8 +86,7 @@ def timestamp() -> str:
 
 
 def provenance() -> dict[str, object]:
-    """Everything above in one mapping: ``created``, ``command``, ``versions``, ``machine``, ``commit``,
-    ``git_dirty``."""
+    """Everything above: ``created``, ``command``, ``versions``, ``machine``, ``commit``, ``git_dirty``."""
     commit, dirty = source_commit()
     return {"created": timestamp(), "command": list(sys.argv), "versions": versions(), "machine": machine(),
             "commit": commit, "git_dirty": dirty}

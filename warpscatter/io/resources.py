@@ -1,8 +1,7 @@
 """The bundled configs and assets (``configs/*.yaml``, ``assets/*``): where they are, with a clear error where not.
 
-A source checkout holds them at the top of the tree, a wheel inside the package; :data:`ROOT` holds both, side by side
-so the configs' relative paths resolve. In a wheel install render bundled configs with ``-o DIR``
-(:func:`in_package`).
+:data:`ROOT` holds both side by side (so the configs' relative paths resolve): the top of a source checkout, or the
+package folder of a wheel install, where bundled configs render with ``-o DIR`` (:func:`in_package`).
 """
 
 from __future__ import annotations
@@ -10,13 +9,13 @@ from __future__ import annotations
 from pathlib import Path
 
 #: The installed (or checked-out) ``warpscatter`` package folder.
-PACKAGE_DIR = Path(__file__).resolve().parent
+PACKAGE_DIR = Path(__file__).resolve().parent.parent
 
 
 def _find_root() -> Path:
-    if (PACKAGE_DIR / "configs").is_dir():  # a wheel install: package data inside the package
+    if (PACKAGE_DIR / "configs").is_dir():
         return PACKAGE_DIR
-    return PACKAGE_DIR.parent  # a source checkout / editable install: the top-level folders of the source tree
+    return PACKAGE_DIR.parent
 
 
 #: The folder holding ``configs/`` and ``assets/``: the package folder of a wheel install, else the source tree's root.
@@ -38,12 +37,8 @@ def _bundled(folder: str, name: str) -> Path:
 
 
 def bundled_config(name: str) -> Path:
-    """``configs/NAME.yaml`` (``NAME`` with or without ``warpscatter.yaml``) of the source tree or the installed
-    package.
-
-    Raises:
-        FileNotFoundError: naming the path, when this install does not hold it.
-    """
+    """``configs/NAME.yaml`` (``NAME`` with or without ``.yaml``) of the source tree or the installed package;
+    FileNotFoundError naming the path when this install does not hold it."""
     return _bundled("configs", name if name.endswith(".yaml") else f"{name}.yaml")
 
 
@@ -53,11 +48,7 @@ def bundled_configs() -> list[Path]:
 
 
 def bundled_asset(name: str) -> Path:
-    """``assets/NAME`` (meshes, light textures, environment maps) of the source tree or the installed package.
-
-    Raises:
-        FileNotFoundError: naming the path, when this install does not hold it.
-    """
+    """``assets/NAME`` (meshes, light textures, environment maps), as :func:`bundled_config` finds configs."""
     return _bundled("assets", name)
 
 

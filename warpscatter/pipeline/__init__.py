@@ -1,14 +1,10 @@
 """Config -> scene -> stages -> images and files, with per-stage timings.
 
-:func:`render` is what ``warpscatter render`` runs: it builds the scene of a validated
-:class:`~warpscatter.config.Config`, runs the classic pipeline (:mod:`.classic`: G-buffer, shadow map, the
-scattering method of ``render.scattering.method``, surface shadows, shading) or, when ``render.lighting.method``
-is set, the Monte-Carlo lighting pipeline (:mod:`.lighting`), and writes the outputs. This package is the only
-place that reads the config; each stage is a library function taking arrays and settings. Stage names appear in
-the CLI's timing table, in ``bench`` and in logs: ``scene`` (load/generate meshes), ``compile``, then the
-pipeline's stages (:mod:`.classic`, :mod:`.lighting`), and ``write`` (EXR/PNG files).
-
-The Python API over it is :func:`warpscatter.render` (:mod:`warpscatter.api`), which also takes a file or a dict.
+:func:`render` (``warpscatter render``; the Python API over it is :func:`warpscatter.render`) builds the scene of a
+validated :class:`~warpscatter.config.Config`, runs the classic pipeline (:mod:`.classic`) or, when
+``render.lighting.method`` is set, the Monte-Carlo lighting pipeline (:mod:`.lighting`), and writes the outputs. This
+package is the only place that reads the config. Stage names (the CLI's timing table, ``bench``, logs): ``scene``,
+``compile``, the pipeline's own stages, ``write``.
 """
 
 from __future__ import annotations
@@ -37,15 +33,12 @@ class RenderResult:
     """What a render produced.
 
     Attributes:
-        images: output name -> float32 numpy array, row 0 = top (``color``, ``surface``, ``depth``, and
-            ``scattering`` for the scattering methods; debug outputs when asked).
+        images: output name -> float32 array, row 0 = top (``color``, ``surface``, ``depth``, ``scattering``, debug).
         files: the written files (empty when nothing was written).
         timings: stage -> seconds, in order.
         stats: the method's statistics (sizes, counts).
-        config: the validated config that was rendered.
-        device: the Warp device it ran on.
-        warnings: what a user should know about the image, e.g. why it is dark when the light reaches no pixel
-            (the CLI prints them; also in ``stats["warnings"]`` and the sidecar).
+        config, device: the validated config that was rendered and the Warp device it ran on.
+        warnings: what a user should know about the image, e.g. why it is dark (also in the stats and sidecar).
     """
 
     images: dict[str, np.ndarray]
@@ -58,10 +51,9 @@ class RenderResult:
 
 
 def sidecar(config: Config, device: str, timings: dict, stats: dict, files: list[str], complete: bool = True) -> dict:
-    """The ``NAME.json`` written beside a render's images: what made them (the resolved config, the method, the
-    seed, device and thread count, versions, machine, source commit, command line, time) and what it measured
-    (per-stage timings in seconds, without the ``write`` stage that is running then; statistics). ``complete`` is
-    False for the intermediate outputs of a progressive render (a resumed run renders such a frame again)."""
+    """The ``NAME.json`` beside a render's images: what made them (config, method, seed, device, threads,
+    :func:`~warpscatter.io.provenance.provenance`) and what it measured (stage timings without ``write``, stats).
+    ``complete`` is False for a progressive render's intermediate outputs (a resumed run renders them again)."""
     from ..io.provenance import provenance
     from ..runtime.parallel import thread_count
 
@@ -75,8 +67,7 @@ def sidecar(config: Config, device: str, timings: dict, stats: dict, files: list
 
 
 def exr_metadata(config: Config, camera) -> dict:
-    """Header attributes of a render's EXRs: OpenEXR's camera matrices (``worldToCamera``, ``worldToNDC``), the
-    method, the version and the resolved config (YAML)."""
+    """EXR header attributes: the camera matrices (``worldToCamera``, ``worldToNDC``), method, version, config."""
     return {**camera.exr_matrices(), "warpscatter:method": config.method,
             "warpscatter:config": config.model_dump_yaml(), "warpscatter:version": __version__}
 
@@ -86,16 +77,13 @@ def render(config: Config, out_dir: Path | None = None, progress: ProgressFn | N
     """Render a :class:`~warpscatter.config.Config` (validated again first) and write its outputs.
 
     Args:
-        config: the config.
         out_dir: output folder (default ``config.output.dir``).
-        progress: optional ``progress(stage, fraction)`` callback.
-        device: Warp device (default: ``WARPSCATTER_DEVICE``, else Warp's current device).
+        progress, device: ``progress(stage, fraction)`` or None; Warp device (default ``WARPSCATTER_DEVICE`` or Warp's).
         write: False skips the ``write`` stage (images are still returned).
 
     Returns:
-        :class:`RenderResult` with images, written files, per-stage timings and stats. The files are
-        ``NAME.exr``, ``NAME.png``, the AOVs of ``output.aovs`` (the lighting methods make no ``scattering``)
-        and the ``NAME.json`` sidecar, ``NAME`` being :attr:`Config.output_name`.
+        :class:`RenderResult`. The files are ``NAME.exr``, ``NAME.png``, the AOVs of ``output.aovs`` (the lighting
+        methods make no ``scattering``) and the ``NAME.json`` sidecar, ``NAME`` being :attr:`Config.output_name`.
 
     Raises:
         ConfigError: the config is invalid, or a file it names does not fit (a CSM file of other occluders, say).
@@ -133,7 +121,7 @@ def render(config: Config, out_dir: Path | None = None, progress: ProgressFn | N
                                  sidecar=sidecar(config, device, timer.timings, stats, files, complete),
                                  layered=output.layered)
 
-    if lighting:  # Monte-Carlo direct lighting (csm / raytrace), progressive
+    if lighting:
 
         def on_pass(images, done, total):  # rewrite the outputs as the image converges
             if write:

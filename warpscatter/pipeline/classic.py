@@ -1,15 +1,10 @@
 """The classic pipeline: G-buffer, light shadow map, the scattering method, surface shadows and shading.
 
-:func:`render_images` runs a built scene through the stages below; the scattering method is looked up in the
-registry (:mod:`warpscatter.methods`), which also says what it needs (a BVH for exact visibility, the shadow map,
-a ray-cast G-buffer) and which Warp modules it launches. Stage names appear in the CLI's timing table, in
-``bench`` and in logs:
-
-``compile`` (Warp kernel modules; apart from the work itself) · ``upload`` (device arrays) · ``bvh``
-(``wp.Mesh``, exact visibility only) · ``gbuffer`` (camera) · ``shadow_map`` (light) · the method's own stages
+:func:`render_images` runs a built scene through these stages, with the scattering method of the registry
+(:mod:`warpscatter.methods`: what it needs, which Warp modules it launches). Stage names (CLI timing table, ``bench``,
+logs): ``compile`` · ``upload`` · ``bvh`` (exact visibility only) · ``gbuffer`` · ``shadow_map`` · the method's own
 (``scattering`` for ``raymarch``; ``rectify`` … ``evaluate`` for the prefiltered methods; ``lines`` …
-``interpolate`` for ``epipolar``) · surface-shadow stages (``msm_generate`` …) · ``shading`` (surfaces +
-composition).
+``interpolate`` for ``epipolar``) · surface shadows (``msm_generate`` …) · ``shading`` (surfaces + composition).
 """
 
 from __future__ import annotations
@@ -30,16 +25,13 @@ from ..shadows.unseen_planes import without_unseen_planes
 from .common import check_finite, compile_kernels
 from .frame import Frame
 
-#: The images that add up over a point light's faces (radiance, linear in the light); the rest (depth ...) are the
-#: first face's, the same for all.
+#: Images that add up over a point light's faces (radiance); the others (depth ...) are the first face's.
 ADDITIVE_IMAGES = ("color", "scattering", "surface")
 
 
-#: A render whose light reaches less than this share of what it would unshadowed is called dark
-#: (:func:`dark_image_warnings`): the bundled window room, lit through its window only, reaches 7 %.
+#: A render whose light reaches less than this share of what it would unshadowed is dark (:func:`lit_share`).
 DARK_SHARE = 0.02
-#: The same for a sun below the horizon (a directional light travelling up, the mistake of giving the direction
-#: toward the sun as ``direction``): the quickstart so turned reaches 5 % (its far rays pass beyond the ground).
+#: The same for a sun below the horizon (``direction`` given toward the sun, not the way the light travels).
 DARK_SHARE_SUN_BELOW = 0.25
 
 
@@ -89,25 +81,18 @@ def dark_image_warnings(scene, images: dict, settings) -> list[str]:
 
 def render_images(scene, settings, *, timer: StageTimer | None = None, device=None,
                   aovs: tuple[str, ...] | list[str] = ()) -> tuple[dict, dict]:
-    """Run the classic render stages for a built scene.
+    """Run the classic render stages for a built scene: (images as :func:`warpscatter.shading.shade_and_compose`
+    makes them, stats).
 
     Args:
         scene: a :class:`~warpscatter.scene.Scene` (directional, spot or point light; a point light runs the light
             stages once per cube face and adds the faces' images).
-        settings: the validated ``render`` section (:class:`~warpscatter.config.RenderSettings`: scattering,
-            surfaces, shadows).
-        timer: a :class:`~..runtime.stages.StageTimer` (created if None).
-        device: Warp device.
-        aovs: the requested outputs (``output.aovs``); the method's debug outputs among them are made and returned
-            with the images.
-
-    Returns:
-        (images, stats): images as in :func:`warpscatter.shading.shade_and_compose`; stats with sizes and the
-        method's own statistics.
+        settings: the validated ``render`` section (:class:`~warpscatter.config.RenderSettings`).
+        timer, device: a :class:`~..runtime.stages.StageTimer` (created if None) and the Warp device.
+        aovs: the requested outputs (``output.aovs``): the method makes the debug ones among them.
 
     Raises:
-        ValueError: ``render.lighting.method`` is set (the Monte-Carlo path is :mod:`.lighting`), or the method
-            does not render the scene's light.
+        ValueError: ``render.lighting.method`` is set (see :mod:`.lighting`), or the method lacks the light.
         NonFiniteImageError: an image with NaN or infinite pixels (a bug).
     """
     device = default_device(device)
@@ -141,8 +126,7 @@ def render_images(scene, settings, *, timer: StageTimer | None = None, device=No
     if need_shadow_map and sc.shadow_map.skip_unseen_planes:
         with timer("shadow_map"):
             lit_scene, unseen_planes = without_unseen_planes(scene, gbuf.distance)
-    # a point light is six square spots, one per cube face, whose images add up (Klehm 2014 Sec. 3.2); the debug
-    # outputs and the method's stats are the first face's (+X)
+    # a point light: six square spots, one per cube face, images added (Klehm 2014 Sec. 3.2); debug and stats: +X
     faces = ([replace(lit_scene, light=face) for face in scene.light.faces()] if scene.light.kind == "point"
              else [lit_scene])
     images, info, debug_images, shadow_map = {}, {}, {}, None

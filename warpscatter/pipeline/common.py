@@ -12,13 +12,9 @@ from ..runtime.device import default_device
 
 
 def compile_kernels(modules, device=None) -> None:
-    """Compile (or load from Warp's kernel cache) the named Warp modules, e.g. a method's
-    :attr:`~warpscatter.methods.Method.modules`, before any launch (threads would otherwise compile them at once).
-
-    Args:
-        modules: module names (``"warpscatter.raster.rasterizer"``) or module objects.
-        device: Warp device.
-    """
+    """Compile (or load from Warp's kernel cache) Warp ``modules`` (names such as ``"warpscatter.raster.rasterizer"``
+    or module objects, e.g. a method's :attr:`~warpscatter.methods.Method.modules`) before any launch, which threads
+    would otherwise compile at once."""
     device = default_device(device)
     for m in dict.fromkeys(modules):
         wp.load_module(importlib.import_module(m) if isinstance(m, str) else m, device=device)

@@ -16,10 +16,8 @@ class Frame:
     Attributes:
         scene: the :class:`~warpscatter.scene.Scene`.
         gbuffer: the camera :class:`~..raster.gbuffer.GBuffer` (hit distance s per pixel).
-        geometry: the scene's :class:`~warpscatter.scene.DeviceGeometry` (its casters' BVH for exact visibility);
-            None when the method does not cast shadow rays.
+        geometry: the scene's :class:`~warpscatter.scene.DeviceGeometry` (casters' BVH); None without shadow rays.
         shadow_map: the light's :class:`~warpscatter.shadows.shadow_map.ShadowMap`, or None.
-        device: Warp device.
         aovs: the requested outputs (``output.aovs``): a method makes the debug ones it lists
             (:attr:`~warpscatter.methods.Method.debug_aovs`) and returns them in ``info["debug_images"]``.
     """

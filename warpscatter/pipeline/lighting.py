@@ -3,32 +3,21 @@
 
 Stages (names as in the CLI's timing table):
 
-- ``csm`` (method ``csm``): the coherent shadow map of the scene's occluders (every mesh not marked
-  ``receiver_only``, in world space; with ``render.lighting.csm.objects: per_mesh`` one lat-long CSM per casting
-  mesh in its object space, placed by its transform: Sec. 4.6 rigid objects, built once per process per mesh),
-  loaded from ``render.lighting.csm.file`` (checked against the scene:
-  kind, occluder geometry, light samples) or built on the fly with the streaming builder: lat-long maps for an
-  environment light, depth cube maps at the light's sample points for an area or linear light
-  (:mod:`warpscatter.csm.occluders`), and put on the device.
-  ``bvh`` (method ``raytrace``): the ``wp.Mesh`` of the same occluders, for exact shadow rays (the reference).
-- ``gbuffer``: the rasterized camera G-buffer (:func:`..raster.gbuffer.gbuffer_raster`), the same for both
-  methods so that they differ only by the visibility query.
-- ``setup``: the estimator, once for all passes (:class:`~warpscatter.csm.direct_lighting.DirectLighting`): the
-  visible pixels' points, normals, view directions and materials, the material table and the light are checked and
-  put on the device with the visibility source (the CSM's segment lists, uploaded in the ``csm`` stage, or the
-  BVH); no pass re-uploads or re-checks anything.
-- ``lighting``: ``passes`` progressive passes (Sec. 5.2). Each pass shades every visible pixel with S = s^2
-  strata (:meth:`~warpscatter.csm.direct_lighting.DirectLighting.shade`: one launch split across the CPU cores)
-  under its own seed, so every pass draws new stratified patterns;
-  :class:`~warpscatter.csm.direct_lighting.ProgressiveAccumulator` averages them.
-  Every ``write_every`` passes the current mean is handed to ``on_pass`` (the pipeline writes the outputs then).
+- ``csm`` (method ``csm``): the coherent shadow map of the occluders (meshes not ``receiver_only``), loaded from
+  ``render.lighting.csm.file`` (checked against the scene) or built on the fly: lat-long maps for an environment
+  light, depth cube maps at the light's samples for an area or linear light (:mod:`warpscatter.csm.occluders`);
+  with ``render.lighting.csm.objects: per_mesh`` one lat-long CSM per casting mesh in its object space (Sec. 4.6,
+  built once per process per mesh). ``bvh`` (method ``raytrace``): the occluders' ``wp.Mesh`` (the reference).
+- ``upload``, ``gbuffer``: the rasterized camera G-buffer, the same for both methods, which so differ only by the
+  visibility query.
+- ``setup``: :class:`~warpscatter.csm.direct_lighting.DirectLighting` checks the visible pixels' inputs, materials
+  and light and puts them on the device once for all passes.
+- ``lighting``: ``passes`` progressive passes (Sec. 5.2), each under its own seed, averaged; every ``write_every``
+  passes ``on_pass`` gets the current mean.
 
-Outputs (as the other methods): ``surface`` = L_surface exp(-sigma_t s) (the medium only attenuates: single
-scattering of environment / area / linear lights is not modelled, so ``scattering`` = 0), ``color`` = surface
-plus, with ``background``, the environment seen where no surface is hit (times exp(-sigma_t far)), ``depth``.
-
-Units: radiance as the light's (environment texels, area radiance, linear intensity per length); distances, bias
-and normal offset in scene units.
+Outputs: ``surface`` = L_surface exp(-sigma_t s) (the medium only attenuates, ``scattering`` = 0), ``color`` =
+surface plus, with ``background``, the environment where no surface is hit (times exp(-sigma_t far)), ``depth``.
+Radiance in the light's units; distances, bias and normal offset in scene units.
 """
 
 from __future__ import annotations
@@ -62,22 +51,24 @@ def pass_seed(seed: int, k: int) -> int:
 
 @dataclass
 class CameraSurface:
-    """The visible surface of a camera view as the Monte-Carlo estimators take it (:func:`camera_surface`)."""
+    """The visible surface of a camera view as the Monte-Carlo estimators take it (:func:`camera_surface`): the
+    G-buffer's arrays (``"distance"``, ``"normal"``, ``"material"``), (H, W) unit ray ``directions``, ``hit`` mask and
+    float64 hit ``distance``; (K,) float32 points, normals, directions to the camera and int32 material rows of the
+    hit pixels (row-major)."""
 
-    gbuffer: dict  # the rasterized G-buffer's arrays ("distance", "normal", "material")
-    directions: np.ndarray  # (H, W, 3) unit camera-ray directions
-    hit: np.ndarray  # (H, W) bool: a surface is seen
-    distance: np.ndarray  # (H, W) float64 hit distance
-    points: np.ndarray  # (K, 3) float32 surface points of the hit pixels (row-major)
-    normals: np.ndarray  # (K, 3) float32
-    view_dirs: np.ndarray  # (K, 3) float32 towards the camera
-    material_index: np.ndarray  # (K,) int32 rows of materials
+    gbuffer: dict
+    directions: np.ndarray
+    hit: np.ndarray
+    distance: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    view_dirs: np.ndarray
+    material_index: np.ndarray
     materials: MaterialTable
 
 
 def camera_surface(scene, stage: StageTimer | None = None, device=None) -> CameraSurface:
-    """The stages ``upload`` and ``gbuffer`` of :func:`render_lighting`: the scene's geometry on the device, the
-    rasterized G-buffer and the estimators' per-pixel inputs (what every ``csm`` / ``raytrace`` pass shades)."""
+    """The stages ``upload`` and ``gbuffer`` of :func:`render_lighting`: the G-buffer and the per-pixel inputs."""
     device = default_device(device)
     timer = stage or StageTimer()
     with timer("upload"):
@@ -99,22 +90,16 @@ def camera_surface(scene, stage: StageTimer | None = None, device=None) -> Camer
 def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None = None,
                     on_pass: Callable[[dict, int, int], None] | None = None, *, device=None,
                     objects: list | None = None) -> tuple[dict, dict]:
-    """Monte-Carlo direct lighting of a scene (see the module docstring; the registry's call shape of the lighting
-    methods, :mod:`warpscatter.methods`).
+    """Monte-Carlo direct lighting of a scene (module docstring), in the lighting methods' call shape: (images,
+    stats) as :func:`warpscatter.pipeline.render_images` returns them.
 
     Args:
         scene: a :class:`~warpscatter.scene.Scene` whose light is an environment, area or linear light.
-        settings: :class:`~warpscatter.csm.settings.LightingSettings` (``render.lighting``; ``method`` csm or
-            raytrace).
-        stage: the :class:`~..runtime.stages.StageTimer` (created if None).
+        settings: ``render.lighting`` (:class:`~warpscatter.csm.settings.LightingSettings`).
+        stage, device: the :class:`~..runtime.stages.StageTimer` (created if None) and the Warp device.
         on_pass: ``on_pass(images, passes_done, passes)`` every ``write_every`` passes before the last.
-        device: Warp device.
-        objects: with ``settings.csm.objects`` ``per_mesh``: the casting meshes as rigid objects, ``(mesh,
-            matrix)`` pairs of :func:`warpscatter.scene.object_meshes` (each gets its own lat-long CSM in object
-            space, built once per process for a given mesh: moving it only changes its matrix).
-
-    Returns:
-        (images, stats) as :func:`warpscatter.pipeline.render_images`.
+        objects: with ``settings.csm.objects`` ``per_mesh``: the casting meshes, ``(mesh, matrix)`` pairs of
+            :func:`warpscatter.scene.object_meshes`.
 
     Raises:
         CSMFileError: a CSM file that is corrupt or does not match the scene (the message names it).
@@ -154,8 +139,7 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
     h, w = cam.height, cam.width
     g, dirs, hit, dist = surf.gbuffer, surf.directions, surf.hit, surf.distance
     object_bias = None
-    if rigid:  # per object: one texel of its own CSM (object units); a bias given is in scene units, converted
-        # into each object's space along every query (non-uniform scale included)
+    if rigid:  # default bias: one texel of each object's CSM; a given one (scene units) is converted per query
         scales = [abs(float(np.linalg.det(np.asarray(t, np.float64)[:3, :3]))) ** (1.0 / 3.0) for _, t in rigid]
         object_bias = [texel_size(c) for c, _ in rigid] if settings.bias is None else None
         bias = min(texel_size(c) * k for (c, _), k in zip(rigid, scales, strict=True)) if settings.bias is None \
@@ -189,7 +173,7 @@ def render_lighting(scene, settings: LightingSettings, stage: StageTimer | None 
         return {"color": surface + background, "surface": surface, "scattering": scattering,
                 "depth": g["distance"].astype(np.float32)}
 
-    with timer("setup"):  # once per render: every pass reuses the device data
+    with timer("setup"):
         lighting = DirectLighting(surf.points, surf.normals, None, light, samples=settings.samples, csm=csm,
                                   mesh=mesh, view_dirs=surf.view_dirs, materials=surf.materials,
                                   material_index=surf.material_index, filter=settings.filter, bias=float(bias),

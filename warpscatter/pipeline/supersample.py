@@ -1,11 +1,9 @@
 """Camera anti-aliasing by supersampling: render at ``s`` times the width and height, then box-filter.
 
-``camera.supersample: s`` gives each output pixel the mean of ``s x s`` rays on an ordered sub-pixel grid: the ray of
-sub-pixel (a, b) of pixel (i, j) passes through image point (i + (a + 0.5) / s, j + (b + 0.5) / s), which is the
-CONVENTIONS ray of pixel (s i + a, s j + b) of the s-times larger image. So every method renders the larger frame
-unchanged (each one's own pixel rays, jitter and sampling) and the filter averages its blocks: surfaces, shadows,
-depth and scattering are all anti-aliased, and the per-pixel jitter of the ray marchers averages out as well. The
-cost is that of the larger frame (about s^2 times the per-pixel work; the light's maps are unchanged).
+``camera.supersample: s`` gives each output pixel the mean of ``s x s`` rays on an ordered sub-pixel grid: sub-pixel
+(a, b) of pixel (i, j) is pixel (s i + a, s j + b) of the s-times larger image (CONVENTIONS rays). Every method
+renders that frame unchanged and the filter averages its blocks, so surfaces, shadows, depth, scattering and the ray
+marchers' jitter are all anti-aliased, for about s^2 times the per-pixel work (the light's maps are unchanged).
 """
 
 from __future__ import annotations
@@ -24,11 +22,8 @@ def supersampled_scene(scene, s: int):
 
 
 def box_filter(images: dict[str, np.ndarray], s: int, frame: tuple[int, int]) -> dict[str, np.ndarray]:
-    """Average the ``s x s`` blocks of every image of the supersampled frame's size ``frame`` = (height, width)
-    (float32 out); images of another size (the light-space debug outputs) are returned as they are.
-
-    ``depth`` is averaged too: at a silhouette it lies between the near and the far sub-samples' distances.
-    """
+    """Average the ``s x s`` blocks (float32) of every image of size ``frame`` = (height, width), ``depth`` too (at a
+    silhouette it lies between the sub-samples' distances); images of other sizes (light-space debug) pass as is."""
     if s == 1:
         return images
     out = {}

@@ -1,6 +1,5 @@
-"""Rasterized depth on the host: :class:`RasterResult` and numpy mirrors of :mod:`.funcs`
-(pixel-centre NDC grids, unprojection to world positions, linearization to view-space distance).
-"""
+"""Rasterized depth on the host: :class:`RasterResult` and numpy mirrors of :mod:`.funcs` (pixel-centre NDC grids,
+unprojection to world positions, linearization to view-space distance)."""
 
 from __future__ import annotations
 
@@ -22,10 +21,8 @@ class RasterResult:
     Attributes:
         ndc_depth: (layers, height, width) float32 NDC depth in [-1, 1]; +inf where no surface.
         tri_id: (layers, height, width) int32 triangle index; -1 where no surface.
-        keys: (layers, height, width) int64 packed keys (see :func:`depth_key`) on the device; None for
-            ray-cast results.
-        device_ndc_depth: ``ndc_depth`` as a ``wp.array`` on the device (shares memory on the CPU).
-        device_tri_id: ``tri_id`` as a ``wp.array`` on the device (shares memory on the CPU).
+        keys: (layers, height, width) int64 packed keys (:func:`depth_key`) on the device; None for ray-cast results.
+        device_ndc_depth, device_tri_id: ``ndc_depth``, ``tri_id`` as ``wp.array`` on the device (CPU: shared memory).
         view_proj: the float64 4x4 world -> clip matrix used.
     """
 
@@ -66,14 +63,8 @@ def pixel_center_ndc_grid(width: int, height: int) -> tuple[np.ndarray, np.ndarr
 
 
 def unproject(ndc_depth, view_proj) -> np.ndarray:
-    """World positions of pixel centres at the given NDC depths.
-
-    Args:
-        ndc_depth: (..., H, W) NDC depths (e.g. ``RasterResult.ndc_depth``); non-finite = no surface.
-        view_proj: the 4x4 world -> clip matrix the depths were rendered with.
-
-    Returns:
-        (..., H, W, 3) float64 world positions; +inf where the depth is not finite.
+    """(..., H, W, 3) float64 world positions of the pixel centres at NDC depths ``ndc_depth`` (..., H, W) (e.g.
+    ``RasterResult.ndc_depth``) rendered with the 4x4 world -> clip ``view_proj``; +inf where a depth is not finite.
     """
     m = check_matrix(view_proj, "view_proj")
     z = np.asarray(ndc_depth, dtype=np.float64)
@@ -92,15 +83,9 @@ def unproject(ndc_depth, view_proj) -> np.ndarray:
 
 
 def linearize_depth(ndc_depth, projection) -> np.ndarray:
-    """View-space distance (positive in front) from NDC depth; host mirror of :func:`ndc_to_view_depth` for
-    OpenGL-style perspective and orthographic projections.
-
-    Args:
-        ndc_depth: NDC depths, any shape; non-finite entries (empty texels) map to +inf.
-        projection: 4x4 projection matrix.
-
-    Returns:
-        float64 array of the same shape, scene units.
+    """View-space distance (positive in front; float64, scene units, the shape of ``ndc_depth``) from NDC depth for an
+    OpenGL-style perspective or orthographic 4x4 ``projection``; non-finite depths (empty texels) map to +inf. Host
+    mirror of :func:`ndc_to_view_depth`.
 
     Raises:
         ValueError: malformed projection, or rows 2/3 of it depending on view-space x or y.

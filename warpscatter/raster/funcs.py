@@ -1,14 +1,11 @@
-"""Device building blocks of the rasterizer (:mod:`.rasterizer`): fixed-point snapping, edge functions and
-the fill rule, packed depth keys, homogeneous clipping and the exact-edge tests.
+"""Device building blocks of the rasterizer (:mod:`.rasterizer`): fixed-point snapping, edge functions and the fill
+rule, packed depth keys, homogeneous clipping and the exact-edge tests.
 
-Screen positions are snapped to :data:`SUBPIXEL_BITS` bits, int64 edge functions with the top-left rule hit every
-centre of a closed surface exactly once. The z-buffer key is
-
-    key = (float32 bits of depth01) << 32 | triangle index,   depth01 = clamp(0.5 z_ndc + 0.5, 0, 1),
-
-resolved with ``wp.atomic_min`` (ties go to the lower index); depth peeling keeps the smallest key above the previous
-layer's. Clipping is Sutherland-Hodgman against the near plane and the guard band, interpolated from the inside
-vertex so that shared edges clip bitwise identically.
+Screen positions are snapped to :data:`SUBPIXEL_BITS` bits; int64 edge functions with the top-left rule hit every
+centre of a closed surface exactly once. The z-buffer key ``(float32 bits of depth01) << 32 | triangle index``,
+depth01 = clamp(0.5 z_ndc + 0.5, 0, 1), is resolved with ``wp.atomic_min`` (ties go to the lower index); depth peeling
+keeps the smallest key above the previous layer's. Clipping is Sutherland-Hodgman against the near plane and the guard
+band, interpolated from the inside vertex so that shared edges clip bitwise identically.
 """
 
 from __future__ import annotations
@@ -29,8 +26,7 @@ MAX_RESOLUTION = 2**16
 #: Key of a texel that no fragment reached (the largest int64).
 EMPTY_KEY = np.iinfo(np.int64).max
 
-#: Bounding boxes wider than this many pixels are scanned row span by row span (:func:`edge_span`); narrower
-#: ones test every centre (cheaper than the span's integer divisions for a few pixels).
+#: Boxes wider than this (pixels) are scanned span by span (:func:`edge_span`); narrower ones test every centre.
 SPAN_MIN_PIXELS = 8
 
 #: Exact-edge mode: bounding boxes widened by this many sub-pixels (1/8 pixel), more than any snapping error.
@@ -52,7 +48,6 @@ ScreenPolygon = wp.types.matrix(shape=(8, 3), dtype=wp.float64)  # snapped (X, Y
 ClipEdges = wp.types.vector(length=8, dtype=wp.int32)  # mesh edge under polygon edge k -> k+1 (see clip_triangle_edges)
 EdgeTolerances = wp.types.vector(length=3, dtype=wp.int64)  # per edge of a screen triangle (exact-edge mode)
 
-# Outcode bits of a clip-space vertex.
 _OUT_NEAR = wp.constant(1)  # z < -w
 _OUT_GUARD = wp.constant(2 | 4 | 8 | 16)  # outside the guard band on x or y
 _OUT_VIEW = wp.constant(32 | 64 | 128 | 256)  # outside the viewport on x or y
@@ -100,11 +95,9 @@ def key_triangle(key: wp.int64) -> int:
 
 @wp.func
 def ndc_to_view_depth(z_ndc: float, p22: float, p23: float, p32: float, p33: float) -> float:
-    """View-space distance (positive in front) from NDC depth, for OpenGL-style perspective or orthographic matrices.
-
-    ``p22, p23, p32, p33`` are projection entries [2][2], [2][3], [3][2], [3][3]: z = (p23 - p33 z_ndc) /
-    (p32 z_ndc - p22), distance -z. Returns +inf for non-finite input.
-    """
+    """View-space distance -z (positive in front) from NDC depth, for OpenGL-style perspective or orthographic
+    matrices: z = (p23 - p33 z_ndc) / (p32 z_ndc - p22), ``p22, p23, p32, p33`` the projection's [2][2], [2][3],
+    [3][2], [3][3]; +inf for non-finite input."""
     if not wp.isfinite(z_ndc):
         return wp.inf
     return -(p23 - p33 * z_ndc) / (p32 * z_ndc - p22)
@@ -118,10 +111,8 @@ def edge_function(ax: wp.int64, ay: wp.int64, bx: wp.int64, by: wp.int64, px: wp
 
 @wp.func
 def top_left_bias(ax: wp.int64, ay: wp.int64, bx: wp.int64, by: wp.int64) -> wp.int64:
-    """0 when edge a -> b owns the pixel centres lying exactly on it (top or left edge), else -1.
-
-    Equals perturbing the sample right and (infinitesimally less) down, so abutting triangles own a shared point once.
-    """
+    """0 when edge a -> b owns the pixel centres lying exactly on it (top or left edge), else -1: as if the sample
+    moved right and (infinitesimally less) down, so abutting triangles own a shared point once."""
     dx = bx - ax
     dy = by - ay
     if dy < wp.int64(0) or (dy == wp.int64(0) and dx > wp.int64(0)):
@@ -164,11 +155,8 @@ def clip_outcode(v: wp.vec4, guard_x: float, guard_y: float) -> int:
 def clip_polygon_plane(
     poly: ClipPolygon, src: ClipSources, n: int, plane: wp.vec4
 ) -> tuple[ClipPolygon, ClipSources, int]:
-    """Sutherland-Hodgman: keep the part of a convex clip-space polygon where dot(plane, v) >= 0.
-
-    ``src`` holds each vertex's mesh index (-1: made by clipping). Crossings are interpolated from the inside vertex,
-    so triangles sharing the edge get bitwise identical points.
-    """
+    """Sutherland-Hodgman: keep the part of a convex clip-space polygon where dot(plane, v) >= 0. ``src``: each
+    vertex's mesh index (-1: made by clipping). Crossings are interpolated from the inside vertex (watertight)."""
     out, out_src, _edges, m = clip_polygon_plane_edges(poly, src, ClipEdges(), n, plane)
     return out, out_src, m
 
@@ -288,8 +276,8 @@ def project_vertex(
 class RasterParams:
     """Per-pass rasterizer settings as kernels see them."""
 
-    width: int  # image width in pixels
-    height: int  # image height in pixels
+    width: int
+    height: int
     guard_x: float  # guard band half-extent in NDC x (|x| <= guard_x w after clipping)
     guard_y: float  # guard band half-extent in NDC y
     clip_near: int  # 1: clip at the near plane (z >= -w)
@@ -340,9 +328,9 @@ def exact_edge_inside(m: wp.vec3d, px: wp.float64, py: wp.float64) -> bool:
 
 @wp.func
 def edge_tolerance(sa: wp.vec3d, sb: wp.vec3d, da: wp.float64, db: wp.float64) -> wp.int64:
-    """Exact-edge mode: bound on |fixed-point - exact edge function| of edge ``sa``-``sb`` whose ends moved by at most
-    ``da``, ``db``; beyond it the fixed-point sign is exact. Symmetric, so both triangles agree.
-    With L1 = |sb - sa|_1: |delta E| <= 2 d |p - sa|_1 + d L1 + 4 d^2."""
+    """Exact-edge mode: bound on |fixed-point - exact edge function| (|delta E| <= 2 d |p - sa|_1 + d |sb - sa|_1 +
+    4 d^2) of edge ``sa``-``sb`` whose ends moved by at most ``da``, ``db``; beyond it the fixed-point sign is exact.
+    Symmetric, so both triangles agree."""
     d = wp.max(da, db)
     l1 = wp.abs(sb[0] - sa[0]) + wp.abs(sb[1] - sa[1])
     t = wp.float64(4.0) * d * (l1 + wp.float64(8.0) * d + wp.float64(8.0)) + wp.float64(8.0)

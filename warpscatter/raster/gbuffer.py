@@ -40,11 +40,11 @@ module_options()
 
 @wp.struct
 class GBufferArrays:
-    """A camera G-buffer as kernels see it (:meth:`GBuffer.arrays`)."""
+    """A camera G-buffer as kernels see it (:meth:`GBuffer.arrays`; fields as in :class:`GBuffer`)."""
 
-    distance: wp.array2d(dtype=wp.float32)  # scene units along the unit pixel ray
-    normal: wp.array2d(dtype=wp.vec3)  # unit, facing the camera; 0 where no hit
-    material: wp.array2d(dtype=wp.int32)  # material index, -1 where no hit
+    distance: wp.array2d(dtype=wp.float32)
+    normal: wp.array2d(dtype=wp.vec3)
+    material: wp.array2d(dtype=wp.int32)
 
 
 @dataclass
@@ -80,11 +80,9 @@ def facing_normal(v0: wp.vec3, v1: wp.vec3, v2: wp.vec3, d: wp.vec3) -> wp.vec3:
 
 @wp.func
 def hit_record(origin: wp.vec3, d: wp.vec3, t_far: float, tri: int, t_fallback: float, mesh: MeshArrays):
-    """(distance, camera-facing unit normal, material) of the ray origin + t d hitting triangle ``tri``.
-
-    The distance is the exact ray-plane intersection with the triangle; grazing rays (|n . d| < 1e-4)
-    keep ``t_fallback``. ``tri < 0`` (no hit) gives the far-plane distance, a zero normal and material -1.
-    """
+    """(distance, camera-facing unit normal, material) of the ray origin + t d hitting triangle ``tri``: the exact
+    ray-plane distance; grazing rays (|n . d| < 1e-4) keep ``t_fallback``. ``tri < 0`` (no hit) gives the far-plane
+    distance, a zero normal and material -1."""
     if tri < 0:
         return t_far, wp.vec3(0.0, 0.0, 0.0), -1
     v0 = mesh.vertices[mesh.triangles[tri, 0]]

@@ -1,7 +1,5 @@
-"""Checks and conversions of the host inputs shared by the rasterizer and the ray caster: 4x4 matrices,
-image sizes, vertex and triangle arrays (numpy or ``wp.array``), each raising ValueError naming the
-argument.
-"""
+"""Checks and conversions of the host inputs shared by the rasterizer and the ray caster: 4x4 matrices, image sizes,
+vertex and triangle arrays (numpy or ``wp.array``), each raising ValueError naming the argument."""
 
 from __future__ import annotations
 
@@ -37,11 +35,8 @@ def check_size(width, height) -> tuple[int, int]:
 
 
 def as_points(vertices, device: str) -> wp.array:
-    """(N, 3) numpy vertices or a ``wp.array(dtype=wp.vec3)`` -> contiguous vec3 array on ``device``.
-
-    Numpy input must be finite (ValueError otherwise); a ``wp.array`` is taken as is (the rasterizer
-    skips triangles with non-finite clip coordinates).
-    """
+    """(N, 3) numpy vertices (finite, else ValueError) or a ``wp.array(dtype=wp.vec3)`` (taken as is: the rasterizer
+    skips triangles with non-finite clip coordinates) -> contiguous vec3 array on ``device``."""
     if isinstance(vertices, wp.array):
         if vertices.dtype != wp.vec3 or vertices.ndim != 1:
             raise ValueError("vertices as a wp.array must be 1-D with dtype wp.vec3")

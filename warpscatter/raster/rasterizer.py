@@ -1,20 +1,16 @@
-"""Triangle rasterization into depth maps for any 4x4 world -> clip matrix, with depth peeling.
-
-Exact as GPU rasterizers are: fixed-point screen positions, int64 edge functions and the top-left fill rule hit every
-pixel centre of a closed surface once; the z-buffer resolves packed (depth, triangle index) int64 keys with
-``wp.atomic_min`` (device building blocks: :mod:`.funcs`). Entry points: :func:`rasterize`,
-:func:`rasterize_keys` (with a per-band callback for fused passes), :func:`rasterize_linear_depth` (shadow maps),
-:func:`coverage_count`; input checks and numpy depth utilities are re-exported from :mod:`.inputs`
-and :mod:`.depth`.
+"""Triangle rasterization into depth maps for any 4x4 world -> clip matrix, with depth peeling, exact as GPU
+rasterizers are (fixed-point positions, top-left rule, packed-key z-buffer: :mod:`.funcs`). Entry points:
+:func:`rasterize`, :func:`rasterize_keys` (with a per-band callback for fused passes), :func:`rasterize_linear_depth`
+(shadow maps), :func:`coverage_count`; input checks and numpy depth utilities are re-exported from :mod:`.inputs` and
+:mod:`.depth`.
 
 Conventions (OpenGL-style): NDC in [-1, 1]^3, z_ndc = -1 at the near plane; pixel (i, j), j from the TOP row, has its
 centre at x_ndc = 2 (i + 0.5) / width - 1, y_ndc = 1 - 2 (j + 0.5) / height, the centre of the camera's ray.
 
 ``exact_edges``: centres within the snapping error (~1/1024 pixel) of an edge are decided on the unrounded float64
 plane through the eye and the edge, as a ray would, still watertight. Clipping is homogeneous, against the near plane
-and a guard band (+-2^18 pixels); ``clamp_depth`` keeps fragments beyond the far plane at +1 and, for affine
-matrices, those before the near plane at -1; ``clip_near=False`` keeps only the guard band (which still cuts
-everything behind a perspective centre), as Klehm 2014's projective rectification needs (Sec. 4.2).
+and a guard band (+-2^18 pixels); ``clip_near=False`` keeps only the guard band (which still cuts everything behind a
+perspective centre), as Klehm 2014's projective rectification needs (Sec. 4.2).
 
 Parallelism: CPU atomics are not atomic across concurrent launches, so each launch owns the keys it writes. Sparse
 scenes are cut into row bands (triangles binned to the bands they overlap); dense ones into chunks of triangles with
@@ -496,11 +492,9 @@ def rasterize(
             (depth, triangle index) order.
         clamp_depth: keep fragments beyond the far plane at +1 and, for affine matrices, those before the near
             plane at -1 (shadow maps).
-        cull_backfaces: skip triangles clockwise in NDC (front = counter-clockwise). Off by default.
-        clip_near: None clips at z >= -w unless ``clamp_depth`` with an affine matrix; False never (guard band
-            only); True always.
-        exact_edges: decide centres near an edge on its unrounded projection, matching
-            :func:`.raycast.raycast_depth`. Off by default (the fixed-point rule, as GPUs).
+        cull_backfaces: skip triangles clockwise in NDC (front = counter-clockwise).
+        clip_near: None clips at z >= -w unless ``clamp_depth`` with an affine matrix; False never (guard band only).
+        exact_edges: decide centres near an edge on its unrounded projection, matching :func:`.raycast.raycast_depth`.
         device: Warp device (default :func:`..runtime.device.default_device`).
         threads: CPU worker threads (default :func:`..runtime.parallel.thread_count`).
 
@@ -509,8 +503,7 @@ def rasterize(
         and ``tri_id`` (int32, -1 where empty).
 
     Raises:
-        ValueError: malformed or non-finite inputs, out-of-range indices, sizes outside [1, MAX_RESOLUTION],
-            ``layers`` < 1.
+        ValueError: malformed or non-finite inputs, out-of-range indices, sizes outside [1, MAX_RESOLUTION], layers < 1.
     """
     if isinstance(layers, bool) or not isinstance(layers, (int, np.integer)) or layers < 1:
         raise ValueError(f"layers must be an integer >= 1, got {layers!r}")
@@ -543,14 +536,9 @@ def rasterize_keys(
     device: str | None = None,
     threads: int | None = None,
 ) -> wp.array:
-    """One depth layer as packed keys (EMPTY_KEY where empty), for passes fused with the scan.
-
-    ``on_rows(keys, start, stop)`` runs, from the worker thread that rasterized them, once those rows are final.
-    Other arguments as in :func:`rasterize`.
-
-    Returns:
-        (height, width) ``wp.array`` of int64 keys on the device.
-    """
+    """One depth layer as (height, width) int64 packed keys on the device (EMPTY_KEY where empty), for passes fused
+    with the scan: ``on_rows(keys, start, stop)`` runs, from the worker thread that rasterized them, once those rows
+    are final. Other arguments as in :func:`rasterize`."""
     s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads, clip_near,
                exact_edges)
     keys = empty_array((1, s.height, s.width), wp.int64, s.device)
@@ -571,12 +559,8 @@ def rasterize_linear_depth(
     threads: int | None = None,
 ) -> np.ndarray:
     """Nearest view-space distance per texel, float32 (+inf where empty), resolved band by band with the scan;
-    bitwise ``linearize_depth(rasterize(...).ndc_depth[0], projection)``.
-
-    Args:
-        projection: the 4x4 projection part of ``view_proj``.
-        Others as in :func:`rasterize`.
-    """
+    bitwise ``linearize_depth(rasterize(...).ndc_depth[0], projection)``. ``projection``: the 4x4 projection part of
+    ``view_proj``; other arguments as in :func:`rasterize`."""
     p = check_matrix(projection, "projection")
     if np.any(p[2:, :2] != 0.0):
         raise ValueError("projection: rows 2 and 3 must not depend on view-space x or y")
@@ -607,11 +591,8 @@ def coverage_count(
     device: str | None = None,
     threads: int | None = None,
 ) -> np.ndarray:
-    """Fragments each pixel centre receives (no depth test): exactly 1 per covered pixel of a closed surface.
-
-    Returns:
-        (height, width) int32 fragment counts, row 0 at the top.
-    """
+    """(height, width) int32 count of the fragments each pixel centre receives (no depth test), row 0 at the top:
+    exactly 1 per covered pixel of a closed surface."""
     s = _Setup(vertices, triangles, view_proj, width, height, clamp_depth, cull_backfaces, device, threads, clip_near,
                exact_edges)
     return s.render_counts()

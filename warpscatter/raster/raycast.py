@@ -1,7 +1,6 @@
 """BVH ray casting with ``wp.Mesh``: @wp.func building blocks (``ray_hit``, ``ray_hit_distance``, ``occluded``) and
 the host references :func:`raycast_depth` (the rasterizer's reference, same format and pixel centres) and
-:func:`raycast_camera` (hit distance along each camera ray).
-"""
+:func:`raycast_camera` (hit distance along each camera ray)."""
 
 from __future__ import annotations
 
@@ -127,15 +126,12 @@ def shadow_rays_kernel(
 
 
 def build_mesh(vertices, triangles, device: str | None = None) -> wp.Mesh:
-    """BVH mesh for ray queries.
+    """BVH mesh (a ``wp.Mesh``, holding references to its point and index arrays) for ray queries.
 
     Args:
         vertices: (N, 3) world positions (numpy, converted to float32) or ``wp.array(dtype=wp.vec3)``.
         triangles: (T, 3) integer vertex indices.
         device: Warp device.
-
-    Returns:
-        ``wp.Mesh``, holding references to its point and index arrays.
 
     Raises:
         ValueError: wrong shapes, non-finite vertices, out-of-range indices, or no triangles.
@@ -193,8 +189,7 @@ def raycast_depth(
     Args:
         mesh: ``wp.Mesh`` from :func:`build_mesh`.
         view_proj: 4x4 world -> clip matrix (must be invertible).
-        width: image width in pixels.
-        height: image height in pixels (row 0 at the top).
+        width, height: image size in pixels (row 0 at the top).
         device: Warp device; the mesh's device when None.
         threads: CPU worker threads.
 
@@ -223,6 +218,7 @@ def raycast_camera(
     mesh: wp.Mesh, camera: Camera, device: str | None = None, threads: int | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Hit distance along every camera ray from the camera position to the far plane, and the hit triangle.
+
     Args:
         mesh: ``wp.Mesh`` from :func:`build_mesh`.
         camera: the camera (its width x height pixels).
@@ -230,8 +226,8 @@ def raycast_camera(
         threads: CPU worker threads.
 
     Returns:
-        ``(distance, tri_id)``: (height, width) float32 scene units (+inf where no surface lies
-        within the far plane) and int32 triangle index (-1 there); row 0 at the top.
+        ``(distance, tri_id)``: (height, width) float32 scene units (+inf where no surface lies within the far plane)
+        and int32 triangle index (-1 there); row 0 at the top.
     """
     mesh = _check_mesh(mesh)
     if not isinstance(camera, Camera):

@@ -1,10 +1,5 @@
-"""Rendering an animated config: every frame through an executor, then a preview movie.
-
-:func:`render_animation` renders ``NAME.0001.exr`` ... (each a whole output set), skipping frames already rendered
-with the same config, then writes ``NAME.mp4`` (imageio-ffmpeg) or ``NAME.gif`` (imageio) from the PNGs, or leaves
-the PNGs (``ffmpeg -framerate FPS -i NAME.%04d.png -pix_fmt yuv420p NAME.mp4``). Frames are bit-identical with any
-executor.
-"""
+"""Rendering an animated config: every frame's output set (``NAME.0001.exr`` ..., bit-identical with any executor),
+skipping frames already rendered with the same config, then a preview movie from the PNGs (docs/guide/runs.md)."""
 
 from __future__ import annotations
 

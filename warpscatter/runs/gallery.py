@@ -1,11 +1,7 @@
-"""The gallery: every picture the docs show, rendered again by one call (``warpscatter gallery -o docs/images``).
-
-Writes ``quickstart.png`` (the README's hero), ``configs/<config>.png`` (each bundled config with its own method),
-``methods/<name>.png`` (the quickstart by each scattering method; lighting and shadow methods through a config that
-shows them, :data:`SHOWCASES`), ``compare_quickstart.png`` (the methods against the exact reference with signed
-error images), ``bench/bench-<suite>*.png`` (charts of a bench run's JSON, when given) and ``gallery.json``.
-Renders go through :func:`warpscatter.render` at each config's own settings; wide images are box-filtered down in
-linear light, never up. Errors are relative L1 against the reference; times exclude the kernel compile.
+"""The gallery: every picture the docs show, rendered again by one call (``warpscatter gallery -o docs/images``;
+the pictures and ``gallery.json``: docs/gallery.md). Renders go through :func:`warpscatter.render` at each config's own
+settings; wide images are box-filtered down in linear light, never up. Errors are relative L1 against the reference;
+times exclude the kernel compile.
 """
 
 from __future__ import annotations

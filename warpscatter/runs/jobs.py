@@ -1,10 +1,9 @@
-"""Many renders (the frames of an animation, the cases of a sweep) through a pluggable executor.
+"""Many renders (the frames of an animation, the cases of a sweep) through a pluggable executor (:func:`make_executor`;
+the executors: docs/guide/runs.md).
 
 A :class:`RenderTask` is plain data, so it travels to another process or machine; :func:`run_task` never raises (a
-failure is a :class:`TaskResult` with its error). Executors (:func:`make_executor`): ``inline`` (a loop in this
-process), ``local`` (``spawn`` worker processes, each on ``cores // workers`` threads) and ``dask`` (a LocalCluster or
-a scheduler ``address``; chosen over Ray as pure Python, the same code on one machine and a cluster). Tasks whose
-finished outputs exist with the same config are skipped (:func:`finished`), so a killed run resumes.
+failure is a :class:`TaskResult` with its error). Tasks whose finished outputs exist with the same config are skipped
+(:func:`finished`), so a killed run resumes.
 """
 
 from __future__ import annotations

@@ -1,21 +1,10 @@
 """Parameter sweeps: configs x a grid (or list) of overrides, each case rendered, timed and compared with a reference.
 
-A sweep file (YAML; paths relative to it)::
-
-    configs: [../configs/colonnade.yaml, ../configs/canopy.yaml, ../configs/window.yaml]
-    set: {camera.width: 320, camera.height: 180}          # every case, and the references
-    grid:                                                  # the cartesian product of these values
-      render.scattering.method: [fourier, moments4, moments6, epipolar]
-      render.scattering.shadow_map.resolution: [512, 1024]
-    cases: []                                              # optional list of override sets, each x the grid
-    reference: {render.scattering.method: raymarch, render.scattering.visibility: exact,
-                render.scattering.steps: 512}             # optional: error of every case against it
-    images: false                                          # true: write each case's output set
-
-Every case is validated before the first render and runs through an executor (:mod:`.jobs`); a failed case
-is reported and the others go on. One row per case (technique time = stages without ``scene``, ``compile`` and
-``write``; errors against the reference) goes to ``NAME.json``, ``NAME.csv`` and ``NAME-error-time.png``. Compare
-times with ``--workers 1``: several workers on a shared machine contend.
+A sweep file's keys are :class:`SweepSettings`' (an example: docs/guide/runs.md). Every case is validated before the
+first render and runs through an executor (:mod:`.jobs`); a failed case is reported and the others go on. One row per
+case (technique time = stages without ``scene``, ``compile`` and ``write``; errors against the reference) goes to
+``NAME.json``, ``NAME.csv`` and ``NAME-error-time.png``. Compare times with ``--workers 1``: several workers on a
+shared machine contend.
 """
 
 from __future__ import annotations
@@ -44,7 +33,7 @@ OVERHEAD_STAGES = ("scene", "compile", "write")
 
 
 class SweepSettings(SettingsModel):
-    """A sweep file (see the module docstring)."""
+    """A sweep file (YAML; relative paths resolve against its folder)."""
 
     configs: list[PathStr] = Field(min_length=1, description="the configs (scenes) every case is rendered on")
     set: dict[str, Any] = Field(default_factory=dict, description="overrides of every case and reference")

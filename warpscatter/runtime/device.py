@@ -2,9 +2,8 @@
 
 Every kernel module calls :func:`module_options` at import (backward passes off: nothing is differentiated, and
 compiles are faster). Importing warpscatter changes none of Warp's global settings; ``WARPSCATTER_KERNEL_CACHE``
-moves Warp's kernel cache. :func:`warp_messages` sends Warp's banner and module-load lines to the ``warpscatter.warp``
-logger while warpscatter works (Warp 1.19 logs through ``wp.get_logger()``; it has no ``wp.config.quiet``).
-:func:`default_device`: the device given, else ``WARPSCATTER_DEVICE``, else ``wp.get_device()``.
+moves Warp's kernel cache. :func:`warp_messages` sends Warp's banner and module-load lines to a logger (Warp 1.19 has
+no ``wp.config.quiet``).
 """
 
 from __future__ import annotations
@@ -62,11 +61,8 @@ def _native_stderr_to_log():
 
 
 def init(quiet_native: bool = False) -> None:
-    """Initialise Warp once, then run what :func:`after_init` registered.
-
-    Args:
-        quiet_native: route Warp's native start-up warning on stderr to the ``warpscatter`` logger (DEBUG).
-    """
+    """Initialise Warp once, then run what :func:`after_init` registered; ``quiet_native`` routes Warp's native
+    start-up warning on stderr to the ``warpscatter`` logger (DEBUG)."""
     global _initialised
     if _initialised:
         return
@@ -88,8 +84,7 @@ def init(quiet_native: bool = False) -> None:
 
 
 class WarpToLogging:
-    """A Warp logger (``wp.set_logger``) sending debug and info to ``warpscatter.warp``, warnings and errors to
-    ``previous``."""
+    """A Warp logger sending debug and info to ``warpscatter.warp``, warnings and errors to ``previous``."""
 
     def __init__(self, previous):
         self.previous = previous
@@ -114,15 +109,9 @@ _quiet_saved = None  # the Warp logger the outermost block replaced
 
 @contextlib.contextmanager
 def warp_messages(verbose: bool = False):
-    """Keep Warp's messages out of the user's output while warpscatter works, unless ``verbose``; Warp's settings are
-    restored afterwards, also when the block raises.
-
-    Without ``verbose`` a :class:`WarpToLogging` is installed for the block (process-wide: other threads' module loads
-    are logged there too); with it, ``wp.config.log_level`` is lowered to ``wp.LOG_INFO`` for the block.
-
-    Args:
-        verbose: show Warp's own messages.
-    """
+    """Keep Warp's messages out of the user's output for the block: a :class:`WarpToLogging` is installed
+    (process-wide: other threads' module loads are logged there too); with ``verbose`` Warp's log level is lowered to
+    ``wp.LOG_INFO`` instead. Warp's settings are restored afterwards, also when the block raises."""
     global _quiet_depth, _quiet_saved
     if verbose:
         saved_level = wp.config.log_level

@@ -1,10 +1,8 @@
 """Fast approximations of transcendental functions for per-pixel and per-texel kernels.
 
 :func:`fast_atan2`: the octant reduction of atan2 to atan(a), a = min(|x|, |y|) / max(|x|, |y|) in [0, 1], and a
-degree-11 odd minimax polynomial for atan on [0, 1]. Maximum error 1.9e-6 rad over 4M random directions (float32);
-four times faster than Warp's ``wp.atan2`` (libm's ``atan2f``) on this CPU: 16 ms instead of 64 ms for two calls per
-pixel of a 1920x1080 image on two threads. Used where an angle becomes a texture coordinate (the non-linear
-rectification's azimuth and inclination: 1.9e-6 rad is 1/500 of a texel of a 1024-row map over a full circle).
+degree-11 odd minimax polynomial for atan on [0, 1], where an angle becomes a texture coordinate (the non-linear
+rectification's azimuth and inclination). Error and speed: docs/design/csm-core.md.
 """
 
 from __future__ import annotations
@@ -21,7 +19,7 @@ PI = wp.constant(3.141592653589793)
 
 @wp.func
 def fast_atan2(y: float, x: float) -> float:
-    """atan2(y, x) in (-pi, pi] to 1.9e-6 rad (module doc); 0 for x = y = 0."""
+    """atan2(y, x) in (-pi, pi] to 1.9e-6 rad; 0 for x = y = 0."""
     ax = wp.abs(x)
     ay = wp.abs(y)
     a = wp.min(ax, ay) / wp.max(wp.max(ax, ay), 1.0e-30)

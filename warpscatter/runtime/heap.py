@@ -1,10 +1,9 @@
 """Keep large freed buffers in the process heap, so that repeated frames reuse pages already mapped.
 
-glibc serves large blocks with fresh ``mmap`` pages and unmaps them on free, so every frame would pay page faults and
-zeroing again. :func:`keep_freed_memory` raises glibc's mmap and trim thresholds; :func:`keep_freed_warp_buffers`
-gives Warp's CPU device a caching allocator (:class:`CachingHostAllocator`), because a fragmented heap no longer fits
-a frame's largest textures. Both are process-wide; the CLI applies them (``WARPSCATTER_KEEP_FREED_MEMORY=0`` turns
-them off), at the cost of resident memory staying at its peak. Figures: docs/design/csm-core.md.
+:func:`keep_freed_memory` raises glibc's mmap and trim thresholds (else every frame pays page faults and zeroing
+again); :func:`keep_freed_warp_buffers` gives Warp's CPU device a :class:`CachingHostAllocator`, since a fragmented
+heap no longer fits a frame's largest textures. Both are process-wide; the CLI applies them unless
+``WARPSCATTER_KEEP_FREED_MEMORY=0``, and resident memory stays at its peak. Figures: docs/design/csm-core.md.
 """
 
 from __future__ import annotations
@@ -32,11 +31,8 @@ _applied = False
 
 
 def keep_freed_memory(limit_bytes: int = KEEP_LIMIT_BYTES) -> bool:
-    """Keep freed blocks up to ``limit_bytes`` in this process's heap (glibc ``mallopt`` thresholds).
-
-    Returns:
-        True when applied (now or earlier, whose limit stays), False without ``mallopt`` (macOS, Windows, musl).
-    """
+    """Keep freed blocks up to ``limit_bytes`` in this process's heap (glibc ``mallopt`` thresholds); True when
+    applied (now or earlier, whose limit stays), False without ``mallopt`` (macOS, Windows, musl)."""
     global _applied
     if _applied:
         return True
@@ -59,11 +55,9 @@ def keep_freed_memory(limit_bytes: int = KEEP_LIMIT_BYTES) -> bool:
 class CachingHostAllocator:
     """A Warp host allocator that keeps freed blocks of at least ``min_bytes`` for the next request of that size.
 
-    The most recently freed block is handed out first (its pages are likeliest resident); beyond ``limit_bytes`` the
-    oldest are released. Thread-safe; reused memory is not cleared, as with ``wp.empty``.
-
-    Attributes:
-        hits, misses: requests of at least ``min_bytes`` served from kept blocks / by ``base``.
+    The most recently freed block goes out first (its pages are likeliest resident); beyond ``limit_bytes`` the
+    oldest are released. Thread-safe; reused memory is not cleared. ``hits`` / ``misses``: requests of at least
+    ``min_bytes`` served from kept blocks / by ``base``.
     """
 
     def __init__(self, base, min_bytes: int = CACHE_MIN_BYTES, limit_bytes: int = CACHE_LIMIT_BYTES):
@@ -138,12 +132,9 @@ def default_cache_limit() -> int:
 
 
 def keep_freed_warp_buffers(device="cpu", limit_bytes: int | None = None) -> CachingHostAllocator | None:
-    """Give Warp's CPU device a :class:`CachingHostAllocator` (replacing its ``default_allocator``: Warp offers
-    custom allocators publicly for CUDA only). ``limit_bytes``: the most it keeps (None: :func:`default_cache_limit`).
-
-    Returns:
-        The installed allocator (an earlier call's, whose limit stays), or None where nothing was installed.
-    """
+    """Give Warp's CPU device a :class:`CachingHostAllocator` keeping at most ``limit_bytes`` (None:
+    :func:`default_cache_limit`) as its ``default_allocator`` (Warp offers custom allocators publicly for CUDA only).
+    Returns it (an earlier call's, whose limit stays), or None where nothing was installed."""
     import warp as wp
 
     if limit_bytes is None:

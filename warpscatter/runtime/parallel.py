@@ -48,10 +48,8 @@ def chunks(n: int, parts: int, min_chunk: int = 1) -> list[tuple[int, int]]:
 
 
 def run_parallel(fn, pieces: list, threads: int | None = None, progress=None) -> list:
-    """Call ``fn(piece)`` for every piece on the thread pool; return the results in order.
-
-    ``progress(fraction)``, if given, is called from the calling thread as pieces complete.
-    """
+    """Call ``fn(piece)`` for every piece on the thread pool; return the results in order. ``progress(fraction)``,
+    if given, is called from the calling thread as pieces complete."""
     n = threads or thread_count()
     results = map(fn, pieces) if n <= 1 or len(pieces) <= 1 else _executor(n).map(fn, pieces)
     out = []
@@ -70,8 +68,7 @@ def launch_rows(kernel, dim, inputs: list, device: str | None = None, threads: i
         kernel: a ``@wp.kernel`` whose last input is the ``offset`` of the chunk along dim[0].
         dim: launch dimension (int or tuple); dim[0] is split.
         inputs: kernel inputs WITHOUT the trailing offset.
-        device: Warp device; CUDA devices get one whole launch.
-        threads: worker count (default :func:`thread_count`).
+        device, threads: Warp device (CUDA gets one whole launch) and worker count (default :func:`thread_count`).
         min_chunk: smallest chunk along dim[0] worth a separate launch.
         progress: optional ``progress(fraction)`` called as chunks complete (then at least 32 chunks).
     """

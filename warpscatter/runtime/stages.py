@@ -1,7 +1,7 @@
 """Named, timed stages with progress: the one stage context of every render, method and bench case.
 
-A :class:`StageTimer` times named stages (the names of the timing tables and logs) and forwards progress as
-``progress(stage, fraction)``; a stage that runs twice accumulates, and leaving one synchronises Warp::
+A :class:`StageTimer` times named stages (those of the timing tables and logs) and forwards progress as
+``progress(stage, fraction)``; a stage run twice accumulates, and leaving one synchronises Warp::
 
     with timer("scattering") as stage:
         launch_rows(kernel, dim, inputs, progress=stage.report)
@@ -51,14 +51,8 @@ class Stage:
 
 
 class StageTimer:
-    """Times named stages in order and reports their progress to an optional callback.
-
-    Args:
-        progress: ``progress(stage, fraction)`` (:data:`ProgressFn`), or None.
-
-    Attributes:
-        timings: stage name -> seconds, in the order the stages first ran.
-    """
+    """Times named stages into ``timings`` (name -> seconds, in the order they first ran) and reports their
+    progress to ``progress(stage, fraction)`` (:data:`ProgressFn`, or None)."""
 
     def __init__(self, progress: ProgressFn | None = None):
         self.timings: OrderedDict[str, float] = OrderedDict()
@@ -74,12 +68,8 @@ class StageTimer:
 
 
 class Estimate(NamedTuple):
-    """What :meth:`EtaEstimator.estimate` returns.
-
-    Attributes:
-        seconds: the time left, or None when nothing tells it yet.
-        complete: True when ``seconds`` includes the stages still to come; False: the running stage's rest only.
-    """
+    """What :meth:`EtaEstimator.estimate` returns: ``seconds`` left (None when nothing tells it yet), ``complete``
+    when they include the stages still to come (else the running stage's rest only)."""
 
     seconds: float | None
     complete: bool
@@ -89,13 +79,9 @@ class EtaEstimator:
     """The time left of a run of named stages, from each stage's own measured rate.
 
     The running stage's rest is its remaining fraction over its rate since its first report above zero; stages to
-    come are known only from ``expected`` (e.g. a previous render's ``timings_s``), scaled by how the finished stages
-    compared with theirs, drawn towards 1 by a prior of :attr:`PRIOR_SHARE` (``unscaled`` stages such as ``compile``
-    keep their time). The caller passes the time ``now``: the estimator reads no clock.
-
-    Args:
-        expected: stage name -> seconds of an earlier run, in the order its stages ran; None when there is none.
-        unscaled: stages whose expected time is not scaled.
+    come are known only from ``expected`` (stage -> seconds of an earlier run, in order, e.g. a render's
+    ``timings_s``), scaled by how the finished stages compared with theirs, drawn towards 1 by a prior of
+    :attr:`PRIOR_SHARE` (``unscaled`` stages keep their time). The caller passes ``now``: no clock is read.
     """
 
     #: Weight of the earlier run's own pace in :meth:`scale`, as a share of its (scaled) stages' total time.

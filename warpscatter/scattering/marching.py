@@ -1,25 +1,19 @@
 """Marching single scattering along a ray: the estimator every marching method shares (CONVENTIONS.md;
 Klehm 2014 Eq. 1).
 
-For a ray origin + t d (unit d) ending at distance s:
+For a ray origin + t d (unit d) ending at distance s, L_scat = sigma_s integral_0^s f(cos_theta) E V exp(-sigma_t t) dt
+with cos_theta = dot(omega_l(x_t), -d), estimated with N (``steps``) stratified steps over the lit part of the ray
+(:func:`lit_interval`; Engelhardt 2010 Sec. 5.3). Each stratum contributes f E V at one point times its exact
+transmittance integral, so V = 1 under a directional light is exact for any N. N is fixed per ray (the paper fixes
+the step length) so that ``steps`` means the same for every method.
 
-    L_scat = sigma_s * integral_0^s f(cos_theta(x_t)) E(x_t) V(x_t) exp(-sigma_t t) dt,
-    cos_theta = dot(omega_l(x_t), -d),
+Step patterns (``jitter``): ``per_pixel``, an independent offset per stratum and ray (unbiased per pixel); ``fixed``,
+one offset per frame (the paper's fixed step), whose error moves smoothly between pixels. Visibility
+(:class:`Visibility`): ``exact`` shadow rays against the casters' BVH (the reference) or a hard ``shadow_map`` look-up;
+translucent casters pass 1 - opacity each. Given the pixels' normals, the shadow-map marcher shadows the samples the
+map's bias would light behind an end surface facing away from the light (:func:`behind_end_surface`).
 
-estimated with N (``steps``) stratified steps over the lit part [t_lo, t_hi] of the ray (:func:`lit_interval`;
-Engelhardt 2010 Sec. 5.3). Each stratum contributes f E V at one point times the exact transmittance integral over
-the stratum, so V = 1 under a directional light is exact for any N. N is fixed per ray (the paper fixes the step
-length instead) so that ``steps`` means the same for every method.
-
-The point in each stratum (``jitter``): ``per_pixel`` (default), an independent offset per stratum and ray, unbiased
-per pixel; ``fixed``, one offset per frame for every stratum (the paper's fixed step), whose error moves smoothly
-between pixels. Visibility V (:class:`Visibility`): ``exact`` shadow rays against the casters' BVH (the reference),
-or a hard ``shadow_map`` look-up. Translucent casters pass 1 - opacity each in both modes.
-
-With the pixels' normals (``marcher_params(end_normals=...)``) the shadow-map marcher shadows samples that the map's
-bias would light just behind a ray's end surface when that faces away from the light (:func:`behind_end_surface`).
-
-Kernels take the estimator's inputs as one :class:`Marcher` struct. Calling it from your own kernel::
+Kernels take the estimator's inputs as one :class:`Marcher` struct::
 
     from warpscatter.scattering import marching
 
@@ -228,14 +222,9 @@ def square_lit_interval(light: LightParams, w: wp.vec3d, dd: wp.vec3d, s: float)
 
 @wp.func
 def lit_interval(light: LightParams, origin: wp.vec3, d: wp.vec3, s: float):
-    """Part [t_lo, t_hi] of the ray origin + t d (unit d), t in [0, s], where the light can reach the medium.
-
-    Directional lights: [0, s]. Spot lights: the chord inside the forward cone (convex: one interval), solved in
-    float64 and widened by 1e-5 (|w| + s) so float32 cone tests at the ends never fall outside it.
-
-    Returns:
-        (t_lo, t_hi): distances along the ray; t_hi <= t_lo when the ray never enters the light.
-    """
+    """Part (t_lo, t_hi) of the ray origin + t d (unit d), t in [0, s], that the light reaches: [0, s] for directional
+    lights; for spot lights the chord inside the forward cone, solved in float64 and widened by 1e-5 (|w| + s) so that
+    float32 cone tests at its ends stay inside. t_hi <= t_lo when the ray never enters the light."""
     if light.kind == LIGHT_DIRECTIONAL:
         return float(0.0), s
     w = wp.vec3d(wp.float64(origin[0] - light.position[0]), wp.float64(origin[1] - light.position[1]),
@@ -425,10 +414,9 @@ def march_to_surface(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, n_end: w
 
 @wp.func
 def texel_steps(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, per_texel: float, least: int) -> int:
-    """Strata for the ray by the shadow-map texels it crosses, ceil(per_texel n), within [min(least, m.steps),
-    m.steps]; n counts texels of the lit part's projection (a spot's on the finer of map and texture). A hard look-up
-    is constant over a texel but for one depth crossing, so the steps go to rays crossing many texels. ``m.steps``
-    with exact visibility and for per_texel <= 0."""
+    """Strata for the ray by the n shadow-map texels its lit part crosses (a spot's: of the finer of map and texture),
+    ceil(per_texel n) within [min(least, m.steps), m.steps]: a hard look-up is constant over a texel but for one depth
+    crossing. ``m.steps`` with exact visibility and for per_texel <= 0."""
     if per_texel <= 0.0 or m.vis.mode != VISIBILITY_SHADOW_MAP:
         return m.steps
     texels = float(0.0)
@@ -481,8 +469,6 @@ def march_screen_point(cam: CameraParams, x: float, y: float, s: float, m: March
     return march_to_surface(m, cam.position, d, s, pixel_end_normal(m, pi, pj), pj * cam.width + pi)
 
 
-# ---- host side -------------------------------------------------------------------------------------
-
 #: struct -> owner of the BVH its ``mesh`` id points to (a Warp struct holds a wp.Mesh only as an id).
 _BVH_OWNERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
@@ -503,21 +489,10 @@ def shadow_ray_offset(scene) -> float:
 
 def visibility_params(scene, visibility: str, geometry=None, shadow_map=None, shadow_bias_texels: float = 1.0,
                       device=None) -> Visibility:
-    """:class:`Visibility` of a mode, shared by every method that marches rays.
-
-    Args:
-        scene: the :class:`~warpscatter.scene.Scene`.
-        visibility: ``"exact"`` (needs ``geometry``: the BVH of its casters,
-            :attr:`~warpscatter.scene.DeviceGeometry.shadow_mesh`, is built on first use) or ``"shadow_map"``
-            (needs ``shadow_map``).
-        geometry: :class:`~warpscatter.scene.DeviceGeometry`.
-        shadow_map: :class:`~warpscatter.shadows.shadow_map.ShadowMap`.
-        shadow_bias_texels: shadow-map depth bias in texel sizes.
-        device: Warp device.
-
-    Raises:
-        ValueError: an unknown mode, or its input missing.
-    """
+    """:class:`Visibility` of a mode for every method that marches rays: ``"exact"`` needs ``geometry``
+    (:class:`~warpscatter.scene.DeviceGeometry`; its casters' BVH is built on first use), ``"shadow_map"`` needs
+    ``shadow_map`` (:class:`~warpscatter.shadows.shadow_map.ShadowMap`, depth bias ``shadow_bias_texels`` texels).
+    ValueError for an unknown mode or its input missing."""
     device = default_device(device)
     if visibility not in VISIBILITY_MODES:
         raise ValueError(f"visibility must be 'exact' or 'shadow_map', got {visibility!r}")
@@ -553,23 +528,11 @@ def visibility_params(scene, visibility: str, geometry=None, shadow_map=None, sh
 
 def marcher_params(scene, *, steps: int, visibility: Visibility, seed: int = 0, jitter: str = "per_pixel",
                    light_texture: wp.array | None = None, end_normals: wp.array | None = None, device=None) -> Marcher:
-    """:class:`Marcher` of a scene's light and medium.
-
-    Args:
-        scene: the :class:`~warpscatter.scene.Scene` (directional or spot light).
-        steps: strata per ray (>= 1).
-        visibility: from :func:`visibility_params`.
-        seed: jitter seed.
-        jitter: ``"per_pixel"`` or ``"fixed"`` (module doc).
-        light_texture: a spot texture to march with instead of the light's own (a prefiltered copy).
-        end_normals: (H, W) vec3 camera-facing unit normals of the pixels' end surfaces (the G-buffer's ``normal``):
-            :func:`march_ray` then guards the shadow map's bias behind surfaces facing away from the light (module
-            doc); None: no guard.
-        device: Warp device.
-
-    Raises:
-        ValueError: steps < 1 or an unknown step pattern.
-    """
+    """:class:`Marcher` of a scene's light (directional or spot) and medium, with ``steps`` (>= 1) strata per ray, the
+    ``visibility`` of :func:`visibility_params` and the step pattern ``jitter`` (module doc). ``light_texture``: a spot
+    texture to march with instead of the light's own (a prefiltered copy); ``end_normals``: (H, W) camera-facing unit
+    normals of the pixels' end surfaces (the G-buffer's ``normal``) for the bias guard of :func:`march_ray`, None: no
+    guard. ValueError for steps < 1 or an unknown step pattern."""
     if isinstance(steps, bool) or int(steps) != steps or steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
     m = Marcher()
@@ -589,13 +552,10 @@ def marcher_params(scene, *, steps: int, visibility: Visibility, seed: int = 0, 
 @wp.func
 def march_transmittance_strata(m: Marcher, origin: wp.vec3, d: wp.vec3, s: float, n_end: wp.vec3,
                                stream: int) -> wp.vec3:
-    """L_scat along the ray for a directional light and an orthographic map with ``m.steps`` strata of EQUAL
-    transmittance weight: a sample at p in [0, 1) sits at t = -ln(1 - p (1 - exp(-sigma_t s))) / sigma_t and counts
-    1 / N. Coloured media reweight per channel by exp(-(sigma_c - sigma_t) t) (a ratio estimator).
-
-    Equal-length strata put most weight on the first few of a sky ray, where one flipping texel shows as grain; here
-    none carries more than 1 / N. Visibility uses 2 x 2 PCF (:func:`map_pcf_at`). n_end as in :func:`march_to_surface`.
-    """
+    """L_scat along the ray (directional light, orthographic map) with ``m.steps`` strata of EQUAL transmittance
+    weight, so that no stratum (one flipping texel) carries more than 1 / N: a sample at p in [0, 1) sits at
+    t = -ln(1 - p (1 - exp(-sigma_t s))) / sigma_t; coloured media reweight per channel by exp(-(sigma_c - sigma_t) t)
+    (a ratio estimator). Visibility: 2 x 2 PCF (:func:`map_pcf_at`); n_end as in :func:`march_to_surface`."""
     end = end_surface(m, origin, d, s, n_end)
     acc = wp.vec3(0.0, 0.0, 0.0)
     e = m.light.radiance

@@ -1,12 +1,8 @@
 """The ``raymarch`` render method: reference single scattering by per-pixel ray marching.
 
-Every camera pixel's ray, from the camera to its G-buffer hit distance s, is marched with the shared estimator
-of :mod:`.marching` (stratified steps over the lit part of the ray, exact transmittance per stratum, the
-``jitter`` step pattern). With ``visibility: exact`` (shadow rays against the casters' BVH, and a ray-cast
-G-buffer) this is the ground truth every fast method is measured against; ``visibility: shadow_map`` is the
-simple shadow-map marcher the fast methods must beat at equal error.
-
-Stage (name as it appears in timings): ``scattering``.
+Every pixel's ray, from the camera to its G-buffer hit distance, is marched with the estimator of :mod:`.marching`.
+With ``visibility: exact`` (and a ray-cast G-buffer) this is the ground truth every fast method is measured against;
+``visibility: shadow_map`` is the simple marcher they must beat at equal error. Stage: ``scattering``.
 """
 
 from __future__ import annotations
@@ -97,12 +93,8 @@ def march_listed_pixels(camera, distance: wp.array, marcher: Marcher, indices: w
 
 def march_pixel_subset(camera, distance: wp.array, marcher: Marcher, stride: int, first: int = 0, report=None,
                        device=None) -> wp.array:
-    """L_scat of every ``stride``-th pixel in x and y from pixel (first, first): the same values as
-    :func:`march_pixels` at those pixels (same random streams), for references on a pixel subset.
-
-    Returns:
-        (ceil((H - first) / stride), ceil((W - first) / stride)) vec3 array.
-    """
+    """(ceil((H - first) / stride), ceil((W - first) / stride)) L_scat of every ``stride``-th pixel in x and y from
+    pixel (first, first): :func:`march_pixels`' values there (same random streams), for references on a subset."""
     device = default_device(device)
     if not (isinstance(stride, int) and stride >= 1 and 0 <= first < stride):
         raise ValueError(f"stride must be an integer >= 1 and first in [0, stride), got {stride}, {first}")
@@ -116,20 +108,9 @@ def march_pixel_subset(camera, distance: wp.array, marcher: Marcher, stride: int
 
 def march_pixels(camera, distance: wp.array, marcher: Marcher, *, region=None, out: wp.array | None = None,
                  report=None, device=None) -> wp.array:
-    """Ray-march single scattering for the camera's pixels (all, or a ``region``).
-
-    Args:
-        camera: the :class:`~warpscatter.scene.camera.Camera`.
-        distance: (H, W) float32 hit distance s of each pixel ray (the G-buffer's ``distance``).
-        marcher: :class:`~.marching.Marcher` (light, medium, steps, seed, step pattern, visibility).
-        region: optional pixel rectangle (x0, y0, width, height) to march; other pixels of ``out`` are kept.
-        out: optional (H, W) vec3 array to write into (allocated when None).
-        report: optional ``report(fraction)`` of the stage (rows done / rows).
-        device: Warp device.
-
-    Returns:
-        (H, W) wp.array of vec3: L_scat in linear RGB radiance.
-    """
+    """(H, W) vec3 L_scat (linear RGB) of the camera's pixels, ray-marched with ``marcher`` to the G-buffer's
+    ``distance``: all of them, or the pixel rectangle ``region`` (x0, y0, width, height) of ``out`` (allocated when
+    None); ``report(fraction)`` follows the rows done."""
     device = default_device(device)
     if out is None:
         out = wp.zeros((camera.height, camera.width), dtype=wp.vec3, device=device)
@@ -142,18 +123,9 @@ def march_pixels(camera, distance: wp.array, marcher: Marcher, *, region=None, o
 
 
 def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, dict]:
-    """The ``raymarch`` method (the registry's call shape, :mod:`warpscatter.methods`).
-
-    Args:
-        frame: :class:`~warpscatter.pipeline.frame.Frame`: the G-buffer, and the BVH (``visibility: exact``) or the
-            light's shadow map (``visibility: shadow_map``).
-        settings: :class:`~warpscatter.scattering.settings.ScatteringSettings` (``steps``, ``seed``, ``jitter``,
-            ``visibility``, ``shadow_map.bias``).
-        stage: the :class:`~..runtime.stages.StageTimer` (stage ``scattering``).
-
-    Returns:
-        ((H, W) vec3 L_scat, {}).
-    """
+    """The ``raymarch`` method (the registry's call shape, :mod:`warpscatter.methods`): ((H, W) vec3 L_scat, {}) of a
+    :class:`~warpscatter.pipeline.frame.Frame` (its G-buffer, and the BVH or the light's shadow map) with the
+    :class:`~warpscatter.scattering.settings.ScatteringSettings` marching keys."""
     stage = stage or StageTimer()
     scene = frame.scene
     vis = visibility_params(scene, settings.visibility, frame.geometry, frame.shadow_map, settings.shadow_map.bias,

@@ -1,14 +1,9 @@
 """Settings of the single-scattering methods: the keys, defaults, ranges and meanings of ``render.scattering``
 (Warp-free; the only place they are written).
 
-:class:`ScatteringSettings` holds what every method shares (``method``, ``visibility``, ``steps``, ``seed``,
-``jitter``, ``shadow_map``) and one section per technique: ``prefiltered`` (what ``fourier``, ``moments4`` and
-``moments6`` share), ``fourier``, ``moments``, ``epipolar``. The methods themselves are listed in
-:mod:`warpscatter.methods`; each reads the shared keys and its own sections.
-
-Example (a validated settings object for the library's ``render`` functions)::
-
-    settings = ScatteringSettings(method="epipolar", steps=64, visibility="shadow_map", epipolar={"lines": 512})
+:class:`ScatteringSettings` holds what every method (:mod:`warpscatter.methods`) shares and one section per technique:
+``prefiltered`` (``fourier``, ``moments4``, ``moments6``), ``fourier``, ``moments``, ``epipolar``. Example:
+``ScatteringSettings(method="epipolar", steps=64, visibility="shadow_map", epipolar={"lines": 512})``.
 """
 
 from __future__ import annotations
@@ -22,8 +17,7 @@ from .. import methods
 from ..schema import MAX_IMAGE_SIDE, MAX_STEPS, Bool, Float, Int, Seed, SettingsModel
 from ..shadows.settings import ShadowMapSettings
 
-# ---- limits and defaults (one home; the technique modules import them) ---------------------------
-# The measurements behind the defaults: docs/design/scattering.md.
+# ---- limits and defaults (the technique modules import them; measurements: docs/design/scattering.md) ----
 
 #: Visibility of the marching methods (``raymarch``, ``epipolar``).
 VISIBILITY_MODES = ("exact", "shadow_map")
@@ -31,9 +25,8 @@ VISIBILITY_MODES = ("exact", "shadow_map")
 JITTERS = ("per_pixel", "fixed")
 #: The prefiltered methods' visibility representations.
 PREFILTERED_BASES = ("fourier", "moments4", "moments6")
-#: Fourier coefficients M (even).
 MIN_COEFFICIENTS = 4
-#: fourier's coefficients M by default (chosen with FOURIER_SEGMENTS); a 1024^2 float32 texture is 192 MB at 48.
+#: fourier's Fourier coefficients M (even) by default; a 1024^2 float32 texture is 192 MB at 48.
 FOURIER_COEFFICIENTS = 48
 MAX_COEFFICIENTS = 128
 #: Bits per texel of the prefiltered moment maps, per moment count (Peters 2017 Sec. 5.4.3, Table 1).
@@ -41,114 +34,84 @@ MOMENT_STORAGE_BITS = {4: (64, 128), 6: (64, 96, 192)}
 #: Default angular radius (degrees) of the ray-marched disc around an epipole in view (Klehm 2014 Fig. 8).
 EPIPOLE_ANGLE_DEG = 8.0
 MAX_EPIPOLE_ANGLE_DEG = 60.0
-#: ``rectification: auto`` (:func:`~.rectify.choose_rectification`) picks projective when every epipole
-#: in front of the camera lies at least this far outside the image, in half image heights on the image plane (NDC y;
-#: x scaled by the aspect ratio): there projective stays within ~15 % of non-linear's error.
+#: ``rectification: auto`` (:func:`~.rectify.choose_rectification`) picks projective when every epipole in front of
+#: the camera lies at least this far outside the image, in half image heights on the image plane.
 EPIPOLE_MARGIN = 1.0
 #: Most light-frustum regions of the projective rectification (Klehm 2014 Sec. 4.2).
 MAX_REGIONS = 16
 #: Most split regions of a row (Klehm 2014 Sec. 3.3 uses up to 4).
 MAX_SPLITS = 16
-#: Resampling filters of the non-linear rectification (Peters 2017 Sec. 5.2) and the widest Gaussian (texels); the
-#: default, supersample (:func:`~.rectify.resample_shadow_map`), removes the nearest depths' radial streaks
-#: as the moments filter does, at a fraction of its cost.
+#: Resampling filters of the non-linear rectification (Peters 2017 Sec. 5.2; :func:`~.rectify.resample_shadow_map`)
+#: and the widest Gaussian (texels).
 RESAMPLE_FILTERS = ("none", "supersample", "moments")
 MAX_RESAMPLE_FILTER_PX = 64
-#: Default tolerance of caster culling, as a fraction of the rectified depth range: a texel is kept only for readers
-#: at least this much deeper than its blocker, which covers the discretisation acne between neighbouring rows.
+#: Default tolerance of caster culling against acne (a fraction of the rectified depth range).
 CASTER_CULLING_BIAS = 1.0 / 64.0
 MAX_CASTER_CULLING_BIAS = 0.25
-#: Default bits per texel of the moment maps: six moments in Peters 2017 Sec. 5.4.3's 96-bit Theta6* (the 60-bit
-#: one's moment bias leaks light through walls, Peters Fig. 19); four in the 64-bit Theta4* (128 measured no better).
+#: Default bits per texel of the moment maps: 64-bit Theta4*, 96-bit Theta6* (Peters 2017 Sec. 5.4.3; 60 bits leak).
 DEFAULT_MOMENT_BITS = {4: 64, 6: 96}
-#: Ray-march steps of the prefiltered methods' epipole region by default; its strata hold equal transmittance
-#: weight, and fewer than 64 alias into streaks round the sun once the map is fitted to the casters.
+#: Ray-march steps of the prefiltered methods' epipole region by default (strata of equal transmittance weight).
 EPIPOLE_STEPS = 64
-#: The epipole region is marched on every EPIPOLE_STRIDE-th pixel and where its grid cells cannot interpolate (the
-#: evaluate_stride rule: :mod:`~warpscatter.scattering.sparse_evaluation`): the sky round the sun is smooth.
+#: Grid stride of the marched epipole region (the evaluate_stride rule: :mod:`~.sparse_evaluation`).
 EPIPOLE_STRIDE = 2
 #: Per-ray transmittance segments of the prefiltered look-ups by default (:mod:`.prefiltered.ray_weights`).
 SEGMENTS = 3
-#: The moment methods' most adaptive per-ray segments with the light behind the camera (with SEGMENT_DEPTH); with
-#: the light ahead they keep SEGMENTS fixed, as more made their own-light cases worse.
+#: The moment methods' most adaptive per-ray segments with the light behind the camera (with SEGMENT_DEPTH).
 BEHIND_SEGMENTS = 6
-#: fourier's most adaptive per-ray segments by default (with FOURIER_SEGMENT_DEPTH); up to 7 still fits two passes
-#: over the coefficients (a look-up reads four columns per pass).
+#: fourier's most adaptive per-ray segments (with FOURIER_SEGMENT_DEPTH): up to 7 is two passes over the coefficients.
 FOURIER_SEGMENTS = 7
 #: Optical-depth mismatch per segment of fourier's adaptive per-ray segments (ray_weights.segment_count).
 FOURIER_SEGMENT_DEPTH = 0.08
-#: Optical-depth mismatch per segment of the moment methods' adaptive segments with the light behind the camera
-#: (up to BEHIND_SEGMENTS; PrefilteredSettings.segments_for).
+#: Optical-depth mismatch per segment of the moment methods' adaptive segments with the light behind the camera.
 SEGMENT_DEPTH = 0.15
-#: Per-ray segments of the moment methods in a coloured medium, where each channel weights its rays with its own
-#: extinction against prefix sums weighted with the least one (:func:`~.prefiltered.weights_extinction`).
+#: Per-ray segments of the moment methods in a coloured medium (:func:`~.prefiltered.weights_extinction`).
 COLOURED_SEGMENTS = 5
-#: Per-ray segments under a spot light (:mod:`.prefiltered.spot_lookups`; it always weights each ray by its own
-#: in-scattering); 6 costs the same as 4.
+#: Per-ray segments under a spot light (:mod:`.prefiltered.spot_lookups`).
 SPOT_SEGMENTS = 6
 MAX_SEGMENTS = 8
-#: The moment methods' overestimation weight beta by default. The depth bounds answer wholly lit and wholly shadowed
-#: rays exactly, so beta only weighs rays crossing shadow edges; a fixed 0.25 beat Peters' adaptive rule.
+#: The moment methods' overestimation weight beta by default (a fixed beta beat Peters' adaptive rule) ...
 OVERESTIMATION = 0.25
-#: ... rising for rays looking the way light travels (Peters 2017 Sec. 5.3.1: the upper bound fits rays looking
-#: away from the light) to this: beta = OVERESTIMATION + (OVERESTIMATION_ALONG_LIGHT - OVERESTIMATION)
-#: clamp((omega_l . omega_p - c) / (1 - c), 0, 1), on a narrower range than Peters' (1 + omega_l . omega_p) / 2.
+#: ... rising to this for rays looking the way light travels (Peters 2017 Sec. 5.3.1): beta = OVERESTIMATION +
+#: (OVERESTIMATION_ALONG_LIGHT - OVERESTIMATION) clamp((omega_l . omega_p - c) / (1 - c), 0, 1) ...
 OVERESTIMATION_ALONG_LIGHT = 0.45
-#: ... with c = this (``moments.overestimation_rise_cos``): -0.5 lets the sun beside the view gain most for the
-#: least loss elsewhere.
+#: ... with c = this (``moments.overestimation_rise_cos``).
 OVERESTIMATION_RISE_COS = -0.5
-#: moments4's overestimation weight under a spot light by default; moments6 keeps OVERESTIMATION there (no clear
-#: winner, and the bundled spot_moments.yaml would lose).
+#: moments4's overestimation weight under a spot light by default (moments6 keeps OVERESTIMATION there).
 SPOT_OVERESTIMATION_MOMENTS4 = 0.1
-#: View rays within this angle (degrees) of the direction into a directional light take a smaller overestimation
-#: weight, 0 looking straight into it (``moments.epipole_taper_deg``; Peters 2017 Sec. 5.3.1, Fig. 14); a narrow
-#: cone, as his whole-sphere rule lost elsewhere.
+#: View rays within this angle (degrees) of the direction into a directional light take a smaller beta, 0 looking
+#: straight into it (``moments.epipole_taper_deg``; Peters 2017 Sec. 5.3.1, Fig. 14).
 EPIPOLE_TAPER_DEG = 2.0
-#: Texels a prefiltered look-up ends before its ray's end point by default: the surface a ray ends on is its own
-#: blocker. Applies to every ray with the light behind the camera or under a spot light, else to those ending in
-#: shadow (END_OFFSET_LIT for the rays ending lit).
+#: Texels a prefiltered look-up ends before its ray's end point (the surface a ray ends on is its own blocker) ...
 END_OFFSET = 1.0
-#: ... and for the rays that end lit (on no surface, or on a surface facing the light that the shadow map sees:
-#: prefiltered.lit_ray_ends) under a directional light ahead of the camera: a lit surface shadows its own ray only
-#: through the texel's filtering, so a quarter texel keeps its acne out.
+#: ... and for rays ending lit (prefiltered.lit_ray_ends) under a directional light ahead of the camera.
 END_OFFSET_LIT = 0.25
 MAX_END_OFFSET = 8.0
-#: Most shadow-map samples (one PCF sample per texel of its length) of the stretch a look-up leaves out before a ray
-#: that ends in shadow under a directional light ahead of the camera: near the sun that stretch is long and the
-#: look-up's own visibility saw the lit air before it.
+#: Most shadow-map samples (PCF, one per texel) of the stretch a look-up leaves out before a ray that ends in shadow
+#: under a directional light ahead of the camera.
 END_SAMPLES = 4
 MAX_END_SAMPLES = 64
-#: The look-up runs on every EVALUATE_STRIDE-th pixel in x and y and on the pixels between that their grid cell
-#: cannot interpolate (:mod:`~warpscatter.scattering.sparse_evaluation`: a corner off the pixel's surface by more than
-#: EVALUATE_DEPTH_TOLERANCE of its distance, or the corners' radiance spread over EVALUATE_TOLERANCE of the largest).
-#: 1: every pixel (the papers' evaluation).
+#: The look-up runs on every EVALUATE_STRIDE-th pixel in x and y and where the grid cell cannot interpolate
+#: (:mod:`~warpscatter.scattering.sparse_evaluation`, with the two tolerances below); 1: every pixel.
 EVALUATE_STRIDE = 2
 MAX_EVALUATE_STRIDE = 8
 EVALUATE_TOLERANCE = 0.02
 EVALUATE_DEPTH_TOLERANCE = 0.04
-#: Levels over which the grid is filled coarse to fine (:mod:`~warpscatter.scattering.sparse_evaluation`): the
-#: look-up runs on every EVALUATE_STRIDE * 2^(levels - 1)-th pixel first, and each finer grid's new nodes are
-#: interpolated (half the radiance tolerance per coarser level) or evaluated. ``auto``: 2 levels under a directional
-#: light on images of EVALUATE_LEVELS_AUTO_ROWS rows or more, else 1 (a spot's 1/d^2 peak does not interpolate).
+#: Grid levels filled coarse to fine (:mod:`~warpscatter.scattering.sparse_evaluation`); ``auto``: 2 under a
+#: directional light on images of EVALUATE_LEVELS_AUTO_ROWS rows or more, else 1.
 EVALUATE_LEVELS = "auto"
 EVALUATE_LEVELS_AUTO_ROWS = 1080
 MAX_EVALUATE_LEVELS = 4
-#: END_SAMPLES skips rays within this many degrees of the light's direction, whose stretch runs along nearly one
-#: light ray: there one texel at a caster's silhouette decides it and the look-up's visibility is better.
+#: END_SAMPLES skips rays within this many degrees of the light's direction (one texel decides them) ...
 END_SAMPLES_MIN_DEG = 2.0
-#: ... and rays whose left-out stretch carries less than this share of their transmittance weight (sampling every
-#: ray of a closed room cost a third more time for little).
+#: ... and rays whose left-out stretch carries less than this share of their transmittance weight.
 END_STRETCH_MIN_WEIGHT = 0.01
-#: moments4's depth warp c by default (prefiltered.depth_warp; fourier and moments6: none): (e^(c z) - 1) / (e^c - 1)
-#: spreads the far depths apart, shrinking four moments' leaks behind close blockers.
+#: moments4's depth warp c by default, (e^(c z) - 1) / (e^c - 1): it spreads the far depths apart against leaks.
 MOMENTS4_DEPTH_WARP = 3.0
-#: Map columns from which moments4 uses all of MOMENTS4_DEPTH_WARP; coarser maps use c in proportion, as the warp
-#: magnifies the depth spread inside a texel (by up to c e^c / (e^c - 1)) and texels grow.
+#: Map columns from which moments4 uses all of MOMENTS4_DEPTH_WARP (in proportion on coarser maps).
 MOMENTS4_WARP_COLUMNS = 1024
 #: Largest |c| of the exponential depth warp (prefiltered.depth_warp, filtered_textures.warped_depth).
 MAX_DEPTH_WARP = 16.0
-#: Most row mip levels of a prefiltered texture (prefiltered.mip_levels, row_mips): a pixel spanning up to 2^(8-1)
-#: rows (the epipole's neighbourhood) reads a level whose rows are as wide as it.
+#: Most row mip levels of a prefiltered texture (prefiltered.mip_levels, row_mips).
 MAX_MIP_LEVELS = 8
 #: Border pixels per epipolar line by default (``epipolar.lines: null``): the line count follows the image size.
 LINE_SPACING_PX = 4
@@ -156,29 +119,22 @@ LINE_SPACING_PX = 4
 EPIPOLAR_INITIAL_SAMPLES = 32
 #: Ray-march steps per ray of the raymarch method by default (the bench's shadow-map marcher at its defaults).
 RAYMARCH_STEPS = 128
-#: Ray-march steps per ray-marched sample of epipolar by default: its samples are a few per cent of the pixels and
-#: their marching noise was most of its error, so more steps buy more than they cost.
+#: Ray-march steps per marched sample of epipolar by default (its samples are a few per cent of the pixels) ...
 EPIPOLAR_STEPS = 512
-#: ... of which a ray-marched epipolar sample takes this many per shadow-map texel its ray crosses (shadow-map
-#: visibility; :func:`~.marching.texel_steps`), at least EPIPOLAR_LEAST_STEPS; a hard look-up is constant along a
-#: texel's stretch of ray, so the error depends on steps per texel. 0 gives every sample ``steps``.
+#: ... of which a sample takes this many per shadow-map texel its ray crosses (:func:`~.marching.texel_steps`), at
+#: least EPIPOLAR_LEAST_STEPS; 0 gives every sample ``steps``.
 EPIPOLAR_STEPS_PER_TEXEL = 4.0
-#: Fewest steps of a ray-marched epipolar sample under EPIPOLAR_STEPS_PER_TEXEL (a ray along the light crosses few
-#: texels but its depth may sweep through a caster's within one).
 EPIPOLAR_LEAST_STEPS = 32
-#: Taps per line of epipolar's bilateral upsampling by default. Engelhardt 2010 Sec. 4.3 uses 3-5; one tap (the line
-#: texture's depth-weighted linear interpolation at the pixel's projection) is as accurate here at half the cost,
-#: since the line textures hold a texel per pixel and the marched samples carry little noise.
+#: Taps per line of epipolar's bilateral upsampling by default (Engelhardt 2010 Sec. 4.3 uses 3-5; one, the line
+#: texture's depth-weighted linear interpolation, is as accurate here at half the cost).
 EPIPOLAR_TAPS = 1
-#: epipolar's upsampling runs on every EPIPOLAR_UPSAMPLE_STRIDE-th pixel in x and y and where a grid cell cannot
-#: interpolate (the prefiltered look-up's rule: :mod:`~warpscatter.scattering.sparse_evaluation`); warpscatter's, not
-#: in the paper. Spot and point lights keep every pixel (auto): their shafts are a few pixels wide.
+#: Grid stride of epipolar's upsampling under a directional light (the :mod:`~.sparse_evaluation` rule;
+#: warpscatter's); spot and point lights keep every pixel, their shafts being a few pixels wide.
 EPIPOLAR_UPSAMPLE_STRIDE = 2
-#: Step pattern (``jitter``) of the raymarch method by default: per_pixel, unbiased pixel by pixel.
+#: Step pattern (``jitter``) of the raymarch method by default: per_pixel, unbiased pixel by pixel ...
 RAYMARCH_JITTER = "per_pixel"
-#: ... and of the few rays other methods march (epipolar's samples, the prefiltered epipole disc): fixed, Engelhardt
-#: 2010 Sec. 5.3's fixed step; those rays are interpolated or sit beside other pixels, where per-ray noise shows as
-#: streaks and grain while the fixed pattern's error varies smoothly.
+#: ... and of the few rays other methods march (Engelhardt 2010 Sec. 5.3's fixed step): its error varies smoothly
+#: between the neighbouring pixels they are interpolated with, where per-ray noise shows as streaks and grain.
 SAMPLE_JITTER = "fixed"
 #: Radial basis functions of the epipolar bilateral filter (Engelhardt 2010 Sec. 4.3).
 EPIPOLAR_KERNELS = ("gaussian", "shepard", "threshold")
@@ -345,11 +301,9 @@ class PrefilteredSettings(SettingsModel):
 
     def segments_for(self, nonlinear: bool, coloured: bool = False, method: str = "moments6",
                      light_behind: bool = False) -> int:
-        """Per-ray segments a look-up uses, at most with adaptive segments (``segments``; null:
-        :data:`FOURIER_SEGMENTS` for fourier, :data:`BEHIND_SEGMENTS` for the moment methods with the light behind
-        the camera (``light_behind``, grey media), else :data:`SEGMENTS`, :data:`COLOURED_SEGMENTS` in a coloured
-        medium, where they apply). They need transmittance weighting, whole rows (splits 1) and the non-linear
-        rectification's uniform columns."""
+        """Per-ray segments a look-up uses, at most with adaptive segments (``segments``; null: :data:`FOURIER_SEGMENTS`
+        for fourier, :data:`BEHIND_SEGMENTS` for the moment methods with the light behind the camera in a grey medium,
+        else :data:`SEGMENTS` or, coloured, :data:`COLOURED_SEGMENTS`); 1 without :attr:`weights_per_ray`."""
         if not (nonlinear and self.weights_per_ray):
             return 1
         if self.segments is not None:
@@ -361,16 +315,14 @@ class PrefilteredSettings(SettingsModel):
 
     @property
     def weights_per_ray(self) -> bool:
-        """Whether look-ups on the non-linear map weight each view ray's texels by its own transmittance (per-ray
-        segments): transmittance weighting over whole rows (splits 1) and ``segments`` not 1. The projective map
-        cannot (its columns are uneven): ``rectification: auto`` then takes the non-linear map."""
+        """Whether look-ups on the non-linear map weight each view ray by its own transmittance (per-ray segments):
+        transmittance weighting, splits 1 and ``segments`` not 1 (the projective map's uneven columns cannot)."""
         return self.weighting == "transmittance" and self.splits == 1 and self.segments != 1
 
     def end_offsets_for(self, light_behind: bool, directional: bool = True) -> tuple[float, float]:
-        """Texels a look-up ends before its ray's end point: (rays ending in shadow, rays ending lit:
-        :func:`~.prefiltered.lit_ray_ends`). ``end_offset`` for both; null: :data:`END_OFFSET`, and
-        :data:`END_OFFSET_LIT` for the rays ending lit under a directional light ahead of the camera (not
-        ``light_behind``)."""
+        """Texels a look-up ends before its ray's end point, (rays ending in shadow, rays ending lit): ``end_offset``
+        for both; null: :data:`END_OFFSET`, and :data:`END_OFFSET_LIT` for rays ending lit under a directional light
+        ahead of the camera."""
         if self.end_offset is not None:
             return float(self.end_offset), float(self.end_offset)
         return END_OFFSET, (END_OFFSET_LIT if directional and not light_behind else END_OFFSET)
@@ -386,9 +338,8 @@ class PrefilteredSettings(SettingsModel):
 
     @staticmethod
     def _adaptive_default(method: str, light_behind: bool, coloured: bool) -> tuple[int, float] | None:
-        """(most segments, optical depth per segment) of a method's adaptive segments by default: fourier's always,
-        the moment methods' with the light behind the camera in a grey medium (a coloured one keeps its fixed
-        :data:`COLOURED_SEGMENTS`); None: fixed segments."""
+        """(most segments, optical depth per segment) of a method's default adaptive segments (fourier always, the
+        moment methods with the light behind the camera in a grey medium); None: fixed segments."""
         if method == "fourier":
             return FOURIER_SEGMENTS, FOURIER_SEGMENT_DEPTH
         if light_behind and not coloured:
@@ -406,8 +357,7 @@ class PrefilteredSettings(SettingsModel):
         return MOMENTS4_DEPTH_WARP * min(1.0, columns / MOMENTS4_WARP_COLUMNS)
 
     def reference_for(self, segments: int) -> str:
-        """The reference ray used: ``reference_ray``, or for auto the least optical step with per-ray segments (their
-        weights are then convex) and the median pixel ray without."""
+        """``reference_ray``; auto: ``least`` with per-ray segments (their weights are then convex), else ``pixels``."""
         if self.reference_ray != "auto":
             return self.reference_ray
         return "least" if segments > 1 else "pixels"
@@ -463,9 +413,8 @@ class MomentsSettings(SettingsModel):
         return 1.0 - math.cos(math.radians(self.epipole_taper_deg))
 
     def beta_range(self) -> tuple[float, float]:
-        """The overestimation weight a look-up uses as (beta towards the light, beta along it): beta = b0 + (b1 - b0)
-        clamp((omega_l . omega_p - c) / (1 - c), 0, 1), c = ``overestimation_rise_cos``; a fixed ``overestimation``
-        gives b0 = b1; adaptive (-1, -1)."""
+        """(b0, b1) of beta = b0 + (b1 - b0) clamp((omega_l . omega_p - c) / (1 - c), 0, 1), c =
+        ``overestimation_rise_cos``; a fixed ``overestimation`` gives b0 = b1; adaptive (-1, -1)."""
         if self.overestimation == "adaptive":
             return -1.0, -1.0
         if self.overestimation is None:
@@ -473,9 +422,8 @@ class MomentsSettings(SettingsModel):
         return float(self.overestimation), float(self.overestimation)
 
     def spot_beta(self, num_moments: int) -> float:
-        """The overestimation weight of every view ray under a spot light (whose direction varies along the ray): a
-        fixed ``overestimation``, else :data:`SPOT_OVERESTIMATION_MOMENTS4` for four moments and
-        :data:`OVERESTIMATION` for six; -1 for adaptive (which needs a directional light)."""
+        """Beta of every view ray under a spot light: a fixed ``overestimation``, else
+        :data:`SPOT_OVERESTIMATION_MOMENTS4` for four moments and :data:`OVERESTIMATION` for six; -1 for adaptive."""
         if self.overestimation == "adaptive":
             return -1.0
         if self.overestimation is None:
@@ -614,8 +562,6 @@ class ScatteringSettings(SettingsModel):
             raise ValueError("prefiltered.splits > 1 is implemented for the fourier method only")
         return self
 
-    # ---- derived values the prefiltered methods read ----
-
     @property
     def num_moments(self) -> int:
         """4 or 6 for the moment methods (0 otherwise)."""
@@ -645,8 +591,7 @@ class ScatteringSettings(SettingsModel):
 
     @property
     def culls_casters(self) -> bool:
-        """Whether caster culling runs: ``prefiltered.caster_culling``, with ``auto`` = the moment methods only (it
-        lowers their error a lot where rays end on lit surfaces and moves fourier's slightly either way)."""
+        """Whether caster culling runs: ``prefiltered.caster_culling``, with ``auto`` = the moment methods only."""
         if self.prefiltered.caster_culling == "auto":
             return self.method != "fourier"
         return bool(self.prefiltered.caster_culling)

@@ -1,26 +1,15 @@
 """Evaluating a per-pixel look-up on fewer pixels: a grid, then only the pixels the grid cannot interpolate.
 
-warpscatter's, not in the papers (Klehm 2014 and Peters 2017 evaluate every pixel): the prefiltered methods' look-up
-(their ``evaluate`` stage, most of their time) runs on a grid of every ``stride``-th pixel in x and y (the last row
-and column of the image included), and every other pixel takes the bilinear interpolation of its grid cell's corners
-when they agree: all four within ``depth_tolerance`` (relative) of the pixel's own camera distance, none of them left
-to the marcher (``end_zone``), and their radiance (the largest of the three channels) spread by at most
-``tolerance`` times the largest (a pixel on a grid line checks its whole cell, not only the two nodes it
-interpolates). The rest (silhouettes, the edges of shafts and shadows) are evaluated directly, so the grid only saves
-work where the image is smooth, the way Engelhardt 2010 places its epipolar samples.
+warpscatter's (the papers evaluate every pixel): the look-up runs on a grid of every ``stride``-th pixel in x and y
+(the image's last row and column included), and every other pixel takes the bilinear interpolation of its grid
+cell's corners when they agree: all four within ``depth_tolerance`` (relative) of the pixel's camera distance, none
+left to the marcher (``end_zone``), and their radiance (largest channel) spread by at most ``tolerance`` times the
+largest. The rest (silhouettes, edges of shafts and shadows) are evaluated directly, as Engelhardt 2010 places its
+epipolar samples. With ``levels`` > 1 the grid itself is filled coarse to fine, each finer grid's new nodes tested in
+the coarser grid's cells (:data:`COARSER_TOLERANCE`; the radiance divided by a known per-pixel ``scale``).
 
-With ``levels`` > 1 the grid itself is filled coarse to fine: the look-up runs on the grid of every ``stride *
-2**(levels - 1)``-th pixel, and each finer grid's new nodes (``stride * 2**k``) take the same test and interpolation
-in the coarser grid's cells (with :data:`COARSER_TOLERANCE` times the radiance tolerance per coarser level, and the
-radiance divided by a known per-pixel factor, ``scale``, where the caller has one), the nodes that fail it evaluated
-directly, before the pixels between the finest grid's nodes are. Smooth regions then cost one look-up per coarse
-cell, while a cell the coarse grid cannot interpolate falls back to the finer grid, and at an edge to every pixel,
-as with one level.
-
-Kernels that evaluate a :class:`PixelSet` index their pixels with :func:`set_pixel`: launched over (rows, columns)
-for :data:`PIXELS_ALL`, over the grid's (rows, columns) for :data:`PIXELS_GRID` and over (chunks, pixels per chunk)
-of a flat list for :data:`PIXELS_LISTED` (no thread idles on a short row); with :func:`evaluate_sparse` driving the
-launches.
+Kernels evaluating a :class:`PixelSet` index their pixels with :func:`set_pixel`, launched by :func:`evaluate_sparse`
+over (rows, columns), the grid's, or (chunks, pixels per chunk) of a flat list (no thread idles on a short row).
 """
 
 from __future__ import annotations
@@ -36,9 +25,8 @@ from ..runtime.parallel import launch_rows
 
 module_options()
 
-#: Each coarser level's cells interpolate within this factor of the next finer level's radiance tolerance: a coarse
-#: cell spans twice the pixels, and the node it fills is a corner of the finer cells, its error carried into theirs
-#: (measured: docs/benchmarks.md, "Sparse evaluation").
+#: Each coarser level's cells interpolate within this factor of the next finer level's radiance tolerance: a node it
+#: fills is a corner of the finer cells, its error carried into theirs (docs/benchmarks.md, "Sparse evaluation").
 COARSER_TOLERANCE = 0.5
 
 #: ``PixelSet.mode``: every pixel of the image.
@@ -53,7 +41,7 @@ PIXELS_LISTED = wp.constant(2)
 class PixelSet:
     """Which pixels a launch evaluates (:func:`set_pixel`)."""
 
-    mode: int  # PIXELS_ALL, PIXELS_GRID or PIXELS_LISTED
+    mode: int
     stride: int  # PIXELS_GRID: pixels between grid nodes; PIXELS_LISTED: listed pixels per launch row
     pixels: wp.array(dtype=wp.vec2i)  # PIXELS_LISTED: the (row, column) of each listed pixel
     count: int  # PIXELS_LISTED: how many
@@ -67,8 +55,7 @@ def grid_node(m: int, stride: int, size: int) -> int:
 
 @wp.func
 def set_pixel(ps: PixelSet, height: int, width: int, a: int, b: int):
-    """The pixel (j, i) of launch index (a, b) of a :class:`PixelSet` launch, and whether there is one (a listed
-    row has fewer pixels than the launch's width)."""
+    """(j, i, whether there is one) of launch index (a, b) of a :class:`PixelSet` launch."""
     if ps.mode == PIXELS_GRID:
         return grid_node(a, ps.stride, height), grid_node(b, ps.stride, width), True
     if ps.mode == PIXELS_LISTED:
@@ -82,9 +69,8 @@ def set_pixel(ps: PixelSet, height: int, width: int, a: int, b: int):
 
 @wp.func
 def node_span(x: int, stride: int, size: int):
-    """The grid cell around pixel coordinate x (0 <= x < size): its nodes x0 <= x1 and x's weight f of x1, and
-    whether x is itself a node. A node keeps its cell (the next node on) so that the cells beside a grid line are
-    checked for it too."""
+    """(x0, x1, weight f of x1, whether x is a node) of the grid cell around pixel coordinate x; a node keeps the
+    cell after it."""
     x0 = (x // stride) * stride
     x1 = wp.min(x0 + stride, size - 1)
     f = float(0.0)
@@ -95,8 +81,7 @@ def node_span(x: int, stride: int, size: int):
 
 @wp.func
 def near(corner_depth: float, depth: float, depth_tolerance: float) -> bool:
-    """True if a corner at camera distance ``corner_depth`` lies on the surface of a pixel at ``depth`` (within
-    ``depth_tolerance`` of it, relative)."""
+    """True if a corner at camera distance ``corner_depth`` lies within ``depth_tolerance`` (relative) of ``depth``."""
     return wp.abs(corner_depth - depth) <= depth_tolerance * depth
 
 
@@ -129,9 +114,8 @@ def interpolate_grid_kernel(
     counts: wp.array(dtype=wp.int32),  # out: per filled row, how many
     offset: int,
 ):
-    # one thread per filled row (every fine-th, the last included), cell by cell (the corners and their radiance
-    # spread once per cell): every filled pixel that is not a node of the stride grid is interpolated or listed
-    # (module doc)
+    # one thread per filled row (every fine-th, the last included), cell by cell: each filled pixel that is not a node
+    # of the stride grid is interpolated or listed
     a = wp.tid() + offset
     stride = grid.stride
     fine = grid.fine
@@ -232,8 +216,7 @@ LISTED_PER_ROW = 256
 
 @dataclass
 class ListedPass:
-    """The pixels one pass of :func:`evaluate_sparse` listed for direct evaluation: ``listed[a]`` in row a of the grid
-    of every ``fine``-th row (every row for 1), all of them in ``pixels``."""
+    """The pixels one pass of :func:`evaluate_sparse` listed: ``listed[a]`` in row a of every ``fine``-th row."""
 
     fine: int
     listed: np.ndarray  # (grid rows,) listed pixels per row
@@ -292,24 +275,17 @@ def evaluate_sparse(launch: Callable[[PixelSet, tuple[int, int]], None], distanc
     """Evaluate a per-pixel look-up on the pixels the image needs (module doc).
 
     Args:
-        launch: ``launch(pixels, dim)`` runs the look-up's kernel on a :class:`PixelSet` over ``dim`` (its first
-            dimension split across threads), writing ``out`` (and ``end_zone``) at the pixels it evaluates.
+        launch: ``launch(pixels, dim)`` runs the look-up's kernel on a :class:`PixelSet` over ``dim``, writing ``out``
+            (and ``end_zone``) at the pixels it evaluates.
         distance: (H, W) the G-buffer's camera distance.
         out: (H, W) vec3, written at every pixel.
-        stride: pixels between the finest grid's nodes; 1 evaluates every pixel (one launch, nothing interpolated).
-        tolerance: largest relative spread of a cell's corner radiance that is interpolated.
-        depth_tolerance: largest relative camera-distance difference between a pixel and its cell's corners.
-        end_zone: (H, W) int32 the look-up sets to 1 where it leaves a pixel to the marcher; it must be zero at
-            pixels the look-up does not evaluate (the caller allocates it with ``wp.zeros``). None: no such pixels.
+        stride: pixels between the finest grid's nodes; 1 evaluates every pixel.
+        tolerance, depth_tolerance: the agreement test's (module doc).
+        end_zone: (H, W) int32 the look-up sets to 1 where it leaves a pixel to the marcher, zero elsewhere.
         levels: grids filled coarse to fine, from every ``stride * 2**(levels - 1)``-th pixel (1: one grid).
-        scale: (H, W) float32 a known positive factor of each pixel's radiance (a directional light's phase
-            function), read at the nodes of the ``stride`` grid only: the coarser levels' agreement test and
-            interpolation read the radiance divided by it, and a node they interpolate is multiplied by its own (the
-            last level, between the ``stride`` grid's nodes, interpolates the radiance as it is: the factor changes
-            little over a ``stride`` cell). None: the radiance as it is.
-
-    Returns:
-        :class:`SparseEvaluation`.
+        scale: (H, W) float32 known positive factor of each pixel's radiance (a directional light's phase function):
+            the coarser levels test and interpolate the radiance divided by it (the last level, changing little over
+            a ``stride`` cell, as it is).
     """
     device = default_device(device)
     h, w = out.shape

@@ -228,16 +228,12 @@ def cdf_guide(cdf, buckets: int) -> np.ndarray:
 
 
 class EnvironmentMap:
-    """A lat-long environment map with the inverse-CDF tables of its importance sampling.
+    """A lat-long environment map with the inverse-CDF tables of its importance sampling: rows weighted by luminance
+    x sin theta_j, columns by luminance (a black map is sampled uniformly).
 
     Args:
-        image: (H, W, 3) or (H, W, 4) linear RGB(A) radiance (alpha ignored), row 0 = zenith; H >= 1, W >= 1,
-            finite and >= 0.
-
-    Rows are weighted by luminance x sin theta_j, columns by luminance; a black map is sampled uniformly.
-
-    Raises:
-        ValueError: wrong shape, empty, non-finite or negative texels.
+        image: (H, W, 3) or (H, W, 4) linear RGB(A) radiance (alpha ignored), row 0 = zenith; ValueError for a wrong
+            shape, an empty image, non-finite or negative texels.
     """
 
     def __init__(self, image):

@@ -59,11 +59,8 @@ class DeviceGeometry:
 
     @property
     def shadow_mesh(self) -> wp.Mesh:
-        """The BVH of the shadow casters (:meth:`Scene.casters`) for exact visibility, built once.
-
-        Raises:
-            ValueError: when every material is ``receiver_only`` (nothing casts).
-        """
+        """The BVH of the shadow casters (:meth:`Scene.casters`) for exact visibility, built once; ValueError when
+        every material is ``receiver_only`` (nothing casts)."""
         if self._casters is None:
             return self.mesh
         if self._shadow_mesh is None:

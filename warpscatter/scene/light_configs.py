@@ -1,9 +1,8 @@
 """The ``light`` section: one settings model per light type, each beside the host light it builds.
 
-Every model parses and checks its keys (pydantic, Warp-free like the rest of :mod:`warpscatter.config`), says what
-it is in one line (:meth:`LightSettings.describe`, the summary of ``warpscatter validate``) and builds its host light
-of :mod:`warpscatter.scene.lights` (:meth:`LightSettings.build`, which imports Warp). :data:`LIGHT_CONFIGS` lists
-them; :data:`LightConfig` is their union on ``type``.
+Every model parses and checks its keys (pydantic, Warp-free), says what it is in one line
+(:meth:`LightSettings.describe`) and builds its host light (:meth:`LightSettings.build`, which imports Warp);
+:data:`LightConfig` is the union of :data:`LIGHT_CONFIGS` on ``type``.
 
 Adding a light type: its model here (keys, checks, ``describe``, ``build``) and in :data:`LIGHT_CONFIGS`, its host
 class in :mod:`.lights`, its type in the light lists of :mod:`warpscatter.methods`, and its estimator.

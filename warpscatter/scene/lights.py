@@ -465,13 +465,8 @@ class LightParams:
 
 
 def light_params(light, device=None, texture: wp.array | None = None) -> LightParams:
-    """:class:`LightParams` of a :class:`DirectionalLight` or :class:`SpotLight` on ``device``.
-
-    Args:
-        light: the light.
-        device: Warp device of the texture array.
-        texture: an (H, W) vec3 array replacing ``light.texture`` (a prefiltered copy, say).
-    """
+    """:class:`LightParams` of a :class:`DirectionalLight` or :class:`SpotLight`, its texture array on ``device``;
+    ``texture``: an (H, W) vec3 array replacing ``light.texture`` (a prefiltered copy, say)."""
     p = LightParams()
     p.direction = wp.vec3(*light.direction)
     if isinstance(light, DirectionalLight):

@@ -1,10 +1,6 @@
-"""Triangle meshes: the validated container every stage consumes, file loading through trimesh, and transforms.
-
-A :class:`TriangleMesh` holds ``vertices`` (N, 3) float32 in scene units and ``triangles`` (T, 3) int32, checked on
-construction. :func:`load_mesh` reads OBJ, PLY, STL, GLB/glTF and OFF (scenes flattened, polygons triangulated) and
-raises :class:`MeshLoadError` (a user error, CLI exit code 2). Transforms (CONVENTIONS.md) are
-``M = T @ Rz @ Ry @ Rx @ S`` on column vectors, angles in degrees. :func:`cached_mesh` keeps built meshes in process
-(LRU, :data:`MESH_CACHE_BYTES`) with read-only arrays, so repeated renders load and generate each mesh once.
+"""Triangle meshes: the validated container every stage consumes (:class:`TriangleMesh`), file loading through
+trimesh (:func:`load_mesh`), transforms (:func:`transform_matrix`, CONVENTIONS.md) and the in-process LRU cache that
+loads and generates each mesh once for repeated renders (:func:`cached_mesh`).
 """
 
 from __future__ import annotations
@@ -136,15 +132,12 @@ def concatenate(meshes: Sequence[TriangleMesh]) -> tuple[TriangleMesh, np.ndarra
 
 
 def load_mesh(path: str | os.PathLike) -> TriangleMesh:
-    """Load a triangle mesh from OBJ, PLY, STL, GLB/glTF or OFF.
-
-    Scenes are flattened with their node transforms; points and lines are ignored; vertices are not merged.
+    """Load a triangle mesh from OBJ, PLY, STL, GLB/glTF or OFF (polygons triangulated). Scenes are flattened with
+    their node transforms, all triangles of all objects in file order; points and lines are ignored; vertices are
+    not merged.
 
     Args:
         path: file path; the format is taken from the extension.
-
-    Returns:
-        The flattened mesh, all triangles of all objects in file order.
 
     Raises:
         MeshLoadError: missing, unsupported, too large, unparsable, or no valid triangles; names file and reason.

@@ -135,15 +135,9 @@ def _cylinders(radius: float, y0: float, y1: float, s: int, cx: np.ndarray, cz: 
 
 
 def cylinder(radius: float, y0: float, y1: float, segments: int, center_xz=(0.0, 0.0), caps: bool = True):
-    """Vertical cylinder (axis parallel to +Y) approximated by a prism with ``segments`` sides.
-
-    Args:
-        radius: ring radius (vertices lie on it), scene units.
-        y0: bottom height; y1: top height (> y0).
-        segments: number of sides (>= 3).
-        center_xz: (x, z) of the axis.
-        caps: close the ends with triangle fans around a centre vertex.
-    """
+    """Vertical cylinder (axis parallel to +Y, at ``center_xz`` = (x, z)) from height ``y0`` to ``y1`` (> y0): a prism
+    with ``segments`` (>= 3) sides whose vertices lie on the ring of ``radius`` (scene units); ``caps`` closes the ends
+    with triangle fans around a centre vertex."""
     if not (radius > 0.0 and y1 > y0 and segments >= 3):
         raise ValueError(f"cylinder needs radius > 0, y1 > y0, segments >= 3; got {radius}, {y0}, {y1}, {segments}")
     cx, cz = np.array([center_xz[0]], np.float64), np.array([center_xz[1]], np.float64)

@@ -64,10 +64,8 @@ def _dirac_distribution4(mean: wp.float32, z_f: wp.float32):
 
 @wp.func
 def quadratic_roots(c: wp.vec3) -> wp.vec2:
-    """Real roots (ascending) of c_0 + c_1 z + c_2 z^2 without cancellation (Algorithm 1 Step 3, Algorithm 2 Step 4).
-
-    A negative discriminant counts as zero; a vanishing c_2 gives one far root; the output is always finite.
-    """
+    """Real roots (ascending) of c_0 + c_1 z + c_2 z^2 without cancellation (Algorithm 1 Step 3, Algorithm 2 Step 4);
+    a negative discriminant counts as zero, a vanishing c_2 gives one far root; the output is always finite."""
     c0 = c[0]
     c1 = c[1]
     c2 = _away_from_zero(c[2], LEADING_COEFF_FLOOR * wp.max(wp.abs(c0), wp.abs(c1)))
@@ -91,8 +89,7 @@ def quadratic_roots(c: wp.vec3) -> wp.vec2:
 @wp.func
 def cubic_roots(c: wp.vec4) -> wp.vec3:
     """Roots (ascending) of c_0 + c_1 z + c_2 z^2 + c_3 z^3, assumed all real: Blinn 2007 (IEEE CG&A 27(3)), one
-    branch for all three (Peters 2017, Sec. 5.4.1). Guards as :func:`quadratic_roots`; the output is always finite.
-    """
+    branch for all three (Peters 2017, Sec. 5.4.1). Guards as :func:`quadratic_roots`; the output is always finite."""
     c3 = _away_from_zero(c[3], LEADING_COEFF_FLOOR * wp.max(wp.abs(c[0]), wp.max(wp.abs(c[1]), wp.abs(c[2]))))
     if c3 == 0.0:
         return wp.vec3(0.0, 0.0, 0.0)
@@ -159,10 +156,8 @@ def hankel_pivots6(b: vec6) -> wp.vec3:
 
 @wp.func
 def msm4_kernel_polynomial(b: wp.vec4, z_f: wp.float32) -> wp.vec3:
-    """q = B(b)^-1 (1, z_f, z_f^2), the kernel polynomial with roots z_1, z_2 (Algorithm 1 Steps 1-2), by LDL^T.
-
-    Expects biased moments with b_2 - b_1^2 > 0.
-    """
+    """q = B(b)^-1 (1, z_f, z_f^2), the kernel polynomial with roots z_1, z_2 (Algorithm 1 Steps 1-2), by LDL^T;
+    ``b``: biased moments with b_2 - b_1^2 > 0."""
     d11 = wp.max(b[1] - b[0] * b[0], PIVOT_FLOOR)
     l21 = (b[2] - b[0] * b[1]) / d11
     d22 = wp.max(b[3] - b[1] * b[1] - l21 * l21 * d11, PIVOT_FLOOR)

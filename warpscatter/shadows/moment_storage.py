@@ -146,10 +146,8 @@ def unorm_encode(x: wp.float32, bits: wp.int32) -> wp.int32:
 
 @wp.func
 def unorm_decode(code: wp.int32, bits: wp.int32) -> wp.float32:
-    """Value of an n-bit unorm code: code / (2^n - 1) correctly rounded to float32, as a GPU's unorm fetch.
-
-    A float64 product with the reciprocal instead of a division: its error never changes the float32 rounding.
-    """
+    """Value of an n-bit unorm code: code / (2^n - 1) correctly rounded to float32, as a GPU's unorm fetch (a float64
+    product with the reciprocal instead of a division: its error never changes the float32 rounding)."""
     return wp.float32(wp.float64(code) * (wp.float64(1.0) / wp.float64((1 << bits) - 1)))
 
 
@@ -202,8 +200,7 @@ def load_moments6(texel: vec6, storage: wp.int32) -> vec6:
     return inverse_quantization_transform6(texel)
 
 
-# Texel codes: 16-bit modes hold one code per channel; STORAGE6_UNORM10 packs channel k in bits [10 k, 10 k + 10) of
-# one 64-bit word. Decoding gives exactly the emulated storage's float32 value (unorm_round).
+# Texel codes (layout: design notes): decoding gives exactly the emulated storage's float32 value (unorm_round).
 UNORM10_MASK = wp.constant(wp.uint64(1023))
 
 

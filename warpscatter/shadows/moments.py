@@ -99,7 +99,6 @@ from .moment_storage import (
 module_options()
 
 __all__ = [
-    # moment_storage
     "vec6", "STORAGE4_UNORM16", "STORAGE4_FLOAT32", "STORAGE6_UNORM10", "STORAGE6_UNORM16", "STORAGE6_FLOAT32",
     "UNORM_BITS_STORAGE4_UNORM16", "UNORM_BITS_STORAGE6_UNORM10", "UNORM_BITS_STORAGE6_UNORM16",
     "MOMENT_BIAS4_UNORM16", "MOMENT_BIAS4_FLOAT32", "MOMENT_BIAS4_SAT_UINT32", "MOMENT_BIAS6_UNORM10",
@@ -112,14 +111,12 @@ __all__ = [
     "store_moments6", "load_moments6", "bias_moments4", "bias_moments6", "moment_bias4", "bias_vector4",
     "moment_bias6", "load_biased_moments4", "load_biased_moments6", "sanitize_moments4", "sanitize_moments6",
     "sanitize_depth",
-    # moment_solvers
     "OVERDARKENING_DIVISOR", "PIVOT_FLOOR", "LEADING_COEFF_FLOOR", "DIVDIFF_FLOOR", "quadratic_roots",
     "cubic_roots", "hankel_pivots4", "hankel_pivots6", "msm4_kernel_polynomial", "msm6_kernel_polynomial",
     "msm4_distribution", "msm4_bounds", "msm4_shadow_intensity", "msm4_interpolated_shadow_intensity",
     "interpolation_dot", "msm6_visibility", "msm6_bounds", "msm6_shadow_intensity",
     "msm6_interpolated_shadow_intensity", "msm6_distribution", "two_depth_distribution",
     "adaptive_overestimation_weight", "scale_shadow_intensity",
-    # host wrappers (this module)
     "moments4", "moments6", "shadow_intensity4", "bounds4", "shadow_intensity6", "bounds6",
     "two_depths_from_moments3", "apply_quantization_transform4", "quantize4", "dequantize4",
     "apply_quantization_transform6", "quantize6", "dequantize6", "solve_cubic",

@@ -401,7 +401,8 @@ def _check_nonneg(x, name: str) -> None:
 
 
 def channel_opacities(opacity, albedo, coloured: bool = False) -> np.ndarray:
-    """Per-material, per-channel opacities alpha_c for the over operator (Peters 2017, Sec. 3.3).
+    """Per-material, per-channel opacities alpha_c for the over operator (Peters 2017, Sec. 3.3); ValueError for bad
+    shapes or values.
 
     Args:
         opacity: (K,) material opacities in [0, 1].
@@ -411,9 +412,6 @@ def channel_opacities(opacity, albedo, coloured: bool = False) -> np.ndarray:
 
     Returns:
         (K, C) float32, C = 1 or 3; opaque materials (alpha = 1) give 1 in every channel.
-
-    Raises:
-        ValueError: bad shapes or values.
     """
     a = np.asarray(opacity, np.float64).reshape(-1)
     if not np.all(np.isfinite(a)) or np.any(a < 0.0) or np.any(a > 1.0):
@@ -525,13 +523,8 @@ def generate_moment_shadow_map(scene, shadow_map: ShadowMap, *, supersampling: i
 
 
 def filter_moment_shadow_map(msm: MomentShadowMap, filter_px: int, device=None) -> MomentShadowMap:
-    """Two-pass separable Gaussian blur of the texels (D.2); returns a new :class:`MomentShadowMap`.
-
-    Args:
-        msm: the map to filter (unchanged).
-        filter_px: kernel width in texels (:func:`gaussian_weights`); 1 returns ``msm`` itself.
-        device: Warp device.
-    """
+    """A new :class:`MomentShadowMap`: ``msm``'s texels blurred by a two-pass separable Gaussian (D.2)
+    ``filter_px`` texels wide (:func:`gaussian_weights`; 1 returns ``msm`` itself)."""
     device = default_device(device)
     weights = gaussian_weights(filter_px)
     if len(weights) // 2 == 0:
@@ -583,7 +576,8 @@ def point_arrays(points, normals, device):
 def msm_visibility_at(msm: MomentShadowMap, points, normals=None, *, depth_bias: float = 0.0,
                       normal_offset_texels: float = 0.0, overdarkening: float = float(mm.OVERDARKENING_DIVISOR),
                       device=None) -> np.ndarray:
-    """Host wrapper of :func:`msm_visibility_rgb` at world points (tests, bench).
+    """Host wrapper of :func:`msm_visibility_rgb` at world points (tests, bench): (..., C) float32 visibilities in
+    [0, 1] (C = msm.channels).
 
     Args:
         msm: the (filtered) map.
@@ -591,9 +585,6 @@ def msm_visibility_at(msm: MomentShadowMap, points, normals=None, *, depth_bias:
         normals: (..., 3) receiver normals for the normal offset (default: none).
         depth_bias, normal_offset_texels, overdarkening: see :func:`moment_params`.
         device: Warp device.
-
-    Returns:
-        (..., C) float32 visibilities in [0, 1] (C = msm.channels).
     """
     device = default_device(device)
     shape, pts, nrm = point_arrays(points, normals, device)

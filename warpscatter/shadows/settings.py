@@ -41,11 +41,8 @@ _EVSMExponent = Annotated[Float, Field(gt=0.0, le=max(EVSM_MAX_EXPONENT.values()
 
 
 class ShadowMapSettings(SettingsModel):
-    """The light's shadow map: ``resolution`` texels and a depth ``bias`` in texel sizes.
-
-    A point counts as lit when its light-space depth is at most the stored caster depth plus ``bias`` times the
-    world size of one texel.
-    """
+    """The light's shadow map: ``resolution`` texels and a depth ``bias`` in texel sizes (a point is lit when its
+    light-space depth is at most the stored caster depth plus ``bias`` times the world size of one texel)."""
 
     resolution: Union[_MapSide, tuple[_MapSide, _MapSide]] = Field(
         1024, description=f"side of the light's shadow map in texels, or [width, height] (each "

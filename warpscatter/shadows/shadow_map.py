@@ -153,8 +153,7 @@ def render_shadow_map(scene, resolution, device=None, max_translucent_layers: in
         scene: a :class:`~warpscatter.scene.Scene`; ``receiver_only`` materials are left out.
         resolution: int or (width, height) in texels.
         device: Warp device.
-        max_translucent_layers: most translucent fragments per texel (default
-            :data:`~.translucency.DEFAULT_MAX_LAYERS`).
+        max_translucent_layers: most translucent fragments per texel (:data:`~.translucency.DEFAULT_MAX_LAYERS`).
     """
     from ..raster.rasterizer import linearize_depth, rasterize_linear_depth
     from . import translucency
@@ -302,8 +301,7 @@ def orthographic_ray_coords(sm: ShadowMapParams, origin: wp.vec3, d: wp.vec3):
     return wp.vec3(0.5 * c[0] + 0.5, 0.5 - 0.5 * c[1], -pv[2]), wp.vec3(0.5 * cd[0], -0.5 * cd[1], -pd[2])
 
 
-#: Width in texels of the ramp between neighbouring texels in the narrowed PCF look-ups (:func:`narrowed_offset`):
-#: narrower than bilinear (1) so caster silhouettes stay sharp where view rays run along a shadow's edge.
+#: Ramp width (texels) of :func:`narrowed_offset`: narrower than bilinear (1) keeps silhouettes sharp (design notes).
 PCF_RAMP_TEXELS = wp.constant(0.75)
 
 

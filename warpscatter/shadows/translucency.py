@@ -44,10 +44,8 @@ def row_band_matrix(height: int, y0: int, y1: int) -> np.ndarray:
 
 def peel_row_bands(vertices, triangles, view_proj, width: int, height: int, *, max_layers: int,
                    row_multiple: int = 1, clamp_depth: bool = False, clip_near: bool | None = None, device=None):
-    """Depth-peel a mesh in row bands of at most :data:`TRANSLUCENT_BAND_BYTES`.
-
-    Each band peels as many layers as its deepest pixel has fragments (at most ``max_layers``); band heights are
-    multiples of ``row_multiple``.
+    """Depth-peel a mesh in row bands of at most :data:`TRANSLUCENT_BAND_BYTES`, heights multiples of
+    ``row_multiple``, each band as many layers as its deepest pixel has fragments (at most ``max_layers``).
 
     Yields:
         (y0, y1, k, result): rows [y0, y1), layer count k and their RasterResult, nearest first (None if k = 0).
@@ -71,7 +69,8 @@ def peel_row_bands(vertices, triangles, view_proj, width: int, height: int, *, m
 def translucent_depths(vertices, triangles, opacity, view_proj, width: int, height: int, *,
                        max_layers: int = DEFAULT_MAX_LAYERS, clamp_depth: bool = False, clip_near: bool | None = None,
                        device=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The two-depth distribution (module doc) of every pixel of a view.
+    """The two-depth distribution (module doc) of every pixel of a view: (nearest, opaque, transmittance), (height,
+    width) float32, NDC depths +inf where empty.
 
     Args:
         vertices, triangles: the casters (as :func:`~..raster.rasterizer.rasterize` takes them).
@@ -79,9 +78,6 @@ def translucent_depths(vertices, triangles, opacity, view_proj, width: int, heig
         view_proj, width, height, clamp_depth, clip_near: as :func:`~..raster.rasterizer.rasterize`.
         max_layers: most translucent fragments per pixel (:func:`peel_row_bands`).
         device: Warp device.
-
-    Returns:
-        (nearest, opaque, transmittance): (height, width) float32; NDC depths +inf where empty.
     """
     tris = np.asarray(triangles)
     a = np.asarray(opacity, np.float64)

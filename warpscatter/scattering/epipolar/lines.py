@@ -1,17 +1,11 @@
 """Epipolar lines on the screen for epipolar sampling (Engelhardt & Dachsbacher 2010, Sec. 4.1 and 5.1): host geometry.
 
-Per-frame setup in float64 numpy, no kernels:
-
-* the **epipole**: the light projected onto the image plane (a spot's position, a directional light's direction as
-  a point at infinity); a light behind the camera gives the anti-crepuscular vanishing point, the same lines
-  (Sec. 4.1). At infinity or undefined, :func:`epipolar_lines` reports the reason for the screen-space fallback.
-* the **lines**: from the epipole to ``lines`` equidistant border points (clockwise from the top-left corner),
-  clipped to the viewport (Liang-Barsky), lines outside culled; spot lights trim them to their cone later.
-* the **texel layout**: one texture row per line, ``samples`` columns from the epipole side to the border, every
-  ``segment``-th an initial ray-marching sample; and the light-texture level for a spot texture (Sec. 6).
-
-Screen coordinates are pixels: x right, y DOWN, pixel (i, j) centred at (i + 0.5, j + 0.5) (CONVENTIONS.md); the
-border is the rectangle through the outermost pixel centres, segments run on half a line spacing beyond it.
+Per frame, in float64 numpy: the epipole (the light projected onto the image plane; a light behind the camera gives
+the anti-crepuscular vanishing point, the same lines), the lines from it to ``lines`` equidistant border points
+(clockwise from the top-left corner) clipped to the viewport (Liang-Barsky), and the texel layout: one texture row
+per line, ``samples`` columns from the epipole side, every ``segment``-th an initial ray-marching sample. Screen
+coordinates are pixels, x right, y DOWN, pixel (i, j) centred at (i + 0.5, j + 0.5) (CONVENTIONS.md); the border is
+the rectangle through the outermost pixel centres.
 """
 
 from __future__ import annotations
@@ -30,18 +24,14 @@ class EpipolarLines:
 
     Attributes:
         epipole: (2,) screen position of the (anti-)epipole, possibly far outside the image.
-        light_behind: True when the light is behind the camera (the epipole is the anti-crepuscular
-            vanishing point).
-        entry: (N, 2) float32: start of each line's visible segment (the end towards the epipole: the epipole
-            itself when it lies inside the border rectangle, else where the line enters the rectangle grown by
-            half a spacing).
-        exit: (N, 2) float32: end of each visible segment (where the line leaves the grown rectangle, half a
-            spacing or more past its border point). Culled lines keep their unclipped epipole-to-border segment
-            so that their geometry stays defined.
-        valid: (N,) bool: the line crosses the viewport (and, for spot lights, the light frustum); with the
-            epipole outside, the culled neighbours of the visible chain redirected to the corners seen
-            tangentially (:func:`redirect_to_tangent_corners`) are valid too.
-        spacing: arclength between consecutive border points (pixels): border perimeter / N.
+        light_behind: True when the light is behind the camera (the anti-crepuscular vanishing point).
+        entry: (N, 2) float32 start of each line's visible segment: the epipole when inside the border rectangle, else
+            where the line enters the rectangle grown by half a spacing.
+        exit: (N, 2) float32 end of each segment, where it leaves the grown rectangle. Culled lines keep their
+            unclipped epipole-to-border segment.
+        valid: (N,) bool: the line crosses the viewport (and a spot's frustum), or was redirected to a corner
+            (:func:`redirect_to_tangent_corners`).
+        spacing: arclength between consecutive border points (pixels).
         samples: texels per line (columns of the textures).
         segment: texels per initial segment; texel x is an initial sample when x % segment == 0.
         width, height: image size in pixels.
@@ -70,11 +60,8 @@ class EpipolarLines:
 
 
 def texel_layout(width: int, height: int, initial_samples: int, samples_per_line: int | None) -> tuple[int, int]:
-    """(samples, segment): texels per line and per initial segment.
-
-    ``samples_per_line`` (None: the image diagonal in pixels, so texels are at most a pixel apart) is rounded up
-    so that ``initial_samples`` equidistant initial samples fall on texels, the first and last included.
-    """
+    """(texels per line, per initial segment): ``samples_per_line`` (None: the image diagonal in pixels) rounded up so
+    that ``initial_samples`` equidistant initial samples fall on texels, the first and last included."""
     want = int(math.ceil(math.hypot(width, height))) if samples_per_line is None else int(samples_per_line)
     want = max(want, initial_samples)
     segment = max(1, int(math.ceil((want - 1) / (initial_samples - 1))))
@@ -94,18 +81,9 @@ def screen_direction(camera, light) -> tuple[np.ndarray, str | None]:
 
 
 def project_epipole(camera, light, max_distance: float) -> tuple[np.ndarray | None, bool, str | None]:
-    """Screen position of the light's (anti-)epipole.
-
-    Args:
-        camera: the :class:`~warpscatter.scene.camera.Camera`.
-        light: a :class:`DirectionalLight` or :class:`SpotLight`.
-        max_distance: largest accepted distance of the epipole from the image centre, in image diagonals; a
-            farther epipole counts as "at infinity" (lines numerically parallel).
-
-    Returns:
-        (epipole, behind, reason): the (2,) pixel position (None when degenerate), whether the light is
-        behind the camera, and the reason for a degenerate case (None otherwise).
-    """
+    """(epipole, behind, reason): the (2,) pixel position of the light's (anti-)epipole, None with the reason when it
+    is undefined or farther than ``max_distance`` image diagonals from the image centre (at infinity), and whether
+    the light is behind the camera."""
     v, reason = screen_direction(camera, light)
     if v is None:
         return None, False, reason
@@ -128,12 +106,8 @@ def border_rectangle(width: int, height: int) -> tuple[float, float]:
 
 
 def border_points(width: int, height: int, count: int) -> np.ndarray:
-    """(count, 2) equidistant points on the border rectangle, clockwise from its top-left corner, half a spacing in.
-
-    With (w, h) = :func:`border_rectangle`, arclength s runs along the top edge (x = s), the right edge
-    (y = s - w), the bottom edge (x from w down to 0) and the left edge (y from h up to 0), offset by the
-    rectangle's corner (0.5, 0.5), as :func:`~.method.border_arclength`.
-    """
+    """(count, 2) equidistant points on the border rectangle, clockwise from its top-left corner, half a spacing in
+    (arclength as :func:`~.textures.border_arclength`)."""
     w, h = border_rectangle(width, height)
     s = (np.arange(count) + 0.5) * (2.0 * (w + h) / count)
     x = np.select([s < w, s < w + h, s < 2 * w + h], [s, w, 2 * w + h - s], 0.0)
@@ -143,12 +117,8 @@ def border_points(width: int, height: int, count: int) -> np.ndarray:
 
 def clip_segments(start: np.ndarray, end: np.ndarray, width: int, height: int,
                   margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Liang-Barsky clip of segments start -> end against the border rectangle [0.5, W - 0.5] x [0.5, H - 0.5]
-    grown by ``margin`` pixels on every side.
-
-    Returns:
-        (t0, t1) per segment: the visible parameter range (t1 <= t0 when the segment misses the rectangle).
-    """
+    """(t0, t1), the visible parameter range (t1 <= t0: none) of each segment start -> end clipped (Liang-Barsky) to
+    the border rectangle [0.5, W - 0.5] x [0.5, H - 0.5] grown by ``margin`` pixels."""
     d = end - start
     t0 = np.zeros(len(start))
     t1 = np.ones(len(start))
@@ -178,14 +148,9 @@ def pixel_directions(camera, points: np.ndarray) -> np.ndarray:
 
 def redirect_to_tangent_corners(border: np.ndarray, valid: np.ndarray, epipole: np.ndarray, width: int,
                                 height: int) -> None:
-    """Point the first culled line beyond each end of the visible chain at the corner seen tangentially (in place).
-
-    With the epipole outside the border rectangle, the lines that cross it end on a contiguous chain of the
-    border bounded by the two corners whose lines from the epipole only touch the rectangle. A pixel near such
-    a corner lies between the last valid line and the corner; redirecting the culled neighbour line (same
-    index, so the 1D border lookup is unchanged) to the corner keeps every pixel within half a border spacing of
-    a valid line. Nothing changes when the epipole lies inside or no line is culled.
-    """
+    """Point the first culled line beyond each end of the visible chain at the corner seen tangentially from an
+    epipole outside the border (in place): a pixel between the last valid line and that corner then lies within half
+    a spacing of a valid line, and the line's index, hence the 1D border lookup, is unchanged."""
     bw, bh = border_rectangle(width, height)
     inside = 0.5 <= epipole[0] <= 0.5 + bw and 0.5 <= epipole[1] <= 0.5 + bh
     if inside or not valid.any() or valid.all():
@@ -209,19 +174,9 @@ def redirect_to_tangent_corners(border: np.ndarray, valid: np.ndarray, epipole: 
 
 def epipolar_lines(camera, light, lines: int, initial_samples: int, samples_per_line: int | None = None,
                    max_epipole_distance: float = 1000.0) -> tuple[EpipolarLines | None, str | None]:
-    """Generate, clip and cull the epipolar lines of one frame (Engelhardt 2010 Sec. 4.1, 5.1).
-
-    Args:
-        camera: the :class:`~warpscatter.scene.camera.Camera`.
-        light: the scene's :class:`DirectionalLight` or :class:`SpotLight`.
-        lines: number of lines N (border points).
-        initial_samples: initial (equidistant) ray-marching samples per line, >= 2.
-        samples_per_line: texels per line before rounding (None: the image diagonal in pixels).
-        max_epipole_distance: epipoles farther than this many image diagonals count as at infinity.
-
-    Returns:
-        (lines, None), or (None, reason) in the degenerate case (epipole at infinity or undefined).
-    """
+    """(:class:`EpipolarLines`, None), or (None, reason) when the epipole is at infinity or undefined: the frame's
+    ``lines`` lines, generated, clipped and culled (Engelhardt 2010 Sec. 4.1, 5.1), their layout by
+    :func:`texel_layout`; ``max_epipole_distance`` as :func:`project_epipole`'s."""
     epipole, behind, reason = project_epipole(camera, light, max_epipole_distance)
     if epipole is None:
         return None, reason
@@ -234,10 +189,8 @@ def epipolar_lines(camera, light, lines: int, initial_samples: int, samples_per_
     valid = (t1 - t0) * np.linalg.norm(d, axis=1) > 1e-3
     redirect_to_tangent_corners(border, valid, epipole, w, h)
     d = border - start
-    # A pixel between the end points of two adjacent lines projects onto them up to half a line spacing beyond
-    # the border rectangle: each line runs on (from its entry when the epipole is outside, and past its border
-    # point) to the rectangle grown by half a spacing; texels there take the G-buffer depth extrapolated from
-    # the edge pixels. Validity is decided on the rectangle itself.
+    # a pixel between two lines' end points projects onto them up to half a spacing beyond the border: each line runs
+    # on to the rectangle grown by half a spacing (depth extrapolated there); validity is decided on the rectangle
     spacing = 2.0 * sum(border_rectangle(w, h)) / lines
     margin = 0.5 * spacing + 0.5
     reach = 1.0 + 2.0 * (math.hypot(w, h) + 2.0 * margin) / np.maximum(np.linalg.norm(d, axis=1), 1e-9)
@@ -252,18 +205,10 @@ def epipolar_lines(camera, light, lines: int, initial_samples: int, samples_per_
 
 
 def light_texture_level(lines: EpipolarLines, camera, light, texture_shape) -> tuple[int, float]:
-    """Mip level of a spot light's texture matched to the angular spacing of the epipolar lines (Sec. 6).
-
-    Adjacent epipolar planes (all contain the camera and the light) differ by a dihedral angle dphi around
-    the baseline. Seen from the light, texture detail at angle psi from the baseline moves by dphi sin(psi)
-    radians between two planes; one radian near the spot's axis spans W / (2 tan(cone)) texels. With psi
-    the angle between the spot's axis and the baseline (at least the cone half-angle), the footprint is
-    ``dphi * max(sin psi, sin cone) * W / (2 tan cone)`` texels, dphi the median over adjacent valid lines;
-    the level is floor(log2(footprint)) (0 when the footprint is at most one texel).
-
-    Returns:
-        (level, footprint): the level (0 = full resolution) and the footprint in full-resolution texels.
-    """
+    """(level, footprint in texels) of a spot light's texture matched to the lines' angular spacing (Sec. 6): adjacent
+    epipolar planes differ by a dihedral angle dphi about the baseline (the median over valid neighbours), which moves
+    texture detail at angle psi from it by dphi sin(psi); the footprint is dphi max(sin psi, sin cone) W /
+    (2 tan cone), psi the spot axis' angle to the baseline, and the level floor(log2(footprint)) (0 up to a texel)."""
     if not isinstance(light, SpotLight) or lines.count < 2:
         return 0, 0.0
     baseline = np.asarray(camera.position, np.float64) - np.asarray(light.position, np.float64)

@@ -1,26 +1,14 @@
 """The ``epipolar`` render method: epipolar sampling for crepuscular rays (Engelhardt & Dachsbacher 2010).
 
 In-scattered light varies smoothly along epipolar lines (the screen images of planes through the camera and the
-light) except at depth discontinuities, so it is ray-marched at a sparse set of samples on those lines and
-interpolated elsewhere. Stages (names as they appear in timings):
-
-1. ``lines`` — the epipole and N lines to equidistant border points, clipped to the viewport and to a spot light's
-   cone (:mod:`.lines`, :func:`trim_to_cone`); the coordinate texture (row = line, column = position along
-   it, Sec. 5.1) and the camera depth at every texel.
-2. ``discontinuities`` — each texel's two interpolation sources, as the paper's search inside its initial segment
-   finds them (Sec. 5.2); texels that are their own source are the ray-marching samples.
-3. ``raymarch`` — those samples only, with the reference marcher's estimator
-(:func:`~warpscatter.scattering.marching.march_screen_point`),
-   ``steps_per_texel`` steps per shadow-map texel crossed (:func:`~warpscatter.scattering.marching.texel_steps`).
-4. ``interpolate`` — along each line between the sources, then per pixel between the two nearest lines with a
-   bilateral filter (Sec. 4.3, 5.3; :mod:`.upsampling`), under a directional light on a sparse grid
-   (:mod:`warpscatter.scattering.sparse_evaluation`, warpscatter's). Pixels with no valid tap are ray-marched directly,
-   so none is left undefined; pixels whose ray misses a spot light's cone are exactly 0.
-
-When the epipole is at infinity or undefined the method falls back to screen-space subsampling every
-``fallback_stride`` pixels (the reason is logged). ``prefilter_light_texture`` box-downsamples a spot texture to the
-line spacing (Sec. 6). Two camera depths a, b are discontinuous when |a - b| > threshold min(a, b) (Sec. 6).
-Settings: :class:`~warpscatter.scattering.settings.EpipolarSettings` (``render.scattering.epipolar``).
+light) except at depth discontinuities, so it is ray-marched at sparse samples on them and interpolated elsewhere.
+Stages (as in timings): ``lines`` (the lines, clipped, and their textures: :mod:`.lines`, :mod:`.textures`, Sec. 5.1),
+``discontinuities`` (each texel's two interpolation sources, Sec. 5.2; texels that are their own source are marched),
+``raymarch`` (those samples, with the reference marcher's estimator and ``steps_per_texel``) and ``interpolate``
+(along the lines, then per pixel by a bilateral filter between the two nearest lines, Sec. 4.3, 5.3:
+:mod:`.upsampling`; pixels without a valid tap are marched). With the epipole at infinity or undefined it falls back
+to screen-space subsampling every ``fallback_stride`` pixels. Settings:
+:class:`~warpscatter.scattering.settings.EpipolarSettings`.
 """
 
 from __future__ import annotations
@@ -56,9 +44,6 @@ module_options()
 logger = logging.getLogger("warpscatter")
 
 
-# ---- kernels ---------------------------------------------------------------------------------------
-
-
 #: Pixels around a spot light's epipole (its screen position, where in-scattering falls off like the inverse distance)
 #: in which every line texel is ray-marched.
 LOCAL_DENSE_RADIUS = 24.0
@@ -86,8 +71,7 @@ def raymarch_samples_kernel(
     x = flat - k * geo.samples
     p = coords[k, x]
     if marcher.light.kind == LIGHT_SPOT and x + 1 < geo.samples:
-        # a spot's epipole is the light itself, where in-scattering diverges: a sample closer than
-        # LOCAL_EPIPOLE_OFFSET pixels marches a ray that far out along its line (as a pixel centre's ray passes it)
+        # a spot's epipole is the light itself, where in-scattering diverges: march from LOCAL_EPIPOLE_OFFSET out
         out = p - geo.epipole
         if wp.length(out) < LOCAL_EPIPOLE_OFFSET:
             along = coords[k, x + 1] - p
@@ -142,20 +126,9 @@ def box_downsample_kernel(src: wp.array2d(dtype=wp.vec3), factor: int, out: wp.a
     out[j, i] = acc / wp.max(n, 1.0)
 
 
-# ---- host ----------------------------------------------------------------------------------------
-
-
 def prefilter_light_texture(texture: np.ndarray, level: int, device=None) -> wp.array:
-    """Box-downsample an (H, W, 3) light texture by 2^level (one mip level; level 0 returns it unchanged).
-
-    Args:
-        texture: linear RGB float32, row 0 = top.
-        level: mip level >= 0.
-        device: Warp device.
-
-    Returns:
-        wp.array2d(vec3) of shape (ceil(H / 2^level), ceil(W / 2^level)).
-    """
+    """Box-downsample an (H, W, 3) linear RGB light texture (row 0 = top) by 2^level >= 1 to a
+    (ceil(H / 2^level), ceil(W / 2^level)) vec3 array, the line spacing's mip level (Sec. 6)."""
     if level < 0:
         raise ValueError(f"level must be >= 0, got {level}")
     device = default_device(device)
@@ -171,10 +144,9 @@ def prefilter_light_texture(texture: np.ndarray, level: int, device=None) -> wp.
 
 def marched_steps_image(width: int, height: int, samples: np.ndarray, sample_steps: np.ndarray, pixels: np.ndarray,
                         pixel_steps: int) -> np.ndarray:
-    """The ``epipolar_samples`` debug output: (height, width) float32, per pixel the ray-march steps taken there
-    (0: interpolated). ``samples`` (N, 2) screen positions (pixels) of the marched samples with their
-    ``sample_steps``; ``pixels`` the flat indices (j * width + i) of the pixels marched directly, ``pixel_steps``
-    each. Samples sharing a pixel add up."""
+    """The ``epipolar_samples`` debug output: (height, width) float32 ray-march steps per pixel (0: interpolated), from
+    the marched ``samples`` (N, 2) screen positions and their ``sample_steps``, and the directly marched ``pixels``
+    (flat indices), ``pixel_steps`` each; samples sharing a pixel add up."""
     img = np.zeros((height, width), np.float32)
     if len(samples):
         i = np.clip(np.floor(samples[:, 0]).astype(np.int64), 0, width - 1)
@@ -189,26 +161,15 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
     shape, :mod:`warpscatter.methods`).
 
     Args:
-        frame: :class:`~warpscatter.pipeline.frame.Frame` (directional or spot light, textured or not): the
-            G-buffer (its ``distance`` is the camera depth), and the BVH (``visibility: exact``) or the light's
-            shadow map (``visibility: shadow_map``).
-        settings: :class:`~warpscatter.scattering.settings.ScatteringSettings`: ``steps`` (by default
-            :data:`~warpscatter.scattering.settings.EPIPOLAR_STEPS`), ``seed``, ``jitter``, ``visibility`` and
-            ``shadow_map.bias`` as the reference marcher's (with the same steps a sample at a pixel centre reproduces
-            its value), and the ``epipolar`` section.
-        stage: the :class:`~warpscatter.runtime.stages.StageTimer`; stages ``lines``, ``discontinuities``, ``raymarch``,
-            ``interpolate``.
+        frame: :class:`~warpscatter.pipeline.frame.Frame` (directional or spot light): the G-buffer, and the BVH
+            (``visibility: exact``) or the light's shadow map (``visibility: shadow_map``).
+        settings: :class:`~warpscatter.scattering.settings.ScatteringSettings`; the marching keys as the reference
+            marcher's (with the same steps a sample at a pixel centre reproduces its value), and ``epipolar``.
+        stage: the :class:`~warpscatter.runtime.stages.StageTimer`.
 
     Returns:
-        (L_scat, info): (H, W) vec3 wp.array of in-scattered radiance (linear RGB) and a dict with
-        ``epipolar_raymarched_fraction`` (ray marches / pixels), sample and pixel counts,
-        ``epipolar_mean_sample_steps`` (the mean steps of a marched sample,
-        :func:`~warpscatter.scattering.marching.texel_steps`), the epipole, the valid line count, the light-texture
-        level, ``epipolar_fallback`` (None or the degenerate-case reason) and, when the frame asks for it, the
-        ``epipolar_samples`` debug output in ``debug_images`` (:func:`marched_steps_image`).
-
-    Raises:
-        ValueError: an image smaller than 2 x 2 pixels, or a missing visibility input.
+        (L_scat, info): (H, W) vec3 linear RGB, and a dict of the ``epipolar_*`` counts and fractions, the epipole,
+        ``epipolar_fallback`` (None or the reason) and, when asked, ``debug_images`` (:func:`marched_steps_image`).
     """
     stage = stage or StageTimer()
     device = default_device(frame.device)
@@ -271,7 +232,6 @@ def render(frame, settings, stage: StageTimer | None = None) -> tuple[wp.array, 
         geo = geometry_params(lines)
         upsample_stride = ep.upsample_stride_for(scene.light.kind == "spot")
         with stage("discontinuities"):
-            # a spot in front of the camera: dense samples around its image (classify_samples)
             dense = LOCAL_DENSE_RADIUS if scene.light.kind == "spot" and not lines.light_behind else 0.0
             classify_samples(lines, tex, ep.depth_threshold, device, dense_radius=dense)
             sample_idx, marched_samples = tex.samples, tex.sample_count

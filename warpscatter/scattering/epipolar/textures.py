@@ -1,12 +1,9 @@
-"""Epipolar lines on the device (Engelhardt & Dachsbacher 2010, Sec. 5.1-5.2): the line layout as kernels see
-it, the coordinate texture, the camera depth at every texel, the discontinuity search and the classification into
-ray-marching and interpolation samples.
+"""Epipolar lines on the device (Engelhardt & Dachsbacher 2010, Sec. 5.1-5.2): the coordinate texture, the camera
+depth at every texel, the discontinuity search and the classification into ray-marching and interpolation samples.
 
 Textures are (lines, samples) in the paper's layout (Fig. 6): row = line, column = position along it from the
-epipole side (:mod:`.lines` computes the layout on the host). The radiance and the camera depth of the
-texels share one vec4 texture (what a bilateral tap reads). The per-texel kernels run one thread per line (a loop
-along it), split across cores. Depth comparisons are relative: two camera depths a, b are discontinuous when
-|a - b| > threshold min(a, b) (Sec. 6).
+epipole side; radiance and camera depth share one vec4 texture (one read per bilateral tap). The per-texel kernels
+run one thread per line.
 """
 
 from __future__ import annotations
@@ -33,7 +30,7 @@ class EpipolarGeometry:
     border_width: float  # border rectangle [0.5, 0.5 + border_width] x [0.5, 0.5 + border_height], pixels
     border_height: float
     spacing: float  # border arclength between consecutive lines' end points, pixels
-    lines: int  # N: rows of the coordinate / interpolation / radiance textures
+    lines: int  # N: rows of the textures
     samples: int  # texels per line: their columns
     segment: int  # texels per initial segment
 
@@ -61,7 +58,8 @@ class LineArrays:
 
 @wp.func
 def depth_discontinuity(a: float, b: float, threshold: float) -> bool:
-    """Engelhardt 2010 Sec. 5.2: a depth discontinuity between camera depths a and b (relative threshold)."""
+    """A depth discontinuity between camera depths a and b: |a - b| > threshold min(a, b) (Engelhardt 2010 Sec. 5.2,
+    6)."""
     return wp.abs(a - b) > threshold * wp.min(a, b)
 
 
@@ -97,10 +95,7 @@ def sample_distance(distance: wp.array2d(dtype=wp.float32), x: float, y: float, 
 @wp.func
 def border_arclength(e: wp.vec2, d: wp.vec2, width: float, height: float) -> float:
     """Border arclength (clockwise from the top-left corner, pixels) where the ray e + t d, t > 0, leaves the
-    rectangle [0, width] x [0, height] (the ray must cross it; e may lie outside). Engelhardt 2010 Fig. 8.
-
-    Callers pass positions relative to the border rectangle's corner (0.5, 0.5).
-    """
+    rectangle [0, width] x [0, height], which it must cross (Engelhardt 2010 Fig. 8); e relative to (0.5, 0.5)."""
     tx = float(1.0e30)
     ty = float(1.0e30)
     if d[0] > 0.0:
@@ -124,13 +119,9 @@ def border_arclength(e: wp.vec2, d: wp.vec2, width: float, height: float) -> flo
 
 @wp.func
 def ray_enters_cone(origin: wp.vec3, d: wp.vec3, apex: wp.vec3, axis: wp.vec3, cos_cone: float) -> bool:
-    """True if the ray origin + t d (unit d, t >= 0, unbounded) enters the cone of unit ``axis`` at ``apex``:
-    {x: angle(x - apex, axis) <= acos(cos_cone)}, cos_cone > 0 (the forward nappe only).
-
-    Seen from the apex, the ray's points sweep the great-circle arc from normalize(origin - apex) to d; the ray
-    enters the cone iff the arc comes within the cone's half-angle of the axis (closest point of the great
-    circle if it lies on the arc, else the nearer end).
-    """
+    """True if the ray origin + t d (unit d, t >= 0) enters the forward cone of unit ``axis`` at ``apex`` with half
+    angle acos(cos_cone) > 0: seen from the apex the ray sweeps a great-circle arc from normalize(origin - apex) to d,
+    and it enters iff the arc comes within the half angle of the axis."""
     w = origin - apex
     lw = wp.length(w)
     if lw < 1.0e-12:
@@ -163,8 +154,8 @@ def screen_point_in_light(cam: CameraParams, light: LightParams, p: wp.vec2) -> 
 
 @wp.func
 def cone_edge(cam: CameraParams, light: LightParams, a: wp.vec2, ab: wp.vec2, t_in: float, t_out: float) -> float:
-    """Where the screen segment a + t ab leaves the light frustum between t_in (inside) and t_out (outside):
-    24 bisection steps; returns the outside end of the final bracket (so the edge stays covered)."""
+    """Where the screen segment a + t ab leaves the light frustum between t_in (inside) and t_out (outside): the
+    outside end of 24 bisection steps' bracket, so the edge stays covered."""
     for _it in range(24):
         mid = 0.5 * (t_out + t_in)
         if screen_point_in_light(cam, light, a + ab * mid):
@@ -199,9 +190,6 @@ def wrap_line(k: int, n: int) -> int:
     return r
 
 
-# ---- kernels -------------------------------------------------------------------------------------
-
-
 @wp.kernel
 def trim_to_cone_kernel(
     cam: CameraParams,
@@ -212,9 +200,8 @@ def trim_to_cone_kernel(
     valid: wp.array(dtype=wp.int32),  # in/out: 0 when no camera ray of the segment enters the cone
     offset: int,
 ):
-    # Engelhardt 2010 Sec. 5.1: clip the lines against the light frustum. The camera rays of one epipolar line
-    # that enter the cone form one interval along it: find it on ``points`` equidistant points, refine both ends
-    # by bisection, keep one pixel of margin.
+    # Engelhardt 2010 Sec. 5.1: a line's rays entering the cone form one interval: found on ``points`` points, both
+    # ends refined by bisection, one pixel of margin
     k = wp.tid() + offset
     if valid[k] == 0:
         return
@@ -270,8 +257,7 @@ def line_samples_kernel(
     line_depth: wp.array2d(dtype=wp.float32),  # out: camera depth at each texel
     offset: int,
 ):
-    # Engelhardt 2010 Sec. 5.1: texel positions by interpolation between the clipped segment's end points; one
-    # thread per line
+    # Engelhardt 2010 Sec. 5.1: texel positions between the clipped segment's end points
     k = wp.tid() + offset
     n = geo.samples
     if valid[k] == 0:
@@ -301,9 +287,8 @@ def discontinuity_kernel(
     count: wp.array(dtype=wp.int32),  # out: ray-marching samples per line
     offset: int,
 ):
-    # Engelhardt 2010 Sec. 5.2, one pass per line: the texels of an initial segment split into runs at the depth
-    # discontinuities between neighbours; every texel of a run [a, b] gets the sources (a, b), exactly what the
-    # paper's per-texel search left and right inside the segment finds, and a and b are ray-marching samples.
+    # Engelhardt 2010 Sec. 5.2 in one pass per line: an initial segment splits into runs at depth discontinuities;
+    # a run [a, b]'s texels get the sources (a, b) (what the paper's per-texel search finds), marched samples
     k = wp.tid() + offset
     n = geo.samples
     row = k * n
@@ -371,15 +356,9 @@ def compact_kernel(flags: wp.array(dtype=wp.int32), scan: wp.array(dtype=wp.int3
         indices[scan[n]] = n
 
 
-# ---- host ----------------------------------------------------------------------------------------
-
-
 def compact(flags: wp.array, device=None) -> tuple[wp.array, int]:
-    """Indices of the non-zero entries of a 1-D int32 flag array (exclusive scan + scatter).
-
-    Returns:
-        (indices, count): int32 array of length max(count, 1) (the first ``count`` entries are valid) and count.
-    """
+    """(indices, count): the indices of the non-zero entries of a 1-D int32 flag array, in an int32 array of length
+    max(count, 1) (exclusive scan + scatter)."""
     device = default_device(device)
     n = flags.shape[0]
     scan = wp.empty(n, dtype=wp.int32, device=device)
@@ -392,15 +371,8 @@ def compact(flags: wp.array, device=None) -> tuple[wp.array, int]:
 
 
 def gather_rows(rows: wp.array, count: wp.array, device=None) -> tuple[wp.array, int]:
-    """Flat indices ``row * rows.shape[1] + column`` of per-row column lists, row-major.
-
-    Args:
-        rows: (R, C) int32: row r lists ``count[r]`` columns first (the rest is never read).
-        count: (R,) int32.
-
-    Returns:
-        (indices, total): int32 array of length max(total, 1) (the first ``total`` entries are valid) and total.
-    """
+    """(indices, total): the flat indices ``row * rows.shape[1] + column``, row-major, of the first ``count[r]``
+    columns listed in each row r of ``rows`` (R, C), in an int32 array of length max(total, 1)."""
     device = default_device(device)
     counts = count.numpy().astype(np.int64)
     total = int(counts.sum())
@@ -425,15 +397,12 @@ def geometry_params(lines: EpipolarLines) -> EpipolarGeometry:
 
 @dataclass
 class LineTextures:
-    """Device textures of the epipolar lines, all (lines, samples) in the paper's layout (Fig. 6).
+    """Device textures of the epipolar lines, (lines, samples) in the paper's layout (Fig. 6); ``entry``, ``exit`` and
+    ``valid`` as in :class:`LineArrays`, ``radiance`` and ``depth`` strided views of ``texels``."""
 
-    The radiance and the camera depth share one texture, ``texels`` (vec4: L_scat, depth), so that a bilateral tap
-    reads one texel; ``radiance`` and ``depth`` are strided views of it.
-    """
-
-    entry: wp.array  # (N,) vec2
-    exit: wp.array  # (N,) vec2
-    valid: wp.array  # (N,) int32
+    entry: wp.array
+    exit: wp.array
+    valid: wp.array
     records: wp.array  # (N,) LineRecord: the segments as the upsampling reads them
     coords: wp.array  # coordinate texture: vec2 screen position
     texels: wp.array  # vec4 (L_scat, camera depth)
@@ -457,12 +426,8 @@ CONE_TRIM_POINTS = 128
 
 
 def trim_to_cone(lines: EpipolarLines, camera, light, device=None) -> EpipolarLines:
-    """Clip the lines against a spot light's cone (Engelhardt 2010 Sec. 5.1); lines missing it are culled.
-
-    Directional lights return ``lines`` unchanged. The segment ends keep one pixel of margin beyond the interval
-    of camera rays that enter the cone (an interval narrower than 1 / CONE_TRIM_POINTS of a line may be missed:
-    its pixels find no valid line and are ray-marched directly).
-    """
+    """Clip the lines to a spot light's cone, one pixel of margin, culling lines that miss it (Engelhardt 2010 Sec.
+    5.1); an interval narrower than 1 / CONE_TRIM_POINTS of a line may be missed (its pixels are then marched)."""
     if not isinstance(light, SpotLight):
         return lines
     device = default_device(device)
@@ -484,14 +449,8 @@ def texel_views(texels: wp.array) -> tuple[wp.array, wp.array]:
 
 
 def line_samples(lines: EpipolarLines, distance: wp.array, depth_threshold: float, device=None) -> LineTextures:
-    """Coordinate texture and per-texel camera depth (Engelhardt 2010 Sec. 5.1).
-
-    Args:
-        lines: the frame's :class:`EpipolarLines`.
-        distance: (H, W) G-buffer distance (camera depth along each pixel ray).
-        depth_threshold: relative threshold deciding where the depth is sampled bilinearly (continuous).
-        device: Warp device.
-    """
+    """Coordinate texture and per-texel camera depth from the G-buffer ``distance`` (Engelhardt 2010 Sec. 5.1;
+    :func:`sample_distance` with ``depth_threshold``)."""
     device = default_device(device)
     n, s = lines.count, lines.samples
     texels = wp.empty((n, s), dtype=wp.vec4, device=device)
@@ -511,17 +470,10 @@ def line_samples(lines: EpipolarLines, distance: wp.array, depth_threshold: floa
 
 def classify_samples(lines: EpipolarLines, tex: LineTextures, depth_threshold: float, device=None,
                      dense_radius: float = 0.0) -> LineTextures:
-    """Discontinuity search and classification into ray-marching / interpolation samples (Sec. 5.2).
-
-    ``dense_radius`` (pixels): every texel that close to the epipole is a ray-marching sample. A spot light in front
-    of the camera is its own epipole, and in-scattering there falls off like the inverse distance to the light:
-    linear interpolation between the initial samples overshoots it by orders of magnitude (warpscatter's; the paper
-    refines at depth discontinuities only).
-
-    Fills ``tex.interp`` (left, right sources per texel), ``tex.march`` (flat ray-marching flags) and
-    ``tex.samples`` / ``tex.sample_count`` (the flat indices of the ray-marching samples, in flat order: the
-    paper's stencil mask as a list).
-    """
+    """Discontinuity search and classification into ray-marching / interpolation samples (Sec. 5.2): fills
+    ``tex.interp``, ``tex.march`` and ``tex.samples`` / ``tex.sample_count`` (the paper's stencil mask as a list).
+    Every texel within ``dense_radius`` pixels of the epipole is marched (warpscatter's): a spot in front of the
+    camera is its own epipole, where in-scattering falls off like 1 / distance and interpolation overshoots."""
     device = default_device(device)
     n, s = lines.count, lines.samples
     tex.interp = wp.empty((n, s), dtype=wp.vec2i, device=device)

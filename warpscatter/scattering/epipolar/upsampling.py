@@ -1,22 +1,13 @@
 """Interpolation along the epipolar lines and bilateral upsampling to every pixel (Engelhardt & Dachsbacher 2010,
 Sec. 4.3 and 5.3), and the degenerate case's grid upsampling.
 
-Per pixel: the two nearest lines from the border arclength of the ray epipole -> pixel (the 1D border lookup,
-analytic because the border points are equidistant), projection onto them, a bilateral filter along each (the
-paper's 3-5 taps a multiple of the projections' distance apart, in symmetric pairs, distance and depth weights,
-Gaussian, Shepard or threshold; or one tap, the default: the line texture's depth-weighted linear interpolation at
-the projection, see :data:`~warpscatter.scattering.settings.EPIPOLAR_TAPS`), then between the lines by their weight
-sums; a side without valid taps moves to the next outer line (at most ``outer_lines``). Pixels with no valid tap on any
-tried line are listed per row as ``unresolved`` (the method ray-marches them). Pixels whose camera ray misses a spot
-light's cone are exactly 0. :func:`upsample` runs the filter at every pixel or, with a stride (warpscatter's, the
-default), on a grid and the pixels its cells cannot interpolate (:mod:`warpscatter.scattering.sparse_evaluation`), with
-one per-pixel function (:func:`upsample_pixel`) for both.
-
-Work layout (the arithmetic is :func:`line_filter`'s, operation for operation, so the images do not depend on it):
-one thread per band of :data:`UPSAMPLE_TILE` image rows, walked in square tiles so that the texels of the few lines
-crossing a tile stay in the cache; each line's segment is read from one :data:`~.textures.LineRecord` and
-each tap texel from one vec4 (radiance, depth); the projections on the two nearest lines serve the tap spacing and
-the filters alike; both nearest lines are filtered before the outer lines are tried.
+Per pixel (:func:`upsample_pixel`): the two nearest lines from the border arclength of the ray epipole -> pixel (the
+1D border lookup), the pixel's projection onto them, a bilateral filter along each (:func:`line_filter`), then between
+the lines by their weight sums; a side without valid taps moves outwards (at most ``outer_lines``). Pixels with no
+valid tap are left to the marcher (``unresolved``); pixels whose ray misses a spot light's cone are exactly 0.
+:func:`upsample` runs it at every pixel, or on a grid and the pixels its cells cannot interpolate
+(:mod:`warpscatter.scattering.sparse_evaluation`, warpscatter's). The work layout (tiles, one record per line, one
+vec4 per texel) never changes the arithmetic, so the images do not depend on it.
 """
 
 from __future__ import annotations
@@ -75,12 +66,9 @@ class BilateralFilter:
 
 @wp.func
 def kernel_weight(kernel: int, x: float) -> float:
-    """Radial basis of the bilateral filter (Engelhardt 2010 Sec. 4.3), 1 at x = 0.
-
-    Gaussian exp(-x^2), Shepard-type 1 / (1 + x^2) (the inverse square regularised at 0), threshold [x <= 1].
-    The Gaussian uses its series 1 - x^2 + x^4 / 2 below x = 1/16 (error < x^6 / 6 = 1e-8, under float32
-    resolution at 1): taps on one smooth surface, the common case of the upsampling, skip the exp.
-    """
+    """Radial basis of the bilateral filter (Engelhardt 2010 Sec. 4.3), 1 at x = 0: Gaussian exp(-x^2) (its series
+    1 - x^2 + x^4 / 2 below x = 1/16, error < 1e-8, skips the exp on smooth surfaces), Shepard-type 1 / (1 + x^2) or
+    threshold [x <= 1]."""
     if kernel == KERNEL_GAUSSIAN:
         if x < 0.0625:
             x2 = x * x
@@ -119,8 +107,7 @@ def depth_weight(flt: BilateralFilter, tap_depth: float, pixel_depth: float) -> 
 
 @wp.func
 def record_projection(r: LineRecord, p: wp.vec2) -> float:
-    """:func:`~.textures.project_on_line` of p from a line's :data:`~.textures.LineRecord` (the same
-    operations, so the same result)."""
+    """:func:`~.textures.project_on_line` of p from a line's :data:`~.textures.LineRecord`, operation for operation."""
     if r[4] < 1.0e-12:
         return 0.0
     return wp.dot(p - wp.vec2(r[0], r[1]), wp.vec2(r[2], r[3])) / r[4]
@@ -129,9 +116,8 @@ def record_projection(r: LineRecord, p: wp.vec2) -> float:
 @wp.func
 def tap_texels(flt: BilateralFilter, texels: wp.array(dtype=wp.vec4), row: int, n: int, c: float, wdist: float,
                pixel_depth: float, scale: float, acc: wp.vec4, wsum: float):
-    """One tap of :func:`line_taps` at texel position c (in [0, n - 1]) with distance weight ``wdist``: the two texels
-    around c, each weighted by its linear weight, ``wdist`` and its depth weight (invalid ones skipped), added to
-    (acc, wsum)."""
+    """(acc, wsum) plus one tap of :func:`line_taps` at texel position c in [0, n - 1]: its two texels, each weighted
+    by its linear weight, ``wdist`` and its depth weight (invalid ones skipped)."""
     t0 = wp.min(int(c), n - 1)  # c >= 0: truncation is the floor
     f = c - float(t0)
     if f < 1.0:
@@ -152,13 +138,8 @@ def tap_texels(flt: BilateralFilter, texels: wp.array(dtype=wp.vec4), row: int, 
 @wp.func
 def line_taps(flt: BilateralFilter, texels: wp.array(dtype=wp.vec4), row: int, n: int, tc: float, step: float,
               pixel_depth: float, scale: float):
-    """The taps of :func:`line_filter` along the line whose n texels start at flat index ``row`` of the (L, depth)
-    texels, around texel position tc (n - 1), ``step`` texels apart; ``scale`` is :func:`depth_scale`. One tap
-    (``flt.taps`` 1) is the texture's depth-weighted linear interpolation at tc (n - 1), without the tap loop.
-
-    Returns:
-        (sum of w (L, depth), sum of w).
-    """
+    """(sum of w (L, depth), sum of w) of :func:`line_filter`'s taps along the line whose n texels start at flat index
+    ``row``, around texel position tc (n - 1), ``step`` texels apart; ``scale`` is :func:`depth_scale`."""
     last = float(n - 1)
     centre = tc * last
     acc = wp.vec4(0.0, 0.0, 0.0, 0.0)
@@ -195,19 +176,11 @@ def line_filter_at(geo: EpipolarGeometry, flt: BilateralFilter, texels: wp.array
 @wp.func
 def line_filter(geo: EpipolarGeometry, flt: BilateralFilter, lines: LineArrays, k: int, p: wp.vec2,
                 pixel_depth: float, delta: float):
-    """1D bilateral filter along epipolar line k for pixel p (Engelhardt 2010 Sec. 4.3).
-
-    Taps at offsets (m - (taps-1)/2) delta from p's projection on the line, in symmetric pairs (a pair with a
-    tap beyond an end of the segment is dropped, so a linear variation along the line is reproduced at the
-    ends too); each tap reads the radiance texture linearly between its two texels, each texel weighted by its
-    linear weight, the distance weight and its depth weight (texels with an invalid depth weight are skipped).
-    With one tap (``flt.taps`` 1) that is the texture's depth-weighted linear interpolation at the projection.
-
-    Returns:
-        (sum of w L, sum of w, distance from p to the line in pixels); the sum of w is 0 when the line is
-        culled, does not reach p (the projection lies more than max(2 delta, 2 px) beyond the segment) or has
-        no valid tap.
-    """
+    """1D bilateral filter along epipolar line k for pixel p (Engelhardt 2010 Sec. 4.3): (sum of w L, sum of w,
+    distance from p to the line in pixels). Taps at offsets (m - (taps-1)/2) delta from p's projection, in symmetric
+    pairs (a pair reaching past an end is dropped, so linear variation is reproduced at the ends), each read linearly
+    between two texels with distance and depth weights; one tap is the depth-weighted linear interpolation at the
+    projection. The sum of w is 0 for a culled line, one not reaching p (max(2 delta, 2 px)) or no valid tap."""
     r = lines.records[k]
     acc, wsum, dist = line_filter_at(geo, flt, lines.texels, k, r, record_projection(r, p), p, delta, pixel_depth,
                                      depth_scale(flt, pixel_depth))
@@ -217,15 +190,12 @@ def line_filter(geo: EpipolarGeometry, flt: BilateralFilter, lines: LineArrays, 
 @wp.func
 def side_filter(geo: EpipolarGeometry, flt: BilateralFilter, texels: wp.array(dtype=wp.vec4), k: int, r: LineRecord,
                 tau: float, p: wp.vec2, m: int, delta: float, pixel_depth: float, scale: float):
-    """:func:`line_filter_at` on the m-th line outwards on one side of p, if the upsampling accepts it (a valid tap,
-    and within m + 1 line spacings + 1 px of p: never a line across the pencil), else zeros."""
+    """:func:`line_filter_at` on the m-th line outwards if it has a valid tap within m + 1 line spacings + 1 px of p
+    (never a line across the pencil), else zeros."""
     acc, wsum, dist = line_filter_at(geo, flt, texels, k, r, tau, p, delta, pixel_depth, scale)
     if wsum > 0.0 and dist <= (float(m) + 1.0) * geo.spacing + 1.0:
         return acc, wsum, dist
     return wp.vec4(0.0, 0.0, 0.0, 0.0), 0.0, 0.0
-
-
-# ---- kernels -------------------------------------------------------------------------------------
 
 
 @wp.kernel
@@ -244,8 +214,7 @@ def interpolate_lines_kernel(
     radiance: wp.array2d(dtype=wp.vec3),  # in: ray-marching samples; out: interpolation samples (0 on culled lines)
     offset: int,
 ):
-    # Engelhardt 2010 Sec. 5.3: linear interpolation between the two sources (reads marched texels only); one
-    # thread per line
+    # Engelhardt 2010 Sec. 5.3: linear interpolation between the two sources (marched texels)
     k = wp.tid() + offset
     n = radiance.shape[1]
     if valid[k] == 0:
@@ -264,10 +233,8 @@ def interpolate_lines_kernel(
 @wp.func(inline=True)
 def upsample_pixel(cam: CameraParams, light: LightParams, geo: EpipolarGeometry, flt: BilateralFilter,
                    lines: LineArrays, e_rel: wp.vec2, i: int, j: int, pixel_depth: float):
-    """L_scat of pixel (i, j) (camera distance ``pixel_depth``) from the line textures (Engelhardt 2010 Sec. 4.3 /
-    5.3, module doc; ``e_rel`` = epipole - (0.5, 0.5)), and whether it has a valid tap: (value, resolved); an
-    unresolved pixel's value is 0 (the method ray-marches it), as is a pixel whose ray misses a spot light's cone
-    (resolved: exactly 0)."""
+    """(L_scat, resolved) of pixel (i, j) at camera distance ``pixel_depth`` from the line textures (Engelhardt 2010
+    Sec. 4.3, 5.3; module doc), ``e_rel`` = epipole - (0.5, 0.5); 0 when unresolved (no valid tap)."""
     p = wp.vec2(float(i) + 0.5, float(j) + 0.5)
     if not screen_point_in_light(cam, light, p):
         return wp.vec3(0.0, 0.0, 0.0), True  # the ray never enters the light frustum: exactly 0
@@ -288,8 +255,7 @@ def upsample_pixel(cam: CameraParams, light: LightParams, geo: EpipolarGeometry,
     delta = wp.length((wp.vec2(r0[0], r0[1]) + wp.vec2(r0[2], r0[3]) * tau0)
                       - (wp.vec2(r1[0], r1[1]) + wp.vec2(r1[2], r1[3]) * tau1))
     scale = depth_scale(flt, pixel_depth)
-    # ---- bilateral filter along each side's nearest valid line, moving outwards (line_filter): the nearest line on
-    # both sides first (independent work), outer lines only where that has no valid tap ----
+    # ---- bilateral filter along each side's nearest valid line, moving outwards only without a valid tap ----
     a_l, w_l, d_l = side_filter(geo, flt, lines.texels, k0, r0, tau0, p, 0, delta, pixel_depth, scale)
     a_r, w_r, d_r = side_filter(geo, flt, lines.texels, k1, r1, tau1, p, 0, delta, pixel_depth, scale)
     m = int(1)
@@ -334,8 +300,7 @@ def upsample_kernel(
     unresolved_count: wp.array(dtype=wp.int32),  # out: per row, how many
     offset: int,
 ):
-    # every pixel (upsample_stride 1): one thread per band of UPSAMPLE_TILE rows, in tiles of UPSAMPLE_TILE columns
-    # (the texels of the few lines that cross a tile stay in the cache)
+    # every pixel: one thread per band of UPSAMPLE_TILE rows, in square tiles (the few lines crossing one stay cached)
     j0 = (wp.tid() + offset) * UPSAMPLE_TILE
     j1 = wp.min(j0 + UPSAMPLE_TILE, cam.height)
     for j in range(j0, j1):
@@ -420,26 +385,16 @@ def grid_upsample_kernel(
     out[j, i] = (grid[gj0, gi0] * w00 + grid[gj0, gi1] * w10 + grid[gj1, gi0] * w01 + grid[gj1, gi1] * w11) / wsum
 
 
-# ---- host ----------------------------------------------------------------------------------------
-
-
 def upsample(cam, distance: wp.array, light: LightParams, geo: EpipolarGeometry, flt: BilateralFilter,
              lines: LineArrays, out: wp.array, stride: int = 1, device=None) -> tuple[wp.array, int, float]:
-    """Bilateral upsampling of the line textures to every pixel of ``out`` (module doc).
+    """Bilateral upsampling of the line textures to every pixel of ``out``: (indices, count, upsampled fraction), the
+    flat indices ``j * width + i`` of the pixels without a valid tap (``out`` 0 there; the caller marches them) and the
+    share of pixels the filter ran at.
 
-    ``stride`` 1: every pixel, in tiles (:func:`upsample_kernel`, the paper's per-pixel upsampling). ``stride`` > 1
-    (warpscatter's): the upsampling runs on every ``stride``-th pixel in x and y and on the pixels between them whose
-    grid cell does not agree; the others interpolate their cell
-    (:func:`~warpscatter.scattering.sparse_evaluation.evaluate_sparse`, the prefiltered methods' rule and tolerances). A
-    corner without a valid tap refuses its cell, so every pixel left to the marcher is one the filter ran at and found
-    no tap for; a pixel whose cell agrees is interpolated even where its own filter would have found none (a subset of
-    stride 1's marched pixels is marched), and, as for the prefiltered look-up, a feature narrower than a cell between
-    agreeing corners (a thin shaft) is interpolated over.
-
-    Returns:
-        (indices, count, upsampled fraction): the flat indices ``j * width + i`` of the pixels without a valid tap
-        (the first ``count``; the caller ray-marches them; their ``out`` is 0) and the fraction of the pixels the
-        filter ran at.
+    ``stride`` 1: every pixel (the paper's). ``stride`` > 1 (warpscatter's): a grid and the pixels whose cell does not
+    agree (:func:`~warpscatter.scattering.sparse_evaluation.evaluate_sparse`, the prefiltered rule and tolerances); a
+    corner without a valid tap refuses its cell, so every marched pixel is one the filter found no tap for, and a
+    feature narrower than a cell between agreeing corners (a thin shaft) is interpolated over.
     """
     device = default_device(device)
     h, w = cam.height, cam.width
@@ -462,7 +417,7 @@ def upsample(cam, distance: wp.array, light: LightParams, geo: EpipolarGeometry,
 
 
 def filter_params(settings: EpipolarSettings, device=None) -> BilateralFilter:
-    """:class:`BilateralFilter` from :class:`EpipolarSettings` (the tap distance weights come from a tiny kernel)."""
+    """:class:`BilateralFilter` from :class:`EpipolarSettings`."""
     device = default_device(device)
     f = BilateralFilter()
     f.kernel = EPIPOLAR_KERNELS.index(settings.kernel)

@@ -4,29 +4,19 @@ prefix sums, the per-pixel look-up and the epipole fallback; only the per-texel 
 M Fourier coefficients (Klehm Eq. 8) or 4 / 6 moments of the signed rectified depth with Algorithm 1 and adaptive
 overestimation at evaluation (Peters Sec. 5.3-5.4).
 
-:func:`render` runs the paper's steps as passes (stage names as they appear in timings):
+:func:`render` runs the paper's steps as passes (stage names as in timings):
 
-1. ``rectify`` (:mod:`.rectify`): the light's view in rectified coordinates, projective (Klehm Sec. 4.2) or
-   non-linear (Peters Sec. 5.1.1, App. A), chosen per frame; then ``pixel_coords`` where a step needs every pixel's
-   look-up coordinates, and ``caster_culling`` (not in the papers, :mod:`..rectify.caster_culling`): every texel whose
-   blocker shadows none of the pixels' look-ups is emptied;
-2. ``prefilter`` (:mod:`.prefilter`): the Fourier basis or the moments of the rectified depth in per-row prefix sums,
-   weighted by the transmittance along each row's reference ray (Klehm Listings 1-3), with row mip levels
-   (:mod:`.row_mips`) and per-row depth bounds;
-3. ``evaluate`` (:mod:`.evaluate`): per pixel one filtered look-up and one reconstruction (Klehm Listing 4, the
-   ``@wp.func`` building blocks in :mod:`.lookups`), on a grid and the pixels it cannot interpolate
-   (:mod:`..sparse_evaluation`);
-4. ``epipole`` (:mod:`.epipole`): the pixels around the light's epipole, and rays whose whole look-up lies in their
-   end surface's own zone, ray-marched with shadow-map visibility (Klehm Sec. 5, Fig. 8).
+1. ``rectify`` (:mod:`.rectify`: projective, Klehm Sec. 4.2, or non-linear, Peters Sec. 5.1.1), then ``pixel_coords``
+   and ``caster_culling`` (not in the papers: texels whose blockers shadow no look-up are emptied);
+2. ``prefilter`` (:mod:`.prefilter`: Klehm Listings 1-3), with row mip levels and per-row depth bounds;
+3. ``evaluate`` (:mod:`.evaluate`: Klehm Listing 4; building blocks in :mod:`.lookups`), sparse where it can;
+4. ``epipole`` (:mod:`.epipole`: Klehm Sec. 5, Fig. 8), ray-marching what the look-up cannot answer.
 
-A spot light (Klehm Sec. 3.2, local lights) takes the same steps on its own map (:mod:`.spot`,
-:mod:`..rectify`, :mod:`.spot_lookups`). Settings:
-:class:`~warpscatter.scattering.settings.ScatteringSettings` (``render.scattering.prefiltered``, ``fourier``,
-``moments``; keys, defaults and ranges documented there and in the README's config reference).
+A spot light (Klehm Sec. 3.2) takes the same steps on its own map (:mod:`.spot`, :mod:`.spot_lookups`). Settings:
+:class:`~warpscatter.scattering.settings.ScatteringSettings`.
 """
 
-#: public name -> the pass or building block that defines it; imported on first use, so that a building block
-#: (``prefix_sums``, ``filtered_lookups``, ...) imports without the passes that import it
+#: public name -> the module defining it, imported on first use (a building block imports without the passes)
 _NAMES = {
     "EvaluateVariant": "evaluate",
     "Evaluation": "evaluate",

@@ -1,13 +1,6 @@
-"""The ``epipole`` pass: the pixels a look-up cannot answer well are ray-marched with shadow-map visibility.
-
-* When the light (or its flip) projects into the view, the non-linear rectification's slices all meet there and
-  precision is low: light bleeds into a ring around the epipole (Klehm 2014 Sec. 5, Fig. 8). The pixels whose view
-  ray lies within ``epipole_angle_deg`` of the light direction (or its flip), at least Klehm's block of
-  ``epipole_block`` pixels, are marched and blended linearly in the angle with the look-up over a band of
-  ``EPIPOLE_BLEND`` times that radius (:mod:`.epipole_regions`). An angle rather than a pixel count keeps the region
-  the same at every resolution.
-* Rays ending in shadow whose whole extent lies within their end surface's own zone (``end_offset``; flagged by the
-  look-up, :mod:`.evaluate`) have nothing to look up: they are marched as the disc is.
+"""The ``epipole`` pass: the pixels a look-up cannot answer well are ray-marched with shadow-map visibility: the disc
+around an epipole in view (Klehm 2014 Sec. 5, Fig. 8; :mod:`.epipole_regions`) and the rays ending in shadow whose
+whole look-up lies within their end surface's own zone (``end_offset``; flagged by :mod:`.evaluate`).
 """
 
 from __future__ import annotations
@@ -20,12 +13,8 @@ from .epipole_regions import march_epipole_regions, march_flagged_pixels
 
 def march_epipole(frame, settings, regions: list, radiance: wp.array, end_zone: wp.array | None,
                   stage: StageTimer, device) -> tuple[int, float]:
-    """March the flagged end-zone pixels (``end_zone``: the look-up's flags, None when it flagged none) and the
-    epipole ``regions`` into ``radiance`` (stage ``epipole``).
-
-    Returns:
-        (end-zone pixels marched, the marched share of the regions' pixels; 1 without regions).
-    """
+    """March the flagged end-zone pixels (``end_zone``; None: none flagged) and the epipole ``regions`` into
+    ``radiance`` (stage ``epipole``). Returns (end-zone pixels marched, the regions' marched share; 1 without)."""
     scene, gbuffer, shadow_map, p = frame.scene, frame.gbuffer, frame.shadow_map, settings.prefiltered
     march = {"steps": p.epipole_steps, "seed": settings.seed, "shadow_bias_texels": settings.shadow_map.bias,
              "jitter": settings.march_jitter, "device": device}

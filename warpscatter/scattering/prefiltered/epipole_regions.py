@@ -1,26 +1,13 @@
 """The epipole fallback of the prefiltered methods: ray-march the pixels around an epipole in view (Klehm et al.
 2014 Sec. 5, Fig. 8).
 
-When the light (or its flip) projects into the view, the non-linear rectification's slices all meet there and
-precision is low: light bleeds into a ring around the epipole. The pixels whose view ray lies within an angle of
-the light direction (or its flip) — at least Klehm's block of ``epipole_block`` pixels — are ray-marched with
-shadow-map visibility instead, blended linearly in the angle with the prefiltered result over a band of
-``EPIPOLE_BLEND`` times that radius. An angle rather than a pixel count keeps the region the same at every
-resolution.
-
-The march (:func:`~warpscatter.scattering.marching.march_transmittance_strata`) places its ``epipole_steps`` strata at
-equal shares of the transmittance weight, not at equal lengths as the reference marcher
-(:mod:`warpscatter.scattering.marching`) does: the rays near the sun are sky rays of optical depth ~10, on which a
-handful of equal-length strata carry most of the weight, and the disc came out grainy against the smooth prefiltered
-surround. ``jitter`` picks per-pixel or the fixed pattern; the render methods pass ``ScatteringSettings.march_jitter``,
-fixed by default (less grain still). Each sample reads the map with 2 x 2 percentage-closer filtering
-(:func:`~warpscatter.scattering.marching.map_pcf_at`): near the sun the rays run almost along the light, so a shaft edge
-crossing one stratum's nearest texel stepped whole columns of pixels at once (a comb and a staircase along the shafts of
-``colonnade_sunset``).
-
-The directional look-up skips the pixels inside the inner cones (:class:`MarchedCones`, :func:`wholly_marched`: the
-march's own test), whose value the march replaces whatever it was. The figures behind these choices:
-docs/benchmarks.md, "The epipole fallback".
+Where the light (or its flip) projects into the view the non-linear rectification's slices all meet, precision is low
+and light bleeds into a ring. The pixels whose view ray lies within an angle of the light direction (or its flip), at
+least Klehm's block of ``epipole_block`` pixels, are ray-marched with shadow-map visibility and blended linearly in
+the angle with the prefiltered result over a band of ``EPIPOLE_BLEND`` times that radius (an angle keeps the region
+the same at every resolution). The march (:func:`~warpscatter.scattering.marching.march_transmittance_strata`) puts
+its strata at equal shares of the transmittance weight and reads the map with 2 x 2 PCF; the directional look-up
+skips the pixels inside the inner cones (:func:`wholly_marched`). Why: docs/benchmarks.md, "The epipole fallback".
 """
 
 from __future__ import annotations
@@ -97,8 +84,7 @@ def epipole_blend_kernel(
     out: wp.array2d(dtype=wp.vec3),  # in: the prefiltered image; out: blended with the march in the region
     offset: int,
 ):
-    # a linear blend in the angle over the band between the inner and outer radius hides the seam to the prefiltered
-    # result (Klehm 2014 Sec. 5)
+    # a linear blend in the angle between the inner and outer radius hides the seam (Klehm 2014 Sec. 5)
     lj, li = wp.tid()
     lj += offset
     j = lj + y0
@@ -118,12 +104,11 @@ def epipole_blend_kernel(
 @wp.struct
 class MarchedCones:
     """The inner cones of up to two :class:`EpipoleRegion` as kernels see them (:func:`marched_cones`): a pixel whose
-    view ray lies in one (within its launch rectangle) takes the ray-marched result alone, so a look-up there is
-    work thrown away (:func:`wholly_marched`)."""
+    view ray lies in one takes the ray-marched result alone (:func:`wholly_marched`)."""
 
     count: int  # regions (0-2)
     axis0: wp.vec3
-    cos0: float  # cos of the region's inner radius (epipole_region_kernel's cos_inner)
+    cos0: float  # cos of the region's inner radius (epipole_blend_kernel's cos_inner)
     rect0: wp.vec4i  # the region's launch rectangle: x0, y0, x1, y1 (exclusive)
     axis1: wp.vec3
     cos1: float
@@ -132,7 +117,7 @@ class MarchedCones:
 
 @wp.func
 def in_marched_cone(axis: wp.vec3, cos_inner: float, rect: wp.vec4i, d: wp.vec3, i: int, j: int) -> bool:
-    """Whether epipole_region_kernel gives pixel (i, j) with view direction d the weight 1 (the same test)."""
+    """Whether epipole_blend_kernel gives pixel (i, j) with view direction d the weight 1 (the same test)."""
     return i >= rect[0] and j >= rect[1] and i < rect[2] and j < rect[3] and wp.dot(d, axis) >= cos_inner
 
 
@@ -147,12 +132,8 @@ def wholly_marched(cones: MarchedCones, d: wp.vec3, i: int, j: int) -> bool:
 
 @dataclass(frozen=True)
 class EpipoleRegion:
-    """A ray-marched region around an epipole in view (Klehm 2014 Sec. 5, Fig. 8).
-
-    Pixels whose view ray lies within ``inner_deg`` of ``axis`` are ray-marched; between ``inner_deg`` and
-    ``outer_deg`` the marched and prefiltered results are blended linearly in the angle. ``rect`` (x0, y0, w, h)
-    bounds those pixels in the image.
-    """
+    """A ray-marched region around an epipole in view (Klehm 2014 Sec. 5, Fig. 8): view rays within ``inner_deg`` of
+    ``axis`` are marched, blended up to ``outer_deg``; ``rect`` (x0, y0, w, h) bounds those pixels."""
 
     name: str  # "light" (axis -L) or "anti-light" (axis +L)
     axis: tuple[float, float, float]  # unit direction of the epipole from the camera (world)
@@ -168,9 +149,8 @@ def _pixel_angle_deg(camera, block: int) -> float:
 
 
 def _cone_rect(camera, axis: np.ndarray, angle_deg: float, stride: int = 4) -> tuple[int, int, int, int] | None:
-    """Pixel rectangle (x0, y0, w, h) bounding the pixels whose view ray lies within ``angle_deg`` of ``axis``, or
-    None when there are none. Found on every ``stride``-th pixel with the angle widened by ``stride`` pixels and
-    the rectangle padded by ``stride``, so it is conservative for any cone wider than a few pixels."""
+    """Pixel rectangle (x0, y0, w, h) bounding the view rays within ``angle_deg`` of ``axis``, or None: found on every
+    ``stride``-th pixel with angle and rectangle widened by ``stride`` (conservative for cones over a few pixels)."""
     d = camera.ray_directions(stride)
     margin = _pixel_angle_deg(camera, 2 * stride)
     rows, cols = np.nonzero(d @ axis > np.cos(np.radians(min(angle_deg + margin, 180.0))))
@@ -185,19 +165,10 @@ def _cone_rect(camera, axis: np.ndarray, angle_deg: float, stride: int = 4) -> t
 
 def epipole_regions(camera, light_direction, angle_deg: float, block: int = 0,
                     blend: float = EPIPOLE_BLEND) -> list[EpipoleRegion]:
-    """The ray-marched regions around each epipole whose cone touches the image.
-
-    Args:
-        camera: the :class:`~warpscatter.scene.camera.Camera`.
-        light_direction: unit direction the light travels.
-        angle_deg: angular radius (degrees) of the fully ray-marched disc around the epipole direction.
-        block: a minimum radius in pixels at the image centre, as ``block / 2`` (Klehm's block side; 0: none).
-        blend: relative width of the blend band beyond the inner radius (outer = inner * (1 + blend)).
-
-    Returns:
-        One :class:`EpipoleRegion` per epipole ("light": towards the light, "anti-light": its flip) whose region
-        meets the image; empty when both radii are 0.
-    """
+    """One :class:`EpipoleRegion` per epipole ("light", "anti-light": its flip) whose cone meets the image (none when
+    both radii are 0): ``angle_deg`` the marched disc's angular radius (degrees), at least ``block / 2`` pixels at the
+    image centre (Klehm's block side; 0: none); outer radius inner * (1 + ``blend``). ``light_direction``: unit, the
+    way the light travels."""
     inner = max(float(angle_deg), _pixel_angle_deg(camera, block) if block > 0 else 0.0)
     if inner <= 0.0:
         return []
@@ -250,16 +221,10 @@ def marched_cones(regions: list[EpipoleRegion]) -> MarchedCones:
 def march_epipole_regions(scene, gbuffer, shadow_map, regions: list[EpipoleRegion], out: wp.array, *, steps: int,
                           seed: int, shadow_bias_texels: float, jitter: str = "per_pixel", stride: int = 1,
                           tolerance: float = 0.0, device=None) -> float:
-    """Ray-march the pixels of ``regions`` into ``out`` (shadow-map visibility, ``steps`` strata of equal
-    transmittance weight, :func:`~warpscatter.scattering.marching.march_transmittance_strata`), blending with the
-    prefiltered values already in ``out`` over each region's blend band. ``stride`` > 1: march a grid of every
-    ``stride``-th pixel of each region and the pixels its cells cannot interpolate
-    (:func:`~warpscatter.scattering.sparse_evaluation.evaluate_sparse`, radiance ``tolerance``,
-    :data:`~warpscatter.scattering.settings.EVALUATE_DEPTH_TOLERANCE`), the rest interpolated; 1: every pixel.
-
-    Returns:
-        the share of the regions' pixels that were marched (1.0 with stride 1 or no region).
-    """
+    """Ray-march the pixels of ``regions`` into ``out`` (``steps`` equal-weight strata), blended with the prefiltered
+    values there over each blend band; ``stride`` > 1 marches a grid and the pixels it cannot interpolate
+    (:func:`~warpscatter.scattering.sparse_evaluation.evaluate_sparse`, radiance ``tolerance``). Returns the share of
+    the regions' pixels marched (1.0 with stride 1 or no region)."""
     cam = scene.camera
     vis = visibility_params(scene, "shadow_map", None, shadow_map, shadow_bias_texels, device)
     marcher = marcher_params(scene, steps=steps, visibility=vis, seed=seed, jitter=jitter, end_normals=gbuffer.normal,
@@ -285,8 +250,7 @@ def march_epipole_regions(scene, gbuffer, shadow_map, regions: list[EpipoleRegio
 
 def march_flagged_pixels(scene, gbuffer, shadow_map, flags: wp.array, out: wp.array, *, steps: int, seed: int,
                          shadow_bias_texels: float, jitter: str, device=None) -> int:
-    """Ray-march the pixels whose ``flags`` (H, W int32) are non-zero into ``out`` as the disc does (a directional
-    light, shadow-map visibility, ``steps`` strata of equal transmittance weight). Returns how many there were."""
+    """Ray-march the pixels of non-zero ``flags`` (H, W int32) into ``out`` as the disc does; returns how many."""
     cam = scene.camera
     indices, count = compact(flags.reshape((cam.height * cam.width,)), device)
     if count:
@@ -299,8 +263,8 @@ def march_flagged_pixels(scene, gbuffer, shadow_map, flags: wp.array, out: wp.ar
 
 
 def epipole_weights(camera, regions: list[EpipoleRegion]) -> np.ndarray:
-    """(H, W) float32 weight of the ray-marched result per pixel (1 inside the inner cone, falling linearly in the angle
-    to 0 at the outer one, as :func:`epipole_region_kernel` blends): the ``epipole_mask`` debug output."""
+    """(H, W) float32 weight of the ray-marched result per pixel, as :func:`epipole_blend_kernel` blends (the
+    ``epipole_mask`` debug output)."""
     d = camera.ray_directions(1)
     w = np.zeros(d.shape[:2], np.float32)
     for r in regions:

@@ -1,18 +1,14 @@
 """The ``evaluate`` pass of a directional light (Klehm 2014 Listing 4, Peters 2017 D.5): per pixel, the G-buffer hit
--> rectified (u, v, z_r) -> the row mip level of its footprint -> the filtered look-up and reconstruction
-(:mod:`.lookups`) -> times sigma_s f E (1 - e^{-sigma_t s}) / sigma_t, on the pixels :mod:`..sparse_evaluation`
-asks for. :class:`Evaluation` builds the kernel's ``@wp.struct`` arguments once per frame and picks its compiled
-variant (:class:`EvaluateVariant`: the representation, a grey or coloured medium and whether ray ends are tested,
-each a ``wp.static`` branch of one kernel source; a frame compiles and runs only the code it needs, and the choices
-that change little code stay at run time, so that the variants stay few: each compiles in a module of its own).
+-> rectified (u, v, z_r) -> its row mip level -> the filtered look-up (:mod:`.lookups`) -> times sigma_s f E
+(1 - e^{-sigma_t s}) / sigma_t, on the pixels :mod:`..sparse_evaluation` asks for. :class:`Evaluation` builds the
+kernel's arguments once per frame and picks its compiled :class:`EvaluateVariant` (each field a ``wp.static`` branch;
+the choices that change little code stay at run time, so that the variants stay few).
 
-Under a directional light ahead of the camera each ray's end is tested lit or in shadow (:func:`.lookups.ray_ends_lit`):
-a ray ending lit reads ``lit_shift`` further along (its end surface shadows it only through the texel's filtering); a
-ray ending in shadow whose whole look-up lies within its end surface's own zone (``end_offset``; looking almost
-straight into the light) is flagged in ``end_zone`` for the marcher (:mod:`.epipole`); any other ray ending in shadow,
-more than :data:`~..settings.END_SAMPLES_MIN_DEG` from the light and whose left-out end stretch carries at least
-:data:`~..settings.END_STRETCH_MIN_WEIGHT` of its weight, takes that stretch's visibility from the shadow map
-(``end_samples`` samples, :func:`~..marching.stretch_visibility`).
+With a directional light ahead of the camera each ray's end is tested lit or in shadow (:func:`.lookups.ray_ends_lit`):
+a lit end reads ``lit_shift`` further; a shadowed end whose whole look-up lies in its end surface's zone is left to the
+marcher (``end_zone``); other shadowed ends, more than :data:`~..settings.END_SAMPLES_MIN_DEG` from the light and with
+at least :data:`~..settings.END_STRETCH_MIN_WEIGHT` of the weight in the left-out stretch, sample that stretch in the
+shadow map (``end_samples``, :func:`~..marching.stretch_visibility`).
 """
 
 import functools
@@ -39,8 +35,7 @@ from .ray_weights import ChannelRayWeights, RayWeights, looked_up_share, ray_wei
 from .row_mips import RowMips, pixel_mip_level
 from .textures import FilteredBasis, FilteredBasisArrays, FilteredMomentArrays
 
-#: The Warp module of the fixed per-pixel kernels (this module: the method registry preloads it). The look-up's
-#: variants each compile in a module of their own, on first use.
+#: The Warp module of the fixed per-pixel kernels (the method registry preloads it; the variants compile apart).
 KERNELS = __name__
 wp.set_module_options(MODULE_OPTIONS, module=KERNELS)
 
@@ -63,9 +58,7 @@ class MapLookUp:
     channel_weights: ChannelRayWeights  # each channel's own: coloured variants
     bounds: DepthBounds  # per-row prefix depth bounds: wholly lit / shadowed rays skip the reconstruction
     mips: RowMips  # the texture's row mip levels and whether its rows wrap around (wrap_rows)
-    # moment overestimation weight towards / along the light (beta_range), or < 0: adaptive; 1 - cos of the epipole
-    # taper's angle (MomentsSettings.epipole_taper); the cosine beta rises from (overestimation_rise_cos)
-    beta: wp.vec4
+    beta: wp.vec4  # the moments' overestimation weight and its taper (lookups.representation_visibility)
 
 
 @wp.struct
@@ -105,7 +98,6 @@ def evaluate_prefiltered_kernel(variant: EvaluateVariant) -> wp.Kernel:
     def evaluate_prefiltered(cam: CameraParams, ends: PixelEnds, texels: Texels, look: MapLookUp, light: LightParams,
                              med: MediumParams, stretch: EndStretch, result: LookUpOutputs, marched: MarchedCones,
                              pixels: PixelSet, offset: int):
-        # Klehm 2014 Listing 4 / Peters 2017 D.5: one filtered look-up and one reconstruction per pixel
         a, b = wp.tid()
         j, i, listed = set_pixel(pixels, cam.height, cam.width, a + offset, b)
         if not listed:
@@ -181,8 +173,7 @@ def evaluate_prefiltered_kernel(variant: EvaluateVariant) -> wp.Kernel:
 @wp.kernel(module=KERNELS)
 def pixel_coords_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32), rect: RectificationParams,
                         out: wp.array2d(dtype=wp.vec3), pixels: PixelSet, offset: int):
-    # the rectified (u, v, z_r) of the view-ray end (its G-buffer hit) of every pixel of the set: what caster
-    # culling, the row mip levels and the look-up read
+    # the rectified (u, v, z_r) of every listed pixel's view-ray end (its G-buffer hit)
     a, b = wp.tid()
     j, i, listed = set_pixel(pixels, cam.height, cam.width, a + offset, b)
     if not listed:
@@ -195,7 +186,6 @@ def pixel_coords_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32
 def lit_ray_ends_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32), normal: wp.array2d(dtype=wp.vec3),
                         faces_away: wp.array2d(dtype=wp.int32), light: LightParams, vis: Visibility,
                         out: wp.array2d(dtype=wp.int32), offset: int):
-    # ray_ends_lit of every pixel
     j, i = wp.tid()
     j += offset
     x = cam.position + pixel_ray_direction(cam, float(i) + 0.5, float(j) + 0.5) * distance[j, i]
@@ -205,8 +195,7 @@ def lit_ray_ends_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32
 @wp.kernel(module=KERNELS)
 def pixel_phase_kernel(cam: CameraParams, light: LightParams, med: MediumParams, out: wp.array2d(dtype=wp.float32),
                        pixels: PixelSet, offset: int):
-    # the phase function of each pixel's view ray under a directional light (one angle along the whole ray): the
-    # factor of the look-up's radiance that evaluate_sparse interpolates apart (kept above 0 for its division)
+    # each view ray's phase function (one angle under a directional light), which evaluate_sparse divides out (> 0)
     a, b = wp.tid()
     j, i, listed = set_pixel(pixels, cam.height, cam.width, a + offset, b)
     if not listed:
@@ -217,9 +206,8 @@ def pixel_phase_kernel(cam: CameraParams, light: LightParams, med: MediumParams,
 
 def pixel_coords(rect, camera, distance: wp.array, device=None, pixels: "PixelSet | None" = None,
                  dim: tuple[int, int] | None = None, out: wp.array | None = None) -> wp.array:
-    """(H, W) vec3 Warp array: the rectified (u, v, z_r) of every pixel's view-ray end (distance: G-buffer).
-    ``pixels`` and ``dim``: only the pixels of that :class:`~..sparse_evaluation.PixelSet` launch, written into
-    ``out`` (default: every pixel, into a new array)."""
+    """(H, W) vec3: the rectified (u, v, z_r) of every pixel's view-ray end, or only of ``pixels`` (a
+    :class:`~..sparse_evaluation.PixelSet` launched over ``dim``) written into ``out``."""
     device = default_device(device)
     if out is None:
         out = wp.empty((camera.height, camera.width), dtype=wp.vec3, device=device)
@@ -231,21 +219,16 @@ def pixel_coords(rect, camera, distance: wp.array, device=None, pixels: "PixelSe
 
 
 def coords_of_every_pixel(settings: ScatteringSettings, aovs) -> bool:
-    """Whether a prefiltered render needs the rectified coordinates of every pixel before its look-up: caster culling
-    reads them all, the row mip levels read each pixel's neighbours, the ``rectified`` and ``mip_level`` debug outputs
-    show them. Otherwise the look-up kernel computes them at the pixels it evaluates (sparse_evaluation)."""
+    """Whether a render needs every pixel's rectified coordinates before its look-up (caster culling, row mips, the
+    ``rectified`` and ``mip_level`` debug outputs); otherwise the look-up computes them where it runs."""
     return (settings.culls_casters or settings.prefiltered.mip_levels > 1
             or bool({"rectified", "mip_level"} & set(aovs)))
 
 
 def lit_ray_ends(scene, gbuffer, shadow_map, bias_texels: float, faces_away: wp.array | None = None,
                  device=None) -> wp.array:
-    """(H, W) int32 Warp array: 1 where the pixel's view ray ends lit (on no surface, or on a surface facing the light
-    that the shadow map sees, ``bias_texels`` of depth bias), 0 where it ends in shadow. A look-up of a ray ending lit
-    may end nearer its end (``prefiltered.end_offset``, :data:`~..settings.END_OFFSET_LIT`): a lit surface shadows its
-    own ray only through the texel's filtering. ``faces_away``: :func:`~..rectify.caster_culling.end_faces_away` of the
-    frame if already made. The look-up kernel makes the same test at the pixels it evaluates; this is the every-pixel
-    form."""
+    """(H, W) int32: :func:`~.lookups.ray_ends_lit` of every pixel (shadow-map depth bias ``bias_texels``), the look-up
+    kernel's test at every pixel; ``faces_away``: :func:`~..rectify.caster_culling.end_faces_away` if already made."""
     device = default_device(device)
     cam = scene.camera
     light = light_params(scene.light, device)
@@ -279,10 +262,8 @@ class Evaluation:
         self.frame = frame
         cols = settings.shadow_map.size[0]
         nonlinear = rect if isinstance(rect, NonlinearRectification) else None
-        # end_offset counts texels of a map reaching the view (a fixed world distance along the rays: the surface a
-        # ray ends on is its own blocker over a stretch set by the depth precision, not by the column width);
-        # (rays ending in shadow, rays ending lit): the look-up takes the first, a ray ending lit moves its end by the
-        # difference
+        # (rays ending in shadow, lit), in texels of a map reaching the view (a fixed world distance along the rays);
+        # a ray ending lit moves its end by the difference
         self.end_offsets = p.end_offsets_for(filtered.light_behind)
         column_scale = nonlinear.column_scale if nonlinear is not None else 1.0
         end_offset = self.end_offsets[0] * column_scale
@@ -344,9 +325,8 @@ class Evaluation:
         levels = p.evaluate_levels_for(cam.height)
         phase = None
         if p.evaluate_stride > 1 and levels > 1:
-            # the coarser levels interpolate the radiance divided by the view ray's phase function (one angle along
-            # the whole ray under a directional light), read at the 2-pixel grid's nodes: the sun's forward peak is
-            # not flattened over a coarse cell (docs/benchmarks.md, "Sparse evaluation")
+            # the coarser levels interpolate radiance / phase so that the sun's forward peak is not flattened over a
+            # coarse cell (docs/benchmarks.md, "Sparse evaluation")
             phase = wp.empty((cam.height, cam.width), dtype=wp.float32, device=device)
             grid = (grid_size(cam.height, p.evaluate_stride), grid_size(cam.width, p.evaluate_stride))
             launch_rows(pixel_phase_kernel, grid, [cam.params(), self.light, self.medium, phase,

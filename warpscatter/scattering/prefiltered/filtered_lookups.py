@@ -1,22 +1,10 @@
 """Per-pixel look-ups of prefiltered single scattering (Klehm 2014 Listing 4, App. A; Peters 2017 D.5): the
 visible fraction of a camera view ray from the filtered textures of :mod:`.prefix_sums`.
 
-A ray ending at rectified (u, v) with depth z_r reads a bilinear footprint of the (rows, cols, M) texture
-(:func:`texel_footprint`: the inclusive prefix of column i belongs to the right edge of its texel, so u is read
-at texel-index coordinate u * cols - 1; rows at their centres, wrapping around when the rectification covers the
-full azimuth circle): per row one contiguous run of 2 M values (columns i0 and i1). The textures come in the storage the
-prefilter wrote (:class:`~.textures.FilteredBasisArrays`, :class:`~.textures.FilteredMomentArrays`:
-float32, RGBA8 codes, 16-bit codes or packed 10-bit codes); a look-up picks the storage's array once per pixel and reads
-it through generic functions specialised per array type at compile time (no per-value branch), decoding
-each code to exactly the float32 value the storage emulation gave. It then reconstructs:
-
-* Fourier: F = clamp(0.5 + sum_k a_k(z_r) B_bar_k, 0, 1) (:func:`prefiltered_visibility`); with split regions
-  (Sec. 3.3) one look-up per region in front of the ray and its own (:func:`prefiltered_visibility_split`);
-* moments: the biased canonical moments, then Algorithm 1 (4 moments) or Sec. 5.4 (6 moments) at z_f = 2 z_r - 1
-  with the overestimation weight beta between the sharp lower and upper visibility bounds
-  (:func:`moments_visibility`).
-
-The scattering integral is then F * integral_0^s exp(-sigma_t t) dt (= F * s for average visibility).
+A look-up reads a bilinear footprint (:func:`texel_footprint`) in the storage the prefilter wrote, through functions
+specialised per array type at compile time (no per-value branch), and reconstructs F = clamp(0.5 + a(z_r) . B_bar,
+0, 1) (Fourier, :func:`prefiltered_visibility`) or the moment bound at z_f = 2 z_r - 1 (:func:`moments_visibility`).
+The scattering integral is F * integral_0^s exp(-sigma_t t) dt (= F * s for average visibility).
 """
 
 from __future__ import annotations
@@ -66,21 +54,14 @@ module_options()
 RAY_END_UNKNOWN = wp.constant(0)
 RAY_END_IN_SHADOW = wp.constant(1)
 RAY_END_LIT = wp.constant(2)
-#: A ray with a known end (lit or in shadow) shorter than GUARD_COLUMN_TEXELS texels of the rectified map answers
-#: "wholly shadowed" from the depth bounds (:func:`row_bounds`) only when no texel through the guard column (the first
-#: whose centre follows the ray's end) lies behind it by more than GUARD_COLUMN_DEPTH_TOLERANCE (rectified depth, 0-1).
-#: Near the epipole a ray of a few texels ending in shadow on a pillar facing away from a low sun had every whole texel
-#: in front of it while the next sample was already behind the ray: its answer 0 drew a dark notch at the pillar's edge
-#: (colonnade_fourier.yaml at 1280x720), saw teeth and a dark wedge beside the sun (colonnade_sunset frame 20), and
-#: lit-ended rays on a pillar's silhouette came out black. The tolerance keeps surfaces that are their own blockers
-#: decided (the window room's ceiling: a median 0.00036 behind the ray); without it the room's dark ceiling took
-#: bright specks. Longer rays keep the whole texels' answer: guarding every ray drew dotted creases along the room's
-#: walls, and 64 texels brought specks back (the figures: docs/benchmarks.md, "Guard column").
+#: A ray with a known end shorter than GUARD_COLUMN_TEXELS texels answers "wholly shadowed" from the depth bounds
+#: (:func:`row_bounds`) only when no texel through the guard column (the first whose centre follows its end) lies behind
+#: it by more than GUARD_COLUMN_DEPTH_TOLERANCE (rectified depth): short rays near the epipole whose next sample is
+#: already behind them drew dark notches (docs/benchmarks.md, "Guard column"; docs/design/prefiltered.md).
 GUARD_COLUMN_TEXELS = wp.constant(32.0)
 GUARD_COLUMN_DEPTH_TOLERANCE = wp.constant(0.002)
 
-#: Filtered-basis look-ups of one pixel: per row (two rows), one per region (or segment cut) in front plus two
-#: columns.
+#: Filtered-basis look-ups of one pixel: per row (two), one per region (or segment cut) in front plus two columns.
 MAX_TAPS = 2 * (max(MAX_SPLITS, MAX_SEGMENTS) + 1)
 tap_weights = wp.types.vector(length=MAX_TAPS, dtype=wp.float32)
 tap_indices = wp.types.vector(length=MAX_TAPS, dtype=wp.int32)
@@ -88,14 +69,9 @@ tap_indices = wp.types.vector(length=MAX_TAPS, dtype=wp.int32)
 
 @wp.func
 def texel_footprint(rows: int, cols: int, u: float, v: float, wrap_rows: int):
-    """Bilinear footprint of rectified (u, v) in a (rows, cols) filtered-basis texture.
-
-    Columns: the inclusive prefix of column i belongs to the right edge of its texel, so u is read at
-    texel-index coordinate u * cols - 1 (clamped); rows at their centres, wrapping when ``wrap_rows`` != 0.
-
-    Returns:
-        (j0, j1, ay, i0, i1, ax): rows and the weight of j1, columns and the weight of i1.
-    """
+    """(j0, j1, ay, i0, i1, ax): rows and the weight of j1, columns and the weight of i1, of the bilinear footprint of
+    rectified (u, v) in a (rows, cols) texture. The inclusive prefix of column i belongs to its texel's right edge, so
+    u is read at texel coordinate u * cols - 1 (clamped); rows at their centres, wrapping when ``wrap_rows`` != 0."""
     x = wp.clamp(u * float(cols) - 1.0, 0.0, float(cols - 1))
     i0 = wp.min(int(wp.floor(x)), cols - 1)
     i1 = wp.min(i0 + 1, cols - 1)
@@ -144,8 +120,7 @@ class DepthBounds:
 
 
 def depth_bounds_of(rectified, enabled: bool, device=None) -> DepthBounds:
-    """The look-ups' :class:`DepthBounds` of a rectified map (:func:`~.prefix_sums.depth_bounds`), or the disabled
-    placeholder."""
+    """:class:`DepthBounds` of a rectified map, or the disabled placeholder."""
     b = DepthBounds()
     b.enabled = int(bool(enabled))
     b.bounds = (depth_bounds(rectified, device=device) if enabled else
@@ -155,10 +130,9 @@ def depth_bounds_of(rectified, enabled: bool, device=None) -> DepthBounds:
 
 @wp.func
 def row_bound(whole: wp.vec2, partial: wp.vec2, guard: wp.vec2, guard_tolerance: float, z_r: float) -> float:
-    """One row's answer from the prefix bounds (nearest, farthest blocker depth) of the texels it decides with, of
-    those the lit answer must also clear and of those through the guard column: 0 when z_r is behind every blocker
-    of ``whole`` and (``guard_tolerance`` >= 0) no blocker of ``guard`` lies behind it by more than the tolerance,
-    1 when in front of every one of ``partial``, else -1."""
+    """One row's answer from prefix bounds (nearest, farthest blocker depth): 0 when z_r is behind every blocker of
+    ``whole`` and (``guard_tolerance`` >= 0) none of ``guard`` lies behind it by more than the tolerance, 1 when in
+    front of every one of ``partial`` (what the lit answer must clear), else -1."""
     if z_r >= whole[1] and (guard_tolerance < 0.0 or z_r + guard_tolerance >= guard[1]):
         return 0.0
     if z_r < partial[0]:
@@ -168,21 +142,15 @@ def row_bound(whole: wp.vec2, partial: wp.vec2, guard: wp.vec2, guard_tolerance:
 
 @wp.func
 def row_bounds(db: DepthBounds, u_end: float, v: float, z_r: float, window: wp.vec3i, ray_end: int) -> wp.vec3:
-    """The depth bounds' answer for each row of a look-up ending at (u_end, v): (row j0's, row j1's, ay, the bilinear
-    weight of row j1). A row answers 1 when every texel of it that the look-up reads lies behind depth z_r (the ray
-    is wholly lit there), 0 when every one lies in front of it (wholly shadowed), else -1 (reconstruct); a row of
-    zero weight takes the other's answer; (-1, -1, 0) without bounds. ``ray_end``: what is known of the ray's end
-    point (RAY_END_UNKNOWN, RAY_END_IN_SHADOW, RAY_END_LIT).
+    """The depth bounds' answer per row of a look-up ending at (u_end, v): (row j0's, row j1's, ay = row j1's bilinear
+    weight). A row answers 1 when every texel it reads lies behind depth z_r (wholly lit), 0 when every one lies in
+    front (wholly shadowed), else -1 (reconstruct); a row of zero weight takes the other's answer; (-1, -1, 0) without
+    bounds. ``ray_end``: what is known of the ray's end (RAY_END_UNKNOWN, RAY_END_IN_SHADOW, RAY_END_LIT).
 
-    The texels are the prefix through the footprint's left column: every whole texel the look-up reads. The partial
-    texel after it (weight ax) is the last one before the look-up's end, where the surface the ray ends on is its
-    own blocker (``end_offset``'s zone): its depths, a hair behind the ray's, would keep rays on a shadowed ceiling
-    from the exact 0 (the dark room: docs/benchmarks.md, "Fourier look-up"), and a
-    hair in front, rays on lit surfaces from the exact 1. A ray ending in shadow must clear the lit answer through it
-    too: near a low sun that texel is a long stretch of ray, in the shadow of the pillar the ray ends on, and
-    answering it lit drew bright saw teeth beside the sun (colonnade_sunset). The shadowed answer reads through the
-    guard column too (the first texel whose centre follows u_end, :data:`GUARD_COLUMN_TEXELS`) for short rays with
-    a known end: from the whole texels alone it drew dark notches where the next sample is already behind the ray."""
+    The texels are the whole ones through the footprint's left column. The partial texel after it is the end
+    surface's own blocker (``end_offset``'s zone) and is left out, except that a ray ending in shadow must clear the
+    lit answer through it; a short ray with a known end must also clear the shadowed answer through the guard column
+    (:data:`GUARD_COLUMN_TEXELS`). Why: docs/design/prefiltered.md."""
     if db.enabled == 0:
         return wp.vec3(-1.0, -1.0, 0.0)
     cols = db.bounds.shape[1]
@@ -232,12 +200,8 @@ def mix_row_answers(b: wp.vec3, r: float, share1: float) -> float:
 @wp.func
 def fourier_taps_visibility(filtered_basis: Any, tables: FourierTables, tap_row: tap_indices, tap_col: tap_indices,
                             tap_w: tap_weights, num_taps: int, z_r: float) -> float:
-    """clamp(0.5 + a(z_r) . sum_t w_t B_bar(row_t, col_t), 0, 1) (Klehm 2014 Listing 4, App. A).
-
-    a_k(z_r) of Eq. 8 for pair m: (2/c cos(c z_r), -2/c sin(c z_r)), c = pi (2m + 1); cos/sin of c z_r
-    advance by angle addition through 2 pi z_r (two trigonometric calls per pixel). ``filtered_basis`` and
-    ``tables`` as in :func:`prefiltered_visibility`.
-    """
+    """clamp(0.5 + a(z_r) . sum_t w_t B_bar(row_t, col_t), 0, 1) (Klehm 2014 Listing 4, App. A; Eq. 8's a_k, their
+    cos/sin of c z_r advanced by angle addition through 2 pi z_r); arguments as in :func:`prefiltered_visibility`."""
     num = filtered_basis.shape[2]
     cs = wp.cos(wp.pi * z_r)
     sn = wp.sin(wp.pi * z_r)
@@ -261,26 +225,20 @@ def fourier_taps_visibility(filtered_basis: Any, tables: FourierTables, tap_row:
 @wp.func
 def prefiltered_visibility(filtered_basis: Any, tables: FourierTables, u: float, v: float, z_r: float,
                            window: wp.vec3i) -> float:
-    """Visible fraction of the view ray ending at rectified (u, v) with depth z_r (Klehm 2014 Listing 4, App. A).
-
-    Bilinear fetch of the normalised filtered-basis vector, dot product with a(z_r), + 0.5, clamped to
-    [0, 1]. For average-visibility textures this is V-bar (Eq. 4); for transmittance-weighted ones
-    multiply by integral_0^s exp(-sigma_t t) dt to get the visibility-weighted transmittance integral.
+    """Visible fraction of the view ray ending at rectified (u, v) with depth z_r (Klehm 2014 Listing 4, App. A):
+    clamp(0.5 + a(z_r) . bilinear B_bar, 0, 1); V-bar (Eq. 4) for average-visibility textures, else times
+    integral_0^s exp(-sigma_t t) dt the visibility-weighted transmittance integral.
 
     Args:
-        filtered_basis: (rows, cols, M) normalised prefix-filtered basis (module layout), one region per row: a
-            float32 array of values, or a uint8 array of RGBA8 codes (Klehm 2014 App. A).
-        tables: the device's :class:`~.textures.FourierTables` (:func:`~.textures.fourier_tables`):
-            the decode table of the codes and the factors 2 / c of the pairs.
-        u: column coordinate of the ray's end point in [0, 1] (texel i centre at (i + 0.5) / cols).
+        filtered_basis: (rows, cols, M) normalised prefix-filtered basis, one region per row: float32 values, or
+            uint8 RGBA8 codes (Klehm 2014 App. A).
+        tables: the device's :class:`~.textures.FourierTables` (decode table, factors 2 / c of the pairs).
+        u: column coordinate of the ray's end in [0, 1] (texel i centre at (i + 0.5) / cols).
         v: row coordinate in [0, 1].
         z_r: rectified depth of the view ray.
-        window: the rows read (:func:`window_footprint`): (first row, rows, 1 when they wrap around the full
-            azimuth circle, else 0: clamp).
+        window: the rows read (:func:`window_footprint`): (first row, rows, 1 when they wrap around, else 0).
     """
-    # the four-tap case of fourier_taps_visibility written out, faster on the CPU (docs/benchmarks.md). Per row the
-    # two columns i0, i1 are one contiguous run of 2 M values; the row and column offsets are loop invariants the
-    # compiler hoists, and 2 / c comes from a table (no division per pair)
+    # fourier_taps_visibility's four-tap case written out: faster on the CPU (docs/benchmarks.md, "Fourier look-up")
     j0, j1, ay, i0, i1, ax = window_footprint(window, filtered_basis.shape[1], u, v)
     num = filtered_basis.shape[2]
     w00 = (1.0 - ax) * (1.0 - ay)
@@ -313,9 +271,8 @@ def prefiltered_visibility(filtered_basis: Any, tables: FourierTables, u: float,
 @wp.func
 def add_split_row_taps(fb: FilteredBasisArrays, j: int, i0: int, i1: int, ax: float, row_weight: float,
                        rows: tap_indices, cols: tap_indices, w: tap_weights, n: int):
-    """Append the look-ups of row j for split regions (Klehm 2014 Sec. 3.3): the row's global normalised
-    filtered value at columns i0 and i1 (blended (1 - ax) : ax, times ``row_weight``) combined from the
-    independently filtered regions. Returns the updated (rows, cols, w, n) (Warp passes vectors by value)."""
+    """Append row j's taps for split regions (Klehm 2014 Sec. 3.3): the global normalised value at columns i0, i1
+    (blended (1 - ax) : ax, times ``row_weight``) from the regions' own. Returns the updated (rows, cols, w, n)."""
     weight_sums = fb.weight_sums
     region_weights = fb.region_weights
     splits = fb.splits
@@ -399,11 +356,9 @@ def prefiltered_visibility_split(fb: FilteredBasisArrays, u: float, v: float, z_
 @wp.func
 def segment_row_weights(weights: RayWeights, j: int, x: float, tau_ray: float, cut: segment_columns,
                         esum: segment_sums, m: int) -> segment_sums:
-    """Row j's weights of a ray's look-up columns (its m interior cuts ``cut``, then the end at continuous prefix
-    column x), given the ray's own weight sums ``esum`` (entry m: the end's): D_k (r_k - r_(k+1)) / E_end per cut
-    and the end's in entry m (split (1 - ax) : ax between its two columns by the caller); they sum to one (see
-    :mod:`.ray_weights`). A ray that decays slower than the row's reference (outside the slice's frustum: the
-    neighbouring row of a bilinear pair) is weighted as if it decayed as fast, which keeps the mix convex."""
+    """Row j's weights D_k (r_k - r_(k+1)) / E_end of a ray's m interior cuts ``cut`` and, in entry m, of its end at
+    prefix column x (:mod:`.ray_weights`), given the ray's weight sums ``esum``; they sum to one. A ray decaying slower
+    than the row's reference (a bilinear pair's other row) is weighted as if as fast, which keeps the mix convex."""
     tau_j = wp.min(weights.optical_step[j], tau_ray)
     w = segment_sums()
     scale = 1.0 / esum[m]
@@ -428,13 +383,9 @@ def segment_row_weights(weights: RayWeights, j: int, x: float, tau_ray: float, c
 
 @wp.func
 def segment_lookup(weights: RayWeights, window: wp.vec3i, cols: int, u: float, v: float, z_r: float):
-    """The look-up of the view ray ending at rectified (u, v) with depth z_r weighted by its own transmittance: rows
-    j0, j1; the m interior cuts (columns shared by both rows) and the end's columns i0, i1 (weight of i1: ax); each
-    row's weights (:func:`segment_row_weights`, bilinear row weight included).
-
-    Returns:
-        (j0, j1, cut, m, i0, i1, ax, w0, w1).
-    """
+    """(j0, j1, cut, m, i0, i1, ax, w0, w1): the look-up of the ray ending at (u, v, z_r) weighted by its own
+    transmittance: rows, m interior cuts, the end's columns (i1's weight ax) and each row's weights
+    (:func:`segment_row_weights`, bilinear row weight included)."""
     j0, j1, ay, i0, i1, ax = window_footprint(window, cols, u, v)
     x = float(i0) + ax
     tau_ray = ray_optical_step(weights, z_r)
@@ -470,10 +421,8 @@ def rows_value(filtered_basis: Any, code_values: wp.array(dtype=wp.float32), j0:
 @wp.func
 def fourier_four_columns(filtered_basis: Any, tables: FourierTables, j0: int, j1: int, ca: int, cb: int, i0: int,
                          i1: int, wa: wp.vec2, wb: wp.vec2, w0: wp.vec2, w1: wp.vec2, rotation: wp.vec4) -> float:
-    """a(z_r) . sum of the filtered-basis vectors of columns ca, cb, i0, i1 in rows j0 and j1, weighted (row j0, row
-    j1) by wa, wb, w0, w1: the look-up of up to three segments in one pass over the M coefficients (one rotation
-    per pair; faster than one pass per column, docs/benchmarks.md). ``rotation`` = (cos, sin of pi z_r, cos, sin
-    of 2 pi z_r)."""
+    """a(z_r) . the filtered-basis vectors of columns ca, cb, i0, i1 in rows (j0, j1) weighted by wa, wb, w0, w1: up
+    to three segments in one pass over the coefficients. ``rotation``: cos, sin of pi z_r, cos, sin of 2 pi z_r."""
     num = filtered_basis.shape[2]
     cv = tables.code_values
     cs = rotation[0]
@@ -524,8 +473,7 @@ def fourier_taps(fb: FilteredBasisArrays, texels: Any, j0: int, j1: int, cut: se
     rot = wp.vec4(wp.cos(wp.pi * z), wp.sin(wp.pi * z), wp.cos(2.0 * wp.pi * z), wp.sin(2.0 * wp.pi * z))
     end0 = wp.vec2(w0[m] * (1.0 - ax), w1[m] * (1.0 - ax))
     end1 = wp.vec2(w0[m] * ax, w1[m] * ax)
-    # the end and the first two cuts in one pass, further cuts four per pass (an absent cut reads column i0 with
-    # weight 0)
+    # the end and the first two cuts in one pass, further cuts four per pass (an absent cut: column i0, weight 0)
     ca, wa = segment_slot(cut, w0, w1, 0, m, i0)
     cb, wb = segment_slot(cut, w0, w1, 1, m, i0)
     acc = 0.5 + fourier_four_columns(texels, fb.tables, j0, j1, ca, cb, i0, i1, wa, wb, end0, end1, rot)
@@ -562,9 +510,8 @@ def fourier_visibility(fb: FilteredBasisArrays, weights: RayWeights, u: float, v
 
 @wp.func
 def bilinear_moments(texels: Any, num: int, u: float, v: float, window: wp.vec3i) -> mm.vec6:
-    """Bilinear fetch of the filtered stored moments (slots 0..num-1) at rectified (u, v) from the array of a
-    moment map's storage (float32, uint16 codes or uint64 packed 10-bit codes): each of the four texels is read
-    and decoded once (:func:`~.textures.moment_texel_values`)."""
+    """Bilinear fetch of the stored moments (slots 0..num-1) at rectified (u, v) from a moment map's array in any
+    storage, each texel decoded once (:func:`~.textures.moment_texel_values`)."""
     j0, j1, ay, i0, i1, ax = window_footprint(window, texels.shape[1], u, v)
     w00 = (1.0 - ax) * (1.0 - ay)
     w01 = ax * (1.0 - ay)
@@ -614,13 +561,9 @@ def filtered_moments(texels: Any, weights: RayWeights, num: int, u: float, v: fl
 @wp.func
 def moments_visibility(filtered: FilteredMomentArrays, weights: RayWeights, u: float, v: float, z_r: float,
                        window: wp.vec3i, beta: float) -> float:
-    """Visible fraction of the view ray ending at rectified (u, v) with depth z_r from prefiltered moments.
-
-    The filtered stored moments (decoded from the storage mode's codes; texels weighted as ``weights`` says,
-    :func:`filtered_moments`), back to canonical moments and biased for the storage mode, then Algorithm 1
-    (4 moments) or Sec. 5.4 (6 moments) at z_f = 2 z_r - 1 with the overestimation weight ``beta`` between the
-    sharp lower (0) and upper (1) visibility bounds (Peters 2017 Sec. 5.3.1).
-    """
+    """Visible fraction of the view ray ending at rectified (u, v) with depth z_r from prefiltered moments: the
+    filtered stored moments (:func:`filtered_moments`) through :func:`stored_moments_visibility`; ``beta`` between the
+    sharp lower (0) and upper (1) visibility bounds (Peters 2017 Sec. 5.3.1)."""
     num = filtered.num_moments
     t = mm.vec6()
     if filtered.code_bits == 0:
@@ -712,26 +655,15 @@ def evaluate_points_kernel(
 
 
 def filtered_basis_arrays(filtered_basis, device=None) -> FilteredBasisArrays:
-    """:class:`FilteredBasisArrays` of a :class:`~.textures.FilteredBasis` or a (rows, cols, M) array (float32
-    values, or uint8 RGBA8 codes)."""
+    """:class:`FilteredBasisArrays` of a :class:`~.textures.FilteredBasis` or a (rows, cols, M) float32 / uint8."""
     if isinstance(filtered_basis, FilteredBasis):
         return filtered_basis.arrays()
     return basis_arrays(filtered_basis, "filtered_basis", default_device(device))
 
 
 def evaluate_visibility(filtered_basis, coords, *, wrap_rows: bool = False, device=None) -> np.ndarray:
-    """Visible fraction for a batch of view rays given by rectified end-point coordinates (tests, debugging).
-
-    Args:
-        filtered_basis: (rows, cols, M) normalised filtered basis (float32 values or uint8 RGBA8 codes), or a
-            :class:`FilteredBasis` (split regions).
-        coords: (N, 3) rectified (u, v, z_r) of the rays' end points.
-        wrap_rows: rows wrap around (full azimuth circle).
-        device: Warp device.
-
-    Returns:
-        (N,) float32 numpy array in [0, 1] (see :func:`prefiltered_visibility_split`).
-    """
+    """(N,) float32 visible fractions (:func:`prefiltered_visibility_split`) of view rays ending at (N, 3) rectified
+    ``coords`` (u, v, z_r) (tests); ``filtered_basis``: a (rows, cols, M) array or a :class:`FilteredBasis`."""
     device = default_device(device)
     fb = filtered_basis_arrays(filtered_basis, device)
     c = np.ascontiguousarray(coords, dtype=np.float32)
@@ -745,21 +677,9 @@ def evaluate_visibility(filtered_basis, coords, *, wrap_rows: bool = False, devi
 
 def evaluate_points(filtered_basis, rect: NonlinearRectification, points, sigma_t: float = 0.0,
                     device=None) -> tuple[np.ndarray, np.ndarray]:
-    """Per-pixel evaluation for world end points of camera view rays (G-buffer hits or far-plane points).
-
-    Args:
-        filtered_basis: (rows, cols, M) normalised filtered basis built on ``rect``'s rectified map (float32 values
-            or uint8 RGBA8 codes), or a :class:`FilteredBasis`.
-        rect: the rectification.
-        points: (N, 3) world points x_s = position + s d.
-        sigma_t: extinction (1/unit) for the transmittance integral.
-        device: Warp device.
-
-    Returns:
-        (fraction, integral): (N,) float32 numpy arrays; fraction F in [0, 1] and
-        F * integral_0^s exp(-sigma_t t) dt (world units; F * s when sigma_t = 0). Multiply the integral
-        by sigma_s f E for L_scat (CONVENTIONS.md).
-    """
+    """(fraction F, F * integral_0^s exp(-sigma_t t) dt), (N,) float32 each, of the view rays ending at (N, 3) world
+    ``points`` x_s = position + s d, from a filtered basis built on ``rect``'s map; ``sigma_t`` in 1/unit. Times
+    sigma_s f E the integral is L_scat (CONVENTIONS.md)."""
     device = default_device(device)
     if not (np.isfinite(sigma_t) and sigma_t >= 0.0):
         raise ValueError(f"sigma_t must be finite and >= 0, got {sigma_t}")

@@ -67,16 +67,14 @@ def representation_visibility(texels: FilteredMomentArrays, weights: RayWeights,
 def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.vec3, window: wp.vec3i, beta: wp.vec4,
                    light_direction: wp.vec3, view_direction: wp.vec3, ray_end: int) -> float:
     """Visible fraction of the view ray ending at rectified c = (u, v, z_r) from a Fourier texture or a moment map
-    (:func:`representation_visibility`) read in the row ``window`` (a mip level, :func:`~.row_mips.level_window`),
-    its texels weighted as ``weights`` says (:mod:`.ray_weights`), those beyond the map lit; a ray wholly lit or
-    wholly shadowed by the ``bounds`` is answered without the reconstruction (``ray_end``: what is known of the
-    ray's end point, :func:`~.filtered_lookups.row_bounds`)."""
+    (:func:`representation_visibility`) in the row ``window`` (:func:`~.row_mips.level_window`), texels weighted as
+    ``weights`` says, those beyond the map lit; rows the ``bounds`` decide skip the reconstruction (``ray_end``:
+    what is known of the ray's end, :func:`~.filtered_lookups.row_bounds`)."""
     inside = inside_map_fraction(weights, c[0], c[2])
     u = c[0]
     if inside < 1.0:
         u = 1.0 + weights.end_offset / float(weights.cols)  # the look-up through the whole map
-    # each bilinear row the bounds decide keeps their exact answer, an undecided one takes the reconstruction, mixed
-    # by the rows' weights (reconstructing both whenever they disagreed lost the dark room's exact rows)
+    # a row the bounds decide keeps their exact answer, an undecided one the reconstruction, mixed by row weight
     b = row_bounds(bounds, u - weights.end_offset / float(bounds.bounds.shape[1]), c[1], c[2], window, ray_end)
     r = float(0.0)
     if rows_undecided(b):

@@ -27,24 +27,17 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
     registry's call shape, :mod:`warpscatter.methods`).
 
     Args:
-        frame: :class:`~warpscatter.pipeline.frame.Frame` (directional or spot light): the rasterized G-buffer and
-            the light's shadow map (resampled by the non-linear rectification and ray-marched in the
-            epipole regions).
+        frame: :class:`~warpscatter.pipeline.frame.Frame` with a directional or spot light (G-buffer, shadow map).
         settings: :class:`~warpscatter.scattering.settings.ScatteringSettings`; ``method`` selects the basis,
             ``shadow_map.resolution`` is also the rectified map's size (columns: texels along each view ray, rows:
             epipolar slices).
         stage: the :class:`~warpscatter.runtime.stages.StageTimer` (stages ``rectify``, ``resample_msm``,
-        ``pixel_coords``,
-            ``caster_culling``, ``prefilter``, ``evaluate``, ``epipole``).
-
-    Debug outputs (``frame.aovs``, in ``info["debug_images"]``): ``rectified`` the (H, W, 3) look-up coordinates
-    (u, v, z_r) per pixel, ``epipole_mask`` the (H, W) weight of the ray-marched epipole region, ``rectified_map``
-    the (rows, cols, 2) rectified depth the prefilter read and 1 where caster culling emptied the texel,
-    ``mip_level`` and ``evaluated_pixels`` (:func:`~.debug.add_debug_images`).
+            ``pixel_coords``, ``caster_culling``, ``prefilter``, ``evaluate``, ``epipole``).
 
     Returns:
-        (L_scat, info): (H, W) vec3 wp.array and a dict describing the rectification (kind and the reason it
-        was chosen), the filtered textures and the epipole regions.
+        (L_scat, info): (H, W) vec3 wp.array and a dict describing the rectification and why it was chosen, the
+        filtered textures and the epipole regions; the debug outputs in ``info["debug_images"]``
+        (:func:`~.debug.add_debug_images`).
 
     Raises:
         ValueError: for a light that is neither directional nor spot.
@@ -59,7 +52,7 @@ def render(frame, settings: ScatteringSettings, stage: StageTimer | None = None)
 
     # ---- 1. rectify: the light's view in rectified coordinates (Klehm 2014 Sec. 4.2, Peters 2017 App. A) ----
     rectified = rectify_map(frame, p, settings.shadow_map.size, stage, device)
-    coords = None  # every pixel's look-up coordinates, where a step needs them all (else the look-up computes them)
+    coords = None  # every pixel's look-up coordinates, where a step needs them all
     if coords_of_every_pixel(settings, frame.aovs):
         with stage("pixel_coords"):
             coords = pixel_coords(rectified.rect, cam, gbuffer.distance, device=device)
@@ -137,7 +130,7 @@ def _info(settings, cam, rectified, filtered, evaluation, sparse, regions, culle
         info.update({"regions": rect.regions, "near_far": [round(rect.near, 6), round(rect.far, 6)]})
     else:
         info["full_circle"] = rect.full_circle
-        info["map_radius"] = round(rect.r_max, 4)  # world units from the camera's light axis covered by the columns
+        info["map_radius"] = round(rect.r_max, 4)  # world units from the camera's light axis
     return info
 
 

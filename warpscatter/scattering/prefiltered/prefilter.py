@@ -1,10 +1,7 @@
 """The ``prefilter`` pass (Klehm 2014 Sec. 3, Listings 1-3; Peters 2017 Sec. 5): the rectified depth's Fourier basis
-or moments fused into per-row prefix sums, plain or weighted by the transmittance along the row's reference ray; the
-projective map's columns are uneven, so its weights are per texel (Eq. 12: exact column lengths, or the paper's
-constant growth factor d with ``projective_weights: cross_ratio``); rows may be split into ``splits`` regions filtered
-independently (Sec. 3.3). The texture is stored as configured (float32, RGBA8, or the moment storage modes), its row
-mip levels follow (Peters 2017 D.5, :mod:`.row_mips`), and the per-row prefix depth bounds
-(:func:`~.filtered_lookups.depth_bounds_of`) let the look-up skip wholly lit or shadowed rays.
+or moments in per-row prefix sums (:mod:`.prefix_sums`), weighted by the transmittance along each row's reference ray
+(per texel on the projective map's uneven columns, Eq. 12), in the configured storage, with row mip levels
+(:mod:`.row_mips`) and per-row depth bounds.
 """
 
 from __future__ import annotations
@@ -42,7 +39,7 @@ def prefilter_map(rectified, settings: ScatteringSettings, scene, device) -> Pre
     """Prefilter a frame's :class:`~.rectify.Rectified` map (module doc)."""
     p, rect, cam, medium = settings.prefiltered, rectified.rect, scene.camera, scene.medium
     cols = settings.shadow_map.size[0]
-    # the light travels the way the camera looks (the sun behind it): the moment methods' segments are adaptive
+    # the sun behind the camera: the moment methods' segments are adaptive
     light_behind = bool(np.dot(scene.light.direction, cam.forward) > 0.0)
     segments = p.segments_for(rectified.nonlinear, medium.coloured, settings.method, light_behind)
     segment_depth = p.segment_depth_for(settings.method, light_behind, medium.coloured) if segments > 1 else 0.0
@@ -64,17 +61,10 @@ def prefilter_map(rectified, settings: ScatteringSettings, scene, device) -> Pre
 
 def row_weights(rect, settings: PrefilteredSettings, sigma_t: float, camera=None,
                 segments: int = 1) -> tuple[np.ndarray, np.ndarray | None, dict]:
-    """Per-row optical steps and per-column lengths of the prefilter weights (Klehm 2014 Sec. 3.2, Eq. 11-12).
-
-    Non-linear rectification: uniform columns, tau_j = sigma_t Delta_ref of the row's reference ray. Projective:
-    column lengths l_i = dX_i / dX_0 (exact, or Eq. 12's Delta d^i per region) and tau_j = sigma_t times the
-    reference ray's world length of column 0 (dX_0 sqrt(1 + s^2 + zeta_ref^2)). ``camera`` is needed by the
-    ``"pixels"`` reference ray; ``segments``, the per-ray segments of the look-ups, picks the auto reference ray
-    (:meth:`~..settings.PrefilteredSettings.reference_for`).
-
-    Returns:
-        (optical_step (rows,) float32, column_length (cols,) float64 or None, info dict).
-    """
+    """(optical_step (rows,) float32, column_length (cols,) float64 or None, info) of the prefilter weights (Klehm
+    2014 Sec. 3.2, Eq. 11-12). Non-linear map: uniform columns, tau_j = sigma_t Delta_ref. Projective: l_i = dX_i /
+    dX_0 (exact, or Eq. 12's Delta d^i) and tau_j = sigma_t dX_0 sqrt(1 + s^2 + zeta_ref^2). ``camera``: for the
+    ``"pixels"`` reference ray; ``segments`` picks auto's (:meth:`~..settings.PrefilteredSettings.reference_for`)."""
     transmittance = settings.weighting == "transmittance"
     reference = settings.reference_for(segments)
     if isinstance(rect, NonlinearRectification):
@@ -92,10 +82,9 @@ def row_weights(rect, settings: PrefilteredSettings, sigma_t: float, camera=None
 
 
 def weights_extinction(medium, segments: int) -> float:
-    """The extinction of the prefix sums' transmittance weights (1/unit): a grey medium's own. A coloured medium's
-    least channel extinction with per-ray segments (each channel then weights its rays with its own extinction, and
-    every channel decays at least as fast as the reference: convex taps, :mod:`.ray_weights`), else the channels'
-    mean (one weighting for all channels: the approximation of the projective map and of ``segments: 1``)."""
+    """The extinction (1/unit) of the prefix sums' weights: a grey medium's own; a coloured medium's least channel's
+    with per-ray segments (every channel then decays at least as fast: convex taps, :mod:`.ray_weights`), else the
+    channels' mean."""
     if medium.coloured and segments > 1:
         return float(min(medium.sigma_t_rgb))
     return medium.extinction

@@ -1,67 +1,17 @@
-"""Prefiltered single scattering: the per-row prefix sums of the Fourier and moment bases of a rectified depth map
-(Klehm 2014; Peters 2017 Sec. 5); the textures they fill are defined in :mod:`.textures`, the per-pixel
-look-ups in :mod:`.filtered_lookups`.
+"""Per-row prefix sums of the Fourier and moment bases of a rectified depth map (Klehm 2014 Sec. 3, Listings 1-3,
+Eq. 11-12, App. A; Peters 2017 Sec. 5). The textures are defined in :mod:`.textures`, read by :mod:`.filtered_lookups`.
 
-The input is a rectified blocker-depth map z (rows x cols, values in [0, 1]; see :mod:`..rectify`): every
-camera view ray runs along one row from column 0 with one constant depth z_r. Visibility of a ray sample
-against texel i is the step V = H(z_r - z_i) (1 when z_r <= z_i), expanded in M Fourier terms
-(Klehm 2014 Eq. 8-9, 0-based index k, pair m = k // 2, c = pi (2 m + 1)):
+Input: a rectified blocker-depth map z (rows x cols, values in [0, 1]; every camera view ray runs along one row from
+column 0 at one depth z_r), or a :class:`~..rectify.SparseRectifiedDepth` (z_1, z_2, w_2), whose texels filter the
+mix (1 - w_2) B(z_1) + w_2 B(z_2) (Peters 2017 Sec. 5.2). Stored are the NORMALISED weighted prefix means
 
-    V(z_r, z_i) ~ 0.5 + sum_k a_k(z_r) B_k(z_i),
-    a_2m = 2/c cos(c z_r),  a_2m+1 = -2/c sin(c z_r),  B_2m = sin(c z_i),  B_2m+1 = cos(c z_i).
+    B_bar_k(i) = sum_{i'<=i} w_i' B_k(z_i') / sum_{i'<=i} w_i'  in [-1, 1],   w'_i = T_i (1 - exp(-tau_j l_i))
 
-Along a row the ray-independent basis values are prefix-filtered with weights w_i (Klehm 2014 Eq. 11,
-Listings 1-3): w_i = 1 gives the average visibility (Listing 1); w_i = exp(-(i-1) tau) - exp(-i tau) with
-the row's optical step tau = sigma_t Delta_ref weights by transmittance (Listing 2). When the world step
-varies along the row (projective rectification, Klehm 2014 Sec. 4.2) the weights become per texel
-(Eq. 12): texel i of row j has optical thickness tau_ji = tau_j l_i, with tau_j the row's optical step
-per unit column length and l_i the column's relative length (``column_length``; Eq. 12's Delta d^i, or
-the exact lengths), and
-
-    w'_i = T_i (1 - exp(-tau_ji)),   T_i = exp(-sum_{i'<i} tau_ji'),
-
-used as T_i l_i phi(tau_ji) = w'_i / tau_j with phi(x) = (1 - e^-x) / x (a row factor cancels in the
-normalised means; it tends to the length l_i as sigma_t -> 0, the average-visibility weight of uneven texels).
-As in Klehm 2014 App. A the stored values are NORMALISED: B_bar_k(i) = sum_{i'<=i} w_i' B_k(z_i') / sum_{i'<=i} w_i', in
-[-1, 1]; a ray ending at column s sees the visible fraction
-
-    F = clamp(0.5 + sum_k a_k(z_r) B_bar_k(s), 0, 1),
-
-and the scattering integral is F * integral_0^s exp(-sigma_t t) dt (= F * s for average visibility).
-
-Data layout: a filtered-basis texture is ONE array of shape (rows, cols, M), C-contiguous, so the M-vector of a
-texel is contiguous and the two columns a bilinear fetch reads in a row are one run of 2 M values. The inclusive
-prefix of column i belongs to the right edge of its texel, so a hit point at continuous column position
-p = u * cols is read at texel-index coordinate p - 1 (linear between columns, clamped); rows are read at their
-centres, wrapping around when the rectification covers the full azimuth circle.
-
-Storage (:class:`~.textures.FilteredBasisArrays`): ``bits = 0`` keeps float32 values (4 M bytes per texel);
-``bits = 8`` is the paper's RGBA8 storage (Klehm 2014 App. A, M bytes per texel): a uint8 array of codes round((0.5 x
-+ 0.5) 255) (:func:`~.textures.signed_unorm_code`), decoded at look-up time to 2 code / 255 - 1 through a
-256-entry table (:func:`~.textures.signed_unorm_value`, :class:`~.textures.FourierTables`). The
-running filter itself keeps full precision, as registers do on the GPU; only what is written is quantized. The moment
-maps (:func:`prefilter_moments`, :class:`FilteredMomentArrays`) store the modes of Peters 2017 Sec. 2.4 / 5.4.3 the
-same way: float32, 16-bit codes of Theta*(b) in a uint16 array, or six 10-bit codes packed in one uint64 per texel
-(:data:`MOMENT_TEXEL_LAYOUT`; the codes are those of :mod:`warpscatter.shadows.moment_storage`). Decoding gives
-exactly the float32 values of the storage emulation (:func:`unorm_roundtrip`, :func:`requantize_moments`), so images
-do not depend on the packing.
-
-Split regions (Klehm 2014 Sec. 3.3, end): with ``splits`` = S > 1 each row is cut uniformly into S
-regions filtered independently (S times more parallel threads). The normalised values of a region do
-not know the weight of the regions before it, so the filter also stores the region-local running weight
-sum W_loc(j, i) (shape (rows, cols)) and the host the reference-ray transmittance R(j, k) at each region
-start (shape (rows, S)); the global weight sum of region k up to column i is R(j, k) W_loc(j, i). A ray
-ending in region K needs one look-up per region in front of it (at the region's last column) and one at
-its own column:
-
-    B_bar(i) = [sum_{k<K} R_k W_loc(end_k) B_bar_k(end_k) + R_K W_loc(i) B_bar_K(i)] / [same weights],
-
-which equals the unsplit filter up to float rounding.
-
-Two depths per texel (filtering during resampling, Peters 2017 Sec. 5.2): the prefilters also accept a
-:class:`~..rectify.SparseRectifiedDepth` (z_1, z_2, w_2). The filtered value of a texel is then the weighted
-combination (1 - w_2) B_k(z_1) + w_2 B_k(z_2) of the basis (Fourier values, or the canonical moments before
-storage); a plain depth map is the same code path with w_2 = 0 (:func:`texel_depths`).
+(Eq. 12: tau_j the row's optical step per unit column length, l_i the column's relative length, T_i the reference
+ray's transmittance before texel i; used divided by tau_j, so sigma_t = 0 weights by l_i). A ray ending at column s
+sees the visible fraction F = clamp(0.5 + sum_k a_k(z_r) B_bar_k(s), 0, 1). With ``splits`` S > 1 each row is cut
+into S regions filtered independently (Sec. 3.3), with their local weight sums. Derivations and storage:
+docs/design/prefiltered.md.
 """
 
 from __future__ import annotations
@@ -109,19 +59,9 @@ def split_columns(parts: int, cols: int, k: int):
 
 @wp.func
 def texel_weight(transmittance: float, length: float, optical_thickness: float):
-    """Transmittance weight of one texel, Klehm 2014 Eq. 12 divided by the row's optical step tau_j.
-
-    w'_i = T_i (1 - exp(-tau_i)) is evaluated as T_i l_i phi(tau_i), phi(x) = (1 - e^-x) / x (series below
-    x = 0.01, no cancellation; phi(0) = 1, so sigma_t = 0 weights by the texel length l_i).
-
-    Args:
-        transmittance: T_i, transmittance of the reference ray from the region start to the texel.
-        length: l_i, relative world length of the texel along the reference ray (> 0).
-        optical_thickness: tau_j l_i = sigma_t times the texel's world length, >= 0.
-
-    Returns:
-        (weight, T_(i+1)).
-    """
+    """(weight, T_(i+1)) of one texel: Klehm 2014 Eq. 12 over the row's optical step tau_j, T_i l_i phi(tau_j l_i)
+    with phi(x) = (1 - e^-x) / x (a series below 0.01; phi(0) = 1 weights by length). ``transmittance``: T_i from the
+    region start; ``length``: l_i > 0 along the reference ray; ``optical_thickness``: tau_j l_i >= 0."""
     e = wp.exp(-optical_thickness)
     phi = float(0.0)
     if optical_thickness < 0.01:
@@ -135,12 +75,8 @@ def texel_weight(transmittance: float, length: float, optical_thickness: float):
 @wp.func
 def next_texel_weight(transmittance: float, uniform: bool, w_first: float, step: float,
                       column_length: wp.array(dtype=wp.float32), i: int, tau: float):
-    """Weight of texel i and the transmittance after it (:func:`texel_weight`); ``uniform`` columns (one length
-    for all) reuse the first texel's weight ``w_first`` and step transmittance ``step``.
-
-    Returns:
-        (weight, T_(i+1)).
-    """
+    """(weight, T_(i+1)) of texel i (:func:`texel_weight`); ``uniform`` columns (one length for all) reuse the first
+    texel's weight ``w_first`` and step transmittance ``step``."""
     if uniform:
         return transmittance * w_first, transmittance * step
     length = column_length[i]
@@ -149,12 +85,9 @@ def next_texel_weight(transmittance: float, uniform: bool, w_first: float, step:
 
 @wp.func
 def advance_filter_weight(weight: float, sum_weights: float, step_transmittance: float):
-    """One column of the normalised running filter (Klehm 2014 Listing 2).
-
-    Weights u_i = exp(-i tau) are proportional to w_i of Eq. 11; the blend factor u_i / sum u makes
-    filtered = mix(filtered, basis, alpha) the normalised weighted prefix mean (alpha = 1/(i+1) for tau = 0,
-    Listing 1). Returns (alpha, next weight, new weight sum).
-    """
+    """(alpha, next weight, new weight sum) of one column of the normalised running filter (Klehm 2014 Listing 2):
+    u_i = exp(-i tau) is proportional to Eq. 11's w_i, and filtered = mix(filtered, basis, alpha = u_i / sum u) is the
+    weighted prefix mean (alpha = 1/(i+1) for tau = 0, Listing 1)."""
     s = sum_weights + weight
     return weight / s, weight * step_transmittance, s
 
@@ -173,8 +106,7 @@ class RectifiedTexels:
 
 @wp.func
 def texel_depths(rd: RectifiedTexels, j: int, i: int):
-    """(z_1, z_2, w_2) of rectified texel (j, i): the sparse two-depth representation of Peters 2017 Sec. 5.2 when
-    ``rd.two_depths`` != 0, else the single depth (z_1, z_1, 0)."""
+    """(z_1, z_2, w_2) of rectified texel (j, i); (z_1, z_1, 0) for a single-depth map."""
     z1 = rd.depth[j, i]
     if rd.two_depths == 0:
         return z1, z1, 0.0
@@ -190,7 +122,6 @@ def depth_bounds_kernel(
     out: wp.array2d(dtype=wp.vec2),  # (rows, cols) (least, greatest) rectified depth of columns 0..i of the row
     offset: int,
 ):
-    # the per-row prefix min / max of the texels' depths (both depths of a two-depth texel): one thread per row
     j = wp.tid() + offset
     lo = float(1.0e30)
     hi = float(-1.0e30)
@@ -263,10 +194,8 @@ def group_rotation(z: float, m0: int):
     return sn, cs, step_s, step_c
 
 
-#: (sin, cos) pairs one thread of the fused filter carries in registers (a compile-time constant so the
-#: pair loop unrolls and the running state never leaves registers). 32: up to 64 coefficients in one thread, which
-#: writes each texel's values in one pass and takes one sine and one cosine per texel; the rows still give every core
-#: hundreds of threads (the timings: docs/benchmarks.md, "Fused prefilter registers").
+#: (sin, cos) pairs one thread of the fused filter carries in registers: a compile-time constant, so the pair loop
+#: unrolls (docs/benchmarks.md, "Fused prefilter registers"; the choice: docs/design/prefiltered.md).
 PAIRS_PER_THREAD = 32
 filter_state = wp.types.vector(length=2 * PAIRS_PER_THREAD, dtype=wp.float32)
 
@@ -280,11 +209,8 @@ def prefilter_depth_kernel(
     out: FilteredBasisArrays,  # normalised filtered basis per region (Klehm 2014 Sec. 3.3), weight sums if splits > 1
     offset: int,
 ):
-    # Klehm 2014 Listing 3: the basis transform fused into the prefix filter (no basis textures), with the
-    # per-texel weights of Eq. 12. Thread (row j, t) filters region t // groups, basis group t % groups:
-    # it walks its region once and filters PAIRS_PER_THREAD (sin, cos) pairs; the values
-    # sin/cos((2m + 1) pi z) of the group follow from sin/cos(pi z) by rotating through 2 pi z (angle
-    # addition, group_rotation), so a texel costs two trigonometric calls whatever the group size.
+    # Klehm 2014 Listing 3 with Eq. 12's weights: thread (row j, t) walks region t // groups once and filters basis
+    # group t % groups, its sin/cos((2m + 1) pi z) by angle addition (group_rotation): two trig calls per texel
     j, t = wp.tid()
     j += offset
     rows, cols, num = basis_shape(out)
@@ -341,10 +267,8 @@ def prefilter_depth_kernel(
 
 @wp.func
 def stored_moments(depth01: float, depth01_2: float, weight2: float, num_moments: int, storage: int) -> mm.vec6:
-    """Texel of a rectified MOMENT map: the moments of (1 - w_2) delta_{z_1} + w_2 delta_{z_2}, z = 2 depth01 - 1,
-    as the storage mode holds them (Theta* and fixed point for the quantized modes; Peters 2017 Sec. 5.2-5.4.3:
-    "convert both values to vectors of moments via Theta_m* o b and linearly combine them"). w_2 = 0 is the
-    single depth. 4 moments use slots 0-3."""
+    """Moments of (1 - w_2) delta_{z_1} + w_2 delta_{z_2}, z = 2 depth01 - 1, as the storage mode holds them (Theta*
+    and fixed point for the quantized modes; Peters 2017 Sec. 5.2-5.4.3); 4 moments use slots 0-3."""
     z1 = 2.0 * depth01 - 1.0
     z2 = 2.0 * depth01_2 - 1.0
     if num_moments == 4:
@@ -368,8 +292,7 @@ def prefilter_moments_kernel(
     out: FilteredMomentArrays,  # (rows, cols) normalised filtered stored moments in the map's storage mode
     offset: int,
 ):
-    # Peters 2017 Sec. 5.1.1 and D.5: transmittance-weighted prefix sums of the stored moments, with the
-    # same per-texel weights as the Fourier filter (Klehm 2014 Eq. 11-12); one thread per row.
+    # Peters 2017 Sec. 5.1.1, D.5 with the Fourier filter's texel weights (Klehm 2014 Eq. 11-12); one thread per row
     j = wp.tid() + offset
     cols = rd.depth.shape[1]
     tau = optical_step[j]
@@ -438,11 +361,9 @@ def rectified_texels(rectified_depth, device=None, depth_warp: float = 0.0) -> R
 
 
 def depth_bounds(rectified_depth, device=None) -> wp.array:
-    """Per-row prefix bounds of a rectified map's blocker depths: (rows, cols) vec2 (least, greatest depth among
-    columns 0..i of row j; both depths of a two-depth texel). A view ray at depth z_r whose texels all lie in
-    front of it (z_r >= greatest) is wholly shadowed, one whose texels all lie behind it (z_r < least) wholly lit:
-    the look-ups answer those exactly, per bilinear row (:func:`~.filtered_lookups.row_bounds`), where a truncated
-    Fourier series rings and moment bounds leak (the 1D min-max idea of Chen et al. 2011, on prefix sums)."""
+    """(rows, cols) vec2: the least and greatest blocker depth among columns 0..i of row j (both depths of a two-depth
+    texel), from which the look-ups answer wholly lit or shadowed rays exactly (:func:`~.filtered_lookups.row_bounds`;
+    the 1D min-max maps of Chen et al. 2011, on prefix sums)."""
     device = default_device(device)
     rd = rectified_texels(rectified_depth, device)
     out = wp.empty(rd.depth.shape, dtype=wp.vec2, device=device)
@@ -464,17 +385,8 @@ def _optical_steps(optical_step, rows: int, device) -> wp.array:
 
 
 def fourier_basis_textures(rectified_depth, num_coefficients: int, *, bits: int = 0, device=None) -> wp.array:
-    """Basis textures B_k(z_i) of a rectified depth map (Klehm 2014 Eq. 8, Sec. 3.3).
-
-    Args:
-        rectified_depth: (rows, cols) float32 numpy or Warp array, depth in [0, 1].
-        num_coefficients: M, even, 4..128.
-        bits: 0 for float32 storage, 8 for the paper's RGBA8 basis textures (uint8 codes).
-        device: Warp device.
-
-    Returns:
-        (rows, cols, M) Warp array: float32 values, or uint8 codes (:class:`FilteredBasis`, ``basis``).
-    """
+    """(rows, cols, M) basis textures B_k(z_i) (Klehm 2014 Eq. 8, Sec. 3.3) of a (rows, cols) depth map in [0, 1]:
+    float32 values (``bits`` 0) or the paper's RGBA8 uint8 codes (8); M even, 4..128."""
     device = default_device(device)
     m = _check_coefficients(num_coefficients)
     bits = _check_bits(bits)
@@ -487,20 +399,14 @@ def fourier_basis_textures(rectified_depth, num_coefficients: int, *, bits: int 
 
 
 def prefix_filter(basis, optical_step=None, *, bases_per_thread: int = 8, bits: int = 0, device=None) -> wp.array:
-    """Normalised per-row prefix filtering of basis textures (Klehm 2014 Listing 1, or Listing 2 with weights).
+    """(rows, cols, M) normalised per-row prefix filter of basis textures (:func:`fourier_basis_textures`; Klehm 2014
+    Listing 1, or Listing 2 with weights), values in [-1, 1] stored as ``bits`` says (0: float32, 8: RGBA8 codes).
 
     Args:
-        basis: (rows, cols, M) basis textures (e.g. from :func:`fourier_basis_textures`), float32 values or uint8
-            RGBA8 codes.
-        optical_step: None or 0 for average visibility (Listing 1); else per-row tau = sigma_t * Delta_ref
-            (scalar or (rows,), e.g. :meth:`~..rectify.ReferenceRays.optical_steps`) for the
-            transmittance weights w_i = exp(-(i-1) tau) - exp(-i tau) of Eq. 11 (Listing 2).
-        bases_per_thread: bases filtered by one thread (even); launch is rows x ceil(M / bases_per_thread).
-        bits: 0 for float32 storage, 8 for the paper's RGBA8 filtered-basis textures (uint8 codes).
-        device: Warp device.
-
-    Returns:
-        (rows, cols, M) Warp array of normalised filtered basis values in [-1, 1]: float32, or uint8 codes.
+        basis: (rows, cols, M) float32 values or uint8 RGBA8 codes.
+        optical_step: None or 0 for average visibility; else tau = sigma_t Delta_ref per row (scalar or (rows,),
+            e.g. :meth:`~..rectify.ReferenceRays.optical_steps`): Eq. 11's w_i = exp(-(i-1) tau) - exp(-i tau).
+        bases_per_thread: bases one thread filters (even); the launch is rows x ceil(M / bases_per_thread).
     """
     device = default_device(device)
     inp = basis_arrays(basis, "basis", device)
@@ -555,33 +461,21 @@ def _texel_weights(weights, rows: int, cols: int, device) -> wp.array:
 def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None, column_length=None, *,
                        texel_weights=None, depth_warp: float = 0.0,
                        splits: int = 1, bits: int = 0, device=None) -> FilteredBasis:
-    """Fused basis transform and prefix filter with per-texel weights and split regions (Klehm 2014 Listing 3,
-    Eq. 11-12, Sec. 3.3).
-
-    Texel i of row j has optical thickness tau_j * l_i; its weight is Eq. 12's
-    w'_i = T_i (1 - exp(-tau_j l_i)) (as T_i l_i phi(tau_j l_i), see :func:`texel_weight`). With
-    ``column_length`` None (all l_i = 1) this is Listing 2 with tau_j = sigma_t Delta_ref.
+    """Fused basis transform and prefix filter with Eq. 12's per-texel weights (:func:`texel_weight`) and split
+    regions (Klehm 2014 Listing 3, Eq. 11-12, Sec. 3.3); a launch of rows x splits x ceil(M / (2 PAIRS_PER_THREAD)).
 
     Args:
-        rectified_depth: (rows, cols) float32 numpy or Warp array, depth in [0, 1], or a
-            :class:`~..rectify.SparseRectifiedDepth` (two depths per texel: the weighted basis mix is
-            filtered).
+        rectified_depth: (rows, cols) float32 depth in [0, 1], or a :class:`~..rectify.SparseRectifiedDepth`.
         num_coefficients: M, even, 4..128.
-        optical_step: None or 0 for no transmittance (weights l_i: the length-weighted average visibility);
-            else tau_j per row (scalar or (rows,)), the optical thickness per unit of ``column_length``.
-        column_length: None (uniform) or (cols,) relative world lengths l_i > 0 of the columns along the
-            reference rays (e.g. Eq. 12's Delta d^i, or the exact lengths of a projective rectification).
-        texel_weights: None, or (rows, cols) weights >= 0 to use instead of Eq. 12's (a spot light's reference
-            rays, :func:`~..rectify.spot_texel_weights`).
-        depth_warp: the depth warp c the basis sees (:func:`~.textures.warped_depth`; 0: none); the
-            texture records it and its look-ups warp the ray depth alike.
-        splits: regions per row filtered independently (1..MAX_SPLITS); > 1 also stores the weight sums.
-        bits: 0 for float32 storage (4 M bytes per texel), 8 for the paper's RGBA8 storage (M bytes per texel:
-            uint8 codes, Klehm 2014 App. A).
-        device: Warp device.
-
-    Returns:
-        :class:`FilteredBasis`; the launch is rows x splits x ceil(M / (2 PAIRS_PER_THREAD)) threads.
+        optical_step: None or 0: no transmittance (weights l_i); else tau_j per row (scalar or (rows,)), the
+            optical thickness per unit of ``column_length``.
+        column_length: None (uniform) or (cols,) relative world lengths l_i > 0 of the columns along the reference
+            rays (Eq. 12's Delta d^i, or a projective rectification's exact lengths).
+        texel_weights: None, or (rows, cols) weights >= 0 replacing Eq. 12's (:func:`~..rectify.spot_texel_weights`).
+        depth_warp: the depth warp c the basis sees (:func:`~.textures.warped_depth`; 0: none), recorded in the
+            texture so that its look-ups warp z_r alike.
+        splits: regions per row filtered independently (1..MAX_SPLITS).
+        bits: 0: float32 (4 M bytes per texel); 8: the paper's RGBA8 codes (M bytes, Klehm 2014 App. A).
 
     Raises:
         ValueError: on bad sizes, negative or non-finite optical steps or lengths, or bad splits.
@@ -596,7 +490,7 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
     lengths = _column_lengths(column_length, cols)
     if splits > 1:
         sums = wp.empty((rows, cols), dtype=wp.float32, device=device)
-        # transmittance of the reference ray from the row start to each region start, in float64
+        # reference-ray transmittance from the row start to each region start (float64)
         starts = (np.arange(splits) * cols) // splits
         before = np.concatenate([[0.0], np.cumsum(lengths)])[starts]
         region = np.exp(-tau.numpy().astype(np.float64)[:, None] * before[None, :]).astype(np.float32)
@@ -616,22 +510,10 @@ def prefilter_weighted(rectified_depth, num_coefficients: int, optical_step=None
 def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, column_length=None, *,
                       storage_bits: int | None = None, texel_weights=None, depth_warp: float = 0.0,
                       device=None) -> FilteredMoments:
-    """Transmittance-weighted prefix sums of moments of the rectified depth (Peters 2017 Sec. 5.1.1, 5.3-5.4, D.5).
-
-    Args:
-        rectified_depth: (rows, cols) float32 depth in [0, 1], or a :class:`~..rectify.SparseRectifiedDepth`
-            (two depths per texel: their weighted moment vectors are combined, Sec. 5.2).
-        num_moments: 4 or 6.
-        optical_step, column_length, texel_weights: the texel weights as in :func:`prefilter_weighted`.
-        depth_warp: as in :func:`prefilter_weighted`.
-        storage_bits: bits per texel, 64 or 128 (4 moments) / 64 (60 used), 96 or 192 (6 moments); None: the
-            smallest (64) mode. The fixed-point modes store the codes of Theta*(b): 16-bit codes in a uint16 array
-            (64 / 96 bits per texel) or six 10-bit codes packed in one uint64 per texel (64 bits).
-        device: Warp device.
-
-    Returns:
-        :class:`FilteredMoments` of normalised filtered texels in the storage format.
-    """
+    """:class:`FilteredMoments`: transmittance-weighted normalised prefix sums of 4 or 6 moments of the rectified
+    depth (Peters 2017 Sec. 5.1.1, 5.3-5.4, D.5), the other arguments as in :func:`prefilter_weighted`.
+    ``storage_bits`` per texel: 64 or 128 (4 moments), 64 (60 used), 96 or 192 (6); None: 64. The fixed-point modes
+    store codes of Theta*(b) (:data:`~.textures.MOMENT_TEXEL_LAYOUT`)."""
     device = default_device(device)
     if num_moments not in MOMENT_STORAGE:
         raise ValueError(f"num_moments must be 4 or 6, got {num_moments}")
@@ -654,22 +536,8 @@ def prefilter_moments(rectified_depth, num_moments: int, optical_step=None, colu
 
 def prefilter_depth(rectified_depth, num_coefficients: int, optical_step=None, *, bits: int = 0,
                     device=None) -> wp.array:
-    """Filtered-basis textures straight from a rectified depth map (Klehm 2014 Listing 3 fused with Listing 1/2).
-
-    Same result as ``prefix_filter(fourier_basis_textures(depth, M), optical_step)`` without the
-    intermediate basis textures (:func:`prefilter_weighted` with uniform columns and no splits).
-
-    Args:
-        rectified_depth: (rows, cols) float32 numpy or Warp array, depth in [0, 1].
-        num_coefficients: M, even, 4..128.
-        optical_step: as in :func:`prefix_filter`.
-        bits: 0 for float32 storage, 8 for the paper's RGBA8 storage (uint8 codes).
-        device: Warp device.
-
-    Returns:
-        (rows, cols, M) Warp array of normalised filtered basis values in [-1, 1] (float32, or uint8 codes); the
-        launch is rows x ceil(M / (2 PAIRS_PER_THREAD)) threads.
-    """
+    """``prefix_filter(fourier_basis_textures(depth, M), optical_step)`` without the intermediate basis textures
+    (Klehm 2014 Listing 3; :func:`prefilter_weighted`'s ``basis`` with uniform columns and no splits)."""
     return prefilter_weighted(rectified_depth, num_coefficients, optical_step, bits=bits, device=device).basis
 
 

@@ -1,13 +1,8 @@
-"""The ``rectify`` pass: the light's view of the scene in rectified coordinates for this camera and light (module
-doc of :mod:`warpscatter.scattering.prefiltered`).
-
-* ``projective`` (Klehm 2014 Sec. 4.2): one 4x4 matrix per light-frustum region; the scene is rasterized straight
-  into the rectified map with depth clamping (:mod:`..rectify`);
-* ``nonlinear`` (Peters 2017 Sec. 5.1.1, App. A): bounds in spherical light coordinates and the light's shadow map
-  resampled into them (:mod:`..rectify`): point taps, supersampled (``resample_filter: supersample``), or
-  filtered during resampling (``moments``, Peters 2017 Sec. 5.2: :func:`resample_filtered`);
-* ``auto``: projective unless the light's epipole (or anti-epipole) lies in the image or near it
-  (:func:`~..rectify.params.build_rectification`, Klehm's criterion for (close to) degenerate cases).
+"""The ``rectify`` pass: the light's view in rectified coordinates for this camera and light (:mod:`..rectify`):
+``projective`` (Klehm 2014 Sec. 4.2: the scene rasterized per light-frustum region with depth clamping), ``nonlinear``
+(Peters 2017 Sec. 5.1.1, App. A: the shadow map resampled in spherical light coordinates by point taps, supersampled,
+or filtered during resampling, :func:`resample_filtered`), or ``auto``: projective unless an epipole lies in or near
+the image (:func:`~..rectify.params.build_rectification`).
 """
 
 from __future__ import annotations
@@ -79,14 +74,10 @@ def rectify_map(frame, p: PrefilteredSettings, size: tuple[int, int], stage: Sta
 
 def resample_filtered(scene, rect: NonlinearRectification, shadow_map, settings: PrefilteredSettings,
                       stage: StageTimer, device) -> tuple:
-    """Filtering during resampling (Peters 2017 Sec. 5.2): stage ``resample_msm`` generates the light view's
-    128-bit 4-moment map (2x2 supersampled, :func:`~warpscatter.shadows.msm.generate_moment_shadow_map`) and
-    Gaussian-filters it (``resample_filter_px``, default the radial rectified texel footprint); stage ``rectify``
-    resamples it with Algorithm 2 (:func:`~..resample_moment_shadow_map`).
-
-    Returns:
-        (:class:`~..SparseRectifiedDepth`, the Gaussian width used in shadow-map texels).
-    """
+    """Filtering during resampling (Peters 2017 Sec. 5.2): stage ``resample_msm`` makes the light view's 128-bit
+    4-moment map (2x2 supersampled) and Gaussian-filters it (``resample_filter_px``, default the radial rectified
+    texel footprint); stage ``rectify`` resamples it with Algorithm 2. Returns (:class:`~..SparseRectifiedDepth`, the
+    Gaussian width in shadow-map texels)."""
     from ...shadows import msm as msm_maps
 
     filter_px = settings.resample_filter_px

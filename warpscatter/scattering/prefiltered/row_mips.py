@@ -1,25 +1,13 @@
-"""Row mip-maps of the prefiltered textures (Peters 2017 App. D.5: the prefix-sum texture "should have mipmaps ...
-Once they are created, generate the mipmap hierarchy"; Klehm 2014 Sec. 5: filtering "blends neighboring epipolar
-slices").
+"""Row mip-maps of the prefiltered textures (Peters 2017 App. D.5: the prefix-sum texture "should have mipmaps";
+Klehm 2014 Sec. 5: filtering "blends neighboring epipolar slices").
 
-Near an epipole (or a spot light) in view the rectified rows (epipolar slices) converge: a pixel there spans several
-rows, and a look-up at its centre reads one of them, so thin shafts and a light texture's detail alias into grain
-and radial streaks. Level L + 1 of the row mips averages row pairs (2k, 2k + 1) of level L, in the texture's own
-storage (codes re-rounded per level, as a GPU's mipmap generation of an RGBA8 / 16-bit / 10-bit texture does). Only
-rows are mipped: the columns hold prefix sums, whose look-up already reads a continuous column, and a slice's rays
-stay in their row. A pixel's level is log2 of its row footprint (the rows between its look-up and its neighbours',
-:func:`pixel_mip_level`) less half a level (:data:`MIP_LEVEL_BIAS`, measured); between two levels the look-ups of
-both are blended (trilinear filtering). Unlike a GPU's trilinear fetch, which blends the texels before the one
-reconstruction, the two levels' reconstructed visibilities are blended: one code path for every look-up kind
-(segments, bounds, storage), and a mean of visibilities is what a pixel's footprint asks for.
-
-Layout: the levels are stacked along the rows of one texture (level 0 first), so every look-up reads the array it
-always read and only its row window moves (:func:`level_window`: first row, rows, wrap). The per-row data of the
-look-ups is stacked alike: the reference optical steps (a merged row gets its pair's mean) and the depth bounds (a
-merged row's least and greatest depths), and under a spot light the rows' prefix sums of texel weights
-(:mod:`.spot_lookups`, pair means). Levels halve the rows while their count is even (a row pair must be
-adjacent slices); rows wrapping around the full azimuth circle pair up the same way. Memory: all levels together
-hold as many rows as level 0 (row-only mips double the texture).
+Near an epipole (or a spot light) the rows converge and a pixel spans several, so shafts and a light texture's detail
+alias. Level L + 1 averages row pairs (2k, 2k + 1) of level L in the texture's own storage (codes re-rounded per
+level); only rows are mipped (the columns already hold prefix sums). A pixel reads level log2(row footprint) +
+:data:`MIP_LEVEL_BIAS` (:func:`pixel_mip_level`), blending the two levels' reconstructed visibilities. The levels are
+stacked along the rows of one texture, level 0 first (:func:`level_window`), as is the per-row data of the look-ups
+(reference optical steps, depth bounds, a spot's prefix sums); levels halve the rows while their count is even.
+Why this layout and blend: docs/design/prefiltered.md.
 """
 
 from __future__ import annotations
@@ -48,16 +36,15 @@ from .textures import (
 module_options()
 
 
-#: Added to a pixel's level (a GPU sampler's LOD bias): the GPU rule with a trilinear blend towards the coarser level
-#: blurs about half a level more than the pixel's own box (chosen against supersampled exact renders:
-#: docs/benchmarks.md, "Row mip level bias").
+#: Added to a pixel's level (a GPU sampler's LOD bias): the trilinear blend blurs about half a level more than the
+#: pixel's own box (docs/benchmarks.md, "Row mip level bias").
 MIP_LEVEL_BIAS = wp.constant(-0.5)
 
 
 @wp.struct
 class RowMips:
-    """The row mip chain a look-up reads (:meth:`RowMipChain.params`): level 0's rows, the levels stacked after it
-    (1: level 0 only) and whether the rows wrap around."""
+    """The row mip chain a look-up reads (:meth:`RowMipChain.params`): level 0's rows, the levels (1: level 0 only)
+    and whether the rows wrap around."""
 
     rows: int
     levels: int
@@ -66,8 +53,7 @@ class RowMips:
 
 @wp.func
 def level_window(mips: RowMips, level: int) -> wp.vec3i:
-    """(first row, rows, wrap) of mip level ``level`` in the stacked texture: what the look-ups' bilinear footprint
-    reads (:func:`~.filtered_lookups.window_footprint`)."""
+    """(first row, rows, wrap) of mip ``level`` in the stacked texture (:func:`~.filtered_lookups.window_footprint`)."""
     first = int(0)
     n = mips.rows
     for _ in range(level):
@@ -103,8 +89,8 @@ def axis_row_step(coords: wp.array2d(dtype=wp.vec3), j: int, i: int, dj: int, di
 @wp.func
 def pixel_mip_level(mips: RowMips, coords: wp.array2d(dtype=wp.vec3), j: int, i: int) -> wp.vec2:
     """(level, blend) of pixel (j, i)'s look-up: lambda = log2 of the level-0 rows its footprint spans (the larger
-    of the image axes' steps, :func:`axis_row_step`) + MIP_LEVEL_BIAS, clamped to the chain; level = floor(lambda),
-    blend = the share of level + 1 (0 at the last level). A footprint within 2^0.5 rows reads level 0 alone."""
+    image axis step, :func:`axis_row_step`) + MIP_LEVEL_BIAS, clamped to the chain; level = floor(lambda), blend =
+    the share of level + 1."""
     if mips.levels <= 1:
         return wp.vec2(0.0, 0.0)
     rows_spanned = float(mips.rows) * wp.max(axis_row_step(coords, j, i, 0, 1, mips.wrap),
@@ -120,7 +106,6 @@ def pixel_mip_level(mips: RowMips, coords: wp.array2d(dtype=wp.vec3), j: int, i:
 @wp.kernel
 def mip_level_kernel(mips: RowMips, coords: wp.array2d(dtype=wp.vec3), out: wp.array2d(dtype=wp.float32),
                      offset: int):
-    # the mip_level debug output: level + the share of the next, per pixel
     j, i = wp.tid()
     j += offset
     lv = pixel_mip_level(mips, coords, j, i)
@@ -128,8 +113,7 @@ def mip_level_kernel(mips: RowMips, coords: wp.array2d(dtype=wp.vec3), out: wp.a
 
 
 def pixel_mip_levels(mips: RowMips, coords: wp.array) -> np.ndarray:
-    """(H, W) float32: the mip level each pixel's look-up reads, level + the share of the next
-    (:func:`pixel_mip_level`; the ``mip_level`` debug output)."""
+    """(H, W) float32 level + share of the next of each pixel's look-up (the ``mip_level`` debug output)."""
     out = wp.empty(coords.shape, dtype=wp.float32, device=coords.device)
     launch_rows(mip_level_kernel, coords.shape, [mips, coords, out], device=coords.device)
     return out.numpy()
@@ -152,8 +136,7 @@ def store_basis_value(basis: wp.array3d(dtype=wp.uint8), j: int, i: int, k: int,
 
 @wp.func
 def average_basis_rows(basis: Any, code_values: wp.array(dtype=wp.float32), a: int, dst: int):
-    """Row dst := the mean of rows a and a + 1, every texel and basis, in the array's storage (one storage dispatch
-    per row)."""
+    """Row dst := the mean of rows a and a + 1, every texel and basis, in the array's storage."""
     for i in range(basis.shape[1]):
         for m in range(basis.shape[2]):
             store_basis_value(basis, dst, i, m, 0.5 * (basis_value(basis, code_values, a, i, m)
@@ -162,8 +145,7 @@ def average_basis_rows(basis: Any, code_values: wp.array(dtype=wp.float32), a: i
 
 @wp.kernel
 def basis_level_kernel(tex: FilteredBasisArrays, src_first: int, dst_first: int, offset: int):
-    # row k of the new level: the mean of rows 2k, 2k + 1 of the level before, per basis, in the texture's storage;
-    # one thread per row (a thread per texel costs more in launch overhead than its copy)
+    # row k of the new level := mean of rows 2k, 2k + 1 of the one before; a thread per row (per texel costs more)
     k = wp.tid() + offset
     if tex.code_bits == 0:
         average_basis_rows(tex.basis, tex.tables.code_values, src_first + 2 * k, dst_first + k)
@@ -173,8 +155,7 @@ def basis_level_kernel(tex: FilteredBasisArrays, src_first: int, dst_first: int,
 
 @wp.kernel
 def moments_level_kernel(tex: FilteredMomentArrays, src_first: int, dst_first: int, cols: int, offset: int):
-    # as basis_level_kernel for a moment map (the stored moments are affine in the canonical ones: their mean is
-    # the mean texel's)
+    # as basis_level_kernel (the stored moments are affine in the canonical ones: their mean is the mean texel's)
     k = wp.tid() + offset
     a = src_first + 2 * k
     for i in range(cols):
@@ -200,12 +181,11 @@ def level_rows(rows: int, levels: int) -> list[int]:
 
 
 def stacked_row_means(a: np.ndarray, levels: int, axis: int = 0) -> np.ndarray:
-    """Per-row data of level 0 (rows along ``axis``) with the row-pair means of each further level stacked after it
-    (:func:`level_rows`), in float64 (level 0 alone: ``a`` as it is): the look-ups' per-row data of a chain
-    (reference optical steps, a spot's prefix sums of texel weights)."""
+    """Per-row data of level 0 (rows along ``axis``) with each further level's row-pair means stacked after it, in
+    float64 (level 0 alone: ``a`` as it is)."""
     counts = level_rows(np.shape(a)[axis], levels)
     if len(counts) == 1:
-        return np.asarray(a)  # level 0 alone: as it is (no float64 copy on the path without mips)
+        return np.asarray(a)  # no float64 copy on the path without mips
     a = np.moveaxis(np.asarray(a, np.float64), axis, 0)
     out = [a]
     for _ in counts[1:]:
@@ -222,16 +202,9 @@ def _stacked(a: wp.array, rows_total: int) -> wp.array:
 
 @dataclass
 class RowMipChain:
-    """A prefiltered texture with its row mip levels stacked along the rows (module doc).
-
-    Attributes:
-        texture: the :class:`~.textures.FilteredBasis` or :class:`~.textures.FilteredMoments`
-            whose texels hold every level (level 0 first).
-        optical_step: (rows of all levels,) float32 reference optical steps per row (a merged row: its pair's mean).
-        bounds: (rows of all levels, cols) vec2 depth bounds, or the disabled placeholder (1, 1).
-        rows: level 0's rows.
-        levels: the levels stored (1: level 0 only).
-    """
+    """A prefiltered texture (:class:`~.textures.FilteredBasis` or :class:`~.textures.FilteredMoments`) with its row
+    mip levels stacked along the rows, level 0 (``rows``) first, ``levels`` in all; ``optical_step`` (float32) and
+    ``bounds`` (vec2, or the (1, 1) disabled placeholder) stacked alike."""
 
     texture: FilteredBasis | FilteredMoments
     optical_step: np.ndarray
@@ -252,19 +225,8 @@ class RowMipChain:
 
 
 def row_mip_chain(texture, optical_step, bounds: wp.array, levels: int, device=None) -> RowMipChain:
-    """The row mip chain of a prefiltered texture (module doc): up to ``levels`` levels (1: the texture as it is).
-
-    Args:
-        texture: :class:`~.textures.FilteredBasis` (whole rows: splits 1) or
-            :class:`~.textures.FilteredMoments`, one row per epipolar slice.
-        optical_step: (rows,) the prefilter's reference optical steps, or None (average visibility: zeros).
-        bounds: (rows, cols) vec2 depth bounds of the look-ups, or a (1, 1) disabled placeholder.
-        levels: 1 .. MAX_MIP_LEVELS; fewer are stored when the row count stops being even.
-        device: Warp device.
-
-    Raises:
-        ValueError: on a level count out of range or a texture with split regions.
-    """
+    """The :class:`RowMipChain` of a texture (splits 1, else ValueError), its (rows,) reference optical steps (None:
+    zeros) and depth bounds, with up to ``levels`` (1 .. MAX_MIP_LEVELS) levels; fewer once the row count is odd."""
     device = default_device(device)
     if not 1 <= int(levels) <= MAX_MIP_LEVELS:
         raise ValueError(f"mip levels must be in [1, {MAX_MIP_LEVELS}], got {levels}")

@@ -48,8 +48,7 @@ def evaluate_spot_kernel(texels_type, coloured: bool) -> wp.Kernel:
     def evaluate_spot(cam: CameraParams, coords: wp.array2d(dtype=wp.vec3), texels_r: Texels, texels_g: Texels,
                       texels_b: Texels, look: SpotLookUp, light: LightParams, med: MediumParams,
                       out: wp.array2d(dtype=wp.vec3), pixels: PixelSet, offset: int):
-        # coords: every pixel's rectified (u, v, z_r); texels_g / texels_b: maps 1 and 2 of a coloured spot texture,
-        # else map 0 again; light.radiance: the emission peak per channel
+        # texels_g / texels_b: maps 1, 2 of a coloured spot texture, else map 0; light.radiance: the emission peak
         a, b = wp.tid()
         j, i, listed = set_pixel(pixels, cam.height, cam.width, a + offset, b)
         if not listed:
@@ -76,13 +75,8 @@ def evaluate_spot_kernel(texels_type, coloured: bool) -> wp.Kernel:
 
 
 def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
-    """The spot-light branch of :func:`~.method.render` (its arguments, results and debug outputs). Stages
-    ``rectify``, ``pixel_coords``, ``caster_culling``, ``prefilter``, ``evaluate``, ``epipole``.
-
-    Raises:
-        ValueError: for ``rectification: projective``, ``splits`` > 1 or ``overestimation: adaptive``, which need
-            a directional light.
-    """
+    """The spot-light branch of :func:`~.method.render` (same arguments, results and stages). Raises ValueError for
+    ``rectification: projective``, ``splits`` > 1 or ``overestimation: adaptive``, which need a directional light."""
     device = default_device(frame.device)
     scene, gbuffer, shadow_map = frame.scene, frame.gbuffer, frame.shadow_map
     p = settings.prefiltered

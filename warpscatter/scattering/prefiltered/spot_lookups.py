@@ -1,32 +1,19 @@
-"""Prefiltered single scattering under a spot light: the ``fourier``, ``moments4`` and ``moments6`` methods for a local
-light (Klehm 2014 Sec. 3.2, "Local Lights" and "Angular-dependency for Sources").
+"""Prefiltered single scattering under a spot light: the look-ups of the ``fourier``, ``moments4`` and ``moments6``
+methods for a local light (Klehm 2014 Sec. 3.2, "Local Lights" and "Angular-dependency for Sources").
 
-The map is :mod:`..rectify`'s: rows are epipolar planes through the light and the camera, columns the angle psi
-at the light, depth the view ray's inclination theta, and every texel carries the spot's emission filter tau (cone
-and texture). A view ray of inclination theta meets the light ray psi at t = D sin(psi) / sin(theta - psi), at distance
-D sin(theta) / sin(theta - psi) from the light, so its in-scattered radiance is
+Map (:mod:`..rectify`): rows are epipolar planes through the light and the camera, columns the angle psi at the light,
+depth the view ray's inclination theta; every texel carries the spot's emission filter tau (cone and texture). A view
+ray meets the light ray psi at t = D sin(psi) / sin(theta - psi), so its in-scattered radiance is
 
     L = sigma_s I_peak / (D sin(theta)) integral over psi of f(-cos(theta - psi)) exp(-sigma_t t(psi)) tau V dpsi
 
-(CONVENTIONS: cos = dot(light travel, -view)): the 1 / d^2 fall-off and dt / dpsi cancel, so the weight per column is
-smooth and bounded. It has no closed form:
-
-* each ray integrates its own weight with LOCAL_PANELS 2-point Gauss-Legendre panels (:func:`ray_weight_table`):
-  the unshadowed integral E and the cuts of its ``segments`` look-up segments at equal shares of it;
-* each row's texels are weighted in the prefix sums by the density of the row's reference ray times tau
-  (:func:`~..rectify.spot_texel_weights`: the ray of the slice, and its neighbours, with the largest
-  inclination, which decays slowest; its phase function), and ``sums`` keeps the prefix sums
-  of those weights without and with tau;
-* a segment's visibility mean is then the tau-weighted one of the stored prefix means, its weight the ray's own
-  share times the segment's mean tau, r_k Delta D_tau,k with r_k = Delta E_k / Delta D_k (the ray's weight per
-  reference weight, as :mod:`.ray_weights` derives for directional lights); summation by parts gives taps
-  D_tau,k (r_k - r_k+1) / E_tau on the stored prefix means (the visible share V);
-* the filter factor E_tau / E, the unshadowed share of the emission, is summed the same way per panel of the weight
-  table instead of per segment (:func:`filter_factors`): a segment is too coarse where the ray crosses the cone's
-  edge or the texture's detail.
-
-The radiance is sigma_s I_peak / (D sin(theta)) E (E_tau / E) V. A coloured texture has a map (and filter sums) per
-channel; a coloured medium integrates each channel with its own extinction.
+(CONVENTIONS: cos = dot(light travel, -view); the 1 / d^2 fall-off and dt / dpsi cancel). Each ray integrates its own
+weight E with LOCAL_PANELS Gauss-Legendre panels (:func:`ray_weight_table`) and cuts its look-up segments at equal
+shares of it; the texels are prefiltered with the row reference ray's density times tau, and ``sums`` holds the
+prefix sums of those weights without and with tau. The radiance is sigma_s I_peak / (D sin(theta)) E (E_tau / E) V:
+the visible share V from segment taps as :mod:`.ray_weights` derives them (:func:`spot_visibility`), the unshadowed
+share E_tau / E per panel (:func:`filter_factors`). A coloured texture has a map per channel, a coloured medium one
+extinction per channel. Details: docs/design/prefiltered.md.
 """
 
 from __future__ import annotations
@@ -57,8 +44,8 @@ module_options()
 #: Gauss-Legendre panels of a view ray's own weight table, uniform in psi.
 LOCAL_PANELS = 16
 local_table = wp.types.vector(length=LOCAL_PANELS + 1, dtype=wp.float32)
-#: 2-point Gauss-Legendre nodes +-1/sqrt(3) on [-1, 1] (weights 1): the filter factor needs many panels, the density
-#: is smooth (docs/benchmarks.md, "Spot look-up quadrature").
+#: 2-point Gauss-Legendre nodes +-1/sqrt(3) on [-1, 1] (weights 1): many low-order panels for the filter factor
+#: (docs/benchmarks.md, "Spot look-up quadrature").
 GL2_X = wp.constant(0.5773502691896258)
 
 
@@ -73,8 +60,7 @@ class SpotRays:
     light_distance: float  # D, camera to light (world units)
     psi_lo: float  # angle at the light of column coordinate u = 0 (radians)
     psi_span: float  # angle span of u in [0, 1] (radians)
-    # (rows, cols, 1 + maps) the rows' reference weights summed through each column: layer 0 plain, layer 1 + k times
-    # map k's filter tau
+    # (rows, cols, 1 + maps) rows' reference weights summed through each column: layer 0 plain, 1 + k times map k's tau
     sums: wp.array3d(dtype=wp.float32)
 
 
@@ -204,11 +190,9 @@ def spot_row_weights(rays: SpotRays, k: int, j: int, x: float, cut: segment_colu
 @wp.func
 def filter_factors(rays: SpotRays, k0: int, maps: int, j: int, table: local_table, h: float,
                    x_end: float) -> wp.vec3:
-    """Row j's filter factors E_tau / E of maps k0 .. k0 + maps - 1 (components 0 .. maps - 1) for the ray's weight
-    table: per panel of the table, the tau-weighted reference mean times the ray's own weight in it. The look-up
-    segments of :func:`spot_row_weights` are too coarse for this: where a ray crosses the cone's edge or a textured
-    spot's detail its density falls differently from the reference's inside a segment (docs/benchmarks.md, "Spot
-    look-up quadrature"). ``x_end``: the prefix column of the ray's end (psi_end)."""
+    """Row j's filter factors E_tau / E of maps k0 .. k0 + maps - 1 (components 0 .. maps - 1): per panel of the ray's
+    weight table, the tau-weighted reference mean times the ray's own weight in it (segments are too coarse where a
+    ray crosses the cone's edge or a texture's detail). ``x_end``: the prefix column of the ray's end (psi_end)."""
     dpsi = rays.psi_span / float(rays.sums.shape[1])
     d_prev = float(0.0)
     f_prev = wp.vec3(0.0, 0.0, 0.0)
@@ -247,11 +231,9 @@ def spot_lookup(rays: SpotRays, bounds: DepthBounds, c: wp.vec3, window: wp.vec3
 def spot_visibility(texels: Any, rays: SpotRays, k: int, j0: int, j1: int, ay: float, i0: int, i1: int, ax: float,
                     x: float, cut: segment_columns, esum: segment_sums, m: int, bounded: wp.vec3, z_r: float,
                     beta: float) -> float:
-    """Visible share of a look-up (:func:`spot_lookup`) on map k (module doc): its taps weighted by the segments'
-    tau-weighted reference weights, normalised by their sum (the radiance takes the unshadowed share from the finer
-    :func:`filter_factors`); 0 where the segments see no light. A row the depth bounds decide (``bounded``,
-    :func:`~.filtered_lookups.row_bounds`) takes their answer, the other the reconstruction, mixed by the rows'
-    shares of the weight (as :func:`~warpscatter.scattering.prefiltered.map_visibility`)."""
+    """Visible share of a look-up (:func:`spot_lookup`) on map k: its taps weighted by the segments' tau-weighted
+    reference weights, normalised (0 where they see no light); a row the depth bounds decide (``bounded``) takes their
+    answer, mixed by the rows' shares of the weight (as :func:`~warpscatter.scattering.prefiltered.map_visibility`)."""
     w0, f0 = spot_row_weights(rays, k, j0, x, cut, esum, m)
     w1, f1 = spot_row_weights(rays, k, j1, x, cut, esum, m)
     tex = (1.0 - ay) * f0 + ay * f1

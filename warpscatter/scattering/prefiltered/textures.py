@@ -1,17 +1,9 @@
 """The visibility representations of the prefiltered maps and their textures, as the kernels write and read them:
-the Fourier basis (Klehm 2014 Eq. 8-9) and its storage (float32 or the paper's RGBA8 codes, App. A), and the
-moment maps in the storage modes of Peters 2017 (Sec. 2.4, 5.4.3: Theta* in 16-bit codes in uint16, six 10-bit
-codes packed in one uint64 per texel, or float32).
-
-:mod:`.prefix_sums` fills these textures (the per-row prefix filters) and :mod:`.filtered_lookups` reads them
-(the per-pixel reconstruction); both go through the store / value functions here, so a storage format has one
-home. Decoding is exact: the value of a code is the float32 the storage emulation produced
-(:func:`unorm_roundtrip`, :func:`requantize_moments`), bit for bit.
-
-Fourier basis (0-based index k, pair m = k // 2, c = pi (2 m + 1)):
-
-    V(z_r, z_i) ~ 0.5 + sum_k a_k(z_r) B_k(z_i),
-    a_2m = 2/c cos(c z_r),  a_2m+1 = -2/c sin(c z_r),  B_2m = sin(c z_i),  B_2m+1 = cos(c z_i).
+the Fourier basis (Klehm 2014 Eq. 8-9; 0-based index k, pair m = k // 2, c = pi (2 m + 1)) in float32 or the paper's
+RGBA8 codes (App. A), and the moment maps in the storage modes of Peters 2017 (Sec. 2.4, 5.4.3). :mod:`.prefix_sums`
+writes and :mod:`.filtered_lookups` reads them through the store / value functions here, so a storage format has one
+home; a code decodes to exactly the float32 of the storage emulation (:func:`unorm_roundtrip`,
+:func:`requantize_moments`).
 """
 
 from __future__ import annotations
@@ -82,11 +74,8 @@ def signed_unorm_value(code: int, levels: float) -> float:
 
 @wp.func
 def unorm_roundtrip(x: float, levels: float) -> float:
-    """x in [-1, 1] after storage as a [0, 1] unorm with ``levels`` = 2^bits - 1 steps (Klehm 2014 App. A): the
-    value of its code, bit for bit what a look-up decodes from an RGBA8 texture.
-
-    ``levels <= 0`` stores full float precision (x unchanged).
-    """
+    """x in [-1, 1] after storage as a unorm with ``levels`` = 2^bits - 1 steps (Klehm 2014 App. A), bit for bit what
+    a look-up decodes; ``levels <= 0``: x unchanged (float storage)."""
     if levels <= 0.0:
         return x
     return signed_unorm_value(signed_unorm_code(x, levels), levels)
@@ -102,8 +91,8 @@ FOURIER_UNORM_LEVELS = wp.constant(255.0)
 
 @wp.struct
 class FourierTables:
-    """Constant tables of the Fourier look-ups, built once per device (:func:`fourier_tables`): a table entry is the
-    float32 value of the expression it replaces, bit for bit."""
+    """Constant tables of the Fourier look-ups, built once per device (:func:`fourier_tables`); each entry is the
+    float32 value of the expression it replaces."""
 
     code_values: wp.array(dtype=wp.float32)  # (256,) signed_unorm_value of every RGBA8 code: the decode table
     pair_scales: wp.array(dtype=wp.float32)  # (MAX_COEFFICIENTS / 2,) 2 / c of pair m, c = pi (2 m + 1) (Eq. 8)
@@ -129,9 +118,8 @@ def check_depth_warp(c) -> float:
 
 @wp.struct
 class FilteredBasisArrays:
-    """A Fourier basis texture as the kernels write and read it (:meth:`FilteredBasis.arrays`): the normalised
-    filtered basis, with its split regions (Klehm 2014 Sec. 3.3), in one of two storages. The array of the other
-    storage is None."""
+    """A Fourier basis texture as the kernels see it (:meth:`FilteredBasis.arrays`), in one of two storages (the
+    other's array None), with its split regions (Klehm 2014 Sec. 3.3)."""
 
     basis: wp.array3d(dtype=wp.float32)  # (rows, cols, M) float32 values in [-1, 1] (bits 0)
     codes: wp.array3d(dtype=wp.uint8)  # (rows, cols, M) RGBA8 codes, signed_unorm_code (bits 8)
@@ -169,8 +157,7 @@ def basis_value(basis: wp.array3d(dtype=wp.uint8), code_values: wp.array(dtype=w
 
 @wp.func
 def basis_texel(tex: FilteredBasisArrays, j: int, i: int, k: int) -> float:
-    """Value of basis k at texel (j, i) in either storage (a branch per value: the look-ups use :func:`basis_value`
-    on the storage's own array instead)."""
+    """Value of basis k at texel (j, i) in either storage (a branch per value; look-ups use :func:`basis_value`)."""
     if tex.code_bits == 0:
         return tex.basis[j, i, k]
     return basis_value(tex.codes, tex.tables.code_values, j, i, k)
@@ -209,10 +196,8 @@ def moment_code_bits(num_moments: int, storage: int) -> int:
 
 @wp.struct
 class FilteredMomentArrays:
-    """A prefiltered moment map as the kernels write and read it (:meth:`FilteredMoments.arrays`): the texels of a
-    storage mode (Peters 2017 Sec. 2.4, 5.4.3) in the array of ``code_bits``, the other arrays None. A map holds the
-    codes of its mode (:data:`MOMENT_TEXEL_LAYOUT`), or float32 values: the float32 modes' canonical moments, or
-    the decoded values of a fixed-point mode (its emulation)."""
+    """A prefiltered moment map as the kernels see it (:meth:`FilteredMoments.arrays`): the codes of its storage mode
+    (Peters 2017 Sec. 2.4, 5.4.3; :data:`MOMENT_TEXEL_LAYOUT`) or float32 values in the array of ``code_bits``."""
 
     values: wp.array3d(dtype=wp.float32)  # (rows, cols, n) float32 values (code_bits 0)
     codes16: wp.array3d(dtype=wp.uint16)  # (rows, cols, n) 16-bit unorm codes of Theta*(b) (code_bits 16)
@@ -225,10 +210,8 @@ class FilteredMomentArrays:
 
 @wp.func
 def requantize_moments(t: mm.vec6, num_moments: int, storage: int) -> mm.vec6:
-    """A filtered texel written back in the storage format, as float32 values: the quantization transforms are
-    affine, so the weighted mean of stored texels only needs rounding to the mode's fixed point again (float modes:
-    unchanged). The emulation of :func:`store_moment_texel` followed by :func:`moment_texel` (same values, bit for
-    bit)."""
+    """A filtered texel rounded to the mode's fixed point again, as float32 (float modes: unchanged): the emulation of
+    :func:`store_moment_texel` then :func:`moment_texel`, bit for bit (the quantization transforms are affine)."""
     bits = moment_code_bits(num_moments, storage)
     if bits == 0:
         return t
@@ -238,8 +221,7 @@ def requantize_moments(t: mm.vec6, num_moments: int, storage: int) -> mm.vec6:
 
 @wp.func
 def store_moment_texel(tex: FilteredMomentArrays, j: int, i: int, t: mm.vec6):
-    """Write texel (j, i): the stored moments t (slots 0..n-1) rounded to the map's storage mode, as codes or as
-    float32 values (:func:`requantize_moments`)."""
+    """Write the stored moments t (slots 0..n-1) to texel (j, i) in the map's storage mode."""
     if tex.code_bits == 0:
         q = requantize_moments(t, tex.num_moments, tex.storage)
         for k in range(wp.static(6)):  # unrolled (see moment_texel_values)
@@ -257,7 +239,7 @@ def store_moment_texel(tex: FilteredMomentArrays, j: int, i: int, t: mm.vec6):
 def moment_texel_values(values: wp.array3d(dtype=wp.float32), j: int, i: int, num: int) -> mm.vec6:
     """Stored moments (slots 0..num-1) of texel (j, i) of a float32 moment map."""
     t = mm.vec6()
-    for k in range(wp.static(6)):  # unrolled: t stays in registers (a dynamic index spills it: 1.3x slower)
+    for k in range(wp.static(6)):  # unrolled: t stays in registers (a dynamic index spills it)
         if k < num:
             t[k] = values[j, i, k]
     return t
@@ -336,8 +318,7 @@ _TABLES: dict = {}
 
 
 def fourier_tables(device=None) -> FourierTables:
-    """The :class:`FourierTables` of a device (built on first use): the value (:func:`signed_unorm_value`) of every
-    RGBA8 code and the factor 2 / c of every coefficient pair."""
+    """The :class:`FourierTables` of a device, built on first use."""
     device = default_device(device)
     key = str(wp.get_device(device))
     if key not in _TABLES:
@@ -356,14 +337,14 @@ def basis_texture(rows: int, cols: int, num: int, bits: int, device) -> wp.array
 
 @dataclass
 class FilteredBasis:
-    """A Fourier basis texture (the output of :func:`prefilter_weighted`) and what split evaluation needs.
+    """A Fourier basis texture (:func:`~.prefix_sums.prefilter_weighted`'s output).
 
     Attributes:
-        basis: (rows, cols, M) normalised filtered basis, each split region filtered on its own: float32 values in
-            [-1, 1], or uint8 codes of the paper's RGBA8 storage (Klehm 2014 App. A; value 2 code / 255 - 1).
+        basis: (rows, cols, M) normalised filtered basis per split region: float32 values in [-1, 1], or uint8 RGBA8
+            codes (Klehm 2014 App. A; value 2 code / 255 - 1).
         weight_sums: (rows, cols) float32 region-local running weight sums ((1, 1) placeholder when splits = 1).
         region_weights: (rows, splits) float32 reference-ray transmittance at every region start (region 0: 1).
-        splits: regions per row (Klehm 2014 Sec. 3.3).
+        splits: regions per row (Klehm 2014 Sec. 3.3); depth_warp: the depth warp c of the stored depths.
     """
 
     basis: wp.array
@@ -391,8 +372,7 @@ class FilteredBasis:
 
     @property
     def nbytes(self) -> int:
-        """Bytes allocated for the textures an evaluation reads (the basis texture; with split regions also the
-        weight sums and region weights)."""
+        """Bytes allocated for what an evaluation reads (with split regions also the weight sums)."""
         return int(self.basis.capacity + (self.weight_sums.capacity + self.region_weights.capacity
                                           if self.splits > 1 else 0))
 
@@ -419,16 +399,13 @@ _WARP_DTYPES = {np.float32: wp.float32, np.uint16: wp.uint16, np.uint64: wp.uint
 
 @dataclass
 class FilteredMoments:
-    """A prefiltered moment map (the output of :func:`prefilter_moments`) in the layout of its storage mode.
+    """A prefiltered moment map (:func:`~.prefix_sums.prefilter_moments`'s output).
 
     Attributes:
-        texels: the texture in the layout of the storage mode (:data:`MOMENT_TEXEL_LAYOUT`): float32
-            (rows, cols, n) canonical moments (128 / 192 bits per texel); uint16 (rows, cols, n) 16-bit codes of
-            Theta*(b) (64 / 96 bits); uint64 (rows, cols), six 10-bit codes of Theta_6*(b) in each word (64 bits,
-            60 used). A float32 texture of a fixed-point mode holds its decoded values (:meth:`values`: the storage
-            emulation, read exactly like the codes).
-        num_moments: 4 or 6.
-        storage: the moments.STORAGE4_* / STORAGE6_* mode.
+        texels: in the layout of the storage mode (:data:`MOMENT_TEXEL_LAYOUT`): float32 (rows, cols, n) canonical
+            moments (128 / 192 bits per texel), uint16 (rows, cols, n) 16-bit codes of Theta*(b) (64 / 96 bits) or
+            uint64 (rows, cols) six 10-bit codes (64 bits); or float32 decoded values of a fixed-point mode.
+        num_moments: 4 or 6; storage: the moments.STORAGE4_* / STORAGE6_* mode.
     """
 
     texels: wp.array

@@ -1,11 +1,10 @@
 """Bounds of a non-linear rectification for one camera and a directional light (Peters 2017 App. A).
 
-The four far-plane corners q_j in light view space (:mod:`.spherical`) bound the map; the near plane is ignored
-(r_min = 0): r_max = max_j |q_j,xy|; phi from the pair of corners enclosing the largest angle, or the full circle
-when the light direction or its flip lies inside the view frustum; theta from the corners, the critical points on
-the far-plane edges and 0 / pi when the light / flipped light direction lies inside the frustum. The theta interval
-is stretched by the guard band (10 % of its length, half on each side) to avoid light leaking. All of it is
-float64 numpy, once per frame; :meth:`NonlinearRectification.params` hands the result to the kernels.
+The far-plane corners q_j in light view space (:mod:`.spherical`) bound the map, the near plane ignored (r_min = 0):
+r_max = max_j |q_j,xy|; phi from the pair of corners enclosing the largest angle, or the full circle when the
+(flipped) light direction lies inside the view frustum; theta from the corners, the critical points on the far-plane
+edges and 0 / pi for the (flipped) light direction inside; the theta interval is widened by the guard band against
+light leaking. Host float64, once per frame.
 """
 
 from __future__ import annotations
@@ -148,21 +147,9 @@ class NonlinearRectification:
     @classmethod
     def from_camera(cls, camera, light_direction, guard_band: float = 0.1, rows: int = 1024,
                     cols: int = 1024, radius: float | None = None) -> "NonlinearRectification":
-        """Tight bounds of the rectified coordinates for ``camera`` and a directional light (Peters 2017 App. A).
-
-        Args:
-            camera: a :class:`~warpscatter.scene.camera.Camera`.
-            light_direction: direction the light travels (any length > 0).
-            guard_band: relative stretch of the theta interval (Peters 2017 uses 0.1), >= 0.
-            rows: epipolar slices of the rectified map (>= 2).
-            cols: texels along each view ray (>= 2).
-            radius: caps r_max (world units, > 0): the map then covers light rays up to this distance from the
-                camera's light axis only, and the look-ups count a view ray's texels beyond it as lit
-                (:func:`caster_radius`: where the last caster is).
-
-        Raises:
-            ValueError: on a zero/non-finite light direction, a negative guard band or a map below 2x2.
-        """
+        """Tight bounds of the rectified coordinates for ``camera`` and a directional light travelling along
+        ``light_direction`` (Peters 2017 App. A); sizes and ``guard_band`` as the attributes (rows, cols >= 2).
+        ``radius`` caps r_max (world units; :func:`caster_radius`): the look-ups count texels beyond it as lit."""
         if not (np.isfinite(guard_band) and guard_band >= 0.0):
             raise ValueError(f"guard_band must be finite and >= 0, got {guard_band}")
         for name, val in (("rows", rows), ("cols", cols)):
@@ -204,7 +191,6 @@ class NonlinearRectification:
                    theta_max=float(max(thetas)), guard_band=float(guard_band), rows=int(rows), cols=int(cols),
                    view_radius=float(view_radius))
 
-    # ---- derived bounds ------------------------------------------------------------------------------
     @property
     def light_direction(self) -> np.ndarray:
         """Unit direction the light travels (light-view z axis)."""
@@ -250,7 +236,6 @@ class NonlinearRectification:
         p.psi_lo = float(self.psi_lo)
         return p
 
-    # ---- host coordinate transforms (float64) --------------------------------------------------------
     def world_to_rectified(self, points) -> np.ndarray:
         """Rectified (u, v, depth) of world points, shape (..., 3) -> (..., 3) float64 (see the module doc)."""
         p = np.asarray(points, dtype=np.float64)
@@ -286,19 +271,9 @@ class NonlinearRectification:
         return self.phi_mid + ((np.arange(self.rows) + 0.5) / self.rows - 0.5) * self.phi_span
 
     def slice_inclination_range(self, phi) -> tuple[np.ndarray, np.ndarray]:
-        """Inclination interval [theta_lo, theta_hi] of the frustum's view rays inside the epipolar slice(s) phi.
-
-        The slice half-plane meets the frustum in a 2D cone whose boundary rays cross the far-plane
-        edges, or run along the light axis (theta = 0 / pi) when the (flipped) light lies inside the view.
-        Slices that miss the frustum (only possible outside [phi_min, phi_min + phi_span]) get the global
-        tight bounds.
-
-        Args:
-            phi: azimuths (radians), any shape.
-
-        Returns:
-            (theta_lo, theta_hi) arrays of phi's shape (radians, unguarded).
-        """
+        """Unguarded inclination range (theta_lo, theta_hi) of the frustum's view rays in the slices at azimuths
+        ``phi`` (any shape): where the slice's boundary rays cross the far-plane edges, or the light axis (0 / pi)
+        when the (flipped) light lies inside the view; slices missing the frustum get the global bounds."""
         phi = np.asarray(phi, dtype=np.float64)
         e = np.stack([np.cos(phi), np.sin(phi)], axis=-1)
         lo = np.full(phi.shape, np.inf)

@@ -2,16 +2,10 @@
 in the papers).
 
 A pixel's look-up reads rows j0, j1 and the prefix columns up to i1
-(:func:`~..prefiltered.filtered_lookups.texel_footprint`), and a texel there shadows it only when the texel's blocker
-depth is below the pixel's z_r. A texel that no pixel reads with a larger z_r is lit for every pixel, whatever depth it
-holds: emptying it (depth 1) changes no hard-visibility result but takes its depth out of the filtered representation.
-Typical: a ground plane's own depths just behind the fragment depth of the rays that end on it, where Fourier series
-ring and moment bounds are loosest (the ``moments4`` / ``moments6`` methods' largest error on grazing grounds; README,
-*Receivers in the rectified map*).
-
-A depth tolerance (``bias``) against discretisation acne empties a lit surface's own depths just in front of the
-rays ending on it; it applies only to rays ending on surfaces that face the light (:func:`end_faces_away`): a
-surface facing away shadows the end of every ray that meets it, with depths just in front of the ray's last texels.
+(:func:`~..prefiltered.filtered_lookups.texel_footprint`); a texel there shadows it only when its blocker depth is
+below the pixel's z_r. Emptying (depth 1) a texel no pixel reads with a larger z_r changes no hard-visibility result
+but takes its depth out of the filtered representation: typically a ground's own depths just behind the rays ending
+on it, where Fourier series ring and moment bounds are loosest (README, *Receivers in the rectified map*).
 """
 
 from __future__ import annotations
@@ -64,11 +58,8 @@ def end_faces_away_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float
 @wp.kernel
 def reader_table_kernel(coords: wp.array2d(dtype=wp.vec3), faces_away: wp.array2d(dtype=wp.int32), bias_bins: int,
                         mips: RowMips, cols: int, table: wp.array2d(dtype=wp.int32), offset: int):
-    # table[row, bin] = last prefix column a pixel of that depth bin reads in that row (its look-up footprint, as the
-    # evaluation's; with row mips, every level-0 row the rows of its levels average); a pixel whose ray ends on a
-    # surface facing away from the light counts bias_bins deeper, so the tolerance does not apply to its reads. CPU
-    # atomics are exact within a launch only: each concurrent launch (a band of image rows) has its own table
-    # (reader_tables), merged by reader_suffix_kernel
+    # table[row, bin] = last prefix column a pixel of that depth bin reads in that row (with row mips, in every level-0
+    # row its levels average); a pixel ending on a surface facing away from the light counts bias_bins deeper
     j, i = wp.tid()
     j += offset
     c = coords[j, i]
@@ -125,9 +116,8 @@ def cull_casters_kernel(
 
 
 def end_faces_away(camera, gbuffer, light: LightParams, device=None) -> wp.array:
-    """(H, W) int32 Warp array: 1 where the pixel's view ray ends on a surface facing away from the light (the
-    G-buffer's camera-facing normal against the direction light travels there; 0 on surfaces facing it and where no
-    surface is hit). Such a surface shadows its own side that the camera sees."""
+    """(H, W) int32: 1 where the pixel's view ray ends on a surface facing away from the light (by the G-buffer's
+    camera-facing normal), which shadows the end of its own ray."""
     device = default_device(device)
     out = wp.empty((camera.height, camera.width), dtype=wp.int32, device=device)
     launch_rows(end_faces_away_kernel, (camera.height, camera.width),
@@ -137,9 +127,9 @@ def end_faces_away(camera, gbuffer, light: LightParams, device=None) -> wp.array
 
 def reader_tables(coords: wp.array, faces_away: wp.array, bias_bins: int, mips: RowMips, rows: int, cols: int,
                   device) -> wp.array:
-    """(bands, rows, CULL_DEPTH_BINS) int32: each band of image rows' reader table (:func:`reader_table_kernel`; -1
-    where no pixel reads). On the CPU one band per worker thread, launched concurrently (a launch runs on one core and
-    its atomics are exact only within it); on a GPU one band."""
+    """(bands, rows, CULL_DEPTH_BINS) int32 reader tables (:func:`reader_table_kernel`; -1: unread), one per band of
+    image rows: on the CPU a band per worker thread, launched concurrently (CPU atomics are exact within a launch
+    only); on a GPU one band."""
     height, width = int(coords.shape[0]), int(coords.shape[1])
     parts = chunks(height, thread_count() if wp.get_device(device).is_cpu else 1)
     bands = wp.full((len(parts), rows, CULL_DEPTH_BINS), -1, dtype=wp.int32, device=device)
@@ -156,30 +146,22 @@ def reader_tables(coords: wp.array, faces_away: wp.array, bias_bins: int, mips: 
 
 def cull_unseen_casters(rectified, rect, coords: wp.array, bias: float = 0.0, device=None,
                         mip_levels: int = 1, faces_away: wp.array | None = None) -> float:
-    """Empty, in place, every texel of a rectified map whose blocker shadows no pixel's look-up.
+    """Empty, in place, every texel of a rectified map whose blocker shadows no pixel's look-up; returns the fraction
+    of texels emptied (of the first depth).
 
-    A texel is kept when some pixel's look-up (:func:`~..prefiltered.filtered_lookups.texel_footprint`: its two rows,
-    prefix columns up to i1) reads it with a depth z_r of at least the texel's depth + ``bias`` (pixels are binned by
-    z_r into ``CULL_DEPTH_BINS`` bins, rounding towards keeping). With ``bias`` 0 no pixel's hard (step-function)
-    visibility changes. The tolerance is for the acne of a lit surface in the map, its own depths a little in front
-    of the rays that end on it; a ray that ends on a surface facing away from the light (``faces_away``) is shadowed
-    by that surface, whose depths lie just in front of the ray's last texels (a floor-wall crease), so its reads keep
-    the texels without it.
+    A texel is kept when some pixel's look-up reads it with a z_r of at least its depth + ``bias`` (pixels binned into
+    ``CULL_DEPTH_BINS``, rounding towards keeping); with ``bias`` 0 no hard visibility changes. ``bias`` is for a lit
+    surface's acne, its own depths a little in front of the rays ending on it; it does not apply to rays ending on a
+    surface facing away from the light (``faces_away``, :func:`end_faces_away`), which that surface shadows.
 
     Args:
-        rectified: (rows, cols) float32 Warp array of rectified depth in [0, 1] (1: no blocker), or a
-            :class:`~warpscatter.scattering.SparseRectifiedDepth` (both depths are culled).
+        rectified: (rows, cols) float32 rectified depth (1: no blocker), or a
+            :class:`~.taps.SparseRectifiedDepth` (both depths are culled).
         rect: its NonlinearRectification or ProjectiveRectification.
-        coords: (H, W) vec3 rectified coordinates of the pixels' view-ray ends (:func:`pixel_coords`).
+        coords: (H, W) vec3 rectified coordinates of the pixels' view-ray ends.
         bias: tolerance in rectified depth (a fraction of the depth range), >= 0.
-        mip_levels: the row mip levels the look-ups will read (:mod:`..prefiltered.row_mips`): a texel averaged into a
-        level a
-            pixel reads is read.
-        faces_away: (H, W) int32, 1 where the pixel's ray ends on a surface facing away from the light
-            (:func:`end_faces_away`); None: none does.
-
-    Returns:
-        The fraction of texels emptied (of the first depth).
+        mip_levels: the row mip levels the look-ups read (:mod:`..prefiltered.row_mips`).
+        faces_away: (H, W) int32 of :func:`end_faces_away`; None: no pixel's surface faces away.
     """
     device = default_device(device)
     if not (np.isfinite(bias) and bias >= 0.0):

@@ -1,33 +1,17 @@
 """Non-linear rectification of a spot light's shadow map: prefiltered single scattering for local lights (Klehm 2014
 Sec. 3.2, "Local Lights" and "Angular-dependency for Sources").
 
-Peters' spherical coordinates (:mod:`.spherical`) need only that every view ray stays in one row at one
-depth and runs along the columns. With the light at a point L, the epipolar planes are the planes through the
-baseline from L to the camera C; light view space keeps its origin at C with z along the baseline, pointing from
-the light to the camera (the direction light travels along it, as for a directional light), D = |C - L|:
+The epipolar planes of a light at L are the planes through the baseline to the camera C; light view space keeps its
+origin at C with z along the baseline from the light to the camera, D = |C - L|. phi = atan2(y, x) is the ROW and
+theta = atan2(r, z) the DEPTH as for a directional light (:mod:`.spherical`); the COLUMN is the angle at the light
+psi = atan2(r, z + D), u = (psi - psi_lo) / psi_span. A view ray keeps phi and theta and runs from psi = 0 towards
+psi = theta; along a light ray theta falls away from the light, so "behind the blocker" is again "larger depth"
+(D -> infinity with psi D -> r is the directional case). The columns cover the spot cone's band around the baseline,
+cut to the largest psi the view reaches.
 
-* phi = atan2(y, x), the epipolar plane                                     -> ROW (as for a directional light);
-* theta = atan2(r, z), the inclination seen from the camera                 -> DEPTH (as for a directional light);
-* psi = atan2(r, z + D), the angle at the light between the baseline and the light ray through the point
-  -> COLUMN, u = (psi - psi_lo) / psi_span.
-
-A view ray keeps phi and theta and runs from psi = 0 (the camera) towards psi = theta; along a light ray (fixed phi,
-psi) theta falls monotonically away from the light, so "behind the blocker" is again "larger depth". A directional
-light is the limit D -> infinity with psi D -> r.
-
-The columns cover the angles at the light where light is and the view reaches: psi_lo, psi_hi = the spot cone's
-band around the baseline, [beta - cone, beta + cone] with beta the angle between the spot's axis and the baseline,
-cut to the largest psi of the view frustum (its far plane). Resampling (:func:`resample_spot_shadow_map`): each texel is
-a light ray; it keeps its casters as a directional light's supersampled texel does (light rays over its psi extent, four
-spot-map taps each (:func:`~.taps.bilinear_tap`), condensed to two depths; translucent casters split each
-tap), and the spot's emission along it (cone and texture, :func:`~warpscatter.scene.lights.light_sample`, averaged over
-the texel's footprint, relative to its peak) becomes the texel's FILTER tau in [0, 1] per colour channel. The filter
-weights the texel in the prefix sums (Klehm's "Angular-dependency for Sources": "each visibility function is simply
-weighted by the light's contribution"), so outside the cone a texel has no weight and inside the texture modulates
-it; a coloured texture needs one filtered map per channel (the paper: "triples storage amount and computation
-costs").
-
-Per-texel weights of the prefix sums (:func:`spot_texel_weights`) and the per-ray look-ups:
+Each texel (a light ray) keeps its casters as a directional supersampled texel does (:mod:`.taps`), and the spot's
+emission over its footprint, relative to its peak, becomes its FILTER in [0, 1] per channel, which weights it in the
+prefix sums (Klehm's "Angular-dependency for Sources"; a coloured texture needs one map per channel). The look-ups:
 :mod:`..prefiltered.spot_lookups`.
 """
 
@@ -107,9 +91,8 @@ def spot_rectification(camera, light, rows: int = 1024, cols: int = 1024,
 @wp.func
 def spot_casters_opaque(rect: NonlinearRectParams, light: LightParams, shadow_depth: wp.array2d(dtype=wp.float32),
                         world_to_clip: wp.mat44, samples: int, i: int, phi: float, to_world: wp.mat33):
-    """:func:`spot_casters_translucent` for a map without translucent casters, bit-identical: one pass reads the
-    taps and keeps them (static indices: registers, as the directional map's
-    ``radial_opaque_texel``); the split pass runs over the kept taps."""
+    """:func:`~.taps.split_translucent_taps` for an opaque spot map, bit-identical, with the taps kept in registers
+    for the split pass (as ``radial_opaque_texel``)."""
     inv = 1.0 / float(samples)
     lo, hi, w_caster, w_empty = empty_tap_range()
     s_caster = float(0.0)
@@ -136,9 +119,8 @@ def spot_casters_opaque(rect: NonlinearRectParams, light: LightParams, shadow_de
 @wp.func
 def spot_emission_filter(rect: NonlinearRectParams, light: LightParams, peak: wp.vec3, i: int, j: int,
                          to_world: wp.mat33) -> wp.vec3:
-    """Texel (column i, row j)'s FILTER: its mean emission relative to each channel's ``peak`` (0: a dark channel),
-    clamped to [0, 1], over SPOT_FILTER_SAMPLES^2 light rays in its (psi, phi) footprint (each psi's and phi's sine
-    and cosine computed once)."""
+    """Texel (column i, row j)'s FILTER: its mean emission over SPOT_FILTER_SAMPLES^2 light rays of its footprint
+    relative to each channel's ``peak`` (0: a dark channel), clamped to [0, 1]."""
     e_sum = wp.vec3(0.0, 0.0, 0.0)
     nf = SPOT_FILTER_SAMPLES
     sin_phi = spot_filter_angles()
@@ -164,8 +146,7 @@ def spot_emission_filter(rect: NonlinearRectParams, light: LightParams, peak: wp
 
 @wp.func
 def spot_texel_depths(w_caster: float, w_empty: float, s1: float, wa: float, s2: float, wb: float):
-    """A spot texel's two-depth mix (z1, z2, w2) from its parts' sums (:func:`~.taps.tap_split`; the taps already
-    hold rectified depths): as a directional texel's (:func:`~.nonlinear.radial_texel_depths`)."""
+    """:func:`~.nonlinear.radial_texel_depths` for a spot texel, whose taps hold rectified depths already."""
     z1 = float(1.0)
     z2 = float(1.0)
     w2 = float(0.0)
@@ -194,8 +175,6 @@ def resample_spot_kernel(
     out_filter: wp.array2d(dtype=wp.vec3),  # (rows, cols) the emission relative to its peak, per channel
     offset: int,
 ):
-    # one light ray per texel (module doc): its emission as a filter, and its casters: ``samples`` light rays over the
-    # texel's psi extent, four bilinear spot-map taps each, kept for the split pass (taps module doc)
     j, i = wp.tid()
     j += offset
     to_world = wp.transpose(rect.to_light)
@@ -260,17 +239,9 @@ def coloured_emission(light) -> bool:
 
 
 def resample_spot_shadow_map(rect: NonlinearRectification, shadow_map, light, lparams: LightParams, device=None):
-    """The rectified two-depth map of a spot light's casters and the emission filter of every texel (module doc).
-
-    Args:
-        rect: :func:`spot_rectification`'s rectification.
-        shadow_map: the spot's :class:`~warpscatter.shadows.shadow_map.ShadowMap` (perspective, linear depth).
-        light: the :class:`~warpscatter.scene.lights.SpotLight`.
-        lparams: its :class:`~warpscatter.scene.lights.LightParams` (the texture on ``device``).
-
-    Returns:
-        (:class:`~.taps.SparseRectifiedDepth`, (rows, cols, 3) float32 numpy filter in [0, 1]).
-    """
+    """(:class:`~.taps.SparseRectifiedDepth`, (rows, cols, 3) numpy filter in [0, 1]) of a spot ``light`` (its
+    ``lparams`` on ``device``) and its perspective, linear-depth ``shadow_map`` in :func:`spot_rectification`'s
+    ``rect`` (module doc)."""
     device = default_device(device)
     peak = emission_peaks(light).astype(np.float32)
     sm = map_array(shadow_map.depth, "shadow_depth", device)
@@ -295,15 +266,10 @@ REFERENCE_ROW_REACH = 2
 
 
 def spot_texel_weights(rect: NonlinearRectification, sigma_t: float, medium=None) -> np.ndarray:
-    """Per-texel prefilter weights of a spot light's map, (rows, cols) float64.
-
-    A texel's weight is the in-scattering density per radian of psi of its row's reference ray, the ray of the
-    row's epipolar slice (and its REFERENCE_ROW_REACH neighbours) with the largest inclination theta_ref:
-    dpsi exp(-sigma_t t_ref(psi)), t_ref = D sin(psi) / sin(theta_ref - psi), 0 for psi >= theta_ref (no ray of the
-    row gets there), times the reference ray's phase function f(-cos(theta_ref - psi)) when ``medium`` is given.
-    Every other ray of the row decays faster along the columns (as the ``least`` reference ray of a directional
-    light); the phase function's shape along the row then follows the reference ray's.
-    """
+    """(rows, cols) prefilter weights of a spot light's map: dpsi exp(-sigma_t t_ref(psi)), t_ref = D sin(psi) /
+    sin(theta_ref - psi) (0 for psi >= theta_ref), along the reference ray of largest inclination theta_ref of the row
+    and its REFERENCE_ROW_REACH neighbours (every other ray decays faster, as ``least``), times its phase function
+    f(-cos(theta_ref - psi)) when ``medium`` is given."""
     if not (np.isfinite(sigma_t) and sigma_t >= 0.0):
         raise ValueError(f"sigma_t must be finite and >= 0, got {sigma_t}")
     _, theta_hi = rect.slice_inclination_range(rect.row_azimuths())

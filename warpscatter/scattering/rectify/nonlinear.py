@@ -1,23 +1,13 @@
 """Resampling a directional light's shadow map into the non-linear rectification (Peters 2017 Sec. 5.1.1, 5.2).
 
-Each rectified texel (:mod:`.spherical`, bounds from :mod:`.bounds`) is a light ray; its point closest to the camera
-is projected into the light's orthographic shadow map, the stored caster is placed on the same light ray and its
-inclination converted to rectified depth (Klehm 2014 Sec. 4.1: casters in front of the frustum clamp to 0, behind it
-to 1; empty texels and light rays off the map give 1). Three ways to read the map, chosen on the host by
-:func:`resample_shadow_map`:
-
-* nearest: one texel per rectified texel (:func:`resample_kernel`; with translucent casters both depths of the
-  texel's two-depth distribution, :func:`resample_translucent_kernel`);
-* supersampled (``resample_filter: supersample``): light rays over the texel's column extent, four bilinear taps
-  each, condensed to two depths (:mod:`.taps`; :func:`resample_radial_kernel`,
-  :func:`resample_radial_translucent_kernel`);
-* filtering during resampling (Peters 2017 Sec. 5.2, Fig. 17, D.5): a bilinear sample of a Gaussian-filtered
-  4-moment shadow map (:mod:`warpscatter.shadows.msm`) whose first three moments become two depths by Algorithm 2
-  (:func:`resample_moment_shadow_map`); the moment map blends translucent casters in itself (Sec. 3.2).
-
-Translucent casters (a :class:`~warpscatter.shadows.shadow_map.ShadowMap` with ``transmittance``): every texel is the
-two-depth distribution (1 - T) delta(nearest caster) + T delta(nearest opaque caster)
-(:mod:`warpscatter.shadows.translucency`). Every two-depth result is a :class:`~.taps.SparseRectifiedDepth`.
+Each rectified texel (:mod:`.spherical`) is a light ray; its point closest to the camera is projected into the light's
+orthographic shadow map, the stored caster is placed on the same light ray and its inclination converted to rectified
+depth (Klehm 2014 Sec. 4.1: casters in front of the frustum clamp to 0, behind it to 1; empty texels and light rays off
+the map give 1). The map is read nearest (:func:`resample_kernel`), supersampled (:func:`resample_radial_kernel`,
+:mod:`.taps`) or, filtering during resampling (Peters 2017 Sec. 5.2, D.5), as a filtered 4-moment map whose first three
+moments become two depths by Algorithm 2 (:func:`resample_moment_shadow_map`). With translucent casters every texel is
+the two-depth distribution (1 - T) delta(nearest caster) + T delta(nearest opaque caster)
+(:mod:`warpscatter.shadows.translucency`); two-depth results are :class:`~.taps.SparseRectifiedDepth`.
 """
 
 from __future__ import annotations
@@ -64,16 +54,11 @@ EMPTY_DEPTH_TOLERANCE = wp.constant(1.0e-3)
 
 @wp.func
 def sentinel_gap_depth(z: float, d: float, caster_limit: float, d_limit: float) -> float:
-    """Light-space depth of an Algorithm-2 depth z (linear depth d) that may lie in the gap between the farthest caster
-    (signed ``caster_limit``, linear ``d_limit``) and the cleared far plane: below the limit d itself; in the gap the
-    distance beyond the limit is stretched by 1 / (1 - s), s = the position in the gap, so that the depth goes to
-    infinity (no blocker in the frustum) as z reaches the empty threshold 1 - EMPTY_DEPTH_TOLERANCE.
-
-    No caster lies in the gap: a depth there is the empty texels' +1 pulled down by a mixture of more than two depths
-    (Algorithm 2 fits two). Read as a blocker at the map's far plane, it shadowed everything behind that plane along
-    the light (with a map fitted to the casters, the camera's side of the medium), and the hard threshold switched a
-    whole texel from shadowed to lit between neighbouring epipolar slices: a seam along one epipolar line.
-    """
+    """Light-space depth of an Algorithm-2 depth z (linear d): d below the farthest caster (signed ``caster_limit``,
+    linear ``d_limit``); beyond it, in the gap to the cleared far plane, the distance past the limit is stretched by
+    1 / (1 - s), s the position in the gap, reaching infinity (no blocker) at 1 - EMPTY_DEPTH_TOLERANCE. No caster lies
+    in the gap: a depth there is the empty +1 pulled down by a mixture of more than two depths, and read as a blocker
+    at the far plane it drew a seam along an epipolar line."""
     z_empty = 1.0 - EMPTY_DEPTH_TOLERANCE
     if z <= caster_limit:
         return d
@@ -85,20 +70,19 @@ def sentinel_gap_depth(z: float, d: float, caster_limit: float, d_limit: float) 
 def stored_blocker_depth(
     rect: NonlinearRectParams,
     shadow_depth: wp.array2d(dtype=wp.float32),
-    c: wp.vec4,  # clip coordinates of the light ray's point p0 (orthographic: w = 1)
-    p0_depth: float,  # stored depth of p0
+    c: wp.vec4,
+    p0_depth: float,
     depth_per_unit: float,
     empty_depth: float,
-    u: float,  # column coordinate of the light ray
+    u: float,
 ) -> float:
-    """Rectified blocker depth of the light ray of column coordinate u through the point p0 at clip coordinates c:
-    the nearest shadow-map texel's caster placed on the same light ray (1: no caster, or off the map)."""
+    """Rectified blocker depth of the light ray of column coordinate u through the point p0 at clip coordinates c
+    (w = 1) and stored depth ``p0_depth``: the nearest texel's caster on that light ray (1: none, or off the map)."""
     inside, x, y = nearest_map_texel(shadow_depth, c)
-    result = float(1.0)  # no caster: the blocker lies at the far end
+    result = float(1.0)
     if inside:
         stored = shadow_depth[y, x]
         if wp.isfinite(stored) and stored < empty_depth:
-            # blocker on this light ray: light-view z (distance along the light from p0)
             z_b = (stored - p0_depth) / depth_per_unit
             result = rectified_blocker_depth(rect, u, z_b)
     return result
@@ -116,8 +100,7 @@ def stored_transmittance(transmittance: wp.array2d(dtype=wp.float32), c: wp.vec4
 
 @wp.kernel
 def resample_kernel(rect: NonlinearRectParams, sm: OrthoShadowMap, out: wp.array2d(dtype=wp.float32), offset: int):
-    # nearest look-up: out (rows, cols) = the rectified blocker depth in [0, 1] of each texel's light ray; its point
-    # closest to the camera finds the shadow-map texel
+    # nearest look-up: out (rows, cols) = the rectified blocker depth in [0, 1] of each texel's light ray
     j, i = wp.tid()
     j += offset
     u, p0 = texel_light_ray(rect, i, j)
@@ -129,8 +112,7 @@ def resample_kernel(rect: NonlinearRectParams, sm: OrthoShadowMap, out: wp.array
 @wp.kernel
 def resample_translucent_kernel(rect: NonlinearRectParams, sm: OrthoShadowMap, layer: TranslucentLayer,
                                 out: TwoDepthTexels, offset: int):
-    # resample_kernel's nearest look-up of both depths of the texel's two-depth distribution: z1 the nearest caster
-    # of any kind (sm.depth), z2 the nearest opaque one, w2 the light the translucent casters in front of it pass
+    # resample_kernel for both depths: z1 the nearest caster, z2 the nearest opaque one, w2 the light passed to it
     j, i = wp.tid()
     j += offset
     u, p0 = texel_light_ray(rect, i, j)
@@ -145,10 +127,9 @@ def resample_translucent_kernel(rect: NonlinearRectParams, sm: OrthoShadowMap, l
 @wp.func
 def radial_texel_depths(rect: NonlinearRectParams, i: int, w_caster: float, w_empty: float, s1: float, w1: float,
                         s2: float, w2: float):
-    """A supersampled texel of column i from its two parts' sums (s1, w1), (s2, w2) (:func:`tap_split`) and its
-    caster and empty weights: (the nearer rectified depth z1, the farther z2, the weight of z2), each part's mean
-    z_b placed at the texel's centre column. One caster part and empty taps give the casters' depth and the empty
-    far end (1) with the empty weight; no caster gives (1, 1, 0)."""
+    """(z1, z2, weight of z2) of a supersampled texel of column i from its parts' sums (s1, w1), (s2, w2)
+    (:func:`tap_split`), each mean z_b placed at the centre column; one caster part and empty taps give the casters'
+    depth and 1 with the empty weight; no caster (1, 1, 0)."""
     u_mid = (float(i) + 0.5) / float(rect.cols)
     z1 = float(1.0)
     z2 = float(1.0)
@@ -168,8 +149,8 @@ def radial_texel_depths(rect: NonlinearRectParams, i: int, w_caster: float, w_em
 
 @wp.func
 def radial_row(rect: NonlinearRectParams, world_to_clip: wp.mat44, depth_row: wp.vec4, j: int):
-    """Row j's light-ray points p(u) = origin + u a in a directional map (clip coordinates c0 + u ca, stored depth
-    d0 + u da): (c0, ca, d0, da); the point is affine in u, so one sin/cos per row."""
+    """(c0, ca, d0, da) of row j's light-ray points p(u) = origin + u a: clip coordinates c0 + u ca, stored depth
+    d0 + u da."""
     v = (float(j) + 0.5) / float(rect.rows)
     a = light_ray_point(rect, 1.0, v) - rect.origin
     o = wp.vec4(rect.origin[0], rect.origin[1], rect.origin[2], 1.0)
@@ -181,9 +162,8 @@ def radial_row(rect: NonlinearRectParams, world_to_clip: wp.mat44, depth_row: wp
 def radial_opaque_texel(rect: NonlinearRectParams, shadow_depth: wp.array2d(dtype=wp.float32), c0: wp.vec4,
                         ca: wp.vec4, d0: float, da: float, depth_per_unit: float, empty_depth: float, samples: int,
                         i: int):
-    """Texel of column i of a row (its light-ray points from :func:`radial_row`) of an opaque map: the
-    supersampled two-depth mix (z1, z2, share) of :func:`radial_texel_depths`. One pass reads the taps, keeps them
-    (static indices: registers) and sums the casters; the split pass runs over the kept taps."""
+    """(z1, z2, share) of :func:`radial_texel_depths` for texel column i of an opaque map's row (:func:`radial_row`);
+    the taps are kept at static indices (registers) for the split pass."""
     inv = 1.0 / float(samples)
     lo, hi, w_caster, w_empty = empty_tap_range()
     s_caster = float(0.0)
@@ -208,12 +188,8 @@ def radial_opaque_texel(rect: NonlinearRectParams, shadow_depth: wp.array2d(dtyp
 @wp.kernel
 def resample_radial_kernel(rect: NonlinearRectParams, sm: OrthoShadowMap, samples: int, span: int,
                            out: TwoDepthTexels, offset: int):
-    # ``samples`` (1..MAX_RADIAL_SAMPLES) points at equal steps over each texel's radial extent [i, i + 1) / cols,
-    # each reading its four nearest shadow-map texels with bilinear weights (taps module doc). Each tap's caster lies
-    # at z_b along the light from the sample's light-ray point (the rectified depth grows with z_b); the taps condense
-    # to the two-depth mix at the texel's centre column (radial_texel_depths). The light-ray point is affine in u
-    # (p0 = origin + u a), so are its map coordinates and depth: a thread takes ``span`` texels of a row (launch dim
-    # (rows, ceil(cols / span)), radial_span) and sets them up once (one sin/cos, two matrix products).
+    # ``samples`` points over each texel's radial extent [i, i + 1) / cols, four bilinear taps each, condensed to two
+    # depths (taps module doc); a thread takes ``span`` texels of a row (radial_span) and sets the row up once
     j, g = wp.tid()
     j += offset
     c0, ca, d0, da = radial_row(rect, sm.world_to_clip, sm.depth_row, j)
@@ -228,8 +204,7 @@ def resample_radial_kernel(rect: NonlinearRectParams, sm: OrthoShadowMap, sample
 @wp.kernel
 def resample_radial_translucent_kernel(rect: NonlinearRectParams, sm: OrthoShadowMap, layer: TranslucentLayer,
                                        samples: int, span: int, out: TwoDepthTexels, offset: int):
-    # resample_radial_kernel for a map with translucent casters: a tap is two parts, its nearest caster with weight
-    # (1 - T) and its nearest opaque caster (or the empty far end) with weight T (split_translucent_taps)
+    # resample_radial_kernel with translucent casters: each tap is two parts (split_translucent_taps)
     j, g = wp.tid()
     j += offset
     src = RadialTapSource()
@@ -252,10 +227,10 @@ def resample_radial_translucent_kernel(rect: NonlinearRectParams, sm: OrthoShado
 @wp.kernel
 def resample_moments_kernel(
     rect: NonlinearRectParams,
-    mp: MomentShadowParams,  # geometry of the filtered moment map (the light's shadow-map view)
+    mp: MomentShadowParams,
     texels: wp.array3d(dtype=wp.vec4),  # (C, H, W) filtered stored moments; channel 0 is used
-    out: TwoDepthTexels,  # the two rectified depths in [0, 1] and the weight w_2 of the second
-    caster_limit: float,  # signed depth of the farthest caster (<= 1 - EMPTY_DEPTH_TOLERANCE), sentinel_gap_depth
+    out: TwoDepthTexels,
+    caster_limit: float,  # signed depth of the farthest caster (sentinel_gap_depth)
     offset: int,
 ):
     # Peters 2017 Sec. 5.2 / D.5: filtered moment sample -> Algorithm 2 -> two rectified depths
@@ -263,7 +238,7 @@ def resample_moments_kernel(
     j += offset
     u, p0 = texel_light_ray(rect, i, j)
     c = shadow_coords(mp.sm, p0)  # (u_s, v_s, linear light depth of p0)
-    z1 = float(1.0)  # no caster: the blocker lies at the far end
+    z1 = float(1.0)
     z2 = float(1.0)
     w2 = float(0.0)
     if c[0] >= 0.0 and c[1] >= 0.0 and c[0] < 1.0 and c[1] < 1.0:
@@ -286,44 +261,31 @@ def resample_moments_kernel(
     out.w2[j, i] = w2
 
 
-# ---- host side: resampling ------------------------------------------------------------------------------
-
-
 def radial_span(cols: int, device) -> int:
-    """Texels of a rectified row one thread of the supersampled resampling takes: the whole row on the CPU (a
-    thread per row sets the row's light-ray points up once: half the time of a thread per texel at 1024^2), one on
-    CUDA (a thread per texel: a GPU needs the threads more than the saved setup). Any span gives the same texels."""
+    """Texels of a rectified row one thread of the supersampled resampling takes: the whole row on the CPU (the row's
+    setup runs once), one on CUDA (a GPU needs the threads more). Any span gives the same texels."""
     return max(1, int(cols)) if wp.get_device(device).is_cpu else 1
 
 
 def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_clip, *, depth: str = "ndc",
                         world_to_view=None, radial_samples: int = 0, translucency=None, device=None):
-    """Resample an orthographic light shadow map into the rectified blocker-depth map (Peters 2017 Sec. 5.1.1).
-
-    Each rectified texel (row j, column i) is a light ray; its point closest to the camera is projected
-    into the shadow map (nearest texel), the stored caster is placed on the same light ray and its
-    inclination converted to the rectified depth. Casters in front of the frustum clamp to 0, behind it
-    to 1 (Klehm 2014 Sec. 4.1); empty texels and light rays outside the shadow map give 1 (no blocker).
+    """Resample an orthographic light shadow map into the rectified blocker-depth map (Peters 2017 Sec. 5.1.1; module
+    doc).
 
     Args:
         rect: the rectification (its rows x cols is the output size).
         shadow_depth: (H, W) float32 numpy or Warp array of light-space depth, row 0 = NDC y = +1.
         world_to_clip: (4, 4) OpenGL-style orthographic world -> clip matrix of the shadow map
             (``projection @ view``), NDC z in [-1, 1], depth growing along the light direction.
-        depth: what the texels store: ``"ndc"`` NDC z in [-1, 1] (>= 1 empty), ``"window"`` (NDC z + 1) / 2
-            in [0, 1] (>= 1 empty), or ``"linear"`` the distance along the light from the light view's
-            origin, -z of ``world_to_view`` (:class:`~warpscatter.shadows.shadow_map.ShadowMap`'s
-            convention). Non-finite values (e.g. +inf) are empty in all three.
+        depth: what the texels store: ``"ndc"`` NDC z in [-1, 1], ``"window"`` (NDC z + 1) / 2 (both >= 1 empty), or
+            ``"linear"`` the distance along the light from the light view's origin, -z of ``world_to_view``
+            (:class:`~warpscatter.shadows.shadow_map.ShadowMap`'s convention); non-finite values are empty.
         world_to_view: (4, 4) light view matrix, required for ``depth="linear"``.
-        radial_samples: 0: one nearest depth at each texel's centre. 1 to :data:`MAX_RADIAL_SAMPLES`: that many
-            points spread evenly over the texel's radial (column) extent, each reading its four nearest shadow-map
-            texels with bilinear weights (:func:`~.taps.bilinear_footprint`), condensed to two
-            depths (:class:`SparseRectifiedDepth`, see :func:`resample_radial_kernel`). One nearest depth per texel
-            aliases: the casters' texel staircases (seen from the camera, shadow-map texels are wedges from the light's
-            epipole) and, where a rectified texel is wider than a shadow-map texel (:func:`resample_footprint_texels`),
-            casters' edges skipped at random along each row show as radial streaks in the look-ups.
-        translucency: None, or the shadow map's translucent layer (opaque depth, transmittance): two (H, W) arrays
-            (numpy or Warp), the depth in the same kind as ``shadow_depth`` (module doc).
+        radial_samples: 0: one nearest depth at each texel's centre (it aliases into radial streaks); 1 to
+            :data:`MAX_RADIAL_SAMPLES`: that many points over the texel's radial extent, four bilinear taps each,
+            condensed to two depths (:func:`resample_radial_kernel`).
+        translucency: None, or the map's translucent layer (opaque depth, transmittance): two (H, W) arrays, the
+            depth in the same kind as ``shadow_depth``.
         device: Warp device.
 
     Returns:
@@ -390,17 +352,9 @@ def resample_shadow_map(rect: NonlinearRectification, shadow_depth, world_to_cli
 
 
 def resample_footprint_texels(rect: NonlinearRectification, texel_world: float) -> float:
-    """Radial width of a rectified texel's footprint in the light plane, in shadow-map texels: Delta_r / texel.
-
-    A rectified texel at column coordinate u covers Delta_r = r_max / cols radially (the same for every texel) and
-    u r_max phi_span / rows along the azimuth (0 at the camera's light ray, largest at u = 1). The isotropic
-    Gaussian of filtering during resampling (``resample_filter_px``) defaults to the finer, radial side, so that it
-    does not blur what the rectified map resolves along its rows.
-
-    Args:
-        rect: the rectification.
-        texel_world: world size of one shadow-map texel (:attr:`~warpscatter.shadows.shadow_map.ShadowMap.texel_world`).
-    """
+    """Radial width Delta_r = r_max / cols of a rectified texel's footprint in the light plane, in shadow-map texels of
+    world size ``texel_world``: the finer side (the azimuthal one, u r_max phi_span / rows, grows with u), the default
+    width of the moments filter's Gaussian (``resample_filter_px``), which so blurs nothing the rows resolve."""
     if not (np.isfinite(texel_world) and texel_world > 0.0):
         raise ValueError(f"texel_world must be finite and > 0, got {texel_world}")
     return float(rect.r_max / rect.cols / texel_world)
@@ -417,22 +371,16 @@ def resample_moment_shadow_map(rect: NonlinearRectification, msm: MomentShadowMa
                                device=None) -> SparseRectifiedDepth:
     """Filtering during resampling (Peters 2017 Sec. 5.2, Algorithm 2, D.5): rectify a filtered moment shadow map.
 
-    Each rectified texel is a light ray; its point closest to the camera is projected into ``msm`` (the light's
-    orthographic view) and a BILINEAR sample of the (Gaussian-filtered) stored moments is taken. Its first three
-    canonical moments give w_1 delta_{z_1} + w_2 delta_{z_2} by Algorithm 2 (non-positive variance: delta_{b_1}).
-    Both signed depths go back to light-space distances on the light ray and to rectified depth, clamped to
-    [0, 1] like :func:`resample_shadow_map`; depths of the cleared far plane (z >= 1 - EMPTY_DEPTH_TOLERANCE) and
-    light rays outside the map are "no blocker" (1).
+    A bilinear sample of ``msm`` at each texel's light-ray point gives w_1 delta_{z_1} + w_2 delta_{z_2} by Algorithm 2
+    (non-positive variance: delta_{b_1}); both depths go to rectified depth as in :func:`resample_shadow_map`, depths
+    of the cleared far plane (z >= 1 - EMPTY_DEPTH_TOLERANCE) and light rays off the map to 1.
 
     Args:
         rect: the rectification (its rows x cols is the output size).
         msm: a :class:`~warpscatter.shadows.msm.MomentShadowMap` of an ORTHOGRAPHIC light view along the
             rectification's light direction (channel 0 is used), filtered as wanted.
-        farthest_caster: linear light-space depth of the farthest caster in the map (e.g. the largest finite depth
-            of the plain shadow map), or None (unknown: the far plane). Algorithm-2 depths between it and the
-            cleared far plane are no casters but the empty +1 pulled down by mixtures of three or more depths; they
-            are moved continuously to infinity (:func:`sentinel_gap_depth`) instead of becoming blockers at the far
-            plane.
+        farthest_caster: linear light-space depth of the farthest caster (e.g. the plain map's largest finite
+            depth), or None (the far plane); depths beyond it go continuously to infinity (:func:`sentinel_gap_depth`).
         device: Warp device.
 
     Returns:

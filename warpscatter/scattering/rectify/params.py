@@ -1,13 +1,9 @@
 """Either rectification of the light's shadow map as kernels see it, and the per-frame choice between them.
 
-Prefiltered single scattering (Klehm et al. 2014; Peters et al. 2017 Sec. 5) works on a rectified map in which
-every camera view ray runs along one row from column 0 with one constant depth: Klehm's projective
-rectification (Sec. 4.2, :mod:`.`; one 4x4 matrix per light-frustum region, the scene is
-rasterized straight into it) or Peters' non-linear one (Sec. 5.1.1, App. A, :mod:`.`; spherical light
-coordinates, the shadow map resampled into them). :func:`build_rectification` picks one per frame
-(``rectification: auto``: the non-linear map whenever look-ups weight each ray by its own transmittance, else
-projective unless an epipole is (nearly) in view, Klehm's criterion for degenerate cases);
-:class:`RectificationParams` and :func:`rectified_coords` give kernels one code path for both.
+Klehm's projective rectification (Sec. 4.2, :mod:`.projective`) or Peters' non-linear one (Sec. 5.1.1,
+:mod:`.spherical`): :func:`build_rectification` picks one per frame (``rectification: auto``: non-linear whenever
+look-ups weight each ray by its own transmittance or an epipole is (nearly) in view); :class:`RectificationParams` and
+:func:`rectified_coords` give kernels one code path for both.
 """
 
 from __future__ import annotations
@@ -41,7 +37,7 @@ class RectificationParams:
 @wp.func
 def rectified_coords(rect: RectificationParams, x: wp.vec3) -> wp.vec3:
     """Rectified (u, v, depth) of world point x: u along the view ray from the camera, v = row, depth in [0, 1]
-    growing along the light (the common convention of :mod:`.` and :mod:`.`)."""
+    growing along the light (the convention of both)."""
     if rect.kind == RECT_PROJECTIVE:
         return projective.world_to_rectified(rect.projective, x)
     return spherical.world_to_rectified(rect.nonlinear, x)
@@ -69,16 +65,9 @@ def rectification_params(rect) -> RectificationParams:
 
 
 def build_rectification(scene, settings: PrefilteredSettings, rows: int, cols: int):
-    """Choose and build the rectification for ``scene``'s camera and directional light.
-
-    Returns:
-        (rect, choice): a :class:`~.NonlinearRectification` or
-        :class:`~warpscatter.scattering.projective.ProjectiveRectification`, and the
-        :class:`~warpscatter.scattering.projective.RectificationChoice` (kind and reason).
-    """
+    """(rect, :class:`~.projective.RectificationChoice`) for ``scene``'s camera and directional light: a
+    :class:`~.bounds.NonlinearRectification` or :class:`~.projective.ProjectiveRectification`."""
     cam, light_dir = scene.camera, scene.light.direction
-    # Klehm's projective map weights every ray of a slice by one reference ray's transmittance; the non-linear map's
-    # per-ray segments follow each ray's own (docs/design/scattering.md).
     choice = choose_rectification(cam, light_dir, settings.rectification, settings.epipole_margin,
                                   weights_per_ray=settings.weights_per_ray)
     if choice.kind == "projective" and settings.rectification == "auto" and scene.medium.coloured:
@@ -90,7 +79,7 @@ def build_rectification(scene, settings: PrefilteredSettings, rows: int, cols: i
             rect = ProjectiveRectification.from_camera(cam, light_dir, guard_band=settings.guard_band, rows=rows,
                                                        cols=cols, regions=settings.regions)
             return rect, choice
-        except ValueError as exc:  # numerically degenerate although the epipole is (barely) outside the image
+        except ValueError as exc:  # numerically degenerate, the epipole barely outside the image
             choice = projective.RectificationChoice(
                 kind="nonlinear", reason=f"{choice.reason}; projective construction failed ({exc}): non-linear used",
                 epipole_distance=choice.epipole_distance)

@@ -1,19 +1,12 @@
 """Projective rectification of a directional light's shadow map (Klehm 2014 Sec. 4.2, Fig. 4, Eq. 12).
 
-ONE 4x4 matrix replaces the light's view-projection, so the scene is rasterized straight into the rectified map:
-light view space at the camera position (z = the direction the light TRAVELS, CONVENTIONS.md), rotated about z so
-the bisectrix of the projected frustum corners is +x, then a perspective projection ALONG x with the camera as
-centre. A camera view ray then lies in one row (slope y/x) at one depth (slope z/x) and runs along the columns.
-
-Rectified coordinates (as :mod:`.spherical`): u = f (x - n) / ((f - n) x) in [0, 1] (texel i centred at
-(i + 0.5) / cols); v = (s_hi - y/x) / (s_hi - s_lo), row 0 at NDC y = +1; depth = normalised z/x in [0, 1] growing
-along the light, its bounds stretched by the guard band. Depth is clamped when rasterizing (NV_DEPTH_CLAMP), so
-casters before the frustum land at depth 0.
-
-Columns are non-uniform (world steps grow like x^2): :func:`column_lengths` gives Klehm's Eq. 12 growth factor or
-the exact lengths. ``regions`` = R > 1 cuts the light frustum along x into geometric regions, each with its own
-projection and block of cols/R columns, against that growth (f/n ~ 1000 with the near plane as n). The projection
-degenerates when an epipole lies in the image: :func:`choose_rectification` then takes the non-linear one.
+ONE 4x4 matrix per region replaces the light's view-projection, so the scene is rasterized straight into the map:
+light view space at the camera (z = the direction the light TRAVELS, CONVENTIONS.md), rotated about z so that the
+bisectrix of the projected frustum corners is +x, then a perspective projection ALONG x with the camera as centre. A
+view ray lies in one row (slope y/x) at one depth (slope z/x): u = f (x - n) / ((f - n) x), v = (s_hi - y/x) /
+(s_hi - s_lo) (row 0 at NDC y = +1), depth = normalised, guard-banded z/x, clamped when rasterizing (casters before
+the frustum land at 0). Columns grow like x^2 (:func:`column_lengths`); ``regions`` R > 1 cuts the frustum along x
+into geometric regions of cols/R columns each. An epipole in the image degenerates it (:func:`choose_rectification`).
 """
 
 from __future__ import annotations
@@ -53,9 +46,6 @@ class ProjectiveRectParams:
     zeta_span: float  # guarded slope range covered by depth in [0, 1]
     rows: int  # epipolar slices
     cols: int  # texels along a view ray (all regions)
-
-
-# ---- kernel-side coordinate transforms ------------------------------------------------------------
 
 
 @wp.func
@@ -159,20 +149,9 @@ class ProjectiveRectification:
     @classmethod
     def from_camera(cls, camera, light_direction, guard_band: float = 0.1, rows: int = 1024, cols: int = 1024,
                     regions: int = 1) -> "ProjectiveRectification":
-        """Build the rectifying light frustum around ``camera`` for a directional light (Klehm 2014 Sec. 4.2, Fig. 4).
-
-        Args:
-            camera: a :class:`~warpscatter.scene.camera.Camera`.
-            light_direction: direction the light travels (any length > 0).
-            guard_band: relative stretch of the depth slope interval, >= 0.
-            rows: epipolar slices (>= 2).
-            cols: texels along each view ray (>= 3 per region).
-            regions: light-frustum regions along x (1..MAX_REGIONS).
-
-        Raises:
-            ValueError: on a zero light direction, bad sizes, or a view ray parallel to the light (the light's
-                epipole or anti-epipole inside the image: the construction is impossible, Klehm 2014 Sec. 4.2).
-        """
+        """The rectifying light frustum around ``camera`` for a directional light travelling along
+        ``light_direction`` (Klehm 2014 Sec. 4.2, Fig. 4); sizes and ``guard_band`` as the attributes (cols >= 3 per
+        region). ValueError on bad inputs or an (anti-)epipole in the image, where the construction is impossible."""
         if not (np.isfinite(guard_band) and guard_band >= 0.0):
             raise ValueError(f"guard_band must be finite and >= 0, got {guard_band}")
         if int(regions) != regions or not 1 <= regions <= MAX_REGIONS:
@@ -215,7 +194,6 @@ class ProjectiveRectification:
                    zeta_min=zmin, zeta_max=zmax, guard_band=float(guard_band), half_angle=0.5 * angle,
                    rows=int(rows), cols=int(cols), regions=int(regions))
 
-    # ---- derived bounds -------------------------------------------------------------------------------
     @property
     def light_direction(self) -> np.ndarray:
         """Unit direction the light travels (light-view z axis)."""
@@ -272,7 +250,6 @@ class ProjectiveRectification:
         p.cols = int(self.cols)
         return p
 
-    # ---- host coordinate transforms (float64) ------------------------------------------------------------
     def column_to_x(self, column) -> np.ndarray:
         """Light-view x at continuous global column coordinates (0 = left edge of column 0, cols = far)."""
         c = np.asarray(column, dtype=np.float64)
@@ -351,22 +328,10 @@ class ProjectiveRectification:
 
 def rasterize_rectified(rect: ProjectiveRectification, vertices, triangles, *, opacity=None, device=None,
                         threads: int | None = None):
-    """Rasterize a triangle mesh straight into the rectified blocker-depth map (Klehm 2014 Sec. 4.2): one pass per
-    region, depth clamped, no near-plane clipping. Empty texels hold 1 (no blocker).
-
-    Args:
-        rect: the rectification (its rows x cols is the output size).
-        vertices: (N, 3) world positions (numpy or ``wp.array(dtype=wp.vec3)``).
-        triangles: (T, 3) vertex indices.
-        opacity: None (all opaque) or (T,) opacity per triangle: each texel then holds the two-depth distribution of
-            :mod:`warpscatter.shadows.translucency`, found by depth peeling.
-        device: Warp device.
-        threads: CPU worker threads of the rasterizer.
-
-    Returns:
-        (rows, cols) float32 Warp array of rectified depth in [0, 1] (row 0 = v = 0); with translucent casters a
-        :class:`~.taps.SparseRectifiedDepth` (z_1 the nearest caster, z_2 the opaque one, w_2 = T).
-    """
+    """Rasterize a mesh (``vertices`` (N, 3), ``triangles`` (T, 3)) straight into the rectified blocker-depth map
+    (Klehm 2014 Sec. 4.2): one pass per region, depth clamped, no near-plane clipping; (rows, cols) float32 depth in
+    [0, 1], 1 where empty. With an ``opacity`` per triangle, a :class:`~.taps.SparseRectifiedDepth` by depth peeling
+    (z_1 the nearest caster, z_2 the opaque one, w_2 = T). ``threads``: the rasterizer's CPU workers."""
     from ...shadows import translucency
 
     device = default_device(device)
@@ -397,12 +362,8 @@ def rasterize_rectified(rect: ProjectiveRectification, vertices, triangles, *, o
 
 
 def cross_ratio_factors(rect: ProjectiveRectification) -> tuple[np.ndarray, np.ndarray]:
-    """Growth factor d and first step of every light-frustum region (Klehm 2014 Sec. 4.2, Eq. 12): the ratio of the
-    distances between a row's first three texel centres at one depth (independent of row and depth in light-view x).
-
-    Returns:
-        (d, first_step): (regions,) float64 arrays; first_step in light-view x units.
-    """
+    """(d, first_step), (regions,) each: Eq. 12's growth factor, the ratio of the distances between a region's first
+    three texel centres (independent of row and depth), and its first step in light-view x (Klehm 2014 Sec. 4.2)."""
     starts = rect.region_columns()[:-1]
     c = starts[:, None] + np.array([0.5, 1.5, 2.5])[None, :]
     rows = np.full(c.shape, 0.5)
@@ -415,19 +376,9 @@ def cross_ratio_factors(rect: ProjectiveRectification) -> tuple[np.ndarray, np.n
 
 
 def column_lengths(rect: ProjectiveRectification, model: str = "exact") -> np.ndarray:
-    """Light-view x width of every column (multiply by a row's ``length_scale`` for world lengths).
-
-    Args:
-        rect: the rectification.
-        model: ``"exact"`` X(i + 1) - X(i) of the projective map; ``"cross_ratio"`` Klehm 2014 Eq. 12, Delta d^i
-            within each region (:func:`cross_ratio_factors`), which assumes a constant growth factor.
-
-    Returns:
-        (cols,) float64 positive widths.
-
-    Raises:
-        ValueError: on an unknown model.
-    """
+    """(cols,) light-view x width of every column (times a row's ``length_scale``: world lengths). ``model``:
+    ``"exact"`` X(i + 1) - X(i), or ``"cross_ratio"`` Klehm 2014 Eq. 12's Delta d^i per region, a constant growth
+    factor (:func:`cross_ratio_factors`)."""
     if model == "exact":
         return np.diff(rect.column_to_x(np.arange(rect.cols + 1, dtype=np.float64)))
     if model != "cross_ratio":
@@ -445,12 +396,8 @@ def column_lengths(rect: ProjectiveRectification, model: str = "exact") -> np.nd
 
 
 def epipole_distance(camera, light_direction) -> tuple[float, str]:
-    """Distance of the light's epipoles (of -L and +L, in front of the camera) from the image, in half image heights
-    on the image plane (NDC y units; 0: inside the image, +inf: none in front).
-
-    Returns:
-        (distance, name) with name ``"light"``, ``"anti-light"`` or ``"none"``.
-    """
+    """(distance, ``"light"``, ``"anti-light"`` or ``"none"``) of the nearer epipole in front of the camera from the
+    image, in half image heights on the image plane (NDC y units; 0: inside, +inf: none in front)."""
     right, up, fwd = camera.basis
     t = math.tan(math.radians(camera.fov_y) / 2.0)
     a = camera.aspect
@@ -478,25 +425,12 @@ class RectificationChoice:
 
 def choose_rectification(camera, light_direction, requested: str = "auto",
                          margin: float = EPIPOLE_MARGIN, weights_per_ray: bool = False) -> RectificationChoice:
-    """Pick the projective or the non-linear rectification (Klehm 2014 Sec. 4.2).
+    """Pick the projective or the non-linear rectification (Klehm 2014 Sec. 4.2), the reason logged.
 
-    ``auto`` takes projective when every epipole in front of the camera lies at least ``margin`` half image heights
-    outside the image (nearer, its slopes blow up), else non-linear; with ``weights_per_ray`` always non-linear (the
-    projective map's uneven columns cannot weight each ray). An impossible ``projective`` falls back with a warning.
-
-    Args:
-        camera: the camera.
-        light_direction: direction the light travels.
-        requested: ``"auto"``, ``"projective"`` or ``"nonlinear"``.
-        margin: threshold on :func:`epipole_distance` (>= 0).
-        weights_per_ray: ``auto`` takes the non-linear map (see
-            :attr:`~.settings.PrefilteredSettings.weights_per_ray`).
-
-    Returns:
-        :class:`RectificationChoice`; the reason is also logged on the ``warpscatter`` logger.
-
-    Raises:
-        ValueError: on an unknown request or a negative margin.
+    ``requested`` ``auto`` takes projective when every epipole in front of the camera lies at least ``margin`` half
+    image heights outside the image (:func:`epipole_distance`; nearer, its slopes blow up), else non-linear; with
+    ``weights_per_ray`` always non-linear (uneven columns cannot weight each ray). An impossible ``projective`` falls
+    back with a warning.
     """
     if requested not in ("auto", "projective", "nonlinear"):
         raise ValueError(f"rectification must be 'auto', 'projective' or 'nonlinear', got {requested!r}")

@@ -1,10 +1,8 @@
 """Reference view rays of a rectified map, one per row (Klehm 2014 Sec. 3.2), for both rectifications.
 
-The prefilter weights a row's texels by the transmittance along ONE view ray of the row's epipolar slice, the
-reference ray; every other ray of the slice crosses a column over a different world length. In a slice, omega_min
-is the frustum's view ray closest to the light-perpendicular (largest k, k = cos of the angle to it) and omega_max
-the farthest (smallest k). :data:`REFERENCE_METHODS` are the choices (:func:`reference_ray` for the non-linear map,
-:func:`reference_rays` for the projective one); :func:`select_reference` holds the choice once for both.
+The prefilter weights a row's texels by the transmittance along ONE view ray of the row's epipolar slice; every other
+ray crosses a column over a different world length. In a slice, omega_min is the frustum's view ray closest to the
+light-perpendicular (largest k, k = cos of the angle to it), omega_max the farthest (smallest k).
 """
 
 from __future__ import annotations
@@ -35,9 +33,8 @@ def check_reference_method(method: str, camera, caller: str) -> None:
 
 def select_reference(method: str, shape, *, mean: Callable, bisectrix: np.ndarray, pixels: Callable,
                      least: np.ndarray, optimal: Callable) -> tuple[np.ndarray, np.ndarray]:
-    """The reference ray's parameter per row for ``method`` (an inclination or a depth slope, the caller's choice)
-    and where the optimal k_ref = sqrt(k(omega_min) k(omega_max)) was used. ``mean``, ``pixels`` and ``optimal``
-    are called only when chosen; ``optimal`` returns (parameter, mask where it was defined)."""
+    """(the reference ray's parameter per row for ``method``, where the optimal one was used); ``mean``, ``pixels``
+    and ``optimal`` are called only when chosen, ``optimal`` returning (parameter, mask where defined)."""
     if method == "optimal":
         return optimal()
     none = np.zeros(shape, bool)
@@ -59,7 +56,7 @@ def pixel_rays(camera, stride: int, to_light: np.ndarray) -> np.ndarray:
 
 def median_per_row(row: np.ndarray, key: np.ndarray, value: np.ndarray, rows: int, default: np.ndarray) -> np.ndarray:
     """Per row r in [0, rows), ``value`` of the sample with the median ``key`` among those with row == r
-    (``default[r]`` where a row has none). Used by the pixel-weighted reference rays of both rectifications."""
+    (``default[r]`` where a row has none)."""
     order = np.lexsort((key, row))  # by row, then by key
     row_sorted = row[order]
     start = np.searchsorted(row_sorted, np.arange(rows), side="left")
@@ -104,34 +101,20 @@ class ReferenceRays:
 
 def reference_ray(rect: NonlinearRectification, method: str = "optimal", camera=None,
                   pixel_stride: int = 4) -> ReferenceRays:
-    """Reference ray per epipolar slice and its world step per rectified texel (Klehm 2014 Sec. 3.2).
-
-    In a slice, a view ray with inclination theta crosses one column over Delta = Delta_perp / k,
-    k = sin(theta) (its cosine to the light-perpendicular omega_l-perp). omega_min is the ray of the
-    slice closest to omega_l-perp (largest k), omega_max the one farthest from it (smallest k).
+    """Reference ray per epipolar slice of a non-linear rectification and its world step per texel (Klehm 2014
+    Sec. 3.2): a ray of inclination theta crosses a column over Delta = Delta_perp / k, k = sin(theta).
 
     Args:
         rect: the rectification.
-        method: ``"optimal"`` — k_ref = sqrt(k(omega_min) k(omega_max)), which minimises the worst
-            ratio of Delta errors, where defined (omega_max is not the light axis); the bisectrix of
-            omega_min and omega_max otherwise. ``"bisectrix"`` — the bisectrix everywhere (Klehm's
-            default). ``"mean"`` — the arithmetic mean of the global theta bounds (Peters 2017 Sec. 5.1.1).
-            ``"pixels"`` — the median k of the camera's pixel rays that fall in the slice (every
-            ``pixel_stride``-th pixel), the bisectrix in slices no pixel ray reaches, then a running median over
-            :data:`PIXEL_MEDIAN_SHARE` of the rows (9 of 1024). Klehm's reference
-            minimises the worst Delta error over all rays of the slice, including the few that run
-            almost along the light (k -> 0) when the epipole is in view; weighting by the rays actually
-            rendered gives lower image error there (warpscatter's choice, measured in ``bench prefiltered``).
-            ``"least"`` — omega_min itself, the slice's least optical step: every view ray of the slice decays at
-            least as fast, which the per-ray segment weights need (:mod:`.ray_weights`).
+        method: ``"optimal"`` k_ref = sqrt(k(omega_min) k(omega_max)), minimising the worst ratio of Delta errors,
+            where defined (omega_max is not the light axis), else the bisectrix of omega_min and omega_max;
+            ``"bisectrix"`` everywhere (Klehm's); ``"mean"`` of the global theta bounds (Peters 2017 Sec. 5.1.1);
+            ``"pixels"`` the median-k pixel ray in the slice (every ``pixel_stride``-th pixel; the bisectrix where
+            none), then a running median over :data:`PIXEL_MEDIAN_SHARE` of the rows: weighting by the rays rendered
+            beats Klehm's worst case over rays nearly along the light (warpscatter's); ``"least"`` omega_min, the
+            least optical step, which the per-ray segment weights need (:mod:`.ray_weights`).
         camera: the :class:`~warpscatter.scene.camera.Camera`, required by ``"pixels"``.
         pixel_stride: pixel subsampling of ``"pixels"`` (>= 1).
-
-    Returns:
-        :class:`ReferenceRays` with (rows,) arrays.
-
-    Raises:
-        ValueError: on an unknown method.
     """
     check_reference_method(method, camera, "reference_ray")
     phi = rect.row_azimuths()
@@ -145,7 +128,6 @@ def reference_ray(rect: NonlinearRectification, method: str = "optimal", camera=
     def optimal():
         defined = k_small > 1e-12  # undefined iff omega_max is the light axis (k = 0)
         k_opt = np.sqrt(np.clip(k_big * k_small, 0.0, 1.0))
-        # the ray with sin(theta) = k_opt between omega_min and omega_max
         theta_opt = np.where(theta_kmin <= half_pi, np.arcsin(k_opt), math.pi - np.arcsin(k_opt))
         return np.where(defined, theta_opt, bisectrix), defined
 
@@ -160,8 +142,8 @@ def reference_ray(rect: NonlinearRectification, method: str = "optimal", camera=
                          delta_ref=rect.delta_perp / k_ref, direction=local @ rect.to_light, optimal=optimal)
 
 
-#: Share of the rows in the running median over the per-row pixel-median reference rays (``reference_ray:
-#: pixels``): 9 of 1024 rows, against one odd row's reference drawing a line in the image.
+#: Share of the rows in the running median over the ``pixels`` reference rays (9 of 1024): near the epipole a slice
+#: holds few sampled pixels, and one odd reference ray among its neighbours draws a line in the image.
 PIXEL_MEDIAN_SHARE = 9.0 / 1024.0
 
 
@@ -172,8 +154,6 @@ def _pixel_median_inclination(rect: NonlinearRectification, camera, stride: int,
     v = (np.mod(np.arctan2(q[:, 1], q[:, 0]) - rect.phi_mid + math.pi, TWO_PI) - math.pi) / rect.phi_span + 0.5
     row = np.clip((v * rect.rows).astype(np.int64), 0, rect.rows - 1)
     theta_ref = median_per_row(row, np.sin(theta), theta, rect.rows, default)
-    # a running median over neighbouring rows: near the epipole a slice holds a few sampled pixels (or none: the
-    # default), and one odd reference ray among its neighbours gives the row its own weights, a line in the image
     half = int(round(0.5 * (PIXEL_MEDIAN_SHARE * rect.rows - 1.0)))
     if half < 1:
         return theta_ref
@@ -187,10 +167,8 @@ def _pixel_median_inclination(rect: NonlinearRectification, camera, stride: int,
 
 @dataclass(frozen=True)
 class ProjectiveReferenceRays:
-    """Per-row reference view rays of a projective rectification (Klehm 2014 Sec. 3.2).
-
-    A view ray with direction proportional to (1, s, zeta) in the rectifying light view crosses a column
-    of light-view width dX over the world length dX * sqrt(1 + s^2 + zeta^2).
+    """Per-row reference view rays of a projective rectification (Klehm 2014 Sec. 3.2): a view ray along (1, s, zeta)
+    in the light view crosses a column of light-view width dX over the world length dX sqrt(1 + s^2 + zeta^2).
 
     Attributes:
         slope: (rows,) y/x of the row centre.
@@ -223,28 +201,9 @@ def _pixel_median_slopes(rect: ProjectiveRectification, camera, stride: int, def
 
 def reference_rays(rect: ProjectiveRectification, method: str = "optimal", camera=None,
                    pixel_stride: int = 4) -> ProjectiveReferenceRays:
-    """Reference ray per epipolar slice of a projective rectification (Klehm 2014 Sec. 3.2).
-
-    omega_min is the slice's frustum ray closest to the light-perpendicular (smallest |z/x|), omega_max the
-    farthest (largest |z/x|); k = cos of the angle to the light-perpendicular = sqrt(1+s^2)/sqrt(1+s^2+zeta^2).
-
-    Args:
-        rect: the rectification.
-        method: ``"optimal"`` k_ref = sqrt(k(omega_min) k(omega_max)) (no view ray is parallel to the light
-            here, so it is always defined); ``"bisectrix"`` the angle bisector of omega_min and omega_max;
-            ``"mean"`` the middle of the global depth-slope bounds; ``"pixels"`` the median-k pixel ray of
-            the slice (every ``pixel_stride``-th pixel; the bisectrix where none), as
-            :func:`reference_ray` does for the non-linear rectification; ``"least"`` omega_min
-            (the slice's least optical step).
-        camera: the camera, required by ``"pixels"``.
-        pixel_stride: pixel subsampling of ``"pixels"`` (>= 1).
-
-    Returns:
-        :class:`ProjectiveReferenceRays` with (rows,) arrays.
-
-    Raises:
-        ValueError: on an unknown method.
-    """
+    """:func:`reference_ray` for a projective rectification (Klehm 2014 Sec. 3.2), the same ``method`` choices (the
+    optimal one always defined; ``"mean"`` the middle of the depth-slope bounds) and arguments: omega_min has the
+    smallest |z/x|, omega_max the largest, k = sqrt(1 + s^2) / sqrt(1 + s^2 + zeta^2)."""
     check_reference_method(method, camera, "reference_rays")
     s = rect.row_slopes()
     lo, hi = rect.slice_depth_slope_range(s)

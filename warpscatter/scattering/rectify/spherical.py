@@ -1,20 +1,15 @@
 """Peters 2017's spherical coordinates of a non-linear rectification, as kernels see them (Sec. 5.1.1).
 
-Prefiltered single scattering (Klehm 2014) needs a shadow map in which every camera view ray lies in ONE row, runs
-along the columns from the camera outward, and has ONE constant depth. In light view space (origin at the camera,
-z axis = the direction the light TRAVELS, CONVENTIONS.md; ``to_light`` holds the three axes as rows):
+Every camera view ray lies in ONE row, runs along the columns from the camera outward and has ONE depth. In light
+view space (origin at the camera, z = the direction the light TRAVELS, CONVENTIONS.md; ``to_light``'s rows):
 
-* r = sqrt(x^2 + y^2), the distance of the light ray from the camera  -> COLUMN, u = r / r_max;
-* phi = atan2(y, x), the azimuth, i.e. the epipolar slice              -> ROW, v in [0, 1];
-* theta = atan2(r, z), the inclination of the direction from the camera; the stored DEPTH is the flipped
-  inclination, normalised over the guard-banded bounds: depth = (theta_hi - theta) / (theta_hi - theta_lo).
+* r = sqrt(x^2 + y^2), the light ray's distance from the camera -> COLUMN, u = r / r_max;
+* phi = atan2(y, x), the azimuth (epipolar slice) -> ROW, v in [0, 1];
+* theta = atan2(r, z), the inclination from the camera -> DEPTH = (theta_hi - theta) / (theta_hi - theta_lo).
 
-A view ray x_t = position + t d keeps phi and theta (hence row and depth) and has r = t sin(theta): it runs along
-its row from u = 0 outward with a constant world step per column, Delta = (r_max / cols) / sin(theta) (Klehm 2014
-Sec. 3.2 with k(omega) = sin(theta)). A local light (:mod:`.local`) keeps rows and depth and makes the column the
-angle at the light. Texel (row j, column i) has its centre at (u, v) = ((i + 0.5) / cols, (j + 0.5) / rows).
-
-The bounds (r_max, phi, theta) are computed on the host by :class:`~.bounds.NonlinearRectification`.
+A view ray keeps phi and theta and has r = t sin(theta): a constant world step per column, (r_max / cols) /
+sin(theta) (Klehm 2014 Sec. 3.2). A local light (:mod:`.local`) makes the column the angle at the light. Texel (row j,
+column i) is centred at ((i + 0.5) / cols, (j + 0.5) / rows); the bounds come from :mod:`.bounds`.
 """
 
 from __future__ import annotations
@@ -29,7 +24,7 @@ module_options()
 
 @wp.struct
 class NonlinearRectParams:
-    """A non-linear rectification as kernels see it (see :class:`NonlinearRectification`)."""
+    """A non-linear rectification as kernels see it (:class:`~.bounds.NonlinearRectification`)."""
 
     origin: wp.vec3  # camera position (world), origin of light view space
     to_light: wp.mat33  # world -> light view rotation; rows = light-view x, y, z (z = light travel dir)
@@ -43,9 +38,6 @@ class NonlinearRectParams:
     full_circle: int  # 1 when phi covers the full circle (rows wrap around)
     light_distance: float  # local light: camera-light distance D (world units); 0 for a directional light
     psi_lo: float  # local light: the angle at the light of u = 0 (radians); r_max is then the angle span of u in [0, 1]
-
-
-# ---- kernel-side coordinate transforms ------------------------------------------------------------
 
 
 @wp.func

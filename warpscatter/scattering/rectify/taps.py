@@ -1,19 +1,13 @@
 """The resample taps shared by every resampled rectification (Peters 2017 Sec. 5.1.1, 5.2; Klehm 2014 Sec. 3.2).
 
-A rectified texel is a light ray; resampling reads the light's shadow map along it. With ``resample_filter:
-supersample`` each texel takes ``samples`` light rays over its column extent, each reading its four nearest
-shadow-map texels with bilinear weights (the TAPS), and condenses them to two depths in two passes over the same
-taps: the first finds the casters' depth range [lo, hi] and the caster and empty weights (:func:`tap_range`), the
-second splits the casters at the middle of that range, each part's weighted mean becoming one depth
-(:func:`tap_split`); with empty taps the casters form one depth and the empty taps (depth 1) the other. Opaque maps
-keep their taps for the second pass (at most RADIAL_TAPS, at indices fixed when the kernel compiles, so they stay in
-registers: :func:`keep_tap`, :func:`kept_taps_parts`). Translucent casters make each tap one part or two
-(:func:`tap_part`: the nearest caster with weight 1 - T, the nearest opaque caster with weight T) and the second
-pass re-reads them: :func:`split_translucent_taps`, written once for every map kind through the overloaded
-``tap_ray`` / ``read_tap`` of its source struct (:mod:`.nonlinear`, :mod:`.local`).
-
-Conventions: maps are (H, W) float32, row 0 = NDC y = +1; a tap's texel may lie off the map (then it is empty).
-The result of a supersampled or translucent resampling is a :class:`SparseRectifiedDepth`.
+With ``resample_filter: supersample`` a rectified texel (a light ray) takes ``samples`` light rays over its column
+extent, each reading its four nearest shadow-map texels with bilinear weights (the TAPS), and condenses them to two
+depths in two passes: the first finds the casters' depth range and the caster and empty weights (:func:`tap_range`),
+the second splits the casters at the middle of that range, each part's weighted mean one depth (:func:`tap_split`);
+with empty taps the casters form one depth and the empty taps (1) the other. Opaque maps keep their taps in registers
+for the second pass (:func:`keep_tap`); translucent casters make a tap two parts (:func:`tap_part`) and the second
+pass re-reads them (:func:`split_translucent_taps`, generic over the source structs' ``tap_ray`` / ``read_tap``).
+Maps are (H, W) float32, row 0 = NDC y = +1; a tap off the map is empty.
 """
 
 from __future__ import annotations
@@ -33,16 +27,9 @@ module_options()
 
 @dataclass
 class SparseRectifiedDepth:
-    """A rectified map with up to two blocker depths per texel: Z = (1 - w_2) delta_{z_1} + w_2 delta_{z_2}.
-
-    The output of filtering during resampling (Peters 2017 Sec. 5.2, D.5 "sparse rectified representation"); the
-    prefilter stores the weighted combination (1 - w_2) B(z_1) + w_2 B(z_2) of any basis B. A plain rectified
-    depth map is the case w_2 = 0.
-
-    Attributes:
-        z1, z2: (rows, cols) float32 Warp arrays of rectified depth in [0, 1] (1: no blocker).
-        w2: (rows, cols) float32 Warp array, weight of z2 in [0, 1].
-    """
+    """A rectified map with up to two blocker depths per texel, Z = (1 - w_2) delta_{z_1} + w_2 delta_{z_2} (Peters
+    2017 Sec. 5.2, D.5's "sparse rectified representation"; the prefilter stores (1 - w_2) B(z_1) + w_2 B(z_2)):
+    (rows, cols) float32 Warp arrays z1, z2 (rectified depth, 1: no blocker) and w2."""
 
     z1: wp.array
     z2: wp.array
@@ -70,11 +57,11 @@ class SparseRectifiedDepth:
 
 @wp.struct
 class TwoDepthTexels:
-    """A :class:`SparseRectifiedDepth` as a kernel writes it: (rows, cols) maps of z1, z2 and the weight w2 of z2."""
+    """A :class:`SparseRectifiedDepth` as kernels write it: the nearer depth z1, the farther z2, the weight w2 of z2."""
 
-    z1: wp.array2d(dtype=wp.float32)  # the nearer rectified depth in [0, 1] (1: no blocker)
-    z2: wp.array2d(dtype=wp.float32)  # the farther rectified depth in [0, 1]
-    w2: wp.array2d(dtype=wp.float32)  # the weight of z2 in [0, 1]
+    z1: wp.array2d(dtype=wp.float32)
+    z2: wp.array2d(dtype=wp.float32)
+    w2: wp.array2d(dtype=wp.float32)
 
 
 @wp.func
@@ -117,11 +104,9 @@ MAX_RADIAL_SAMPLES = 4
 
 @wp.func
 def bilinear_footprint(texels: wp.array2d(dtype=wp.float32), c: wp.vec4):
-    """The 2 x 2 footprint of clip coordinates c in a map (row 0 = NDC y = +1): its first texel (x, y), which may
-    lie off the map, and the bilinear weights (ax, ay) of the next column and row: c's fractional offsets from that
-    texel's centre. (Weights ramping over half a texel narrowed a grey fringe beside a low sun while the map was
-    fitted to the whole ground; with :mod:`~warpscatter.shadows.unseen_planes` the finer map removes it, and its
-    radial streaks want the whole texel's blur: :data:`~warpscatter.shadows.shadow_map.PCF_RAMP_TEXELS`.)"""
+    """The 2 x 2 footprint of clip coordinates c: its first texel (x, y), maybe off the map, and the bilinear weights
+    (ax, ay) of the next column and row, linear over the whole texel (docs/design/shadows-scene.md,
+    ``PCF_RAMP_TEXELS``)."""
     fx = (0.5 * c[0] + 0.5) * float(texels.shape[1]) - 0.5
     fy = (0.5 - 0.5 * c[1]) * float(texels.shape[0]) - 0.5
     x = int(wp.floor(fx))
@@ -148,8 +133,7 @@ def footprint_tap(x: int, y: int, ax: float, ay: float, t: int):
 
 @wp.func
 def bilinear_tap(texels: wp.array2d(dtype=wp.float32), c: wp.vec4, t: int):
-    """Texel (x, y) and bilinear weights (wx, wy) of tap t (0..3) of the footprint of clip coordinates c in a map
-    (row 0 = NDC y = +1); the texel may lie off the map."""
+    """Texel (x, y), maybe off the map, and bilinear weights (wx, wy) of tap t (0..3) of clip coordinates c."""
     x, y, ax, ay = bilinear_footprint(texels, c)
     return footprint_tap(x, y, ax, ay, t)
 
@@ -168,9 +152,8 @@ def tap_caster(shadow_depth: wp.array2d(dtype=wp.float32), x: int, y: int, d: fl
 
 @wp.func
 def translucent_tap(layer: TranslucentLayer, x: int, y: int, d: float, depth_per_unit: float, empty_depth: float):
-    """The opaque part of tap (x, y) of a map with translucent casters (:func:`tap_caster` gave the nearest caster):
-    (the light share T reaching the nearest opaque caster, that caster's distance z_b along the light from the tap's
-    light-ray point at stored depth d, 1 if there is one else 0); T = 0 off the map."""
+    """(T, z_b, 1 if a caster else 0) of the nearest opaque caster of tap (x, y) with translucent casters: the light
+    share reaching it and its distance along the light from the light-ray point at stored depth d; T = 0 off the map."""
     if x < 0 or y < 0 or x >= layer.transmittance.shape[1] or y >= layer.transmittance.shape[0]:
         return float(0.0), float(0.0), float(0.0)
     stored = layer.opaque_depth[y, x]
@@ -188,9 +171,8 @@ def tap_parts(passed: float) -> int:
 
 @wp.func
 def tap_part(z_n: float, caster_n: float, z_o: float, caster_o: float, w_tap: float, passed: float, part: int):
-    """Part ``part`` of a tap of weight ``w_tap``: 0 its nearest caster (depth z_n, 1 in caster_n if there is one)
-    with weight w_tap (1 - T), 1 its nearest opaque caster (z_o, caster_o) with weight w_tap T (T = ``passed``).
-    Returns (depth, weight, 1 if a caster else 0)."""
+    """(depth, weight, caster flag) of part 0 (the nearest caster, weight w_tap (1 - T)) or 1 (the nearest opaque
+    caster, w_tap T) of a tap, T = ``passed``."""
     if part == 1:
         return z_o, w_tap * passed, caster_o
     return z_n, w_tap * (1.0 - passed), caster_n
@@ -204,8 +186,8 @@ def empty_tap_range():
 
 @wp.func
 def tap_range(lo: float, hi: float, w_caster: float, w_empty: float, z_b: float, w: float, caster: float):
-    """First pass: a tap part (depth z_b, weight w) extends the casters' depth range [lo, hi] (parts of weight 0
-    excepted) and their weight w_caster, or adds to the empty weight w_empty. Returns (lo, hi, w_caster, w_empty)."""
+    """First pass: a caster part (z_b, w) extends the casters' range [lo, hi] (if w > 0) and weight w_caster, an empty
+    one w_empty."""
     if caster > 0.0:
         if w > 0.0:
             return wp.min(lo, z_b), wp.max(hi, z_b), w_caster + w, w_empty
@@ -216,9 +198,8 @@ def tap_range(lo: float, hi: float, w_caster: float, w_empty: float, z_b: float,
 @wp.func
 def tap_split(s1: float, w1: float, s2: float, w2: float, two: bool, mid: float, z_b: float, w: float,
               caster: float):
-    """Second pass: a caster tap part (depth z_b, weight w) adds to the farther part's weighted sums (s2, w2) when
-    the casters split in two (``two``) and it lies beyond ``mid``, else to the nearer part's (s1, w1); an empty part
-    adds nothing. Returns (s1, w1, s2, w2)."""
+    """Second pass: a caster part (z_b, w) adds to the farther part's sums (s2, w2) when the casters split (``two``)
+    and it lies beyond ``mid``, else to the nearer part's (s1, w1)."""
     if caster > 0.0:
         if two and z_b > mid:
             return s1, w1, s2 + w * z_b, w2 + w
@@ -228,9 +209,7 @@ def tap_split(s1: float, w1: float, s2: float, w2: float, two: bool, mid: float,
 
 @wp.func
 def split_point(lo: float, hi: float, w_empty: float):
-    """Where the second pass splits a texel's casters: (whether they split in two, the middle of their range). They
-    split when no tap is empty and the range is not a point; with empty taps the casters form one depth and the empty
-    taps the other."""
+    """(whether the casters split in two: no empty tap and a range wider than a point, the middle of their range)."""
     return w_empty <= 0.0 and hi > lo, 0.5 * (lo + hi)
 
 
@@ -250,9 +229,7 @@ radial_taps = wp.types.vector(length=RADIAL_TAPS, dtype=wp.float32)
 @wp.func
 def keep_tap(lo: float, hi: float, w_caster: float, w_empty: float, s_caster: float, z_b: float, w: float,
              caster: float):
-    """First pass over a tap (depth z_b, weight w, 1 in ``caster`` if it holds one) of an opaque map whose taps
-    are kept: :func:`tap_range`, and the casters' weighted depth sum. Returns (lo, hi, w_caster, w_empty, s_caster,
-    the weight to keep: w, or -1 for an empty tap)."""
+    """:func:`tap_range` plus the casters' weighted depth sum s_caster, and the weight to keep (-1: empty tap)."""
     lo, hi, w_caster, w_empty = tap_range(lo, hi, w_caster, w_empty, z_b, w, caster)
     if caster > 0.0:
         return lo, hi, w_caster, w_empty, s_caster + w * z_b, w
@@ -262,9 +239,8 @@ def keep_tap(lo: float, hi: float, w_caster: float, w_empty: float, s_caster: fl
 @wp.func
 def kept_taps_parts(z: radial_taps, w: radial_taps, count: int, lo: float, hi: float, w_caster: float,
                     w_empty: float, s_caster: float):
-    """The two parts (s1, w1, s2, w2) of :func:`tap_split` from the first ``count`` kept taps (depth in ``z``,
-    weight in ``w``, < 0: empty) and the first pass's range, weights and caster sum (:func:`keep_tap`): the
-    casters split at the middle of their range when :func:`split_point` says so, else they are one part."""
+    """(s1, w1, s2, w2) of :func:`tap_split` over the first ``count`` kept taps (weight < 0: empty), given the first
+    pass's results (:func:`keep_tap`)."""
     two, mid = split_point(lo, hi, w_empty)
     if w_caster <= 0.0 or not two:
         return s_caster, w_caster, float(0.0), float(0.0)
@@ -291,20 +267,13 @@ def map_array(a, name: str, device) -> wp.array:
 
 
 def translucent_layer(opaque_depth, transmittance, shape, device) -> TranslucentLayer:
-    """A shadow map's translucent layer (two (H, W) maps, numpy or Warp) as the resampling kernels read it.
-
-    Raises:
-        ValueError: when a map is not 2D or its shape differs from the depth map's ``shape``.
-    """
+    """A shadow map's translucent layer (two (H, W) maps, numpy or Warp, of the depth map's ``shape``) for kernels."""
     layer = TranslucentLayer()
     layer.opaque_depth = map_array(opaque_depth, "opaque depth", device)
     layer.transmittance = map_array(transmittance, "transmittance", device)
     if layer.opaque_depth.shape != shape or layer.transmittance.shape != shape:
         raise ValueError(f"translucency: the opaque depth and transmittance must have the map's shape {shape}")
     return layer
-
-
-# ---- tap sources: where split_translucent_taps reads its sub-samples and taps ------------------------------
 
 
 @wp.struct
@@ -338,9 +307,8 @@ class SpotTapSource:
 @wp.func
 def spot_tap(rect: NonlinearRectParams, light_pos: wp.vec3, axis: wp.vec3, direction: wp.vec3,
              depth: wp.array2d(dtype=wp.float32), c: wp.vec4, t: int, weight: float):
-    """Tap t (0..3) of the bilinear footprint of clip coordinates c (w = 1) in a spot map that stores the casters'
-    distance along the spot's ``axis``, for the light ray ``direction`` (unit, world) from ``light_pos``: (the tap
-    caster's rectified depth, its bilinear weight times ``weight``, 1 if the texel holds a caster else 0, x, y)."""
+    """(rectified depth, bilinear weight times ``weight``, caster flag, x, y) of tap t of clip coordinates c (w = 1) in
+    a spot map storing distance along ``axis``, for the unit light ray ``direction`` from ``light_pos``."""
     x, y, wx, wy = bilinear_tap(depth, c, t)
     z = float(1.0)
     caster = float(0.0)
@@ -358,8 +326,8 @@ def spot_tap(rect: NonlinearRectParams, light_pos: wp.vec3, axis: wp.vec3, direc
 @wp.func
 def spot_light_ray(rect: NonlinearRectParams, light: LightParams, world_to_clip: wp.mat44, i: int, k: int,
                    inv: float, phi: float, to_world: wp.mat33):
-    """Sub-sample k (of 1 / ``inv``) of texel column i's psi extent on the row at azimuth phi: (its unit light ray
-    direction, its point at unit distance in the spot map's clip coordinates, divided by w where w > 0)."""
+    """(unit light-ray direction, its point at unit distance in clip coordinates, divided by w > 0) of sub-sample k
+    (of 1 / ``inv``) of texel column i's psi extent on the row at azimuth phi."""
     psi_k = rect.psi_lo + (float(i) + (float(k) + 0.5) * inv) / float(rect.cols) * rect.r_max
     dk = to_world * wp.vec3(wp.sin(psi_k) * wp.cos(phi), wp.sin(psi_k) * wp.sin(phi), wp.cos(psi_k))
     q = light.position + dk
@@ -386,8 +354,7 @@ def tap_ray(src: SpotTapSource, i: int, k: int, inv: float):  # noqa: F811 (a Wa
 
 @wp.func
 def read_tap(src: RadialTapSource, c: wp.vec4, d: float, direction: wp.vec3, t: int, inv: float):
-    """Tap t (0..3) of the sub-sample at clip coordinates c, stored depth d: (nearest caster's z_b, bilinear weight
-    times ``inv``, 1 if a caster, nearest opaque caster's z_b, 1 if one, the light share T reaching it)."""
+    """(z_n, w_tap, caster_n, z_o, caster_o, T) of tap t of the sub-sample at clip coordinates c, stored depth d."""
     x, y, wx, wy = bilinear_tap(src.sm.depth, c, t)
     z_n, caster_n = tap_caster(src.sm.depth, x, y, d, src.sm.depth_per_unit, src.sm.empty_depth)
     passed, z_o, caster_o = translucent_tap(src.layer, x, y, d, src.sm.depth_per_unit, src.sm.empty_depth)
@@ -408,16 +375,10 @@ def read_tap(src: SpotTapSource, c: wp.vec4, d: float, direction: wp.vec3, t: in
     return z_n, w_tap, caster_n, z_o, caster_o, passed
 
 
-# ---- the tap split, once for every source -------------------------------------------------------------------
-
-
 @wp.func
 def split_translucent_taps(src: Any, samples: int, i: int):
-    """The two passes over the taps of texel column i of a map that may hold translucent casters (module doc):
-    (caster weight, empty weight, s1, w1, s2, w2) as :func:`tap_split`. ``src`` is a tap source struct with
-    overloads ``tap_ray(src, i, k, inv)`` -> (clip coordinates, stored depth, unit direction, lit) of sub-sample k
-    and ``read_tap(src, c, d, direction, t, inv)`` -> (z_n, w_tap, caster_n, z_o, caster_o, T) of its tap t; an
-    unlit sub-sample (behind a spot) is empty."""
+    """(w_caster, w_empty, s1, w1, s2, w2): the two passes over texel column i's taps (module doc). ``src`` is a tap
+    source struct with overloads ``tap_ray`` (sub-sample k) and ``read_tap`` (its tap t); unlit sub-samples: empty."""
     inv = 1.0 / float(samples)
     lo, hi, w_caster, w_empty = empty_tap_range()
     s1 = float(0.0)
