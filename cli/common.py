@@ -130,16 +130,16 @@ def setup(verbose: int, quiet: bool, device: str | None = None, threads: int | N
         return None
     import warp as wp
 
-    from warpscatter.runtime.device import init
+    from warpscatter.errors import DeviceError
+    from warpscatter.runtime.device import check_device, init
 
     wp.config.log_level = wp.LOG_INFO if verbose else wp.LOG_WARNING  # this process is ours: Warp quiet by default
     init(quiet_native=verbose < 2)
     name = device or os.environ.get("WARPSCATTER_DEVICE") or "cpu"
     try:
-        wp.get_device(name)
-    except Exception:
-        names = ", ".join(str(d) for d in wp.get_devices())
-        fail(f"--device {name}: not a device of this machine (available: {names})", EXIT_INVALID)
+        check_device(name, "--device" if device else "WARPSCATTER_DEVICE")
+    except DeviceError as e:
+        fail(str(e), EXIT_INVALID)
     os.environ["WARPSCATTER_DEVICE"] = name  # the bench and precompute resolve the device through it
     return name
 

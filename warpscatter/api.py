@@ -78,14 +78,16 @@ def render(config: ConfigSource, overrides: Overrides = (), *, out_dir: str | Pa
 
     Raises:
         ConfigError: an invalid config or override (nothing is rendered).
+        DeviceError: ``device`` (or ``WARPSCATTER_DEVICE``) names a device this machine does not have.
         ImageWriteError: an output file could not be written (the previous files are left as they were).
     """
     cfg = config.revalidated() if isinstance(config, Config) and not overrides else load_config(config, overrides)
-    from .runtime.device import warp_messages
+    from .runtime.device import default_device, warp_messages
 
     with warp_messages(verbose):
         from .pipeline import render as render_config
 
+        device = default_device(device)  # a device this machine lacks is refused before any work
         return render_config(cfg, out_dir=out_dir, progress=progress, device=device, write=out_dir is not None)
 
 

@@ -66,9 +66,16 @@ class InputFileError(WarpscatterError, ValueError):
         return self.__class__, (self.message,), {"path": self.path, "key": self.key}
 
 
+class DeviceError(WarpscatterError, ValueError):
+    """A Warp device this machine does not have (``--device``, ``WARPSCATTER_DEVICE`` or a ``device`` argument),
+    refused before any work (exit code 2)."""
+
+    exit_code = 2
+
+
 class NonFiniteImageError(WarpscatterError, FloatingPointError):
     """A rendered image holds NaN or infinite pixels: a bug (every numerically hard case has a documented
     fallback), reported instead of writing the image."""
 
 
-__all__ = ["ConfigError", "InputFileError", "NonFiniteImageError", "WarpscatterError"]
+__all__ = ["ConfigError", "DeviceError", "InputFileError", "NonFiniteImageError", "WarpscatterError"]

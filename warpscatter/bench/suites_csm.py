@@ -20,6 +20,7 @@ def suite_csm(report: BenchReport, repeats: int, warmup: int, quick: bool, progr
     from ..csm import build_csm, csm_device_data
     from ..csm.query import visibility_kernel
     from ..raster.raycast import build_mesh, shadow_ray_visibility
+    from ..runtime.device import default_device
     from ..runtime.parallel import launch_rows
 
     verts, tris = _bumpy_sphere(60 if quick else 246)
@@ -57,14 +58,15 @@ def suite_csm(report: BenchReport, repeats: int, warmup: int, quick: bool, progr
     random_dirs[np.sum(random_dirs * normal, axis=1) < 0] *= -1
     coherent = np.tile(np.array([0.3, 0.8, 0.52]) / np.linalg.norm([0.3, 0.8, 0.52]), (count, 1))
     mesh = build_mesh(verts, tris)
-    data = csm_device_data(csm)
-    pts = wp.array(points, dtype=wp.vec3)
-    out = wp.empty(count, dtype=wp.float32)
+    device = default_device()
+    data = csm_device_data(csm, device)
+    pts = wp.array(points, dtype=wp.vec3, device=device)
+    out = wp.empty(count, dtype=wp.float32, device=device)
     eps = 1e-4 * float(csm.radius)
     for k, (label, dirs) in enumerate((("random", random_dirs), ("coherent", coherent))):
         if progress:
             progress(f"queries {label}", 0.7 + 0.15 * k)
-        d = wp.array(dirs.astype(np.float32), dtype=wp.vec3)
+        d = wp.array(dirs.astype(np.float32), dtype=wp.vec3, device=device)
         rows = {}
         for method in ("csm nearest", "csm pcf", "bvh shadow rays"):
             if method == "bvh shadow rays":

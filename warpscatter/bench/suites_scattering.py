@@ -62,9 +62,10 @@ def prefix_sum_rows(report: BenchReport, modes, size: int, repeats: int, warmup:
     bytes written per second, against the faster memcpy (``x_memcpy``; the paper's GPU: 1.3x for 64-bit four moments,
     2.1x for six). Returns the rows added.
     """
+    from ..runtime.device import default_device
     from ..scattering.prefiltered.prefix_sums import prefilter_moments, prefilter_weighted
 
-    depth = wp.array(bench_rectified_depth(size), dtype=wp.float32)
+    depth = wp.array(bench_rectified_depth(size), dtype=wp.float32, device=default_device())
     tau = np.full(size, 4.0 / size, np.float32)  # optical depth 4 over a row
     threads = thread_count()
     rows = []

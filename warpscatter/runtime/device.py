@@ -185,8 +185,28 @@ def module_options() -> None:
 
 def default_device(device=None) -> str:
     """The device to launch on, as a Warp device name: ``device``, else ``WARPSCATTER_DEVICE``, else
-    ``wp.get_device()``."""
+    ``wp.get_device()``. Raises :class:`~warpscatter.errors.DeviceError` for a device this machine does not have."""
     init()
     if device is not None:
-        return str(device) if not isinstance(device, str) else device
-    return os.environ.get("WARPSCATTER_DEVICE") or str(wp.get_device())
+        return check_device(device if isinstance(device, str) else str(device), "device")
+    env = os.environ.get("WARPSCATTER_DEVICE")
+    return check_device(env, "WARPSCATTER_DEVICE") if env else str(wp.get_device())
+
+
+_known_devices: set[str] = set()
+
+
+def check_device(name: str, source: str) -> str:
+    """``name`` if Warp has such a device, else :class:`~warpscatter.errors.DeviceError` naming ``source`` (the
+    option, variable or argument that gave it) and the devices there are."""
+    if name not in _known_devices:
+        init()
+        try:
+            wp.get_device(name)
+        except Exception:
+            from ..errors import DeviceError
+
+            names = ", ".join(str(d) for d in wp.get_devices())
+            raise DeviceError(f"{source} {name}: not a device of this machine (available: {names})") from None
+        _known_devices.add(name)
+    return name
