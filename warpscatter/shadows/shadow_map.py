@@ -6,7 +6,7 @@ directional lights, perspective for spots; with translucent casters also the opa
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -50,6 +50,9 @@ class ShadowMap:
     texel_world: float
     opaque_depth: np.ndarray | None = None
     transmittance: np.ndarray | None = None
+    #: (name, device) -> the array uploaded once per frame for every kernel that reads it (the maps are not changed
+    #: after they are built)
+    _uploads: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def translucent(self) -> bool:
@@ -72,8 +75,15 @@ class ShadowMap:
         p.perspective = SHADOW_PERSPECTIVE if self.perspective else SHADOW_ORTHOGRAPHIC
         return p
 
+    def _upload(self, name: str, device) -> wp.array:
+        key = (name, default_device(device))
+        if key not in self._uploads:
+            self._uploads[key] = wp.array(getattr(self, name), dtype=wp.float32, device=key[1])
+        return self._uploads[key]
+
     def device_depth(self, device=None) -> wp.array:
-        return wp.array(self.depth, dtype=wp.float32, device=default_device(device))
+        """:attr:`depth` on ``device``, uploaded on first use."""
+        return self._upload("depth", device)
 
     def device_layers(self, depth: wp.array | None = None, device=None) -> TranslucentShadowDepths:
         """The :class:`TranslucentShadowDepths` kernels read (1x1 placeholders without translucent casters)."""
@@ -81,8 +91,8 @@ class ShadowMap:
         t = TranslucentShadowDepths()
         t.depth = depth if depth is not None else self.device_depth(device)
         if self.translucent:
-            t.opaque = wp.array(self.opaque_depth, dtype=wp.float32, device=device)
-            t.transmittance = wp.array(self.transmittance, dtype=wp.float32, device=device)
+            t.opaque = self._upload("opaque_depth", device)
+            t.transmittance = self._upload("transmittance", device)
         else:
             t.opaque = t.transmittance = wp.ones((1, 1), dtype=wp.float32, device=device)
         return t

@@ -61,15 +61,23 @@ def rectify_map(frame, p: PrefilteredSettings, size: tuple[int, int], stage: Sta
             if p.resample_filter == "supersample":
                 samples = radial_samples_for(rect, shadow_map.texel_world)
             depth = resample_shadow_map(
-                rect, shadow_map.depth, shadow_map.view_projection, depth="linear", world_to_view=shadow_map.view,
-                radial_samples=samples, device=device,
-                translucency=(shadow_map.opaque_depth, shadow_map.transmittance) if shadow_map.translucent else None)
+                rect, shadow_map.device_depth(device), shadow_map.view_projection, depth="linear",
+                world_to_view=shadow_map.view, radial_samples=samples, device=device,
+                translucency=_translucent_layer(shadow_map, device))
     info = {"resample_filter": p.resample_filter if nonlinear else "none"}
     if nonlinear and p.resample_filter == "supersample":
         info["resample_samples"] = samples
     if filtered_resampling:
         depth, info["resample_filter_px"] = resample_filtered(scene, rect, shadow_map, p, stage, device)
     return Rectified(rect, choice, depth, info)
+
+
+def _translucent_layer(shadow_map, device):
+    """(opaque depth, transmittance) of a translucent shadow map on ``device``, or None."""
+    if not shadow_map.translucent:
+        return None
+    layers = shadow_map.device_layers(device=device)
+    return layers.opaque, layers.transmittance
 
 
 def resample_filtered(scene, rect: NonlinearRectification, shadow_map, settings: PrefilteredSettings,

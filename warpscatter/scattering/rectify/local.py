@@ -37,7 +37,6 @@ from .taps import (
     empty_tap_range,
     keep_tap,
     kept_taps_parts,
-    map_array,
     part_mean,
     radial_taps,
     split_translucent_taps,
@@ -244,7 +243,7 @@ def resample_spot_shadow_map(rect: NonlinearRectification, shadow_map, light, lp
     ``rect`` (module doc)."""
     device = default_device(device)
     peak = emission_peaks(light).astype(np.float32)
-    sm = map_array(shadow_map.depth, "shadow_depth", device)
+    sm = shadow_map.device_depth(device)
     shape = (rect.rows, rect.cols)
     result = SparseRectifiedDepth.empty(shape, device)
     emission = wp.empty(shape, dtype=wp.vec3, device=device)
@@ -254,7 +253,8 @@ def resample_spot_shadow_map(rect: NonlinearRectification, shadow_map, light, lp
     samples = int(np.clip(math.ceil(rect.r_max / rect.cols / texel_angle - 1e-6), 1, MAX_RADIAL_SAMPLES))
     tail = [m, wp.vec3(*peak), samples, result.texels(), emission]
     if shadow_map.translucent:
-        layer = translucent_layer(shadow_map.opaque_depth, shadow_map.transmittance, sm.shape, device)
+        uploaded = shadow_map.device_layers(sm, device)
+        layer = translucent_layer(uploaded.opaque, uploaded.transmittance, sm.shape, device)
         launch_rows(resample_spot_translucent_kernel, shape, [rect.params(), lparams, sm, layer, *tail], device=device)
     else:
         launch_rows(resample_spot_kernel, shape, [rect.params(), lparams, sm, *tail], device=device)
