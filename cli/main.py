@@ -23,7 +23,7 @@ import click
 from warpscatter import __version__
 
 from .bench import DEFAULT_SUITE, bench
-from .common import ProgressDisplay, eta_text, timing_table
+from .common import EXIT_INTERRUPTED, ProgressDisplay, eta_text, fail, timing_table
 from .gallery import gallery
 from .precompute import precompute
 from .render import previous_timings, render
@@ -31,7 +31,19 @@ from .sweep import sweep
 from .validate import schema, validate
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class _Group(click.Group):
+    """The group: an interrupt (Ctrl-C, SIGTERM) that no command handled itself, e.g. while a command loads its
+    configs or starts Warp, exits 130 with ``error: interrupted`` as one during a render does (click would print
+    ``Aborted!`` and exit 1)."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt:
+            fail("interrupted", EXIT_INTERRUPTED)
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, "--version", prog_name="warpscatter", message="%(prog)s %(version)s")
 @click.option("--debug", "debug", is_flag=True, help="Show full tracebacks of errors (any command).")
 @click.pass_context

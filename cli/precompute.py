@@ -52,8 +52,8 @@ def _default(name: str) -> str:
 @click.command()
 @click.argument("source", type=click.Path(path_type=Path))
 @click.option("-o", "--output", "output", type=click.Path(path_type=Path), required=True,
-              help="The .npz file to write, or a folder to write SOURCE_STEM.csm.npz into (written to a temporary "
-                   "name, then renamed).")
+              help="The .npz file to write, or a folder to write SOURCE_STEM.csm.npz into (written to a unique "
+                   "temporary name, then renamed, holding the file's lock: another writer of it waits).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Config overrides (SOURCE = config).")
 @click.option("--maps", default=None, metavar="N1xN2",
               help=f"Lat-long grid of map directions (azimuth x polar cells) [default: the config's "
@@ -96,6 +96,14 @@ def precompute(ctx, source: Path, output: Path, overrides, maps, resolution, enu
         fail(f"-o: the CSM file must end in .npz (or be a folder), got {output}", EXIT_INVALID)
     if not source.is_file():
         fail(f"{source}: file not found", EXIT_INVALID)
+    from warpscatter.io.output_sets import OutputFolderError, OutputNameError, check_output_target
+
+    try:  # before any work: a folder that can hold the file, a name that fits and is not one of the writer's own
+        check_output_target(output.parent, output.name, suffixes=[""], dir_key="-o", name_key="-o")
+    except OutputNameError as exc:
+        fail(exc.problems[0], EXIT_INVALID)
+    except OutputFolderError as exc:
+        fail(str(exc), EXIT_INVALID)
     light, base = None, csm_settings.CSMBuildSettings()
     try:
         if source.suffix in (".yaml", ".yml"):
@@ -126,6 +134,7 @@ def precompute(ctx, source: Path, output: Path, overrides, maps, resolution, enu
     from warpscatter.csm import save_csm
     from warpscatter.csm.compress import KIND_CUBE
     from warpscatter.csm.occluders import prepare_csm
+    from warpscatter.io.output_sets import remove_stale_temporaries
 
     progress = ProgressDisplay(enabled=not quiet, every_stage=verbose > 0)
     try:
@@ -133,7 +142,8 @@ def precompute(ctx, source: Path, output: Path, overrides, maps, resolution, enu
         csm = prepare_csm(light, settings, vertices, triangles,
                           progress=lambda f: progress("depth maps + compression", f))
         output.parent.mkdir(parents=True, exist_ok=True)
-        save_csm(csm, output)
+        remove_stale_temporaries(output.parent)  # a killed precompute's temporary, say
+        save_csm(csm, output)  # a unique temporary, renamed in under the file's lock (another writer waits)
     except KeyboardInterrupt:
         progress.close()
         fail("interrupted", EXIT_INTERRUPTED)

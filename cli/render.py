@@ -136,7 +136,6 @@ def render(ctx, config_paths, output_dir, overrides, method, name, seed, frames,
             fail(f"{targets[target]} and {path} would both write {target}.*: give them different output.name "
                   f"values (e.g. --name '{{config}}_{{method}}')", EXIT_INVALID)
         targets[target] = path
-    device = setup(verbose, quiet, device, threads, kernels=True)
 
     frame_lists = {}
     for path, config in zip(config_paths, configs, strict=True):
@@ -145,16 +144,27 @@ def render(ctx, config_paths, output_dir, overrides, method, name, seed, frames,
 
             try:
                 frame_lists[path] = parse_frames(frames, *config.animation.frame_range)
-                for f in frame_lists[path]:  # every frame's config is checked before the first render
-                    config.at_frame(f)
             except ValueError as exc:
                 fail(f"{path}: {exc}", EXIT_INVALID)
-            except ConfigError as exc:
-                fail(str(ConfigError(exc.problems, path)), EXIT_INVALID)
     if frames and not frame_lists:
         fail("--frames: none of the configs has an animation section", EXIT_INVALID)
 
     pipeline = importlib.import_module("warpscatter.pipeline")
+    check_memory = getattr(pipeline, "check_memory", None)  # pipeline/memory.py (absent from a stand-in pipeline)
+    try:
+        budget = pipeline.memory.memory_budget() if check_memory is not None else None
+    except ConfigError as exc:
+        fail(str(exc), EXIT_INVALID)
+    for path, config in zip(config_paths, configs, strict=True):
+        try:  # every config (every frame's) is checked before the first render, its memory included
+            for frame_config in ((config.at_frame(f) for f in frame_lists[path]) if path in frame_lists
+                                 else [config]):
+                if budget is not None:
+                    check_memory(frame_config, budget)
+        except ConfigError as exc:
+            fail(str(ConfigError(exc.problems, path)), EXIT_INVALID)
+    device = setup(verbose, quiet, device, threads, kernels=True)
+
     failures = []
     for k, (path, config) in enumerate(zip(config_paths, configs, strict=True)):
         prefix = f"[{k + 1}/{len(configs)}] " if len(configs) > 1 else ""

@@ -11,7 +11,17 @@ import click
 from warpscatter import methods
 from warpscatter.config import AOV_NAMES, Config
 
-from .common import EXIT_FAILURE, common_options, fail, find_config, format_value, load_or_exit, set_option, setup
+from .common import (
+    EXIT_FAILURE,
+    EXIT_INVALID,
+    common_options,
+    fail,
+    find_config,
+    format_value,
+    load_or_exit,
+    set_option,
+    setup,
+)
 
 
 def _scattering_summary(sc) -> str:
@@ -72,10 +82,34 @@ def validate(ctx, config_path: Path, overrides, dump: bool, verbose, quiet, debu
     if dump:
         click.echo(config.model_dump_yaml(), nl=False)
         return
+    memory = _memory_line(config)
     click.echo(f"ok: {config.source or config_path}")
     if not quiet:
         for line in summary(config):
             click.echo(line)
+        if memory:
+            click.echo(memory)
+
+
+def _memory_line(config: Config) -> str | None:
+    """The render's estimated peak memory against the budget (``warpscatter.pipeline.memory``) as a summary line;
+    exits 2 when it does not fit, as ``render`` would refuse it. None for an animated config (its frames are checked
+    by ``render``) or where the pipeline is a stand-in."""
+    import importlib
+
+    from warpscatter.errors import ConfigError
+
+    pipeline = importlib.import_module("warpscatter.pipeline")
+    memory = getattr(pipeline, "memory", None)
+    if memory is None or config.animation is not None:
+        return None
+    try:
+        budget = memory.memory_budget()
+        estimate = memory.check_memory(config, budget)
+    except ConfigError as exc:
+        fail(str(exc), EXIT_INVALID)
+    room = f" of {budget[0] / memory.GIB:.1f} GiB available ({budget[1]})" if budget else ""
+    return f"  memory:  estimated peak {estimate / memory.GIB:.2f} GiB{room}"
 
 
 @click.command()
@@ -93,7 +127,7 @@ def schema(output, verbose, quiet, debug) -> None:
     if output is None:
         click.echo(text, nl=False)
         return
-    from warpscatter.io.images import write_file_atomic
+    from warpscatter.io.output_sets import write_file_atomic
 
     try:
         output.parent.mkdir(parents=True, exist_ok=True)

@@ -208,7 +208,7 @@ def _csm_npz(path: Path, seg_depth: bytes, compress: int = zipfile.ZIP_STORED) -
 
 
 def test_csm_declaring_a_huge_array_is_refused_before_allocating(tmp_path):
-    from warpscatter.csm.compress import CSMFileError, load_csm
+    from warpscatter.csm.files import CSMFileError, load_csm
 
     path = _csm_npz(tmp_path / "huge.npz", _npy(shape=(1_500_000_000,), data=b"\0" * 16))  # 5.6 GiB declared
     tracemalloc.start()
@@ -225,16 +225,16 @@ def test_csm_declaring_a_huge_array_is_refused_before_allocating(tmp_path):
 
 
 def test_csm_beyond_the_size_limit_is_refused(tmp_path, monkeypatch):
-    from warpscatter.csm import compress
+    from warpscatter.csm import files
 
     path = _csm_npz(tmp_path / "big.npz", _npy(np.zeros(1000, np.float32)), compress=zipfile.ZIP_DEFLATED)
-    monkeypatch.setattr(compress, "MAX_CSM_BYTES", 2000)
-    with pytest.raises(compress.CSMFileError, match=r"big\.npz: the arrays hold more than 2000 bytes .*seg_depth"):
-        compress.load_csm(path)
+    monkeypatch.setattr(files, "MAX_CSM_BYTES", 2000)
+    with pytest.raises(files.CSMFileError, match=r"big\.npz: the arrays hold more than 2000 bytes .*seg_depth"):
+        files.load_csm(path)
 
 
 def test_csm_zip_entry_declaring_more_than_the_file_is_refused(tmp_path):
-    from warpscatter.csm.compress import CSMFileError, load_csm
+    from warpscatter.csm.files import CSMFileError, load_csm
 
     path = _csm_npz(tmp_path / "lying.npz", _npy(np.zeros(4, np.float32)))
     raw = bytearray(path.read_bytes())

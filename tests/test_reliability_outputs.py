@@ -13,7 +13,9 @@ import OpenImageIO as oiio
 import pytest
 
 from warpscatter.io import images as imageio
-from warpscatter.io.images import ImageWriteError, _host_tag, read_image, remove_stale_temporaries, write_outputs
+from warpscatter.io import output_sets
+from warpscatter.io.images import ImageWriteError, read_image, write_outputs
+from warpscatter.io.output_sets import _host_tag, remove_stale_temporaries
 
 AOVS = ["scattering", "surface", "depth"]
 #: The output set in output order: colour EXR, PNG, the AOVs, the sidecar.
@@ -271,14 +273,14 @@ def test_folder_made_read_only_after_the_temporaries_keeps_the_previous_set(sets
     if not _read_only_folders_stop_writes(tmp_path):
         pytest.skip("read-only folders do not stop this user's writes (root): chmod cannot simulate the fault")
     folder, old, new = sets
-    real = imageio._run_writers
+    real = output_sets._run_writers
 
     def then_read_only(jobs, temps):
         result = real(jobs, temps)
         folder.chmod(0o555)
         return result
 
-    monkeypatch.setattr(imageio, "_run_writers", then_read_only)
+    monkeypatch.setattr(output_sets, "_run_writers", then_read_only)
     try:
         with pytest.raises(ImageWriteError, match="Permission denied") as info:
             write(folder, 2)
@@ -336,7 +338,7 @@ def test_backups_of_a_writer_killed_after_its_last_rename_are_removed(sets):
 
 def test_own_temporaries_of_a_write_in_progress_are_kept(tmp_path, monkeypatch):
     # remove_stale_temporaries run (by another thread's write) during a write of this process leaves its files.
-    real = imageio._run_writers
+    real = output_sets._run_writers
     seen = []
 
     def cleanup_in_between(jobs, temps):
@@ -344,7 +346,7 @@ def test_own_temporaries_of_a_write_in_progress_are_kept(tmp_path, monkeypatch):
         seen.append(remove_stale_temporaries(tmp_path))
         return result
 
-    monkeypatch.setattr(imageio, "_run_writers", cleanup_in_between)
+    monkeypatch.setattr(output_sets, "_run_writers", cleanup_in_between)
     write(tmp_path, 1)
     assert seen == [[]]
     assert sorted(snapshot(tmp_path)) == sorted(NAMES)

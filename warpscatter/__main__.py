@@ -1,6 +1,6 @@
 """``python -m warpscatter``: the command-line application (the same as the ``warpscatter`` script)."""
 
-from warpscatter.cli.main import main
+from warpscatter.cli.entry import run
 
 if __name__ == "__main__":
-    main()
+    run()

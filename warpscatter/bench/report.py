@@ -362,8 +362,8 @@ class BenchReport:
 
 
 def _write_atomic(path: Path, write: Callable, newline: str | None = None) -> Path:
-    """Write a text file through ``write(file object)``, atomically (:func:`..io.images.write_file_atomic`)."""
-    from ..io.images import write_file_atomic
+    """Write a text file through ``write(file object)``, atomically (:func:`..io.output_sets.write_file_atomic`)."""
+    from ..io.output_sets import write_file_atomic
 
     def text(tmp: Path) -> None:
         with open(tmp, "w", encoding="utf-8", newline=newline) as f:
@@ -391,7 +391,7 @@ def save_figure(fig, path: Path, layout: bool = True) -> Path:
     ``layout``: apply ``tight_layout`` first (False: the caller laid the figure out)."""
     import matplotlib.pyplot as plt
 
-    from ..io.images import write_file_atomic
+    from ..io.output_sets import write_file_atomic
 
     if layout:
         fig.tight_layout()

@@ -19,6 +19,9 @@ from ..schema import dotted
 #: The most nodes a YAML document may hold with its aliases expanded (bundled configs: 100-200): stops alias bombs
 #: while composing, before anything is built.
 MAX_YAML_NODES = 100_000
+#: The deepest nesting of lists and mappings a YAML document may have (bundled configs: 6): PyYAML composes nodes
+#: recursively, so a document nested some 300 levels deep would otherwise end in a RecursionError.
+MAX_YAML_DEPTH = 64
 
 _NAME_TAGS = ("tag:yaml.org,2002:str", "tag:yaml.org,2002:merge")
 
@@ -36,7 +39,8 @@ class _Loader(yaml.SafeLoader):
     be plain config data: collection keys (with their key path), non-string top-level keys with ``string_keys_at_top``
     (numbers stay allowed below: animation keyframes), and alias bombs: each node's expanded size is computed once
     while composing and the document is refused when the total passes :data:`MAX_YAML_NODES` (or an alias recurses),
-    a budget that bounds exactly what costs time later and keeps aliases usable for sharing.
+    a budget that bounds exactly what costs time later and keeps aliases usable for sharing; and documents nested
+    deeper than :data:`MAX_YAML_DEPTH` (refused before the composer's recursion can overflow the stack).
     """
 
     string_keys_at_top = False
@@ -44,6 +48,7 @@ class _Loader(yaml.SafeLoader):
     def compose_document(self):
         self._sizes: dict[int, int] = {}
         self._expanded = 0
+        self._depth = 0
         node = super().compose_document()
         self._sizes = {}
         if node is not None:
@@ -52,7 +57,18 @@ class _Loader(yaml.SafeLoader):
 
     def compose_node(self, parent, index):
         alias = self.peek_event() if self.check_event(yaml.AliasEvent) else None
-        node = super().compose_node(parent, index)
+        if self.check_event(yaml.CollectionStartEvent):
+            if self._depth >= MAX_YAML_DEPTH:
+                raise yaml.composer.ComposerError(
+                    None, None, f"the document nests lists and mappings more than {MAX_YAML_DEPTH} levels deep; "
+                    "refusing it", self.peek_event().start_mark)
+            self._depth += 1
+            try:
+                node = super().compose_node(parent, index)
+            finally:
+                self._depth -= 1
+        else:
+            node = super().compose_node(parent, index)
         if alias is not None:
             size = self._sizes.get(id(node))
             if size is None:
@@ -311,4 +327,5 @@ def read_config_data(path: str | Path) -> tuple[dict, str]:
     return data, text
 
 
-__all__ = ["MAX_YAML_NODES", "apply_overrides", "key_lines", "parse_override", "read_config_data", "value_at"]
+__all__ = ["MAX_YAML_DEPTH", "MAX_YAML_NODES", "apply_overrides", "key_lines", "parse_override", "read_config_data",
+           "value_at"]

@@ -1,10 +1,11 @@
 """Coherent shadow maps (Ritschel, Grosch, Kautz, Müller 2007): precomputed visibility of rigid objects.
 
 N1 x N2 orthographic depth maps around an object are put in a coherent order (:mod:`.enumeration`), rendered
-(:mod:`.depthmaps`), compressed losslessly into per-texel segment lists (:mod:`.compress`) and queried by binary
-search (:mod:`.query`, batches in :mod:`.batch`). :mod:`.brdf`, :mod:`.direct_lighting`, :mod:`.environment` and
-:mod:`.local_lights` are the Monte-Carlo estimators (Sec. 5); :mod:`.occluders` the CSM of a scene; :mod:`.settings`
-``render.lighting``. The ``csm`` / ``raytrace`` render methods are :mod:`warpscatter.pipeline.lighting`.
+(:mod:`.depthmaps`), compressed losslessly into per-texel segment lists (:mod:`.compress`; CSM files are read by
+:mod:`.files`) and queried by binary search (:mod:`.query`, batches in :mod:`.batch`). :mod:`.brdf`,
+:mod:`.direct_lighting`, :mod:`.environment` and :mod:`.local_lights` are the Monte-Carlo estimators (Sec. 5);
+:mod:`.occluders` the CSM of a scene; :mod:`.settings` ``render.lighting``. The ``csm`` / ``raytrace`` render
+methods are :mod:`warpscatter.pipeline.lighting`.
 
 Example::
 
@@ -24,7 +25,6 @@ _EXPORTS = {
     "MAX_LOBES": "warpscatter.csm.brdf",
     "MaterialData": "warpscatter.csm.brdf",
     "MaterialTable": "warpscatter.csm.brdf",
-    "CSMFileError": "warpscatter.csm.compress",
     "CoherentShadowMap": "warpscatter.csm.compress",
     "CompressionStats": "warpscatter.csm.compress",
     "FORMAT_VERSION": "warpscatter.csm.compress",
@@ -34,7 +34,6 @@ _EXPORTS = {
     "build_cube_csm": "warpscatter.csm.compress",
     "compress_depth_maps": "warpscatter.csm.compress",
     "geometry_digest": "warpscatter.csm.compress",
-    "load_csm": "warpscatter.csm.compress",
     "save_csm": "warpscatter.csm.compress",
     "CubeMapSet": "warpscatter.csm.depthmaps",
     "LatLongMapSet": "warpscatter.csm.depthmaps",
@@ -51,6 +50,8 @@ _EXPORTS = {
     "scanline_order": "warpscatter.csm.enumeration",
     "sequence_index": "warpscatter.csm.enumeration",
     "zigzag_order": "warpscatter.csm.enumeration",
+    "CSMFileError": "warpscatter.csm.files",
+    "load_csm": "warpscatter.csm.files",
     "shade_direct": "warpscatter.csm.direct_lighting",
     "shade_environment": "warpscatter.csm.environment",
     "shade_local_light": "warpscatter.csm.local_lights",

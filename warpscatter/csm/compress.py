@@ -8,6 +8,8 @@ layers, Fig. 3). The compressor extends a piecewise-constant segment from i0 to 
 and stores (z_avg, i_end), z_avg the float32 midpoint kept inside the interval (Fig. 4); greedy extension gives the
 fewest segments (:class:`SegmentLists`). z_hi = +inf bounds nothing; z_lo = z_hi (coincident surfaces) forms a
 one-map segment. :class:`StreamingCompressor` needs O(M^2 x batch) memory.
+
+:func:`save_csm` writes a CSM file; :func:`~.files.load_csm` reads and checks one.
 """
 
 from __future__ import annotations
@@ -15,38 +17,26 @@ from __future__ import annotations
 import json
 import os
 import time
-import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from struct import error as struct_error
 
 import numpy as np
 import warp as wp
 
-from ..errors import InputFileError
 from ..runtime import parallel
 from ..runtime.device import default_device, module_options
 from ..scene.meshes import geometry_digest  # noqa: F401  (the digest a CSM file records)
-from .depthmaps import DEPTH_LAYERS, FAR_MODES, CubeMapSet, LatLongMapSet, latlong_frames
-from .enumeration import ENUMERATIONS, enumerate_grid, sequence_index
+from .depthmaps import DEPTH_LAYERS, CubeMapSet, LatLongMapSet, latlong_frames
 from .settings import CSMBuildSettings
 
 module_options()
 
-#: Version of the ``.npz`` layout written by :func:`save_csm`; :func:`load_csm` accepts only this one.
+#: Version of the ``.npz`` layout written by :func:`save_csm`; :func:`~.files.load_csm` accepts only this one.
 FORMAT_VERSION = 1
 #: CSM kinds: orthographic lat-long maps (distant and semi-local lights), depth cube maps (fixed local lights).
 KIND_LATLONG = "latlong"
 KIND_CUBE = "cube"
 KINDS = (KIND_LATLONG, KIND_CUBE)
-
-
-#: The most array data in bytes :func:`load_csm` reads, checked before anything is allocated.
-MAX_CSM_BYTES = 4 * 2**30
-
-
-class CSMFileError(InputFileError):
-    """A CSM file cannot be read or is inconsistent (an InputFileError: a user error, CLI exit code 2)."""
 
 
 @wp.func
@@ -514,165 +504,37 @@ def build_cube_csm(
                   light_samples=maps.samples, near=maps.near)
 
 
-_ARRAYS = ("format_version", "params", "map_index", "seg_start", "seg_depth", "seg_end")
-
-
 def save_csm(csm: CoherentShadowMap, path: str | os.PathLike) -> None:
-    """Write a CSM as one ``.npz`` (format version, JSON parameters, arrays), atomically."""
-    path = os.fspath(path)
-    tmp = path + ".tmp.npz"
+    """Write a CSM as one ``.npz`` (format version, JSON parameters, arrays), atomically: a unique temporary
+    beside it, removed on failure or interruption, renamed in under the file's writer lock
+    (:func:`..io.images.write_file_atomic`; ImageWriteError, an OSError, naming the file)."""
+    from ..io.images import write_file_atomic
+
     extra = {}
     if csm.kind == KIND_CUBE:
         extra["light_samples"] = np.asarray(csm.light_samples, dtype=np.float64)
-    np.savez(
-        tmp, format_version=np.array(FORMAT_VERSION, dtype=np.int64),
-        params=np.array(json.dumps(csm.params())), map_index=csm.map_index.astype(np.int32),
-        seg_start=csm.lists.seg_start.astype(np.int32), seg_depth=csm.lists.seg_depth.astype(np.float32),
-        seg_end=csm.lists.seg_end.astype(np.int32), **extra,
-    )
-    os.replace(tmp, path)
+
+    def write(tmp) -> None:
+        with open(tmp, "wb") as f:  # a file object: np.savez adds no ".npz" to the temporary's name
+            np.savez(
+                f, format_version=np.array(FORMAT_VERSION, dtype=np.int64),
+                params=np.array(json.dumps(csm.params())), map_index=csm.map_index.astype(np.int32),
+                seg_start=csm.lists.seg_start.astype(np.int32), seg_depth=csm.lists.seg_depth.astype(np.float32),
+                seg_end=csm.lists.seg_end.astype(np.int32), **extra,
+            )
+
+    write_file_atomic(os.fspath(path), write)
 
 
-def _fail(path: str, reason: str) -> CSMFileError:
-    return CSMFileError(f"{path}: {reason}", path=path)
+#: Names of the CSM file reader that lived here before :mod:`.files` took it (issue #52).
+_MOVED_TO_FILES = frozenset({"CSMFileError", "MAX_CSM_BYTES", "load_csm"})
 
 
-def _load_params(path: str, data) -> dict:
-    try:
-        version = int(np.asarray(data["format_version"]).reshape(()))
-    except (TypeError, ValueError) as exc:
-        raise _fail(path, "format_version is not an integer") from exc
-    if version != FORMAT_VERSION:
-        raise _fail(path, f"format version {version} is not supported (this build reads version {FORMAT_VERSION})")
-    try:
-        params = json.loads(str(np.asarray(data["params"]).reshape(())))
-    except (TypeError, ValueError) as exc:
-        raise _fail(path, "params is not valid JSON") from exc
-    if not isinstance(params, dict) or params.get("kind") not in KINDS:
-        raise _fail(path, f"unknown CSM kind {params.get('kind') if isinstance(params, dict) else params!r}")
-    try:
-        out = {
-            "kind": params["kind"], "near": float(params["near"]) if params["kind"] == KIND_CUBE else None,
-            "n1": int(params["n1"]), "n2": int(params["n2"]), "resolution": int(params["resolution"]),
-            "center": np.asarray(params["center"], dtype=np.float64), "radius": float(params["radius"]),
-            "enumeration": str(params["enumeration"]), "depth_layers": str(params["depth_layers"]),
-            "far": str(params["far"]), "num_segments": int(params["num_segments"]),
-            "geometry": str(params["geometry"]) if params.get("geometry") is not None else None,
-        }
-    except (KeyError, TypeError, ValueError) as exc:
-        raise _fail(path, f"params lack or mistype a field ({exc})") from exc
-    if min(out["n1"], out["n2"], out["resolution"]) < 1 or out["center"].shape != (3,):
-        raise _fail(path, "params hold impossible sizes")
-    if out["near"] is not None and not (np.isfinite(out["near"]) and out["near"] > 0):
-        raise _fail(path, "params hold a near plane that is not > 0")
-    if not (np.all(np.isfinite(out["center"])) and np.isfinite(out["radius"]) and out["radius"] > 0):
-        raise _fail(path, "params hold a non-finite centre or a radius <= 0")
-    for key, allowed in (("enumeration", ENUMERATIONS), ("depth_layers", tuple(DEPTH_LAYERS)), ("far", FAR_MODES)):
-        if out[key] not in allowed:
-            raise _fail(path, f"params {key} = {out[key]!r} is not one of {allowed}")
-    return out
+def __getattr__(name: str):
+    """``compress.load_csm`` and the reader's other old names: :mod:`.files`'s, with a DeprecationWarning (an import
+    at the top would be a cycle: :mod:`.files` imports this module)."""
+    if name not in _MOVED_TO_FILES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    from ..moved import moved_attribute
 
-
-def _check_declared_sizes(path: str) -> None:
-    """Check each ``.npz`` array's declared shape and dtype against its zip entry and :data:`MAX_CSM_BYTES` before
-    reading, so a crafted header cannot make numpy allocate a huge array."""
-    file_size = os.path.getsize(path)
-    total = 0
-    with zipfile.ZipFile(path) as zf:
-        for info in zf.infolist():
-            if not info.filename.endswith(".npy"):
-                continue
-            name = info.filename[:-4]
-            if info.compress_size > file_size or (info.compress_type == zipfile.ZIP_STORED
-                                                  and info.file_size != info.compress_size):
-                raise _fail(path, f"array {name!r}: its zip entry declares {info.file_size} bytes, more than the "
-                                  f"file holds ({file_size} bytes)")
-            with zf.open(info) as f:
-                try:
-                    version = np.lib.format.read_magic(f)
-                    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                                   else np.lib.format.read_array_header_2_0)
-                    shape, _, dtype = read_header(f)
-                except (ValueError, TypeError, SyntaxError, struct_error) as exc:
-                    raise _fail(path, f"array {name!r} has no valid .npy header ({exc})") from exc
-                header_bytes = f.tell()
-            if dtype.hasobject:
-                raise _fail(path, f"array {name!r} holds Python objects (dtype {dtype}), not numbers")
-            declared = int(np.prod(shape, dtype=object)) * dtype.itemsize
-            if declared != info.file_size - header_bytes:
-                raise _fail(path, f"array {name!r} declares shape {tuple(shape)} of {dtype} ({declared} bytes) but "
-                                  f"its entry holds {info.file_size - header_bytes} bytes of data")
-            total += declared
-            if total > MAX_CSM_BYTES:
-                raise _fail(path, f"the arrays hold more than {MAX_CSM_BYTES} bytes (array {name!r}: shape "
-                                  f"{tuple(shape)} of {dtype}), the limit of a CSM file "
-                                  f"(warpscatter.csm.compress.MAX_CSM_BYTES)")
-
-
-def load_csm(path: str | os.PathLike) -> CoherentShadowMap:
-    """Read a CSM written by :func:`save_csm`, checking it completely.
-
-    Raises:
-        CSMFileError: missing or unreadable file, sizes beyond the file or :data:`MAX_CSM_BYTES`, wrong version,
-            arrays, dtypes or sizes, inconsistent segment lists or enumeration tables.
-    """
-    path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise _fail(path, "no such file")
-    try:
-        _check_declared_sizes(path)
-        with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in _ARRAYS if k not in data.files]
-            if missing:
-                raise _fail(path, f"missing arrays {missing}")
-            p = _load_params(path, data)
-            names = _ARRAYS[2:] + (("light_samples",) if p["kind"] == KIND_CUBE else ())
-            if "light_samples" in names and "light_samples" not in data.files:
-                raise _fail(path, "missing arrays ['light_samples'] of a cube CSM")
-            arrays = {k: np.asarray(data[k]) for k in names}
-    except CSMFileError:
-        raise
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError, NotImplementedError) as exc:
-        raise _fail(path, f"not a readable .npz file ({exc})") from exc
-    n1, n2, m = p["n1"], p["n2"], p["resolution"]
-    cube = p["kind"] == KIND_CUBE
-    n, texels, s = n1 * n2 * (6 if cube else 1), m * m, p["num_segments"]
-    expect = {"map_index": ((n2, n1), np.integer), "seg_start": ((texels + 1,), np.integer),
-              "seg_depth": ((s,), np.floating), "seg_end": ((s,), np.integer)}
-    if cube:
-        expect["light_samples"] = ((n1 * n2, 3), np.floating)
-    for key, (shape, kind) in expect.items():
-        a = arrays[key]
-        if a.shape != shape or not np.issubdtype(a.dtype, kind):
-            raise _fail(path, f"{key} has shape {a.shape} and dtype {a.dtype}, expected {shape} of {kind.__name__}")
-    start, end = arrays["seg_start"].astype(np.int64), arrays["seg_end"].astype(np.int64)
-    counts = np.diff(start)
-    if start[0] != 0 or start[-1] != s or np.any(counts < 1):
-        raise _fail(path, "seg_start does not partition the segments (every texel needs >= 1 segment)")
-    last = start[1:] - 1
-    if np.any(end[last] != n - 1):
-        raise _fail(path, f"a texel's last segment does not end at map {n - 1}")
-    first_of_texel = np.zeros(s, dtype=bool)
-    first_of_texel[start[:-1]] = True
-    step_ok = np.diff(end) > 0
-    if np.any(~step_ok & ~first_of_texel[1:]) or end.min() < 0:
-        raise _fail(path, "segment ends are not strictly ascending within a texel")
-    if np.isnan(arrays["seg_depth"]).any() or np.isneginf(arrays["seg_depth"]).any():
-        raise _fail(path, "seg_depth contains NaN or -inf (+inf, no blocker, is the only non-finite depth)")
-    if cube and not np.all(np.isfinite(arrays["light_samples"])):
-        raise _fail(path, "light_samples contain non-finite positions")
-    try:
-        order = enumerate_grid(n1, n2, p["enumeration"])
-        index = sequence_index(order, n1, n2)
-    except ValueError as exc:
-        raise _fail(path, str(exc)) from exc
-    if not np.array_equal(index, arrays["map_index"]):
-        raise _fail(path, f"map_index does not match the {p['enumeration']} enumeration of {n1} x {n2}")
-    lists = SegmentLists(seg_start=start.astype(np.int32), seg_depth=arrays["seg_depth"].astype(np.float32),
-                         seg_end=end.astype(np.int32), num_maps=n)
-    return CoherentShadowMap(
-        n1=n1, n2=n2, resolution=m, center=p["center"], radius=p["radius"], enumeration=p["enumeration"],
-        depth_layers=p["depth_layers"], far=p["far"], map_index=index, lists=lists, kind=p["kind"],
-        light_samples=arrays["light_samples"].astype(np.float64) if cube else None, near=p["near"],
-        geometry=p["geometry"],
-    )
+    return moved_attribute(__name__, "warpscatter.csm.files", name)

@@ -15,12 +15,11 @@ from .compress import (
     KIND_CUBE,
     KIND_LATLONG,
     CoherentShadowMap,
-    CSMFileError,
     build_csm,
     build_cube_csm,
     geometry_digest,
-    load_csm,
 )
+from .files import CSMFileError, load_csm
 from .local_lights import check_light_csm
 from .settings import CSMBuildSettings
 
@@ -60,6 +59,12 @@ def check_csm_for_scene(csm: CoherentShadowMap, light, vertices, triangles, wher
         if csm.geometry != geometry_digest(vertices, triangles):
             raise CSMFileError(f"{where}: built for other occluders (the geometry digest differs from this scene's "
                                f"{len(triangles)} occluder triangles: another mesh, transform or receiver_only set)")
+        v = np.asarray(vertices, np.float64)
+        far = float(np.sqrt(np.max(np.sum((v - csm.center) ** 2, axis=1)))) if len(v) else 0.0
+        if not far <= csm.radius * (1.0 + 1e-9):  # a build's sphere encloses its mesh: the file was altered
+            raise CSMFileError(f"{where}: its bounding sphere (centre {np.round(csm.center, 4).tolist()}, radius "
+                               f"{csm.radius:.4g}) does not enclose this scene's occluders (farthest vertex at "
+                               f"{far:.4g})")
     else:
         center, radius = bounding_sphere(np.asarray(vertices, np.float64))
         if abs(radius - csm.radius) > 1e-4 * radius or np.linalg.norm(center - csm.center) > 1e-4 * radius:

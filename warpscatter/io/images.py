@@ -3,23 +3,17 @@
 Conventions (CONVENTIONS.md, "Images"): arrays are ``(H, W)`` or ``(H, W, C)`` float32, row 0 is the top row.
 EXRs hold linear float32 exactly; PNG previews are exposure-scaled, clamped and sRGB-encoded to 8 bits. Every write
 is atomic (temporary file, fsync, :func:`os.replace`), a whole output set all or nothing; non-finite pixels are
-refused.
+refused. The temporaries, the lock per output name, the commit manifest and the clean-up are :mod:`.output_sets`'s
+(its :class:`ImageWriteError`, :func:`remove_stale_temporaries`, :func:`temp_name`, :func:`write_file_atomic` and
+:data:`AOV_CHANNELS` import from here too).
 """
 
 from __future__ import annotations
 
-import errno
 import functools
 import json
-import logging
 import os
-import platform
-import re
-import secrets
-import stat
-import threading
 from collections.abc import Callable, Iterable, Mapping
-from concurrent.futures import ThreadPoolExecutor, wait
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +21,15 @@ import OpenImageIO as oiio
 
 from .. import __version__
 from ..errors import InputFileError
+from .output_sets import (
+    AOV_CHANNELS,
+    ImageWriteError,
+    _write_all,
+    check_output_target,
+    remove_stale_temporaries,
+    temp_name,
+    write_file_atomic,
+)
 
 __all__ = [
     "AOV_CHANNELS",
@@ -48,9 +51,7 @@ __all__ = [
     "write_png",
 ]
 
-#: Channel count of each render output, in file order: the standard outputs, then the debug ones.
-AOV_CHANNELS = {"color": 3, "scattering": 3, "surface": 3, "depth": 1, "rectified": 3, "epipole_mask": 1,
-                "rectified_map": 2, "mip_level": 1, "evaluated_pixels": 1, "epipolar_samples": 1}
+
 #: Outputs with their own size (a texture, not the image): exempt from the same-size check.
 OWN_SIZE_AOVS = ("rectified_map",)
 
@@ -66,15 +67,6 @@ _CHANNEL_NAMES = {1: ("Y",), 2: ("Y", "A"), 3: ("R", "G", "B"), 4: ("R", "G", "B
 #: Channel names that differ from the default by channel count (depth is OpenEXR's ``Z``).
 AOV_CHANNEL_NAMES = {"depth": ("Z",), "rectified": ("u", "v", "z"), "rectified_map": ("depth", "culled")}
 _INTEGER_BASETYPES = {oiio.UINT8, oiio.INT8, oiio.UINT16, oiio.INT16, oiio.UINT32, oiio.INT32}
-
-
-log = logging.getLogger("warpscatter")
-
-
-class ImageWriteError(OSError):
-    """An image file could not be written; the message names the file and OpenImageIO's error."""
-
-
 
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
@@ -138,8 +130,6 @@ def _srgb8(linear: np.ndarray) -> np.ndarray:
     return codes
 
 
-
-
 def _as_image(name: str, image, channels: Iterable[int] = (1, 2, 3, 4)) -> np.ndarray:
     """Return ``image`` as a C-contiguous float32 (H, W, C) array, or raise ValueError naming ``name``."""
     a = np.asarray(image)
@@ -160,86 +150,6 @@ def _as_image(name: str, image, channels: Iterable[int] = (1, 2, 3, 4)) -> np.nd
             f"first at row {r}, column {c}; refusing to write"
         )
     return a
-
-
-
-
-def _host_tag() -> str:
-    """This machine in temporary names (host name letters and digits, at most 16), for folders shared by machines."""
-    return re.sub(r"[^A-Za-z0-9]", "", platform.node())[:16] or "host"
-
-
-def temp_name(path: Path) -> Path:
-    """Hidden temporary sibling of ``path`` keeping the real extension last (``.name.tmp-HOST-PID-XXXXXX.exr``)."""
-    return path.with_name(f".{path.stem}.tmp-{_host_tag()}-{os.getpid()}-{secrets.token_hex(3)}{path.suffix}")
-
-
-def _backup_name(path: Path) -> Path:
-    """Hidden sibling keeping the previous file while a set is renamed in (``.name.bak-HOST-PID-XXXXXX.exr``)."""
-    return path.with_name(f".{path.stem}.bak-{_host_tag()}-{os.getpid()}-{secrets.token_hex(3)}{path.suffix}")
-
-
-_TEMP_PATTERN = re.compile(r"^\.(?P<stem>.+)\.(?P<kind>tmp|bak)-(?P<host>[A-Za-z0-9]+)-(?P<pid>\d+)-[0-9a-f]{6}"
-                           r"(?P<suffix>\.[A-Za-z0-9]+)$")
-
-#: (real folder path, file name) of this process's temporaries and backups in progress.
-_active: set[tuple[str, str]] = set()
-_active_lock = threading.Lock()
-
-
-def _process_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:  # exists, owned by another user
-        return True
-    return True
-
-
-def remove_stale_temporaries(folder: str | Path) -> list[Path]:
-    """Clean up after writers that did not finish; return the temporaries and backups removed or moved back.
-
-    Temporaries of dead processes (and this process's unused ones) are removed; a dead writer's backups are moved
-    back when its temporaries remain (it stopped before its last rename), else removed. Files of running processes
-    and of other machines (the host is in the name) are left alone."""
-    removed: list[Path] = []
-    try:
-        entries = list(os.scandir(folder))
-        where = os.path.realpath(folder)
-    except OSError:
-        return removed
-    with _active_lock:
-        active = {name for parent, name in _active if parent == where}
-    stale: dict[int, list[tuple[os.DirEntry, re.Match]]] = {}
-    for entry in entries:
-        m = _TEMP_PATTERN.match(entry.name)
-        if not m or entry.name in active or entry.is_dir(follow_symlinks=False):
-            continue
-        pid = int(m.group("pid"))
-        if m.group("host") != _host_tag():  # another machine's writer: only it can tell whether it runs
-            continue
-        if pid == os.getpid() or not _process_alive(pid):
-            stale.setdefault(pid, []).append((entry, m))
-    for files in stale.values():
-        unfinished = any(m.group("kind") == "tmp" for _, m in files)
-        for entry, m in sorted(files, key=lambda f: f[1].group("kind")):  # backups ("bak") before temporaries
-            try:
-                if m.group("kind") == "bak" and unfinished:
-                    target = os.path.join(os.path.dirname(entry.path), m.group("stem") + m.group("suffix"))
-                    if os.path.isdir(target) and not os.path.islink(target):
-                        continue
-                    os.replace(entry.path, target)
-                    if os.path.lexists(entry.path):  # a hard link of the target itself: the rename did nothing
-                        os.unlink(entry.path)
-                else:
-                    os.unlink(entry.path)
-                removed.append(Path(entry.path))
-            except OSError:
-                pass
-    if removed:
-        log.info("cleaned up %d temporary or backup file(s) of an unfinished write in %s", len(removed), folder)
-    return removed
 
 
 def _header_attribute(spec: oiio.ImageSpec, key: str, value) -> None:
@@ -342,152 +252,6 @@ def _png_writer(pixels: np.ndarray, exposure: float) -> Callable[[Path], None]:
     return lambda p: _write_oiio(p, _png_pixels(pixels, exposure), "uint8", attributes=_PNG_ATTRIBUTES)
 
 
-def _run_writers(jobs: list[tuple[Path, Callable[[Path], None]]],
-                 temps: list[Path]) -> tuple[Path, Exception] | None:
-    """Run every writer on its temporary path, one thread each (OpenImageIO releases the GIL); return (output, error)
-    of the first failure in job order, or None. All writers have finished when this returns or raises."""
-    if len(jobs) == 1:
-        try:
-            jobs[0][1](temps[0])
-        except Exception as exc:
-            return jobs[0][0], exc
-        return None
-    pool = ThreadPoolExecutor(max_workers=len(jobs), thread_name_prefix="warpscatter-write")
-    try:
-        futures = [pool.submit(writer, tmp) for (_, writer), tmp in zip(jobs, temps, strict=True)]
-        wait(futures)
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-    for (final, _), future in zip(jobs, futures, strict=True):
-        exc = future.exception()
-        if exc is not None:
-            if not isinstance(exc, Exception):  # KeyboardInterrupt, SystemExit in a writer: pass it on
-                raise exc
-            return final, exc
-    return None
-
-
-def _fsync(path: Path) -> None:
-    """Flush a written file to disk (its data and size) before it is renamed over a previous file."""
-    fd = os.open(path, os.O_RDWR if os.name == "nt" else os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _fsync_folder(folder: Path) -> None:
-    """Flush a folder's entries (the renames) to disk; a no-op where folders cannot be opened (Windows)."""
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _synced(writer: Callable[[Path], None]) -> Callable[[Path], None]:
-    def write_and_sync(path: Path) -> None:
-        writer(path)
-        _fsync(path)
-
-    return write_and_sync
-
-
-def _set_aside(final: Path, backup: Path) -> bool:
-    """Keep the file at ``final`` as ``backup`` (hard link, else rename); return whether there was one."""
-    try:
-        st = os.lstat(final)
-    except FileNotFoundError:
-        return False
-    if stat.S_ISDIR(st.st_mode):
-        raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(final))
-    try:
-        os.link(final, backup, follow_symlinks=False)
-    except (OSError, NotImplementedError):  # no hard links here (FAT, some network file systems)
-        os.rename(final, backup)
-    return True
-
-
-def _roll_back(commits: list[tuple[Path, Path, Path]], temps: list[Path]) -> list[str]:
-    """Undo a partly renamed set (backups back, temporaries removed); return what could not be undone."""
-    problems = []
-    for final, tmp, backup in reversed(commits):
-        try:
-            if os.path.lexists(backup):
-                os.replace(backup, final)
-                if os.path.lexists(backup):  # still the same file as final (the new one was not renamed in)
-                    os.unlink(backup)
-            elif not os.path.lexists(tmp) and os.path.lexists(final):  # renamed in, no previous file
-                os.unlink(final)
-        except OSError as exc:
-            problems.append(f"{final}: {exc}" + (f" (the previous file is kept as {backup})"
-                                                 if os.path.lexists(backup) else ""))
-    for tmp in temps:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        except OSError as exc:
-            problems.append(f"temporary {tmp} left behind: {exc}")
-    return problems
-
-
-def _write_all(jobs: list[tuple[Path, Callable[[Path], None]]]) -> list[Path]:
-    """Write every job to a temporary file and fsync it, then rename all into place, all or nothing."""
-    temps = [temp_name(final) for final, _ in jobs]
-    backups = [_backup_name(final) for final, _ in jobs]
-    commits: list[tuple[Path, Path, Path]] = []
-    current = jobs[0][0]
-    in_use = {(os.path.realpath(p.parent), p.name) for p in temps + backups}
-    with _active_lock:
-        _active.update(in_use)
-    try:
-        try:
-            failure = _run_writers([(final, _synced(writer)) for final, writer in jobs], temps)
-            if failure is not None:
-                current, error = failure
-                raise error
-            for (final, _), tmp, backup in zip(jobs, temps, backups, strict=True):
-                current = final
-                commits.append((final, tmp, backup))  # before any change: an interruption is rolled back
-                _set_aside(final, backup)
-                os.replace(tmp, final)
-        except BaseException as exc:
-            problems = _roll_back(commits, temps)
-            if problems:
-                log.error("could not restore the previous outputs: %s", "; ".join(problems))
-            if not isinstance(exc, Exception):
-                raise
-            text = f"cannot write {current}: {exc}"
-            if problems:
-                text += "; the rollback failed too: " + "; ".join(problems)
-            raise ImageWriteError(text) from exc
-        for backup in backups:
-            try:
-                os.unlink(backup)
-            except FileNotFoundError:
-                pass
-            except OSError as exc:
-                log.warning("cannot remove the backup %s: %s", backup, exc)
-        for folder in dict.fromkeys(final.parent for final, _ in jobs):
-            _fsync_folder(folder)
-    finally:
-        with _active_lock:
-            _active.difference_update(in_use)
-    return [final for final, _ in jobs]
-
-
-def write_file_atomic(path: str | Path, write: Callable[[Path], None]) -> Path:
-    """Write one file atomically through ``write(temporary)``; the previous file survives any failure
-    (:class:`ImageWriteError` naming the file and the reason)."""
-    return _write_all([(Path(path), write)])[0]
-
-
 def write_exr(path: str | Path, image: np.ndarray, compression: str = DEFAULT_EXR_COMPRESSION) -> Path:
     """Write a linear float image to an OpenEXR file, atomically (32-bit float, lossless); returns the path.
 
@@ -556,8 +320,11 @@ def write_outputs(
 
     Raises:
         ValueError: unknown/missing AOV, mismatched shapes, non-finite pixels, bad exposure, compression or name.
+        OutputNameError: (a ValueError) a reserved or too long name (:func:`check_output_target`); nothing is
+            written. :class:`OutputFolderError` (an ImageWriteError): a folder that cannot hold the files.
         ImageWriteError: a file could not be written or renamed in; the previous files are kept (or the message
-            names the backups if the rollback failed).
+            names the backups if the rollback failed). :class:`OutputBusyError`: another process kept writing the
+            same name for longer than :data:`OUTPUT_LOCK_TIMEOUT_S`.
     """
     if not name or "/" in name or "\\" in name or name in (".", ".."):
         raise ValueError(f"name: must be a plain file stem, got {name!r}")
@@ -578,6 +345,7 @@ def write_outputs(
         raise ValueError(f"images: sizes differ {sizes}")
 
     out_dir = Path(out_dir)
+    check_output_target(out_dir, name, requested)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -603,7 +371,7 @@ def write_outputs(
     if sidecar is not None:
         text = json.dumps(json_ready(sidecar), indent=2) + "\n"
         jobs.append((out_dir / f"{name}.json", _text_writer(text)))
-    return _write_all(jobs)
+    return _write_all(jobs, name)
 
 
 def read_image(path: str | Path) -> np.ndarray:

@@ -25,6 +25,7 @@ from .classic import render_images
 from .common import check_finite, compile_kernels
 from .frame import Frame
 from .lighting import render_lighting
+from .memory import check_memory
 from .supersample import box_filter, supersampled_scene
 
 
@@ -89,16 +90,20 @@ def render(config: Config, out_dir: Path | None = None, progress: ProgressFn | N
         ConfigError: the config is invalid, or a file it names does not fit (a CSM file of other occluders, say).
         NonFiniteImageError: an image with NaN or infinite pixels (a bug).
     """
-    from ..csm.compress import CSMFileError
+    from ..csm.files import CSMFileError
     from ..io.images import write_outputs
+    from ..io.output_sets import check_output_target
     from ..scene import build_scene, object_meshes
 
     config = config.revalidated()
     if config.animation is not None:
         raise ConfigError("animation: the config is a sequence: render its frames with "
                           "warpscatter.render_animation(config) (or one frame: config.at_frame(n))", config.source)
+    check_memory(config)  # before any work: the estimated peak against the memory available (memory.py)
     if out_dir is not None:
         config.output.dir = Path(out_dir).resolve()  # the sidecar records where the files went
+    if write:  # before any work: the folder can hold the set, the name is not reserved and fits (exit 2)
+        check_output_target(config.output.dir, config.output_name, config.output.aovs)
     device = default_device(device)
     timer = StageTimer(progress)
     s = config.camera.supersample

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config.animation import FRAME_DIGITS, frame_name
+from ..schema import MAX_FRAMES
 from .jobs import Executor, InlineExecutor, TaskResult, run_tasks, task_for
 
 log = logging.getLogger("warpscatter")
@@ -44,25 +45,34 @@ class AnimationResult:
 def parse_frames(text: str | None, first: int, last: int) -> list[int]:
     """``--frames`` text: ``A:B`` (inclusive), ``A:B:STEP``, ``A,B,C`` or ``N``, within [first, last].
 
+    A range is checked against [first, last] arithmetically before any list is built: the list is never longer than
+    the animation (at most :data:`~warpscatter.schema.MAX_FRAMES` frames), whatever the text asks for.
+
     Raises:
         ValueError: malformed, or outside the animation's range.
     """
     if not text:
         return list(range(first, last + 1))
+    shown = text if len(text) <= 60 else text[:57] + "..."
+    malformed = ValueError(f"--frames: expected A:B, A:B:STEP or A,B,C with integers, got {shown!r}")
+    outside = ValueError(f"--frames {shown}: the animation has frames {first}..{last}")
+    items = text.split(":") if ":" in text else text.split(",")
+    if len(items) > MAX_FRAMES:  # more numbers than any animation has frames
+        raise ValueError(f"--frames: at most {MAX_FRAMES} frame numbers, got {len(items)}")
     try:
-        if ":" in text:
-            parts = [int(p) for p in text.split(":")]
-            if len(parts) not in (2, 3) or (len(parts) == 3 and parts[2] < 1):
-                raise ValueError
-            frames = list(range(parts[0], parts[1] + 1, parts[2] if len(parts) == 3 else 1))
-        else:
-            frames = [int(p) for p in text.split(",")]
+        numbers = [int(p) for p in items]
     except ValueError:
-        raise ValueError(f"--frames: expected A:B, A:B:STEP or A,B,C with integers, got {text!r}") from None
-    outside = [f for f in frames if not first <= f <= last]
-    if not frames or outside:
-        raise ValueError(f"--frames {text}: the animation has frames {first}..{last}")
-    return frames
+        raise malformed from None
+    if ":" in text:
+        if len(numbers) not in (2, 3) or (len(numbers) == 3 and numbers[2] < 1):
+            raise malformed
+        start, stop = numbers[0], numbers[1]
+        if start > stop or start < first or stop > last:  # checked arithmetically: no list of an unbounded range
+            raise outside
+        return list(range(start, stop + 1, numbers[2] if len(numbers) == 3 else 1))
+    if any(not first <= f <= last for f in numbers):
+        raise outside
+    return numbers
 
 
 def preview_format(requested: str) -> str:
@@ -92,7 +102,7 @@ def write_preview(pngs: list[Path], target: Path, fps: float) -> Path:
     """
     import imageio.v2 as iio
 
-    from ..io.images import write_file_atomic
+    from ..io.output_sets import write_file_atomic
 
     if target.suffix == ".mp4":
         import imageio_ffmpeg  # noqa: F401  (a clear ImportError before any work)

@@ -20,8 +20,9 @@ import numpy as np
 from .. import __version__
 from ..api import load_config, render
 from ..errors import ConfigError
-from ..io.images import json_ready, srgb_encode, write_file_atomic, write_png
+from ..io.images import json_ready, srgb_encode, write_png
 from ..io.metrics import errors
+from ..io.output_sets import write_file_atomic
 from ..io.provenance import machine, source_commit, timestamp
 from ..io.resources import ROOT
 

@@ -10,11 +10,13 @@ shared machine contend.
 from __future__ import annotations
 
 import csv
+import hashlib
 import itertools
 import json
 import math
 import os
 import re
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +32,10 @@ from .jobs import Executor, InlineExecutor, TaskResult, run_tasks, task_for
 
 #: Stages that are not the technique's own work: left out of a case's technique time.
 OVERHEAD_STAGES = ("scene", "compile", "write")
+
+
+#: Most renders one sweep may make (configs x cases x grid points), checked before any case is built.
+MAX_SWEEP_CASES = 10_000
 
 
 class SweepSettings(SettingsModel):
@@ -62,7 +68,14 @@ class SweepSettings(SettingsModel):
     def _some_case(self) -> SweepSettings:
         if not self.name or any(c in self.name for c in '/\\:*?"<>|\0'):
             raise ValueError(f"name: must be a plain file stem, got {self.name!r}")
+        count = self.case_count()
+        if count > MAX_SWEEP_CASES:  # counted, not built: a grid of a few long lists is astronomically many cases
+            raise ValueError(f"grid: {count:.3g} cases (configs x cases x grid points); at most {MAX_SWEEP_CASES}")
         return self
+
+    def case_count(self) -> int:
+        """How many renders :meth:`override_sets` makes over every config, computed without building them."""
+        return len(self.configs) * max(1, len(self.cases)) * math.prod(len(v) for v in self.grid.values())
 
     def override_sets(self) -> list[dict[str, Any]]:
         """Every case's overrides (``set``, then the case, then the grid point), in order."""
@@ -166,9 +179,38 @@ def sweep_cases(sweep: SweepSettings) -> tuple[list[SweepCase], dict[str, Config
     return cases, references
 
 
+#: Longest readable part of a case's file stem (a short digest of the label follows when it is cut).
+_STEM_CHARS = 96
+
+
+def _label_digest(label: str) -> str:
+    return hashlib.sha256(label.encode("utf-8")).hexdigest()[:8]
+
+
 def _file_stem(label: str) -> str:
-    """A case label as a file stem: other than letters, digits, ``.``, ``_`` and ``-`` becomes ``_``."""
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", label.replace("=", "-")).strip("._") or "case"
+    """A case label as a file stem: other than letters, digits, ``.``, ``_`` and ``-`` becomes ``_``; a label longer
+    than :data:`_STEM_CHARS` is cut and a digest of the whole label appended."""
+    stem = re.sub(r"[^A-Za-z0-9._-]+", "_", label.replace("=", "-")).strip("._") or "case"
+    if len(stem) > _STEM_CHARS:
+        stem = stem[:_STEM_CHARS].rstrip("._-") + "-" + _label_digest(label)
+    return stem
+
+
+def file_stems(labels: list[str]) -> list[str]:
+    """One file stem per case label, unique (letter case aside, for case-insensitive file systems): labels that map
+    to the same :func:`_file_stem` each get a digest of their own label appended, so every stem depends only on its
+    label and the set of labels, not on the order of the cases."""
+    stems = [_file_stem(label) for label in labels]
+    counts = Counter(s.casefold() for s in stems)
+    stems = [f"{s}-{_label_digest(label)}" if counts[s.casefold()] > 1 else s
+             for s, label in zip(stems, labels, strict=True)]
+    counts = Counter(s.casefold() for s in stems)
+    seen: Counter = Counter()
+    unique = []
+    for k, s in enumerate(stems):  # a digest colliding with another case's plain stem: the case index decides
+        seen[s.casefold()] += 1
+        unique.append(s if counts[s.casefold()] == 1 or seen[s.casefold()] == 1 else f"{s}-{k:04d}")
+    return unique
 
 
 def run_sweep(sweep: SweepSettings, out_dir: str | Path, *, executor: Executor | None = None,
@@ -207,12 +249,12 @@ def _run_sweep(sweep: SweepSettings, out_dir, executor, progress, device) -> Swe
     ref_results = {r.label: r for r in run_tasks(ref_tasks, executor, skip_finished=False, progress=progress,
                                                   stage="references")} if ref_tasks else {}
     images_dir = out / sweep.name
+    stems = file_stems([case.label for case in cases])
     tasks = []
     for k, case in enumerate(cases):
         config = case.config
         if sweep.images:
-            config = config.model_copy(update={"output": {**config.output.model_dump(), "name":
-                                                          _file_stem(case.label)}})
+            config = config.model_copy(update={"output": {**config.output.model_dump(), "name": stems[k]}})
         tasks.append(task_for(config, f"{k:04d} {case.label}", images_dir if sweep.images else None, want,
                               device=device))
     results = run_tasks(tasks, executor, skip_finished=False, progress=progress, stage="cases")
@@ -249,7 +291,8 @@ def _row(case: SweepCase, result: TaskResult, reference: TaskResult | None) -> d
 
 def write_results(rows: list[dict], meta: dict, out: Path, name: str) -> list[Path]:
     """Write ``NAME.json``, ``NAME.csv`` and, with matplotlib, ``NAME-error-time.png``, each atomically."""
-    from ..io.images import json_ready, write_file_atomic
+    from ..io.images import json_ready
+    from ..io.output_sets import write_file_atomic
 
     out.mkdir(parents=True, exist_ok=True)
     columns = list(dict.fromkeys(k for r in rows for k in r))
@@ -304,4 +347,4 @@ def rows_table(rows: list[dict]) -> str:
 
 
 __all__ = ["OVERHEAD_STAGES", "SweepCase", "SweepResult", "SweepSettings", "error_time_chart", "load_sweep",
-           "rows_table", "run_sweep", "sweep_cases", "write_results"]
+           "file_stems", "rows_table", "run_sweep", "sweep_cases", "write_results"]

@@ -15,6 +15,9 @@ module_options()
 
 #: Rec. 709 luminance weights of linear RGB (environment-map and BRDF sampling weights).
 LUMA = (0.2126, 0.7152, 0.0722)
+#: The largest radiance texel of an environment map or light texture (a config gives at most 1e6 x 1e6: its file's
+#: values, warpscatter.schema.MAX_EMISSION, times its scale): larger ones overflow float32 in the renderers' products.
+MAX_TEXEL_RADIANCE = 1.0e12
 
 
 @wp.struct
@@ -233,7 +236,7 @@ class EnvironmentMap:
 
     Args:
         image: (H, W, 3) or (H, W, 4) linear RGB(A) radiance (alpha ignored), row 0 = zenith; ValueError for a wrong
-            shape, an empty image, non-finite or negative texels.
+            shape, an empty image, non-finite or negative texels, or texels above :data:`MAX_TEXEL_RADIANCE`.
     """
 
     def __init__(self, image):
@@ -248,6 +251,8 @@ class EnvironmentMap:
             raise ValueError("image contains non-finite texels")
         if np.any(img < 0.0):
             raise ValueError("image contains negative radiance")
+        if np.any(img > MAX_TEXEL_RADIANCE):
+            raise ValueError(f"image contains radiance above {MAX_TEXEL_RADIANCE:g} (largest {float(img.max()):g})")
         h, w = img.shape[:2]
         self.image = img
         sin_t = np.sin(np.pi * (np.arange(h) + 0.5) / h)
@@ -318,6 +323,7 @@ class EnvironmentMap:
 __all__ = [
     "GUIDE",
     "LUMA",
+    "MAX_TEXEL_RADIANCE",
     "EnvData",
     "EnvironmentMap",
     "cdf_guide",

@@ -49,13 +49,97 @@ def format_value(v: Any) -> str:
     return str(v)
 
 
-def _texture(path: Path | None) -> Any:
-    """The image of a light's ``texture`` key, or None (:func:`~..io.images.read_radiance_image`)."""
-    if path is None:
-        return None
+#: The most pixels a light texture or environment map may have: 2^25, an 8192 x 4096 lat-long map. Reading one and
+#: building its sampling tables peaks near 90 (environment map) to 110 (area light) bytes a pixel, measured (float32
+#: pixels decoded, float64 luminance, weights and CDFs), some 4 GB at this bound before the device copies (~30 bytes a
+#: pixel); the header is checked before any pixel is decoded.
+MAX_LIGHT_IMAGE_PIXELS = 2**25
+#: The longest side (pixels) of a light texture or environment map.
+MAX_LIGHT_IMAGE_SIDE = 16384
+#: The most channels such an image may have (each is decoded as float32 before the colour channels are kept).
+MAX_LIGHT_IMAGE_CHANNELS = 16
+#: The largest value a light texture or environment map file may hold: the bound of every emission value of a config
+#: (:data:`~warpscatter.schema.MAX_EMISSION`), so that a texel times its light's intensity, radiance or scale stays at
+#: most 1e12, far inside float32's 3.4e38 through the renderers' products.
+MAX_LIGHT_IMAGE_VALUE = MAX_EMISSION
+
+
+def check_light_image_size(path: str | Path) -> None:
+    """Refuse a light texture or environment map too large to read, from its header alone (nothing is decoded):
+    more than :data:`MAX_LIGHT_IMAGE_PIXELS` pixels, a side over :data:`MAX_LIGHT_IMAGE_SIDE`, more than
+    :data:`MAX_LIGHT_IMAGE_CHANNELS` channels, or a 3-D (volume) image. A file OpenImageIO cannot open passes (the
+    read reports it).
+
+    Raises:
+        ValueError: naming the file, its size and the limit.
+    """
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        oiio.geterror()  # clear it: the read reports why
+        return
+    try:
+        spec = inp.spec()
+        w, h, d, c = int(spec.width), int(spec.height), max(int(spec.depth), 1), int(spec.nchannels)
+    finally:
+        inp.close()
+    if d > 1:
+        raise ValueError(f"{path}: a 3-D image ({w} x {h} x {d} pixels); a light image must be 2-D")
+    if w > MAX_LIGHT_IMAGE_SIDE or h > MAX_LIGHT_IMAGE_SIDE or w * h > MAX_LIGHT_IMAGE_PIXELS:
+        raise ValueError(f"{path}: the image is {w} x {h} pixels ({w * h:,}), more than a light texture or "
+                         f"environment map may have (at most {MAX_LIGHT_IMAGE_PIXELS:,} pixels and "
+                         f"{MAX_LIGHT_IMAGE_SIDE} a side, e.g. 8192 x 4096: its tables take ~110 bytes a pixel)")
+    if c > MAX_LIGHT_IMAGE_CHANNELS:
+        raise ValueError(f"{path}: the image has {c} channels, more than the {MAX_LIGHT_IMAGE_CHANNELS} a light "
+                         "image may have")
+
+
+def read_light_image(path: str | Path, key: str) -> Any:
+    """The radiance image (H, W, 3) float32 of a light's ``texture`` or ``map`` file, refused before decoding when
+    too large (:func:`check_light_image_size`) and after when a value is not finite, negative or above
+    :data:`MAX_LIGHT_IMAGE_VALUE`.
+
+    Raises:
+        InputFileError: at ``key``, naming the file and the reason.
+    """
+    import numpy as np
+
+    from ..errors import InputFileError
     from ..io.images import read_radiance_image
 
-    return read_radiance_image(path, key="light.texture")
+    try:
+        check_light_image_size(path)
+    except ValueError as exc:
+        raise InputFileError(str(exc), path=path, key=key) from None
+    image = read_radiance_image(path, key=key)
+    over = image > MAX_LIGHT_IMAGE_VALUE
+    if over.any():
+        r, c, ch = np.unravel_index(int(np.argmax(image)), image.shape)
+        largest = float(image[r, c, ch])
+        raise InputFileError(
+            f"{path}: {int(over.sum())} value(s) above {MAX_LIGHT_IMAGE_VALUE:g}, the largest {largest:g} at row {r}, "
+            f"column {c}, channel {ch}; a light image's values must be finite, >= 0 and at most "
+            f"{MAX_LIGHT_IMAGE_VALUE:g} (warpscatter.schema.MAX_EMISSION: scale the light's intensity, radiance or "
+            "scale instead)", path=path, key=key)
+    return image
+
+
+def _light_image_file(v: Path | None, info: ValidationInfo) -> Path | None:
+    """A ``texture`` or ``map`` key's file: existing, and not too large by its header
+    (:func:`check_light_image_size`)."""
+    if v is None:
+        return None
+    p = existing_file(resolve_path(v, info))
+    check_light_image_size(p)
+    return p
+
+
+def _texture(path: Path | None) -> Any:
+    """The image of a light's ``texture`` key, or None (:func:`read_light_image`)."""
+    if path is None:
+        return None
+    return read_light_image(path, key="light.texture")
 
 
 class LightSettings(SettingsModel):
@@ -164,7 +248,7 @@ class SpotLightConfig(LightSettings):
     @field_validator("texture")
     @classmethod
     def _check_texture(cls, v: Path | None, info: ValidationInfo) -> Path | None:
-        return None if v is None else existing_file(resolve_path(v, info))
+        return _light_image_file(v, info)
 
     def describe(self) -> str:
         return (f"spot at {format_value(self.position)}, direction {format_value(self.direction)}, "
@@ -207,7 +291,7 @@ class EnvironmentLightConfig(LightSettings):
     @field_validator("map")
     @classmethod
     def _check_map(cls, v: Path, info: ValidationInfo) -> Path:
-        return existing_file(resolve_path(v, info))
+        return _light_image_file(v, info)
 
     def describe(self) -> str:
         return f"environment map {self.map}, scale {self.scale:g}"
@@ -215,11 +299,10 @@ class EnvironmentLightConfig(LightSettings):
     def build(self) -> Any:
         import numpy as np
 
-        from ..io.images import read_radiance_image
         from .environment_map import EnvironmentMap
         from .lights import EnvironmentLight
 
-        image = read_radiance_image(self.map, key="light.map")
+        image = read_light_image(self.map, key="light.map")
         try:
             return EnvironmentLight(EnvironmentMap(image * np.float32(self.scale)))
         except ValueError as exc:
@@ -245,7 +328,7 @@ class AreaLightConfig(LightSettings):
     @field_validator("texture")
     @classmethod
     def _check_texture(cls, v: Path | None, info: ValidationInfo) -> Path | None:
-        return None if v is None else existing_file(resolve_path(v, info))
+        return _light_image_file(v, info)
 
     @model_validator(mode="after")
     def _check(self) -> AreaLightConfig:
@@ -369,6 +452,10 @@ LightConfig = Annotated[Union[LIGHT_CONFIGS], Field(discriminator="type")]  # ty
 __all__ = [
     "LIGHT_CONFIGS",
     "LIGHT_TYPES",
+    "MAX_LIGHT_IMAGE_CHANNELS",
+    "MAX_LIGHT_IMAGE_PIXELS",
+    "MAX_LIGHT_IMAGE_SIDE",
+    "MAX_LIGHT_IMAGE_VALUE",
     "SUN_FORMS",
     "AreaLightConfig",
     "DirectionalLightConfig",
@@ -379,6 +466,8 @@ __all__ = [
     "PointLightConfig",
     "SpotLightConfig",
     "VolumeLightConfig",
+    "check_light_image_size",
     "format_value",
+    "read_light_image",
     "sun_direction",
 ]

@@ -17,7 +17,7 @@ import warp as wp
 
 from ..runtime.device import default_device, module_options
 from .camera import look_at_basis, normalize, perspective_matrix, view_matrix
-from .environment_map import EnvironmentMap, cdf_search, cdf_search_row
+from .environment_map import MAX_TEXEL_RADIANCE, EnvironmentMap, cdf_search, cdf_search_row
 
 module_options()
 
@@ -35,6 +35,20 @@ def _light_samples_count(name: str, value, hi: int) -> int:
     if not 1 <= int(value) <= hi:
         raise ValueError(f"{name} must lie in [1, {hi}], got {value}")
     return int(value)
+
+
+def _light_texture(texture) -> np.ndarray:
+    """A light texture as (H, W, 3) float32, contiguous; ValueError unless it is an (H, W, >= 3) image of finite
+    values in [0, MAX_TEXEL_RADIANCE]."""
+    tex = np.asarray(texture, np.float32)
+    if tex.ndim != 3 or tex.shape[0] < 1 or tex.shape[1] < 1 or tex.shape[2] < 3:
+        raise ValueError(f"texture must be an (H, W, 3) image, got shape {tex.shape}")
+    rgb = tex[..., :3]
+    if not np.all(np.isfinite(rgb)) or np.any(rgb < 0):
+        raise ValueError("texture must be an (H, W, 3) image of finite values >= 0")
+    if np.any(rgb > MAX_TEXEL_RADIANCE):
+        raise ValueError(f"texture values must be at most {MAX_TEXEL_RADIANCE:g} (largest {float(rgb.max()):g})")
+    return np.ascontiguousarray(rgb)
 
 
 def light_grid_params(n1: int, n2: int) -> np.ndarray:
@@ -78,7 +92,7 @@ class DirectionalLight:
 @dataclass(frozen=True)
 class SpotLight:
     """Spot light at ``position``, axis ``direction``, half-angle ``cone_deg``, RGB ``intensity`` (W/sr) and an
-    optional linear RGB ``texture`` (H, W, 3), row 0 = top (+v)."""
+    optional linear RGB ``texture`` (H, W, 3) of finite values in [0, MAX_TEXEL_RADIANCE], row 0 = top (+v)."""
 
     position: np.ndarray
     direction: np.ndarray
@@ -95,6 +109,8 @@ class SpotLight:
         object.__setattr__(self, "intensity", np.asarray(self.intensity, dtype=np.float64))
         if not 0.0 < self.cone_deg < 90.0:
             raise ValueError("spot cone_deg (half-angle) must lie in (0, 90) degrees")
+        if self.texture is not None:
+            object.__setattr__(self, "texture", _light_texture(self.texture))
 
     def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(right, up, forward) of the spot's frame; up is the projection of world +Y (or +Z if parallel)."""
@@ -180,13 +196,13 @@ class AreaLight:
             raise ValueError("radiance must be >= 0")
         if not self.area > 1e-12 * max(np.dot(self.u, self.u), np.dot(self.v, self.v), 1e-30):
             raise ValueError("u and v must span a parallelogram (non-zero and not parallel)")
+        if np.any(self.radiance > MAX_TEXEL_RADIANCE):
+            raise ValueError(f"radiance must be at most {MAX_TEXEL_RADIANCE:g}, got {self.radiance.tolist()}")
         if self.texture is not None:
-            tex = np.asarray(self.texture, np.float32)
-            if tex.ndim != 3 or tex.shape[2] < 3 or not np.all(np.isfinite(tex[..., :3])) or np.any(tex[..., :3] < 0):
-                raise ValueError("texture must be an (H, W, 3) image of finite values >= 0")
-            if not tex[..., :3].max() > 0.0:
+            tex = _light_texture(self.texture)
+            if not tex.max() > 0.0:
                 raise ValueError("texture is black: the light would emit nothing")
-            object.__setattr__(self, "texture", np.ascontiguousarray(tex[..., :3]))
+            object.__setattr__(self, "texture", tex)
 
     @classmethod
     def from_power(cls, corner, u, v, power, two_sided: bool = False, texture=None) -> AreaLight:
@@ -200,6 +216,9 @@ class AreaLight:
             if np.any((mean <= 0.0) & (radiance > 0.0)):
                 raise ValueError("texture: a channel with power is black all over")
             radiance = np.where(mean > 0.0, radiance / np.maximum(mean, 1e-300), 0.0)
+            if np.any(radiance > MAX_TEXEL_RADIANCE):
+                raise ValueError(f"texture: its mean {mean.tolist()} is so dark that the radiance giving the power, "
+                                 f"{radiance.tolist()}, exceeds {MAX_TEXEL_RADIANCE:g} (brighten the texture)")
         return cls(corner, u, v, radiance, two_sided, texture)
 
     @property
@@ -244,6 +263,8 @@ class AreaLight:
         padded = np.pad(emit, 1, mode="edge")
         h, w = emit.shape
         weight = np.max([padded[a:a + h, b:b + w] for a in range(3) for b in range(3)], axis=0)
+        if not weight.sum() > 0.0:  # emits nothing (a black radiance): sample the texels uniformly
+            weight = np.ones((h, w))
         rows = weight.sum(axis=1)
         marginal = np.concatenate([[0.0], np.cumsum(rows)]) / rows.sum()
         conditional = np.concatenate([np.zeros((h, 1)), np.cumsum(weight, axis=1)], axis=1)

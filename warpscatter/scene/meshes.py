@@ -8,6 +8,7 @@ from __future__ import annotations
 import hashlib
 import io
 import os
+import re
 import struct
 import threading
 from collections import OrderedDict
@@ -21,6 +22,10 @@ from ..errors import InputFileError
 SUPPORTED_EXTENSIONS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
 #: The largest mesh file :func:`load_mesh` reads (bytes): trimesh holds it and its arrays in memory.
 MAX_MESH_FILE_BYTES = 2 * 2**30
+#: The largest |coordinate| of a mesh vertex, in the file and once placed (scene units): the kernels take float32 cross
+#: products of edges (up to 2e8 long) and their squared lengths, 192 x (1e8)^4 ~ 2e34, which must stay below float32's
+#: 3.4e38 (at 1e10 they overflow and every normal is lost); 100 times the bound of the config's own lengths (MAX_COORD).
+MAX_MESH_COORD = 1.0e8
 #: Text formats: read as UTF-8, or Latin-1 where it is not UTF-8.
 _TEXT_FORMATS = (".obj", ".off", ".gltf")
 
@@ -40,8 +45,9 @@ def geometry_digest(vertices, triangles) -> str:
 
 @dataclass
 class TriangleMesh:
-    """An indexed triangle mesh in scene units (+Y up): ``vertices`` (N, 3) float32, ``triangles`` (T, 3) int32,
-    counter-clockwise about the normal (v1 - v0) x (v2 - v0). Raises ValueError on invalid input."""
+    """An indexed triangle mesh in scene units (+Y up): ``vertices`` (N, 3) float32 within +-:data:`MAX_MESH_COORD`,
+    ``triangles`` (T, 3) int32, counter-clockwise about the normal (v1 - v0) x (v2 - v0). Raises ValueError on invalid
+    input."""
 
     vertices: np.ndarray
     triangles: np.ndarray
@@ -62,6 +68,10 @@ class TriangleMesh:
         if not np.all(np.isfinite(v)):
             bad = int(np.argwhere(~np.isfinite(v).all(axis=1))[0, 0])
             raise ValueError(f"vertices must be finite (vertex {bad} is {v[bad].tolist()})")
+        far = _far_vertex(v)
+        if far is not None:
+            raise ValueError(f"vertices must lie within +-{MAX_MESH_COORD:g} (vertex {far} is {v[far].tolist()}; "
+                             "warpscatter.scene.meshes.MAX_MESH_COORD, float32 products of larger ones overflow)")
         lo, hi = int(t.min()), int(t.max())
         if lo < 0 or hi >= v.shape[0]:
             raise ValueError(f"triangles index vertices in [{lo}, {hi}] but there are {v.shape[0]} vertices")
@@ -125,6 +135,13 @@ class TriangleMesh:
         return TriangleMesh(vertices, triangles.astype(np.int32)), part
 
 
+def _far_vertex(vertices: np.ndarray) -> int | None:
+    """The first vertex with a coordinate beyond +-MAX_MESH_COORD, or None."""
+    if vertices.size == 0 or float(np.abs(vertices).max()) <= MAX_MESH_COORD:
+        return None
+    return int(np.argwhere((np.abs(vertices) > MAX_MESH_COORD).any(axis=1))[0, 0])
+
+
 def concatenate(meshes: Sequence[TriangleMesh]) -> tuple[TriangleMesh, np.ndarray]:
     """Module-level alias of :meth:`TriangleMesh.concatenate`."""
     return TriangleMesh.concatenate(meshes)
@@ -171,6 +188,9 @@ def load_mesh(path: str | os.PathLike) -> TriangleMesh:
     kind = ext[1:].upper()
     if ext in _TEXT_FORMATS and _looks_binary(data):
         raise fail(f"cannot be parsed as {kind} (binary data: {kind} files are text)")
+    incomplete = _incomplete(data, ext)
+    if incomplete:
+        raise fail(incomplete)
     try:
         scene = trimesh.load_scene(io.BytesIO(_readable_text(data, ext)), file_type=ext[1:],
                                    resolver=trimesh.resolvers.FilePathResolver(path), process=False)
@@ -201,6 +221,62 @@ def load_mesh(path: str | os.PathLike) -> TriangleMesh:
         return TriangleMesh.concatenate(meshes)[0]
     except ValueError as exc:
         raise fail(str(exc)) from exc
+
+
+_DATA_LINE = re.compile(rb"^[ \t]*[^\s#]", re.M)
+_SHORT_OBJ_FACE = re.compile(rb"^[ \t]*f(?:[ \t]+\S+){0,2}[ \t]*\r?$", re.M)
+
+
+def _count_data_lines(body: bytes) -> int:
+    """Lines holding something other than blanks and a ``#`` comment."""
+    return sum(1 for _ in _DATA_LINE.finditer(body))
+
+
+def _incomplete(data: bytes, ext: str) -> str:
+    """Why a mesh file is truncated or holds a face of fewer than 3 corners, which trimesh would read silently (a
+    PLY or OFF file with fewer lines of data than its header declares, an OBJ face ``f 1 2``); "" when it is not."""
+    if ext == ".obj":
+        m = _SHORT_OBJ_FACE.search(data)
+        if m:
+            line = data.count(b"\n", 0, m.start()) + 1
+            return (f"line {line}: a face with fewer than 3 vertices ({m.group().strip().decode('latin-1')!r}): a "
+                    "truncated file?")
+    elif ext == ".ply":
+        end = data.find(b"end_header")
+        if not data.startswith(b"ply") or end < 0:
+            return ""
+        header = data[:end].decode("latin-1").split("\n")
+        if not any(line.split()[:2] == ["format", "ascii"] for line in header):
+            return ""  # binary: trimesh checks the length
+        counts = {}
+        for line in header:
+            words = line.split()
+            if len(words) == 3 and words[0] == "element" and words[2].isdigit():
+                counts[words[1]] = int(words[2])
+        body = data[data.find(b"\n", end) + 1:] if data.find(b"\n", end) >= 0 else b""
+        have, need = _count_data_lines(body), sum(counts.values())
+        if have < need:
+            declared = " and ".join(f"{n:,} {name!r}" for name, n in counts.items())
+            return (f"truncated: its header declares {declared} elements ({need:,} lines of data) but {have:,} line(s) "
+                    "of data follow")
+    elif ext == ".off":
+        text = re.sub(rb"#[^\n]*", b"", data)
+        m = re.search(rb"(COFF|OFF)", text)
+        if m is None:
+            return ""
+        lines = [line for line in text[m.end():].split(b"\n") if line.strip()]
+        counts = lines[0].split() if lines else []
+        if len(counts) < 2 or not counts[0].isdigit() or not counts[1].isdigit():
+            return ""  # trimesh reports it
+        nv, nf = int(counts[0]), int(counts[1])
+        if len(lines) - 1 < nv + nf:
+            return (f"truncated: its header declares {nv:,} vertices and {nf:,} faces ({nv + nf:,} lines of data) but "
+                    f"{len(lines) - 1:,} line(s) of data follow")
+        for k, line in enumerate(lines[1 + nv:1 + nv + nf]):
+            words = line.split()
+            if not words[0].isdigit() or int(words[0]) < 3 or len(words) < int(words[0]) + 1:
+                return f"face {k} ({line.strip().decode('latin-1')!r}) has fewer than 3 vertices: a truncated file?"
+    return ""
 
 
 _CONTROL_BYTES = bytes(b for b in range(32) if b not in b"\t\n\r\f\v") + b"\x7f"
@@ -284,6 +360,7 @@ def apply_transform(mesh: TriangleMesh, matrix) -> TriangleMesh:
 
     Raises:
         ValueError: when ``matrix`` is not a finite affine 4x4 matrix or is singular.
+        InputFileError: when it places a vertex beyond +-:data:`MAX_MESH_COORD` (a ValueError too).
     """
     m = np.asarray(matrix, dtype=np.float64)
     if m.shape != (4, 4) or not np.all(np.isfinite(m)):
@@ -297,6 +374,11 @@ def apply_transform(mesh: TriangleMesh, matrix) -> TriangleMesh:
         # identity: v @ I + 0 is exactly v + 0 (-0.0 -> +0.0)
         return TriangleMesh(mesh.vertices + np.float32(0.0), mesh.triangles.copy())
     v = mesh.vertices.astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+    far = _far_vertex(v)
+    if far is not None:
+        raise InputFileError(f"the mesh placed by its transform (scale, rotate_deg, translate) has vertex {far} at "
+                             f"{v[far].tolist()}, beyond +-{MAX_MESH_COORD:g} scene units (warpscatter.scene.meshes."
+                             "MAX_MESH_COORD: float32 products of larger coordinates overflow); scale it down")
     tris = mesh.triangles if det > 0 else mesh.triangles[:, ::-1]
     return TriangleMesh(v, tris.copy())
 
