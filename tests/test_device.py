@@ -40,7 +40,7 @@ def _annotation_nodes(tree: ast.AST) -> set[int]:
 
 
 def device_problems(path: Path) -> list[str]:
-    """``file:line: wp.NAME ...`` for each allocation or launch in ``path`` without a ``device=``, or with a fixed one."""
+    """``file:line: wp.NAME ...`` for each allocation or launch in ``path`` naming no ``device=``, or a fixed one."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
     skip = _annotation_nodes(tree)
     out = []

@@ -130,7 +130,7 @@ def exact_transmittance(vis: Visibility, x: wp.vec3, omega_l: wp.vec3, dist: flo
     start = x
     left = wp.min(dist, 1.0e20)
     t = float(1.0)
-    for _layer in range(MAX_TRANSLUCENT_LAYERS):
+    for _layer in range(int(MAX_TRANSLUCENT_LAYERS)):  # int(): a loop, not 16 unrolled BVH queries
         q = wp.mesh_query_ray(vis.mesh, start, -omega_l, left)
         if not q.result:
             return t

@@ -170,6 +170,13 @@ def evaluate_prefiltered_kernel(variant: EvaluateVariant) -> wp.Kernel:
     return wp.kernel(evaluate_prefiltered, module="unique", module_options=dict(MODULE_OPTIONS))
 
 
+def every_evaluate_kernel() -> list[wp.Kernel]:
+    """The look-up kernel of every :class:`EvaluateVariant` (what the CUDA compile check builds)."""
+    return [evaluate_prefiltered_kernel(EvaluateVariant(texels, coloured, lit_end_test))
+            for texels in (FilteredBasisArrays, FilteredMomentArrays) for coloured in (False, True)
+            for lit_end_test in (False, True)]
+
+
 @wp.kernel(module=KERNELS)
 def pixel_coords_kernel(cam: CameraParams, distance: wp.array2d(dtype=wp.float32), rect: RectificationParams,
                         out: wp.array2d(dtype=wp.vec3), pixels: PixelSet, offset: int):

@@ -85,7 +85,7 @@ def map_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, c: wp.
     return f
 
 
-@wp.func
+@wp.func(inline=False)  # called once per channel: inlined, NVRTC took a minute
 def mipped_visibility(texels: Any, weights: RayWeights, bounds: DepthBounds, mips: RowMips, level: wp.vec2,
                       c: wp.vec3, beta: wp.vec4, light_direction: wp.vec3, view_direction: wp.vec3,
                       ray_end: int) -> float:

@@ -74,6 +74,12 @@ def evaluate_spot_kernel(texels_type, coloured: bool) -> wp.Kernel:
     return wp.kernel(evaluate_spot, module="unique", module_options=dict(MODULE_OPTIONS))
 
 
+def every_spot_kernel() -> list[wp.Kernel]:
+    """The spot look-up kernel of every texture type and medium (what the CUDA compile check builds)."""
+    return [evaluate_spot_kernel(texels, coloured) for texels in (FilteredBasisArrays, FilteredMomentArrays)
+            for coloured in (False, True)]
+
+
 def render_spot(frame, settings, stage: StageTimer) -> tuple[wp.array, dict]:
     """The spot-light branch of :func:`~.method.render` (same arguments, results and stages). Raises ValueError for
     ``rectification: projective``, ``splits`` > 1 or ``overestimation: adaptive``, which need a directional light."""

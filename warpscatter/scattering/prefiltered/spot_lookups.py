@@ -78,7 +78,7 @@ def ray_weight_table(rays: SpotRays, sigma_t: float, phase_id: int, g: float, th
     the last the whole integral), 2-point Gauss-Legendre per panel."""
     h = (psi_b - psi_a) / float(LOCAL_PANELS)
     table = local_table()
-    for p in range(LOCAL_PANELS):
+    for p in range(int(LOCAL_PANELS)):  # int(): a loop, not 16 unrolled copies (CUDA compile time)
         m = psi_a + (float(p) + 0.5) * h
         r = 0.5 * h
         table[p + 1] = table[p] + r * (ray_density(rays, sigma_t, phase_id, g, theta, m - GL2_X * r)
@@ -267,7 +267,7 @@ def ray_span(rays: SpotRays, theta: float, psi_end: float):
     return h, xe, scale
 
 
-@wp.func
+@wp.func(inline=False)  # inlined twice per kernel, it made NVRTC take minutes
 def spot_radiance(texels_r: Any, texels_g: Any, texels_b: Any, look: SpotLookUp, window: wp.vec3i,
                   light: LightParams, med: MediumParams, cl: wp.vec3, theta: float, psi_end: float) -> wp.vec3:
     """In-scattered radiance in a grey medium of the view ray of inclination theta whose look-up ends at rectified
@@ -288,7 +288,7 @@ def spot_radiance(texels_r: Any, texels_g: Any, texels_b: Any, look: SpotLookUp,
     return wp.cw_mul(light.radiance * (med.sigma_s * table[LOCAL_PANELS] * scale), e)
 
 
-@wp.func
+@wp.func(inline=False)  # inlined twice per kernel, it made NVRTC take minutes
 def spot_radiance_rgb(texels_r: Any, texels_g: Any, texels_b: Any, look: SpotLookUp, window: wp.vec3i,
                       light: LightParams, med: MediumParams, cl: wp.vec3, theta: float, psi_end: float) -> wp.vec3:
     """:func:`spot_radiance` in a coloured medium: each channel with its own extinction, weight table and cuts."""
