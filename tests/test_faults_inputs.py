@@ -14,10 +14,10 @@ import zlib
 from pathlib import Path
 
 import numpy as np
-import OpenImageIO as oiio
 import pytest
 import yaml
 from click.testing import CliRunner
+from data_files import raw_exr
 from peak_memory import PEAK_BYTES
 
 from warpscatter.cli.main import main
@@ -58,15 +58,6 @@ def _outputs(tmp_path: Path) -> list[str]:
     out = tmp_path / "out"
     return sorted(p.name for p in out.iterdir()) if out.exists() else []
 
-
-def _exr(path: Path, pixels) -> Path:
-    pixels = np.asarray(pixels, np.float32)
-    h, w, c = pixels.shape
-    out = oiio.ImageOutput.create(str(path))
-    assert out.open(str(path), oiio.ImageSpec(w, h, c, "float"))
-    assert out.write_image(pixels)
-    out.close()
-    return path
 
 
 def _chunk(tag: bytes, data: bytes) -> bytes:
@@ -123,7 +114,7 @@ def test_deeply_nested_override_is_a_config_error(tmp_path):
 def test_light_texture_too_bright_is_a_user_error(tmp_path, value):
     pixels = np.ones((4, 6, 3), np.float32)
     pixels[1, 2, 0] = value
-    texture = _exr(tmp_path / "cookie.exr", pixels)
+    texture = raw_exr(tmp_path / "cookie.exr", pixels)
     result = _render(tmp_path, light={**SPOT, "texture": "cookie.exr"})
     assert result.exit_code == 2, result.output  # before: 1 ("a bug: please report it") or rendered
     assert f"light.texture: {texture}: 1 value(s) above 1e+06" in result.stderr, result.stderr
@@ -134,7 +125,7 @@ def test_light_texture_too_bright_is_a_user_error(tmp_path, value):
 def test_environment_map_too_bright_is_a_user_error(tmp_path):
     pixels = np.ones((8, 16, 3), np.float32)
     pixels[2, 3, 1] = 3e38
-    sky = _exr(tmp_path / "sky.exr", pixels)
+    sky = raw_exr(tmp_path / "sky.exr", pixels)
     result = _render(tmp_path, **ENVIRONMENT)
     assert result.exit_code == 2, result.output  # before: rendered from an overflowing map
     assert f"light.map: {sky}: 1 value(s) above 1e+06" in result.stderr, result.stderr
@@ -222,7 +213,7 @@ def test_mesh_vertices_beyond_the_bound_are_a_user_error(tmp_path):
     (tmp_path / "far.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 1e30\nf 1 2 3\n")
     ground = BASE["scene"]["meshes"][0]
     result = _render(tmp_path, scene={"meshes": [ground, {"path": "far.obj"}]},
-                     light={"type": "environment", "map": str(_exr(tmp_path / "sky.exr", np.ones((4, 8, 3))))},
+                     light={"type": "environment", "map": str(raw_exr(tmp_path / "sky.exr", np.ones((4, 8, 3))))},
                      medium={"sigma_t": 0.0}, render=ENVIRONMENT["render"])
     assert result.exit_code == 2, result.output  # before: 1 ("cannot normalise ...", "normals ...")
     assert f"scene.meshes.1.path: mesh file {str(tmp_path / 'far.obj')!r}" in result.stderr, result.stderr

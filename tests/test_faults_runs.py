@@ -12,24 +12,12 @@ from pathlib import Path
 import pytest
 import yaml
 from click.testing import CliRunner
+from data_files import ANIMATED
 
 from warpscatter.cli.main import main
 from warpscatter.config import load_config
 from warpscatter.runs.animation import render_animation
 from warpscatter.runs.jobs import DaskExecutor, RenderTask, TaskResult, finished, run_tasks, task_for, task_timeout
-
-ANIMATED = {
-    "scene": {"meshes": [{"procedural": "ground_plane", "params": {"size": 30}, "receiver_only": True},
-                         {"procedural": "fence", "transform": {"translate": [0, 0, 3]}}]},
-    "camera": {"position": [0, 2, -8], "look_at": [0, 1, 3], "width": 24, "height": 14},
-    "light": {"type": "directional", "direction": [0.6, -0.4, 1.0]},
-    "medium": {"sigma_t": 0.1, "albedo": 0.9},
-    "render": {"scattering": {"method": "raymarch", "visibility": "shadow_map", "steps": 8,
-                              "shadow_map": {"resolution": 64}}},
-    "output": {"name": "{config}", "aovs": ["color", "depth"]},
-    "animation": {"frames": 3, "preview": "none",
-                  "tracks": {"light.direction": {1: [0.6, -0.4, 1.0], 3: [-0.6, -0.4, 1.0]}}},
-}
 
 
 @pytest.fixture

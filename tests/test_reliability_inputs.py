@@ -14,10 +14,10 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
-import OpenImageIO as oiio
 import pytest
 import yaml
 from click.testing import CliRunner
+from data_files import raw_exr
 
 from warpscatter.cli.main import main
 from warpscatter.config import MAX_YAML_NODES, load_config, parse_override
@@ -289,16 +289,6 @@ def test_mesh_files_beyond_the_size_limit_are_refused(tmp_path, monkeypatch):
 # ---- through the CLI: exit code 2, the key and the file named, nothing written --------------------------------------
 
 
-def _raw_exr(path: Path, pixels) -> Path:
-    """An EXR holding exactly ``pixels`` (NaN, inf, negative: warpscatter.io.images refuses to write those)."""
-    pixels = np.asarray(pixels, np.float32)
-    h, w, c = pixels.shape
-    out = oiio.ImageOutput.create(str(path))
-    assert out.open(str(path), oiio.ImageSpec(w, h, c, "float"))
-    assert out.write_image(pixels)
-    out.close()
-    return path
-
 
 def _render(tmp_path: Path, **changes):
     config = json.loads(json.dumps(BASE))
@@ -343,7 +333,7 @@ SPOT = {"type": "spot", "position": [0, 3, 0], "direction": [0, -1, 0], "cone_de
 def test_cli_light_texture_that_is_not_radiance_is_a_user_error(tmp_path, value, what):
     pixels = np.ones((4, 6, 3), np.float32)
     pixels[1, 2, 0] = value
-    texture = _raw_exr(tmp_path / "cookie.exr", pixels)
+    texture = raw_exr(tmp_path / "cookie.exr", pixels)
     result = _render(tmp_path, light={**SPOT, "texture": "cookie.exr"})
     assert result.exit_code == 2, result.output  # before: 0 (negative radiance) or 1 ("a bug")
     assert f"light.texture: {texture}: 1 {what}" in result.stderr and "row 1, column 2, channel 0" in result.stderr
@@ -362,7 +352,7 @@ def test_cli_unreadable_light_texture_is_a_user_error(tmp_path):
 def test_cli_environment_map_that_is_not_radiance_is_a_user_error(tmp_path, value, what):
     pixels = np.ones((8, 16, 3), np.float32)
     pixels[2, 3, 1] = value
-    sky = _raw_exr(tmp_path / "sky.exr", pixels)
+    sky = raw_exr(tmp_path / "sky.exr", pixels)
     result = _render(tmp_path, light={"type": "environment", "map": "sky.exr"}, medium={"sigma_t": 0.0},
                      render={"lighting": {"method": "raytrace", "samples": 1, "passes": 1}})
     assert result.exit_code == 2, result.output
@@ -374,5 +364,5 @@ def test_light_texture_grey_and_alpha_is_read_as_grey(tmp_path):
     from warpscatter.io.images import read_radiance_image
 
     pixels = np.stack([np.full((2, 3), 0.25, np.float32), np.full((2, 3), -7.0, np.float32)], axis=2)  # alpha < 0
-    tex = read_radiance_image(_raw_exr(tmp_path / "ga.exr", pixels), key="light.texture")
+    tex = read_radiance_image(raw_exr(tmp_path / "ga.exr", pixels), key="light.texture")
     assert tex.shape == (2, 3, 3) and np.all(tex == 0.25)
