@@ -136,6 +136,21 @@ def test_resume_renders_a_truncated_frame_again(animated, tmp_path):
     assert read_image(out / "sun.0001.exr").shape[:2] == (14, 24)
 
 
+def test_resume_settles_a_half_renamed_set_before_judging_it(animated, tmp_path, monkeypatch):
+    """A commit manifest a killed writer left is completed or rolled back (output_sets) before resume reads the
+    sidecars: run_tasks cleans every output folder first."""
+    from warpscatter.io import output_sets
+
+    config = load_config(animated)
+    render_animation(config, tmp_path, frames=[1])
+    cleaned = []
+    real = output_sets.remove_stale_temporaries
+    monkeypatch.setattr(output_sets, "remove_stale_temporaries", lambda folder: cleaned.append(folder) or real(folder))
+    again = render_animation(config, tmp_path, frames=[1])
+    assert [r.skipped for r in again.frames] == [True]
+    assert cleaned and Path(cleaned[0]) == tmp_path
+
+
 @pytest.mark.parametrize("damage", ["truncated png", "truncated aov", "exr tail cut", "empty", "wrong size", "missing",
                                     "bad list"])
 def test_finished_verifies_every_listed_file(animated, tmp_path, damage):

@@ -558,6 +558,11 @@ def run_tasks(tasks: list[RenderTask], executor: Executor, *, skip_finished: boo
     """Run tasks through an executor (skipping finished ones when ``skip_finished``); results in the tasks' order."""
     results: dict[str, TaskResult] = {}
     todo = []
+    if skip_finished:  # a set a killed run left half-renamed is completed or rolled back before it is judged
+        from ..io.output_sets import remove_stale_temporaries
+
+        for folder in sorted({Path(t.out_dir) for t in tasks if t.out_dir is not None and Path(t.out_dir).is_dir()}):
+            remove_stale_temporaries(folder)
     for task in tasks:
         if skip_finished and finished(task):
             results[task.label] = TaskResult(label=task.label, ok=True, skipped=True)
