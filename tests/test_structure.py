@@ -1,5 +1,6 @@
 """The shape of the code (issue #51), kept when the next feature lands: kernels take a few structs, files stay short,
-and no module imports from a layer above its own.
+no module imports from a layer above its own, comments and docstrings stay at most a fifth of the library, and the
+module paths from before the packages still import.
 
 The layers, lowest first (docs/guide/architecture.md draws them). A module belongs to the layer of the longest
 prefix below that names it; a module that matches none fails :func:`test_every_module_has_a_layer`, so a new module
@@ -9,6 +10,8 @@ is placed on purpose.
 from __future__ import annotations
 
 import ast
+import io
+import tokenize
 from pathlib import Path
 
 import pytest
@@ -40,6 +43,8 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
 ]
 MAX_KERNEL_PARAMETERS = 12
 MAX_FILE_LINES = 800
+#: Comment and docstring lines over the library's non-blank lines (issue #51: prose where code should speak).
+MAX_COMMENT_SHARE = 0.20
 
 
 def _modules() -> list[tuple[str, Path]]:
@@ -181,3 +186,27 @@ def test_packages_that_took_a_module_name_forward_its_attributes():
         assert warpscatter.scattering.epipolar.render is method.render  # the method's entry: no warning
     with pytest.raises(AttributeError):
         warpscatter.raster.no_such_name  # noqa: B018
+
+
+def comment_lines(source: str) -> tuple[int, int]:
+    """(comment and docstring lines, non-blank lines) of a module: a line counts as comment when it holds a comment
+    token (a code line with a trailing comment too) or lies in a string statement of a module, class or function body
+    (docstrings, attribute docstrings)."""
+    marked = {tok.start[0] for tok in tokenize.generate_tokens(io.StringIO(source).readline)
+              if tok.type == tokenize.COMMENT}
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            for stmt in node.body:
+                if isinstance(stmt, ast.Expr) and isinstance(stmt.value, ast.Constant) \
+                        and isinstance(stmt.value.value, str):
+                    marked.update(range(stmt.lineno, stmt.end_lineno + 1))
+    nonblank = [k for k, line in enumerate(source.splitlines(), 1) if line.strip()]
+    return sum(1 for k in nonblank if k in marked), len(nonblank)
+
+
+def test_comments_are_at_most_a_fifth_of_the_library():
+    """Comments state what, units, conventions and why; measurements live in docs/ (design/, benchmarks.md)."""
+    counts = [comment_lines(path.read_text(encoding="utf-8")) for _, path in _modules()
+              if path.is_relative_to(SOURCES["warpscatter"])]
+    comments, lines = sum(c for c, _ in counts), sum(n for _, n in counts)
+    assert comments / lines <= MAX_COMMENT_SHARE, f"{comments} of {lines} non-blank lines are comments or docstrings"
