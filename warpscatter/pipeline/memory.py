@@ -32,8 +32,9 @@ MEMORY_LIMIT_ENV = "WARPSCATTER_MEMORY_LIMIT"
 MIB = 1 << 20
 GIB = 1 << 30
 
-#: The process before the frame's buffers: Python, Warp, the compiled kernels, the scene (measured 255-275 MiB).
-BASE_BYTES = 320 * MIB
+#: The process before the frame's buffers: Python, Warp, the compiled kernels, the scene, the image writers (measured
+#: 255-275 MiB in CLI renders; a 320 x 180 render from the Python API, files written, peaked at 365-416 MiB).
+BASE_BYTES = 384 * MIB
 #: Bytes per rendered pixel (after supersampling) at the peak, by method (measured: fourier 175, moments6 129,
 #: epipolar 238, raymarch 164, csm 247 per pixel between 320 x 180 and 1280 x 720).
 PIXEL_BYTES = {"fourier": 200, "moments4": 200, "moments6": 200, "epipolar": 280, "raymarch": 200,
