@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import yaml
 from click.testing import CliRunner
+from data_files import ANIMATED as BASE_ANIMATED
 
 from warpscatter.cli.main import main
 from warpscatter.config import load_config
@@ -24,19 +25,11 @@ from warpscatter.runs.jobs import InlineExecutor, LocalExecutor, RenderTask, mak
 
 ROOT = Path(__file__).resolve().parent.parent
 
-ANIMATED = {
-    "scene": {"meshes": [{"procedural": "ground_plane", "params": {"size": 30}, "receiver_only": True},
-                         {"procedural": "fence", "transform": {"translate": [0, 0, 3]}}]},
-    "camera": {"position": [0, 2, -8], "look_at": [0, 1, 3], "width": 24, "height": 14},
-    "light": {"type": "directional", "direction": [0.6, -0.4, 1.0]},
-    "medium": {"sigma_t": 0.1, "albedo": 0.9},
-    "render": {"scattering": {"method": "raymarch", "visibility": "shadow_map", "steps": 8,
-                              "shadow_map": {"resolution": 64}}},
-    "output": {"name": "{config}", "aovs": ["color", "depth"]},
-    "animation": {"frames": 3, "preview": "gif",
-                  "tracks": {"light.direction": {1: [0.6, -0.4, 1.0], 3: [-0.6, -0.4, 1.0]},
-                             "camera.fov_y": {"keys": {1: 50, 3: 40}, "interpolation": "linear"}}},
-}
+#: the shared animated config with a GIF preview and a second, linearly interpolated track
+ANIMATED = {**BASE_ANIMATED, "animation": {
+    "frames": 3, "preview": "gif",
+    "tracks": {"light.direction": {1: [0.6, -0.4, 1.0], 3: [-0.6, -0.4, 1.0]},
+               "camera.fov_y": {"keys": {1: 50, 3: 40}, "interpolation": "linear"}}}}
 
 
 @pytest.fixture

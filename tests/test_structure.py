@@ -171,7 +171,8 @@ def test_old_module_paths_still_import(old):
 
 
 def test_packages_that_took_a_module_name_forward_its_attributes():
-    """``warpscatter.raster`` and ``warpscatter.scattering.epipolar`` were modules: their names still resolve."""
+    """``warpscatter.raster`` and ``warpscatter.scattering.epipolar`` were modules, and the CSM reader was in
+    ``csm.compress``: their names still resolve."""
     import warnings
 
     import warpscatter.raster
@@ -186,6 +187,10 @@ def test_packages_that_took_a_module_name_forward_its_attributes():
         assert warpscatter.scattering.epipolar.render is method.render  # the method's entry: no warning
     with pytest.raises(AttributeError):
         warpscatter.raster.no_such_name  # noqa: B018
+    from warpscatter.csm import compress, files  # the CSM file reader left compress.py for files.py
+
+    with pytest.warns(DeprecationWarning, match="warpscatter.csm.files.load_csm"):
+        assert compress.load_csm is files.load_csm
 
 
 def comment_lines(source: str) -> tuple[int, int]:
